@@ -1,0 +1,140 @@
+"""The application: wires the configured parts together and runs their lifecycle.
+
+    startup   buses open their ports (in the background, with backoff), the TCP server listens,
+              features (poller, MQTT bridge, metrics) start, then "ready" is reported
+    serve     until the stop event is set (SIGTERM / SIGINT)
+    shutdown  stop accepting; queued requests are answered 0x0B; the transaction on the wire
+              finishes; features stop (MQTT publishes offline); within 2 s in all
+
+It does nothing itself but wiring: each part gets its dependencies passed in.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import Callable
+from typing import Protocol
+
+from gateway.bus import Bus, BusSettings
+from gateway.bus.line import LineSettings
+from gateway.bus.timing import CharacterFormat
+from gateway.config import BusConfig, DriveConfig, GatewayConfig
+from gateway.profile import get_profile
+from gateway.router import Route, Router
+from gateway.tcp import ModbusTcpServer, TcpSettings
+
+log = logging.getLogger(__name__)
+
+SHUTDOWN_BUDGET_S = 1.5
+"""Time for the transaction on the wire and the answers in flight, inside the 2 s promise."""
+
+
+class Feature(Protocol):
+    """A part with a lifecycle; its constructor only stores its dependencies."""
+
+    async def start(self) -> None: ...
+
+    async def stop(self) -> None: ...
+
+
+def bus_settings(config: BusConfig) -> BusSettings:
+    char_format = CharacterFormat(config.baudrate, config.parity, config.stopbits, config.bytesize)
+    gap_s = char_format.t35_s if config.gap_ms is None else config.gap_ms / 1000
+    return BusSettings(
+        name=config.name,
+        line=LineSettings(
+            port=config.port,
+            char_format=char_format,
+            gap_s=gap_s,
+            char_timeout_s=config.char_timeout_ms / 1000,
+            drain_s=config.drain_ms / 1000,
+            turnaround_s=config.turnaround_ms / 1000,
+            echo=config.echo,
+        ),
+        timeout_s=config.timeout_ms / 1000,
+        retries=config.retries,
+        queue_size=config.queue_size,
+        offline_after=config.offline_after,
+        probe_max_s=config.probe_max_s,
+    )
+
+
+def drive_route(drive: DriveConfig, bus: Bus) -> Route:
+    profile = get_profile(drive.model)
+    split = profile.max_words is not None if drive.split is None else drive.split
+    return Route(
+        unit_id=drive.effective_unit_id,
+        drive=drive.name,
+        bus=bus,
+        address=drive.address,
+        timeout_s=None if drive.timeout_ms is None else drive.timeout_ms / 1000,
+        retries=drive.retries,
+        max_words=profile.max_words if split else None,
+        ram_address=profile.ram_write_address if drive.ram_writes else None,
+    )
+
+
+class Application:
+    def __init__(self, config: GatewayConfig) -> None:
+        self.config = config
+        self.buses = {b.name: Bus(bus_settings(b)) for b in config.buses}
+        self.router = Router(
+            (drive_route(d, self.buses[d.bus]) for d in config.drives), self.buses.values()
+        )
+        tcp = config.modbus_tcp
+        self.tcp = ModbusTcpServer(
+            TcpSettings(
+                host=tcp.host,
+                port=tcp.port,
+                max_connections=tcp.max_connections,
+                idle_timeout_s=tcp.idle_timeout_s,
+                max_requests_per_connection=tcp.max_requests_per_connection,
+                broadcast_reply=tcp.broadcast_reply,
+                allowed_networks=tcp.allowed_networks,
+                read_only=tcp.read_only,
+            ),
+            self._handle_tcp,
+        )
+        self.features: list[Feature] = []
+
+    async def _handle_tcp(self, unit_id: int, pdu: bytes, client: str) -> bytes | None:
+        return await self.router.execute(unit_id, pdu, client=client)
+
+    async def run(self, stop: asyncio.Event, on_ready: Callable[[], None] | None = None) -> None:
+        async with asyncio.TaskGroup() as tasks:
+            bus_tasks = [
+                tasks.create_task(bus.run(), name=f"bus:{name}") for name, bus in self.buses.items()
+            ]
+            try:
+                await self._startup()
+                if on_ready is not None:
+                    on_ready()
+                await stop.wait()
+            finally:
+                await self._shutdown()
+                for task in bus_tasks:
+                    task.cancel()
+
+    async def _startup(self) -> None:
+        # A port that isn't there yet must not keep SCADA from connecting: the bus keeps trying
+        # and answers 0x0B meanwhile. Give ports a moment so the first requests find them open.
+        await asyncio.gather(*(bus.wait_open(2.0) for bus in self.buses.values()))
+        for name, bus in self.buses.items():
+            if not bus.line.is_open:
+                log.warning("bus %s: port %s not open yet; retrying", name, bus.line.settings.port)
+        await self.tcp.start()
+        for feature in self.features:
+            await feature.start()
+
+    async def _shutdown(self) -> None:
+        log.info("shutting down")
+        self.tcp.stop_accepting()
+        for bus in self.buses.values():
+            bus.close()
+        await asyncio.gather(*(bus.wait_idle(SHUTDOWN_BUDGET_S) for bus in self.buses.values()))
+        for feature in reversed(self.features):
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(feature.stop(), 1.0)
+        await self.tcp.stop(grace_s=0.2)

@@ -1,0 +1,13 @@
+"""One RS-485 line: its queue, its policy and its serial port.
+
+- `timing`: character time, t3.5, wire time of a frame.
+- `line`: the serial port, used from one thread only (blocking I/O with exact timing).
+- `queue`: the bounded priority queue with per-client fairness and coalescing of identical reads.
+- `health`: which drives are offline, and when to probe them.
+- `bus`: the asyncio side that owns all of the above and applies the timeout/retry policy.
+"""
+
+from gateway.bus.bus import Bus, BusSettings, BusState, BusStats
+from gateway.bus.queue import Priority
+
+__all__ = ["Bus", "BusSettings", "BusState", "BusStats", "Priority"]

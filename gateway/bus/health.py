@@ -1,0 +1,92 @@
+"""Which drives on a line answer, and when to try an offline one again.
+
+A drive that stops answering costs a full response timeout (plus retries) for every request sent to
+it; on a shared line that stalls every healthy drive too. After `offline_after` consecutive failed
+transactions the drive is offline: its requests are answered 0x0B at once, without bus time, and a
+single-attempt probe with growing, capped backoff finds out when it is back. A drive that has just
+failed gets no retries until it answers again, so isolating it costs little bus time.
+"""
+
+from __future__ import annotations
+
+import random
+from dataclasses import dataclass
+
+
+@dataclass(slots=True)
+class DriveHealth:
+    consecutive_failures: int = 0
+    offline: bool = False
+    probe_delay_s: float = 0.0
+    next_probe_at: float = 0.0
+
+
+class HealthTracker:
+    def __init__(
+        self,
+        offline_after: int,
+        probe_initial_s: float,
+        probe_max_s: float,
+        rng: random.Random | None = None,
+    ) -> None:
+        self.offline_after = offline_after
+        self.probe_initial_s = probe_initial_s
+        self.probe_max_s = probe_max_s
+        self._drives: dict[int, DriveHealth] = {}
+        self._rng = rng or random.Random()
+
+    def _get(self, address: int) -> DriveHealth:
+        return self._drives.setdefault(address, DriveHealth())
+
+    def is_offline(self, address: int) -> bool:
+        health = self._drives.get(address)
+        return health is not None and health.offline
+
+    def is_suspect(self, address: int) -> bool:
+        """Failed its last transaction: don't spend retries on it."""
+        health = self._drives.get(address)
+        return health is not None and health.consecutive_failures > 0
+
+    def offline_addresses(self) -> list[int]:
+        return [address for address, health in self._drives.items() if health.offline]
+
+    def record_answer(self, address: int) -> bool:
+        """The drive answered (any valid frame, exceptions too). True if it was offline."""
+        health = self._get(address)
+        was_offline = health.offline
+        health.consecutive_failures = 0
+        health.offline = False
+        health.probe_delay_s = 0.0
+        return was_offline
+
+    def record_failure(self, address: int, now: float) -> bool:
+        """A transaction got no valid reply. True if this made the drive go offline."""
+        health = self._get(address)
+        health.consecutive_failures += 1
+        if health.offline:
+            self._schedule_probe(health, now)
+            return False
+        if health.consecutive_failures >= self.offline_after:
+            health.offline = True
+            health.probe_delay_s = 0.0
+            self._schedule_probe(health, now)
+            return True
+        return False
+
+    def due_probes(self, now: float) -> list[int]:
+        return [a for a, h in self._drives.items() if h.offline and h.next_probe_at <= now]
+
+    def postpone_probe(self, address: int, now: float) -> None:
+        """A probe is under way; don't start another before it has had its chance."""
+        health = self._get(address)
+        health.next_probe_at = now + max(health.probe_delay_s, self.probe_initial_s)
+
+    def next_probe_at(self) -> float | None:
+        times = [h.next_probe_at for h in self._drives.values() if h.offline]
+        return min(times) if times else None
+
+    def _schedule_probe(self, health: DriveHealth, now: float) -> None:
+        # Double the delay up to the cap, with jitter so several dead drives don't probe in step.
+        delay = health.probe_delay_s * 2 if health.probe_delay_s else self.probe_initial_s
+        health.probe_delay_s = min(delay, self.probe_max_s)
+        health.next_probe_at = now + health.probe_delay_s * self._rng.uniform(0.8, 1.0)

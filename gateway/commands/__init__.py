@@ -1,0 +1,1 @@
+"""One module per `invt-gateway` sub-command; each exposes `register(subparsers)`."""

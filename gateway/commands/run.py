@@ -1,0 +1,77 @@
+"""`invt-gateway run --config FILE`: the service."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import signal
+import sys
+from collections.abc import Callable
+
+from gateway.app import Application
+from gateway.cli import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
+from gateway.config import GatewayConfig, load_config
+from gateway.errors import ConfigError
+from gateway.logs import setup_logging
+
+log = logging.getLogger(__name__)
+
+DEFAULT_CONFIG = "/etc/invt-gateway/config.yaml"
+
+
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = subparsers.add_parser("run", help="run the gateway service")
+    parser.add_argument(
+        "--config", "-c", default=DEFAULT_CONFIG, help=f"YAML file (default {DEFAULT_CONFIG})"
+    )
+    parser.set_defaults(handler=handle)
+
+
+def handle(args: argparse.Namespace) -> int:
+    config = load_or_report(args.config)
+    if config is None:
+        return EXIT_CONFIG
+    setup_logging(config.logging.level, config.logging.format)
+    return asyncio.run(serve(config))
+
+
+def load_or_report(path: str) -> GatewayConfig | None:
+    try:
+        return load_config(path)
+    except ConfigError as exc:
+        print(f"invt-gateway: {exc}", file=sys.stderr)
+        return None
+
+
+async def serve(
+    config: GatewayConfig,
+    on_ready: Callable[[Application], None] | None = None,
+) -> int:
+    """Run the gateway until SIGTERM or SIGINT; the exit code."""
+    app = Application(config)
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(signum, stop.set)
+
+    def ready() -> None:
+        log.info(
+            "ready: %d drives on %d buses, Modbus-TCP on %s:%d",
+            len(config.drives),
+            len(config.buses),
+            config.modbus_tcp.host,
+            app.tcp.port,
+        )
+        if on_ready is not None:
+            on_ready(app)
+
+    try:
+        await app.run(stop, ready)
+    except OSError as exc:
+        log.error("cannot start: %s", exc)
+        return EXIT_FAILURE
+    finally:
+        for signum in (signal.SIGTERM, signal.SIGINT):
+            loop.remove_signal_handler(signum)
+    return EXIT_OK

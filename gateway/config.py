@@ -1,0 +1,277 @@
+"""The configuration: one YAML file, validated completely at load, including cross-field checks.
+
+The key names are a public interface (users' files depend on them): add, never rename. A file that
+doesn't validate raises ConfigError naming each key path and the reason; the service doesn't start.
+Secrets can come from the environment instead of the file (see `ENV_MQTT_PASSWORD`).
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import os
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from gateway.errors import ConfigError
+
+ENV_MQTT_PASSWORD = "INVT_GATEWAY_MQTT_PASSWORD"
+STANDARD_BAUDRATES = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200)
+
+
+class Section(BaseModel):
+    # An unknown key is almost always a typo that would silently do nothing: refuse it.
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class ModbusTcpConfig(Section):
+    host: str = "0.0.0.0"
+    port: int = Field(5020, ge=1, le=65535)
+    max_connections: int = Field(32, ge=1, le=10000)
+    idle_timeout_s: float = Field(300.0, gt=0)
+    max_requests_per_connection: int = Field(16, ge=1, le=1024)
+    """Outstanding (pipelined) requests one connection may have; more wait in its socket."""
+    broadcast_reply: bool = True
+    """Answer a broadcast (unit id 0) write with an echo, as if a drive had answered."""
+    allowed_networks: tuple[str, ...] = ()
+    """Client networks (CIDR) allowed to connect; empty allows every client."""
+    read_only: bool = False
+    """Refuse every write function code with exception 01H."""
+
+    @field_validator("allowed_networks")
+    @classmethod
+    def _networks(cls, value: tuple[str, ...]) -> tuple[str, ...]:
+        for network in value:
+            try:
+                ipaddress.ip_network(network, strict=False)
+            except ValueError as exc:
+                raise ValueError(f"{network!r} is not a network in CIDR form: {exc}") from exc
+        return value
+
+
+class BusConfig(Section):
+    name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
+    port: str = Field(min_length=1)
+    """A device path (prefer /dev/serial/by-id/...) or a pyserial URL (socket://host:port)."""
+    baudrate: int = 19200
+    parity: Literal["N", "E", "O"] = "E"
+    stopbits: Literal[1, 2] = 1
+    bytesize: Literal[7, 8] = 8
+    timeout_ms: float = Field(300.0, gt=0, le=60000)
+    """Response timeout per attempt: end of request to first byte of the reply."""
+    retries: int = Field(2, ge=0, le=10)
+    char_timeout_ms: float = Field(20.0, gt=0, le=5000)
+    """Silence inside a reply that ends it (USB adapters deliver bytes in bursts)."""
+    drain_ms: float = Field(50.0, ge=0, le=60000)
+    """After a timeout, how long to listen for a late reply before the next request."""
+    gap_ms: float | None = Field(None, gt=0, le=10000)
+    """Inter-frame silence; default t3.5 (3.5 characters, 1.75 ms above 19200 baud)."""
+    turnaround_ms: float = Field(100.0, ge=0, le=10000)
+    """Silence after a broadcast, while every drive acts on it."""
+    queue_size: int = Field(256, ge=1, le=100000)
+    offline_after: int = Field(3, ge=1, le=1000)
+    """Consecutive failed requests after which a drive is offline (answered 0x0B at once)."""
+    probe_max_s: float = Field(30.0, gt=0, le=3600)
+    """Longest wait between two probes of an offline drive."""
+    echo: bool = False
+    """The adapter echoes what it sends (no echo suppression): read it back and check it."""
+
+    @field_validator("baudrate")
+    @classmethod
+    def _baudrate(cls, value: int) -> int:
+        if value not in STANDARD_BAUDRATES:
+            raise ValueError(f"must be one of {', '.join(map(str, STANDARD_BAUDRATES))}")
+        return value
+
+
+class PollGroupConfig(Section):
+    name: str = Field(min_length=1)
+    start: int = Field(ge=0, le=0xFFFF)
+    count: int = Field(ge=1, le=125)
+    interval_ms: float = Field(gt=0)
+
+
+class DriveConfig(Section):
+    name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_-]+$")
+    """Also the drive's MQTT topic, so no spaces, slashes or wildcards."""
+    bus: str
+    address: int = Field(ge=1, le=247)
+    unit_id: int | None = Field(None, ge=1, le=255)
+    """The Modbus-TCP unit id SCADA uses; defaults to the address."""
+    model: str = "gd20"
+    timeout_ms: float | None = Field(None, gt=0, le=60000)
+    retries: int | None = Field(None, ge=0, le=10)
+    split: bool | None = None
+    """Split reads and writes over the model's word limit (16 on INVT); default per model."""
+    ram_writes: bool = False
+    """Send 06H/10H writes of P-parameters to the RAM-only address (no EEPROM wear)."""
+    cache_max_age_ms: float | None = Field(None, gt=0)
+    """Answer SCADA reads inside a polled range from the poll cache when no older than this."""
+    poll: tuple[PollGroupConfig, ...] | None = None
+    """Poll groups; default from the model's profile."""
+
+    @property
+    def effective_unit_id(self) -> int:
+        return self.address if self.unit_id is None else self.unit_id
+
+    @field_validator("model")
+    @classmethod
+    def _model(cls, value: str) -> str:
+        from gateway.profile import get_profile  # the profile package owns the model names
+
+        get_profile(value)
+        return value
+
+
+class MqttConfig(Section):
+    enabled: bool = True
+    host: str = "127.0.0.1"
+    port: int = Field(1883, ge=1, le=65535)
+    username: str | None = None
+    password: str | None = None
+    """Better from the environment variable INVT_GATEWAY_MQTT_PASSWORD than in the file."""
+    tls: bool = False
+    ca_file: str | None = None
+    cert_file: str | None = None
+    key_file: str | None = None
+    client_id: str | None = None
+    base_topic: str = Field("invt", min_length=1)
+    keepalive_s: int = Field(30, ge=5, le=3600)
+    homeassistant_discovery: bool = True
+    discovery_prefix: str = "homeassistant"
+    publish_interval_s: float = Field(60.0, gt=0)
+    """A drive's state is published on change and at least this often."""
+    command_max_age_s: float = Field(10.0, gt=0)
+    """A command whose `time` is older than this is refused (it sat in a queue somewhere)."""
+    commands_enabled: bool = True
+    """False: monitoring only, every command on MQTT is refused."""
+    queue_size: int = Field(1000, ge=1)
+
+    @field_validator("base_topic")
+    @classmethod
+    def _topic(cls, value: str) -> str:
+        if any(c in value for c in "#+") or value.startswith("/") or value.endswith("/"):
+            raise ValueError("no '#', '+', or leading/trailing '/' in a base topic")
+        return value
+
+
+class MetricsConfig(Section):
+    enabled: bool = False
+    host: str = "127.0.0.1"
+    port: int = Field(9102, ge=1, le=65535)
+
+
+class LoggingConfig(Section):
+    level: Literal["debug", "info", "warning", "error"] = "info"
+    format: Literal["text", "json"] = "text"
+
+
+class GatewayConfig(Section):
+    gateway_id: str = Field("invt-gateway", min_length=1, pattern=r"^[A-Za-z0-9_-]+$")
+    modbus_tcp: ModbusTcpConfig = ModbusTcpConfig()
+    buses: tuple[BusConfig, ...] = Field(min_length=1)
+    drives: tuple[DriveConfig, ...] = ()
+    mqtt: MqttConfig | None = None
+    metrics: MetricsConfig = MetricsConfig()
+    logging: LoggingConfig = LoggingConfig()
+
+    @model_validator(mode="after")
+    def _cross_checks(self) -> GatewayConfig:
+        problems: list[str] = []
+        _unique(problems, "buses", [(b.name, "name") for b in self.buses])
+        _unique(problems, "buses", [(b.port, "port") for b in self.buses])
+        _unique(problems, "drives", [(d.name, "name") for d in self.drives])
+        _unique(problems, "drives", [(d.effective_unit_id, "unit_id") for d in self.drives])
+        _unique(problems, "drives", [((d.bus, d.address), "address") for d in self.drives])
+        bus_names = {b.name for b in self.buses}
+        for index, drive in enumerate(self.drives):
+            if drive.bus not in bus_names:
+                known = ", ".join(sorted(bus_names))
+                problems.append(
+                    f"drives[{index}] ({drive.name}).bus: bus {drive.bus!r} is not defined "
+                    f"(buses: {known})"
+                )
+        if problems:
+            raise ValueError("\n".join(problems))
+        return self
+
+    def drive_by_unit_id(self) -> dict[int, DriveConfig]:
+        return {d.effective_unit_id: d for d in self.drives}
+
+
+def _unique(problems: list[str], section: str, values: list[tuple[object, str]]) -> None:
+    seen: dict[object, int] = {}
+    for index, (value, key) in enumerate(values):
+        if value in seen:
+            shown = value if not isinstance(value, tuple) else f"{value[1]} on bus {value[0]}"
+            problems.append(
+                f"{section}[{index}].{key}: duplicate {key} {shown} (also {section}[{seen[value]}])"
+            )
+        else:
+            seen[value] = index
+
+
+def load_config(path: str | Path) -> GatewayConfig:
+    """Read and validate a YAML file; raise ConfigError listing every problem."""
+    source = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError([("", f"cannot read the file: {exc.strerror or exc}")], source) from exc
+    return parse_config(text, source)
+
+
+def parse_config(text: str, source: str = "<config>") -> GatewayConfig:
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError([("", f"not valid YAML: {exc}")], source) from exc
+    if not isinstance(data, dict):
+        raise ConfigError([("", "the file must be a YAML mapping (key: value)")], source)
+    data = _apply_environment(data)
+    try:
+        return GatewayConfig.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(_problems(exc, data), source) from None
+
+
+def _apply_environment(data: dict[str, Any]) -> dict[str, Any]:
+    password = os.environ.get(ENV_MQTT_PASSWORD)
+    if password is not None and isinstance(data.get("mqtt"), dict):
+        data = {**data, "mqtt": {**data["mqtt"], "password": password}}
+    return data
+
+
+def _problems(exc: ValidationError, data: dict[str, Any]) -> list[tuple[str, str]]:
+    problems: list[tuple[str, str]] = []
+    for error in exc.errors():
+        path = _key_path(error["loc"], data)
+        if error["type"] == "extra_forbidden":
+            reason = "unknown key"
+        elif error["type"] == "missing":
+            reason = "required key is missing"
+        else:
+            reason = str(error["msg"]).removeprefix("Value error, ")
+        if path == "" and "\n" in reason:  # cross-field checks carry their own paths
+            problems.extend(("", line) for line in reason.splitlines())
+        else:
+            problems.append((path, reason))
+    return problems
+
+
+def _key_path(loc: tuple[int | str, ...], data: Any) -> str:
+    """('drives', 1, 'unit_id') -> 'drives[1] (fan3).unit_id': the index and the item's name."""
+    path = ""
+    node = data
+    for part in loc:
+        if isinstance(part, int):
+            path += f"[{part}]"
+            node = node[part] if isinstance(node, list) and part < len(node) else None
+            if isinstance(node, dict) and isinstance(node.get("name"), str):
+                path += f" ({node['name']})"
+        else:
+            path += f".{part}" if path else str(part)
+            node = node.get(part) if isinstance(node, dict) else None
+    return path

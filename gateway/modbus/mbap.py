@@ -1,0 +1,48 @@
+"""The Modbus-TCP application header (MBAP), pure bytes.
+
+bytes 0-1  transaction id   echoed in the reply
+bytes 2-3  protocol id      0 for Modbus
+bytes 4-5  length           bytes that follow: unit id + PDU, so 2..254 (PDU at most 253)
+byte  6    unit id          which drive, routed by the gateway
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+from gateway.errors import MalformedFrame
+
+HEADER_LENGTH = 7
+MIN_LENGTH = 2
+MAX_LENGTH = 254
+_HEADER = struct.Struct(">HHHB")
+
+
+@dataclass(frozen=True, slots=True)
+class MbapHeader:
+    transaction_id: int
+    protocol_id: int
+    length: int
+    unit_id: int
+
+    @property
+    def pdu_length(self) -> int:
+        return self.length - 1
+
+
+def parse_header(data: bytes) -> MbapHeader:
+    """Parse the 7 header bytes; raise MalformedFrame for anything a Modbus client can't mean."""
+    if len(data) != HEADER_LENGTH:
+        raise MalformedFrame(f"MBAP header needs {HEADER_LENGTH} bytes, got {len(data)}")
+    header = MbapHeader(*_HEADER.unpack(data))
+    if header.protocol_id != 0:
+        raise MalformedFrame(f"protocol id {header.protocol_id}, expected 0")
+    if not MIN_LENGTH <= header.length <= MAX_LENGTH:
+        raise MalformedFrame(f"length {header.length} outside {MIN_LENGTH}..{MAX_LENGTH}")
+    return header
+
+
+def build_adu(transaction_id: int, unit_id: int, pdu: bytes) -> bytes:
+    """MBAP header + PDU."""
+    return _HEADER.pack(transaction_id, 0, len(pdu) + 1, unit_id) + pdu

@@ -1,0 +1,43 @@
+"""RTU frames: address, PDU, CRC (low byte first). Pure functions, no I/O."""
+
+from __future__ import annotations
+
+from gateway.errors import BadReply
+from gateway.modbus.crc import crc16, crc_bytes
+from gateway.modbus.functions import EXCEPTION_BIT
+
+BROADCAST_ADDRESS = 0
+MAX_FRAME = 256
+
+
+def build_frame(address: int, pdu: bytes) -> bytes:
+    """address + PDU + CRC."""
+    body = bytes((address,)) + pdu
+    return body + crc_bytes(body)
+
+
+def check_reply(request: bytes, reply: bytes) -> bytes:
+    """Validate `reply` as the answer to the RTU `request`; return its PDU.
+
+    Raises BadReply with kind `crc`, `truncated`, `address` or `function`, in that order: a frame
+    whose CRC is wrong says nothing reliable about its address.
+    """
+    if len(reply) < 4:
+        raise BadReply("truncated", f"reply of {len(reply)} bytes is too short", reply)
+    if crc16(reply[:-2]) != int.from_bytes(reply[-2:], "little"):
+        raise BadReply("crc", f"bad CRC in reply {reply.hex(' ')}", reply)
+    if reply[0] != request[0]:
+        raise BadReply(
+            "address", f"reply from address {reply[0]} to a request for {request[0]}", reply
+        )
+    function = request[1]
+    if reply[1] not in (function, function | EXCEPTION_BIT):
+        raise BadReply(
+            "function", f"reply function {reply[1]:#04x} to a request {function:#04x}", reply
+        )
+    return reply[1:-2]
+
+
+def split_frame(frame: bytes) -> tuple[int, bytes]:
+    """(address, PDU) of a frame whose CRC is already known to be good."""
+    return frame[0], frame[1:-2]

@@ -1,0 +1,81 @@
+"""INVT fault codes, as read from 2102H, 5000H (GD350) and P07.27–P07.32.
+
+Codes 0–36 are shared by the Goodrive families; the GD350 family goes on to 69 and its manual
+gives short codes only for those, so they are shown as the short code alone. A code not in the
+table (a newer firmware, another family) is still shown, as its number.
+"""
+
+from __future__ import annotations
+
+from typing import Final
+
+FAULTS: Final[dict[int, tuple[str, str]]] = {
+    0: ("", "none"),
+    1: ("OUt1", "inverter unit phase U protection"),
+    2: ("OUt2", "inverter unit phase V protection"),
+    3: ("OUt3", "inverter unit phase W protection"),
+    4: ("OC1", "overcurrent while accelerating"),
+    5: ("OC2", "overcurrent while decelerating"),
+    6: ("OC3", "overcurrent at constant speed"),
+    7: ("OV1", "overvoltage while accelerating"),
+    8: ("OV2", "overvoltage while decelerating"),
+    9: ("OV3", "overvoltage at constant speed"),
+    10: ("UV", "bus undervoltage"),
+    11: ("OL1", "motor overload"),
+    12: ("OL2", "drive overload"),
+    13: ("SPI", "input phase loss"),
+    14: ("SPO", "output phase loss"),
+    15: ("OH1", "rectifier overheat"),
+    16: ("OH2", "inverter module overheat"),
+    17: ("EF", "external fault"),
+    18: ("CE", "RS-485 communication fault"),
+    19: ("ItE", "current detection fault"),
+    20: ("tE", "autotuning fault"),
+    21: ("EEP", "EEPROM fault"),
+    22: ("PIDE", "PID feedback lost"),
+    23: ("bCE", "braking unit fault"),
+    24: ("END", "running time reached"),
+    25: ("OL3", "electronic overload"),
+    26: ("PCE", "keypad communication fault"),
+    27: ("UPE", "parameter upload fault"),
+    28: ("DNE", "parameter download fault"),
+    29: ("E-DP", "PROFIBUS card fault"),
+    30: ("E-NET", "Ethernet card fault"),
+    31: ("E-CAN", "CANopen card fault"),
+    32: ("ETH1", "short circuit to ground 1"),
+    33: ("ETH2", "short circuit to ground 2"),
+    34: ("dEu", "speed deviation"),
+    35: ("STo", "maladjustment"),
+    36: ("LL", "electronic underload"),
+}
+
+# GD350 family, short codes only (the manual's table gives no more than these).
+_GD350_SHORT_CODES: Final = (
+    "ENC1o ENC1d ENC1Z STO STL1 STL2 STL3 CrCE P-E1 P-E2 P-E3 P-E4 P-E5 P-E6 P-E7 P-E8 P-E9 "
+    "P-E10 E-Err ENCU E-PN SECAN OT F1-Er F2-Er F3-Er C1-Er C2-Er C3-Er E-CAT E-BAC E-DEV S-Err"
+).split()
+FAULTS.update({37 + offset: (short, "") for offset, short in enumerate(_GD350_SHORT_CODES)})
+
+NO_FAULT: Final = 0
+COMMUNICATION_FAULT: Final = 18
+"""CE: raised when no request arrives within P14.04 (communication timeout)."""
+
+
+def fault_short_code(code: int) -> str:
+    """The keypad's short code ("STo"), or the number when the code is unknown."""
+    entry = FAULTS.get(code)
+    if entry is None or not entry[0]:
+        return "" if code == NO_FAULT else str(code)
+    return entry[0]
+
+
+def describe_fault(code: int) -> str:
+    """"STo: maladjustment"; "none" for 0; the short code alone when that is all the manual gives;
+    "unknown fault 99" for a code not in the table."""
+    entry = FAULTS.get(code)
+    if entry is None:
+        return f"unknown fault {code}"
+    short, description = entry
+    if not short:
+        return description
+    return f"{short}: {description}" if description else short

@@ -1,0 +1,119 @@
+"""The function parameters (Pxx.yy) the gateway and the simulator know: decimals, range, default.
+
+Ranges and factory defaults follow the Goodrive manuals; "depends on model" defaults (P00.11,
+P00.12, P08.07, P08.08) are given a typical 10.0 s. A range bound may be another parameter's
+value (P00.04, the upper limit, lies within P00.05 … P00.03): `minimum_from`/`maximum_from`.
+
+Marks as in the manual: `read_only` ("●", e.g. the fault history P07.27–P07.32) and
+`locked_while_running` ("◎": writable only when the drive is stopped).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Final
+
+from gateway.profile.addressing import format_parameter, parse_parameter
+
+
+@dataclass(frozen=True)
+class Parameter:
+    name: str
+    """Pxx.yy"""
+    description: str
+    decimals: int = 0
+    unit: str = ""
+    default: int = 0
+    """Raw value, i.e. already × 10^decimals."""
+    minimum: int = 0
+    maximum: int = 0xFFFF
+    minimum_from: str | None = None
+    maximum_from: str | None = None
+    read_only: bool = False
+    locked_while_running: bool = False
+
+    @property
+    def address(self) -> int:
+        return parse_parameter(self.name)
+
+
+_P = Parameter
+PARAMETERS: Final[tuple[Parameter, ...]] = (
+    _P("P00.00", "speed control mode", default=2, maximum=3, locked_while_running=True),
+    _P("P00.01", "run command channel: 0 keypad, 1 terminal, 2 communication", maximum=2),
+    _P("P00.02", "communication run command channel", maximum=3),
+    _P("P00.03", "max. output frequency", 2, "Hz", default=5000, maximum=63000,
+       minimum_from="P00.04", locked_while_running=True),
+    _P("P00.04", "upper limit of the running frequency", 2, "Hz", default=5000,
+       minimum_from="P00.05", maximum_from="P00.03", locked_while_running=True),
+    _P("P00.05", "lower limit of the running frequency", 2, "Hz",
+       maximum_from="P00.04", locked_while_running=True),
+    _P("P00.06", "frequency command A: 0 keypad, 8 Modbus", maximum=15),
+    _P("P00.07", "frequency command B", default=15, maximum=15),
+    _P("P00.10", "keypad set frequency", 2, "Hz", default=5000, maximum_from="P00.03"),
+    _P("P00.11", "acceleration time 1", 1, "s", default=100, maximum=36000),
+    _P("P00.12", "deceleration time 1", 1, "s", default=100, maximum=36000),
+    _P("P00.13", "running direction: 0 default, 1 reverse, 2 reverse forbidden", maximum=2),
+    _P("P01.20", "hibernation restore delay", 1, "s", maximum=36000),
+    _P("P07.27", "type of current fault", read_only=True),
+    _P("P07.28", "type of last fault", read_only=True),
+    _P("P07.29", "type of last but one fault", read_only=True),
+    _P("P07.30", "type of last but two fault", read_only=True),
+    _P("P07.31", "type of last but three fault", read_only=True),
+    _P("P07.32", "type of last but four fault", read_only=True),
+    _P("P08.06", "jog running frequency", 2, "Hz", default=500, maximum_from="P00.03"),
+    _P("P08.07", "jog acceleration time", 1, "s", default=100, maximum=36000),
+    _P("P08.08", "jog deceleration time", 1, "s", default=100, maximum=36000),
+    _P("P14.00", "local communication address", default=1, minimum=1, maximum=247),
+    _P("P14.01", "baud rate: 0–7 = 1200…115200", default=4, maximum=7),
+    _P("P14.02", "data format: 0–5 = N81, E81, O81, N82, E82, O82", default=1, maximum=5),
+    _P("P14.03", "communication response delay", 0, "ms", default=5, maximum=200),
+    _P("P14.04", "communication timeout fault time (0.0 = off)", 1, "s", maximum=600),
+)
+del _P
+
+FAULT_HISTORY: Final = ("P07.27", "P07.28", "P07.29", "P07.30", "P07.31", "P07.32")
+"""Newest first: the current fault, then the five before it."""
+
+BAUD_RATES: Final = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200)
+"""P14.01 index → baud."""
+DATA_FORMATS: Final = (("N", 1), ("E", 1), ("O", 1), ("N", 2), ("E", 2), ("O", 2))
+"""P14.02 index → (parity, stop bits), always 8 data bits."""
+
+_BY_NAME: Final = {parameter.name: parameter for parameter in PARAMETERS}
+_BY_ADDRESS: Final = {parameter.address: parameter for parameter in PARAMETERS}
+
+
+def parameter(name: str) -> Parameter:
+    """The known parameter called `name` ("P00.11", case-insensitive)."""
+    key = format_parameter(parse_parameter(name))
+    try:
+        return _BY_NAME[key]
+    except KeyError:
+        raise ValueError(
+            f"{key} is not in the profile's parameter table: its decimals are unknown, "
+            f"write a raw value instead"
+        ) from None
+
+
+def parameter_at(address: int) -> Parameter | None:
+    """The known parameter at a register address (without the RAM bit), or None."""
+    return _BY_ADDRESS.get(address)
+
+
+def parameter_decimals(name: str) -> int:
+    return parameter(name).decimals
+
+
+def scale_parameter(name: str, value: float) -> int:
+    """Raw register value of an engineering value: `scale_parameter("P00.11", 10.0) == 100`."""
+    raw = round(value * 10 ** parameter(name).decimals)
+    if not 0 <= raw <= 0xFFFF:
+        raise ValueError(f"{name} = {value} does not fit in one register")
+    return raw
+
+
+def unscale_parameter(name: str, raw: int) -> float | int:
+    """Engineering value of a raw register value: `unscale_parameter("P00.03", 5000) == 50.0`."""
+    decimals = parameter(name).decimals
+    return raw / 10**decimals if decimals else raw

@@ -1,0 +1,170 @@
+"""Routing: a Modbus unit id to a drive, its bus and its address on that bus.
+
+Besides the lookup, the router applies what a drive's profile says about its requests (handed in
+as data: the router knows no vendor): reads and writes over the drive's word limit are split into
+several transactions and reassembled; writes to parameters may go to their RAM-only address.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import struct
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+
+from gateway.bus import Bus, Priority
+from gateway.errors import GatewayPathUnavailable
+from gateway.modbus.functions import (
+    BROADCAST_WRITES,
+    READ_HOLDING_REGISTERS,
+    READ_INPUT_REGISTERS,
+    WRITE_MULTIPLE_REGISTERS,
+    WRITE_SINGLE_REGISTER,
+    WRITES,
+    is_exception,
+)
+from gateway.modbus.rtu import BROADCAST_ADDRESS
+
+MAX_READ_WORDS = 125  # the Modbus limit; beyond it the request is the drive's to refuse
+MAX_WRITE_WORDS = 123
+
+
+@dataclass(frozen=True, slots=True)
+class Route:
+    unit_id: int
+    drive: str
+    bus: Bus
+    address: int
+    timeout_s: float | None = None
+    retries: int | None = None
+    max_words: int | None = None
+    """Split 03H/04H/10H requests into transactions of at most this many words."""
+    ram_address: Callable[[int], int] | None = None
+    """Maps a written register to its RAM-only twin (or itself) for 06H/10H writes."""
+
+
+class Router:
+    def __init__(self, routes: Iterable[Route], buses: Iterable[Bus]) -> None:
+        self._routes = {route.unit_id: route for route in routes}
+        self._by_drive = {route.drive: route for route in self._routes.values()}
+        self.buses = tuple(buses)
+
+    @property
+    def routes(self) -> list[Route]:
+        return sorted(self._routes.values(), key=lambda r: r.unit_id)
+
+    def route(self, unit_id: int) -> Route:
+        route = self._routes.get(unit_id)
+        if route is None:
+            raise GatewayPathUnavailable(f"no drive has unit id {unit_id}")
+        return route
+
+    def route_for_drive(self, name: str) -> Route:
+        route = self._by_drive.get(name)
+        if route is None:
+            raise GatewayPathUnavailable(f"no drive named {name!r}")
+        return route
+
+    async def execute(
+        self,
+        unit_id: int,
+        pdu: bytes,
+        *,
+        client: str,
+        priority: Priority | None = None,
+    ) -> bytes | None:
+        """Carry `pdu` to the drive with `unit_id`; its reply PDU, or None for a broadcast."""
+        function = pdu[0]
+        if priority is None:
+            priority = Priority.WRITE if function in WRITES else Priority.READ
+        if unit_id == BROADCAST_ADDRESS:
+            await self._broadcast(pdu, client)
+            return None
+        route = self.route(unit_id)
+        sent = pdu if route.ram_address is None else _to_ram(pdu, route.ram_address)
+        split = None if route.max_words is None else _split(sent, route.max_words)
+        if split is not None:
+            reply = await self._execute_split(route, sent, split, client, priority)
+        else:
+            reply = await self._send(route, sent, client, priority)
+        if sent is not pdu and not is_exception(reply):
+            # The drive echoes the RAM address; the client asked for, and expects, its own.
+            reply = reply[:1] + pdu[1:3] + reply[3:]
+        return reply
+
+    async def _send(self, route: Route, pdu: bytes, client: str, priority: Priority) -> bytes:
+        reply = await route.bus.request(
+            route.address,
+            pdu,
+            priority=priority,
+            client=client,
+            timeout_s=route.timeout_s,
+            retries=route.retries,
+        )
+        assert reply is not None  # only broadcasts have no reply
+        return reply
+
+    async def _broadcast(self, pdu: bytes, client: str) -> None:
+        if pdu[0] not in BROADCAST_WRITES:
+            raise GatewayPathUnavailable(
+                f"unit id 0 is broadcast: only write function codes, not {pdu[0]:#04x}"
+            )
+        # Every line gets it: a broadcast means every drive the gateway reaches.
+        await asyncio.gather(
+            *(
+                bus.request(BROADCAST_ADDRESS, pdu, priority=Priority.WRITE, client=client)
+                for bus in self.buses
+            )
+        )
+
+    async def _execute_split(
+        self, route: Route, pdu: bytes, parts: list[bytes], client: str, priority: Priority
+    ) -> bytes:
+        """Send the parts in order; the first exception fails the whole with the drive's code."""
+        replies: list[bytes] = []
+        for part in parts:
+            reply = await self._send(route, part, client, priority)
+            if is_exception(reply):
+                return reply
+            replies.append(reply)
+        if pdu[0] == WRITE_MULTIPLE_REGISTERS:
+            return pdu[:5]  # function, start, count: what one write would have echoed
+        data = b"".join(reply[2:] for reply in replies)
+        return bytes((pdu[0], len(data))) + data
+
+
+def _split(pdu: bytes, max_words: int) -> list[bytes] | None:
+    """The parts of a read or write longer than `max_words`, or None if it needs no split."""
+    function = pdu[0]
+    if function in (READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS) and len(pdu) == 5:
+        start, count = struct.unpack(">HH", pdu[1:5])
+        if not max_words < count <= MAX_READ_WORDS or start + count > 0x10000:
+            return None
+        return [
+            struct.pack(">BHH", function, start + offset, min(max_words, count - offset))
+            for offset in range(0, count, max_words)
+        ]
+    if function == WRITE_MULTIPLE_REGISTERS and len(pdu) >= 6:
+        start, count, byte_count = struct.unpack(">HHB", pdu[1:6])
+        values = pdu[6:]
+        if not max_words < count <= MAX_WRITE_WORDS or byte_count != 2 * count:
+            return None
+        if len(values) != byte_count or start + count > 0x10000:
+            return None
+        parts = []
+        for offset in range(0, count, max_words):
+            words = min(max_words, count - offset)
+            chunk = values[2 * offset : 2 * (offset + words)]
+            parts.append(struct.pack(">BHHB", function, start + offset, words, 2 * words) + chunk)
+        return parts
+    return None
+
+
+def _to_ram(pdu: bytes, ram_address: Callable[[int], int]) -> bytes:
+    """Rewrite the register address of a 06H/10H write to its RAM-only twin."""
+    if pdu[0] in (WRITE_SINGLE_REGISTER, WRITE_MULTIPLE_REGISTERS) and len(pdu) >= 5:
+        (register,) = struct.unpack(">H", pdu[1:3])
+        ram = ram_address(register)
+        if ram != register:
+            return pdu[:1] + struct.pack(">H", ram) + pdu[3:]
+    return pdu

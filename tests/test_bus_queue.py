@@ -1,0 +1,84 @@
+"""The bus queue's order of service, bound and coalescing (pure logic, no port)."""
+
+from __future__ import annotations
+
+import asyncio
+
+import pytest
+
+from gateway.bus.queue import Priority, RequestQueue, Transaction
+from gateway.errors import GatewayPathUnavailable, QueueFull
+
+READ = bytes.fromhex("03 21 00 00 03")
+
+
+def txn(client: str, priority: Priority = Priority.READ, pdu: bytes = READ, address: int = 1,
+        coalescable: bool = False) -> Transaction:
+    waiter: asyncio.Future[bytes | None] = asyncio.get_running_loop().create_future()
+    return Transaction(address, pdu, priority, client, 0.3, 2, coalescable, [waiter])
+
+
+def order(queue: RequestQueue) -> list[str]:
+    taken = []
+    while (t := queue.get_nowait()) is not None:
+        taken.append(t.client)
+    return taken
+
+
+async def test_writes_before_reads_before_polls() -> None:
+    queue = RequestQueue(10)
+    queue.put(txn("poll", Priority.POLL))
+    queue.put(txn("read", Priority.READ))
+    queue.put(txn("write", Priority.WRITE))
+    assert order(queue) == ["write", "read", "poll"]
+
+
+async def test_round_robin_between_clients_of_one_priority() -> None:
+    queue = RequestQueue(20)
+    for _ in range(4):
+        queue.put(txn("busy"))
+    queue.put(txn("quiet"))
+    # The quiet client waits behind one request of the busy one, not four.
+    assert order(queue) == ["busy", "quiet", "busy", "busy", "busy"]
+
+
+async def test_identical_reads_share_one_transaction() -> None:
+    queue = RequestQueue(10)
+    first = txn("a", coalescable=True)
+    second = txn("b", coalescable=True)
+    assert queue.put(first) is first
+    assert queue.put(second) is first
+    assert len(queue) == 1
+    assert len(first.waiters) == 2
+    taken = queue.get_nowait()
+    assert taken is first
+    # Once on the wire it no longer collects: a later read gets a fresh transaction.
+    third = txn("c", coalescable=True)
+    assert queue.put(third) is third
+
+
+async def test_different_registers_are_not_coalesced() -> None:
+    queue = RequestQueue(10)
+    queue.put(txn("a", coalescable=True))
+    other = txn("b", pdu=bytes.fromhex("03 30 00 00 0C"), coalescable=True)
+    assert queue.put(other) is other
+    assert len(queue) == 2
+
+
+async def test_full_queue_refuses_with_gateway_path_unavailable() -> None:
+    queue = RequestQueue(2)
+    queue.put(txn("a"))
+    queue.put(txn("a"))
+    with pytest.raises(QueueFull) as caught:
+        queue.put(txn("b"))
+    assert isinstance(caught.value, GatewayPathUnavailable)
+    assert caught.value.code == 0x0A
+
+
+async def test_get_waits_for_work() -> None:
+    queue = RequestQueue(2)
+    getter = asyncio.create_task(queue.get())
+    await asyncio.sleep(0.01)
+    assert not getter.done()
+    queue.put(txn("late"))
+    assert (await asyncio.wait_for(getter, 1)).client == "late"
