@@ -20,8 +20,10 @@ from typing import Protocol
 from gateway.bus import Bus, BusSettings
 from gateway.bus.line import LineSettings
 from gateway.bus.timing import CharacterFormat
+from gateway.cache import RegisterCache
 from gateway.config import BusConfig, DriveConfig, GatewayConfig
 from gateway.profile import get_profile
+from gateway.profile.ram_writes import ram_write_address
 from gateway.router import Route, Router
 from gateway.tcp import ModbusTcpServer, TcpSettings
 
@@ -63,7 +65,7 @@ def bus_settings(config: BusConfig) -> BusSettings:
 
 def drive_route(drive: DriveConfig, bus: Bus) -> Route:
     profile = get_profile(drive.model)
-    split = profile.max_words is not None if drive.split is None else drive.split
+    split = profile.is_invt if drive.split is None else drive.split
     return Route(
         unit_id=drive.effective_unit_id,
         drive=drive.name,
@@ -72,7 +74,9 @@ def drive_route(drive: DriveConfig, bus: Bus) -> Route:
         timeout_s=None if drive.timeout_ms is None else drive.timeout_ms / 1000,
         retries=drive.retries,
         max_words=profile.max_words if split else None,
-        ram_address=profile.ram_write_address if drive.ram_writes else None,
+        ram_address=ram_write_address
+        if drive.ram_writes and profile.ram_writes_supported
+        else None,
     )
 
 
@@ -80,8 +84,11 @@ class Application:
     def __init__(self, config: GatewayConfig) -> None:
         self.config = config
         self.buses = {b.name: Bus(bus_settings(b)) for b in config.buses}
+        self.cache = RegisterCache()
         self.router = Router(
-            (drive_route(d, self.buses[d.bus]) for d in config.drives), self.buses.values()
+            (drive_route(d, self.buses[d.bus]) for d in config.drives),
+            self.buses.values(),
+            self.cache,
         )
         tcp = config.modbus_tcp
         self.tcp = ModbusTcpServer(

@@ -28,7 +28,8 @@ class Section(BaseModel):
 
 class ModbusTcpConfig(Section):
     host: str = "0.0.0.0"
-    port: int = Field(5020, ge=1, le=65535)
+    port: int = Field(5020, ge=0, le=65535)
+    """502 is Modbus's port (needs root or CAP_NET_BIND_SERVICE); 0 picks a free one."""
     max_connections: int = Field(32, ge=1, le=10000)
     idle_timeout_s: float = Field(300.0, gt=0)
     max_requests_per_connection: int = Field(16, ge=1, le=1024)
@@ -171,7 +172,7 @@ class LoggingConfig(Section):
 class GatewayConfig(Section):
     gateway_id: str = Field("invt-gateway", min_length=1, pattern=r"^[A-Za-z0-9_-]+$")
     modbus_tcp: ModbusTcpConfig = ModbusTcpConfig()
-    buses: tuple[BusConfig, ...] = Field(min_length=1)
+    buses: tuple[BusConfig, ...]
     drives: tuple[DriveConfig, ...] = ()
     mqtt: MqttConfig | None = None
     metrics: MetricsConfig = MetricsConfig()
@@ -180,11 +181,14 @@ class GatewayConfig(Section):
     @model_validator(mode="after")
     def _cross_checks(self) -> GatewayConfig:
         problems: list[str] = []
-        _unique(problems, "buses", [(b.name, "name") for b in self.buses])
-        _unique(problems, "buses", [(b.port, "port") for b in self.buses])
-        _unique(problems, "drives", [(d.name, "name") for d in self.drives])
-        _unique(problems, "drives", [(d.effective_unit_id, "unit_id") for d in self.drives])
-        _unique(problems, "drives", [((d.bus, d.address), "address") for d in self.drives])
+        if not self.buses:
+            problems.append("buses: at least one bus is required")
+        buses, drives = list(self.buses), list(self.drives)
+        _unique(problems, "buses", "name", [(b.name, b.name) for b in buses])
+        _unique(problems, "buses", "port", [(b.name, b.port) for b in buses])
+        _unique(problems, "drives", "name", [(d.name, d.name) for d in drives])
+        _unique(problems, "drives", "unit_id", [(d.name, d.effective_unit_id) for d in drives])
+        _unique(problems, "drives", "address", [(d.name, (d.bus, d.address)) for d in drives])
         bus_names = {b.name for b in self.buses}
         for index, drive in enumerate(self.drives):
             if drive.bus not in bus_names:
@@ -201,16 +205,21 @@ class GatewayConfig(Section):
         return {d.effective_unit_id: d for d in self.drives}
 
 
-def _unique(problems: list[str], section: str, values: list[tuple[object, str]]) -> None:
-    seen: dict[object, int] = {}
-    for index, (value, key) in enumerate(values):
+def _unique(
+    problems: list[str], section: str, key: str, items: list[tuple[str, object]]
+) -> None:
+    """Report every item whose value of `key` an earlier item already has."""
+    seen: dict[object, tuple[int, str]] = {}
+    for index, (name, value) in enumerate(items):
         if value in seen:
             shown = value if not isinstance(value, tuple) else f"{value[1]} on bus {value[0]}"
+            first, first_name = seen[value]
             problems.append(
-                f"{section}[{index}].{key}: duplicate {key} {shown} (also {section}[{seen[value]}])"
+                f"{section}[{index}] ({name}).{key}: duplicate {key} {shown} "
+                f"(also {section}[{first}] ({first_name}))"
             )
         else:
-            seen[value] = index
+            seen[value] = (index, name)
 
 
 def load_config(path: str | Path) -> GatewayConfig:

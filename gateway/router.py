@@ -13,6 +13,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 from gateway.bus import Bus, Priority
+from gateway.cache import RegisterCache
 from gateway.errors import GatewayPathUnavailable
 from gateway.modbus.functions import (
     BROADCAST_WRITES,
@@ -41,10 +42,15 @@ class Route:
     """Split 03H/04H/10H requests into transactions of at most this many words."""
     ram_address: Callable[[int], int] | None = None
     """Maps a written register to its RAM-only twin (or itself) for 06H/10H writes."""
+    cache_max_age_s: float | None = None
+    """Answer 03H reads from the poll cache when every value is at most this old."""
 
 
 class Router:
-    def __init__(self, routes: Iterable[Route], buses: Iterable[Bus]) -> None:
+    def __init__(
+        self, routes: Iterable[Route], buses: Iterable[Bus], cache: RegisterCache | None = None
+    ) -> None:
+        self.cache = cache or RegisterCache()
         self._routes = {route.unit_id: route for route in routes}
         self._by_drive = {route.drive: route for route in self._routes.values()}
         self.buses = tuple(buses)
@@ -81,6 +87,12 @@ class Router:
             await self._broadcast(pdu, client)
             return None
         route = self.route(unit_id)
+        if route.cache_max_age_s is not None:
+            cached = self._from_cache(route, pdu)
+            if cached is not None:
+                return cached
+        if function in WRITES:
+            self._invalidate(route, pdu)
         sent = pdu if route.ram_address is None else _to_ram(pdu, route.ram_address)
         split = None if route.max_words is None else _split(sent, route.max_words)
         if split is not None:
@@ -91,6 +103,24 @@ class Router:
             # The drive echoes the RAM address; the client asked for, and expects, its own.
             reply = reply[:1] + pdu[1:3] + reply[3:]
         return reply
+
+    def _from_cache(self, route: Route, pdu: bytes) -> bytes | None:
+        if pdu[0] != READ_HOLDING_REGISTERS or len(pdu) != 5:
+            return None
+        start, count = struct.unpack(">HH", pdu[1:5])
+        assert route.cache_max_age_s is not None
+        values = self.cache.lookup(route.drive, start, count, route.cache_max_age_s)
+        if values is None:
+            return None
+        return struct.pack(f">BB{count}H", pdu[0], 2 * count, *values)
+
+    def _invalidate(self, route: Route, pdu: bytes) -> None:
+        """A write makes cached values of its registers stale: forget them before it's sent."""
+        if pdu[0] == WRITE_SINGLE_REGISTER and len(pdu) >= 3:
+            self.cache.invalidate(route.drive, int.from_bytes(pdu[1:3], "big"), 1)
+        elif pdu[0] == WRITE_MULTIPLE_REGISTERS and len(pdu) >= 5:
+            start, count = struct.unpack(">HH", pdu[1:5])
+            self.cache.invalidate(route.drive, start, count)
 
     async def _send(self, route: Route, pdu: bytes, client: str, priority: Priority) -> bytes:
         reply = await route.bus.request(

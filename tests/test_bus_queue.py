@@ -12,8 +12,13 @@ from gateway.errors import GatewayPathUnavailable, QueueFull
 READ = bytes.fromhex("03 21 00 00 03")
 
 
-def txn(client: str, priority: Priority = Priority.READ, pdu: bytes = READ, address: int = 1,
-        coalescable: bool = False) -> Transaction:
+def txn(
+    client: str,
+    priority: Priority = Priority.READ,
+    pdu: bytes = READ,
+    address: int = 1,
+    coalescable: bool = False,
+) -> Transaction:
     waiter: asyncio.Future[bytes | None] = asyncio.get_running_loop().create_future()
     return Transaction(address, pdu, priority, client, 0.3, 2, coalescable, [waiter])
 

@@ -19,7 +19,6 @@ from gateway.commands.run import serve
 from gateway.config import GatewayConfig, parse_config
 from gateway.errors import ConfigError
 from gateway.logs import setup_logging
-from gateway.simulator import SimulatedLine
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -57,6 +56,8 @@ def handle(args: argparse.Namespace) -> int:
 
 def simulate_buses(config: GatewayConfig, stack: contextlib.ExitStack) -> GatewayConfig:
     """Start a simulated line for each bus and return the config pointing at them."""
+    from gateway.simulator import SimulatedLine  # only the demo needs the simulator loaded
+
     buses = []
     for bus in config.buses:
         drives = [d for d in config.drives if d.bus == bus.name]

@@ -1,0 +1,157 @@
+"""Test helpers that talk to real things: TCP sockets, pty serial lines, subprocesses."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import os
+import select
+import socket
+import struct
+import threading
+import tty
+from collections.abc import AsyncIterator, Iterator
+from dataclasses import dataclass
+from typing import Any
+
+from gateway.app import Application
+from gateway.config import GatewayConfig
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def gateway_config(port: str, drives: list[dict[str, Any]], **bus: Any) -> GatewayConfig:
+    """A configuration with one bus on `port` and Modbus-TCP on a free loopback port."""
+    bus_config = {
+        "name": "line1",
+        "port": port,
+        "baudrate": 115200,
+        "parity": "E",
+        "timeout_ms": 200,
+        "retries": 1,
+        **bus,
+    }
+    return GatewayConfig.model_validate(
+        {
+            "modbus_tcp": {"host": "127.0.0.1", "port": 0},
+            "buses": [bus_config],
+            "drives": [{"bus": "line1", **d} for d in drives],
+        }
+    )
+
+
+@contextlib.asynccontextmanager
+async def running_gateway(config: GatewayConfig) -> AsyncIterator[Application]:
+    """The whole application in this event loop, listening on a real TCP port."""
+    app = Application(config)
+    stop = asyncio.Event()
+    ready = asyncio.Event()
+    task = asyncio.create_task(app.run(stop, ready.set))
+    ready_wait = asyncio.create_task(ready.wait())
+    await asyncio.wait({task, ready_wait}, return_when=asyncio.FIRST_COMPLETED, timeout=10)
+    if task.done():
+        ready_wait.cancel()
+        task.result()  # raises the start-up error
+    try:
+        yield app
+    finally:
+        stop.set()
+        await asyncio.wait_for(task, 5)
+
+
+@dataclass
+class Reply:
+    transaction_id: int
+    unit_id: int
+    pdu: bytes
+
+
+class TcpClient:
+    """A minimal Modbus-TCP client over a real socket, for byte-exact checks and pipelining."""
+
+    def __init__(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        self.reader = reader
+        self.writer = writer
+        self._next_tid = 1
+
+    @classmethod
+    async def connect(cls, port: int, host: str = "127.0.0.1") -> TcpClient:
+        reader, writer = await asyncio.open_connection(host, port)
+        return cls(reader, writer)
+
+    def send(self, unit_id: int, pdu: bytes, transaction_id: int | None = None) -> int:
+        tid = self._next_tid if transaction_id is None else transaction_id
+        self._next_tid = (tid + 1) & 0xFFFF
+        self.writer.write(struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit_id) + pdu)
+        return tid
+
+    async def receive(self, within_s: float = 5.0) -> Reply:
+        header = await asyncio.wait_for(self.reader.readexactly(7), within_s)
+        tid, protocol, length, unit = struct.unpack(">HHHB", header)
+        assert protocol == 0
+        pdu = await asyncio.wait_for(self.reader.readexactly(length - 1), within_s)
+        return Reply(tid, unit, pdu)
+
+    async def request(self, unit_id: int, pdu: bytes, within_s: float = 5.0) -> bytes:
+        tid = self.send(unit_id, pdu)
+        reply = await self.receive(within_s)
+        assert reply.transaction_id == tid
+        assert reply.unit_id == unit_id
+        return reply.pdu
+
+    async def read(self, unit_id: int, register: int, count: int = 1) -> list[int]:
+        pdu = await self.request(unit_id, struct.pack(">BHH", 3, register, count))
+        assert pdu[0] == 3, f"exception {pdu.hex(' ')}"
+        return list(struct.unpack(f">{count}H", pdu[2:]))
+
+    async def close(self) -> None:
+        self.writer.close()
+        with contextlib.suppress(Exception):
+            await self.writer.wait_closed()
+
+
+def read_pdu(register: int, count: int = 1) -> bytes:
+    return struct.pack(">BHH", 3, register, count)
+
+
+def write_pdu(register: int, value: int) -> bytes:
+    return struct.pack(">BHH", 6, register, value)
+
+
+@contextlib.contextmanager
+def pty_cable() -> Iterator[tuple[str, str]]:
+    """A virtual null-modem cable: two pty device paths, whatever is written to one comes out of
+    the other. Lets two programs that each want a serial device path (the gateway and pymodbus's
+    RTU server) talk over a real serial path."""
+    master_a, slave_a = os.openpty()
+    master_b, slave_b = os.openpty()
+    for fd in (slave_a, slave_b):
+        tty.setraw(fd)
+    stop_r, stop_w = os.pipe()
+    pairs = {master_a: master_b, master_b: master_a}
+
+    def pump() -> None:
+        while True:
+            ready, _, _ = select.select([master_a, master_b, stop_r], [], [])
+            if stop_r in ready:
+                return
+            for fd in ready:
+                try:
+                    data = os.read(fd, 4096)
+                except OSError:
+                    continue
+                os.write(pairs[fd], data)
+
+    thread = threading.Thread(target=pump, name="pty-cable", daemon=True)
+    thread.start()
+    try:
+        yield os.ttyname(slave_a), os.ttyname(slave_b)
+    finally:
+        os.write(stop_w, b"x")
+        thread.join(2)
+        for fd in (master_a, master_b, slave_a, slave_b, stop_r, stop_w):
+            os.close(fd)
