@@ -62,7 +62,9 @@ class ModbusTcpServer:
         self.stats = TcpStats()
         self._handler = handler
         self._server: asyncio.Server | None = None
-        self._connections: set[asyncio.Task[None]] = set()
+        # Connection handler tasks and their writers. Closing the writer ends a handler; cancelling
+        # it would trip asyncio's own stream callback on Python 3.11.
+        self._connections: dict[asyncio.Task[None], asyncio.StreamWriter] = {}
         self._networks = [ipaddress.ip_network(n, strict=False) for n in settings.allowed_networks]
 
     @property
@@ -86,8 +88,8 @@ class ModbusTcpServer:
         self.stop_accepting()
         if self._connections:
             await asyncio.wait(set(self._connections), timeout=grace_s)
-        for task in list(self._connections):
-            task.cancel()
+        for writer in list(self._connections.values()):
+            writer.close()
         if self._connections:
             await asyncio.wait(set(self._connections), timeout=1.0)
         if self._server is not None:
@@ -115,13 +117,13 @@ class ModbusTcpServer:
             )
             writer.close()
             return
-        self._connections.add(task)
+        self._connections[task] = writer
         self.stats.accepted += 1
         self.stats.active.add(client)
         try:
             await self._serve(reader, writer, client)
         finally:
-            self._connections.discard(task)
+            self._connections.pop(task, None)
             self.stats.active.discard(client)
             writer.close()
             with contextlib.suppress(Exception):
