@@ -23,7 +23,8 @@ ROOT = Path(__file__).resolve().parent.parent
 @pytest.fixture
 def pymodbus_slave() -> Iterator[str]:
     """pymodbus's RTU server answering as units 1 and 2 at the far end of a pty cable; yields the
-    device path the gateway opens. (N81: Linux ptys refuse pyserial's reconfiguration with parity.)"""
+    device path the gateway opens. N81: a Linux pty refuses pyserial's re-configuration once a
+    parity is set, which pymodbus's serial transport does after opening."""
     with pty_cable() as (gateway_end, slave_end):
         process = subprocess.Popen(
             [sys.executable, "-m", "tests.peers.pymodbus_rtu_slave", slave_end, "19200", "1", "2"],
