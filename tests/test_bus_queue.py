@@ -80,10 +80,12 @@ async def test_full_queue_refuses_with_gateway_path_unavailable() -> None:
     assert caught.value.code == 0x0A
 
 
-async def test_get_waits_for_work() -> None:
-    queue = RequestQueue(2)
-    getter = asyncio.create_task(queue.get())
-    await asyncio.sleep(0.01)
-    assert not getter.done()
-    queue.put(txn("late"))
-    assert (await asyncio.wait_for(getter, 1)).client == "late"
+async def test_a_request_whose_callers_left_is_not_wanted() -> None:
+    gone = txn("a")
+    gone.waiters[0].cancel()  # the client disconnected while it waited
+    assert not gone.wanted
+    assert txn("b").wanted
+    probe = Transaction(
+        1, bytes.fromhex("08 00 00 00 00"), Priority.READ, "probe", 0.3, 0, probe=True
+    )
+    assert probe.wanted  # nobody waits for a probe, yet it must go out

@@ -7,7 +7,7 @@
 - `bus`: the asyncio side that owns all of the above and applies the timeout/retry policy.
 """
 
-from gateway.bus.bus import Bus, BusSettings, BusState, BusStats
+from gateway.bus.bus import Bus, BusSettings, BusState, BusStats, DriveStats, RequestDone
 from gateway.bus.queue import Priority
 
-__all__ = ["Bus", "BusSettings", "BusState", "BusStats", "Priority"]
+__all__ = ["Bus", "BusSettings", "BusState", "BusStats", "DriveStats", "Priority", "RequestDone"]

@@ -1,8 +1,13 @@
 """The bus: one owner per RS-485 line, one transaction at a time, timeout and retry policy.
 
-The asyncio side decides what goes on the wire and when (queue, priorities, dead drives, retries);
-a single worker thread per bus does the wire work with exact timing (`gateway.bus.line`). Buses
-run independently of each other: each has its own queue, thread and port.
+Callers on the event loop put requests into the bus's queue (`request()`); the bus's own thread
+takes them out one at a time and does the wire work with exact timing (`gateway.bus.line`).
+
+The thread takes the next transaction at the last possible moment: when the inter-frame gap after
+the previous one has passed. A write that arrives during the gap still goes first, and identical
+reads that arrive during it join the one transaction. Each answer reaches the event loop with one
+`call_soon_threadsafe`; the loop never waits on the port. Buses are independent of each other:
+each has its own queue, thread and port.
 """
 
 from __future__ import annotations
@@ -11,13 +16,13 @@ import asyncio
 import contextlib
 import logging
 import random
+import threading
 import time
 from collections import Counter
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from enum import StrEnum
-from functools import partial
+from typing import Any
 
 from gateway.bus.health import HealthTracker
 from gateway.bus.line import Exchange, LineSettings, SerialLine
@@ -28,10 +33,12 @@ from gateway.errors import (
     GatewayError,
     GatewayTargetFailed,
     LineError,
+    ModbusError,
     PortError,
     ReplyTimeout,
 )
-from gateway.modbus.functions import PURE_READS
+from gateway.logs import dump_frame, frame_dump_enabled
+from gateway.modbus.functions import PURE_READS, is_exception
 from gateway.modbus.rtu import BROADCAST_ADDRESS, build_frame
 
 log = logging.getLogger(__name__)
@@ -40,6 +47,8 @@ log = logging.getLogger(__name__)
 # echoes it, and one that doesn't still answers exception 01H, which proves it is alive as well.
 PROBE_PDU = bytes.fromhex("0800000000")
 PROBE_CLIENT = "probe"
+IDLE_WAKE_S = 0.5
+"""With nothing queued, the thread still wakes this often to see whether a probe is due."""
 
 
 class BusState(StrEnum):
@@ -57,7 +66,7 @@ class BusSettings:
     retries: int = 2
     queue_size: int = 256
     offline_after: int = 3
-    probe_initial_s: float = 1.0
+    probe_initial_s: float = 2.0
     probe_max_s: float = 30.0
     reopen_initial_s: float = 0.5
     reopen_max_s: float = 10.0
@@ -65,7 +74,7 @@ class BusSettings:
 
 @dataclass(slots=True)
 class BusStats:
-    """Counters a dashboard or the benchmark reads; plain ints, updated on the event loop."""
+    """Counters a dashboard or the benchmark reads; plain numbers, written by the bus thread."""
 
     requests: int = 0
     transactions: int = 0
@@ -84,8 +93,39 @@ class BusStats:
     min_gap_s: float | None = None
 
 
+@dataclass(slots=True)
+class DriveStats:
+    """The line's counters for one address (0: broadcasts), for metrics to read at scrape time."""
+
+    transactions: int = 0
+    retries: int = 0
+    timeouts: int = 0
+    bad_replies: Counter[str] = field(default_factory=Counter)
+    exceptions: Counter[int] = field(default_factory=Counter)
+    failed: int = 0
+    line_s: float = 0.0
+    """Time the line was held for this address, timeouts included: a dead drive's cost shows."""
+
+
+@dataclass(frozen=True, slots=True)
+class RequestDone:
+    """One caller's request, answered: what metrics count and time per source and function."""
+
+    bus: str
+    address: int
+    function: int
+    client: str
+    duration_s: float
+    """From `request()` to its answer: queue wait, retries and time on the wire."""
+    code: int | None
+    """None for a normal reply, else the exception code the caller got (the drive's, 0AH, 0BH)."""
+
+
+Outcome = tuple[Callable[..., None], tuple[Any, ...]]
+"""What the event loop does with a finished transaction: a callback and its arguments."""
 DriveListener = Callable[[str, int, bool], None]
-"""Called with (bus name, address, online) when a drive goes offline or comes back."""
+"""Called on the event loop with (bus name, address, online) when a drive goes offline or back."""
+RequestObserver = Callable[[RequestDone], None]
 
 
 class Bus:
@@ -95,30 +135,38 @@ class Bus:
         self.line = line or SerialLine(settings.line)
         self.state = BusState.OPENING
         self.stats = BusStats()
+        self.drive_stats: dict[int, DriveStats] = {}
         self.health = HealthTracker(
             settings.offline_after, settings.probe_initial_s, settings.probe_max_s
         )
         self._queue = RequestQueue(settings.queue_size)
-        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"bus-{self.name}")
+        # Guards the queue between the event loop (puts) and the bus thread (takes).
+        self._work = threading.Condition()
+        self._closing = False
+        self._busy = False
+        self._thread: threading.Thread | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
         self._listeners: list[DriveListener] = []
+        self._request_observers: list[RequestObserver] = []
         self._opened = asyncio.Event()
         self._idle = asyncio.Event()
-        self._idle.set()
         self._last_port_error = ""
-
-    @property
-    def _closed(self) -> bool:
-        # A property, not an inline comparison: `state` changes across awaits.
-        return self.state is BusState.CLOSED
 
     def add_listener(self, listener: DriveListener) -> None:
         self._listeners.append(listener)
+
+    def add_request_observer(self, observer: RequestObserver) -> None:
+        self._request_observers.append(observer)
+
+    def remove_request_observer(self, observer: RequestObserver) -> None:
+        if observer in self._request_observers:
+            self._request_observers.remove(observer)
 
     @property
     def queue_depth(self) -> int:
         return len(self._queue)
 
-    # -- what callers use --------------------------------------------------------------------
+    # -- what callers use (event loop) ---------------------------------------------------------
 
     async def request(
         self,
@@ -135,6 +183,39 @@ class Bus:
         A drive's exception comes back as its exception PDU, byte-exact. Raises
         GatewayTargetFailed (0x0B) or GatewayPathUnavailable (0x0A, queue full).
         """
+        if not self._request_observers:
+            return await self._request(address, pdu, priority, client, timeout_s, retries)
+        started = time.monotonic()
+        try:
+            reply = await self._request(address, pdu, priority, client, timeout_s, retries)
+        except ModbusError as exc:
+            self._report(address, pdu, client, started, exc.code)
+            raise
+        code = reply[1] if reply is not None and is_exception(reply) and len(reply) > 1 else None
+        self._report(address, pdu, client, started, code)
+        return reply
+
+    def _report(
+        self, address: int, pdu: bytes, client: str, started: float, code: int | None
+    ) -> None:
+        done = RequestDone(
+            self.name, address, pdu[0] if pdu else 0, client, time.monotonic() - started, code
+        )
+        for observer in self._request_observers:
+            try:
+                observer(done)
+            except Exception:
+                log.exception("bus %s: request observer failed", self.name)
+
+    async def _request(
+        self,
+        address: int,
+        pdu: bytes,
+        priority: Priority,
+        client: str,
+        timeout_s: float | None,
+        retries: int | None,
+    ) -> bytes | None:
         self.stats.requests += 1
         if self.state is BusState.CLOSED:
             raise GatewayTargetFailed(f"bus {self.name} is shutting down")
@@ -154,151 +235,221 @@ class Bus:
             coalescable=address != BROADCAST_ADDRESS and bool(pdu) and pdu[0] in PURE_READS,
             waiters=[waiter],
         )
-        try:
-            carrier = self._queue.put(transaction)
-        except GatewayError:
-            self.stats.queue_full += 1
-            raise
+        with self._work:
+            try:
+                carrier = self._queue.put(transaction)
+            except GatewayError:
+                self.stats.queue_full += 1
+                raise
+            self._work.notify()
         if carrier is not transaction:
             self.stats.coalesced += 1
         return await waiter
 
-    # -- lifecycle ---------------------------------------------------------------------------
+    # -- lifecycle (event loop) ----------------------------------------------------------------
 
     async def run(self) -> None:
-        """Own the port until cancelled: open it, serve the queue, probe offline drives."""
+        """Own the port until cancelled: the bus thread opens it, serves the queue, probes."""
+        loop = asyncio.get_running_loop()
+        self._loop = loop
+        stopped: asyncio.Future[None] = loop.create_future()
+
+        def serve() -> None:
+            try:
+                self._serve()
+            except Exception:
+                log.exception("bus %s: worker failed", self.name)
+            finally:
+                loop.call_soon_threadsafe(_settle, stopped)
+
+        self._thread = threading.Thread(target=serve, name=f"bus-{self.name}", daemon=True)
+        self._thread.start()
         try:
-            async with asyncio.TaskGroup() as tasks:
-                tasks.create_task(self._serve(), name=f"bus:{self.name}:serve")
-                tasks.create_task(self._probe_offline(), name=f"bus:{self.name}:probe")
+            await stopped
         finally:
-            self.state = BusState.CLOSED
-            self._fail_queued(GatewayTargetFailed(f"bus {self.name} stopped"))
-            await asyncio.get_running_loop().run_in_executor(self._executor, self.line.close)
-            self._executor.shutdown(wait=False)
+            self.close()
+            # The thread finishes the transaction on the wire and closes the port.
+            await loop.run_in_executor(None, self._thread.join, 5.0)
 
     async def wait_open(self, timeout_s: float) -> bool:
-        with contextlib.suppress(TimeoutError):
+        try:
             await asyncio.wait_for(self._opened.wait(), timeout_s)
-        return self._opened.is_set()
+        except TimeoutError:
+            return False
+        return True
 
     def close(self) -> None:
         """Refuse new requests and answer queued ones with 0x0B; the one on the wire finishes."""
         self.state = BusState.CLOSED
-        self._fail_queued(GatewayTargetFailed(f"bus {self.name} is shutting down"))
+        with self._work:
+            self._closing = True
+            queued = self._queue.take_all()
+            self._work.notify_all()
+        error = GatewayTargetFailed(f"bus {self.name} is shutting down")
+        for transaction in queued:
+            _fail(transaction, error)
 
     async def wait_idle(self, timeout_s: float) -> None:
         """Wait (at most `timeout_s`) for the transaction on the wire to finish."""
+        if not self._busy:
+            return
+        self._idle.clear()
+        if not self._busy:  # it finished between the check and the clear
+            return
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(self._idle.wait(), timeout_s)
 
-    # -- the worker --------------------------------------------------------------------------
+    # -- the bus thread --------------------------------------------------------------------------
 
-    async def _serve(self) -> None:
-        loop = asyncio.get_running_loop()
-        while self.state is not BusState.CLOSED:
+    def _serve(self) -> None:
+        while not self._closing:
             if not self.line.is_open:
-                await self._open_with_backoff()
+                self._open_with_backoff()
                 continue
-            transaction = await self._queue.get()
-            if not transaction.wanted:
+            transaction = self._next_transaction()
+            if transaction is None:
                 continue
-            self._idle.clear()
+            self._busy = True
+            outcome: Outcome = (_fail, (transaction, GatewayTargetFailed("bus worker failed")))
             try:
-                await self._execute(loop, transaction)
+                outcome = self._execute(transaction)
             finally:
-                self._idle.set()
+                self._busy = False
+                # One hand-over to the event loop per transaction: answer, and mark idle.
+                self._post(self._finish, outcome)
+        self.line.close()
 
-    async def _open_with_backoff(self) -> None:
+    def _next_transaction(self) -> Transaction | None:
+        """Wait for work, keep the inter-frame gap, then take the best transaction there is now."""
+        with self._work:
+            while not self._closing and not len(self._queue):
+                self._queue_due_probes()
+                if len(self._queue):
+                    break
+                next_probe = self.health.next_probe_at()
+                wait = IDLE_WAKE_S if next_probe is None else next_probe - time.monotonic()
+                self._work.wait(min(max(wait, 0.001), IDLE_WAKE_S))
+            if self._closing:
+                return None
+        try:
+            self.line.keep_gap()
+        except PortError as exc:
+            self._port_lost(exc)
+            return None
+        with self._work:
+            while (transaction := self._queue.get_nowait()) is not None:
+                if transaction.wanted:
+                    return transaction
+        return None
+
+    def _open_with_backoff(self) -> None:
         delay = self.settings.reopen_initial_s
-        loop = asyncio.get_running_loop()
         failures = 0
-        while not self._closed:
+        while not self._closing:
             try:
-                await loop.run_in_executor(self._executor, self.line.open)
+                self.line.open()
             except PortError as exc:
                 failures += 1
                 self._last_port_error = str(exc)
-                if self.state is not BusState.CLOSED:
+                if not self._closing:
                     self.state = BusState.REOPENING
                 # Say it loudly once, then quietly: a missing adapter shouldn't flood the journal.
                 level = logging.WARNING if failures == 1 else logging.DEBUG
                 log.log(level, "bus %s: %s; retrying (attempt %d)", self.name, exc, failures)
-                await asyncio.sleep(delay * random.uniform(0.8, 1.2))
+                with self._work:
+                    self._work.wait(delay * random.uniform(0.8, 1.2))
                 delay = min(delay * 2, self.settings.reopen_max_s)
                 continue
             if self.state is BusState.REOPENING:
                 self.stats.reopens += 1
-            if self._closed:
-                await loop.run_in_executor(self._executor, self.line.close)
+            if self._closing:
                 return
             self.state = BusState.OPEN
             log.info("bus %s: %s open", self.name, self.settings.line.port)
-            self._opened.set()
+            self._post(self._opened.set)
             return
 
-    async def _execute(self, loop: asyncio.AbstractEventLoop, transaction: Transaction) -> None:
+    def _finish(self, outcome: Outcome) -> None:
+        callback, args = outcome
+        callback(*args)
+        self._idle.set()
+
+    def _execute(self, transaction: Transaction) -> Outcome:
+        """Carry one transaction through its attempts; what to tell its waiters."""
         address = transaction.address
-        is_probe = transaction.client == PROBE_CLIENT
-        if address != BROADCAST_ADDRESS and not is_probe and self.health.is_offline(address):
+        if (
+            address != BROADCAST_ADDRESS
+            and not transaction.probe
+            and self.health.is_offline(address)
+        ):
             self.stats.offline_rejected += 1
-            self._fail(transaction, DriveOffline(f"drive {address} on {self.name} is offline"))
-            return
+            return _fail, (transaction, DriveOffline(f"drive {address} on {self.name} is offline"))
         frame = build_frame(address, transaction.pdu)
         broadcast = address == BROADCAST_ADDRESS
         retries = 0 if self.health.is_suspect(address) else transaction.retries
+        drive = self.drive_stats.get(address)
+        if drive is None:
+            drive = self.drive_stats[address] = DriveStats()
         errors: list[LineError] = []
         for attempt in range(retries + 1):
             if attempt:
                 self.stats.retries += 1
-            transact = partial(
-                self.line.transact,
-                frame,
-                expect_reply=not broadcast,
-                timeout_s=transaction.timeout_s,
-            )
+                drive.retries += 1
             self.stats.transactions += 1
+            drive.transactions += 1
+            dump_frame(self.name, "tx", frame)
+            started = time.monotonic()
             try:
-                exchange = await loop.run_in_executor(self._executor, transact)
+                exchange = self.line.transact(
+                    frame, expect_reply=not broadcast, timeout_s=transaction.timeout_s
+                )
             except ReplyTimeout as exc:
                 self.stats.timeouts += 1
+                drive.timeouts += 1
+                dump_frame(self.name, "rx timeout", exc.received)
                 errors.append(exc)
                 continue
             except BadReply as exc:
                 self.stats.bad_replies[exc.kind] += 1
+                drive.bad_replies[exc.kind] += 1
+                dump_frame(self.name, f"rx bad {exc.kind}", exc.frame)
                 log.debug("bus %s: %s", self.name, exc)
                 errors.append(exc)
                 continue
             except PortError as exc:
                 self._port_lost(exc)
-                self._fail(transaction, GatewayTargetFailed(f"bus {self.name}: {exc}"))
-                return
-            self._record(exchange)
+                return _fail, (transaction, GatewayTargetFailed(f"bus {self.name}: {exc}"))
+            finally:
+                drive.line_s += time.monotonic() - started
+            if exchange.reply_pdu is not None and frame_dump_enabled():
+                # The frame as it came: a reply that passed its CRC check rebuilds byte-exact.
+                dump_frame(self.name, "rx", build_frame(address, exchange.reply_pdu))
+            self._record(exchange, drive)
             if broadcast:
                 self.stats.broadcasts += 1
             else:
                 self._answered(address)
-            self._resolve(transaction, exchange.reply_pdu)
-            return
+            return _resolve, (transaction, exchange.reply_pdu)
         self.stats.failed += 1
+        drive.failed += 1
         if all(isinstance(error, ReplyTimeout) for error in errors):
             self._failed(address)
-        self._fail(
-            transaction, GatewayTargetFailed(f"drive {address} on {self.name}: {errors[-1]}")
-        )
+        error = GatewayTargetFailed(f"drive {address} on {self.name}: {errors[-1]}")
+        return _fail, (transaction, error)
 
-    def _record(self, exchange: Exchange) -> None:
+    def _record(self, exchange: Exchange, drive: DriveStats) -> None:
         self.stats.busy_s += exchange.busy_s
         if self.stats.min_gap_s is None or exchange.gap_s < self.stats.min_gap_s:
             self.stats.min_gap_s = exchange.gap_s
         pdu = exchange.reply_pdu
         if pdu and pdu[0] & 0x80 and len(pdu) > 1:
             self.stats.exceptions[pdu[1]] += 1
+            drive.exceptions[pdu[1]] += 1
 
     def _answered(self, address: int) -> None:
         if self.health.record_answer(address):
             log.warning("bus %s: drive %d is back online", self.name, address)
-            self._notify(address, online=True)
+            self._post(self._notify, address, True)
 
     def _failed(self, address: int) -> None:
         if self.health.record_failure(address, time.monotonic()):
@@ -308,66 +459,74 @@ class Bus:
                 address,
                 self.settings.offline_after,
             )
-            self._notify(address, online=False)
+            self._post(self._notify, address, False)
 
-    def _notify(self, address: int, *, online: bool) -> None:
+    def _port_lost(self, exc: PortError) -> None:
+        self.stats.port_errors += 1
+        self._last_port_error = str(exc)
+        if not self._closing:
+            self.state = BusState.REOPENING
+        log.error("bus %s: port lost (%s); reopening with backoff", self.name, exc)
+        with self._work:
+            queued = self._queue.take_all()
+        error = GatewayTargetFailed(f"bus {self.name}: {exc}")
+        for transaction in queued:
+            self._post(_fail, transaction, error)
+
+    def _queue_due_probes(self) -> None:
+        """Queue one single-attempt probe for each offline drive whose backoff is over.
+
+        Called with `_work` held. A probe has no waiter: the health tracker reads its outcome.
+        """
+        if self.state is not BusState.OPEN:
+            return
+        now = time.monotonic()
+        for address in self.health.due_probes(now):
+            self.health.postpone_probe(address, now)
+            probe = Transaction(
+                address=address,
+                pdu=PROBE_PDU,
+                priority=Priority.READ,
+                client=PROBE_CLIENT,
+                timeout_s=self.settings.timeout_s,
+                retries=0,
+                probe=True,
+            )
+            try:
+                self._queue.put(probe)
+            except GatewayError:
+                return
+
+    # -- back to the event loop --------------------------------------------------------------
+
+    def _post(self, callback: Callable[..., Any], *args: Any) -> None:
+        loop = self._loop
+        if loop is None or loop.is_closed():
+            return
+        # The loop may close between the check and the call: then nobody waits for the answer.
+        with contextlib.suppress(RuntimeError):
+            loop.call_soon_threadsafe(callback, *args)
+
+    def _notify(self, address: int, online: bool) -> None:
         for listener in self._listeners:
             try:
                 listener(self.name, address, online)
             except Exception:
                 log.exception("bus %s: drive listener failed", self.name)
 
-    def _port_lost(self, exc: PortError) -> None:
-        self.stats.port_errors += 1
-        self._last_port_error = str(exc)
-        if self.state is not BusState.CLOSED:
-            self.state = BusState.REOPENING
-        log.error("bus %s: port lost (%s); reopening with backoff", self.name, exc)
-        self._fail_queued(GatewayTargetFailed(f"bus {self.name}: {exc}"))
 
-    async def _probe_offline(self) -> None:
-        """Send one single-attempt probe to each offline drive when its backoff is due."""
-        while self.state is not BusState.CLOSED:
-            now = time.monotonic()
-            for address in self.health.due_probes(now):
-                self.health.postpone_probe(address, now)
-                if self.state is BusState.OPEN:
-                    self._queue_probe(address)
-            next_at = self.health.next_probe_at()
-            wait = 0.5 if next_at is None else min(max(next_at - now, 0.01), 0.5)
-            await asyncio.sleep(wait)
+def _settle(future: asyncio.Future[None]) -> None:
+    if not future.done():
+        future.set_result(None)
 
-    def _queue_probe(self, address: int) -> None:
-        probe: asyncio.Future[bytes | None] = asyncio.get_running_loop().create_future()
-        # Nobody awaits a probe; its outcome is read by the health tracker, not from here.
-        probe.add_done_callback(lambda f: f.cancelled() or f.exception())
-        with contextlib.suppress(GatewayError):
-            self._queue.put(
-                Transaction(
-                    address=address,
-                    pdu=PROBE_PDU,
-                    priority=Priority.READ,
-                    client=PROBE_CLIENT,
-                    timeout_s=self.settings.timeout_s,
-                    retries=0,
-                    waiters=[probe],
-                )
-            )
 
-    # -- answering waiters -------------------------------------------------------------------
+def _resolve(transaction: Transaction, reply: bytes | None) -> None:
+    for waiter in transaction.waiters:
+        if not waiter.done():
+            waiter.set_result(reply)
 
-    @staticmethod
-    def _resolve(transaction: Transaction, reply: bytes | None) -> None:
-        for waiter in transaction.waiters:
-            if not waiter.done():
-                waiter.set_result(reply)
 
-    @staticmethod
-    def _fail(transaction: Transaction, error: GatewayError) -> None:
-        for waiter in transaction.waiters:
-            if not waiter.done():
-                waiter.set_exception(error)
-
-    def _fail_queued(self, error: GatewayError) -> None:
-        for transaction in self._queue.take_all():
-            self._fail(transaction, error)
+def _fail(transaction: Transaction, error: GatewayError) -> None:
+    for waiter in transaction.waiters:
+        if not waiter.done():
+            waiter.set_exception(error)

@@ -112,7 +112,7 @@ class SerialLine:
 
         Raises ReplyTimeout or BadReply (after draining the line), or PortError (port closed).
         """
-        self._keep_gap()
+        self.keep_gap()
         fmt = self.settings.char_format
         started = time.monotonic()
         gap = started - self._quiet_since
@@ -136,7 +136,7 @@ class SerialLine:
             self._quiet_since = max(self._quiet_since, time.monotonic())
         return Exchange(pdu, gap, self._quiet_since - started)
 
-    def _keep_gap(self) -> None:
+    def keep_gap(self) -> None:
         """Wait until the line has been quiet for the gap; bytes arriving meanwhile restart it."""
         gap = self.settings.gap_s
         while True:

@@ -38,6 +38,8 @@ class Transaction:
     retries: int
     coalescable: bool = False
     waiters: list[asyncio.Future[bytes | None]] = field(default_factory=list)
+    probe: bool = False
+    """A bus's own check of an offline drive: nobody waits for it, it is always wanted."""
 
     @property
     def key(self) -> tuple[int, bytes, Priority]:
@@ -46,10 +48,12 @@ class Transaction:
     @property
     def wanted(self) -> bool:
         """False once every waiter has gone (client disconnected): no bus time for it then."""
-        return any(not waiter.done() for waiter in self.waiters)
+        return self.probe or any(not waiter.done() for waiter in self.waiters)
 
 
 class RequestQueue:
+    """Not thread-safe by itself: the bus holds its lock around every call."""
+
     def __init__(self, maxsize: int) -> None:
         self.maxsize = maxsize
         # priority -> client -> that client's transactions; dicts keep insertion order, and a
@@ -57,7 +61,6 @@ class RequestQueue:
         self._levels: dict[Priority, dict[str, deque[Transaction]]] = {p: {} for p in Priority}
         self._coalescing: dict[tuple[int, bytes, Priority], Transaction] = {}
         self._size = 0
-        self._ready = asyncio.Event()
         self.coalesced = 0
 
     def __len__(self) -> int:
@@ -81,17 +84,7 @@ class RequestQueue:
         if transaction.coalescable:
             self._coalescing[transaction.key] = transaction
         self._size += 1
-        self._ready.set()
         return transaction
-
-    async def get(self) -> Transaction:
-        """The next transaction to put on the wire, waiting for one if the queue is empty."""
-        while True:
-            transaction = self.get_nowait()
-            if transaction is not None:
-                return transaction
-            self._ready.clear()
-            await self._ready.wait()
 
     def get_nowait(self) -> Transaction | None:
         for clients in self._levels.values():

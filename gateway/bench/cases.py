@@ -1,0 +1,204 @@
+"""The benchmark's cases and how one is run."""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+import struct
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from gateway.bench.load import LoadResult, Target, run_clients
+from gateway.bench.processes import GatewayProcess, SimulatorProcess, gateway, simulator
+from gateway.bench.wire import WireBudget, read_budget
+
+RESPONSE_DELAY_MS = 5.0  # INVT P14.03's default
+SET_POINT = 0x2001  # 2001H..2002H: frequency set-point and PID reference, written per drive
+RUNNING_VALUES = 0x3000  # 3000H..: running values; static while the drives stand still
+
+
+def matrix(baudrates: tuple[int, ...]) -> list[Case]:
+    """Every case the issue asks for, per baud rate; then the cache and the scale cases."""
+    cases = []
+    for baud in baudrates:
+        for words in (2, 16):
+            for clients in (1, 8, 32):
+                cases.append(Case(f"{words}w {clients}c", baud, words, clients))
+        cases.append(Case("2w 8c same registers", baud, 2, 8, same_registers=True))
+        cases.append(Case("2w 8c one dead of 4", baud, 2, 8, dead=1))
+    fastest = max(baudrates)
+    cases.append(Case("2w 8c same regs, cache", fastest, 2, 8, same_registers=True, cache=True))
+    cases.append(Case("2w 64c on 32 drives", fastest, 2, 64, drives=32))
+    return cases
+
+
+@dataclass(frozen=True, slots=True)
+class Case:
+    name: str
+    baudrate: int
+    words: int
+    clients: int
+    drives: int = 4
+    same_registers: bool = False
+    dead: int = 0
+    cache: bool = False
+
+    def baseline(self) -> Case:
+        """The same load with every drive alive."""
+        return Case(f"{self.words}w {self.clients}c", self.baudrate, self.words, self.clients)
+
+    @property
+    def budget(self) -> WireBudget:
+        return read_budget(self.baudrate, self.words, RESPONSE_DELAY_MS / 1000)
+
+
+@dataclass
+class CaseResult:
+    case: Case
+    elapsed_s: float
+    load: LoadResult
+    bus_transactions: int
+    gap_violations: int
+    cpu_s: float
+    peak_rss_mb: float
+
+    @property
+    def client_per_s(self) -> float:
+        return self.load.answered / self.elapsed_s
+
+    @property
+    def bus_per_s(self) -> float:
+        return self.bus_transactions / self.elapsed_s
+
+    @property
+    def wire_max_per_s(self) -> float:
+        return self.case.budget.max_per_s
+
+    @property
+    def utilisation(self) -> float:
+        return self.bus_transactions * self.case.budget.transaction_s / self.elapsed_s
+
+    @property
+    def cpu_per_transaction_us(self) -> float:
+        return 1e6 * self.cpu_s / max(self.bus_transactions, 1)
+
+    def latency_ms(self, quantile: float) -> float:
+        latencies = sorted(self.load.latencies_s)
+        if not latencies:
+            return float("nan")
+        return 1000 * latencies[min(len(latencies) - 1, int(quantile * len(latencies)))]
+
+    @property
+    def healthy_units(self) -> range:
+        return range(1, self.case.drives - self.case.dead + 1)
+
+    def per_s_of(self, units: range) -> float:
+        """Correct answers per second from the drives with these unit ids."""
+        return sum(self.load.answered_by_unit[u] for u in units) / self.elapsed_s
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def gateway_config(case: Case, line_path: str, port: int) -> dict[str, Any]:
+    drives: list[dict[str, Any]] = [
+        {"name": f"drive{a}", "bus": "line1", "address": a, "model": "gd350"}
+        for a in range(1, case.drives + 1)
+    ]
+    if case.cache:
+        for drive in drives:
+            drive["cache_max_age_ms"] = 1000
+            drive["poll"] = [
+                {"name": "bench", "start": SET_POINT, "count": case.words, "interval_ms": 200}
+            ]
+    return {
+        "gateway_id": "bench",
+        "modbus_tcp": {"host": "127.0.0.1", "port": port, "max_connections": 256},
+        "buses": [{"name": "line1", "port": line_path, "baudrate": case.baudrate, "parity": "E"}],
+        "drives": drives,
+        "logging": {"level": "warning"},
+    }
+
+
+def run_case(case: Case, duration_s: float, warmup_s: float) -> CaseResult:
+    dead = list(range(case.drives - case.dead + 1, case.drives + 1))
+    addresses = list(range(1, case.drives + 1))
+    with simulator(addresses, case.baudrate, dead, RESPONSE_DELAY_MS) as line:
+        port = free_port()
+        with gateway(gateway_config(case, line.path, port), port) as process:
+            return asyncio.run(_measure(case, line, process, dead, duration_s, warmup_s))
+
+
+async def _measure(
+    case: Case,
+    line: SimulatorProcess,
+    process: GatewayProcess,
+    dead: list[int],
+    duration_s: float,
+    warmup_s: float,
+) -> CaseResult:
+    targets = await _prepare(case, process.port, dead)
+    measuring, stop = asyncio.Event(), asyncio.Event()
+    load = asyncio.create_task(
+        run_clients(process.port, case.clients, targets, frozenset(dead), measuring, stop)
+    )
+    await asyncio.sleep(warmup_s)
+    before = line.stats()
+    cpu_before = process.cpu_s()
+    started = time.perf_counter()
+    measuring.set()
+    await asyncio.sleep(duration_s)
+    measuring.clear()
+    elapsed = time.perf_counter() - started
+    after = line.stats()
+    cpu = process.cpu_s() - cpu_before
+    stop.set()
+    result = await load
+    return CaseResult(
+        case=case,
+        elapsed_s=elapsed,
+        load=result,
+        bus_transactions=after["replies"] - before["replies"],
+        gap_violations=after["gap_violations"] - before["gap_violations"],
+        cpu_s=cpu,
+        peak_rss_mb=process.peak_rss_mb(),
+    )
+
+
+async def _prepare(case: Case, port: int, dead: list[int]) -> list[Target]:
+    """Give each drive its own set-points, then learn the right answer to every target."""
+    reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    tid = 0
+
+    async def request(unit: int, pdu: bytes) -> bytes:
+        nonlocal tid
+        tid += 1
+        writer.write(struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + pdu)
+        _, _, length, _ = struct.unpack(">HHHB", await reader.readexactly(7))
+        return await reader.readexactly(length - 1)
+
+    start = SET_POINT if case.words <= 2 else RUNNING_VALUES
+    targets = []
+    units = [1] if case.same_registers else list(range(1, case.drives + 1))
+    for unit in units:
+        pdu = struct.pack(">BHH", 3, start, case.words)
+        if unit in dead:
+            targets.append(Target(unit, pdu, b""))
+            continue
+        set_points = struct.pack(">BHHB", 0x10, SET_POINT, 2, 4) + struct.pack(
+            ">HH", 1000 + 100 * unit, 10 * unit
+        )
+        reply = await request(unit, set_points)
+        if reply[0] != 0x10:
+            raise RuntimeError(f"drive {unit} refused its set-points: {reply.hex(' ')}")
+        expected = await request(unit, pdu)
+        if expected[0] != 3:
+            raise RuntimeError(f"drive {unit} refused the benchmark read: {expected.hex(' ')}")
+        targets.append(Target(unit, pdu, expected))
+    writer.close()
+    await writer.wait_closed()
+    return targets

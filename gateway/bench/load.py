@@ -1,0 +1,92 @@
+"""Modbus-TCP clients for the benchmark: one request outstanding each, every reply checked."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import struct
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+
+DEAD_DRIVE_REPLY = bytes.fromhex("83 0B")
+
+
+@dataclass(frozen=True, slots=True)
+class Target:
+    """A request and the one reply that is right for it."""
+
+    unit_id: int
+    pdu: bytes
+    expected: bytes
+
+
+@dataclass
+class LoadResult:
+    answered: int = 0
+    errors: int = 0
+    wrong: int = 0
+    dead_answers: int = 0
+    latencies_s: list[float] = field(default_factory=list)
+    answered_by_unit: Counter[int] = field(default_factory=Counter)
+
+
+async def run_clients(
+    port: int,
+    clients: int,
+    targets: list[Target],
+    dead_units: frozenset[int],
+    measuring: asyncio.Event,
+    stop: asyncio.Event,
+) -> LoadResult:
+    """Run `clients` connections until `stop`; only replies while `measuring` is set count."""
+    result = LoadResult()
+    await asyncio.gather(
+        *(_client(port, i, targets, dead_units, measuring, stop, result) for i in range(clients))
+    )
+    return result
+
+
+async def _client(
+    port: int,
+    index: int,
+    targets: list[Target],
+    dead_units: frozenset[int],
+    measuring: asyncio.Event,
+    stop: asyncio.Event,
+    result: LoadResult,
+) -> None:
+    reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    tid = 0
+    position = index  # clients start on different drives
+    try:
+        while not stop.is_set():
+            target = targets[position % len(targets)]
+            position += 1
+            tid = (tid + 1) & 0xFFFF
+            header = struct.pack(">HHHB", tid, 0, len(target.pdu) + 1, target.unit_id)
+            started = time.perf_counter()
+            writer.write(header + target.pdu)
+            reply_header = await reader.readexactly(7)
+            reply_tid, _, length, unit = struct.unpack(">HHHB", reply_header)
+            pdu = await reader.readexactly(length - 1)
+            latency = time.perf_counter() - started
+            if not measuring.is_set():
+                continue
+            if reply_tid != tid or unit != target.unit_id:
+                result.wrong += 1
+            elif target.unit_id in dead_units:
+                result.dead_answers += pdu == DEAD_DRIVE_REPLY
+                result.wrong += pdu != DEAD_DRIVE_REPLY
+            elif pdu == target.expected:
+                result.answered += 1
+                result.answered_by_unit[unit] += 1
+                result.latencies_s.append(latency)
+            elif pdu[0] & 0x80:
+                result.errors += 1
+            else:
+                result.wrong += 1
+    finally:
+        writer.close()
+        with contextlib.suppress(Exception):
+            await writer.wait_closed()

@@ -1,0 +1,123 @@
+"""The simulated line and the gateway as real subprocesses, measured from /proc."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
+
+
+def gateway_command() -> list[str]:
+    return [sys.executable, "-m", "gateway"]
+
+
+@dataclass
+class SimulatorProcess:
+    process: subprocess.Popen[str]
+    path: str
+
+    def command(self, text: str) -> str:
+        assert self.process.stdin is not None
+        assert self.process.stdout is not None
+        self.process.stdin.write(text + "\n")
+        self.process.stdin.flush()
+        return self.process.stdout.readline().strip()
+
+    def stats(self) -> dict[str, Any]:
+        answer = self.command("stats")
+        result: dict[str, Any] = json.loads(answer.removeprefix("ok").strip())
+        return result
+
+
+@contextlib.contextmanager
+def simulator(
+    addresses: list[int], baudrate: int, dead: list[int], response_delay_ms: float
+) -> Iterator[SimulatorProcess]:
+    args = [*gateway_command(), "simulate", "--pty", "--baud", str(baudrate)]
+    args += ["--response-delay-ms", str(response_delay_ms)]
+    for address in addresses:
+        args += ["--address", str(address)]
+    for address in dead:
+        args += ["--dead", str(address)]
+    process = subprocess.Popen(
+        args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True
+    )
+    try:
+        assert process.stdout is not None
+        path = process.stdout.readline().strip()
+        if not path.startswith("/"):
+            raise RuntimeError(f"simulator did not start: {path!r}")
+        yield SimulatorProcess(process, path)
+    finally:
+        _stop(process)
+
+
+@dataclass
+class GatewayProcess:
+    process: subprocess.Popen[bytes]
+    port: int
+
+    def cpu_s(self) -> float:
+        fields = Path(f"/proc/{self.process.pid}/stat").read_text().rsplit(")", 1)[1].split()
+        # utime and stime are fields 14 and 15 of stat; index 11 and 12 after the ")".
+        return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
+
+    def peak_rss_mb(self) -> float:
+        for line in Path(f"/proc/{self.process.pid}/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024
+        return 0.0
+
+
+@contextlib.contextmanager
+def gateway(config: dict[str, Any], port: int) -> Iterator[GatewayProcess]:
+    with tempfile.TemporaryDirectory(prefix="invt-bench-") as folder:
+        path = Path(folder) / "config.yaml"
+        path.write_text(yaml.safe_dump(config))
+        process = subprocess.Popen(
+            [*gateway_command(), "run", "--config", str(path)],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        try:
+            _wait_for_port(port, process)
+            yield GatewayProcess(process, port)
+        finally:
+            _stop(process)
+
+
+def _wait_for_port(port: int, process: subprocess.Popen[bytes]) -> None:
+    import socket
+
+    deadline = time.monotonic() + 15
+    while time.monotonic() < deadline:
+        if process.poll() is not None:
+            raise RuntimeError(f"gateway exited with {process.returncode} at start")
+        with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), 0.2):
+            return
+        time.sleep(0.05)
+    raise RuntimeError("gateway did not listen within 15 s")
+
+
+def _stop(process: subprocess.Popen[Any]) -> None:
+    if process.poll() is None:
+        process.terminate()
+        try:
+            process.communicate(timeout=5)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.communicate()
+    else:
+        process.communicate()

@@ -1,0 +1,91 @@
+"""The benchmark's table, and its JSON for machines."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from gateway.bench.cases import CaseResult
+
+COLUMNS = (
+    ("case", "{:<24}"),
+    ("baud", "{:>6}"),
+    ("words", "{:>5}"),
+    ("clients", "{:>7}"),
+    ("client tx/s", "{:>11.1f}"),
+    ("p50 ms", "{:>7.1f}"),
+    ("p99 ms", "{:>7.1f}"),
+    ("errors", "{:>6}"),
+    ("wrong", "{:>5}"),
+    ("bus tx/s", "{:>8.1f}"),
+    ("bus util", "{:>8.1%}"),
+    ("wire max/s", "{:>10.1f}"),
+    ("of max", "{:>7.1%}"),
+    ("t3.5 viol", "{:>9}"),
+    ("CPU us/tx", "{:>9.0f}"),
+    ("peak RSS MB", "{:>11.1f}"),
+)
+
+
+def row(result: CaseResult) -> dict[str, Any]:
+    case = result.case
+    return {
+        "case": case.name,
+        "baud": case.baudrate,
+        "words": case.words,
+        "clients": case.clients,
+        "client tx/s": result.client_per_s,
+        "p50 ms": result.latency_ms(0.50),
+        "p99 ms": result.latency_ms(0.99),
+        "errors": result.load.errors,
+        "wrong": result.load.wrong,
+        "bus tx/s": result.bus_per_s,
+        "bus util": result.utilisation,
+        "wire max/s": result.wire_max_per_s,
+        # Served to clients over what the wire can carry: above 100 % only by coalescing/cache.
+        "of max": result.client_per_s / result.wire_max_per_s,
+        "t3.5 viol": result.gap_violations,
+        "CPU us/tx": result.cpu_per_transaction_us,
+        "peak RSS MB": result.peak_rss_mb,
+    }
+
+
+def header() -> str:
+    cells = []
+    for name, fmt in COLUMNS:
+        width = int("".join(c for c in fmt.split(":")[1] if c.isdigit() or c == ".").split(".")[0])
+        cells.append(name.rjust(width) if ">" in fmt else name.ljust(width))
+    return "  ".join(cells)
+
+
+def format_row(values: dict[str, Any]) -> str:
+    return "  ".join(fmt.format(values[name]) for name, fmt in COLUMNS)
+
+
+def summary(results: list[CaseResult]) -> list[str]:
+    """The benchmark's targets, each as a sentence with its figure."""
+    lines = []
+    by_case = {r.case: r for r in results}
+    for result in results:
+        case = result.case
+        if case.dead:
+            alive = by_case.get(case.baseline())
+            if alive is not None:
+                units = result.healthy_units
+                kept = result.per_s_of(units) / max(alive.per_s_of(units), 1e-9)
+                lines.append(
+                    f"{case.baudrate} baud, {case.name}: the healthy drives keep {kept:.0%} of "
+                    "their throughput with all four alive (target >= 80 %)"
+                )
+        elif case.same_registers:
+            ratio = result.client_per_s / result.wire_max_per_s
+            how = "with the poll cache" if case.cache else "by coalescing alone (target >= 5x)"
+            lines.append(
+                f"{case.baudrate} baud, {case.name}: {ratio:.1f}x the wire maximum served {how}"
+            )
+        elif not case.cache and case.drives == 4:
+            share = result.bus_per_s / result.wire_max_per_s
+            lines.append(
+                f"{case.baudrate} baud, {case.name}: bus at {share:.1%} of the wire maximum, "
+                f"{result.gap_violations} t3.5 violations (target >= 95 %)"
+            )
+    return lines

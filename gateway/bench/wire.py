@@ -1,0 +1,50 @@
+"""The physical limit of the line for one kind of transaction.
+
+One transaction occupies the line for:
+    t3.5 gap  +  request bytes  +  the drive's response delay  +  reply bytes
+where a byte takes (start + 8 data + parity + stop bits) / baud seconds and the drive's response
+delay is at least t3.5 (a drive can't answer inside the silence that ends the request). Nothing the
+gateway does can make a transaction shorter; everything it does badly makes it longer.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from gateway.bus.timing import CharacterFormat
+
+READ_REQUEST_BYTES = 8  # address, 03H, start (2), count (2), CRC (2)
+
+
+def read_reply_bytes(words: int) -> int:
+    """address, 03H, byte count, 2 bytes per word, CRC (2)."""
+    return 5 + 2 * words
+
+
+@dataclass(frozen=True, slots=True)
+class WireBudget:
+    char_format: CharacterFormat
+    request_bytes: int
+    reply_bytes: int
+    response_delay_s: float
+
+    @property
+    def transaction_s(self) -> float:
+        fmt = self.char_format
+        delay = max(self.response_delay_s, fmt.t35_s)
+        return fmt.t35_s + fmt.wire_time_s(self.request_bytes + self.reply_bytes) + delay
+
+    @property
+    def max_per_s(self) -> float:
+        return 1.0 / self.transaction_s
+
+
+def read_budget(
+    baudrate: int, words: int, response_delay_s: float, parity: str = "E"
+) -> WireBudget:
+    return WireBudget(
+        CharacterFormat(baudrate, parity),
+        READ_REQUEST_BYTES,
+        read_reply_bytes(words),
+        response_delay_s,
+    )

@@ -1,0 +1,59 @@
+"""`invt-gateway bench`: the line's physical limit against what the gateway gets out of it."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from gateway.cli import EXIT_OK
+
+BAUDRATES = (9600, 19200, 115200)
+
+
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = subparsers.add_parser(
+        "bench",
+        help="measure throughput, latency, CPU and memory against the wire's theoretical maximum",
+        description="Starts simulated drives with wire-time emulation on a virtual line, the "
+        "gateway and Modbus-TCP clients as separate processes, and prints one row per case.",
+    )
+    parser.add_argument(
+        "--baud", type=int, action="append", choices=BAUDRATES, help="repeatable; default all"
+    )
+    parser.add_argument("--duration", type=float, default=4.0, help="seconds measured per case")
+    parser.add_argument("--warmup", type=float, default=1.5, help="seconds before measuring")
+    parser.add_argument("--runs", type=int, default=1, help="runs per case; the median is shown")
+    parser.add_argument("--case", help="only cases whose name contains this text")
+    parser.add_argument("--json", action="store_true", help="one JSON document instead")
+    parser.set_defaults(handler=handle)
+
+
+def handle(args: argparse.Namespace) -> int:
+    from gateway.bench.cases import CaseResult, matrix, run_case
+    from gateway.bench.report import format_row, header, row, summary
+
+    cases = matrix(tuple(args.baud or BAUDRATES))
+    if args.case:
+        cases = [c for c in cases if args.case in c.name]
+    results: list[CaseResult] = []
+    if not args.json:
+        print(header(), flush=True)
+    for case in cases:
+        # Isolating a dead drive takes a few timeouts: measure the steady state after it.
+        warmup = max(args.warmup, 3.0) if case.dead else args.warmup
+        runs = [run_case(case, args.duration, warmup) for _ in range(args.runs)]
+        result = sorted(runs, key=lambda r: r.client_per_s)[len(runs) // 2]
+        results.append(result)
+        if not args.json:
+            print(format_row(row(result)), flush=True)
+    if args.json:
+        json.dump(
+            {"cases": [row(r) for r in results], "summary": summary(results)}, sys.stdout, indent=2
+        )
+        print()
+    else:
+        print()
+        for line in summary(results):
+            print(line)
+    return EXIT_OK
