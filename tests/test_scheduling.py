@@ -1,0 +1,155 @@
+"""How the bus spends the line: priorities, fairness, coalescing, splitting, RAM writes, the gap.
+
+Checked by behaviour (order, counts, values on the simulated drives), never by timing thresholds;
+the figures are `invt-gateway bench`'s job.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import struct
+from collections.abc import Iterator
+
+import pytest
+
+from gateway.app import Application
+from gateway.bus import Priority
+from gateway.bus.timing import CharacterFormat
+from gateway.simulator import SimulatedLine
+from tests.support import TcpClient, gateway_config, read_pdu, running_gateway, write_pdu
+
+DRIVES = [{"name": "pump1", "address": 1}, {"name": "fan2", "address": 2}]
+
+
+@pytest.fixture
+def slow_line() -> Iterator[SimulatedLine]:
+    """9600 baud with wire time: a transaction takes ~30 ms, long enough for a queue to form."""
+    with SimulatedLine(addresses=[1, 2], baudrate=9600, wire_time=True) as line:
+        yield line
+
+
+async def occupy_line(app: Application) -> asyncio.Task[bytes | None]:
+    """Put one transaction on the wire and wait until it is there, so the next ones queue."""
+    busy = asyncio.create_task(app.router.execute(2, read_pdu(0x3000, 16), client="occupier"))
+    bus = app.buses["line1"]
+    for _ in range(200):
+        if bus.stats.transactions:
+            break
+        await asyncio.sleep(0.001)
+    return busy
+
+
+async def test_writes_go_before_reads_and_reads_before_polls(slow_line: SimulatedLine) -> None:
+    async with running_gateway(gateway_config(slow_line.path, DRIVES, baudrate=9600)) as app:
+        finished: list[str] = []
+
+        async def send(label: str, pdu: bytes, priority: Priority | None) -> None:
+            await app.router.execute(1, pdu, client=label, priority=priority)
+            finished.append(label)
+
+        busy = await occupy_line(app)
+        jobs = [send("poll", read_pdu(0x3000 + i), Priority.POLL) for i in range(2)] + [
+            send("read", read_pdu(0x2100 + i), None) for i in range(2)
+        ]
+        jobs.append(send("write", write_pdu(0x0005, 123), None))
+        await asyncio.gather(busy, *jobs)
+        assert finished == ["write", "read", "read", "poll", "poll"]
+
+
+async def test_a_busy_client_does_not_starve_another(slow_line: SimulatedLine) -> None:
+    async with running_gateway(gateway_config(slow_line.path, DRIVES, baudrate=9600)) as app:
+        finished: list[str] = []
+
+        async def send(label: str, register: int) -> None:
+            await app.router.execute(1, read_pdu(register), client=label)
+            finished.append(label)
+
+        busy = await occupy_line(app)
+        jobs = [send("busy", 0x3000 + i) for i in range(5)]
+        jobs.append(send("quiet", 0x2100))  # queued last
+        await asyncio.gather(busy, *jobs)
+        assert finished.index("quiet") <= 1  # served after one of the busy client's, not five
+
+
+async def test_identical_waiting_reads_share_one_transaction(slow_line: SimulatedLine) -> None:
+    async with running_gateway(gateway_config(slow_line.path, DRIVES, baudrate=9600)) as app:
+        clients = [await TcpClient.connect(app.tcp.port) for _ in range(8)]
+        busy = await occupy_line(app)
+        before = slow_line.stats["requests"]
+        replies = await asyncio.gather(*(c.read(1, 0x2100, 4) for c in clients))
+        await busy
+        assert all(reply == replies[0] for reply in replies)
+        assert replies[0][0] == 3  # stopped: a true value
+        # One transaction for the eight reads (the occupier was already counted).
+        assert slow_line.stats["requests"] - before == 1
+        assert app.buses["line1"].stats.coalesced == 7
+        for client in clients:
+            await client.close()
+
+
+async def test_reads_over_16_words_are_split_and_reassembled() -> None:
+    with SimulatedLine(addresses=[1], baudrate=115200) as line:
+        config = gateway_config(line.path, [{"name": "pump1", "address": 1, "model": "gd350"}])
+        async with running_gateway(config) as app:
+            client = await TcpClient.connect(app.tcp.port)
+            before = line.stats["requests"]
+            whole = await client.read(1, 0x3000, 23)
+            assert line.stats["requests"] - before == 2  # 16 + 7 words: INVT's limit
+            assert whole[:16] == await client.read(1, 0x3000, 16)
+            assert whole[16:] == await client.read(1, 0x3010, 7)
+            assert whole[0x16] == line.drives[1].identification  # 3016H
+            # A part the drive refuses fails the whole, with the drive's own exception.
+            assert await client.request(1, read_pdu(0x3010, 20)) == bytes.fromhex("83 02")
+            await client.close()
+
+
+async def test_without_splitting_the_drive_refuses_more_than_16_words() -> None:
+    with SimulatedLine(addresses=[1], baudrate=115200) as line:
+        drives = [{"name": "pump1", "address": 1, "split": False}]
+        async with running_gateway(gateway_config(line.path, drives)) as app:
+            client = await TcpClient.connect(app.tcp.port)
+            reply = await client.request(1, read_pdu(0x3000, 23))
+            assert reply[0] == 0x83  # the drive's own refusal, passed through
+            await client.close()
+
+
+async def test_ram_writes_spare_the_eeprom() -> None:
+    with SimulatedLine(addresses=[1, 2], baudrate=115200) as line:
+        drives = [
+            {"name": "pump1", "address": 1, "ram_writes": True},
+            {"name": "fan2", "address": 2},
+        ]
+        async with running_gateway(gateway_config(line.path, drives)) as app:
+            client = await TcpClient.connect(app.tcp.port)
+            # P00.11 = 5.0 s: the client sees its own address echoed, the drive got 800BH.
+            assert await client.request(1, write_pdu(0x000B, 50)) == write_pdu(0x000B, 50)
+            assert await client.read(1, 0x000B) == [50]
+            assert (line.drives[1].ram_writes, line.drives[1].eeprom_writes) == (1, 0)
+            # The control word is RAM already and is never redirected.
+            assert await client.request(1, write_pdu(0x2001, 1000)) == write_pdu(0x2001, 1000)
+            # A drive without ram_writes writes EEPROM as asked.
+            assert await client.request(2, write_pdu(0x000B, 60)) == write_pdu(0x000B, 60)
+            assert (line.drives[2].ram_writes, line.drives[2].eeprom_writes) == (0, 1)
+            await client.close()
+
+
+@pytest.mark.parametrize("baudrate", [9600, 115200])
+async def test_the_inter_frame_gap_is_kept(baudrate: int) -> None:
+    with SimulatedLine(addresses=[1, 2], baudrate=baudrate, wire_time=True) as line:
+        config = gateway_config(line.path, DRIVES, baudrate=baudrate)
+        async with running_gateway(config) as app:
+            client = await TcpClient.connect(app.tcp.port)
+            frames = b"".join(
+                struct.pack(">HHHB", tid, 0, 6, 1 + tid % 2) + read_pdu(0x2100) for tid in range(40)
+            )
+            client.writer.write(frames)  # a burst: the queue never runs dry
+            for _ in range(40):
+                assert (await client.receive()).pdu == bytes.fromhex("03 02 00 03")
+            t35 = CharacterFormat(baudrate, "E").t35_s
+            # Measured on both sides of the line: the gateway's gap and the drive's view of it.
+            assert line.stats["gap_violations"] == 0
+            assert line.stats["min_gap_s"] >= t35
+            min_gap = app.buses["line1"].stats.min_gap_s
+            assert min_gap is not None
+            assert min_gap >= t35
+            await client.close()
