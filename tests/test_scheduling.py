@@ -28,26 +28,30 @@ def slow_line() -> Iterator[SimulatedLine]:
         yield line
 
 
-async def occupy_line(app: Application) -> asyncio.Task[bytes | None]:
-    """Put one transaction on the wire and wait until it is there, so the next ones queue."""
+async def occupy_line(app: Application, line: SimulatedLine) -> asyncio.Task[bytes | None]:
+    """Put one slow transaction on the wire and wait until it is there, so the next ones queue
+    behind it however busy the machine running the test is."""
+    line.set_reply_delay(2, 150)
+    seen = line.stats["requests"]
     busy = asyncio.create_task(app.router.execute(2, read_pdu(0x3000, 16), client="occupier"))
-    bus = app.buses["line1"]
-    for _ in range(200):
-        if bus.stats.transactions:
+    for _ in range(500):  # until the drive has the request
+        if line.stats["requests"] > seen:
             break
         await asyncio.sleep(0.001)
     return busy
 
 
 async def test_writes_go_before_reads_and_reads_before_polls(slow_line: SimulatedLine) -> None:
-    async with running_gateway(gateway_config(slow_line.path, DRIVES, baudrate=9600)) as app:
+    async with running_gateway(
+        gateway_config(slow_line.path, DRIVES, baudrate=9600, timeout_ms=1000)
+    ) as app:
         finished: list[str] = []
 
         async def send(label: str, pdu: bytes, priority: Priority | None) -> None:
             await app.router.execute(1, pdu, client=label, priority=priority)
             finished.append(label)
 
-        busy = await occupy_line(app)
+        busy = await occupy_line(app, slow_line)
         jobs = [send("poll", read_pdu(0x3000 + i), Priority.POLL) for i in range(2)] + [
             send("read", read_pdu(0x2100 + i), None) for i in range(2)
         ]
@@ -57,14 +61,16 @@ async def test_writes_go_before_reads_and_reads_before_polls(slow_line: Simulate
 
 
 async def test_a_busy_client_does_not_starve_another(slow_line: SimulatedLine) -> None:
-    async with running_gateway(gateway_config(slow_line.path, DRIVES, baudrate=9600)) as app:
+    async with running_gateway(
+        gateway_config(slow_line.path, DRIVES, baudrate=9600, timeout_ms=1000)
+    ) as app:
         finished: list[str] = []
 
         async def send(label: str, register: int) -> None:
             await app.router.execute(1, read_pdu(register), client=label)
             finished.append(label)
 
-        busy = await occupy_line(app)
+        busy = await occupy_line(app, slow_line)
         jobs = [send("busy", 0x3000 + i) for i in range(5)]
         jobs.append(send("quiet", 0x2100))  # queued last
         await asyncio.gather(busy, *jobs)
@@ -72,9 +78,11 @@ async def test_a_busy_client_does_not_starve_another(slow_line: SimulatedLine) -
 
 
 async def test_identical_waiting_reads_share_one_transaction(slow_line: SimulatedLine) -> None:
-    async with running_gateway(gateway_config(slow_line.path, DRIVES, baudrate=9600)) as app:
+    async with running_gateway(
+        gateway_config(slow_line.path, DRIVES, baudrate=9600, timeout_ms=1000)
+    ) as app:
         clients = [await TcpClient.connect(app.tcp.port) for _ in range(8)]
-        busy = await occupy_line(app)
+        busy = await occupy_line(app, slow_line)
         before = slow_line.stats["requests"]
         replies = await asyncio.gather(*(c.read(1, 0x2100, 4) for c in clients))
         await busy
