@@ -1,6 +1,6 @@
 """What an exception code means when an INVT drive (or this gateway) sends it.
 
-INVT gives 04H–09H meanings of its own, unlike the Modbus standard: 06H is "data frame error"
+INVT gives 04H-09H meanings of its own, unlike the Modbus standard: 06H is "data frame error"
 (wrong length or CRC), not "server busy", so a 06H must never be retried as if the drive were busy.
 0AH and 0BH are never sent by a drive: the gateway makes them.
 """
@@ -49,13 +49,13 @@ EXCEPTIONS: Final[dict[int, tuple[str, str]]] = {
 
 
 def exception_name(code: int) -> str:
-    """"operation_failure" for 04H; "exception_<hex>" for a code INVT doesn't define."""
+    """ "operation_failure" for 04H; "exception_<hex>" for a code INVT doesn't define."""
     entry = EXCEPTIONS.get(code)
     return entry[0] if entry else f"exception_{code:02x}"
 
 
 def describe_exception(code: int) -> str:
-    """"04H operation failure: the written value is invalid"."""
+    """ "04H operation failure: the written value is invalid"."""
     entry = EXCEPTIONS.get(code)
     if entry is None:
         return f"{code:02X}H unknown exception"

@@ -1,6 +1,6 @@
-"""INVT fault codes, as read from 2102H, 5000H (GD350) and P07.27–P07.32.
+"""INVT fault codes, as read from 2102H, 5000H (GD350) and P07.27-P07.32.
 
-Codes 0–36 are shared by the Goodrive families; the GD350 family goes on to 69 and its manual
+Codes 0-36 are shared by the Goodrive families; the GD350 family goes on to 69 and its manual
 gives short codes only for those, so they are shown as the short code alone. A code not in the
 table (a newer firmware, another family) is still shown, as its number.
 """
@@ -51,9 +51,40 @@ FAULTS: Final[dict[int, tuple[str, str]]] = {
 
 # GD350 family, short codes only (the manual's table gives no more than these).
 _GD350_SHORT_CODES: Final = (
-    "ENC1o ENC1d ENC1Z STO STL1 STL2 STL3 CrCE P-E1 P-E2 P-E3 P-E4 P-E5 P-E6 P-E7 P-E8 P-E9 "
-    "P-E10 E-Err ENCU E-PN SECAN OT F1-Er F2-Er F3-Er C1-Er C2-Er C3-Er E-CAT E-BAC E-DEV S-Err"
-).split()
+    "ENC1o",
+    "ENC1d",
+    "ENC1Z",
+    "STO",
+    "STL1",
+    "STL2",
+    "STL3",
+    "CrCE",
+    "P-E1",
+    "P-E2",
+    "P-E3",
+    "P-E4",
+    "P-E5",
+    "P-E6",
+    "P-E7",
+    "P-E8",
+    "P-E9",
+    "P-E10",
+    "E-Err",
+    "ENCU",
+    "E-PN",
+    "SECAN",
+    "OT",
+    "F1-Er",
+    "F2-Er",
+    "F3-Er",
+    "C1-Er",
+    "C2-Er",
+    "C3-Er",
+    "E-CAT",
+    "E-BAC",
+    "E-DEV",
+    "S-Err",
+)
 FAULTS.update({37 + offset: (short, "") for offset, short in enumerate(_GD350_SHORT_CODES)})
 
 NO_FAULT: Final = 0
@@ -70,7 +101,7 @@ def fault_short_code(code: int) -> str:
 
 
 def describe_fault(code: int) -> str:
-    """"STo: maladjustment"; "none" for 0; the short code alone when that is all the manual gives;
+    """ "STo: maladjustment"; "none" for 0; the short code alone when that is all the manual gives;
     "unknown fault 99" for a code not in the table."""
     entry = FAULTS.get(code)
     if entry is None:

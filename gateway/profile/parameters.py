@@ -2,10 +2,12 @@
 
 Ranges and factory defaults follow the Goodrive manuals; "depends on model" defaults (P00.11,
 P00.12, P08.07, P08.08) are given a typical 10.0 s. A range bound may be another parameter's
-value (P00.04, the upper limit, lies within P00.05 … P00.03): `minimum_from`/`maximum_from`.
+value (P00.04, the upper limit, lies within P00.05 ... P00.03): `minimum_from`/`maximum_from`.
 
-Marks as in the manual: `read_only` ("●", e.g. the fault history P07.27–P07.32) and
-`locked_while_running` ("◎": writable only when the drive is stopped).
+Marks as in the manual: `read_only` ("●", e.g. the fault history P07.27-P07.32) and
+`locked_while_running` ("◎": writable only when the drive is stopped; exception 08H otherwise).
+Only P00.00 (speed control mode) carries "◎" here: PROTOCOL.md's frames write P00.03 right
+after a run command and expect an echo, so the frequency limits are not locked.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ class Parameter:
     decimals: int = 0
     unit: str = ""
     default: int = 0
-    """Raw value, i.e. already × 10^decimals."""
+    """Raw value, i.e. already x 10^decimals."""
     minimum: int = 0
     maximum: int = 0xFFFF
     minimum_from: str | None = None
@@ -42,12 +44,31 @@ PARAMETERS: Final[tuple[Parameter, ...]] = (
     _P("P00.00", "speed control mode", default=2, maximum=3, locked_while_running=True),
     _P("P00.01", "run command channel: 0 keypad, 1 terminal, 2 communication", maximum=2),
     _P("P00.02", "communication run command channel", maximum=3),
-    _P("P00.03", "max. output frequency", 2, "Hz", default=5000, maximum=63000,
-       minimum_from="P00.04", locked_while_running=True),
-    _P("P00.04", "upper limit of the running frequency", 2, "Hz", default=5000,
-       minimum_from="P00.05", maximum_from="P00.03", locked_while_running=True),
-    _P("P00.05", "lower limit of the running frequency", 2, "Hz",
-       maximum_from="P00.04", locked_while_running=True),
+    _P(
+        "P00.03",
+        "max. output frequency",
+        2,
+        "Hz",
+        default=5000,
+        maximum=63000,
+        minimum_from="P00.04",
+    ),
+    _P(
+        "P00.04",
+        "upper limit of the running frequency",
+        2,
+        "Hz",
+        default=5000,
+        minimum_from="P00.05",
+        maximum_from="P00.03",
+    ),
+    _P(
+        "P00.05",
+        "lower limit of the running frequency",
+        2,
+        "Hz",
+        maximum_from="P00.04",
+    ),
     _P("P00.06", "frequency command A: 0 keypad, 8 Modbus", maximum=15),
     _P("P00.07", "frequency command B", default=15, maximum=15),
     _P("P00.10", "keypad set frequency", 2, "Hz", default=5000, maximum_from="P00.03"),
@@ -65,8 +86,8 @@ PARAMETERS: Final[tuple[Parameter, ...]] = (
     _P("P08.07", "jog acceleration time", 1, "s", default=100, maximum=36000),
     _P("P08.08", "jog deceleration time", 1, "s", default=100, maximum=36000),
     _P("P14.00", "local communication address", default=1, minimum=1, maximum=247),
-    _P("P14.01", "baud rate: 0–7 = 1200…115200", default=4, maximum=7),
-    _P("P14.02", "data format: 0–5 = N81, E81, O81, N82, E82, O82", default=1, maximum=5),
+    _P("P14.01", "baud rate: 0-7 = 1200...115200", default=4, maximum=7),
+    _P("P14.02", "data format: 0-5 = N81, E81, O81, N82, E82, O82", default=1, maximum=5),
     _P("P14.03", "communication response delay", 0, "ms", default=5, maximum=200),
     _P("P14.04", "communication timeout fault time (0.0 = off)", 1, "s", maximum=600),
 )
@@ -107,7 +128,7 @@ def parameter_decimals(name: str) -> int:
 
 def scale_parameter(name: str, value: float) -> int:
     """Raw register value of an engineering value: `scale_parameter("P00.11", 10.0) == 100`."""
-    raw = round(value * 10 ** parameter(name).decimals)
+    raw = round(value * float(10 ** parameter(name).decimals))
     if not 0 <= raw <= 0xFFFF:
         raise ValueError(f"{name} = {value} does not fit in one register")
     return raw
@@ -116,4 +137,4 @@ def scale_parameter(name: str, value: float) -> int:
 def unscale_parameter(name: str, raw: int) -> float | int:
     """Engineering value of a raw register value: `unscale_parameter("P00.03", 5000) == 50.0`."""
     decimals = parameter(name).decimals
-    return raw / 10**decimals if decimals else raw
+    return raw / float(10**decimals) if decimals else raw

@@ -1,7 +1,7 @@
-"""The communication registers of INVT drives (2000H–200EH, 2100H–2103H, 3000H–3016H, 5000H).
+"""The communication registers of INVT drives (2000H-200EH, 2100H-2103H, 3000H-3016H, 5000H).
 
-A value with n decimals in the manual travels as value × 10ⁿ (50.12 Hz → 1394H). Signed values are
-16-bit two's complement (output torque −10.0 % → FF9CH).
+A value with n decimals in the manual travels as value x 10^n (50.12 Hz → 1394H). Signed values are
+16-bit two's complement (output torque -10.0 % → FF9CH).
 """
 
 from __future__ import annotations
@@ -21,17 +21,22 @@ class Register:
     readable: bool = True
     writable: bool = False
     description: str = ""
+    minimum: int | None = None
+    """Lowest value a write may carry (signed registers: as a signed number); None: any."""
+    maximum: int | None = None
+    maximum_from: str | None = None
+    """A parameter whose value is the upper bound instead (2001H: 0 ... P00.03)."""
 
     def decode(self, raw: int, decimals: int | None = None) -> float | int:
         """Engineering value of a raw 16-bit word (an int when the register has no decimals)."""
         value = to_signed(raw) if self.signed else raw & 0xFFFF
         places = self.decimals if decimals is None else decimals
-        return value / 10**places if places else value
+        return value / float(10**places) if places else value
 
     def encode(self, value: float, decimals: int | None = None) -> int:
         """Raw 16-bit word of an engineering value; ValueError when it doesn't fit."""
         places = self.decimals if decimals is None else decimals
-        raw = round(value * 10**places)
+        raw = round(value * float(10**places))
         low, high = (-0x8000, 0x7FFF) if self.signed else (0, 0xFFFF)
         if not low <= raw <= high:
             raise ValueError(f"{self.name} = {value} does not fit in one register ({raw})")
@@ -45,26 +50,36 @@ def to_signed(raw: int) -> int:
 
 _R = Register
 COMMUNICATION_REGISTERS: Final[tuple[Register, ...]] = (
-    _R("control_word", 0x2000, readable=False, writable=True,
-       description="1 forward run … 8 jog stop (write-only)"),
-    _R("frequency_setpoint", 0x2001, 2, "Hz", writable=True, description="0 … P00.03"),
-    _R("pid_reference_setpoint", 0x2002, 1, "%", writable=True, description="0–1000 = 0–100.0 %"),
-    _R("pid_feedback_setpoint", 0x2003, 1, "%", writable=True, description="0–1000 = 0–100.0 %"),
-    _R("torque_setpoint", 0x2004, 1, "%", signed=True, writable=True,
-       description="−3000…3000 = ±300.0 %"),
-    _R("forward_frequency_limit", 0x2005, 2, "Hz", writable=True),
-    _R("reverse_frequency_limit", 0x2006, 2, "Hz", writable=True),
-    _R("motoring_torque_limit", 0x2007, 1, "%", writable=True, description="0–3000"),
-    _R("braking_torque_limit", 0x2008, 1, "%", writable=True, description="0–3000"),
-    _R("special_control_word", 0x2009, writable=True,
-       description="bits 1–0 motor, bit 2 torque control, bit 4 pre-excitation, bit 5 DC brake"),
+    _R(
+        "control_word",
+        0x2000,
+        readable=False,
+        writable=True,
+        minimum=1,
+        maximum=8,
+        description="1 forward run ... 8 jog stop (write-only)",
+    ),
+    _R("frequency_setpoint", 0x2001, 2, "Hz", writable=True, minimum=0, maximum_from="P00.03"),
+    _R("pid_reference_setpoint", 0x2002, 1, "%", writable=True, minimum=0, maximum=1000),
+    _R("pid_feedback_setpoint", 0x2003, 1, "%", writable=True, minimum=0, maximum=1000),
+    _R("torque_setpoint", 0x2004, 1, "%", signed=True, writable=True, minimum=-3000, maximum=3000),
+    _R("forward_frequency_limit", 0x2005, 2, "Hz", writable=True, minimum=0, maximum_from="P00.03"),
+    _R("reverse_frequency_limit", 0x2006, 2, "Hz", writable=True, minimum=0, maximum_from="P00.03"),
+    _R("motoring_torque_limit", 0x2007, 1, "%", writable=True, minimum=0, maximum=3000),
+    _R("braking_torque_limit", 0x2008, 1, "%", writable=True, minimum=0, maximum=3000),
+    _R(
+        "special_control_word",
+        0x2009,
+        writable=True,
+        description="bits 1-0 motor, bit 2 torque control, bit 4 pre-excitation, bit 5 DC brake",
+    ),
     _R("virtual_input_terminals", 0x200A, writable=True),
     _R("virtual_output_terminals", 0x200B, writable=True),
-    _R("vf_separation_voltage", 0x200C, 1, "%", writable=True, description="0–1000"),
-    _R("ao1_output", 0x200D, 1, "%", signed=True, writable=True, description="−1000…1000"),
-    _R("ao2_output", 0x200E, 1, "%", signed=True, writable=True, description="−1000…1000"),
+    _R("vf_separation_voltage", 0x200C, 1, "%", writable=True, minimum=0, maximum=1000),
+    _R("ao1_output", 0x200D, 1, "%", signed=True, writable=True, minimum=-1000, maximum=1000),
+    _R("ao2_output", 0x200E, 1, "%", signed=True, writable=True, minimum=-1000, maximum=1000),
     _R("state_word_1", 0x2100, description="1 fwd, 2 rev, 3 stopped, 4 fault, 5 POFF, 6 pre-exc."),
-    _R("state_word_2", 0x2101, description="bit 0 ready, bits 6–5 command source"),
+    _R("state_word_2", 0x2101, description="bit 0 ready, bits 6-5 command source"),
     _R("fault_code", 0x2102),
     _R("identification", 0x2103),
     _R("running_frequency", 0x3000, 2, "Hz"),
@@ -85,7 +100,7 @@ COMMUNICATION_REGISTERS: Final[tuple[Register, ...]] = (
     _R("ai4_voltage", 0x300F, 2, "V"),
     _R("hdia_frequency", 0x3010, 2, "kHz"),
     _R("hdib_frequency", 0x3011, 2, "kHz"),
-    _R("multi_step_speed_step", 0x3012, description="0–15"),
+    _R("multi_step_speed_step", 0x3012, description="0-15"),
     _R("length", 0x3013),
     _R("count", 0x3014),
     _R("torque_reference", 0x3015, 1, "%", signed=True),
@@ -102,9 +117,7 @@ def register_by_name(name: str) -> Register:
     try:
         return _BY_NAME[name]
     except KeyError:
-        raise ValueError(
-            f"unknown register {name!r}: known are {', '.join(_BY_NAME)}"
-        ) from None
+        raise ValueError(f"unknown register {name!r}: known are {', '.join(_BY_NAME)}") from None
 
 
 def register_at(address: int) -> Register | None:

@@ -3,8 +3,8 @@
 Control word, as the manual lists it: 1 forward run, 2 reverse run, 3 forward jog, 4 reverse jog,
 5 stop, 6 coast stop, 7 fault reset, 8 jog stop.
 State word 1: 1 forward running, 2 reverse running, 3 stopped, 4 fault, 5 POFF, 6 pre-exciting.
-State word 2: bit 0 ready (its polarity differs by model: see `DriveProfile`), bits 2–1 motor,
-bit 3 synchronous motor, bit 4 overload pre-alarm, bits 6–5 command source
+State word 2: bit 0 ready (its polarity differs by model: see `DriveProfile`), bits 2-1 motor,
+bit 3 synchronous motor, bit 4 overload pre-alarm, bits 6-5 command source
 (00 keypad, 01 terminal, 10 communication).
 """
 
@@ -26,7 +26,9 @@ class ControlCommand(IntEnum):
     JOG_STOP = 8
 
 
-CONTROL_COMMANDS: Final[dict[str, int]] = {command.name.lower(): command for command in ControlCommand}
+CONTROL_COMMANDS: Final[dict[str, int]] = {
+    command.name.lower(): command for command in ControlCommand
+}
 
 
 def control_command(name: str) -> ControlCommand:
@@ -49,7 +51,7 @@ class RunState(IntEnum):
 
 
 def decode_state_word_1(value: int) -> str:
-    """"running_forward", "stopped", "fault", ...; "unknown_<n>" for values INVT doesn't define."""
+    """ "running_forward", "stopped", "fault", ...; "unknown_<n>" for values INVT doesn't define."""
     try:
         return RunState(value).name.lower()
     except ValueError:
@@ -57,7 +59,7 @@ def decode_state_word_1(value: int) -> str:
 
 
 class CommandSource(IntEnum):
-    """State word 2 bits 6–5, also the values of P00.01 (run command channel)."""
+    """State word 2 bits 6-5, also the values of P00.01 (run command channel)."""
 
     KEYPAD = 0
     TERMINAL = 1

@@ -1,0 +1,201 @@
+"""`invt-gateway simulate`: a line of simulated INVT drives on a pty (or a serial device).
+
+    invt-gateway simulate --pty --address 1 --address 2 [--link /tmp/ttyINVT]
+
+The first line on stdout is the device path to point the gateway at. It serves until SIGTERM or
+SIGINT (exit 0). When stdin is not a terminal, it takes control commands there, one per line
+(`fault 1 35`, `dead 2`, `stats`, ...: see `gateway.simulator.control`), each answered by one
+line on stdout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import select
+import signal
+import sys
+from collections.abc import Iterator, Sequence
+from types import FrameType
+
+from gateway.cli import EXIT_FAILURE, EXIT_OK
+from gateway.profile.invt import PROFILES
+from gateway.simulator.control import run_control_command
+from gateway.simulator.line import SimulatedLine
+
+PARITIES = ("N", "E", "O")
+INVT_MODELS = tuple(key for key, profile in PROFILES.items() if profile.is_invt)
+
+
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = subparsers.add_parser(
+        "simulate",
+        help="serve simulated INVT drives on a pty (for tests and demos without hardware)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_arguments(parser)
+    parser.set_defaults(handler=handle)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    where = parser.add_mutually_exclusive_group(required=True)
+    where.add_argument("--pty", action="store_true", help="create a pty and print its path")
+    where.add_argument("--device", metavar="PATH", help="serve on an existing serial device")
+    parser.add_argument("--link", metavar="PATH", help="a symlink to keep pointed at the port")
+    parser.add_argument(
+        "--address", type=_address, action="append", metavar="ADDR",
+        help="a drive address 1..247 (repeat for several drives; default 1)",
+    )
+    parser.add_argument("--model", default="gd350", choices=INVT_MODELS)
+    parser.add_argument("--baud", type=int, default=19200)
+    parser.add_argument("--parity", default="E", type=str.upper, choices=PARITIES)
+    parser.add_argument("--stopbits", type=int, default=1, choices=(1, 2))
+    parser.add_argument(
+        "--no-wire-time", dest="wire_time", action="store_false",
+        help="answer as fast as the pty allows instead of at the baud rate's pace",
+    )
+    parser.add_argument("--response-delay-ms", type=float, default=5.0, metavar="MS")
+    parser.add_argument(
+        "--fault", type=_pair, action="append", default=[], metavar="ADDR=CODE",
+        help="start with this drive tripped",
+    )
+    parser.add_argument("--dead", type=_address, action="append", default=[], metavar="ADDR")
+    parser.add_argument(
+        "--fault-history", type=_history, action="append", default=[],
+        metavar="ADDR=CODE,CODE,...", help="P07.27-P07.32 of a drive, newest first",
+    )
+
+
+def handle(args: argparse.Namespace) -> int:
+    # Signal handlers first: whoever reads the path may signal at once, and must get a clean
+    # stop (the link removed, exit 0) rather than the default death.
+    with _signal_pipe() as signalled:
+        try:
+            line = build_line(args)
+            line.start()
+        except (ValueError, OSError) as error:
+            print(f"invt-gateway simulate: {error}", file=sys.stderr)
+            return EXIT_FAILURE
+        try:
+            print(line.path, flush=True)
+            print(
+                f"simulating {args.model} drives {sorted(line.drives)} on "
+                f"{line.path} ({args.baud} baud 8{args.parity}{args.stopbits})",
+                file=sys.stderr,
+                flush=True,
+            )
+            serve_until_signal(line, signalled)
+        finally:
+            line.stop()
+    return EXIT_OK
+
+
+def build_line(args: argparse.Namespace) -> SimulatedLine:
+    line = SimulatedLine(
+        addresses=args.address or [1],
+        model=args.model,
+        baudrate=args.baud,
+        parity=args.parity,
+        stopbits=args.stopbits,
+        wire_time=args.wire_time,
+        response_delay_ms=args.response_delay_ms,
+        device=args.device,
+        link=args.link,
+        fault_history=dict(args.fault_history),
+    )
+    for address, code in args.fault:
+        line.inject_fault(address, code)
+    for address in args.dead:
+        line.set_dead(address, True)
+    return line
+
+
+def serve_until_signal(line: SimulatedLine, signalled: int) -> None:
+    """Answer control commands from stdin (unless it is a terminal) until `signalled` is
+    readable (SIGTERM or SIGINT arrived)."""
+    commands = _command_fd()
+    pending = b""
+    while True:
+        watched = [signalled] if commands is None else [signalled, commands]
+        readable, _, _ = select.select(watched, [], [])
+        if signalled in readable:
+            return
+        if commands is not None and commands in readable:
+            chunk = os.read(commands, 4096)
+            if not chunk:
+                commands = None  # EOF: keep serving, just stop listening
+                continue
+            pending += chunk
+            *complete, pending = pending.split(b"\n")
+            for raw in complete:
+                if raw.strip():
+                    answer = run_control_command(line, raw.decode(errors="replace"))
+                    print(answer, flush=True)
+
+
+@contextlib.contextmanager
+def _signal_pipe() -> Iterator[int]:
+    """A descriptor that becomes readable on SIGTERM or SIGINT (select can wait for it)."""
+    read_fd, write_fd = os.pipe()
+
+    def on_signal(number: int, frame: FrameType | None) -> None:
+        os.write(write_fd, b"\0")
+
+    previous = {number: signal.signal(number, on_signal) for number in _STOP_SIGNALS}
+    try:
+        yield read_fd
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+        os.close(read_fd)
+        os.close(write_fd)
+
+
+_STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)
+
+
+def _command_fd() -> int | None:
+    """stdin's descriptor when it carries commands: not a terminal, and open."""
+    try:
+        fd = sys.stdin.fileno()
+    except (AttributeError, ValueError, OSError):
+        return None
+    return None if os.isatty(fd) else fd
+
+
+def _address(text: str) -> int:
+    value = int(text)
+    if not 1 <= value <= 247:
+        raise argparse.ArgumentTypeError(f"drive address {value} is outside 1..247")
+    return value
+
+
+def _pair(text: str) -> tuple[int, int]:
+    address, _, code = text.partition("=")
+    try:
+        return _address(address), int(code)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected ADDR=CODE, e.g. 1=35") from None
+
+
+def _history(text: str) -> tuple[int, list[int]]:
+    address, _, codes = text.partition("=")
+    try:
+        return _address(address), [int(code) for code in codes.split(",") if code]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected ADDR=CODE,CODE,..., e.g. 3=35,35,35"
+        ) from None
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """`python -m gateway.commands.simulate ...`: the same, without the rest of the CLI."""
+    parser = argparse.ArgumentParser(prog="invt-gateway simulate", description=__doc__)
+    add_arguments(parser)
+    return handle(parser.parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

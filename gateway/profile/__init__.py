@@ -1,0 +1,106 @@
+"""Everything the gateway knows about INVT drives, as data: no I/O.
+
+- `addressing`: Pxx.yy ↔ register, RAM-only addresses, register spellings ("2100H", "0x2100").
+- `registers`: the communication registers (2000H..., 2100H..., 3000H...) and the telemetry keys.
+- `parameters`: the Pxx.yy parameters known by name: decimals, range, default.
+- `states`: control word commands, state words 1 and 2.
+- `faults`: fault codes → short code and description.
+- `exception_codes`: INVT's meanings of exception codes 01H-09H, and the gateway's 0AH/0BH.
+- `invt`: model identification codes and the `DriveProfile` of each model.
+"""
+
+from gateway.profile.addressing import (
+    format_parameter,
+    format_register,
+    is_parameter_register,
+    is_ram_address,
+    parse_parameter,
+    parse_register,
+    ram_address,
+)
+from gateway.profile.exception_codes import EXCEPTIONS, describe_exception, exception_name
+from gateway.profile.faults import FAULTS, describe_fault, fault_short_code
+from gateway.profile.invt import (
+    IDENTIFICATION_CODES,
+    PROFILES,
+    DriveProfile,
+    PollGroup,
+    describe_identification,
+    get_profile,
+    model_from_identification,
+)
+from gateway.profile.parameters import (
+    PARAMETERS,
+    Parameter,
+    parameter,
+    parameter_at,
+    parameter_decimals,
+    scale_parameter,
+    unscale_parameter,
+)
+from gateway.profile.registers import (
+    COMMUNICATION_REGISTERS,
+    RUNNING_VALUES,
+    Register,
+    RunningValue,
+    decode_running_values,
+    register_at,
+    register_by_name,
+)
+from gateway.profile.states import (
+    CONTROL_COMMANDS,
+    CommandSource,
+    ControlCommand,
+    RunState,
+    StateWord2,
+    control_command,
+    decode_state_word_1,
+    decode_state_word_2,
+    encode_state_word_2,
+)
+
+__all__ = [
+    "COMMUNICATION_REGISTERS",
+    "CONTROL_COMMANDS",
+    "EXCEPTIONS",
+    "FAULTS",
+    "IDENTIFICATION_CODES",
+    "PARAMETERS",
+    "PROFILES",
+    "RUNNING_VALUES",
+    "CommandSource",
+    "ControlCommand",
+    "DriveProfile",
+    "Parameter",
+    "PollGroup",
+    "Register",
+    "RunState",
+    "RunningValue",
+    "StateWord2",
+    "control_command",
+    "decode_running_values",
+    "decode_state_word_1",
+    "decode_state_word_2",
+    "describe_exception",
+    "describe_fault",
+    "describe_identification",
+    "encode_state_word_2",
+    "exception_name",
+    "fault_short_code",
+    "format_parameter",
+    "format_register",
+    "get_profile",
+    "is_parameter_register",
+    "is_ram_address",
+    "model_from_identification",
+    "parameter",
+    "parameter_at",
+    "parameter_decimals",
+    "parse_parameter",
+    "parse_register",
+    "ram_address",
+    "register_at",
+    "register_by_name",
+    "scale_parameter",
+    "unscale_parameter",
+]

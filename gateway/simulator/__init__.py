@@ -1,0 +1,16 @@
+"""A simulated INVT drive line, behaving as the manuals describe, for tests and demos.
+
+- `drive`: one drive's answers and behaviour (ramps, faults, parameters). Pure logic.
+- `motor`: the output-frequency ramp.
+- `framing`: where a request ends, on the drive's side of the line.
+- `timing`: character time and t3.5.
+- `line_faults`: replies spoilt on purpose (CRC, truncated, wrong address, late, silence).
+- `endpoint`: the pty (or serial device) the line is served on.
+- `line`: `SimulatedLine`, the drives on one pty served from their own thread.
+- `control`: the text commands `invt-gateway simulate` reads on stdin.
+"""
+
+from gateway.simulator.drive import SimulatedDrive
+from gateway.simulator.line import SimulatedLine
+
+__all__ = ["SimulatedDrive", "SimulatedLine"]

@@ -1,0 +1,108 @@
+"""Text commands for a running simulated line, one per line, each answered by one line.
+
+    fault ADDR CODE     the drive trips with fault CODE      → ok fault 1 35
+    clear ADDR          fault reset                          → ok clear 1
+    dead ADDR           the address stops answering          → ok dead 2
+    alive ADDR          ... and answers again                → ok alive 2
+    delay ADDR MS       the address answers MS ms late       → ok delay 1 100
+    noise HEX           bytes put on the line now            → ok noise 3
+    unplug              the port goes away                   → ok unplug
+    replug              a new port, the link re-pointed      → ok replug /dev/pts/7
+    stats               the line's counters                  → ok {"requests": 3, ...}
+
+Anything else, or a command that fails, is answered `error <reason>`.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from typing import Final
+
+from gateway.simulator.line import SimulatedLine
+
+USAGE: Final = (
+    "commands: fault ADDR CODE, clear ADDR, dead ADDR, alive ADDR, delay ADDR MS, noise HEX, "
+    "unplug, replug, stats"
+)
+
+
+def run_control_command(line: SimulatedLine, text: str) -> str:
+    """Carry out one command on `line`; the answer starts with "ok" or "error"."""
+    words = text.split()
+    if not words:
+        return f"error empty command; {USAGE}"
+    name, arguments = words[0].lower(), words[1:]
+    command = _COMMANDS.get(name)
+    if command is None:
+        return f"error unknown command {name!r}; {USAGE}"
+    action, arity = command
+    if len(arguments) != arity:
+        return f"error {name} takes {arity} argument(s); {USAGE}"
+    try:
+        detail = action(line, arguments)
+    except ValueError as error:
+        return f"error {error}"
+    except OSError as error:
+        return f"error {name} failed: {error}"
+    return f"ok {detail}".rstrip()
+
+
+def _fault(line: SimulatedLine, arguments: list[str]) -> str:
+    address, code = int(arguments[0]), int(arguments[1])
+    line.inject_fault(address, code)
+    return f"fault {address} {code}"
+
+
+def _clear(line: SimulatedLine, arguments: list[str]) -> str:
+    line.clear_fault(int(arguments[0]))
+    return f"clear {arguments[0]}"
+
+
+def _dead(line: SimulatedLine, arguments: list[str]) -> str:
+    line.set_dead(int(arguments[0]), True)
+    return f"dead {arguments[0]}"
+
+
+def _alive(line: SimulatedLine, arguments: list[str]) -> str:
+    line.set_dead(int(arguments[0]), False)
+    return f"alive {arguments[0]}"
+
+
+def _delay(line: SimulatedLine, arguments: list[str]) -> str:
+    address, ms = int(arguments[0]), float(arguments[1])
+    line.set_reply_delay(address, ms)
+    return f"delay {address} {ms:g}"
+
+
+def _noise(line: SimulatedLine, arguments: list[str]) -> str:
+    data = bytes.fromhex(arguments[0])
+    line.write_raw(data)
+    return f"noise {len(data)}"
+
+
+def _unplug(line: SimulatedLine, arguments: list[str]) -> str:
+    line.unplug()
+    return "unplug"
+
+
+def _replug(line: SimulatedLine, arguments: list[str]) -> str:
+    line.replug()
+    return f"replug {line.path}"
+
+
+def _stats(line: SimulatedLine, arguments: list[str]) -> str:
+    return json.dumps(line.stats, sort_keys=True)
+
+
+_COMMANDS: Final[dict[str, tuple[Callable[[SimulatedLine, list[str]], str], int]]] = {
+    "fault": (_fault, 2),
+    "clear": (_clear, 1),
+    "dead": (_dead, 1),
+    "alive": (_alive, 1),
+    "delay": (_delay, 2),
+    "noise": (_noise, 1),
+    "unplug": (_unplug, 0),
+    "replug": (_replug, 0),
+    "stats": (_stats, 0),
+}

@@ -1,0 +1,429 @@
+"""A simulated RS-485 line of INVT drives, served from its own thread with blocking I/O.
+
+Timing is the point of this class, so it runs on a thread of its own with `select` and precise
+deadlines rather than on an event loop shared with the code under test.
+
+A pty has no baud rate: bytes the gateway writes arrive at once. With `wire_time`, the line acts
+as the wire would: a request of n bytes ends n character times after its first byte arrived; the
+drive answers after its response delay (P14.03, at least t3.5), and the reply is written whole at
+the moment its last character would have left the wire.
+
+`stats["gap_violations"]` counts requests whose first byte came less than t3.5 after the end of
+the previous frame on the line (a request, or a reply), or while a reply was going out: a master
+that does that corrupts frames on a real line.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import heapq
+import itertools
+import logging
+import os
+import select
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from types import TracebackType
+from typing import Any, Final
+
+from gateway.modbus.rtu import BROADCAST_ADDRESS, build_frame
+from gateway.simulator.drive import SimulatedDrive
+from gateway.simulator.endpoint import Endpoint, point_link, remove_link
+from gateway.simulator.framing import ReceivedFrame, RequestAssembler
+from gateway.simulator.line_faults import LineFaults
+from gateway.simulator.timing import character_time_s, t35_s
+
+log = logging.getLogger(__name__)
+
+STOP_TIMEOUT_S: Final = 1.0
+CALL_TIMEOUT_S: Final = 5.0
+READ_SIZE: Final = 4096
+
+
+class SimulatedLine:
+    def __init__(
+        self,
+        addresses: Iterable[int] = (1,),
+        model: str = "gd350",
+        baudrate: int = 19200,
+        parity: str = "E",
+        stopbits: int = 1,
+        wire_time: bool = True,
+        response_delay_ms: float = 5.0,
+        device: str | None = None,
+        link: str | None = None,
+        *,
+        models: Mapping[int, str] | None = None,
+        fault_history: Mapping[int, Sequence[int]] | None = None,
+    ) -> None:
+        models = models or {}
+        histories = fault_history or {}
+        self.drives: dict[int, SimulatedDrive] = {
+            address: SimulatedDrive(
+                address, models.get(address, model), fault_history=histories.get(address, ())
+            )
+            for address in addresses
+        }
+        self.model = model
+        self.baudrate = baudrate
+        self.parity = parity.upper()
+        self.stopbits = stopbits
+        self.wire_time = wire_time
+        self.response_delay_ms = response_delay_ms
+        self.device = device
+        self.link = link
+        self.character_s = character_time_s(baudrate, self.parity, stopbits)
+        self.t35_s = t35_s(baudrate, self.parity, stopbits)
+
+        self._lock = threading.Lock()
+        self._dead: set[int] = set()
+        self._extra_delay_s: dict[int, float] = {}
+        self._faults = LineFaults()
+        self._stats: dict[str, Any] = {
+            "requests": 0,
+            "replies": 0,
+            "broadcasts": 0,
+            "crc_errors": 0,
+            "ignored": 0,
+            "gap_violations": 0,
+            "min_gap_s": None,
+            "faults_injected": 0,
+            "faults_by_kind": {},
+        }
+
+        self._endpoint: Endpoint | None = None
+        self._path: str | None = None
+        self._thread: threading.Thread | None = None
+        self._stopping = False
+        self._wake_read = self._wake_write = -1
+        self._calls: deque[_Call] = deque()
+        self._assembler = RequestAssembler(self.t35_s)
+        self._pending: list[tuple[float, int, bytes]] = []  # (due, sequence, frame): a heap
+        self._sequence = itertools.count()
+        self._last_frame_end: float | None = None
+        self._request_wire_end = 0.0
+
+    # ----------------------------------------------------------------- lifecycle
+
+    def start(self) -> None:
+        """Open the pty (or the device), point `link` at it, start serving."""
+        if self._thread is not None:
+            raise RuntimeError("the simulated line is already started")
+        self._wake_read, self._wake_write = os.pipe()
+        try:
+            self._plug()
+        except BaseException:
+            self._close_wake_pipe()
+            raise
+        self._stopping = False
+        self._thread = threading.Thread(target=self._serve, name="simulated-line", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop serving (promptly), close the port, remove the link. Safe to call twice."""
+        thread = self._thread
+        if thread is None:
+            return
+        self._stopping = True
+        self._wake()
+        thread.join(STOP_TIMEOUT_S)
+        if thread.is_alive():
+            log.error("simulated line thread did not stop within %.1f s", STOP_TIMEOUT_S)
+        self._thread = None
+        self._unplug()
+        self._close_wake_pipe()
+
+    def _close_wake_pipe(self) -> None:
+        for fd in (self._wake_read, self._wake_write):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        self._wake_read = self._wake_write = -1
+
+    def __enter__(self) -> SimulatedLine:
+        if self._thread is None:
+            self.start()
+        return self
+
+    def __exit__(
+        self,
+        kind: type[BaseException] | None,
+        error: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        self.stop()
+
+    @property
+    def path(self) -> str:
+        """What the gateway opens: the link if one was asked for, else the pty or the device."""
+        if self.link is not None:
+            return self.link
+        if self._path is None:
+            raise RuntimeError("the simulated line has no port yet: call start()")
+        return self._path
+
+    # ----------------------------------------------------------------- controls
+
+    def set_dead(self, address: int, dead: bool = True) -> None:
+        """A dead address never answers."""
+        with self._lock:
+            self._drive(address)
+            (self._dead.add if dead else self._dead.discard)(address)
+
+    def inject_fault(self, address: int, code: int) -> None:
+        with self._lock:
+            self._drive(address).inject_fault(code, time.monotonic())
+
+    def clear_fault(self, address: int) -> None:
+        with self._lock:
+            self._drive(address).clear_fault(time.monotonic())
+
+    def set_fault_history(self, address: int, codes: Sequence[int]) -> None:
+        """P07.27-P07.32 of one drive, newest first."""
+        with self._lock:
+            self._drive(address).set_fault_history(codes)
+
+    def set_reply_delay(self, address: int, ms: float) -> None:
+        """This address answers `ms` later than its response delay; 0 makes it punctual again."""
+        with self._lock:
+            self._drive(address)
+            self._extra_delay_s[address] = max(ms, 0.0) / 1000
+
+    def set_line_faults(
+        self,
+        rate: float = 0.05,
+        kinds: Iterable[str] | None = None,
+        seed: int | None = None,
+        late_ms: float = 500.0,
+    ) -> None:
+        """Spoil each reply with probability `rate`, one of `kinds` (all when None) at random."""
+        with self._lock:
+            self._faults.configure(rate, kinds, seed, late_ms / 1000)
+
+    def write_raw(self, data: bytes) -> None:
+        """Put arbitrary bytes (noise) on the line now."""
+        self._in_loop(lambda: self._write(data))
+
+    def unplug(self) -> None:
+        """Close the port: the gateway's open port fails as if the USB adapter were pulled."""
+        self._in_loop(self._unplug)
+
+    def replug(self) -> None:
+        """A new pty (a new name, like a re-enumerated adapter); `link` points at it again."""
+        self._in_loop(self._plug)
+
+    @property
+    def stats(self) -> dict[str, Any]:
+        """A snapshot: requests, replies, broadcasts, crc_errors, ignored, gap_violations,
+        min_gap_s, faults_injected (spoilt replies) and faults_by_kind."""
+        with self._lock:
+            return {**self._stats, "faults_by_kind": dict(self._stats["faults_by_kind"])}
+
+    @property
+    def lock(self) -> threading.Lock:
+        """Hold it to look at `drives` while the line is serving."""
+        return self._lock
+
+    def _drive(self, address: int) -> SimulatedDrive:
+        try:
+            return self.drives[address]
+        except KeyError:
+            raise ValueError(
+                f"no simulated drive at address {address}: the line has {sorted(self.drives)}"
+            ) from None
+
+    # ----------------------------------------------------------------- the thread
+
+    def _serve(self) -> None:
+        while not self._stopping:
+            try:
+                self._serve_once()
+            except Exception:  # the line must outlive a bug in one exchange; the log shows it
+                log.exception("simulated line: error while serving")
+
+    def _serve_once(self) -> None:
+        endpoint = self._endpoint
+        watched = [self._wake_read] if endpoint is None else [self._wake_read, endpoint.fd]
+        readable, _, _ = select.select(watched, [], [], self._next_wakeup())
+        if self._wake_read in readable:
+            os.read(self._wake_read, READ_SIZE)
+        if self._stopping:
+            return
+        self._run_calls()
+        self._send_due(time.monotonic())
+        if endpoint is not None and endpoint is self._endpoint and endpoint.fd in readable:
+            self._receive(endpoint, time.monotonic())
+        with self._lock:
+            for frame in self._assembler.on_silence(time.monotonic()):
+                self._on_frame(frame)
+
+    def _next_wakeup(self) -> float | None:
+        deadlines = [self._pending[0][0]] if self._pending else []
+        silence = self._assembler.silence_deadline()
+        if silence is not None:
+            deadlines.append(silence)
+        if not deadlines:
+            return None
+        return max(0.0, min(deadlines) - time.monotonic())
+
+    def _receive(self, endpoint: Endpoint, now: float) -> None:
+        try:
+            data = os.read(endpoint.fd, READ_SIZE)
+        except BlockingIOError:
+            return
+        except OSError as error:
+            log.warning("simulated line: %s vanished (%s)", endpoint.path, error)
+            self._unplug()
+            return
+        if not data:
+            log.warning("simulated line: %s closed", endpoint.path)
+            self._unplug()
+            return
+        with self._lock:
+            for frame in self._assembler.feed(data, now):
+                self._on_frame(frame)
+
+    def _on_frame(self, frame: ReceivedFrame) -> None:
+        """A request: count it, check the gap before it, hand it to its drive."""
+        if not frame.valid:
+            self._stats["crc_errors"] += 1
+            return
+        self._stats["requests"] += 1
+        character_s = self.character_s if self.wire_time else 0.0
+        request_wire_s = len(frame.data) * character_s
+        self._check_gap(frame.first_byte_at, request_wire_s, character_s)
+        # The UART sends one frame after another: a request can't start before the last ended.
+        wire_start = max(frame.first_byte_at, self._request_wire_end)
+        wire_end = max(wire_start + request_wire_s, frame.last_byte_at)
+        self._request_wire_end = wire_end
+        self._frame_ended(wire_end)
+        address, pdu = frame.data[0], frame.data[1:-2]
+        if address == BROADCAST_ADDRESS:
+            self._stats["broadcasts"] += 1
+            for each in self.drives.values():
+                each.apply_broadcast(pdu, wire_end)
+            return
+        drive = self.drives.get(address)
+        if drive is None or address in self._dead:
+            self._stats["ignored"] += 1
+            return
+        reply = build_frame(address, drive.handle(pdu, wire_end))
+        delay_s = self._response_delay_s(drive) + self._extra_delay_s.get(address, 0.0)
+        spoilt = self._faults.maybe_spoil(reply)
+        if spoilt is not None:
+            self._stats["faults_injected"] += 1
+            by_kind = self._stats["faults_by_kind"]
+            by_kind[spoilt.kind] = by_kind.get(spoilt.kind, 0) + 1
+            if spoilt.frame is None:
+                return
+            reply, delay_s = spoilt.frame, delay_s + spoilt.extra_delay_s
+        due = wire_end + delay_s + len(reply) * character_s
+        heapq.heappush(self._pending, (due, next(self._sequence), reply))
+
+    def _response_delay_s(self, drive: SimulatedDrive) -> float:
+        """P14.03 once written over Modbus, else the line's `response_delay_ms`; at least t3.5
+        when emulating the wire (a drive can't answer inside the gap that ends the request)."""
+        written = "P14.03" in drive.written_parameters
+        delay_s = (drive.response_delay_ms if written else self.response_delay_ms) / 1000
+        return max(delay_s, self.t35_s) if self.wire_time else delay_s
+
+    def _check_gap(self, first_byte_at: float, request_wire_s: float, character_s: float) -> None:
+        gaps = []
+        if self._last_frame_end is not None:
+            gaps.append(first_byte_at - self._last_frame_end)
+        for due, _, reply in self._pending:
+            reply_starts = due - len(reply) * character_s
+            if first_byte_at + request_wire_s + self.t35_s > reply_starts:
+                gaps.append(first_byte_at - due)  # collides with a reply still to go out
+        if not gaps:
+            return
+        gap = min(gaps)
+        if gap < self.t35_s:
+            self._stats["gap_violations"] += 1
+        smallest = self._stats["min_gap_s"]
+        self._stats["min_gap_s"] = gap if smallest is None else min(smallest, gap)
+
+    def _frame_ended(self, at: float) -> None:
+        if self._last_frame_end is None or at > self._last_frame_end:
+            self._last_frame_end = at
+
+    def _send_due(self, now: float) -> None:
+        while self._pending and self._pending[0][0] <= now:
+            _, _, reply = heapq.heappop(self._pending)
+            written_at = time.monotonic()
+            if self._write(reply):
+                with self._lock:
+                    self._stats["replies"] += 1
+                    self._frame_ended(written_at)
+
+    def _write(self, data: bytes) -> bool:
+        endpoint = self._endpoint
+        if endpoint is None:
+            return False
+        try:
+            os.write(endpoint.fd, data)
+        except BlockingIOError:
+            log.warning("simulated line: %s is full, %d bytes dropped", endpoint.path, len(data))
+            return False
+        except OSError as error:
+            log.warning("simulated line: write to %s failed (%s)", endpoint.path, error)
+            return False
+        return True
+
+    # ----------------------------------------------------------------- port and calls
+
+    def _plug(self) -> None:
+        if self._endpoint is not None:
+            return
+        if self.device is None:
+            endpoint = Endpoint.open_pty()
+        else:
+            endpoint = Endpoint.open_device(self.device, self.baudrate, self.parity, self.stopbits)
+        self._endpoint, self._path = endpoint, endpoint.path
+        if self.link is not None:
+            point_link(self.link, endpoint.path)
+
+    def _unplug(self) -> None:
+        endpoint, self._endpoint = self._endpoint, None
+        if endpoint is not None:
+            endpoint.close()
+        if self.link is not None:
+            remove_link(self.link)
+        self._pending.clear()
+        with self._lock:
+            self._assembler = RequestAssembler(self.t35_s)
+
+    def _in_loop(self, action: Callable[[], object]) -> None:
+        """Run `action` on the line's thread (it owns the port), and wait for it."""
+        thread = self._thread
+        if thread is None or thread is threading.current_thread():
+            action()
+            return
+        call = _Call(action)
+        self._calls.append(call)
+        self._wake()
+        if not call.done.wait(CALL_TIMEOUT_S):
+            raise TimeoutError("the simulated line did not respond")
+        if call.error is not None:
+            raise call.error
+
+    def _run_calls(self) -> None:
+        while self._calls:
+            call = self._calls.popleft()
+            try:
+                call.action()
+            except Exception as error:  # handed back to the caller, raised there
+                call.error = error
+            call.done.set()
+
+    def _wake(self) -> None:
+        with contextlib.suppress(OSError):
+            os.write(self._wake_write, b"\0")
+
+
+class _Call:
+    def __init__(self, action: Callable[[], object]) -> None:
+        self.action = action
+        self.done = threading.Event()
+        self.error: Exception | None = None
