@@ -19,6 +19,12 @@ COMMAND_MODULES = (
     "gateway.commands.check_config",
     "gateway.commands.demo",
     "gateway.commands.simulate",
+    "gateway.commands.bench",
+    "gateway.commands.scan",
+    "gateway.commands.read",
+    "gateway.commands.write",
+    "gateway.commands.decode_fault",
+    "gateway.commands.healthcheck",
 )
 
 EXIT_OK = 0

@@ -14,6 +14,7 @@ from gateway.cli import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
 from gateway.config import GatewayConfig, load_config
 from gateway.errors import ConfigError
 from gateway.logs import setup_logging
+from gateway.systemd import Notifier, keep_watchdog, watchdog_interval_s
 
 log = logging.getLogger(__name__)
 
@@ -48,24 +49,41 @@ async def serve(
     config: GatewayConfig,
     on_ready: Callable[[Application], None] | None = None,
 ) -> int:
-    """Run the gateway until SIGTERM or SIGINT; the exit code."""
+    """Run the gateway until SIGTERM or SIGINT; the exit code.
+
+    Under systemd (`Type=notify`) it reports READY=1 once the buses and the TCP port are up,
+    STOPPING=1 on the signal, and pings the watchdog from this event loop meanwhile.
+    """
     app = Application(config)
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
+    notifier = Notifier.from_environment()
+
+    def on_signal(signum: signal.Signals) -> None:
+        if not stop.is_set():
+            log.info("%s received: shutting down", signum.name)
+            notifier.stopping()
+        stop.set()
+
     for signum in (signal.SIGTERM, signal.SIGINT):
-        loop.add_signal_handler(signum, stop.set)
+        loop.add_signal_handler(signum, on_signal, signum)
 
     def ready() -> None:
-        log.info(
-            "ready: %d drives on %d buses, Modbus-TCP on %s:%d",
-            len(config.drives),
-            len(config.buses),
-            config.modbus_tcp.host,
-            app.tcp.port,
+        status = (
+            f"ready: {len(config.drives)} drives on {len(config.buses)} buses, "
+            f"Modbus-TCP on {config.modbus_tcp.host}:{app.tcp.port}"
         )
+        log.info("%s", status)
+        notifier.ready(status)
         if on_ready is not None:
             on_ready(app)
 
+    interval_s = watchdog_interval_s()
+    watchdog = (
+        None
+        if interval_s is None or not notifier.enabled
+        else asyncio.create_task(keep_watchdog(notifier, interval_s), name="systemd-watchdog")
+    )
     try:
         await app.run(stop, ready)
     except OSError as exc:
@@ -74,4 +92,7 @@ async def serve(
     finally:
         for signum in (signal.SIGTERM, signal.SIGINT):
             loop.remove_signal_handler(signum)
+        if watchdog is not None:
+            watchdog.cancel()
+        notifier.close()
     return EXIT_OK

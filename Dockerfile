@@ -1,0 +1,43 @@
+# invt-gateway: Modbus-TCP/MQTT gateway for INVT drives on RS-485.
+#
+#   docker build -t invt-gateway .
+#   docker run -d --name invt-gateway --restart unless-stopped \
+#     --device /dev/serial/by-id/usb-FTDI_...-if00-port0:/dev/ttyRS485-1 \
+#     -v /etc/invt-gateway:/etc/invt-gateway:ro -p 5020:5020 -p 9102:9102 invt-gateway
+#
+# The build stage installs the package from this source tree into a virtualenv; the runtime
+# stage copies only that virtualenv, so no compiler, pip cache or source ends up in the image.
+
+FROM python:3.11-slim-bookworm AS build
+ENV PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_NO_CACHE_DIR=1
+WORKDIR /src
+COPY pyproject.toml README.md ./
+COPY gateway ./gateway
+RUN python -m venv /opt/invt-gateway \
+    && /opt/invt-gateway/bin/pip install --no-cache-dir /src
+
+FROM python:3.11-slim-bookworm
+# A system user without a home or shell; dialout lets it open serial devices passed in with
+# --device (they keep the host's group, which is dialout, GID 20, on Debian and Ubuntu hosts).
+RUN groupadd --system --gid 10001 invt-gateway \
+    && useradd --system --uid 10001 --gid 10001 --groups dialout --no-create-home \
+        --home-dir /nonexistent --shell /usr/sbin/nologin invt-gateway \
+    && mkdir -p /etc/invt-gateway
+COPY --from=build /opt/invt-gateway /opt/invt-gateway
+COPY config/config.example.yaml /etc/invt-gateway/config.yaml
+ENV PATH=/opt/invt-gateway/bin:$PATH \
+    PYTHONUNBUFFERED=1 \
+    PYTHONDONTWRITEBYTECODE=1
+# By number, so an orchestrator can tell it isn't root; no group given, so the user's
+# supplementary groups (dialout) still apply.
+USER 10001
+# Modbus-TCP (modbus_tcp.port) and metrics/health (metrics.port).
+EXPOSE 5020 9102
+VOLUME ["/etc/invt-gateway"]
+HEALTHCHECK --interval=30s --timeout=5s --start-period=15s --retries=3 \
+    CMD ["invt-gateway", "healthcheck", "--config", "/etc/invt-gateway/config.yaml"]
+# Exec form: the gateway is PID 1 and gets SIGTERM itself (no shell in between to swallow it);
+# it shuts down within 2 s, well inside Docker's 10 s before SIGKILL.
+STOPSIGNAL SIGTERM
+ENTRYPOINT ["invt-gateway"]
+CMD ["run", "--config", "/etc/invt-gateway/config.yaml"]

@@ -1,0 +1,64 @@
+"""`invt-gateway healthcheck [--config FILE]`: exit 0 when the running gateway is ready.
+
+For Docker's HEALTHCHECK (the slim image has no curl): asks /health on the metrics port of the
+configuration's gateway. With metrics disabled it checks that the Modbus-TCP port accepts a
+connection instead, which still tells a stuck or dead gateway from a working one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import socket
+import sys
+import urllib.error
+import urllib.request
+
+from gateway.cli import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
+from gateway.commands.run import DEFAULT_CONFIG, load_or_report
+
+ANY_ADDRESS = ("0.0.0.0", "::", "")
+
+
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = subparsers.add_parser(
+        "healthcheck",
+        help="exit 0 if the gateway of this configuration is up and ready (for Docker)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--config", "-c", default=DEFAULT_CONFIG, help="YAML file")
+    parser.add_argument("--timeout", type=float, default=3.0, metavar="S")
+    parser.set_defaults(handler=handle)
+
+
+def local_host(host: str) -> str:
+    """Where to reach a server bound to `host` from this machine."""
+    return "127.0.0.1" if host in ANY_ADDRESS else host
+
+
+def handle(args: argparse.Namespace) -> int:
+    config = load_or_report(args.config)
+    if config is None:
+        return EXIT_CONFIG
+    if config.metrics.enabled:
+        host = local_host(config.metrics.host)
+        url = f"http://{host}:{config.metrics.port}/health"
+        try:
+            with urllib.request.urlopen(url, timeout=args.timeout) as response:
+                print(response.read().decode(errors="replace").strip())
+                return EXIT_OK
+        except urllib.error.HTTPError as exc:  # 503: starting or stopping
+            print(f"{url}: {exc.code} {exc.read().decode(errors='replace').strip()}")
+            return EXIT_FAILURE
+        except OSError as exc:
+            print(f"{url}: {exc}", file=sys.stderr)
+            return EXIT_FAILURE
+    tcp = config.modbus_tcp
+    address = (local_host(tcp.host), tcp.port)
+    try:
+        with socket.create_connection(address, timeout=args.timeout):
+            print(f"Modbus-TCP {address[0]}:{address[1]} accepts connections")
+            return EXIT_OK
+    except OSError as exc:
+        print(f"Modbus-TCP {address[0]}:{address[1]}: {exc}", file=sys.stderr)
+        return EXIT_FAILURE

@@ -1,0 +1,56 @@
+"""`invt-gateway read --port DEV --address 1 P00.11 2100H output_frequency`: read and explain.
+
+Each name is one register (Pxx.yy, 2100H, a profile name), printed scaled with its unit and
+decoded where it is a code. `--via tcp://HOST:PORT` asks a running gateway instead of the line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from gateway.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
+from gateway.commands.line_options import add_target_arguments
+
+
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = subparsers.add_parser(
+        "read",
+        help="read registers or parameters of one drive, scaled and explained",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_target_arguments(parser)
+    parser.add_argument(
+        "points", nargs="+", metavar="NAME", help="P00.11, 2100H, 0x3000, frequency_setpoint, ..."
+    )
+    parser.set_defaults(handler=handle)
+
+
+def handle(args: argparse.Namespace) -> int:
+    from gateway.tools.access import read_point
+    from gateway.tools.advice import FieldError
+    from gateway.tools.open import open_master
+    from gateway.tools.points import resolve
+
+    try:
+        points = [resolve(name) for name in args.points]
+    except ValueError as exc:
+        print(f"invt-gateway read: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        master = open_master(args)
+    except FieldError as exc:
+        print(f"invt-gateway read: {exc}", file=sys.stderr)
+        return EXIT_FAILURE
+    failed = False
+    try:
+        for point in points:
+            try:
+                print(read_point(master, args.address, point).line(), flush=True)
+            except FieldError as exc:
+                print(f"invt-gateway read: {exc}", file=sys.stderr)
+                failed = True
+    finally:
+        master.close()
+    return EXIT_FAILURE if failed else EXIT_OK

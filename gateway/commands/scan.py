@@ -1,0 +1,103 @@
+"""`invt-gateway scan --port DEV --baud 19200 [--parity E]`: which drives are on this line?
+
+Probes each address with an 08H loop-back (a silent address costs one short timeout), then reads
+2100H-2103H of those that answer, and prints a table: address, model (from the identification
+code), state, fault, and where the drive takes its run commands from (P00.01).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from gateway.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
+from gateway.commands.line_options import add_serial_arguments
+from gateway.tools import SCAN_TIMEOUT_MS
+
+FIRST_ADDRESS = 1
+LAST_ADDRESS = 247
+
+
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = subparsers.add_parser(
+        "scan",
+        help="find the drives on a line: address, model, state, fault",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_serial_arguments(
+        parser, timeout_ms=SCAN_TIMEOUT_MS, timeout_help=f"default {SCAN_TIMEOUT_MS:g}"
+    )
+    parser.add_argument(
+        "--addresses",
+        type=address_ranges,
+        default=list(range(FIRST_ADDRESS, LAST_ADDRESS + 1)),
+        metavar="LIST",
+        help="addresses to probe, e.g. 1-32 or 1,5,10-12 (default 1-247)",
+    )
+    parser.set_defaults(handler=handle)
+
+
+def address_ranges(text: str) -> list[int]:
+    """ "1-3,7" → [1, 2, 3, 7]; every address within 1..247."""
+    addresses: list[int] = []
+    try:
+        for part in text.split(","):
+            first, _, last = part.strip().partition("-")
+            addresses.extend(range(int(first), int(last or first) + 1))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected e.g. 1-32 or 1,5,10-12") from None
+    if not addresses or not all(FIRST_ADDRESS <= a <= LAST_ADDRESS for a in addresses):
+        raise argparse.ArgumentTypeError(f"{text!r}: addresses are {FIRST_ADDRESS}..{LAST_ADDRESS}")
+    return sorted(set(addresses))
+
+
+def handle(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+
+    from gateway.tools.advice import FieldError
+    from gateway.tools.open import open_serial, serial_options
+    from gateway.tools.report import no_drive_found, result_table
+    from gateway.tools.scan import FoundDrive, scan
+
+    if args.timeout_ms <= 0:
+        print("invt-gateway scan: --timeout-ms must be positive", file=sys.stderr)
+        return EXIT_USAGE
+    # A late reply must not be taken for the next address's answer; a short drain is enough
+    # because a scan never retries, and the loop-back is tiny.
+    options = serial_options(args, drain_ms=0.0)
+    try:
+        master = open_serial(options)
+    except FieldError as exc:
+        print(f"invt-gateway scan: {exc}", file=sys.stderr)
+        return EXIT_FAILURE
+    progress_console = Console(stderr=True)
+    try:
+        with Progress(
+            TextColumn("[progress.description]{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("{task.fields[found]} found"),
+            console=progress_console,
+            transient=True,
+        ) as progress:
+            task = progress.add_task(
+                f"scanning {options.describe()}", total=len(args.addresses), found=0
+            )
+            count = 0
+
+            def advance(address: int, found: FoundDrive | None) -> None:
+                nonlocal count
+                count += found is not None
+                progress.update(task, advance=1, found=count)
+
+            result = scan(master, args.addresses, advance)
+    finally:
+        master.close()
+    if not result.found:
+        print(f"invt-gateway scan: {no_drive_found(options, result)}", file=sys.stderr)
+        return EXIT_FAILURE
+    Console(soft_wrap=True).print(result_table(options, result))
+    return EXIT_OK
+

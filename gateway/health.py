@@ -1,0 +1,62 @@
+"""The service's health as a service manager or a load balancer asks for it.
+
+- live: the process answers at all. The report is made on the event loop, so a loop that is
+  stuck doesn't answer and the caller's timeout says "not live".
+- ready: start-up is done (buses opened or retrying, Modbus-TCP listening) and no shutdown has
+  begun. An offline drive or a missing adapter doesn't make the gateway unready: it still
+  answers every request (0x0B for those drives) and restarting it would fix nothing. The
+  report lists them, as "degraded", for a person or an alert to act on.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable, Mapping
+from enum import StrEnum
+from typing import Any
+
+from gateway.bus import Bus, BusState
+
+
+class Phase(StrEnum):
+    STARTING = "starting"
+    READY = "ready"
+    STOPPING = "stopping"
+
+
+def health_report(
+    phase: Phase,
+    buses: Mapping[str, Bus],
+    drives: Iterable[tuple[str, str, int]],
+    tcp_clients: int,
+    started_at: float,
+) -> dict[str, Any]:
+    """The JSON body of /health; `drives` are (drive, bus, address)."""
+    per_bus: dict[str, dict[str, Any]] = {
+        name: {
+            "state": str(bus.state),
+            "port": bus.settings.line.port,
+            "queue_depth": bus.queue_depth,
+            "drives_online": [],
+            "drives_offline": [],
+        }
+        for name, bus in buses.items()
+    }
+    for drive, bus_name, address in drives:
+        bus = buses[bus_name]
+        key = "drives_offline" if bus.health.is_offline(address) else "drives_online"
+        per_bus[bus_name][key].append(drive)
+    degraded = any(
+        bus.state is not BusState.OPEN or report["drives_offline"]
+        for bus, report in zip(buses.values(), per_bus.values(), strict=True)
+    )
+    ready = phase is Phase.READY
+    status = ("degraded" if degraded else "ok") if ready else str(phase)
+    return {
+        "status": status,
+        "live": True,
+        "ready": ready,
+        "uptime_s": round(time.monotonic() - started_at, 3),
+        "tcp_clients": tcp_clients,
+        "buses": per_bus,
+    }

@@ -1,0 +1,365 @@
+"""Prometheus metrics and the health endpoint, on one HTTP port (`metrics: {host, port}`).
+
+Most values are read at scrape time from the counters the parts already keep (`BusStats`,
+`DriveStats`, `TcpStats`, the health tracker): nothing is added to the bus's hot path for them.
+The bus thread writes those counters without a lock; a scrape reads plain numbers and copies
+each mapping in one step, so at worst it sees a transaction half counted, never an error.
+Only what has to be seen per request, by who asked and how long it took, comes through the
+bus's request observer: a counter by source and function code, and a latency histogram.
+
+Bus utilisation is `rate(invt_gateway_bus_busy_seconds_total[1m])`: the fraction of time the
+line was held by a transaction, response timeouts included (a dead drive costs line time too).
+
+Endpoints: /metrics (Prometheus text format), /health and /health/ready (200 when ready, else
+503), /health/live (200 whenever the event loop answers). The health body is JSON.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from http import HTTPStatus
+from typing import Protocol, TypeVar
+
+from prometheus_client import (
+    CONTENT_TYPE_LATEST,
+    CollectorRegistry,
+    Counter,
+    Histogram,
+    ProcessCollector,
+    generate_latest,
+)
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, InfoMetricFamily
+from prometheus_client.registry import Collector
+
+from gateway import __version__
+from gateway.bus import Bus, BusState, RequestDone
+from gateway.config import GatewayConfig
+from gateway.health import Phase, health_report
+from gateway.http_endpoint import HttpEndpoint, Response
+from gateway.router import Router
+from gateway.tcp.server import ModbusTcpServer, TcpStats
+
+log = logging.getLogger(__name__)
+K = TypeVar("K")
+V = TypeVar("V")
+
+PREFIX = "invt_gateway"
+SOURCES = ("tcp", "poll", "mqtt", "probe")
+"""Who asked: clients are named "tcp:<peer>", "poll", "mqtt" and "probe" (the bus's own)."""
+BROADCAST = "broadcast"
+LATENCY_BUCKETS = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0)
+"""Seconds: one short read at 115200 baud takes ~3 ms, a 16-word read at 9600 ~50 ms, and a
+queue behind a dead drive seconds."""
+
+
+class Service(Protocol):
+    """What metrics and health read from the application."""
+
+    @property
+    def config(self) -> GatewayConfig: ...
+
+    @property
+    def buses(self) -> Mapping[str, Bus]: ...
+
+    @property
+    def router(self) -> Router: ...
+
+    @property
+    def tcp(self) -> ModbusTcpServer: ...
+
+    @property
+    def phase(self) -> Phase: ...
+
+
+@dataclass(frozen=True, slots=True)
+class DriveLabels:
+    drive: str
+    bus: str
+    address: int
+    unit_id: int
+    model: str
+
+
+def drive_labels(service: Service) -> list[DriveLabels]:
+    models = {drive.name: drive.model for drive in service.config.drives}
+    return [
+        DriveLabels(route.drive, route.bus.name, route.address, route.unit_id, models[route.drive])
+        for route in service.router.routes
+    ]
+
+
+def request_source(client: str) -> str:
+    """ "tcp:10.0.0.5:51234" → "tcp"; anything unforeseen → "other" (bounded label values)."""
+    head = client.split(":", 1)[0]
+    return head if head in SOURCES else "other"
+
+
+def function_label(function: int) -> str:
+    return f"{function:02X}"
+
+
+class RequestMetrics:
+    """Per request, as the bus reports it: how many, from whom, which function, how fast."""
+
+    def __init__(self, registry: CollectorRegistry, drives: Sequence[DriveLabels]) -> None:
+        self._names = {(d.bus, d.address): d.drive for d in drives}
+        self.requests = Counter(
+            f"{PREFIX}_requests",
+            "Requests to a drive by who asked (tcp, poll, mqtt, probe) and function code",
+            ["bus", "drive", "source", "function"],
+            registry=registry,
+        )
+        self.errors = Counter(
+            f"{PREFIX}_request_exceptions",
+            "Requests answered with an exception code: the drive's own, or 0A/0B from the gateway",
+            ["bus", "drive", "source", "code"],
+            registry=registry,
+        )
+        self.latency = Histogram(
+            f"{PREFIX}_request_duration_seconds",
+            "Time from a request reaching the bus to its answer: queue, retries, wire",
+            ["bus", "drive", "source"],
+            buckets=LATENCY_BUCKETS,
+            registry=registry,
+        )
+
+    def observe(self, done: RequestDone) -> None:
+        drive = self.drive_name(done.bus, done.address)
+        source = request_source(done.client)
+        self.requests.labels(done.bus, drive, source, function_label(done.function)).inc()
+        if done.code is not None:
+            self.errors.labels(done.bus, drive, source, f"{done.code:02X}").inc()
+        self.latency.labels(done.bus, drive, source).observe(done.duration_s)
+
+    def drive_name(self, bus: str, address: int) -> str:
+        if address == 0:
+            return BROADCAST
+        return self._names.get((bus, address), f"address_{address}")
+
+
+class GatewayCollector(Collector):
+    """Everything read at scrape time from the parts' own counters."""
+
+    def __init__(self, service: Service, drives: Sequence[DriveLabels]) -> None:
+        self.service = service
+        self.drives = drives
+        self._names = {(d.bus, d.address): d.drive for d in drives}
+
+    def collect(self) -> Iterable[CounterMetricFamily | GaugeMetricFamily | InfoMetricFamily]:
+        yield from self._gateway()
+        yield from self._buses()
+        yield from self._drives()
+        yield from self._tcp(self.service.tcp.stats)
+
+    def _gateway(self) -> Iterable[GaugeMetricFamily | InfoMetricFamily]:
+        info = InfoMetricFamily(f"{PREFIX}_build", "Version and id of this gateway")
+        info.add_metric([], {"version": __version__, "gateway_id": self.service.config.gateway_id})
+        yield info
+        ready = GaugeMetricFamily(f"{PREFIX}_ready", "1 once started, 0 while starting/stopping")
+        ready.add_metric([], 1.0 if self.service.phase is Phase.READY else 0.0)
+        yield ready
+
+    def _buses(self) -> Iterable[CounterMetricFamily | GaugeMetricFamily]:
+        buses = self.service.buses
+        state = GaugeMetricFamily(
+            f"{PREFIX}_bus_state", "1 for the bus's current state", labels=["bus", "state"]
+        )
+        depth = GaugeMetricFamily(
+            f"{PREFIX}_bus_queue_depth", "Requests waiting for the line", labels=["bus"]
+        )
+        counters = {
+            name: CounterMetricFamily(f"{PREFIX}_bus_{name}", doc, labels=["bus"])
+            for name, doc in _BUS_COUNTERS.items()
+        }
+        busy = CounterMetricFamily(
+            f"{PREFIX}_bus_busy_seconds",
+            "Time the line was held by transactions, timeouts included (rate = utilisation)",
+            labels=["bus"],
+        )
+        exchange = CounterMetricFamily(
+            f"{PREFIX}_bus_exchange_seconds",
+            "Time on the wire of answered exchanges: request, drive's delay, reply",
+            labels=["bus"],
+        )
+        discarded = CounterMetricFamily(
+            f"{PREFIX}_bus_discarded_bytes",
+            "Bytes nobody asked for: late replies, echoes, noise",
+            labels=["bus"],
+        )
+        for name, bus in buses.items():
+            for value in BusState:
+                state.add_metric([name, str(value)], 1.0 if bus.state is value else 0.0)
+            depth.add_metric([name], bus.queue_depth)
+            stats = bus.stats
+            for counter_name, family in counters.items():
+                family.add_metric([name], getattr(stats, counter_name))
+            busy.add_metric([name], sum(d.line_s for d in _snapshot(bus.drive_stats).values()))
+            exchange.add_metric([name], stats.busy_s)
+            discarded.add_metric([name], bus.line.discarded_bytes)
+        yield state
+        yield depth
+        yield from counters.values()
+        yield busy
+        yield exchange
+        yield discarded
+
+    def _drives(self) -> Iterable[CounterMetricFamily | GaugeMetricFamily | InfoMetricFamily]:
+        buses = self.service.buses
+        info = InfoMetricFamily(f"{PREFIX}_drive", "Configured drives", labels=["bus", "drive"])
+        online = GaugeMetricFamily(
+            f"{PREFIX}_drive_online",
+            "1 while the drive answers, 0 once isolated as offline",
+            labels=["bus", "drive"],
+        )
+        for d in self.drives:
+            details = {"address": str(d.address), "unit_id": str(d.unit_id), "model": d.model}
+            info.add_metric([d.bus, d.drive], details)
+            offline = buses[d.bus].health.is_offline(d.address)
+            online.add_metric([d.bus, d.drive], 0.0 if offline else 1.0)
+        yield info
+        yield online
+        labels = ["bus", "drive"]
+        counters = {
+            name: CounterMetricFamily(f"{PREFIX}_drive_{name}", doc, labels=labels)
+            for name, doc in _DRIVE_COUNTERS.items()
+        }
+        busy = CounterMetricFamily(
+            f"{PREFIX}_drive_busy_seconds",
+            "Time the line was held for this drive, timeouts included",
+            labels=labels,
+        )
+        bad = CounterMetricFamily(
+            f"{PREFIX}_drive_bad_replies",
+            "Replies that could not be the answer: crc, truncated, address, function, echo",
+            labels=[*labels, "kind"],
+        )
+        exceptions = CounterMetricFamily(
+            f"{PREFIX}_drive_exceptions",
+            "Exception replies from the drive itself, by code (INVT: 06 frame error, ...)",
+            labels=[*labels, "code"],
+        )
+        for bus_name, bus in buses.items():
+            for address, stats in sorted(_snapshot(bus.drive_stats).items()):
+                drive = self._name(bus_name, address)
+                for counter_name, family in counters.items():
+                    family.add_metric([bus_name, drive], getattr(stats, counter_name))
+                busy.add_metric([bus_name, drive], stats.line_s)
+                for kind, count in sorted(_snapshot(stats.bad_replies).items()):
+                    bad.add_metric([bus_name, drive, kind], count)
+                for code, count in sorted(_snapshot(stats.exceptions).items()):
+                    exceptions.add_metric([bus_name, drive, f"{code:02X}"], count)
+        yield from counters.values()
+        yield busy
+        yield bad
+        yield exceptions
+
+    def _tcp(self, stats: TcpStats) -> Iterable[CounterMetricFamily | GaugeMetricFamily]:
+        clients = GaugeMetricFamily(f"{PREFIX}_tcp_clients", "Modbus-TCP clients connected")
+        clients.add_metric([], len(stats.active))
+        yield clients
+        for name, doc in _TCP_COUNTERS.items():
+            yield CounterMetricFamily(f"{PREFIX}_tcp_{name}", doc, value=getattr(stats, name))
+
+    def _name(self, bus: str, address: int) -> str:
+        if address == 0:
+            return BROADCAST
+        return self._names.get((bus, address), f"address_{address}")
+
+
+def _snapshot(mapping: Mapping[K, V]) -> dict[K, V]:
+    """A copy made in one step: the bus thread may add a key while a scrape reads."""
+    return dict(mapping)
+
+
+_BUS_COUNTERS = {
+    "requests": "Requests handed to the bus",
+    "transactions": "Attempts put on the wire, retries included",
+    "retries": "Attempts repeated after a timeout or a bad reply",
+    "timeouts": "Attempts without a reply within the response timeout",
+    "failed": "Requests answered 0x0B after every attempt failed",
+    "broadcasts": "Broadcasts (address 0) sent",
+    "coalesced": "Identical queued reads answered by one transaction",
+    "queue_full": "Requests refused with 0x0A because the queue was full",
+    "offline_rejected": "Requests answered 0x0B at once because their drive is offline",
+    "port_errors": "Times the serial port failed (unplugged, I/O error)",
+    "reopens": "Times the serial port was opened again after failing",
+}
+_DRIVE_COUNTERS = {
+    "transactions": "Attempts put on the wire for this drive, retries included",
+    "retries": "Attempts repeated for this drive",
+    "timeouts": "Attempts this drive did not answer in time",
+    "failed": "Requests to this drive answered 0x0B after every attempt failed",
+}
+_TCP_COUNTERS = {
+    "accepted": "Modbus-TCP connections accepted",
+    "refused": "Modbus-TCP connections refused (limit or allowed_networks)",
+    "requests": "Modbus-TCP requests received",
+    "exceptions": "Modbus-TCP requests answered with an exception",
+    "malformed": "Connections closed for a malformed MBAP frame",
+    "idle_closed": "Connections closed after the idle timeout",
+    "denied": "Writes refused because modbus_tcp.read_only is set",
+}
+
+
+class MetricsFeature:
+    """Serves /metrics and /health while the gateway runs; a feature of the application."""
+
+    def __init__(self, service: Service) -> None:
+        self.service = service
+        self.settings = service.config.metrics
+        self.endpoint: HttpEndpoint | None = None
+        self._requests: RequestMetrics | None = None
+        self._started_at = time.monotonic()
+
+    @property
+    def port(self) -> int:
+        assert self.endpoint is not None, "start() first"
+        return self.endpoint.port
+
+    async def start(self) -> None:
+        registry = CollectorRegistry(auto_describe=True)
+        drives = drive_labels(self.service)
+        self._requests = RequestMetrics(registry, drives)
+        registry.register(GatewayCollector(self.service, drives))
+        ProcessCollector(registry=registry)
+        for bus in self.service.buses.values():
+            bus.add_request_observer(self._requests.observe)
+        self.endpoint = HttpEndpoint(
+            self.settings.host,
+            self.settings.port,
+            {
+                "/metrics": lambda: Response(200, CONTENT_TYPE_LATEST, generate_latest(registry)),
+                "/health": self._health,
+                "/health/ready": self._health,
+                "/health/live": self._live,
+            },
+        )
+        await self.endpoint.start()
+        log.info("metrics and health on http://%s:%d/", self.settings.host, self.endpoint.port)
+
+    async def stop(self) -> None:
+        if self._requests is not None:
+            for bus in self.service.buses.values():
+                bus.remove_request_observer(self._requests.observe)
+        if self.endpoint is not None:
+            await self.endpoint.stop()
+
+    def _report(self) -> dict[str, object]:
+        service = self.service
+        drives = [(route.drive, route.bus.name, route.address) for route in service.router.routes]
+        report = health_report(
+            service.phase, service.buses, drives, len(service.tcp.stats.active), self._started_at
+        )
+        return {"gateway_id": service.config.gateway_id, "version": __version__, **report}
+
+    def _health(self) -> Response:
+        report = self._report()
+        status = HTTPStatus.OK if report["ready"] else HTTPStatus.SERVICE_UNAVAILABLE
+        return Response(status, "application/json", json.dumps(report).encode() + b"\n")
+
+    def _live(self) -> Response:
+        return Response(HTTPStatus.OK, "application/json", json.dumps(self._report()).encode())

@@ -1,0 +1,82 @@
+"""What to check on site when a field tool fails: one checklist per kind of failure.
+
+The wording names the drive's parameters, because that is what the technician can look up on
+the keypad: P14.00 address, P14.01 baud, P14.02 data format, P00.01 run command channel,
+P00.06 frequency source.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from gateway.profile import describe_exception
+
+
+class FieldError(Exception):
+    """A tool's failure: what happened, and what to check."""
+
+    def __init__(self, message: str, checks: Sequence[str] = ()) -> None:
+        super().__init__(message)
+        self.message = message
+        self.checks = tuple(checks)
+
+    def __str__(self) -> str:
+        if not self.checks:
+            return self.message
+        return self.message + "\ncheck:\n" + "\n".join(f"  - {check}" for check in self.checks)
+
+
+NO_ANSWER = (
+    "baud rate and data format: the drive's P14.01 and P14.02 must match --baud and --parity "
+    "(factory setting 19200 baud, E81)",
+    "the address: P14.00 on the drive's keypad",
+    "wiring: A to A (485+), B to B (485-), a common ground; swap A and B if nothing ever answers",
+    "termination: 120 ohm at both ends of the line, and nowhere else",
+    "the drive is powered and its keypad shows no CE fault",
+)
+GARBLED = (
+    "baud rate and data format: a wrong --baud or --parity arrives as garbage (P14.01, P14.02)",
+    "termination: 120 ohm at both ends of the line; long stubs reflect",
+    "wiring and shield: twisted pair for A/B, shield earthed at one end only, away from motor "
+    "cables",
+    "two drives with the same address (P14.00) answering at once",
+)
+PORT = (
+    "the device path: prefer /dev/serial/by-id/... (the name survives re-plugging)",
+    "permission: the user must be in the dialout group (then log in again)",
+    "nothing else holds the port: a running gateway does; stop it, or go through it with "
+    "--via tcp://HOST:PORT",
+)
+GATEWAY = (
+    "the gateway is running and listens there (invt-gateway check-config shows its port)",
+    "modbus_tcp.allowed_networks lets this machine in",
+)
+COMMUNICATION_MODE = (
+    "for run commands the drive needs P00.01 = 2 (run command channel: communication)",
+    "for a frequency set-point it needs P00.06 = 8 (frequency command: Modbus)",
+)
+
+_EXCEPTION_CHECKS: dict[int, tuple[str, ...]] = {
+    0x01: ("the drive has no such function, or it is in a fault state: read 2102H",
+           *COMMUNICATION_MODE),
+    0x02: ("the register exists on this model (manufacturer groups P29/P99 are never readable)",
+           "INVT reads at most 16 words at once"),
+    0x04: ("the value is inside the parameter's range; some ranges depend on another parameter "
+           "(P00.04 within P00.05...P00.03)",),
+    0x05: ("the user password (P07.00)",),
+    0x06: ("the frame reached the drive damaged: termination, wiring, baud rate",),
+    0x07: ("the parameter is read-only",),
+    0x08: ("the parameter can only be changed while the drive is stopped",),
+    0x09: ("the drive is locked by a password (P07.00)",),
+    0x0A: ("the gateway's configuration has a drive with this unit id (check-config lists them)",),
+    0x0B: ("the gateway got no answer from the drive: its log says why (offline, timeout, port)",
+           *NO_ANSWER[:2]),
+}
+
+
+def exception_error(code: int, what: str) -> FieldError:
+    """The error for an exception reply `code` to `what` ("reading P00.11 at address 1")."""
+    return FieldError(
+        f"{what}: exception {describe_exception(code)}",
+        _EXCEPTION_CHECKS.get(code, ()),
+    )

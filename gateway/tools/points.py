@@ -1,0 +1,194 @@
+"""What a person types to name a value, and how its raw word reads.
+
+Accepted spellings, tried in this order:
+- `P00.11`: a function parameter (scale, unit and meaning from the profile's parameter table);
+- a register name from the profile (`frequency_setpoint`, `state_word_1`);
+- a telemetry key, with or without its unit (`output_frequency_hz`, `output_frequency`);
+- an address: `2100H`, `0x2100`, `8448` (named when the profile knows it, raw otherwise).
+
+A value is shown scaled with its unit and, for the words that are codes, decoded: state word 1
+("stopped"), state word 2, fault codes ("STo: maladjustment"), the identification ("GD350").
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from enum import Enum
+
+from gateway.profile import (
+    CONTROL_COMMANDS,
+    RUNNING_VALUES,
+    Parameter,
+    Register,
+    control_command,
+    decode_state_word_1,
+    decode_state_word_2,
+    describe_fault,
+    describe_identification,
+    format_parameter,
+    format_register,
+    is_parameter_register,
+    parameter_at,
+    parse_register,
+    register_at,
+    register_by_name,
+)
+from gateway.profile.parameters import FAULT_HISTORY
+
+_PARAMETER = re.compile(r"P\d{1,2}\.\d{1,2}", re.IGNORECASE)
+_UNIT_SUFFIXES = ("_hz", "_v", "_a", "_rpm", "_pct")
+_COMMAND_NAMES = {int(command): name for name, command in CONTROL_COMMANDS.items()}
+
+
+class Meaning(Enum):
+    NUMBER = "number"
+    STATE_WORD_1 = "state_word_1"
+    STATE_WORD_2 = "state_word_2"
+    FAULT = "fault"
+    IDENTIFICATION = "identification"
+    CONTROL_WORD = "control_word"
+
+
+@dataclass(frozen=True)
+class Point:
+    label: str
+    """How it is shown: "P00.11", "output_frequency", "2100H"."""
+    address: int
+    description: str = ""
+    decimals: int = 0
+    unit: str = ""
+    signed: bool = False
+    meaning: Meaning = Meaning.NUMBER
+
+    @property
+    def where(self) -> str:
+        return format_register(self.address)
+
+    def show(self, raw: int) -> str:
+        """ "10.0 s", "3 (stopped)", "35 (STo: maladjustment)", "0106H (GD20)", "5 (stop)"."""
+        raw &= 0xFFFF
+        match self.meaning:
+            case Meaning.STATE_WORD_1:
+                return f"{raw} ({decode_state_word_1(raw)})"
+            case Meaning.STATE_WORD_2:
+                state = decode_state_word_2(raw)
+                ready = "ready" if state.ready else "not ready"
+                return f"{raw:04X}H ({ready}, command source {state.command_source})"
+            case Meaning.FAULT:
+                return f"{raw} ({describe_fault(raw)})"
+            case Meaning.IDENTIFICATION:
+                return f"{raw:04X}H ({describe_identification(raw)})"
+            case Meaning.CONTROL_WORD if raw in _COMMAND_NAMES:
+                return f"{raw} ({_COMMAND_NAMES[raw]})"
+        value = raw - 0x10000 if self.signed and raw & 0x8000 else raw
+        number = f"{value / 10**self.decimals:.{self.decimals}f}" if self.decimals else str(value)
+        return f"{number} {self.unit}".rstrip()
+
+    def encode(self, text: str) -> int:
+        """The raw word for a value typed as shown ("10.0", "-5", "0x0064", "stop")."""
+        text = text.strip()
+        if self.meaning is Meaning.CONTROL_WORD and not _is_number(text):
+            return int(control_command(text))
+        if text.lower().startswith("0x"):
+            return _word(int(text, 16), text)
+        try:
+            value = float(text)
+        except ValueError:
+            raise ValueError(f"{self.label}: {text!r} is not a number") from None
+        raw = round(value * float(10**self.decimals))
+        low, high = (-0x8000, 0x7FFF) if self.signed else (0, 0xFFFF)
+        if not low <= raw <= high:
+            scale = f" (x{10**self.decimals})" if self.decimals else ""
+            raise ValueError(f"{self.label} = {text}{scale} does not fit in one register")
+        return raw & 0xFFFF
+
+
+def resolve(text: str) -> Point:
+    """The point `text` names; ValueError saying which spellings work."""
+    spelled = text.strip()
+    if _PARAMETER.fullmatch(spelled):
+        address = parse_register(spelled)
+        return _parameter_point(format_parameter(address), address)
+    named = _named_register(spelled)
+    if named is not None:
+        return named
+    try:
+        address = parse_register(spelled)
+    except ValueError:
+        raise ValueError(
+            f"{text!r} is not a known name: use Pxx.yy (P00.11), a register (2100H, 0x2100) "
+            f"or a name such as frequency_setpoint, state_word_1, output_frequency"
+        ) from None
+    register = register_at(address)
+    if register is not None:
+        return _register_point(register, format_register(address))
+    if is_parameter_register(address) and parameter_at(address & 0x7FFF) is not None:
+        return _parameter_point(format_parameter(address), address)
+    return Point(format_register(address), address, "not in the profile: shown raw")
+
+
+def _named_register(name: str) -> Point | None:
+    key = name.lower()
+    try:
+        return _register_point(register_by_name(key), key)
+    except ValueError:
+        pass
+    for running in RUNNING_VALUES:
+        bare = _strip_unit(running.key)
+        if key in (running.key, bare):
+            return _register_point(running.register, name)
+    return None
+
+
+def _strip_unit(key: str) -> str:
+    for suffix in _UNIT_SUFFIXES:
+        if key.endswith(suffix):
+            return key.removesuffix(suffix)
+    return key
+
+
+def _register_point(register: Register, label: str) -> Point:
+    meaning = {
+        "state_word_1": Meaning.STATE_WORD_1,
+        "state_word_2": Meaning.STATE_WORD_2,
+        "fault_code": Meaning.FAULT,
+        "fault_code_5000": Meaning.FAULT,
+        "identification": Meaning.IDENTIFICATION,
+        "identification_mirror": Meaning.IDENTIFICATION,
+        "control_word": Meaning.CONTROL_WORD,
+    }.get(register.name, Meaning.NUMBER)
+    description = register.name.replace("_", " ")
+    if register.description:
+        description += f": {register.description}"
+    return Point(
+        label,
+        register.address,
+        description,
+        register.decimals,
+        register.unit,
+        register.signed,
+        meaning,
+    )
+
+
+def _parameter_point(label: str, address: int) -> Point:
+    known: Parameter | None = parameter_at(address & 0x7FFF)
+    if known is None:
+        return Point(label, address, "not in the profile's parameter table: shown raw")
+    meaning = Meaning.FAULT if known.name in FAULT_HISTORY else Meaning.NUMBER
+    return Point(label, address, known.description, known.decimals, known.unit, meaning=meaning)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return text.lower().startswith("0x")
+    return True
+
+
+def _word(value: int, text: str) -> int:
+    if not 0 <= value <= 0xFFFF:
+        raise ValueError(f"{text} does not fit in one register (0000H...FFFFH)")
+    return value

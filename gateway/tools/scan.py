@@ -1,0 +1,119 @@
+"""Finding the drives on a line: 08H loop-back at each address, then identification.
+
+The loop-back is the cheapest question every INVT drive answers, and any answer (the echo or an
+exception) proves a device is there. A silent address costs exactly one short response timeout
+and no retry: a full scan of 1-247 at 50 ms takes about 15 s instead of the minutes a poll with
+a normal timeout and retries would. Only found addresses get the longer questions: 2100H-2103H
+in one read (state word 1, state word 2, fault code, identification code).
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+
+from gateway.errors import BadReply, ReplyTimeout
+from gateway.modbus.functions import DIAGNOSTICS, READ_HOLDING_REGISTERS, is_exception
+from gateway.profile import (
+    decode_state_word_1,
+    decode_state_word_2,
+    describe_fault,
+    describe_identification,
+)
+from gateway.profile.invt import STATE_WORD_1
+from gateway.tools.masters import Master
+
+LOOP_BACK = struct.pack(">BHH", DIAGNOSTICS, 0x0000, 0xA55A)
+"""Sub-function 0000 (return query data) with a pattern that shows bit errors."""
+STATUS_WORDS = 4
+"""2100H state word 1, 2101H state word 2, 2102H fault code, 2103H identification."""
+IDENTIFY_ATTEMPTS = 2
+
+
+@dataclass(frozen=True)
+class FoundDrive:
+    address: int
+    identification: int | None = None
+    state_word_1: int | None = None
+    state_word_2: int | None = None
+    fault: int | None = None
+    note: str = ""
+
+    @property
+    def model(self) -> str:
+        if self.identification is None:
+            return "unknown"
+        return describe_identification(self.identification)
+
+    @property
+    def state(self) -> str:
+        return "-" if self.state_word_1 is None else decode_state_word_1(self.state_word_1)
+
+    @property
+    def command_source(self) -> str:
+        if self.state_word_2 is None:
+            return "-"
+        return decode_state_word_2(self.state_word_2).command_source
+
+    @property
+    def fault_text(self) -> str:
+        return "-" if self.fault is None else describe_fault(self.fault)
+
+
+@dataclass
+class ScanResult:
+    found: list[FoundDrive] = field(default_factory=list)
+    garbled: list[int] = field(default_factory=list)
+    """Addresses where bytes came back that were no valid frame: a hint of wrong settings."""
+
+
+Progress = Callable[[int, FoundDrive | None], None]
+
+
+def scan(master: Master, addresses: Iterable[int], progress: Progress | None = None) -> ScanResult:
+    result = ScanResult()
+    for address in addresses:
+        found = probe(master, address, result)
+        if found is not None:
+            result.found.append(found)
+        if progress is not None:
+            progress(address, found)
+    return result
+
+
+def probe(master: Master, address: int, result: ScanResult) -> FoundDrive | None:
+    try:
+        reply = master.request(address, LOOP_BACK)
+    except ReplyTimeout:
+        return None
+    except BadReply:
+        result.garbled.append(address)
+        return None
+    note = ""
+    if is_exception(reply):
+        note = f"loop-back refused with exception {reply[1]:02X}H"
+    elif reply != LOOP_BACK:
+        note = f"loop-back echo differs: {reply.hex(' ')}"
+    return identify(master, address, note)
+
+
+def identify(master: Master, address: int, note: str) -> FoundDrive:
+    pdu = struct.pack(">BHH", READ_HOLDING_REGISTERS, STATE_WORD_1, STATUS_WORDS)
+    for _ in range(IDENTIFY_ATTEMPTS):
+        try:
+            reply = master.request(address, pdu)
+        except (ReplyTimeout, BadReply):
+            continue
+        if is_exception(reply):
+            code = reply[1] if len(reply) > 1 else 0
+            refused = f"2100H-2103H refused with exception {code:02X}H: not an INVT drive?"
+            return FoundDrive(address, note=_join(note, refused))
+        if len(reply) == 2 + 2 * STATUS_WORDS:
+            state_1, state_2, fault, identification = struct.unpack(">4H", reply[2:])
+            return FoundDrive(address, identification, state_1, state_2, fault, note)
+    return FoundDrive(address, note=_join(note, "no answer to the identification read"))
+
+
+def _join(*notes: str) -> str:
+    return "; ".join(note for note in notes if note)

@@ -1,0 +1,177 @@
+"""Real `invt-gateway` subprocesses for the operations and field-tool tests.
+
+The console script is the one installed next to the interpreter running the tests, so these tests
+exercise the entry point a service manager starts, not a function call.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+START_TIMEOUT_S = 15.0
+
+
+def entry_point() -> str:
+    """The `invt-gateway` script of this interpreter's environment."""
+    beside = Path(sys.executable).with_name("invt-gateway")
+    if beside.exists():
+        return str(beside)
+    found = shutil.which("invt-gateway")
+    assert found is not None, "invt-gateway is not installed: pip install -e ."
+    return found
+
+
+def run_cli(
+    *args: str, timeout_s: float = 30.0, env: Mapping[str, str] | None = None
+) -> subprocess.CompletedProcess[str]:
+    """Run `invt-gateway ARGS` to completion; its output as text."""
+    return subprocess.run(
+        [entry_point(), *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout_s,
+        env=None if env is None else {**os.environ, **env},
+        check=False,
+    )
+
+
+class LineCollector:
+    """Reads a pipe on a thread, so the child never blocks on a full pipe; lines kept in order."""
+
+    def __init__(self, stream: Any) -> None:
+        self.lines: list[str] = []
+        self._changed = threading.Condition()
+        self._thread = threading.Thread(target=self._read, args=(stream,), daemon=True)
+        self._thread.start()
+
+    def _read(self, stream: Any) -> None:
+        for line in stream:
+            with self._changed:
+                self.lines.append(line.rstrip("\n"))
+                self._changed.notify_all()
+
+    def wait_for(self, text: str, timeout_s: float = START_TIMEOUT_S) -> str:
+        def found() -> str | None:
+            return next((line for line in self.lines if text in line), None)
+
+        with self._changed:
+            if not self._changed.wait_for(lambda: found() is not None, timeout_s):
+                raise AssertionError(f"{text!r} not seen within {timeout_s} s: {self.text}")
+        line = found()
+        assert line is not None
+        return line
+
+    @property
+    def text(self) -> str:
+        return "\n".join(self.lines)
+
+    def join(self, timeout_s: float = 5.0) -> None:
+        self._thread.join(timeout_s)
+
+
+class GatewayProcess:
+    """`invt-gateway run --config FILE` with its log collected from stderr."""
+
+    def __init__(
+        self, config: dict[str, Any], directory: Path, env: Mapping[str, str] | None = None
+    ) -> None:
+        self.config_file = directory / f"gateway-{config.get('gateway_id', 'test')}.yaml"
+        self.config_file.write_text(yaml.safe_dump(config), encoding="utf-8")
+        self.process = subprocess.Popen(
+            [entry_point(), "run", "--config", str(self.config_file)],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+            env={**os.environ, **(env or {})},
+        )
+        assert self.process.stderr is not None
+        self.log = LineCollector(self.process.stderr)
+
+    def wait_ready(self, timeout_s: float = START_TIMEOUT_S) -> None:
+        self.log.wait_for("ready:", timeout_s)
+
+    def signal(self, signum: signal.Signals) -> None:
+        self.process.send_signal(signum)
+
+    def wait(self, timeout_s: float) -> int:
+        code = self.process.wait(timeout_s)
+        self.log.join()
+        return code
+
+    def stop(self) -> None:
+        if self.process.poll() is None:
+            self.process.terminate()
+            try:
+                self.process.wait(5)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait(5)
+        self.log.join()
+        if self.process.stderr is not None:
+            self.process.stderr.close()
+
+
+@contextlib.contextmanager
+def gateway_process(
+    config: dict[str, Any], directory: Path, env: Mapping[str, str] | None = None
+) -> Iterator[GatewayProcess]:
+    gateway = GatewayProcess(config, directory, env)
+    try:
+        yield gateway
+    finally:
+        gateway.stop()
+
+
+class SimulatorProcess:
+    """`invt-gateway simulate --pty ...`: the device path is its first line on stdout."""
+
+    def __init__(self, args: Sequence[str]) -> None:
+        self.process = subprocess.Popen(
+            [entry_point(), "simulate", "--pty", *args],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        assert self.process.stdout is not None
+        assert self.process.stderr is not None
+        self.output = LineCollector(self.process.stdout)
+        self.errors = LineCollector(self.process.stderr)
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while not self.output.lines:
+            if self.process.poll() is not None or time.monotonic() > deadline:
+                raise AssertionError(f"simulator did not start: {self.errors.text}")
+            time.sleep(0.01)
+        self.path = self.output.lines[0]
+
+    def stop(self) -> None:
+        if self.process.poll() is None:
+            self.process.terminate()
+            self.process.wait(5)
+        self.output.join()
+        self.errors.join()
+        for stream in (self.process.stdout, self.process.stderr):
+            if stream is not None:
+                stream.close()
+
+
+@contextlib.contextmanager
+def simulator_process(*args: str) -> Iterator[SimulatorProcess]:
+    simulator = SimulatorProcess(args)
+    try:
+        yield simulator
+    finally:
+        simulator.stop()

@@ -1,0 +1,116 @@
+"""What the gateway writes to its log for a person on call: every frame at debug level, each fault
+raised and cleared, and JSON lines for journald or Loki from a real process."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import signal
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from gateway.simulator import SimulatedLine
+from tests.mosquitto import Mosquitto, unique_base_topic
+from tests.mosquitto import mosquitto as mosquitto
+from tests.mqtt_setup import mqtt_config, simulated_line
+from tests.processes import gateway_process
+from tests.support import TcpClient, free_port, gateway_config, read_pdu, running_gateway
+
+STATE_WORD_1 = 0x2100
+
+
+@pytest.fixture
+def line() -> Iterator[SimulatedLine]:
+    with SimulatedLine(addresses=[1], baudrate=115200, parity="E", wire_time=True) as sim:
+        yield sim
+
+
+DRIVES = [{"name": "pump1", "address": 1}, {"name": "ghost", "address": 9}]
+
+
+async def test_debug_level_hex_dumps_every_frame(
+    line: SimulatedLine, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.DEBUG, logger="gateway.frames")
+    async with running_gateway(gateway_config(line.path, DRIVES)) as app:
+        client = await TcpClient.connect(app.tcp.port)
+        assert await client.read(1, STATE_WORD_1) == [3]
+        assert await client.request(9, read_pdu(STATE_WORD_1)) == bytes.fromhex("83 0b")
+        await client.close()
+    dumps = [r.getMessage() for r in caplog.records if r.name == "gateway.frames"]
+    # PROTOCOL.md's frames, byte for byte: the request and the drive's reply.
+    assert "line1 tx 01 03 21 00 00 01 8e 36" in dumps
+    assert "line1 rx 01 03 02 00 03 f8 45" in dumps
+    assert "line1 rx timeout (nothing)" in dumps
+
+
+async def test_no_frame_dump_above_debug(
+    line: SimulatedLine, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.INFO, logger="gateway.frames")
+    async with running_gateway(gateway_config(line.path, DRIVES)) as app:
+        client = await TcpClient.connect(app.tcp.port)
+        assert await client.read(1, STATE_WORD_1) == [3]
+        await client.close()
+    assert not [r for r in caplog.records if r.name == "gateway.frames"]
+
+
+class LogWatch(logging.Handler):
+    """Sets `seen` when a record with `text` is logged (records come from the event loop)."""
+
+    def __init__(self, text: str) -> None:
+        super().__init__()
+        self.text = text
+        self.seen = asyncio.Event()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if self.text in record.getMessage():
+            self.seen.set()
+
+
+@contextlib.contextmanager
+def watching(logger: str, text: str) -> Iterator[LogWatch]:
+    watch = LogWatch(text)
+    logging.getLogger(logger).addHandler(watch)
+    try:
+        yield watch
+    finally:
+        logging.getLogger(logger).removeHandler(watch)
+
+
+async def test_fault_raised_and_cleared_are_logged(
+    mosquitto: Mosquitto, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.INFO, logger="gateway.event_log")
+    fault = "STo: maladjustment (code 35)"
+    with simulated_line() as sim:
+        config = mqtt_config(sim.path, mosquitto, unique_base_topic())
+        async with running_gateway(config):
+            with watching("gateway.event_log", f"drive pump1: fault raised: {fault}") as raised:
+                sim.inject_fault(1, 35)
+                await asyncio.wait_for(raised.seen.wait(), 5.0)
+            with watching("gateway.event_log", f"drive pump1: fault cleared: {fault}") as cleared:
+                sim.clear_fault(1)
+                await asyncio.wait_for(cleared.seen.wait(), 5.0)
+    record = next(r for r in caplog.records if "fault raised" in r.getMessage())
+    assert record.levelno == logging.WARNING
+
+
+def test_json_log_lines_from_a_real_process(line: SimulatedLine, tmp_path: Path) -> None:
+    config = {
+        "modbus_tcp": {"host": "127.0.0.1", "port": free_port()},
+        "buses": [{"name": "line1", "port": line.path, "baudrate": 115200}],
+        "logging": {"level": "debug", "format": "json"},
+    }
+    with gateway_process(config, tmp_path) as gateway:
+        gateway.wait_ready()
+        gateway.signal(signal.SIGTERM)
+        assert gateway.wait(2.0) == 0
+    entries = [json.loads(line) for line in gateway.log.lines]
+    assert {"time", "level", "logger", "message"} <= entries[0].keys()
+    assert any(e["message"].startswith("ready:") and e["level"] == "info" for e in entries)
+    assert any(e["message"] == "SIGTERM received: shutting down" for e in entries)

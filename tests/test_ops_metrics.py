@@ -1,0 +1,199 @@
+"""Metrics and health scraped over real HTTP from a running gateway with real traffic on a pty
+line."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import urllib.error
+import urllib.request
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+from prometheus_client.parser import text_string_to_metric_families
+
+from gateway.app import Application
+from gateway.config import GatewayConfig
+from gateway.metrics import MetricsFeature
+from gateway.simulator import SimulatedLine
+from tests.support import TcpClient, free_port, read_pdu, running_gateway, write_pdu
+
+STATE_WORD_1 = 0x2100
+TIMEOUT_S = 0.1
+
+
+@pytest.fixture
+def line() -> Iterator[SimulatedLine]:
+    with SimulatedLine(addresses=[1, 2], baudrate=115200, parity="E", wire_time=True) as sim:
+        yield sim
+
+
+def metrics_config(port: str, metrics_port: int) -> GatewayConfig:
+    return GatewayConfig.model_validate(
+        {
+            "gateway_id": "cabinet-test",
+            "modbus_tcp": {"host": "127.0.0.1", "port": 0},
+            "buses": [
+                {
+                    "name": "line1",
+                    "port": port,
+                    "baudrate": 115200,
+                    "timeout_ms": TIMEOUT_S * 1000,
+                    "retries": 1,
+                    "offline_after": 1,
+                    "probe_max_s": 60,
+                }
+            ],
+            "drives": [
+                {"name": "pump1", "bus": "line1", "address": 1, "model": "gd350"},
+                {"name": "fan2", "bus": "line1", "address": 2, "model": "gd20"},
+                {"name": "ghost", "bus": "line1", "address": 9, "model": "gd20"},
+            ],
+            "metrics": {"enabled": True, "host": "127.0.0.1", "port": metrics_port},
+        }
+    )
+
+
+async def http_get(port: int, path: str) -> tuple[int, str, str]:
+    """(status, content type, body) of a real HTTP GET."""
+
+    def get() -> tuple[int, str, str]:
+        url = f"http://127.0.0.1:{port}{path}"
+        try:
+            with urllib.request.urlopen(url, timeout=5) as response:
+                return response.status, response.headers["Content-Type"], response.read().decode()
+        except urllib.error.HTTPError as error:
+            return error.code, error.headers["Content-Type"], error.read().decode()
+
+    return await asyncio.to_thread(get)
+
+
+class Scrape:
+    """Every sample of a Prometheus exposition; `scrape("requests_total", bus=...)` is one value
+    (names without the `invt_gateway_` prefix; other metrics by their full name)."""
+
+    def __init__(self, text: str) -> None:
+        self.samples = {
+            (sample.name, frozenset(sample.labels.items())): sample.value
+            for family in text_string_to_metric_families(text)
+            for sample in family.samples
+        }
+
+    def __call__(self, name: str, **labels: str) -> float:
+        full = name if name.startswith("process_") else f"invt_gateway_{name}"
+        return self.samples[(full, frozenset(labels.items()))]
+
+
+async def test_metrics_count_real_traffic_per_drive_source_and_code(line: SimulatedLine) -> None:
+    metrics_port = free_port()
+    async with running_gateway(metrics_config(line.path, metrics_port)) as app:
+        client = await TcpClient.connect(app.tcp.port)
+        for _ in range(5):
+            assert await client.read(1, STATE_WORD_1) == [3]
+        # P00.01 = 3 is out of range: the drive's own exception 04H.
+        assert await client.request(2, write_pdu(0x0001, 3)) == bytes.fromhex("86 04")
+        # Nobody at address 9: two attempts time out, 0BH, and the drive is offline.
+        assert await client.request(9, read_pdu(STATE_WORD_1)) == bytes.fromhex("83 0b")
+        # Every reply's CRC spoilt: a framing error, counted by kind.
+        line.set_line_faults(rate=1.0, kinds=["crc"])
+        assert await client.request(2, read_pdu(STATE_WORD_1)) == bytes.fromhex("83 0b")
+        line.set_line_faults(rate=0.0)
+
+        status, content_type, text = await http_get(metrics_port, "/metrics")
+        assert status == 200
+        assert content_type.startswith("text/plain")
+        m = Scrape(text)
+        bus = {"bus": "line1"}
+        pump, fan, ghost = ({**bus, "drive": name} for name in ("pump1", "fan2", "ghost"))
+
+        # Per request, by source and function code, with latency.
+        assert m("requests_total", **pump, source="tcp", function="03") == 5
+        assert m("requests_total", **fan, source="tcp", function="06") == 1
+        assert m("request_exceptions_total", **fan, source="tcp", code="04") == 1
+        assert m("request_exceptions_total", **ghost, source="tcp", code="0B") == 1
+        assert m("request_duration_seconds_count", **pump, source="tcp") == 5
+        # The dead drive's answer took both attempts' timeouts.
+        ghost_latency = m("request_duration_seconds_sum", **ghost, source="tcp")
+        assert ghost_latency >= 2 * TIMEOUT_S
+        assert m("request_duration_seconds_bucket", **pump, source="tcp", le="0.05") == 5
+
+        # Per drive, from the line's own counters.
+        assert m("drive_timeouts_total", **ghost) == 2
+        assert m("drive_retries_total", **ghost) == 1
+        assert m("drive_failed_total", **ghost) == 1
+        assert m("drive_exceptions_total", **fan, code="04") == 1
+        assert m("drive_bad_replies_total", **fan, kind="crc") == 2
+        assert m("drive_online", **pump) == 1
+        assert m("drive_online", **ghost) == 0
+        assert m("drive_info", **pump, address="1", unit_id="1", model="gd350") == 1
+        assert m("drive_busy_seconds_total", **ghost) >= 2 * TIMEOUT_S
+
+        # Per bus.
+        assert m("bus_requests_total", **bus) == 8
+        assert m("bus_timeouts_total", **bus) == 2
+        assert m("bus_retries_total", **bus) == 2
+        assert m("bus_failed_total", **bus) == 2
+        assert m("bus_state", **bus, state="open") == 1
+        assert m("bus_state", **bus, state="reopening") == 0
+        assert m("bus_queue_depth", **bus) == 0
+        busy = m("bus_busy_seconds_total", **bus)
+        exchange = m("bus_exchange_seconds_total", **bus)
+        assert busy >= 2 * TIMEOUT_S + exchange  # timeouts hold the line too
+        assert 0 < exchange < 1
+
+        # The gateway and its TCP side.
+        assert m("tcp_clients") == 1
+        assert m("tcp_requests_total") == 8
+        assert m("ready") == 1
+        assert m("build_info", gateway_id="cabinet-test", version="0.1.0") == 1
+        assert m("process_resident_memory_bytes") > 0
+        await client.close()
+
+
+async def test_health_is_json_and_tells_ready_from_degraded(line: SimulatedLine) -> None:
+    metrics_port = free_port()
+    async with running_gateway(metrics_config(line.path, metrics_port)) as app:
+        status, content_type, body = await http_get(metrics_port, "/health")
+        assert (status, content_type) == (200, "application/json")
+        report: dict[str, Any] = json.loads(body)
+        assert report["status"] == "ok"
+        assert report["ready"] is True
+        assert report["live"] is True
+        assert report["gateway_id"] == "cabinet-test"
+        assert report["buses"]["line1"]["state"] == "open"
+        assert report["buses"]["line1"]["drives_online"] == ["pump1", "fan2", "ghost"]
+
+        client = await TcpClient.connect(app.tcp.port)
+        assert await client.request(9, read_pdu(STATE_WORD_1)) == bytes.fromhex("83 0b")
+        status, _, body = await http_get(metrics_port, "/health/ready")
+        report = json.loads(body)
+        # An offline drive is worth an alert, not a restart: still ready, but degraded.
+        assert status == 200
+        assert report["status"] == "degraded"
+        assert report["buses"]["line1"]["drives_offline"] == ["ghost"]
+        assert report["tcp_clients"] == 1
+
+        status, _, body = await http_get(metrics_port, "/health/live")
+        assert status == 200
+        assert json.loads(body)["live"] is True
+        status, _, body = await http_get(metrics_port, "/nothing-here")
+        assert status == 404
+        assert "/metrics" in body
+        await client.close()
+
+
+async def test_health_is_503_until_the_gateway_is_started(line: SimulatedLine) -> None:
+    metrics_port = free_port()
+    app = Application(metrics_config(line.path, metrics_port))
+    feature = MetricsFeature(app)
+    await feature.start()
+    try:
+        status, _, body = await http_get(metrics_port, "/health")
+        assert status == 503
+        assert json.loads(body)["status"] == "starting"
+        status, _, _ = await http_get(metrics_port, "/health/live")
+        assert status == 200
+    finally:
+        await feature.stop()
+

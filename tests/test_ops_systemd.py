@@ -1,0 +1,165 @@
+"""The systemd unit, checked by systemd itself, and the notify protocol spoken by a real
+`invt-gateway run` to a real unix datagram socket, as systemd would bind it."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import tempfile
+import time
+from collections.abc import Iterator
+from configparser import RawConfigParser
+from pathlib import Path
+
+import pytest
+
+from gateway.simulator import SimulatedLine
+from tests.processes import entry_point, gateway_process
+from tests.support import free_port
+
+ROOT = Path(__file__).resolve().parent.parent
+UNIT = ROOT / "config" / "invt-gateway.service"
+INSTALLED_PATH = "/opt/invt-gateway/bin/invt-gateway"
+SYSTEMD_ANALYZE = shutil.which("systemd-analyze") or "/usr/bin/systemd-analyze"
+
+
+def unit_settings() -> dict[str, list[str]]:
+    """Each key of the unit with all its values (DeviceAllow= appears several times)."""
+    settings: dict[str, list[str]] = {}
+    for line in UNIT.read_text(encoding="utf-8").splitlines():
+        line = line.strip()
+        if line and not line.startswith(("#", "[")):
+            key, _, value = line.partition("=")
+            settings.setdefault(key, []).append(value)
+    return settings
+
+
+def test_systemd_analyze_verify_passes(tmp_path: Path) -> None:
+    if not Path(SYSTEMD_ANALYZE).exists():
+        pytest.fail("systemd-analyze not found: install the Debian package systemd")
+    # verify checks that ExecStart's program exists: point it at this environment's script.
+    # The user needs no creating: DynamicUser= allocates it when the service starts.
+    text = UNIT.read_text(encoding="utf-8")
+    assert INSTALLED_PATH in text
+    unit = tmp_path / UNIT.name
+    unit.write_text(text.replace(INSTALLED_PATH, entry_point()), encoding="utf-8")
+    result = subprocess.run(
+        [SYSTEMD_ANALYZE, "verify", str(unit)],
+        capture_output=True,
+        text=True,
+        timeout=30,
+        check=False,
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stderr == "", result.stderr  # not even a warning
+
+
+def test_unit_runs_the_service_as_the_issue_asks() -> None:
+    settings = unit_settings()
+    parser = RawConfigParser(strict=False)
+    parser.read_string(UNIT.read_text(encoding="utf-8"))
+    assert parser.sections() == ["Unit", "Service", "Install"]
+    expected = {
+        "Type": ["notify"],
+        "Restart": ["on-failure"],
+        "NoNewPrivileges": ["yes"],
+        "ProtectSystem": ["strict"],
+        "PrivateTmp": ["yes"],
+        "DevicePolicy": ["closed"],
+        "SupplementaryGroups": ["dialout"],
+        "User": ["invt-gateway"],
+        "RestartPreventExitStatus": ["3"],  # a bad configuration: restarting won't help
+    }
+    for key, values in expected.items():
+        assert settings.get(key) == values, key
+    assert settings["WatchdogSec"][0].rstrip("s").isdigit()
+    assert "char-ttyUSB rw" in settings["DeviceAllow"]
+    assert settings["ExecStart"] == [f"{INSTALLED_PATH} run --config /etc/invt-gateway/config.yaml"]
+
+
+@contextlib.contextmanager
+def notify_socket() -> Iterator[tuple[str, socket.socket]]:
+    """A unix datagram socket bound where NOTIFY_SOCKET will point (short path: 108 bytes max)."""
+    directory = tempfile.mkdtemp(prefix="notify-", dir="/tmp")
+    path = os.path.join(directory, "notify")
+    receiver = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    receiver.bind(path)
+    try:
+        yield path, receiver
+    finally:
+        receiver.close()
+        shutil.rmtree(directory, ignore_errors=True)
+
+
+def receive(receiver: socket.socket, until: str, timeout_s: float) -> list[dict[str, str]]:
+    """Datagrams as {KEY: value} until one carries the key `until`."""
+    messages: list[dict[str, str]] = []
+    deadline = time.monotonic() + timeout_s
+    while True:
+        receiver.settimeout(max(deadline - time.monotonic(), 0.01))
+        try:
+            data = receiver.recv(4096)
+        except TimeoutError:
+            raise AssertionError(f"no {until} within {timeout_s} s; got {messages}") from None
+        fields = dict(line.split("=", 1) for line in data.decode().splitlines() if "=" in line)
+        messages.append(fields)
+        if until in fields:
+            return messages
+
+
+def test_ready_watchdog_and_stopping_reach_the_notify_socket(tmp_path: Path) -> None:
+    with (
+        SimulatedLine(addresses=[1], baudrate=115200, parity="E") as line,
+        notify_socket() as (path, receiver),
+    ):
+        config = {
+            "gateway_id": "notify",
+            "modbus_tcp": {"host": "127.0.0.1", "port": free_port()},
+            "buses": [{"name": "line1", "port": line.path, "baudrate": 115200}],
+            "drives": [{"name": "pump1", "bus": "line1", "address": 1}],
+        }
+        # 200 ms: the gateway must ping every 100 ms.
+        env = {"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "200000"}
+        with gateway_process(config, tmp_path, env) as gateway:
+            before_ready = receive(receiver, "READY", 15.0)
+            ready = before_ready[-1]
+            assert ready["READY"] == "1"
+            assert ready["MAINPID"] == str(gateway.process.pid)
+            assert ready["STATUS"].startswith("ready: 1 drives on 1 buses, Modbus-TCP on 127.0.0.1")
+            # The log line and the notification come from the same moment: after start-up.
+            assert "ready:" in gateway.log.text
+
+            started = time.monotonic()
+            pings = receive(receiver, "WATCHDOG", 1.0)
+            for _ in range(4):
+                pings += receive(receiver, "WATCHDOG", 1.0)
+            elapsed = time.monotonic() - started
+            assert sum("WATCHDOG" in m for m in pings) >= 5
+            assert elapsed < 0.2 * 5, f"5 pings took {elapsed:.2f} s, WatchdogSec is 0.2 s"
+
+            gateway.signal(signal.SIGTERM)
+            stopping = receive(receiver, "STOPPING", 2.0)[-1]
+            assert stopping["STOPPING"] == "1"
+            assert gateway.wait(2.0) == 0
+
+
+def test_abstract_notify_socket_and_no_watchdog_without_watchdog_usec(tmp_path: Path) -> None:
+    name = f"invt-gateway-test-{os.getpid()}-{time.monotonic_ns()}"
+    receiver = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    receiver.bind("\0" + name)
+    with SimulatedLine(addresses=[1], baudrate=115200, parity="E") as line, receiver:
+        config = {
+            "gateway_id": "notify2",
+            "modbus_tcp": {"host": "127.0.0.1", "port": free_port()},
+            "buses": [{"name": "line1", "port": line.path, "baudrate": 115200}],
+        }
+        with gateway_process(config, tmp_path, {"NOTIFY_SOCKET": "@" + name}) as gateway:
+            assert receive(receiver, "READY", 15.0)[-1]["READY"] == "1"
+            gateway.signal(signal.SIGINT)
+            after = receive(receiver, "STOPPING", 2.0)
+            assert not [m for m in after if "WATCHDOG" in m]
+            assert gateway.wait(2.0) == 0

@@ -1,0 +1,179 @@
+"""The field tools as a technician runs them: real `invt-gateway` subprocesses against a simulated
+line served by `invt-gateway simulate --pty`, and through a running gateway with --via.
+
+The lines use parity N: on this kernel a pty refuses a second tcsetattr asking for PARENB at an
+unchanged speed (EINVAL), so a pty opened with parity E can't be opened again with E. A real
+serial port has no such limit; the tools open the line once per run, so a test runs several.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from gateway.simulator import SimulatedLine
+from tests.processes import SimulatorProcess, gateway_process, run_cli, simulator_process
+from tests.support import free_port
+
+SIMULATED = {1: "GD350", 7: "GD350", 200: "GD350"}
+LINE = ("--baud", "115200", "--parity", "N")
+
+
+@pytest.fixture(scope="module")
+def simulator() -> Iterator[SimulatorProcess]:
+    addresses = [arg for address in SIMULATED for arg in ("--address", str(address))]
+    with simulator_process(
+        *addresses, *LINE, "--model", "gd350", "--fault", "7=35", "--response-delay-ms", "2"
+    ) as sim:
+        yield sim
+
+
+def scan_rows(output: str) -> dict[int, list[str]]:
+    """The table's rows by address: the cells, split on the table's column gaps."""
+    rows = {}
+    for line in output.splitlines():
+        cells = re.split(r"\s{2,}", line.strip())
+        if cells and cells[0].isdigit():
+            rows[int(cells[0])] = cells[1:]
+    return rows
+
+
+def test_scan_finds_exactly_the_simulated_drives_quickly(simulator: SimulatorProcess) -> None:
+    started = time.monotonic()
+    result = run_cli(
+        "scan", "--port", simulator.path, *LINE, "--timeout-ms", "15", "--char-timeout-ms", "5"
+    )
+    elapsed = time.monotonic() - started
+    assert result.returncode == 0, result.stderr
+    rows = scan_rows(result.stdout)
+    assert {address: cells[0] for address, cells in rows.items()} == SIMULATED
+    assert rows[1][1:4] == ["stopped", "none", "communication"]
+    assert rows[7][1:3] == ["fault", "STo: maladjustment"]
+    assert f"3 drive(s) on {simulator.path} at 115200 baud 8N1" in result.stdout
+    # 247 addresses, 244 of them silent: each costs one short timeout, no retry.
+    assert elapsed < 247 * 0.045, f"scan took {elapsed:.1f} s"
+
+
+def test_scan_finding_nothing_says_what_to_check(simulator: SimulatorProcess) -> None:
+    result = run_cli("scan", "--port", simulator.path, *LINE, "--addresses", "2-4")
+    assert result.returncode == 1
+    assert "no drive answered" in result.stderr
+    for check in ("P14.01", "P14.02", "termination", "P14.00", "P14.03"):
+        assert check in result.stderr
+
+
+def test_read_prints_values_scaled_with_units_and_decoded(simulator: SimulatorProcess) -> None:
+    result = run_cli(
+        "read", "--port", simulator.path, *LINE, "--address", "1",
+        "P00.11", "2100H", "output_frequency", "identification", "0x0003",
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert lines[0].startswith("P00.11  10.0 s  (000BH = 0064H: acceleration time 1")
+    assert lines[1].startswith("2100H  3 (stopped)  (2100H = 0003H")
+    assert lines[2].startswith("output_frequency  0.00 Hz  (3000H = 0000H")
+    assert lines[3].startswith("identification  01A0H (GD350)")
+    assert lines[4].startswith("P00.03  50.00 Hz  (0003H = 1388H: max. output frequency")
+
+
+def test_fault_history_reads_as_fault_names(simulator: SimulatorProcess) -> None:
+    result = run_cli("read", "--port", simulator.path, *LINE, "--address", "7", "2102H")
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.startswith("2102H  35 (STo: maladjustment)")
+
+
+def test_write_then_read_round_trips_with_scaling(simulator: SimulatorProcess) -> None:
+    result = run_cli(
+        "write", "--port", simulator.path, *LINE, "--address", "200",
+        "P00.11=12.5", "frequency_setpoint=25.00", "control_word=stop",
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.splitlines() == [
+        "P00.11 <- 12.5 s  (000BH = 007DH): written",
+        "frequency_setpoint <- 25.00 Hz  (2001H = 09C4H): written",
+        "control_word <- 5 (stop)  (2000H = 0005H): written",
+    ]
+    result = run_cli("read", "--port", simulator.path, *LINE, "-a", "200", "P00.11", "2001H")
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.splitlines()[0].startswith("P00.11  12.5 s  (000BH = 007DH")
+    assert result.stdout.splitlines()[1].startswith("2001H  25.00 Hz  (2001H = 09C4H")
+
+
+def test_refused_write_names_the_drives_reason(simulator: SimulatorProcess) -> None:
+    result = run_cli("write", "--port", simulator.path, *LINE, "--address", "1", "P00.01=3")
+    assert result.returncode == 1
+    assert "exception 04H operation failure" in result.stderr
+    assert "range" in result.stderr
+
+
+def test_silent_address_says_what_to_check(simulator: SimulatorProcess) -> None:
+    result = run_cli(
+        "read", "--port", simulator.path, *LINE, "--address", "9", "--timeout-ms", "50", "P00.11"
+    )
+    assert result.returncode == 1
+    assert "no answer from" in result.stderr
+    for check in ("P14.01", "P14.02", "termination", "P14.00"):
+        assert check in result.stderr
+
+
+def test_bad_names_and_values_are_usage_errors(simulator: SimulatorProcess) -> None:
+    result = run_cli("read", "--port", simulator.path, *LINE, "speed_of_light")
+    assert result.returncode == 2
+    assert "Pxx.yy" in result.stderr
+    result = run_cli("write", "--port", simulator.path, *LINE, "P00.11=fast")
+    assert result.returncode == 2
+    assert "not a number" in result.stderr
+
+
+def test_missing_port_says_what_to_check() -> None:
+    result = run_cli("read", "--port", "/dev/ttyUSB-not-there", "P00.11")
+    assert result.returncode == 1
+    assert "/dev/serial/by-id" in result.stderr
+    assert "dialout" in result.stderr
+
+
+def test_decode_fault() -> None:
+    result = run_cli("decode-fault", "35")
+    assert (result.returncode, result.stdout) == (0, "STo: maladjustment\n")
+    result = run_cli("decode-fault", "23H", "0", "99")
+    assert result.stdout.splitlines() == [
+        "35: STo: maladjustment",
+        "0: none",
+        "99: unknown fault 99",
+    ]
+    assert run_cli("decode-fault", "abc").returncode == 2
+
+
+def test_read_and_write_via_a_running_gateway(tmp_path: Path) -> None:
+    tcp_port = free_port()
+    with SimulatedLine(addresses=[1], baudrate=115200, parity="N", wire_time=True) as line:
+        config = {
+            "gateway_id": "tools",
+            "modbus_tcp": {"host": "127.0.0.1", "port": tcp_port},
+            "buses": [{"name": "line1", "port": line.path, "baudrate": 115200, "parity": "N"}],
+            "drives": [{"name": "pump1", "bus": "line1", "address": 1, "unit_id": 21}],
+        }
+        with gateway_process(config, tmp_path) as gateway:
+            gateway.wait_ready()
+            via = ("--via", f"tcp://127.0.0.1:{tcp_port}")
+            result = run_cli("write", *via, "--address", "21", "P00.11=30.0")
+            assert result.returncode == 0, result.stderr
+            result = run_cli("read", *via, "--address", "21", "P00.11", "state_word_1")
+            assert result.returncode == 0, result.stderr
+            assert result.stdout.splitlines()[0].startswith("P00.11  30.0 s")
+            assert result.stdout.splitlines()[1].startswith("state_word_1  3 (stopped)")
+            # A unit id the gateway doesn't route: its 0AH, explained.
+            result = run_cli("read", *via, "--address", "99", "P00.11")
+            assert result.returncode == 1
+            assert "0AH gateway path unavailable" in result.stderr
+            # The line itself is the gateway's: the tool says so instead of fighting for it.
+            result = run_cli("read", "--port", line.path, *LINE, "P00.11")
+            assert result.returncode == 1
+            assert "--via tcp://HOST:PORT" in result.stderr
+    result = run_cli("read", "--via", f"tcp://127.0.0.1:{tcp_port}", "P00.11")
+    assert result.returncode == 1
+    assert "cannot connect to the gateway" in result.stderr
