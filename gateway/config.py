@@ -147,8 +147,12 @@ class MqttConfig(Section):
     command_max_age_s: float = Field(10.0, gt=0)
     """A command whose `time` is older than this is refused (it sat in a queue somewhere)."""
     commands_enabled: bool = True
-    """False: monitoring only, every command on MQTT is refused."""
+    """False: monitoring only, every command on MQTT is refused (`set`, `write_parameter`);
+    reads (`get`, `read_parameter`) are still answered."""
     queue_size: int = Field(1000, ge=1)
+    """Events (faults, offline...) waiting for the broker; past this the oldest are dropped."""
+    reconnect_max_s: float = Field(30.0, gt=0, le=3600)
+    """Longest wait between two attempts to reach the broker (the wait doubles up to it)."""
 
     @field_validator("base_topic")
     @classmethod

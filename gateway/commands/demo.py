@@ -29,6 +29,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "--config", "-c", help="configuration to simulate (default: the embedded demo.yaml)"
     )
     parser.add_argument("--port", type=int, help="Modbus-TCP port (default from the config)")
+    parser.add_argument(
+        "--watch", action="store_true", help="print every MQTT message of the gateway here"
+    )
     parser.set_defaults(handler=handle)
 
 
@@ -51,7 +54,31 @@ def handle(args: argparse.Namespace) -> int:
     setup_logging(config.logging.level, config.logging.format)
     with contextlib.ExitStack() as stack:
         config = simulate_buses(config, stack)
-        return asyncio.run(serve(config, on_ready=lambda app: print_banner(app, config)))
+        return asyncio.run(serve_demo(config, watch=args.watch))
+
+
+async def serve_demo(config: GatewayConfig, watch: bool = False) -> int:
+    """Serve the demo; with MQTT configured, against a broker even on a machine that has none."""
+    mqtt = config.mqtt
+    if mqtt is None or not mqtt.enabled:
+        return await serve(config, on_ready=lambda app: print_banner(app, config))
+    from gateway.mqtt.demo_broker import broker_for_demo, watch_messages
+
+    broker = await broker_for_demo(mqtt)
+    config = config.model_copy(update={"mqtt": broker.config})
+    watcher = None
+    if watch:
+        topic = f"{broker.config.base_topic}/#"
+        watcher = asyncio.create_task(watch_messages(broker.config, topic), name="demo:watch")
+    try:
+        return await serve(config, on_ready=lambda app: print_banner(app, config, broker.note))
+    finally:
+        if watcher is not None:
+            watcher.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await watcher
+        if broker.embedded is not None:
+            await broker.embedded.stop()
 
 
 def simulate_buses(config: GatewayConfig, stack: contextlib.ExitStack) -> GatewayConfig:
@@ -75,7 +102,7 @@ def simulate_buses(config: GatewayConfig, stack: contextlib.ExitStack) -> Gatewa
     return config.model_copy(update={"buses": tuple(buses)})
 
 
-def print_banner(app: Application, config: GatewayConfig) -> None:
+def print_banner(app: Application, config: GatewayConfig, mqtt_note: str | None = None) -> None:
     host = config.modbus_tcp.host
     port = app.tcp.port
     lines = [
@@ -93,7 +120,26 @@ def print_banner(app: Application, config: GatewayConfig) -> None:
         f"  mbpoll -m tcp -p {port} -a 1 -0 -r 0x2100 -c 1 -1 {host}",
         "Start it forward at 25.00 Hz (control word 2000H = 1, set-point 2001H = 2500):",
         f"  mbpoll -m tcp -p {port} -a 1 -0 -r 0x2000 {host} 1 2500",
+    ]
+    if mqtt_note is not None and config.mqtt is not None:
+        lines += mqtt_banner(config, mqtt_note)
+    lines += [
         "Stop with Ctrl-C.",
         "",
     ]
     print("\n".join(lines), flush=True)
+
+
+def mqtt_banner(config: GatewayConfig, note: str) -> list[str]:
+    assert config.mqtt is not None
+    mqtt = config.mqtt
+    base = mqtt.base_topic
+    first = config.drives[0].name if config.drives else "pump1"
+    where = f"-h {mqtt.host} -p {mqtt.port}"
+    run = '{"command": "run_forward", "frequency_hz": 25.0, "transaction": "t1"}'
+    return [
+        f"{note}; telemetry under {base}/:",
+        f"  mosquitto_sub {where} -t '{base}/#' -v      (or: invt-gateway demo --watch)",
+        f"Start {first} forward at 25.00 Hz over MQTT (answer on {base}/{first}/set/response):",
+        f"  mosquitto_pub {where} -t {base}/{first}/set -m '{run}'",
+    ]

@@ -1,0 +1,165 @@
+"""Home Assistant MQTT discovery: the entities each drive shows in Home Assistant. No I/O.
+
+Each drive is a device with sensors (state, fault, frequency, current, voltages, power, speed),
+buttons for its run and stop commands and a number for the frequency set-point (those two only
+when commands are enabled). The gateway itself is a device too (its connection state), the one
+drives are reached "via". Entities are available when both the gateway and the drive are.
+
+Ids are built from `gateway_id` and the drive's name, so two gateways on one broker never claim
+each other's entities.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from typing import Any, Final
+
+from gateway import __version__
+from gateway.config import GatewayConfig
+from gateway.mqtt.topics import Topics
+from gateway.profile import get_profile
+
+MAX_SETPOINT_HZ: Final = 630.0
+"""The highest P00.03 (max. output frequency) of any Goodrive; the drive refuses above its own."""
+
+ON_STATE: Final = "{{ value_json.state }}"
+
+
+@dataclass(frozen=True, slots=True)
+class Sensor:
+    key: str
+    name: str
+    unit: str | None = None
+    device_class: str | None = None
+    icon: str | None = None
+
+
+SENSORS: Final = (
+    Sensor("state", "State", icon="mdi:state-machine"),
+    Sensor("fault_description", "Fault", icon="mdi:alert-circle-outline"),
+    Sensor("output_frequency_hz", "Output frequency", "Hz", "frequency"),
+    Sensor("output_current_a", "Output current", "A", "current"),
+    Sensor("output_voltage_v", "Output voltage", "V", "voltage"),
+    Sensor("bus_voltage_v", "Bus voltage", "V", "voltage"),
+    Sensor("output_power_pct", "Output power", "%", icon="mdi:flash"),
+    Sensor("rotation_speed_rpm", "Rotation speed", "rpm", icon="mdi:rotate-right"),
+)
+BUTTONS: Final = (
+    ("run_forward", "Run forward", "mdi:play"),
+    ("run_reverse", "Run reverse", "mdi:play-outline"),
+    ("stop", "Stop", "mdi:stop"),
+    ("coast_stop", "Coast stop", "mdi:stop-circle-outline"),
+    ("fault_reset", "Fault reset", "mdi:restore-alert"),
+)
+
+
+def discovery_messages(config: GatewayConfig, prefix: str, topics: Topics) -> list[tuple[str, str]]:
+    """(topic, payload) of every entity's config message, to be published retained."""
+    gateway_id = config.gateway_id
+    node = f"invt_{gateway_id}"
+    origin = {"name": "invt-gateway", "sw_version": __version__}
+    messages = [
+        (
+            f"{prefix}/binary_sensor/{node}/bridge_connection/config",
+            _dump(
+                {
+                    "name": "Connection state",
+                    "unique_id": f"{node}_bridge_connection",
+                    "device_class": "connectivity",
+                    "entity_category": "diagnostic",
+                    "state_topic": topics.bridge_state,
+                    "value_template": ON_STATE,
+                    "payload_on": "online",
+                    "payload_off": "offline",
+                    "device": _bridge_device(node, gateway_id),
+                    "origin": origin,
+                }
+            ),
+        )
+    ]
+    commands = config.mqtt is not None and config.mqtt.commands_enabled
+    for drive in config.drives:
+        profile = get_profile(drive.model)
+        if not profile.is_invt:
+            continue  # nothing decoded to show
+        common = {
+            "availability": [
+                {"topic": topics.bridge_state, "value_template": ON_STATE},
+                {"topic": topics.availability(drive.name), "value_template": ON_STATE},
+            ],
+            "availability_mode": "all",
+            "device": {
+                "identifiers": [f"{node}_{drive.name}"],
+                "name": drive.name,
+                "manufacturer": "INVT",
+                "model": profile.display_name,
+                "via_device": node,
+            },
+            "origin": origin,
+        }
+        entity = f"{node}_{drive.name}"
+        for sensor in SENSORS:
+            payload: dict[str, Any] = {
+                **common,
+                "name": sensor.name,
+                "unique_id": f"{entity}_{sensor.key}",
+                "state_topic": topics.drive_state(drive.name),
+                "value_template": f"{{{{ value_json.{sensor.key} }}}}",
+            }
+            if sensor.unit is not None:
+                payload["unit_of_measurement"] = sensor.unit
+                payload["state_class"] = "measurement"
+            if sensor.device_class is not None:
+                payload["device_class"] = sensor.device_class
+            if sensor.icon is not None:
+                payload["icon"] = sensor.icon
+            messages.append(
+                (f"{prefix}/sensor/{node}/{drive.name}_{sensor.key}/config", _dump(payload))
+            )
+        if not commands:
+            continue
+        for command, name, icon in BUTTONS:
+            payload = {
+                **common,
+                "name": name,
+                "unique_id": f"{entity}_{command}",
+                "command_topic": topics.set(drive.name),
+                "payload_press": json.dumps({"command": command}),
+                "icon": icon,
+            }
+            messages.append(
+                (f"{prefix}/button/{node}/{drive.name}_{command}/config", _dump(payload))
+            )
+        setpoint = {
+            **common,
+            "name": "Frequency set-point",
+            "unique_id": f"{entity}_frequency_setpoint",
+            "command_topic": topics.set(drive.name),
+            "command_template": '{"frequency_hz": {{ value }}}',
+            "state_topic": topics.drive_state(drive.name),
+            "value_template": "{{ value_json.set_frequency_hz }}",
+            "min": 0,
+            "max": MAX_SETPOINT_HZ,
+            "step": 0.01,
+            "mode": "box",
+            "unit_of_measurement": "Hz",
+            "device_class": "frequency",
+        }
+        messages.append(
+            (f"{prefix}/number/{node}/{drive.name}_frequency_setpoint/config", _dump(setpoint))
+        )
+    return messages
+
+
+def _bridge_device(node: str, gateway_id: str) -> dict[str, Any]:
+    return {
+        "identifiers": [node],
+        "name": f"INVT gateway {gateway_id}",
+        "manufacturer": "invt-gateway",
+        "sw_version": __version__,
+    }
+
+
+def _dump(payload: dict[str, Any]) -> str:
+    return json.dumps(payload, separators=(",", ":"))

@@ -1,0 +1,351 @@
+"""MQTT command payloads read into bus requests, and the answers written back. No I/O.
+
+A command is refused before it reaches the bus when it is malformed, retained, stale or its value
+can't be written; every refusal is a `CommandRefused` with a short `reason` the response carries
+(`invalid_request`, `invalid_value`, `stale`, `retained`, `commands_disabled`, `unknown_drive`).
+
+Payloads (JSON objects; `transaction` is echoed, `time` is when it was sent):
+    <base>/<drive>/set     {"command": "run_forward", "frequency_hz": 35.0}
+                           {"frequency_hz": 35.0}
+                           {"parameter": "P00.11", "value": 10.0, "ram_only": true}
+                           {"parameter": "2001H", "raw": 3500}
+    bridge/request/read_parameter   {"drive": "pump1", "parameter": "P07.27", "count": 6}
+    bridge/request/write_parameter  {"drive": "pump1", "parameter": "P00.11", "value": 10.0}
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import struct
+from dataclasses import dataclass, field
+from datetime import datetime
+from typing import Any, Final
+
+from gateway.errors import GatewayError
+from gateway.modbus.functions import (
+    READ_HOLDING_REGISTERS,
+    WRITE_MULTIPLE_REGISTERS,
+    WRITE_SINGLE_REGISTER,
+)
+from gateway.profile import (
+    DriveProfile,
+    control_command,
+    format_register,
+    is_parameter_register,
+    parameter_at,
+    parse_register,
+    ram_address,
+    register_at,
+    register_by_name,
+)
+from gateway.profile.addressing import RAM_BIT
+
+CONTROL_WORD: Final = register_by_name("control_word")
+FREQUENCY_SETPOINT: Final = register_by_name("frequency_setpoint")
+MAX_READ_WORDS: Final = 16
+"""An INVT drive reads at most 16 words in one request (03H)."""
+MILLISECONDS_EPOCH: Final = 1e11
+"""A `time` above this is taken as milliseconds (JavaScript's Date.now()), not seconds."""
+
+COMMON_KEYS: Final = frozenset({"transaction", "time"})
+WRITE_KEYS: Final = frozenset({"parameter", "register", "value", "raw", "decimals", "ram_only"})
+SET_KEYS: Final = COMMON_KEYS | WRITE_KEYS | {"command", "frequency_hz"}
+BRIDGE_WRITE_KEYS: Final = COMMON_KEYS | WRITE_KEYS | {"drive"}
+BRIDGE_READ_KEYS: Final = COMMON_KEYS | {"drive", "parameter", "register", "count", "decimals"}
+
+Json = dict[str, Any]
+
+
+class CommandRefused(GatewayError):
+    """The gateway refuses a command without sending anything to the drive."""
+
+    def __init__(self, reason: str, message: str) -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+@dataclass(frozen=True, slots=True)
+class RegisterWrite:
+    """Words for the drive from `start` (06H for one word, 10H for several)."""
+
+    start: int
+    words: tuple[int, ...]
+    echo: Json = field(default_factory=dict)
+    """What the acknowledgement repeats of the command."""
+
+    @property
+    def pdu(self) -> bytes:
+        if len(self.words) == 1:
+            return struct.pack(">BHH", WRITE_SINGLE_REGISTER, self.start, self.words[0])
+        count = len(self.words)
+        header = struct.pack(">BHHB", WRITE_MULTIPLE_REGISTERS, self.start, count, 2 * count)
+        return header + struct.pack(f">{count}H", *self.words)
+
+    @property
+    def plain_start(self) -> int:
+        """The register the write changes (a RAM-only address names the same parameter)."""
+        return self.start & ~RAM_BIT if is_parameter_register(self.start) else self.start
+
+
+@dataclass(frozen=True, slots=True)
+class RegisterRead:
+    start: int
+    count: int
+    decimals: int | None
+    signed: bool
+    echo: Json = field(default_factory=dict)
+
+    @property
+    def pdu(self) -> bytes:
+        return struct.pack(">BHH", READ_HOLDING_REGISTERS, self.start, self.count)
+
+    def result(self, words: list[int]) -> Json:
+        values = [_engineering(w, self.decimals, self.signed) for w in words]
+        if self.count == 1:
+            return {"raw": words[0], "value": values[0]}
+        return {"raw": words, "value": values}
+
+
+# -- reading a payload ------------------------------------------------------------------------
+
+
+def parse_object(payload: bytes | bytearray | str) -> Json:
+    try:
+        message = json.loads(payload)
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise CommandRefused("invalid_request", f"not JSON: {exc}") from None
+    if not isinstance(message, dict):
+        raise CommandRefused("invalid_request", "the payload must be a JSON object")
+    return message
+
+
+def transaction_of(message: Json) -> Any:
+    return message.get("transaction")
+
+
+def check_keys(message: Json, allowed: frozenset[str]) -> None:
+    # An unknown key is almost always a typo ("frequency": 35) that would silently do nothing.
+    unknown = sorted(set(message) - allowed)
+    if unknown:
+        raise CommandRefused(
+            "invalid_request",
+            f"unknown key {', '.join(map(repr, unknown))}: use {', '.join(sorted(allowed))}",
+        )
+
+
+def check_age(message: Json, max_age_s: float, now: float) -> None:
+    """Refuse a command whose `time` (epoch s or ms, or ISO 8601) is older than `max_age_s`."""
+    sent = message.get("time")
+    if sent is None:
+        return
+    at = _epoch(sent)
+    age = now - at
+    if age > max_age_s:
+        raise CommandRefused("stale", f"sent {age:.1f} s ago, more than {max_age_s:g} s: refused")
+    if age < -max_age_s:
+        raise CommandRefused(
+            "stale", f"sent {-age:.1f} s in the future: the sender's clock is wrong, refused"
+        )
+
+
+def _epoch(sent: Any) -> float:
+    if isinstance(sent, bool):
+        raise CommandRefused("invalid_request", "time must be epoch seconds or ISO 8601")
+    if isinstance(sent, int | float):
+        return sent / 1000 if sent > MILLISECONDS_EPOCH else float(sent)
+    if isinstance(sent, str):
+        try:
+            parsed = datetime.fromisoformat(sent)
+        except ValueError:
+            raise CommandRefused(
+                "invalid_request", f"time {sent!r} is not ISO 8601 (2024-05-01T12:00:00Z)"
+            ) from None
+        if parsed.tzinfo is None:
+            raise CommandRefused("invalid_request", f"time {sent!r} has no time zone")
+        return parsed.timestamp()
+    raise CommandRefused("invalid_request", "time must be epoch seconds or ISO 8601")
+
+
+def parse_set(message: Json, profile: DriveProfile, ram_by_route: bool) -> RegisterWrite:
+    """A `<drive>/set` payload: a control command (with a set-point), a set-point alone, or a
+    parameter write. `ram_by_route`: the router already sends parameter writes to RAM."""
+    check_keys(message, SET_KEYS)
+    has_command = "command" in message
+    has_frequency = "frequency_hz" in message
+    has_write = bool(WRITE_KEYS & set(message))
+    if has_write and (has_command or has_frequency):
+        raise CommandRefused(
+            "invalid_request", "one message is a command or a parameter write, not both"
+        )
+    if has_write:
+        return parse_write(message, profile, ram_by_route)
+    if not has_command and not has_frequency:
+        raise CommandRefused(
+            "invalid_request", "nothing to do: give command, frequency_hz or parameter"
+        )
+    frequency = _frequency(message["frequency_hz"]) if has_frequency else None
+    echo: Json = {}
+    if not has_command:
+        assert frequency is not None
+        echo["frequency_hz"] = message["frequency_hz"]
+        return RegisterWrite(FREQUENCY_SETPOINT.address, (frequency,), echo)
+    name = message["command"]
+    if not isinstance(name, str):
+        raise CommandRefused("invalid_request", "command must be a string")
+    try:
+        command = control_command(name)
+    except ValueError as exc:
+        raise CommandRefused("invalid_request", str(exc)) from None
+    echo["command"] = command.name.lower()
+    if frequency is None:
+        return RegisterWrite(CONTROL_WORD.address, (int(command),), echo)
+    echo["frequency_hz"] = message["frequency_hz"]
+    # One 10H write of 2000H-2001H: the command and its set-point reach the drive together.
+    return RegisterWrite(CONTROL_WORD.address, (int(command), frequency), echo)
+
+
+def _frequency(value: Any) -> int:
+    number = _number(value, "frequency_hz")
+    if number < 0:
+        raise CommandRefused(
+            "invalid_value", "frequency_hz must be 0 or more: use run_reverse for reverse"
+        )
+    try:
+        return FREQUENCY_SETPOINT.encode(number)
+    except ValueError as exc:
+        raise CommandRefused("invalid_value", str(exc)) from None
+
+
+def parse_write(message: Json, profile: DriveProfile, ram_by_route: bool) -> RegisterWrite:
+    address, spelled = _address(message)
+    has_value, has_raw = "value" in message, "raw" in message
+    if has_value == has_raw:
+        raise CommandRefused("invalid_request", "give either value or raw")
+    ram_only = message.get("ram_only", False)
+    if not isinstance(ram_only, bool):
+        raise CommandRefused("invalid_request", "ram_only must be true or false")
+    if has_raw:
+        raw = _raw(message["raw"])
+    else:
+        decimals = _decimals(message, address)
+        if decimals is None:
+            raise CommandRefused(
+                "invalid_value",
+                f"the decimals of {spelled} are not in the profile: give decimals, or raw",
+            )
+        raw = _scaled(_number(message["value"], "value"), decimals, spelled)
+    echo: Json = {"parameter": spelled, "register": format_register(address), "raw": raw}
+    if has_value:
+        echo["value"] = message["value"]
+    start = address
+    if ram_only:
+        start = _ram_target(address, spelled, profile, ram_by_route)
+        echo["ram_only"] = True
+    return RegisterWrite(start, (raw,), echo)
+
+
+def _ram_target(address: int, spelled: str, profile: DriveProfile, ram_by_route: bool) -> int:
+    if not profile.ram_writes_supported:
+        raise CommandRefused("invalid_request", f"{profile.display_name} has no RAM-only writes")
+    if register_at(address) is not None or not is_parameter_register(address):
+        raise CommandRefused("invalid_request", f"{spelled} is not a parameter: no RAM-only write")
+    # The router turns parameter writes into RAM writes for this drive already.
+    return address if ram_by_route else ram_address(address & ~RAM_BIT)
+
+
+def parse_read(message: Json) -> RegisterRead:
+    address, spelled = _address(message)
+    count = message.get("count", 1)
+    if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= MAX_READ_WORDS:
+        raise CommandRefused("invalid_request", f"count must be 1..{MAX_READ_WORDS}")
+    decimals = _decimals(message, address)
+    communication = register_at(address)
+    signed = communication is not None and communication.signed
+    echo: Json = {"parameter": spelled, "register": format_register(address)}
+    if count != 1:
+        echo["count"] = count
+    return RegisterRead(address, count, decimals, signed, echo)
+
+
+def _address(message: Json) -> tuple[int, str]:
+    given = [key for key in ("parameter", "register") if key in message]
+    if len(given) != 1:
+        raise CommandRefused("invalid_request", "give parameter (P00.11) or register (2001H)")
+    spelled = message[given[0]]
+    if isinstance(spelled, bool) or not isinstance(spelled, str | int):
+        raise CommandRefused("invalid_request", f"{given[0]} must be like P00.11 or 2001H")
+    try:
+        address = spelled if isinstance(spelled, int) else parse_register(spelled)
+    except ValueError as exc:
+        raise CommandRefused("invalid_request", str(exc)) from None
+    if not 0 <= address <= 0xFFFF:
+        raise CommandRefused("invalid_request", f"register {address} is outside 0..65535")
+    return address, str(spelled)
+
+
+def _decimals(message: Json, address: int) -> int | None:
+    if "decimals" in message:
+        decimals = message["decimals"]
+        if isinstance(decimals, bool) or not isinstance(decimals, int) or not 0 <= decimals <= 4:
+            raise CommandRefused("invalid_request", "decimals must be 0..4")
+        return decimals
+    communication = register_at(address)
+    if communication is not None:
+        return communication.decimals
+    known = parameter_at(address & ~RAM_BIT) if is_parameter_register(address) else None
+    return None if known is None else known.decimals
+
+
+def _number(value: Any, key: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise CommandRefused("invalid_value", f"{key} must be a number")
+    return float(value)
+
+
+def _raw(value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise CommandRefused("invalid_value", "raw must be an integer")
+    if not -0x8000 <= value <= 0xFFFF:
+        raise CommandRefused("invalid_value", f"raw {value} does not fit in one register")
+    return value & 0xFFFF
+
+
+def _scaled(value: float, decimals: int, spelled: str) -> int:
+    raw = round(value * float(10**decimals))
+    if not -0x8000 <= raw <= 0xFFFF:
+        raise CommandRefused(
+            "invalid_value", f"{spelled} = {value:g} ({raw} raw) does not fit in one register"
+        )
+    return raw & 0xFFFF
+
+
+def _engineering(word: int, decimals: int | None, signed: bool) -> float | int:
+    number = word - 0x10000 if signed and word & 0x8000 else word
+    return number / float(10**decimals) if decimals else number
+
+
+# -- writing an answer ------------------------------------------------------------------------
+
+
+def ok_response(transaction: Any, data: Json) -> Json:
+    response: Json = {"status": "ok", "data": data}
+    if transaction is not None:
+        response["transaction"] = transaction
+    return response
+
+
+def error_response(
+    transaction: Any,
+    error: str,
+    message: str,
+    exception_code: int | None = None,
+    data: Json | None = None,
+) -> Json:
+    """`error`: the INVT exception's name (`operation_failure`) or the gateway's reason."""
+    response: Json = {"status": "error", "error": error, "message": message, "data": data or {}}
+    if exception_code is not None:
+        response["exception_code"] = exception_code
+    if transaction is not None:
+        response["transaction"] = transaction
+    return response

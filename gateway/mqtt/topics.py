@@ -1,0 +1,63 @@
+"""The MQTT topics of one gateway, after Zigbee2MQTT's conventions (a public interface).
+
+| topic                                 | dir | retained | what                              |
+|---------------------------------------|-----|----------|-----------------------------------|
+| <base>/bridge/state                   | out | yes      | {"state": "online"}; the last     |
+|                                       |     |          | will {"state": "offline"}         |
+| <base>/bridge/info                    | out | yes      | gateway id, version, drives       |
+| <base>/bridge/event                   | out | no       | fault_raised, fault_cleared,      |
+|                                       |     |          | drive_offline, drive_online       |
+| <base>/bridge/request/read_parameter  | in  | ignored  | read any Pxx.yy or register       |
+| <base>/bridge/request/write_parameter | in  | ignored  | write any Pxx.yy or register      |
+| <base>/bridge/response/<op>           | out | no       | the answer, with `transaction`    |
+| <base>/<drive>                        | out | yes      | state, fault, running values      |
+| <base>/<drive>/availability           | out | yes      | {"state": "online" / "offline"}   |
+| <base>/<drive>/set                    | in  | ignored  | a command or a parameter write    |
+| <base>/<drive>/set/response           | out | no       | the acknowledgement               |
+| <base>/<drive>/get                    | in  | ignored  | poll now, publish the state       |
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Final
+
+BRIDGE_REQUESTS: Final = ("read_parameter", "write_parameter")
+
+
+@dataclass(frozen=True, slots=True)
+class Topics:
+    base: str
+
+    @property
+    def bridge_state(self) -> str:
+        return f"{self.base}/bridge/state"
+
+    @property
+    def bridge_info(self) -> str:
+        return f"{self.base}/bridge/info"
+
+    @property
+    def bridge_event(self) -> str:
+        return f"{self.base}/bridge/event"
+
+    def bridge_request(self, operation: str) -> str:
+        return f"{self.base}/bridge/request/{operation}"
+
+    def bridge_response(self, operation: str) -> str:
+        return f"{self.base}/bridge/response/{operation}"
+
+    def drive_state(self, drive: str) -> str:
+        return f"{self.base}/{drive}"
+
+    def availability(self, drive: str) -> str:
+        return f"{self.base}/{drive}/availability"
+
+    def set(self, drive: str) -> str:
+        return f"{self.base}/{drive}/set"
+
+    def set_response(self, drive: str) -> str:
+        return f"{self.base}/{drive}/set/response"
+
+    def get(self, drive: str) -> str:
+        return f"{self.base}/{drive}/get"

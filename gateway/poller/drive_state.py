@@ -1,0 +1,92 @@
+"""What the gateway knows of one drive from its polls: raw registers, availability, events.
+
+The state changes only here, and each change that a dashboard must hear about as it happens (a
+fault raised or cleared, the drive lost or back) comes back from the method that made it, as a
+`DriveEvent`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+from gateway.profile import DriveProfile, format_register
+from gateway.profile.telemetry import Telemetry, current_fault, decode_telemetry, fault_fields
+
+
+class EventKind(StrEnum):
+    FAULT_RAISED = "fault_raised"
+    FAULT_CLEARED = "fault_cleared"
+    DRIVE_OFFLINE = "drive_offline"
+    DRIVE_ONLINE = "drive_online"
+
+
+@dataclass(frozen=True, slots=True)
+class DriveEvent:
+    kind: EventKind
+    drive: str
+    data: Telemetry = field(default_factory=dict)
+    at: float = field(default_factory=time.time)
+    """Wall-clock time (epoch seconds) the gateway noticed it."""
+
+
+class DriveState:
+    def __init__(self, name: str, profile: DriveProfile) -> None:
+        self.name = name
+        self.profile = profile
+        self.registers: dict[int, int] = {}
+        self.online: bool | None = None
+        """None until the first poll has answered or failed."""
+        self.last_seen: float | None = None
+        """Wall-clock time of the last poll the drive answered."""
+
+    def record_poll(self, start: int, words: Sequence[int], at: float) -> list[DriveEvent]:
+        """A poll answered: store its words; the events it caused (fault, back online)."""
+        fault_before = current_fault(self.profile, self.registers)
+        for offset, word in enumerate(words):
+            self.registers[start + offset] = word
+        self.last_seen = at
+        events = self.set_online(True)
+        fault_now = current_fault(self.profile, self.registers)
+        if fault_now is not None and fault_now != (fault_before or 0):
+            events += self._fault_changed(fault_before or 0, fault_now)
+        return events
+
+    def set_online(self, online: bool) -> list[DriveEvent]:
+        was = self.online
+        self.online = online
+        if online and was is False:
+            return [DriveEvent(EventKind.DRIVE_ONLINE, self.name)]
+        if not online and was is not False:
+            # A drive never seen is reported too: it is configured, so somebody expects it.
+            return [DriveEvent(EventKind.DRIVE_OFFLINE, self.name)]
+        return []
+
+    def telemetry(self) -> Telemetry:
+        if self.profile.is_invt:
+            telemetry = decode_telemetry(self.profile, self.registers)
+        else:
+            # A generic Modbus device: nothing to decode, its words under their addresses.
+            telemetry = {
+                f"register_{format_register(address).lower()}": word
+                for address, word in sorted(self.registers.items())
+            }
+        if self.last_seen is not None:
+            telemetry["last_seen"] = iso_time(self.last_seen)
+        return telemetry
+
+    def _fault_changed(self, before: int, now: int) -> list[DriveEvent]:
+        events = []
+        if before:
+            events.append(DriveEvent(EventKind.FAULT_CLEARED, self.name, fault_fields(before)))
+        if now:
+            events.append(DriveEvent(EventKind.FAULT_RAISED, self.name, fault_fields(now)))
+        return events
+
+
+def iso_time(epoch_s: float) -> str:
+    """UTC with milliseconds, as Zigbee2MQTT writes `last_seen`: 2024-05-01T12:00:00.250Z."""
+    whole = time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(epoch_s))
+    return f"{whole}.{int(epoch_s * 1000) % 1000:03d}Z"

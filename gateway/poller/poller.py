@@ -1,0 +1,269 @@
+"""The poller: one loop per drive reading its poll groups through the router, at poll priority.
+
+Polls go through the same router and bus queue as SCADA, with `Priority.POLL`: a SCADA write or
+read is always served before any waiting poll, so a burst of polls never delays a stop command.
+Each answer is stored in the register cache and in the drive's state; listeners (the MQTT bridge)
+hear of every new state and event through plain calls that must not block.
+
+A drive that stops answering is offline: after `OFFLINE_AFTER_FAILED_POLLS` failed polls, or at
+once when its bus says so (the bus then answers its requests 0x0B without bus time). Its polls
+then back off, doubling up to `OFFLINE_POLL_MAX_S`, and it is polled at once when the bus's probe
+finds it back.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import struct
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Final, Protocol
+
+from gateway.bus import BusState, Priority
+from gateway.cache import RegisterCache
+from gateway.config import DriveConfig
+from gateway.errors import DriveOffline, GatewayPathUnavailable, GatewayTargetFailed
+from gateway.modbus.functions import READ_HOLDING_REGISTERS, is_exception
+from gateway.poller.drive_state import DriveEvent, DriveState
+from gateway.poller.plan import PollBlock, PollSchedule, poll_schedules
+from gateway.profile import exception_name, format_register, get_profile
+from gateway.profile.telemetry import Telemetry
+from gateway.router import Router
+from gateway.tasks import cancel_and_wait
+
+log = logging.getLogger(__name__)
+
+POLL_CLIENT: Final = "poll"
+OFFLINE_AFTER_FAILED_POLLS: Final = 3
+OFFLINE_POLL_MAX_S: Final = 30.0
+STOP_BUDGET_S: Final = 0.5
+
+
+class PollListener(Protocol):
+    """Told of what polls find; called on the event loop, must return at once."""
+
+    def state_updated(self, drive: str, telemetry: Telemetry) -> None: ...
+
+    def availability_changed(self, drive: str, online: bool) -> None: ...
+
+    def drive_event(self, event: DriveEvent) -> None: ...
+
+
+@dataclass(slots=True)
+class _GroupTimer:
+    schedule: PollSchedule
+    next_at: float = 0.0
+
+
+@dataclass(slots=True)
+class PolledDrive:
+    config: DriveConfig
+    state: DriveState
+    timers: list[_GroupTimer]
+    lock: asyncio.Lock = field(default_factory=asyncio.Lock)
+    wake: asyncio.Event = field(default_factory=asyncio.Event)
+    polls: int = 0
+    failed_polls: int = 0
+    offline_backoff: int = 0
+    reported_exceptions: set[tuple[int, int]] = field(default_factory=set)
+
+
+class Poller:
+    def __init__(self, drives: Iterable[DriveConfig], router: Router, cache: RegisterCache) -> None:
+        self.router = router
+        self.cache = cache
+        self.drives: dict[str, PolledDrive] = {}
+        self._by_bus_address: dict[tuple[str, int], str] = {}
+        for config in drives:
+            profile = get_profile(config.model)
+            timers = [_GroupTimer(s) for s in poll_schedules(config, profile)]
+            self.drives[config.name] = PolledDrive(config, DriveState(config.name, profile), timers)
+            self._by_bus_address[(config.bus, config.address)] = config.name
+        self._listeners: list[PollListener] = []
+        self._task: asyncio.Task[None] | None = None
+        self.polls = 0
+        self.poll_failures = 0
+
+    def add_listener(self, listener: PollListener) -> None:
+        self._listeners.append(listener)
+
+    # -- lifecycle ---------------------------------------------------------------------------
+
+    async def start(self) -> None:
+        self._task = asyncio.create_task(self._run(), name="poller")
+
+    async def stop(self) -> None:
+        if self._task is not None:
+            await cancel_and_wait(self._task, STOP_BUDGET_S)
+            self._task = None
+
+    async def _run(self) -> None:
+        async with asyncio.TaskGroup() as tasks:
+            for name, drive in self.drives.items():
+                if drive.timers:
+                    tasks.create_task(self._poll_forever(drive), name=f"poller:{name}")
+
+    # -- what other parts call ---------------------------------------------------------------
+
+    def on_drive_health(self, bus: str, address: int, online: bool) -> None:
+        """Bus listener: a drive went offline, or its probe found it back."""
+        name = self._by_bus_address.get((bus, address))
+        if name is None:
+            return
+        drive = self.drives[name]
+        if online:
+            self._poll_soon(drive)  # the poll's answer is what marks it online
+        else:
+            self._set_online(drive, False)
+
+    def after_write(self, name: str, start: int, count: int) -> None:
+        """A command wrote to the drive: forget the cached words and poll it again now."""
+        self.cache.invalidate(name, start, count)
+        drive = self.drives.get(name)
+        if drive is not None:
+            self._poll_soon(drive)
+
+    async def refresh(self, name: str) -> Telemetry:
+        """Poll every group of drive `name` now; its telemetry afterwards."""
+        drive = self.drives[name]
+        for timer in drive.timers:
+            await self._poll_group(drive, timer.schedule)
+        return drive.state.telemetry()
+
+    def telemetry(self, name: str) -> Telemetry:
+        return self.drives[name].state.telemetry()
+
+    def availability(self, name: str) -> bool | None:
+        return self.drives[name].state.online
+
+    # -- the loop ----------------------------------------------------------------------------
+
+    async def _poll_forever(self, drive: PolledDrive) -> None:
+        while True:
+            now = time.monotonic()
+            for timer in drive.timers:
+                if timer.next_at <= now:
+                    try:
+                        await self._poll_group(drive, timer.schedule)
+                    except Exception:
+                        # A bug must not end this drive's polling for good: say it loudly, go on.
+                        name = drive.config.name
+                        log.exception("poll of %s (%s) failed", name, timer.schedule.group)
+                    timer.next_at = self._next_poll_at(drive, timer, now)
+            delay = min(t.next_at for t in drive.timers) - time.monotonic()
+            if delay > 0:
+                with contextlib.suppress(TimeoutError):
+                    async with asyncio.timeout(delay):
+                        await drive.wake.wait()
+            drive.wake.clear()
+
+    def _next_poll_at(self, drive: PolledDrive, timer: _GroupTimer, now: float) -> float:
+        interval = timer.schedule.interval_s
+        if drive.state.online is False:
+            # Costs no bus time (the bus answers 0x0B at once), but no point asking often.
+            interval = min(
+                interval * (1 << drive.offline_backoff), max(interval, OFFLINE_POLL_MAX_S)
+            )
+            return now + interval
+        # Keep the rhythm; when behind it (a busy bus, a poll asked for now), restart from now.
+        scheduled = timer.next_at + interval
+        return scheduled if scheduled > now else now + interval
+
+    def _poll_soon(self, drive: PolledDrive) -> None:
+        drive.offline_backoff = 0
+        for timer in drive.timers:
+            timer.next_at = 0.0
+        drive.wake.set()
+
+    async def _poll_group(self, drive: PolledDrive, schedule: PollSchedule) -> None:
+        async with drive.lock:  # a refresh and the loop never read the same drive at once
+            for block in schedule.blocks:
+                if not await self._poll_block(drive, block):
+                    return
+
+    async def _poll_block(self, drive: PolledDrive, block: PollBlock) -> bool:
+        """Read one block; False when the drive gave no answer (skip the rest of the group)."""
+        config = drive.config
+        pdu = struct.pack(">BHH", READ_HOLDING_REGISTERS, block.start, block.count)
+        self.polls += 1
+        drive.polls += 1
+        try:
+            reply = await self.router.execute(
+                config.effective_unit_id, pdu, client=POLL_CLIENT, priority=Priority.POLL
+            )
+        except DriveOffline:
+            self._poll_failed(drive, offline=True)
+            return False
+        except GatewayTargetFailed as exc:
+            log.debug("poll of %s at %s: %s", config.name, format_register(block.start), exc)
+            if self.router.route_for_drive(config.name).bus.state is not BusState.CLOSED:
+                self._poll_failed(drive, offline=False)  # shutting down is not the drive's fault
+            return False
+        except GatewayPathUnavailable as exc:
+            # Queue full: the bus is busy with more urgent work; the next interval tries again.
+            log.debug("poll of %s skipped: %s", config.name, exc)
+            return True
+        assert reply is not None
+        if is_exception(reply):
+            self._drive_refused(drive, block, reply[1] if len(reply) > 1 else 0)
+            return True
+        words = list(struct.unpack(f">{(len(reply) - 2) // 2}H", reply[2:]))
+        self._answered(drive, block.start, words)
+        return True
+
+    def _answered(self, drive: PolledDrive, start: int, words: list[int]) -> None:
+        drive.failed_polls = 0
+        drive.offline_backoff = 0
+        self.cache.store(drive.config.name, start, words)
+        was_online = drive.state.online
+        events = drive.state.record_poll(start, words, time.time())
+        if was_online is not True:
+            self._tell_availability(drive)
+        self._tell_events(events)
+        telemetry = drive.state.telemetry()
+        for listener in self._listeners:
+            listener.state_updated(drive.config.name, telemetry)
+
+    def _poll_failed(self, drive: PolledDrive, *, offline: bool) -> None:
+        self.poll_failures += 1
+        drive.failed_polls += 1
+        if drive.state.online is False:
+            drive.offline_backoff = min(drive.offline_backoff + 1, 16)
+        elif offline or drive.failed_polls >= OFFLINE_AFTER_FAILED_POLLS:
+            self._set_online(drive, False)
+
+    def _set_online(self, drive: PolledDrive, online: bool) -> None:
+        events = drive.state.set_online(online)
+        if events:
+            log.warning("drive %s is %s", drive.config.name, "online" if online else "offline")
+            self._tell_availability(drive)
+            self._tell_events(events)
+
+    def _drive_refused(self, drive: PolledDrive, block: PollBlock, code: int) -> None:
+        # The drive answered, so it is there; the block is wrong for this model. Say so once.
+        key = (block.start, code)
+        if key not in drive.reported_exceptions:
+            drive.reported_exceptions.add(key)
+            log.warning(
+                "drive %s refuses the poll of %d words at %s: exception %02XH %s",
+                drive.config.name,
+                block.count,
+                format_register(block.start),
+                code,
+                exception_name(code),
+            )
+
+    def _tell_availability(self, drive: PolledDrive) -> None:
+        online = drive.state.online
+        if online is None:
+            return
+        for listener in self._listeners:
+            listener.availability_changed(drive.config.name, online)
+
+    def _tell_events(self, events: list[DriveEvent]) -> None:
+        for event in events:
+            for listener in self._listeners:
+                listener.drive_event(event)

@@ -1,0 +1,230 @@
+"""A real Mosquitto broker per test, on a free loopback port, that a test can kill and restart.
+
+Never the system's broker on 1883: a test must own its broker to stop it, and must not see what
+another program left retained there. Use the `mosquitto` fixture, or `running_mosquitto()` where a
+fixture doesn't fit, and `MqttProbe` to watch topics and publish as a dashboard would.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import shutil
+import socket
+import subprocess
+import time
+import uuid
+from collections.abc import AsyncIterator, Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import aiomqtt
+import pytest
+
+from tests.support import free_port
+
+MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
+START_TIMEOUT_S = 5.0
+
+
+class Mosquitto:
+    """One broker process; `stop()`/`start()` keep its port, as a restarted broker would."""
+
+    def __init__(self, directory: Path, port: int | None = None) -> None:
+        self.host = "127.0.0.1"
+        self.port = port or free_port()
+        self.directory = directory
+        self.config_file = directory / f"mosquitto-{self.port}.conf"
+        self.log_file = directory / f"mosquitto-{self.port}.log"
+        self.config_file.write_text(
+            f"listener {self.port} {self.host}\n"
+            "allow_anonymous true\n"
+            "persistence false\n"
+            "log_type error\nlog_type warning\nlog_type notice\n"
+            f"log_dest file {self.log_file}\n",
+            encoding="utf-8",
+        )
+        self._process: subprocess.Popen[bytes] | None = None
+
+    @property
+    def running(self) -> bool:
+        return self._process is not None and self._process.poll() is None
+
+    def start(self) -> None:
+        if not Path(MOSQUITTO).exists():
+            pytest.fail(f"{MOSQUITTO} not found: install the Debian package mosquitto")
+        self._process = subprocess.Popen(
+            [MOSQUITTO, "-c", str(self.config_file)],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+        )
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while time.monotonic() < deadline:
+            if self._process.poll() is not None:
+                error = self._process.stderr.read().decode() if self._process.stderr else ""
+                raise RuntimeError(f"mosquitto exited at start: {error} {self.log()}")
+            with (
+                contextlib.suppress(OSError),
+                socket.create_connection((self.host, self.port), 0.2),
+            ):
+                return
+            time.sleep(0.02)
+        raise RuntimeError(f"mosquitto did not listen on {self.port}: {self.log()}")
+
+    def stop(self) -> None:
+        """Kill the broker at once (SIGKILL): clients see their connection drop."""
+        process, self._process = self._process, None
+        if process is not None and process.poll() is None:
+            process.kill()
+            process.wait(5)
+        if process is not None and process.stderr is not None:
+            process.stderr.close()
+
+    def log(self) -> str:
+        try:
+            return self.log_file.read_text(encoding="utf-8")
+        except OSError:
+            return ""
+
+
+@contextlib.contextmanager
+def running_mosquitto(directory: Path) -> Iterator[Mosquitto]:
+    broker = Mosquitto(directory)
+    broker.start()
+    try:
+        yield broker
+    finally:
+        broker.stop()
+
+
+@pytest.fixture
+def mosquitto(tmp_path: Path) -> Iterator[Mosquitto]:
+    with running_mosquitto(tmp_path) as broker:
+        yield broker
+
+
+def unique_base_topic(prefix: str = "test") -> str:
+    """A topic tree no other test (nor anything left retained) uses."""
+    return f"{prefix}-{uuid.uuid4().hex[:10]}"
+
+
+class BrokerAddress(Protocol):
+    """Where a broker listens: a `Mosquitto`, or `Address` for any other broker."""
+
+    @property
+    def host(self) -> str: ...
+
+    @property
+    def port(self) -> int: ...
+
+
+@dataclass(frozen=True)
+class Address:
+    host: str
+    port: int
+
+
+@dataclass(frozen=True)
+class Received:
+    topic: str
+    payload: bytes
+    retain: bool
+    at: float
+
+    def json(self) -> Any:
+        return json.loads(self.payload)
+
+
+class MqttProbe:
+    """A dashboard's view: everything on the subscribed topics, kept in order, and a publisher."""
+
+    def __init__(self, client: aiomqtt.Client) -> None:
+        self.client = client
+        self.messages: list[Received] = []
+        self._changed = asyncio.Condition()
+
+    async def _collect(self) -> None:
+        async for message in self.client.messages:
+            payload = message.payload
+            data = payload if isinstance(payload, bytes) else str(payload or "").encode()
+            received = Received(str(message.topic), data, bool(message.retain), time.monotonic())
+            async with self._changed:
+                self.messages.append(received)
+                self._changed.notify_all()
+
+    async def wait_for(
+        self,
+        topic: str,
+        match: Callable[[Any], bool] = lambda _: True,
+        timeout_s: float = 10.0,
+        after: int = 0,
+    ) -> Received:
+        """The first message on `topic` (from index `after`) whose JSON payload matches."""
+
+        def found() -> Received | None:
+            for received in self.messages[after:]:
+                if received.topic == topic and _matches(received, match):
+                    return received
+            return None
+
+        async with self._changed:
+            try:
+                await asyncio.wait_for(
+                    self._changed.wait_for(lambda: found() is not None), timeout_s
+                )
+            except TimeoutError:
+                seen = [(m.topic, m.payload[:200]) for m in self.messages[after:]][-20:]
+                raise AssertionError(
+                    f"nothing matching on {topic} within {timeout_s} s; saw {seen}"
+                ) from None
+        result = found()
+        assert result is not None
+        return result
+
+    def on(self, topic: str) -> list[Received]:
+        return [m for m in self.messages if m.topic == topic]
+
+    async def publish(self, topic: str, payload: Any, retain: bool = False) -> None:
+        data = payload if isinstance(payload, str | bytes) else json.dumps(payload)
+        await self.client.publish(topic, data, qos=1, retain=retain)
+
+    async def request(
+        self, topic: str, payload: dict[str, Any], response_topic: str, timeout_s: float = 10.0
+    ) -> Any:
+        """Publish a command with a fresh transaction; its response's JSON."""
+        transaction = uuid.uuid4().hex[:8]
+        mark = len(self.messages)
+        await self.publish(topic, {**payload, "transaction": transaction})
+        response = await self.wait_for(
+            response_topic, lambda r: r.get("transaction") == transaction, timeout_s, mark
+        )
+        return response.json()
+
+
+def _matches(received: Received, match: Callable[[Any], bool]) -> bool:
+    try:
+        value = received.json()
+    except ValueError:
+        value = received.payload.decode(errors="replace")
+    try:
+        return bool(match(value))
+    except (KeyError, TypeError, AttributeError):
+        return False
+
+
+@contextlib.asynccontextmanager
+async def mqtt_probe(broker: BrokerAddress, *subscriptions: str) -> AsyncIterator[MqttProbe]:
+    client = aiomqtt.Client(broker.host, broker.port, identifier=f"probe-{uuid.uuid4().hex[:8]}")
+    async with client:
+        for topic in subscriptions:
+            await client.subscribe(topic, qos=1)
+        probe = MqttProbe(client)
+        task = asyncio.create_task(probe._collect(), name="mqtt-probe")
+        try:
+            yield probe
+        finally:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
+                await task

@@ -1,0 +1,299 @@
+"""Commands in: every command kind acknowledged, the simulated drive really changed (read back
+over Modbus-TCP or from the simulator), and each refusal answered with its reason."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import AsyncIterator
+from dataclasses import dataclass
+from typing import Any
+
+import pytest
+
+from gateway.app import Application
+from gateway.profile import parse_parameter
+from gateway.profile.invt import STATE_WORD_1
+from gateway.profile.states import RunState
+from gateway.simulator import SimulatedLine
+from tests.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
+from tests.mosquitto import mosquitto as mosquitto
+from tests.mqtt_setup import mqtt_config, simulated_line
+from tests.support import TcpClient, running_gateway
+
+FREQUENCY_SETPOINT = 0x2001
+
+
+@dataclass
+class Plant:
+    base: str
+    line: SimulatedLine
+    app: Application
+    probe: MqttProbe
+    tcp: TcpClient
+
+    async def set(self, drive: str, payload: dict[str, object]) -> dict[str, Any]:
+        response: dict[str, Any] = await self.probe.request(
+            f"{self.base}/{drive}/set", payload, f"{self.base}/{drive}/set/response"
+        )
+        return response
+
+    async def bridge(self, operation: str, payload: dict[str, object]) -> dict[str, Any]:
+        response: dict[str, Any] = await self.probe.request(
+            f"{self.base}/bridge/request/{operation}",
+            payload,
+            f"{self.base}/bridge/response/{operation}",
+        )
+        return response
+
+    def state(self, address: int) -> RunState:
+        with self.line.lock:
+            return self.line.drives[address].state(time.monotonic())
+
+    def parameter(self, address: int, name: str) -> int:
+        with self.line.lock:
+            return self.line.drives[address].parameter(name)
+
+
+@pytest.fixture
+async def plant(mosquitto: Mosquitto) -> AsyncIterator[Plant]:
+    base = unique_base_topic()
+    with simulated_line() as line:
+        config = mqtt_config(line.path, mosquitto, base)
+        async with mqtt_probe(mosquitto, f"{base}/#") as probe, running_gateway(config) as app:
+            await probe.wait_for(f"{base}/pump1/availability", lambda a: a["state"] == "online")
+            tcp = await TcpClient.connect(app.tcp.port)
+            try:
+                yield Plant(base, line, app, probe, tcp)
+            finally:
+                await tcp.close()
+
+
+async def wait_until(check: object, within_s: float = 5.0) -> None:
+    deadline = time.monotonic() + within_s
+    while not check():  # type: ignore[operator]
+        assert time.monotonic() < deadline, "condition not reached in time"
+        await asyncio.sleep(0.05)
+
+
+async def test_run_with_frequency_stop_and_reverse(plant: Plant) -> None:
+    response = await plant.set("pump1", {"command": "run_forward", "frequency_hz": 35.0})
+    assert response["status"] == "ok"
+    assert response["data"] == {"command": "run_forward", "frequency_hz": 35.0}
+    assert "transaction" in response
+    assert await plant.tcp.read(1, STATE_WORD_1) == [RunState.RUNNING_FORWARD]
+    assert await plant.tcp.read(1, FREQUENCY_SETPOINT) == [3500]
+    # The published state follows: running forward, toward the new set-point.
+    await plant.probe.wait_for(
+        f"{plant.base}/pump1",
+        lambda s: s["state"] == "running_forward" and s.get("set_frequency_hz") == 35.0,
+    )
+
+    assert (await plant.set("pump1", {"command": "stop"}))["status"] == "ok"
+    await wait_until(lambda: plant.state(1) is RunState.STOPPED)
+
+    assert (await plant.set("pump1", {"command": "run_reverse"}))["status"] == "ok"
+    assert plant.state(1) is RunState.RUNNING_REVERSE
+    assert (await plant.set("pump1", {"command": "coast_stop"}))["status"] == "ok"
+    assert plant.state(1) is RunState.STOPPED
+
+
+async def test_jog_and_set_point_alone(plant: Plant) -> None:
+    response = await plant.set("fan2", {"frequency_hz": 12.5})
+    assert response["status"] == "ok"
+    assert await plant.tcp.read(2, FREQUENCY_SETPOINT) == [1250]
+    assert (await plant.set("fan2", {"command": "jog_forward"}))["status"] == "ok"
+    assert plant.state(2) is RunState.RUNNING_FORWARD
+    assert (await plant.set("fan2", {"command": "jog_stop"}))["status"] == "ok"
+    await wait_until(lambda: plant.state(2) is RunState.STOPPED)
+    assert (await plant.set("fan2", {"command": "jog_reverse"}))["status"] == "ok"
+    assert plant.state(2) is RunState.RUNNING_REVERSE
+    assert (await plant.set("fan2", {"command": "jog_stop"}))["status"] == "ok"
+
+
+async def test_fault_reset(plant: Plant) -> None:
+    plant.line.inject_fault(1, 4)
+    await plant.probe.wait_for(f"{plant.base}/pump1", lambda s: s["fault_name"] == "OC1")
+    refused = await plant.set("pump1", {"command": "run_forward"})
+    assert refused["status"] == "error"
+    assert refused["error"] == "illegal_command"  # 01H: a faulty drive won't start
+    assert refused["exception_code"] == 1
+    assert (await plant.set("pump1", {"command": "fault_reset"}))["status"] == "ok"
+    assert plant.state(1) is RunState.STOPPED
+    await plant.probe.wait_for(f"{plant.base}/pump1", lambda s: s["fault_code"] == 0)
+
+
+async def test_parameter_writes_and_reads(plant: Plant) -> None:
+    response = await plant.set("pump1", {"parameter": "P00.11", "value": 12.5})
+    assert response["status"] == "ok"
+    assert response["data"] == {
+        "parameter": "P00.11",
+        "register": "000BH",
+        "raw": 125,
+        "value": 12.5,
+    }
+    assert await plant.tcp.read(1, parse_parameter("P00.11")) == [125]
+
+    ram_writes = plant.line.drives[1].ram_writes
+    response = await plant.set("pump1", {"parameter": "P00.12", "value": 7.0, "ram_only": True})
+    assert response["status"] == "ok"
+    assert plant.parameter(1, "P00.12") == 70
+    assert plant.line.drives[1].ram_writes == ram_writes + 1
+
+    response = await plant.bridge(
+        "write_parameter", {"drive": "fan2", "parameter": "P01.20", "value": 5.0}
+    )
+    assert response["status"] == "ok"
+    assert response["data"]["drive"] == "fan2"
+    assert plant.parameter(2, "P01.20") == 50
+
+    response = await plant.bridge("read_parameter", {"drive": "fan2", "parameter": "P01.20"})
+    assert response["status"] == "ok"
+    assert response["data"] == {
+        "drive": "fan2",
+        "parameter": "P01.20",
+        "register": "0114H",
+        "raw": 50,
+        "value": 5.0,
+    }
+    plant.line.set_fault_history(1, [35, 11])
+    response = await plant.bridge(
+        "read_parameter", {"drive": "pump1", "parameter": "P07.27", "count": 6}
+    )
+    assert response["data"]["raw"] == [35, 11, 0, 0, 0, 0]
+
+    response = await plant.bridge(
+        "write_parameter", {"drive": "pump1", "register": "2001H", "raw": 4000}
+    )
+    assert response["status"] == "ok"
+    assert await plant.tcp.read(1, FREQUENCY_SETPOINT) == [4000]
+
+
+async def test_invalid_value_returns_the_invt_exception_by_name(plant: Plant) -> None:
+    response = await plant.set("pump1", {"parameter": "P00.01", "value": 3})
+    assert response["status"] == "error"
+    assert response["error"] == "operation_failure"
+    assert response["exception_code"] == 4
+    assert "04H" in str(response["message"])
+    assert plant.parameter(1, "P00.01") == 2  # unchanged
+
+    response = await plant.bridge(
+        "write_parameter", {"drive": "pump1", "parameter": "P07.27", "value": 1}
+    )
+    assert response["error"] == "parameter_read_only"
+    assert response["exception_code"] == 7
+
+
+async def test_get_forces_a_publication(plant: Plant) -> None:
+    mark = len(plant.probe.messages)
+    await plant.probe.publish(f"{plant.base}/fan2/get", "")
+    state = await plant.probe.wait_for(f"{plant.base}/fan2", after=mark, timeout_s=2)
+    assert state.json()["state"] == "stopped"
+
+
+async def test_retained_command_is_ignored(mosquitto: Mosquitto) -> None:
+    """A retained run command, left on the broker by a careless client, reaches the gateway
+    each time it subscribes (start, every reconnect): it must never run the drive."""
+    base = unique_base_topic()
+    topic = f"{base}/pump1/set"
+    with simulated_line() as line:
+        config = mqtt_config(line.path, mosquitto, base)
+        async with mqtt_probe(mosquitto, f"{base}/#") as probe:
+            await probe.publish(topic, {"command": "run_forward", "transaction": "r1"}, retain=True)
+            async with running_gateway(config):
+                response = await probe.wait_for(
+                    f"{topic}/response", lambda r: r["transaction"] == "r1"
+                )
+                assert response.json()["status"] == "error"
+                assert response.json()["error"] == "retained"
+                await probe.wait_for(f"{base}/pump1", lambda s: "state" in s)
+                with line.lock:
+                    assert line.drives[1].state(time.monotonic()) is RunState.STOPPED
+            await probe.publish(topic, "", retain=True)  # clear it
+
+
+async def test_command_sent_while_disconnected_is_never_run(plant: Plant) -> None:
+    """No session is kept on the broker (clean session): what was published for the gateway
+    while it was away is not delivered when it comes back, so a run command can't be replayed."""
+    bridge = plant.app.mqtt
+    await bridge.stop()
+    mark = len(plant.probe.messages)
+    await plant.probe.publish(f"{plant.base}/pump1/set", {"command": "run_forward"})
+    await bridge.start()
+    await bridge.connected.wait()
+    await plant.probe.wait_for(
+        f"{plant.base}/bridge/state", lambda s: s["state"] == "online", after=mark
+    )
+    await asyncio.sleep(0.3)
+    assert not plant.probe.on(f"{plant.base}/pump1/set/response")
+    assert plant.state(1) is RunState.STOPPED
+
+
+async def test_stale_command_is_refused(plant: Plant) -> None:
+    response = await plant.set("pump1", {"command": "run_forward", "time": time.time() - 60})
+    assert response["status"] == "error"
+    assert response["error"] == "stale"
+    assert plant.state(1) is RunState.STOPPED
+    fresh_ms = int(time.time() * 1000)
+    assert (await plant.set("pump1", {"command": "stop", "time": fresh_ms}))["status"] == "ok"
+    iso = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(time.time() - 3600))
+    assert (await plant.set("pump1", {"command": "stop", "time": iso}))["error"] == "stale"
+
+
+@pytest.mark.parametrize(
+    ("payload", "error"),
+    [
+        ("not json", "invalid_request"),
+        ("[1, 2]", "invalid_request"),
+        ({"command": "launch"}, "invalid_request"),
+        ({"command": "run_forward", "frequency": 35}, "invalid_request"),
+        ({"frequency_hz": -5}, "invalid_value"),
+        ({"frequency_hz": "fast"}, "invalid_value"),
+        ({"parameter": "P05.01", "value": 1.5}, "invalid_value"),
+        ({"parameter": "P00.11", "value": 100000.0}, "invalid_value"),
+        ({"parameter": "2001H", "value": 10, "command": "stop"}, "invalid_request"),
+        ({}, "invalid_request"),
+    ],
+)
+async def test_bad_commands_are_answered_not_crashed_on(
+    plant: Plant, payload: object, error: str
+) -> None:
+    topic = f"{plant.base}/pump1/set"
+    mark = len(plant.probe.messages)
+    await plant.probe.publish(topic, payload)
+    response = (await plant.probe.wait_for(f"{topic}/response", after=mark)).json()
+    assert response["status"] == "error"
+    assert response["error"] == error
+    # Still working afterwards.
+    assert (await plant.set("pump1", {"command": "stop"}))["status"] == "ok"
+
+
+async def test_offline_drive_answers_offline(plant: Plant) -> None:
+    plant.line.set_dead(2, True)
+    await plant.probe.wait_for(f"{plant.base}/fan2/availability", lambda a: a["state"] == "offline")
+    response = await plant.set("fan2", {"command": "run_forward"})
+    assert response["status"] == "error"
+    assert response["error"] == "offline"
+    assert response["exception_code"] == 0x0B
+
+
+async def test_commands_disabled(mosquitto: Mosquitto) -> None:
+    base = unique_base_topic()
+    with simulated_line() as line:
+        config = mqtt_config(line.path, mosquitto, base, commands_enabled=False)
+        async with mqtt_probe(mosquitto, f"{base}/#") as probe, running_gateway(config):
+            await probe.wait_for(f"{base}/bridge/state")
+            response = await probe.request(
+                f"{base}/pump1/set", {"command": "run_forward"}, f"{base}/pump1/set/response"
+            )
+            assert response["status"] == "error"
+            assert response["error"] == "commands_disabled"
+            response = await probe.request(
+                f"{base}/bridge/request/write_parameter",
+                {"drive": "pump1", "parameter": "P00.11", "value": 1.0},
+                f"{base}/bridge/response/write_parameter",
+            )
+            assert response["error"] == "commands_disabled"
+            with line.lock:
+                assert line.drives[1].state(time.monotonic()) is RunState.STOPPED
+                assert line.drives[1].parameter("P00.11") == 100  # the default 10.0 s
