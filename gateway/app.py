@@ -12,8 +12,8 @@ It does nothing itself but wiring: each part gets its dependencies passed in.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
+import sys
 from collections.abc import Callable
 from typing import Protocol
 
@@ -22,14 +22,18 @@ from gateway.bus.line import LineSettings
 from gateway.bus.timing import CharacterFormat
 from gateway.cache import RegisterCache
 from gateway.config import BusConfig, DriveConfig, GatewayConfig
+from gateway.health import Phase
 from gateway.profile import get_profile
 from gateway.profile.ram_writes import ram_write_address
 from gateway.router import Route, Router
+from gateway.tasks import cancel_and_wait
 from gateway.tcp import ModbusTcpServer, TcpSettings
 
 log = logging.getLogger(__name__)
 
+GIL_SWITCH_INTERVAL_S = 0.0002
 SHUTDOWN_BUDGET_S = 1.5
+FEATURE_STOP_S = 0.5
 """Time for the transaction on the wire and the answers in flight, inside the 2 s promise."""
 
 
@@ -105,17 +109,56 @@ class Application:
             self._handle_tcp,
         )
         self.features: list[Feature] = []
+        self.phase = Phase.STARTING
+        mqtt = config.mqtt is not None and config.mqtt.enabled
+        # Without MQTT only the drives that ask for it are polled: polls cost line time, and a
+        # pure Modbus-TCP gateway shouldn't spend it unasked.
+        polled = [
+            d for d in config.drives if mqtt or d.poll is not None or d.cache_max_age_ms is not None
+        ]
+        if polled:
+            self._add_poller(polled)
+        if mqtt:
+            self._add_mqtt(config)
+        if config.metrics.enabled:
+            from gateway.metrics import MetricsFeature  # prometheus-client only when asked for
+
+            # First to start, last to stop: /health answers while the others come and go.
+            self.features.insert(0, MetricsFeature(self))
+
+    def _add_poller(self, drives: list[DriveConfig]) -> None:
+        """Polls feed the cache, the fault log and (when configured) the MQTT bridge."""
+        from gateway.event_log import DriveEventLog
+        from gateway.poller import Poller
+
+        self.poller = Poller(drives, self.router, self.cache)
+        for bus in self.buses.values():
+            bus.add_listener(self.poller.on_drive_health)
+        self.poller.add_listener(DriveEventLog())
+        self.features.append(self.poller)
+
+    def _add_mqtt(self, config: GatewayConfig) -> None:
+        """The bridge stops before the poller that feeds it (features stop in reverse)."""
+        from gateway.mqtt import MqttBridge  # aiomqtt only loaded when MQTT is configured
+
+        self.mqtt = MqttBridge(config, self.router, self.poller)
+        self.poller.add_listener(self.mqtt)
+        self.features.append(self.mqtt)
 
     async def _handle_tcp(self, unit_id: int, pdu: bytes, client: str) -> bytes | None:
         return await self.router.execute(unit_id, pdu, client=client)
 
     async def run(self, stop: asyncio.Event, on_ready: Callable[[], None] | None = None) -> None:
+        # The bus threads need the GIL the moment a reply has arrived; with Python's default 5 ms
+        # switch interval a busy event loop would hold it, and the line, that long.
+        sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
         async with asyncio.TaskGroup() as tasks:
             bus_tasks = [
                 tasks.create_task(bus.run(), name=f"bus:{name}") for name, bus in self.buses.items()
             ]
             try:
                 await self._startup()
+                self.phase = Phase.READY
                 if on_ready is not None:
                     on_ready()
                 await stop.wait()
@@ -136,12 +179,21 @@ class Application:
             await feature.start()
 
     async def _shutdown(self) -> None:
+        self.phase = Phase.STOPPING
         log.info("shutting down")
         self.tcp.stop_accepting()
         for bus in self.buses.values():
             bus.close()
         await asyncio.gather(*(bus.wait_idle(SHUTDOWN_BUDGET_S) for bus in self.buses.values()))
         for feature in reversed(self.features):
-            with contextlib.suppress(Exception):
-                await asyncio.wait_for(feature.stop(), 1.0)
+            # Its own task, so a stop that hangs (or swallows its cancellation, Python 3.11's
+            # wait_for) can be cut off without holding up the rest of the shutdown.
+            name = type(feature).__name__
+            stopping = asyncio.create_task(feature.stop(), name=f"stop:{name}")
+            done, _ = await asyncio.wait({stopping}, timeout=FEATURE_STOP_S)
+            if not done:
+                log.error("%s did not stop within %.1f s; cut off", name, FEATURE_STOP_S)
+                await cancel_and_wait(stopping, FEATURE_STOP_S)
+            elif not stopping.cancelled() and stopping.exception() is not None:
+                log.error("%s failed to stop: %r", name, stopping.exception())
         await self.tcp.stop(grace_s=0.2)
