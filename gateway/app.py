@@ -19,10 +19,10 @@ from typing import Protocol
 
 from gateway.bus import Bus, BusSettings
 from gateway.bus.line import LineSettings
-from gateway.bus.timing import CharacterFormat
 from gateway.cache import RegisterCache
 from gateway.config import BusConfig, DriveConfig, GatewayConfig
 from gateway.health import Phase
+from gateway.modbus.timing import CharacterFormat
 from gateway.profile import get_profile
 from gateway.profile.ram_writes import ram_write_address
 from gateway.router import Route, Router

@@ -14,7 +14,7 @@ import pytest
 
 from gateway.app import Application
 from gateway.bus import Priority
-from gateway.bus.timing import CharacterFormat
+from gateway.modbus.timing import CharacterFormat
 from gateway.simulator import SimulatedLine
 from tests.support import TcpClient, gateway_config, read_pdu, running_gateway, write_pdu
 

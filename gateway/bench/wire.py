@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from gateway.bus.timing import CharacterFormat
+from gateway.modbus.timing import CharacterFormat
 
 READ_REQUEST_BYTES = 8  # address, 03H, start (2), count (2), CRC (2)
 

@@ -1,6 +1,5 @@
 """One RS-485 line: its queue, its policy and its serial port.
 
-- `timing`: character time, t3.5, wire time of a frame.
 - `line`: the serial port, used from one thread only (blocking I/O with exact timing).
 - `queue`: the bounded priority queue with per-client fairness and coalescing of identical reads.
 - `health`: which drives are offline, and when to probe them.

@@ -25,10 +25,10 @@ from dataclasses import dataclass
 
 import serial
 
-from gateway.bus.timing import CharacterFormat
 from gateway.errors import BadReply, PortError, ReplyTimeout
 from gateway.modbus.functions import NEED_MORE, UNKNOWN_LENGTH, rtu_reply_length
 from gateway.modbus.rtu import check_reply
+from gateway.modbus.timing import CharacterFormat
 
 # Stray bytes that keep coming for this long are noise on the line, not a frame: stop draining and
 # let the next request take its chances rather than block the bus forever.

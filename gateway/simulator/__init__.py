@@ -3,7 +3,6 @@
 - `drive`: one drive's answers and behaviour (ramps, faults, parameters). Pure logic.
 - `motor`: the output-frequency ramp.
 - `framing`: where a request ends, on the drive's side of the line.
-- `timing`: character time and t3.5.
 - `line_faults`: replies spoilt on purpose (CRC, truncated, wrong address, late, silence).
 - `endpoint`: the pty (or serial device) the line is served on.
 - `line`: `SimulatedLine`, the drives on one pty served from their own thread.

@@ -29,11 +29,11 @@ from types import TracebackType
 from typing import Any, Final
 
 from gateway.modbus.rtu import BROADCAST_ADDRESS, build_frame
+from gateway.modbus.timing import CharacterFormat
 from gateway.simulator.drive import SimulatedDrive
 from gateway.simulator.endpoint import Endpoint, point_link, remove_link
 from gateway.simulator.framing import ReceivedFrame, RequestAssembler
 from gateway.simulator.line_faults import LineFaults
-from gateway.simulator.timing import character_time_s, t35_s
 
 log = logging.getLogger(__name__)
 
@@ -74,8 +74,9 @@ class SimulatedLine:
         self.response_delay_ms = response_delay_ms
         self.device = device
         self.link = link
-        self.character_s = character_time_s(baudrate, self.parity, stopbits)
-        self.t35_s = t35_s(baudrate, self.parity, stopbits)
+        char_format = CharacterFormat(baudrate, self.parity, stopbits)
+        self.character_s = char_format.char_time_s
+        self.t35_s = char_format.t35_s
 
         self._lock = threading.Lock()
         self._dead: set[int] = set()

@@ -16,10 +16,10 @@ from typing import Protocol
 from urllib.parse import urlsplit
 
 from gateway.bus.line import LineSettings, SerialLine
-from gateway.bus.timing import CharacterFormat
 from gateway.errors import BadReply, MalformedFrame, PortError, ReplyTimeout
 from gateway.modbus.mbap import HEADER_LENGTH, build_adu, parse_header
 from gateway.modbus.rtu import build_frame
+from gateway.modbus.timing import CharacterFormat
 
 DEFAULT_GATEWAY_PORT = 5020
 

@@ -1,4 +1,7 @@
-"""Time on the wire for a serial character setting."""
+"""Time on a Modbus serial line for a character format: one character, t3.5, a frame.
+
+Shared by the bus (which keeps the gap) and the simulator (which emulates the wire).
+"""
 
 from __future__ import annotations
 
