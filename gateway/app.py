@@ -81,6 +81,7 @@ def drive_route(drive: DriveConfig, bus: Bus) -> Route:
         ram_address=ram_write_address
         if drive.ram_writes and profile.ram_writes_supported
         else None,
+        cache_max_age_s=None if drive.cache_max_age_ms is None else drive.cache_max_age_ms / 1000,
     )
 
 

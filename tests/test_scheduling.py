@@ -161,3 +161,36 @@ async def test_the_inter_frame_gap_is_kept(baudrate: int) -> None:
             assert min_gap is not None
             assert min_gap >= t35
             await client.close()
+
+
+async def test_reads_inside_a_polled_range_come_from_the_cache_never_stale() -> None:
+    with SimulatedLine(addresses=[1], baudrate=115200) as line:
+        drives = [
+            {
+                "name": "pump1",
+                "address": 1,
+                "cache_max_age_ms": 300,
+                "poll": [{"name": "setpoints", "start": 0x2001, "count": 2, "interval_ms": 100}],
+            }
+        ]
+        config = gateway_config(line.path, drives, timeout_ms=50, retries=0, offline_after=1)
+        async with running_gateway(config) as app:
+            client = await TcpClient.connect(app.tcp.port)
+            await client.request(1, write_pdu(0x2001, 1234))
+            await asyncio.sleep(0.3)  # a poll or two after the write
+            before = line.stats["requests"]
+            for _ in range(20):
+                assert await client.read(1, 0x2001, 2) == [1234, 0]
+            # Twenty answers, at most the polls' own transactions on the line meanwhile.
+            assert line.stats["requests"] - before <= 3
+            assert app.cache.hits >= 20
+            # A read outside the polled range still goes to the drive.
+            assert await client.read(1, 0x2100) == [3]
+            # A write forgets what it overwrites: the next read can't return the old value.
+            await client.request(1, write_pdu(0x2001, 2000))
+            assert await client.read(1, 0x2001) == [2000]
+            # The drive goes silent: once the cache is older than 300 ms, no value comes from it.
+            line.set_dead(1, True)
+            await asyncio.sleep(0.5)
+            assert await client.request(1, read_pdu(0x2001, 2)) == bytes.fromhex("83 0B")
+            await client.close()

@@ -40,6 +40,7 @@ log = logging.getLogger(__name__)
 STOP_TIMEOUT_S: Final = 1.0
 CALL_TIMEOUT_S: Final = 5.0
 READ_SIZE: Final = 4096
+WAKE_EARLY_S: Final = 0.0003
 
 
 class SimulatedLine:
@@ -260,7 +261,10 @@ class SimulatedLine:
                 self._on_frame(frame)
 
     def _next_wakeup(self) -> float | None:
-        deadlines = [self._pending[0][0]] if self._pending else []
+        # Wake a little before a reply is due and wait out the rest in `_send_due`: a timer
+        # wake-up is late by up to a few hundred microseconds, and a drive that answers late
+        # would make the gateway look slower than the line allows.
+        deadlines = [self._pending[0][0] - WAKE_EARLY_S] if self._pending else []
         silence = self._assembler.silence_deadline()
         if silence is not None:
             deadlines.append(silence)
@@ -350,6 +354,11 @@ class SimulatedLine:
             self._last_frame_end = at
 
     def _send_due(self, now: float) -> None:
+        if self._pending and self._pending[0][0] - now <= WAKE_EARLY_S:
+            due = self._pending[0][0]
+            while time.monotonic() < due:  # spins at most WAKE_EARLY_S, in the simulator only
+                pass
+            now = time.monotonic()
         while self._pending and self._pending[0][0] <= now:
             _, _, reply = heapq.heappop(self._pending)
             written_at = time.monotonic()
