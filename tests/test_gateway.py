@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from gateway.config import GatewayConfig
 from gateway.simulator import SimulatedLine
 from tests.support import TcpClient, gateway_config, read_pdu, running_gateway, write_pdu
 
@@ -258,3 +259,72 @@ async def test_broadcast_write_reaches_every_drive_and_is_echoed(line: Simulated
         # A read can't be broadcast: nothing would answer it.
         assert await client.request(0, read_pdu(0x0005)) == bytes.fromhex("83 0A")
         await client.close()
+
+
+async def test_two_buses_in_one_service_run_independently() -> None:
+    with (
+        SimulatedLine(addresses=[1, 2], baudrate=115200) as line_a,
+        SimulatedLine(addresses=[1], baudrate=9600) as line_b,
+    ):
+        config = GatewayConfig.model_validate(
+            {
+                "modbus_tcp": {"host": "127.0.0.1", "port": 0},
+                "buses": [
+                    {"name": "a", "port": line_a.path, "baudrate": 115200, "timeout_ms": 100},
+                    {"name": "b", "port": line_b.path, "baudrate": 9600, "timeout_ms": 100},
+                ],
+                "drives": [
+                    {"name": "a1", "bus": "a", "address": 1},
+                    {"name": "a2", "bus": "a", "address": 2, "timeout_ms": 30, "retries": 0},
+                    {"name": "b1", "bus": "b", "address": 1, "unit_id": 11},
+                ],
+            }
+        )
+        async with running_gateway(config) as app:
+            client = await TcpClient.connect(app.tcp.port)
+            # The same address on two lines is two drives, told apart by unit id.
+            await client.request(1, write_pdu(0x0005, 111))
+            await client.request(11, write_pdu(0x0005, 222))
+            assert await client.read(1, 0x0005) == [111]
+            assert await client.read(11, 0x0005) == [222]
+            # A dead drive on line a (its own 30 ms timeout, no retries) ...
+            line_a.set_dead(2, True)
+            dead = asyncio.create_task(client.request(2, read_pdu(STATE_WORD_1)))
+            # ... while line b keeps answering.
+            other = await TcpClient.connect(app.tcp.port)
+            assert await other.read(11, STATE_WORD_1) == [STOPPED]
+            assert await dead == bytes.fromhex("83 0B")
+            assert app.buses["a"].stats.timeouts == 1  # the drive's retries: 0 overrides the bus's
+            assert app.buses["b"].stats.timeouts == 0
+            await client.close()
+            await other.close()
+
+
+async def test_idle_clients_are_closed_and_extra_connections_refused(
+    line: SimulatedLine,
+) -> None:
+    config = GatewayConfig.model_validate(
+        {
+            "modbus_tcp": {
+                "host": "127.0.0.1",
+                "port": 0,
+                "max_connections": 2,
+                "idle_timeout_s": 0.5,
+            },
+            "buses": [{"name": "line1", "port": line.path, "baudrate": 115200}],
+            "drives": [{"name": "pump1", "bus": "line1", "address": 1}],
+        }
+    )
+    async with running_gateway(config) as app:
+        first = await TcpClient.connect(app.tcp.port)
+        second = await TcpClient.connect(app.tcp.port)
+        assert await first.read(1, STATE_WORD_1) == [STOPPED]
+        third = await TcpClient.connect(app.tcp.port)
+        assert await asyncio.wait_for(third.reader.read(100), 5) == b""  # refused: closed at once
+        assert await second.read(1, STATE_WORD_1) == [STOPPED]  # the others keep working
+        # Silent for longer than idle_timeout_s: closed by the gateway.
+        assert await asyncio.wait_for(first.reader.read(100), 5) == b""
+        assert app.tcp.stats.idle_closed >= 1
+        assert app.tcp.stats.refused == 1
+        for client in (first, second, third):
+            await client.close()
