@@ -1,8 +1,15 @@
-"""The poll cache: the last value read of each polled register, with when it was read.
+"""The poll cache: the last value polled of each register, with when the poll was issued.
 
 The poller stores every poll result here; the router may answer a SCADA read from it when every
 register asked for is fresh enough (`cache_max_age_ms` of that drive), so many readers of the same
 values cost no bus time at all.
+
+Two rules keep it from ever answering with a value the drive no longer has:
+- a value is as old as the moment its poll was *issued* (queued), not answered: the drive may
+  have changed in between, never after;
+- a write through the gateway bumps the drive's write generation and forgets what the drive said;
+  a poll issued before that write (it may carry the old value) is not stored.
+Polls themselves never read the cache: a poll is how the cache learns what the drive says.
 """
 
 from __future__ import annotations
@@ -13,28 +20,51 @@ from collections.abc import Sequence
 
 class RegisterCache:
     def __init__(self) -> None:
-        # drive -> register -> (value, monotonic time read)
+        # drive -> register -> (value, monotonic time the poll was issued)
         self._values: dict[str, dict[int, tuple[int, float]]] = {}
+        self._generations: dict[str, int] = {}
         self.hits = 0
         self.misses = 0
+        self.discarded = 0
 
-    def store(self, drive: str, start: int, values: Sequence[int], at: float | None = None) -> None:
-        read_at = time.monotonic() if at is None else at
+    def generation(self, drive: str) -> int:
+        """The drive's write generation: take it when issuing a poll, hand it to `store`."""
+        return self._generations.get(drive, 0)
+
+    def store(
+        self,
+        drive: str,
+        start: int,
+        values: Sequence[int],
+        issued_at: float,
+        generation: int,
+    ) -> bool:
+        """Keep a poll's values, unless a write went out after the poll was issued."""
+        if generation != self._generations.get(drive, 0):
+            self.discarded += 1
+            return False
         registers = self._values.setdefault(drive, {})
         for offset, value in enumerate(values):
-            registers[start + offset] = (value, read_at)
+            registers[start + offset] = (value, issued_at)
+        return True
 
-    def invalidate(self, drive: str, start: int, count: int) -> None:
-        """A write went to these registers: the cached values are no longer the drive's."""
-        registers = self._values.get(drive)
-        if registers:
-            for register in range(start, start + count):
-                registers.pop(register, None)
+    def invalidate(self, drive: str) -> None:
+        """A write goes to the drive: forget all it said, and refuse polls issued before it.
+
+        All of it, not just the written registers: a control word changes the state words, a
+        parameter changes running values, a RAM twin (8xxxH) changes its parameter.
+        """
+        self._generations[drive] = self._generations.get(drive, 0) + 1
+        self._values.pop(drive, None)
+
+    def forget(self, drive: str) -> None:
+        """The drive stopped answering: nothing it said before may be served as current."""
+        self._values.pop(drive, None)
 
     def lookup(
         self, drive: str, start: int, count: int, max_age_s: float, now: float | None = None
     ) -> list[int] | None:
-        """All `count` values from `start` if each was read within `max_age_s`, else None."""
+        """All `count` values from `start` if each was polled within `max_age_s`, else None."""
         registers = self._values.get(drive)
         oldest = (time.monotonic() if now is None else now) - max_age_s
         values = []

@@ -78,21 +78,29 @@ class Router:
         *,
         client: str,
         priority: Priority | None = None,
+        use_cache: bool = True,
     ) -> bytes | None:
-        """Carry `pdu` to the drive with `unit_id`; its reply PDU, or None for a broadcast."""
+        """Carry `pdu` to the drive with `unit_id`; its reply PDU, or None for a broadcast.
+
+        `use_cache=False` always asks the drive: polls (which fill the cache) and explicit
+        refreshes must never be answered from it.
+        """
         function = pdu[0]
         if priority is None:
             priority = Priority.WRITE if function in WRITES else Priority.READ
         if unit_id == BROADCAST_ADDRESS:
+            for route in self._routes.values():  # every drive may have changed
+                self.cache.invalidate(route.drive)
             await self._broadcast(pdu, client)
             return None
         route = self.route(unit_id)
-        if route.cache_max_age_s is not None:
+        if use_cache and route.cache_max_age_s is not None:
             cached = self._from_cache(route, pdu)
             if cached is not None:
                 return cached
         if function in WRITES:
-            self._invalidate(route, pdu)
+            # Whatever the cache holds for this drive may be what the write is about to change.
+            self.cache.invalidate(route.drive)
         sent = pdu if route.ram_address is None else _to_ram(pdu, route.ram_address)
         split = None if route.max_words is None else _split(sent, route.max_words)
         if split is not None:
@@ -113,14 +121,6 @@ class Router:
         if values is None:
             return None
         return struct.pack(f">BB{count}H", pdu[0], 2 * count, *values)
-
-    def _invalidate(self, route: Route, pdu: bytes) -> None:
-        """A write makes cached values of its registers stale: forget them before it's sent."""
-        if pdu[0] == WRITE_SINGLE_REGISTER and len(pdu) >= 3:
-            self.cache.invalidate(route.drive, int.from_bytes(pdu[1:3], "big"), 1)
-        elif pdu[0] == WRITE_MULTIPLE_REGISTERS and len(pdu) >= 5:
-            start, count = struct.unpack(">HH", pdu[1:5])
-            self.cache.invalidate(route.drive, start, count)
 
     async def _send(self, route: Route, pdu: bytes, client: str, priority: Priority) -> bytes:
         reply = await route.bus.request(

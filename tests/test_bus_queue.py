@@ -89,3 +89,16 @@ async def test_a_request_whose_callers_left_is_not_wanted() -> None:
         1, bytes.fromhex("08 00 00 00 00"), Priority.READ, "probe", 0.3, 0, probe=True
     )
     assert probe.wanted  # nobody waits for a probe, yet it must go out
+
+
+async def test_polls_get_a_share_while_reads_keep_coming() -> None:
+    queue = RequestQueue(100)
+    for i in range(12):
+        queue.put(txn(f"scada{i % 3}"))
+    for _ in range(3):
+        queue.put(txn("poll", Priority.POLL))
+    queue.put(txn("write", Priority.WRITE))
+    served = order(queue)
+    assert served[0] == "write"  # writes still go first
+    # One poll in every POLL_SHARE (4) while reads wait: polls at picks 4, 8, 12 after the write.
+    assert [i for i, c in enumerate(served[1:], 1) if c == "poll"] == [4, 8, 12]

@@ -134,3 +134,27 @@ def test_mbap_round_trip() -> None:
 def test_malformed_mbap_headers(header_hex: str) -> None:
     with pytest.raises(MalformedFrame):
         parse_header(bytes.fromhex(header_hex))
+
+
+@pytest.mark.parametrize(
+    ("request_pdu", "reply_pdu"),
+    [
+        ("03 07 1B 00 06", "03 02 00 23"),  # six words asked, one came: an earlier read's answer
+        ("06 00 05 00 DE", "06 00 05 00 6F"),  # a write echoed with another value
+        ("06 00 06 00 DE", "06 00 05 00 DE"),  # ... or another address
+        ("10 00 0B 00 02 04 00 64 00 C8", "10 00 0B 00 03"),
+        ("01 00 00 00 10", "01 01 AA"),  # 16 coils are 2 bytes
+    ],
+)
+def test_a_reply_that_does_not_fit_the_request_is_refused(request_pdu: str, reply_pdu: str) -> None:
+    request = build_frame(1, bytes.fromhex(request_pdu))
+    with pytest.raises(BadReply) as caught:
+        check_reply(request, build_frame(1, bytes.fromhex(reply_pdu)))
+    assert caught.value.kind == "mismatch"
+
+
+def test_exceptions_and_unusual_requests_pass() -> None:
+    request = build_frame(1, bytes.fromhex("03 00 04 00 02"))
+    assert check_reply(request, build_frame(1, bytes.fromhex("83 02"))) == bytes.fromhex("83 02")
+    odd = build_frame(1, bytes.fromhex("41 01 02"))  # a vendor function: nothing to check
+    assert check_reply(odd, build_frame(1, bytes.fromhex("41 09"))) == bytes.fromhex("41 09")

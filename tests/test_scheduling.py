@@ -170,27 +170,82 @@ async def test_reads_inside_a_polled_range_come_from_the_cache_never_stale() -> 
                 "name": "pump1",
                 "address": 1,
                 "cache_max_age_ms": 300,
-                "poll": [{"name": "setpoints", "start": 0x2001, "count": 2, "interval_ms": 100}],
+                "poll": [{"name": "state", "start": 0x2100, "count": 3, "interval_ms": 100}],
             }
         ]
         config = gateway_config(line.path, drives, timeout_ms=50, retries=0, offline_after=1)
         async with running_gateway(config) as app:
             client = await TcpClient.connect(app.tcp.port)
-            await client.request(1, write_pdu(0x2001, 1234))
-            await asyncio.sleep(0.3)  # a poll or two after the write
+            await asyncio.sleep(0.3)  # a few polls
             before = line.stats["requests"]
             for _ in range(20):
-                assert await client.read(1, 0x2001, 2) == [1234, 0]
-            # Twenty answers, at most the polls' own transactions on the line meanwhile.
+                state_word_1, _, fault = await client.read(1, 0x2100, 3)
+                assert (state_word_1, fault) == (3, 0)
+            # Twenty answers; on the line meanwhile only the polls' own transactions.
             assert line.stats["requests"] - before <= 3
             assert app.cache.hits >= 20
             # A read outside the polled range still goes to the drive.
-            assert await client.read(1, 0x2100) == [3]
-            # A write forgets what it overwrites: the next read can't return the old value.
-            await client.request(1, write_pdu(0x2001, 2000))
-            assert await client.read(1, 0x2001) == [2000]
+            assert await client.read(1, 0x2103) == [line.drives[1].identification]
+            # The drive trips by itself (no write through the gateway): the polls keep going
+            # past the cache, so within the cache's age SCADA sees the fault.
+            line.inject_fault(1, 35)
+            await asyncio.sleep(0.5)
+            state_word_1, _, fault = await client.read(1, 0x2100, 3)
+            assert (state_word_1, fault) == (4, 35)
+            # A write through the gateway: the next read can't return what it overwrote.
+            await client.request(1, write_pdu(0x2000, 7))  # fault reset
+            assert (await client.read(1, 0x2100, 3))[0] == 3
             # The drive goes silent: once the cache is older than 300 ms, no value comes from it.
+            await asyncio.sleep(0.15)
             line.set_dead(1, True)
             await asyncio.sleep(0.5)
-            assert await client.request(1, read_pdu(0x2001, 2)) == bytes.fromhex("83 0B")
+            assert await client.request(1, read_pdu(0x2100, 3)) == bytes.fromhex("83 0B")
             await client.close()
+
+
+async def test_a_drive_comes_back_and_polls_run_while_scada_reads_without_pause() -> None:
+    with SimulatedLine(addresses=[1, 2], baudrate=115200) as line:
+        drives = [
+            {"name": "pump1", "address": 1},
+            {
+                "name": "fan2",
+                "address": 2,
+                "poll": [{"name": "state", "start": 0x2100, "count": 3, "interval_ms": 50}],
+            },
+        ]
+        line.set_dead(2, True)
+        config = gateway_config(line.path, drives, timeout_ms=30, retries=0, offline_after=1)
+        async with running_gateway(config) as app:
+            bus = app.buses["line1"]
+            stop = asyncio.Event()
+
+            async def scada(client: TcpClient, register: int) -> None:
+                # Distinct registers per client (nothing to coalesce), two requests in flight:
+                # the queue never runs dry.
+                while not stop.is_set():
+                    client.send(1, read_pdu(register))
+                    client.send(1, read_pdu(register))
+                    for _ in range(2):
+                        assert (await client.receive()).pdu[0] == 3
+
+            clients = [await TcpClient.connect(app.tcp.port) for _ in range(6)]
+            load = [asyncio.create_task(scada(c, 0x3000 + i)) for i, c in enumerate(clients)]
+            for _ in range(200):  # the poller finds fan2 dead and the bus isolates it
+                if bus.health.is_offline(2):
+                    break
+                await asyncio.sleep(0.02)
+            assert bus.health.is_offline(2)
+            line.set_dead(2, False)
+            # Under the same load, a probe must find it and polls must read it again.
+            polls_before = app.poller.polls
+            for _ in range(400):
+                if not bus.health.is_offline(2) and app.poller.polls > polls_before + 3:
+                    break
+                await asyncio.sleep(0.02)
+            assert not bus.health.is_offline(2)
+            assert app.poller.polls > polls_before + 3
+            assert not any(task.done() for task in load)  # SCADA was served all along
+            stop.set()
+            await asyncio.gather(*load)
+            for client in clients:
+                await client.close()

@@ -51,6 +51,10 @@ IDLE_WAKE_S = 0.5
 """With nothing queued, the thread still wakes this often to see whether a probe is due."""
 
 
+class BusFailed(Exception):
+    """The bus thread died: the service can't serve this line and must be restarted."""
+
+
 class BusState(StrEnum):
     OPENING = "opening"
     OPEN = "open"
@@ -144,6 +148,8 @@ class Bus:
         self._work = threading.Condition()
         self._closing = False
         self._busy = False
+        self._generation = 0
+        """Counts transactions taken, so `wait_idle` isn't released by an older one's hand-over."""
         self._thread: threading.Thread | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._listeners: list[DriveListener] = []
@@ -254,11 +260,14 @@ class Bus:
         self._loop = loop
         stopped: asyncio.Future[None] = loop.create_future()
 
+        failure: list[BaseException] = []
+
         def serve() -> None:
             try:
                 self._serve()
-            except Exception:
-                log.exception("bus %s: worker failed", self.name)
+            except BaseException as exc:
+                failure.append(exc)
+                log.critical("bus %s: worker thread died", self.name, exc_info=True)
             finally:
                 loop.call_soon_threadsafe(_settle, stopped)
 
@@ -270,6 +279,10 @@ class Bus:
             self.close()
             # The thread finishes the transaction on the wire and closes the port.
             await loop.run_in_executor(None, self._thread.join, 5.0)
+        if failure:
+            # A bus that can't serve its line must not look alive: fail the service, so systemd
+            # or Docker restarts it (Restart=on-failure), rather than answer 0BH forever.
+            raise BusFailed(f"bus {self.name}: worker thread died: {failure[0]!r}")
 
     async def wait_open(self, timeout_s: float) -> bool:
         try:
@@ -310,13 +323,17 @@ class Bus:
             if transaction is None:
                 continue
             self._busy = True
-            outcome: Outcome = (_fail, (transaction, GatewayTargetFailed("bus worker failed")))
+            self._generation += 1
+            outcome: Outcome
             try:
                 outcome = self._execute(transaction)
+            except Exception as exc:  # a bug costs this one request, never the line
+                log.exception("bus %s: unexpected error in a transaction", self.name)
+                outcome = (_fail, (transaction, GatewayTargetFailed(f"bus {self.name}: {exc}")))
             finally:
                 self._busy = False
-                # One hand-over to the event loop per transaction: answer, and mark idle.
-                self._post(self._finish, outcome)
+            # One hand-over to the event loop per transaction: answer, and mark idle.
+            self._post(self._finish, outcome, self._generation)
         self.line.close()
 
     def _next_transaction(self) -> Transaction | None:
@@ -332,6 +349,8 @@ class Bus:
             self._port_lost(exc)
             return None
         with self._work:
+            # Every pass, not only when idle: a busy line must still find out a drive is back.
+            self._queue_due_probes()
             while not self._closing and not len(self._queue):
                 self._queue_due_probes()
                 if len(self._queue):
@@ -373,10 +392,11 @@ class Bus:
             self._post(self._opened.set)
             return
 
-    def _finish(self, outcome: Outcome) -> None:
+    def _finish(self, outcome: Outcome, generation: int) -> None:
         callback, args = outcome
         callback(*args)
-        self._idle.set()
+        if generation == self._generation:  # not an older transaction's late hand-over
+            self._idle.set()
 
     def _execute(self, transaction: Transaction) -> Outcome:
         """Carry one transaction through its attempts; what to tell its waiters."""

@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import os
 import select
+import termios
 import time
 from dataclasses import dataclass
 
@@ -85,7 +86,7 @@ class SerialLine:
                 write_timeout=2.0,
                 exclusive=True,
             )
-        except (serial.SerialException, OSError, ValueError) as exc:
+        except (serial.SerialException, OSError, ValueError, termios.error) as exc:
             raise PortError(f"cannot open {self.settings.port}: {exc}") from exc
         # FTDI adapters hold received bytes up to 16 ms unless asked not to; not every port can.
         with contextlib.suppress(Exception):
@@ -216,16 +217,24 @@ class SerialLine:
         try:
             if self._fd is not None:
                 view = memoryview(frame)
+                # A frame takes its wire time to leave; an adapter that takes a second more
+                # is wedged, and a bus thread stuck here would hold the line forever.
+                deadline = time.monotonic() + self.settings.char_format.wire_time_s(len(frame)) + 1
                 while view:
                     try:
                         written = os.write(self._fd, view)
                     except BlockingIOError:  # the port is non-blocking; its buffer is full
-                        select.select([], [self._fd], [], 1.0)
+                        remaining = deadline - time.monotonic()
+                        if remaining <= 0:
+                            raise OSError(
+                                "the port takes no more bytes (adapter wedged?)"
+                            ) from None
+                        select.select([], [self._fd], [], remaining)
                         continue
                     view = view[written:]
             else:
                 port.write(frame)
-        except (serial.SerialException, OSError) as exc:
+        except (serial.SerialException, OSError, termios.error) as exc:
             self.close()
             raise PortError(f"write to {self.settings.port} failed: {exc}") from exc
 
@@ -243,7 +252,7 @@ class SerialLine:
                 return data
             port.timeout = max(timeout_s, 0.0)
             return bytes(port.read(max_bytes))
-        except (serial.SerialException, OSError) as exc:
+        except (serial.SerialException, OSError, termios.error) as exc:
             self.close()
             raise PortError(f"read from {self.settings.port} failed: {exc}") from exc
 

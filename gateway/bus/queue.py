@@ -1,7 +1,9 @@
 """The bus's queue: bounded, by priority, fair between clients, coalescing identical reads.
 
 Order of service:
-1. priority: writes first (a stop command never waits behind polls), then client reads, then polls;
+1. priority: writes first (a stop command never waits behind polls), then client reads, then polls,
+   except that polls get one turn in `POLL_SHARE` while reads are waiting too (telemetry and
+   dead-drive probes must not starve under a SCADA that reads without pause);
 2. within a priority, round-robin between clients (one busy SCADA can't starve another);
 3. within a client, first come first served.
 
@@ -18,6 +20,9 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 
 from gateway.errors import QueueFull
+
+POLL_SHARE = 4
+"""While reads and polls both wait, one transaction in this many goes to a poll."""
 
 
 class Priority(IntEnum):
@@ -61,6 +66,7 @@ class RequestQueue:
         self._levels: dict[Priority, dict[str, deque[Transaction]]] = {p: {} for p in Priority}
         self._coalescing: dict[tuple[int, bytes, Priority], Transaction] = {}
         self._size = 0
+        self._reads_while_polls_wait = 0
         self.coalesced = 0
 
     def __len__(self) -> int:
@@ -87,17 +93,34 @@ class RequestQueue:
         return transaction
 
     def get_nowait(self) -> Transaction | None:
-        for clients in self._levels.values():
-            for client, waiting in clients.items():
-                transaction = waiting.popleft()
-                del clients[client]
-                if waiting:
-                    clients[client] = waiting  # back of the round robin
-                self._size -= 1
-                if self._coalescing.get(transaction.key) is transaction:
-                    del self._coalescing[transaction.key]
-                return transaction
-        return None
+        level = self._next_level()
+        if level is None:
+            return None
+        clients = self._levels[level]
+        client, waiting = next(iter(clients.items()))
+        transaction = waiting.popleft()
+        del clients[client]
+        if waiting:
+            clients[client] = waiting  # back of the round robin
+        self._size -= 1
+        if self._coalescing.get(transaction.key) is transaction:
+            del self._coalescing[transaction.key]
+        return transaction
+
+    def _next_level(self) -> Priority | None:
+        """Writes first, then reads; but polls get every POLL_SHARE-th turn while reads wait,
+        so telemetry never stops under a SCADA that reads without pause."""
+        levels = self._levels
+        if levels[Priority.WRITE]:
+            return Priority.WRITE
+        if not levels[Priority.POLL]:
+            self._reads_while_polls_wait = 0
+            return Priority.READ if levels[Priority.READ] else None
+        if not levels[Priority.READ] or self._reads_while_polls_wait >= POLL_SHARE - 1:
+            self._reads_while_polls_wait = 0
+            return Priority.POLL
+        self._reads_while_polls_wait += 1
+        return Priority.READ
 
     def take_all(self) -> list[Transaction]:
         """Empty the queue (shutdown, port lost): the caller answers every waiter."""

@@ -10,6 +10,7 @@ import sys
 from collections.abc import Callable
 
 from gateway.app import Application
+from gateway.bus.bus import BusFailed
 from gateway.cli import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
 from gateway.config import GatewayConfig, load_config
 from gateway.errors import ConfigError
@@ -88,6 +89,13 @@ async def serve(
         await app.run(stop, ready)
     except OSError as exc:
         log.error("cannot start: %s", exc)
+        return EXIT_FAILURE
+    except ExceptionGroup as group:
+        failed = group.subgroup(BusFailed)
+        if failed is None:
+            raise
+        # Exit non-zero so the service manager restarts the gateway (Restart=on-failure).
+        log.critical("stopping: %s", failed.exceptions[0])
         return EXIT_FAILURE
     finally:
         for signum in (signal.SIGTERM, signal.SIGINT):
