@@ -121,7 +121,7 @@ class Poller:
 
     def after_write(self, name: str, start: int, count: int) -> None:
         """A command wrote to the drive: forget the cached words and poll it again now."""
-        self.cache.invalidate(name, start, count)
+        self.cache.invalidate(name)
         drive = self.drives.get(name)
         if drive is not None:
             self._poll_soon(drive)
@@ -190,9 +190,16 @@ class Poller:
         pdu = struct.pack(">BHH", READ_HOLDING_REGISTERS, block.start, block.count)
         self.polls += 1
         drive.polls += 1
+        # The cache only takes what was true when the poll was issued and no write followed.
+        issued_at = time.monotonic()
+        generation = self.cache.generation(config.name)
         try:
             reply = await self.router.execute(
-                config.effective_unit_id, pdu, client=POLL_CLIENT, priority=Priority.POLL
+                config.effective_unit_id,
+                pdu,
+                client=POLL_CLIENT,
+                priority=Priority.POLL,
+                use_cache=False,
             )
         except DriveOffline:
             self._poll_failed(drive, offline=True)
@@ -211,13 +218,13 @@ class Poller:
             self._drive_refused(drive, block, reply[1] if len(reply) > 1 else 0)
             return True
         words = list(struct.unpack(f">{(len(reply) - 2) // 2}H", reply[2:]))
+        self.cache.store(config.name, block.start, words, issued_at, generation)
         self._answered(drive, block.start, words)
         return True
 
     def _answered(self, drive: PolledDrive, start: int, words: list[int]) -> None:
         drive.failed_polls = 0
         drive.offline_backoff = 0
-        self.cache.store(drive.config.name, start, words)
         was_online = drive.state.online
         events = drive.state.record_poll(start, words, time.time())
         if was_online is not True:
@@ -236,6 +243,8 @@ class Poller:
             self._set_online(drive, False)
 
     def _set_online(self, drive: PolledDrive, online: bool) -> None:
+        if not online:
+            self.cache.forget(drive.config.name)  # what it said before is no longer current
         events = drive.state.set_online(online)
         if events:
             log.warning("drive %s is %s", drive.config.name, "online" if online else "offline")
