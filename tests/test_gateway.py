@@ -275,7 +275,7 @@ async def test_two_buses_in_one_service_run_independently() -> None:
                 ],
                 "drives": [
                     {"name": "a1", "bus": "a", "address": 1},
-                    {"name": "a2", "bus": "a", "address": 2, "timeout_ms": 30, "retries": 0},
+                    {"name": "a2", "bus": "a", "address": 2, "timeout_ms": 1500, "retries": 0},
                     {"name": "b1", "bus": "b", "address": 1, "unit_id": 11},
                 ],
             }
@@ -287,12 +287,17 @@ async def test_two_buses_in_one_service_run_independently() -> None:
             await client.request(11, write_pdu(0x0005, 222))
             assert await client.read(1, 0x0005) == [111]
             assert await client.read(11, 0x0005) == [222]
-            # A dead drive on line a (its own 30 ms timeout, no retries) ...
+            # A dead drive holds line a for its own 1.5 s timeout (no retries) ...
             line_a.set_dead(2, True)
             dead = asyncio.create_task(client.request(2, read_pdu(STATE_WORD_1)))
-            # ... while line b keeps answering.
+            for _ in range(1000):  # until the request is on line a, unanswered
+                if line_a.stats["ignored"]:
+                    break
+                await asyncio.sleep(0.005)
+            # ... while line b answers in the meantime.
             other = await TcpClient.connect(app.tcp.port)
             assert await other.read(11, STATE_WORD_1) == [STOPPED]
+            assert not dead.done()
             assert await dead == bytes.fromhex("83 0B")
             assert app.buses["a"].stats.timeouts == 1  # the drive's retries: 0 overrides the bus's
             assert app.buses["b"].stats.timeouts == 0
