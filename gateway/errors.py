@@ -12,7 +12,8 @@
         ├── GatewayPathUnavailable   0x0A: unknown unit id, queue full, broadcast not allowed
         │   └── QueueFull
         └── GatewayTargetFailed      0x0B: no valid reply after retries, drive offline, port lost
-            └── DriveOffline
+            ├── DriveOffline
+            └── BusClosed        the gateway is shutting down: nobody's fault, nothing to retry
 
 A `LineError` becomes `GatewayTargetFailed` in exactly one place: the bus's retry policy
 (`gateway.bus.bus.Bus`), once the retries are spent.
@@ -119,3 +120,10 @@ class GatewayTargetFailed(ModbusError):
 
 class DriveOffline(GatewayTargetFailed):
     """The drive is isolated after repeated timeouts; answered at once, without bus time."""
+
+
+class BusClosed(GatewayTargetFailed):
+    """The bus is closed (the gateway is shutting down): the drive did nothing wrong.
+
+    Lets a caller tell shutdown from a drive that failed without asking the bus for its state.
+    """

@@ -9,7 +9,7 @@ from typing import Any
 
 from gateway.config import GatewayConfig, MqttConfig
 from gateway.simulator import SimulatedLine
-from tests.mosquitto import Mosquitto
+from tests.mosquitto import BrokerAddress
 from tests.support import gateway_config
 
 FAST_POLL = [
@@ -24,7 +24,7 @@ DRIVES: list[dict[str, Any]] = [
 
 def mqtt_config(
     line_path: str,
-    broker: Mosquitto,
+    broker: BrokerAddress,
     base_topic: str,
     gateway_id: str = "test",
     drives: list[dict[str, Any]] | None = None,

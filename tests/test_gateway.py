@@ -218,9 +218,14 @@ async def test_the_port_vanishing_and_coming_back(line_link: tuple[SimulatedLine
     async with running_gateway(config) as app:
         client = await TcpClient.connect(app.tcp.port)
         assert await client.read(1, STATE_WORD_1) == [STOPPED]
+        changes: list[tuple[int, bool]] = []
+        app.buses["line1"].add_listener(
+            lambda _bus, address, online: changes.append((address, online))
+        )
         line.unplug()
         assert await client.request(1, read_pdu(STATE_WORD_1)) == bytes.fromhex("83 0B")
         await asyncio.sleep(0.3)
+        assert (1, False) in changes  # the drive it had talked to is reported unreachable
         line.replug()  # a new pty, the same by-id style link
         for _ in range(100):
             reply = await client.request(1, read_pdu(STATE_WORD_1))
@@ -229,6 +234,7 @@ async def test_the_port_vanishing_and_coming_back(line_link: tuple[SimulatedLine
             await asyncio.sleep(0.1)
         assert reply == bytes.fromhex("03 02 00 03")
         assert app.buses["line1"].stats.reopens >= 1
+        assert changes[-1] == (1, True)  # found again by its probe
         await client.close()
 
 

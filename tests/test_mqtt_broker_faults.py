@@ -17,7 +17,7 @@ import yaml
 
 from gateway.profile.invt import STATE_WORD_1
 from gateway.profile.states import RunState
-from tests.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
+from tests.mosquitto import BrokerProxy, Mosquitto, mqtt_probe, unique_base_topic
 from tests.mosquitto import mosquitto as mosquitto
 from tests.mqtt_setup import DRIVES, mqtt_config, simulated_line
 from tests.support import TcpClient, free_port, running_gateway
@@ -204,3 +204,33 @@ async def test_same_base_topic_is_reported(
                         break
                     await asyncio.sleep(0.05)
         assert "also publishes under" in caplog.text
+
+
+async def test_an_event_being_published_when_the_connection_breaks_is_not_lost(
+    mosquitto: Mosquitto,
+) -> None:
+    """The gateway reaches the broker through a relay that holds back what it sends, then
+    breaks the connection while the bridge waits for the broker to acknowledge a fault event.
+    The event was taken from the outbox but never arrived: it must go out after the reconnect.
+    The probe is connected to the broker directly, so it sees everything, nothing twice."""
+    base = unique_base_topic()
+    async with BrokerProxy(mosquitto) as relay:
+        with simulated_line() as line:
+            config = mqtt_config(line.path, relay, base)
+            async with (
+                mqtt_probe(mosquitto, f"{base}/#") as probe,
+                running_gateway(config) as app,
+            ):
+                await probe.wait_for(f"{base}/fan2", lambda s: s["state"] == "stopped")
+                relay.freeze()
+                mark = len(probe.messages)
+                line.inject_fault(2, 13)
+                await relay.wait_held(b"fault_raised")  # published; no acknowledgement comes
+                relay.cut()
+                event = await probe.wait_for(
+                    f"{base}/bridge/event", lambda e: e["type"] == "fault_raised", after=mark
+                )
+                assert event.json()["data"]["drive"] == "fan2"
+                assert event.json()["data"]["fault_code"] == 13
+                assert app.mqtt.outbox.stats.events_dropped == 0
+                assert app.mqtt.stats.connects == 2

@@ -297,3 +297,88 @@ async def test_commands_disabled(mosquitto: Mosquitto) -> None:
             with line.lock:
                 assert line.drives[1].state(time.monotonic()) is RunState.STOPPED
                 assert line.drives[1].parameter("P00.11") == 100  # the default 10.0 s
+
+
+async def test_a_slow_get_holds_back_no_command(plant: Plant) -> None:
+    """`/get` polls the drive at poll priority, after any poll of it in progress: under SCADA
+    load that takes seconds. Meanwhile a stop, to another drive or to the same one, must go."""
+    pump1 = plant.app.poller.drives["pump1"]
+    async with pump1.lock:  # a poll of pump1 in progress, for as long as this block lasts
+        await plant.probe.publish(f"{plant.base}/pump1/get", "")
+        assert (await plant.set("fan2", {"command": "stop"}))["status"] == "ok"
+        assert (await plant.set("pump1", {"command": "stop"}))["status"] == "ok"
+        mark = len(plant.probe.messages)
+    # Once the poll in progress is over, the /get is carried out and the state published.
+    await plant.probe.wait_for(f"{plant.base}/pump1", after=mark)
+
+
+async def test_commands_to_one_drive_run_in_the_order_they_came(plant: Plant) -> None:
+    """Published back to back, without waiting for answers, through both command topics."""
+    set_topic = f"{plant.base}/pump1/set"
+    write_topic = f"{plant.base}/bridge/request/write_parameter"
+    response_topics = {set_topic: f"{set_topic}/response"}
+    response_topics[write_topic] = f"{plant.base}/bridge/response/write_parameter"
+    sent: list[tuple[str, str]] = []
+    for step in range(8):
+        raw = 1000 + step
+        if step % 2:
+            topic, payload = write_topic, {"drive": "pump1", "register": "2001H", "raw": raw}
+        else:
+            topic, payload = set_topic, {"frequency_hz": raw / 100}
+        transaction = f"order-{step}"
+        await plant.probe.publish(topic, {**payload, "transaction": transaction})
+        sent.append((response_topics[topic], transaction))
+
+    last_topic, last = sent[-1]
+    await plant.probe.wait_for(last_topic, lambda r: r["transaction"] == last)
+    answers = [
+        m.json()
+        for m in plant.probe.messages
+        if m.topic in response_topics.values()
+        and str(m.json().get("transaction")).startswith("order-")
+    ]
+    # Executed, and so answered, in the order they came; the last write is what the drive has.
+    assert [a["transaction"] for a in answers] == [transaction for _, transaction in sent]
+    assert all(a["status"] == "ok" for a in answers)
+    assert await plant.tcp.read(1, FREQUENCY_SETPOINT) == [1007]
+
+
+async def test_a_command_that_waited_too_long_in_the_gateway_is_stale(
+    mosquitto: Mosquitto,
+) -> None:
+    """Home Assistant's buttons send no `time`: a run pressed while the drive's earlier commands
+    were stuck must not run when they clear. Each command to pump1 here takes at least 0.7 s
+    (the drive answers that late), so the third waits at least 1.4 s, past the 1 s allowed."""
+    base = unique_base_topic()
+    drives: list[dict[str, Any]] = [
+        {"name": "pump1", "address": 1, "model": "gd350", "timeout_ms": 2000, "poll": []},
+        {"name": "fan2", "address": 2, "model": "gd20"},
+    ]
+    with simulated_line() as line:
+        config = mqtt_config(line.path, mosquitto, base, drives=drives, command_max_age_s=1.0)
+        async with mqtt_probe(mosquitto, f"{base}/#") as probe, running_gateway(config):
+            await probe.wait_for(f"{base}/bridge/state", lambda s: s["state"] == "online")
+            line.set_reply_delay(1, 700)
+            topic = f"{base}/pump1/set"
+            await probe.publish(topic, {"frequency_hz": 20.0, "transaction": "slow-1"})
+            await probe.publish(topic, {"frequency_hz": 21.0, "transaction": "slow-2"})
+            await probe.publish(topic, {"command": "run_forward", "transaction": "late"})
+            response = await probe.wait_for(
+                f"{topic}/response", lambda r: r["transaction"] == "late"
+            )
+            assert response.json()["status"] == "error"
+            assert response.json()["error"] == "stale"
+            assert "waited" in response.json()["message"]
+            with line.lock:
+                assert line.drives[1].state(time.monotonic()) is RunState.STOPPED
+
+
+async def test_read_parameter_over_the_drive_word_limit(plant: Plant) -> None:
+    """An INVT drive answers at most 16 words per read; the router splits longer reads, so a
+    bridge request may ask for more (20 running values from 3000H here)."""
+    response = await plant.bridge(
+        "read_parameter", {"drive": "pump1", "register": "3000H", "count": 20}
+    )
+    assert response["status"] == "ok", response
+    assert len(response["data"]["raw"]) == 20
+    assert response["data"]["raw"][2] > 0  # 3002H bus voltage: a live value, past no gap

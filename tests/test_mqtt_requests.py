@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import asyncio
 import time
+from collections.abc import Awaitable, Callable
 from datetime import UTC, datetime
 
 import pytest
@@ -10,17 +12,20 @@ import pytest
 from gateway.config import DriveConfig
 from gateway.mqtt.connection import Backoff
 from gateway.mqtt.embedded_broker import topic_matches
+from gateway.mqtt.lanes import Lanes
 from gateway.mqtt.outbox import Outbox
 from gateway.mqtt.requests import (
     CommandRefused,
     check_age,
+    check_waited,
     parse_object,
     parse_read,
     parse_set,
     parse_write,
 )
 from gateway.poller import DriveEvent, EventKind, PollBlock, poll_schedules
-from gateway.profile import get_profile
+from gateway.profile import get_profile, is_ram_address
+from gateway.profile.ram_writes import ram_write_address
 
 GD350 = get_profile("gd350")
 
@@ -32,7 +37,7 @@ def reason(call: object) -> str:
 
 
 def test_run_with_frequency_is_one_write_of_2000h_2001h() -> None:
-    write = parse_set({"command": "run_forward", "frequency_hz": 10.0}, GD350, False)
+    write = parse_set({"command": "run_forward", "frequency_hz": 10.0}, GD350)
     # The INVT manual's own frame: forward run and 10.00 Hz in one 10H write.
     assert write.pdu == bytes.fromhex("10 2000 0002 04 0001 03E8")
     assert write.echo == {"command": "run_forward", "frequency_hz": 10.0}
@@ -52,36 +57,30 @@ def test_run_with_frequency_is_one_write_of_2000h_2001h() -> None:
     ],
 )
 def test_each_command_is_its_control_word(command: str, word: int) -> None:
-    assert parse_set({"command": command}, GD350, False).pdu == bytes((6, 0x20, 0, 0, word))
+    assert parse_set({"command": command}, GD350).pdu == bytes((6, 0x20, 0, 0, word))
 
 
 def test_frequency_alone_writes_the_set_point() -> None:
-    assert parse_set({"frequency_hz": 50.12}, GD350, False).pdu == bytes.fromhex("06 2001 1394")
+    assert parse_set({"frequency_hz": 50.12}, GD350).pdu == bytes.fromhex("06 2001 1394")
 
 
 def test_parameter_scaled_by_the_profile_or_the_message() -> None:
     # P00.11 = 10.0 s travels as 0064H (the manual's example).
-    write = parse_write({"parameter": "P00.11", "value": 10.0}, GD350, False)
+    write = parse_write({"parameter": "P00.11", "value": 10.0}, GD350)
     assert write.pdu == bytes.fromhex("06 000B 0064")
-    write = parse_write({"parameter": "P05.01", "value": 1.5, "decimals": 2}, GD350, False)
+    write = parse_write({"parameter": "P05.01", "value": 1.5, "decimals": 2}, GD350)
     assert write.words == (150,)
-    write = parse_write({"parameter": "P05.01", "raw": 7}, GD350, False)
+    write = parse_write({"parameter": "P05.01", "raw": 7}, GD350)
     assert write.words == (7,)
 
 
-def test_ram_only_goes_to_8xxxh_unless_the_route_does_it() -> None:
-    write = parse_write({"parameter": "P00.07", "value": 3, "ram_only": True}, GD350, False)
+def test_ram_only_goes_to_8xxxh() -> None:
+    # Also when the route sends parameter writes to RAM itself: it leaves 8xxxH alone.
+    write = parse_write({"parameter": "P00.07", "value": 3, "ram_only": True}, GD350)
     assert write.start == 0x8007
-    assert write.plain_start == 0x0007
-    write = parse_write({"parameter": "P00.07", "value": 3, "ram_only": True}, GD350, True)
-    assert write.start == 0x0007
     generic = get_profile("generic")
     assert (
-        reason(
-            lambda: parse_write(
-                {"parameter": "P00.07", "value": 3, "ram_only": True}, generic, False
-            )
-        )
+        reason(lambda: parse_write({"parameter": "P00.07", "value": 3, "ram_only": True}, generic))
         == "invalid_request"
     )
 
@@ -108,7 +107,7 @@ def test_ram_only_goes_to_8xxxh_unless_the_route_does_it() -> None:
     ],
 )
 def test_refusals(message: dict[str, object], expected: str) -> None:
-    assert reason(lambda: parse_set(message, GD350, False)) == expected
+    assert reason(lambda: parse_set(message, GD350)) == expected
 
 
 def test_payload_must_be_a_json_object() -> None:
@@ -130,12 +129,133 @@ def test_age_of_a_command() -> None:
 
 
 def test_read_of_a_signed_register_and_of_a_block() -> None:
-    read = parse_read({"register": "3007H"})
+    read = parse_read({"register": "3007H"}, 16)
     assert read.result([0xFF9C]) == {"raw": 0xFF9C, "value": -10.0}
-    read = parse_read({"parameter": "P07.27", "count": 6})
+    read = parse_read({"parameter": "P07.27", "count": 6}, 16)
     assert read.pdu == bytes.fromhex("03 071B 0006")
     assert read.result([35] * 6)["value"] == [35] * 6
-    assert reason(lambda: parse_read({"parameter": "P07.27", "count": 17})) == "invalid_request"
+    assert reason(lambda: parse_read({"parameter": "P07.27", "count": 17}, 16)) == "invalid_request"
+
+
+def test_read_count_is_limited_by_what_the_caller_says_the_drive_takes() -> None:
+    # The bridge passes the drive's limit, or Modbus's 125 when the router splits for it.
+    assert parse_read({"register": "3000H", "count": 20}, 125).pdu == bytes.fromhex("03 3000 0014")
+    assert reason(lambda: parse_read({"register": "3000H", "count": 126}, 125)) == "invalid_request"
+    assert reason(lambda: parse_read({"register": "FFFFH", "count": 2}, 125)) == "invalid_request"
+
+
+@pytest.mark.parametrize(
+    ("register", "expected"),
+    [
+        ("P00.07", 0x8007),
+        ("P99.99", 0xE363),
+        ("0A01H", 0x8A01),
+        ("8007H", 0x8007),  # already the RAM-only address
+        ("2000H", None),
+        ("2104H", None),  # digits of a parameter (group 33), but a communication register
+        ("3020H", None),
+        ("5000H", None),
+        ("1A2BH", 0x9A2B),  # P26.43, by its hex spelling
+        ("0064H", None),  # index 100: no parameter
+    ],
+)
+def test_ram_only_writes_follow_the_profile_rule(register: str, expected: int | None) -> None:
+    """One rule for which registers have a RAM-only twin: the profile's, as the router uses it."""
+    key = "parameter" if register.startswith("P") else "register"
+    message = {key: register, "raw": 1, "ram_only": True}
+    if expected is None:
+        assert reason(lambda: parse_write(message, GD350)) == "invalid_request"
+    else:
+        assert parse_write(message, GD350).start == expected
+    address = parse_write({key: register, "raw": 1}, GD350).start
+    twin = ram_write_address(address)
+    assert (twin if is_ram_address(twin) else None) == expected
+
+
+def test_time_waited_in_the_gateway() -> None:
+    check_waited(100.0, 10, 105.0)
+    assert reason(lambda: check_waited(100.0, 10, 111.0)) == "stale"
+
+
+def test_outbox_takes_back_what_was_not_sent_in_front() -> None:
+    outbox = Outbox(max_events=3)
+    for code in (1, 2):
+        outbox.put_event(DriveEvent(EventKind.FAULT_RAISED, "pump1", {"fault_code": code}))
+    outbox.put_state("pump1", {"state": "fault"})
+    outbox.put_availability("pump1", True)
+    pending = outbox.take()
+    pending.events.popleft()  # event 1 was published, then the connection broke
+    outbox.put_event(DriveEvent(EventKind.FAULT_RAISED, "pump1", {"fault_code": 3}))
+    outbox.put_state("pump1", {"state": "stopped"})
+    outbox.restore(pending)
+    again = outbox.take()
+    assert [e.data["fault_code"] for e in again.events] == [2, 3]  # older first
+    assert again.states == {"pump1": {"state": "stopped"}}  # the newer state wins
+    assert again.availability == {"pump1": True}
+    assert outbox.stats.events_dropped == 0
+    # Only an overflow drops, the oldest first, counted.
+    for code in (4, 5, 6):
+        outbox.put_event(DriveEvent(EventKind.FAULT_RAISED, "pump1", {"fault_code": code}))
+    outbox.restore(again)
+    assert [e.data["fault_code"] for e in outbox.take().events] == [4, 5, 6]
+    assert outbox.stats.events_dropped == 2
+
+
+async def test_lanes_keep_order_within_a_lane_and_run_lanes_side_by_side() -> None:
+    lanes = Lanes(max_waiting=2)
+    release = asyncio.Event()
+    done: list[str] = []
+
+    def job(name: str, wait: bool = False) -> Callable[[], Awaitable[None]]:
+        async def run() -> None:
+            if wait:
+                await release.wait()
+            done.append(name)
+
+        return run
+
+    assert lanes.submit("pump1", job("pump1 get", wait=True))
+    await asyncio.sleep(0)  # its task takes it: running, no longer waiting
+    assert lanes.submit("pump1", job("pump1 stop"))
+    assert lanes.submit("pump1", job("pump1 run"))
+    assert not lanes.submit("pump1", job("pump1 one too many"))  # two already wait
+    assert lanes.submit("fan2", job("fan2 stop"))
+    for _ in range(10):
+        await asyncio.sleep(0)
+    assert done == ["fan2 stop"]  # not behind pump1's
+    release.set()
+    for _ in range(10):
+        await asyncio.sleep(0)
+    assert done == ["fan2 stop", "pump1 get", "pump1 stop", "pump1 run"]
+    assert lanes.running == 0
+    assert lanes.submit("pump1", job("pump1 later"))  # a new worker for a lane gone idle
+    await lanes.close(1.0)
+    assert done[-1] == "pump1 later" or lanes.dropped == 1
+
+
+async def test_lanes_close_cancels_running_and_drops_waiting_jobs() -> None:
+    lanes = Lanes(max_waiting=4)
+    started = asyncio.Event()
+    cancelled: list[bool] = []
+
+    async def stuck() -> None:
+        started.set()
+        try:
+            await asyncio.Event().wait()
+        except asyncio.CancelledError:
+            cancelled.append(True)
+            raise
+
+    async def never() -> None:
+        raise AssertionError("a job waiting at close must not run")
+
+    lanes.submit("pump1", stuck)
+    lanes.submit("pump1", never)
+    await started.wait()
+    await lanes.close(1.0)
+    assert cancelled == [True]
+    assert lanes.dropped == 1
+    assert lanes.running == 0
 
 
 def test_outbox_keeps_the_newest_state_and_counts_dropped_events() -> None:

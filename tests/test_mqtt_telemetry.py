@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import asyncio
 
+import pytest
+
+from gateway.errors import BusClosed
 from gateway.profile.invt import STATE_WORD_1
 from tests.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
 from tests.mosquitto import mosquitto as mosquitto
@@ -191,3 +194,53 @@ async def test_discovery_can_be_turned_off(mosquitto: Mosquitto) -> None:
                 for m in probe.messages
                 if m.topic.startswith(prefix + "/") and m.topic != f"{prefix}/status"
             ]
+
+
+async def test_failed_polls_short_of_the_bus_offline_after_keep_the_drive_available(
+    mosquitto: Mosquitto,
+) -> None:
+    """Only the bus decides that a drive is offline (after `offline_after` failed requests,
+    SCADA's counted too), and /health says what the bus says: a few failed polls must not turn
+    the drive's MQTT availability offline while the bus still has it online."""
+    base = unique_base_topic()
+    with simulated_line() as line:
+        config = mqtt_config(line.path, mosquitto, base, bus={"offline_after": 50})
+        async with mqtt_probe(mosquitto, f"{base}/#") as probe, running_gateway(config) as app:
+            await probe.wait_for(f"{base}/pump1/availability", lambda a: a["state"] == "online")
+            pump1 = app.poller.drives["pump1"]
+            mark = len(probe.messages)
+            line.set_dead(1, True)
+            for _ in range(200):
+                if pump1.failed_polls >= 5:
+                    break
+                await asyncio.sleep(0.05)
+            assert pump1.failed_polls >= 5
+            line.set_dead(1, False)
+            assert not app.buses["line1"].health.is_offline(1)
+            await probe.wait_for(f"{base}/pump1", after=mark)
+            for _ in range(200):
+                if pump1.failed_polls == 0:
+                    break
+                await asyncio.sleep(0.05)
+            assert pump1.failed_polls == 0  # answered again
+            later = probe.messages[mark:]
+            availability = [m.json() for m in later if m.topic == f"{base}/pump1/availability"]
+            assert {"state": "offline"} not in availability
+            assert not [m.json() for m in later if m.topic == f"{base}/bridge/event"]
+
+
+async def test_shutting_down_is_no_poll_failure(mosquitto: Mosquitto) -> None:
+    """Polls cut off by the shutdown fail with BusClosed: not the drive's doing, not counted,
+    no drive said to be offline on the way out."""
+    base = unique_base_topic()
+    with simulated_line() as line:
+        config = mqtt_config(line.path, mosquitto, base)
+        async with mqtt_probe(mosquitto, f"{base}/#") as probe:
+            async with running_gateway(config) as app:
+                await probe.wait_for(f"{base}/fan2/availability", lambda a: a["state"] == "online")
+                failures = app.poller.poll_failures
+                mark = len(probe.messages)
+            assert app.poller.poll_failures == failures
+            assert not [m for m in probe.messages[mark:] if m.topic.endswith("/availability")]
+            with pytest.raises(BusClosed):
+                await app.router.execute(1, bytes.fromhex("03 2100 0001"), client="test")

@@ -29,6 +29,7 @@ from gateway.bus.line import Exchange, LineSettings, SerialLine
 from gateway.bus.queue import Priority, RequestQueue, Transaction
 from gateway.errors import (
     BadReply,
+    BusClosed,
     DriveOffline,
     GatewayError,
     GatewayTargetFailed,
@@ -224,7 +225,7 @@ class Bus:
     ) -> bytes | None:
         self.stats.requests += 1
         if self.state is BusState.CLOSED:
-            raise GatewayTargetFailed(f"bus {self.name} is shutting down")
+            raise BusClosed(f"bus {self.name} is shutting down")
         if self.state is BusState.REOPENING:
             raise GatewayTargetFailed(f"bus {self.name}: {self._last_port_error}")
         if address != BROADCAST_ADDRESS and self.health.is_offline(address):
@@ -298,7 +299,7 @@ class Bus:
             self._closing = True
             queued = self._queue.take_all()
             self._work.notify_all()
-        error = GatewayTargetFailed(f"bus {self.name} is shutting down")
+        error = BusClosed(f"bus {self.name} is shutting down")
         for transaction in queued:
             _fail(transaction, error)
 
@@ -496,6 +497,12 @@ class Bus:
         error = GatewayTargetFailed(f"bus {self.name}: {exc}")
         for transaction in queued:
             self._post(_fail, transaction, error)
+        # No drive on this line can be reached now: say so (MQTT availability, metrics); once
+        # the port is back, the probes find each one again.
+        now = time.monotonic()
+        for address in self.health.known_addresses():
+            if self.health.force_offline(address, now):
+                self._post(self._notify, address, False)
 
     def _queue_due_probes(self) -> None:
         """Queue one single-attempt probe for each offline drive whose backoff is over.

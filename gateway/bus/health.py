@@ -73,6 +73,20 @@ class HealthTracker:
             return True
         return False
 
+    def known_addresses(self) -> list[int]:
+        return list(self._drives)
+
+    def force_offline(self, address: int, now: float) -> bool:
+        """The line itself is gone (port lost). True if the drive was online until now."""
+        health = self._get(address)
+        if health.offline:
+            return False
+        health.offline = True
+        health.consecutive_failures = max(health.consecutive_failures, 1)
+        health.probe_delay_s = 0.0
+        self._schedule_probe(health, now)
+        return True
+
     def due_probes(self, now: float) -> list[int]:
         return [a for a, h in self._drives.items() if h.offline and h.next_probe_at <= now]
 

@@ -6,6 +6,7 @@
 - `commands`: the safety checks, then the requests carried to the drives through the router.
 - `discovery`: Home Assistant MQTT discovery messages (no I/O).
 - `connection`: client id, TLS, last will, reconnect backoff.
+- `lanes`: received messages handled off the receive loop, in order per drive, bounded.
 - `bridge`: `MqttBridge`, the feature that connects, publishes and receives.
 - `embedded_broker`: a tiny loopback broker so `invt-gateway demo` needs nothing installed.
 """

@@ -2,7 +2,9 @@
 
 The checks that keep a plant safe come first, before anything reaches the bus: a retained command
 is never executed (it would run again at every reconnect of every subscriber), a stale one neither
-(it waited somewhere while the situation changed), and none at all with `commands_enabled: false`.
+(it waited somewhere while the situation changed: its `time` is old, or it waited in the gateway
+longer than `command_max_age_s` since it was received), and none at all with
+`commands_enabled: false`.
 Writes then go through the router at write priority, as a SCADA write would; the drive's own
 exception comes back by its INVT name (`operation_failure` for 04H), the gateway's as its reason.
 """
@@ -32,6 +34,7 @@ from gateway.mqtt.requests import (
     RegisterWrite,
     check_age,
     check_keys,
+    check_waited,
     error_response,
     ok_response,
     parse_object,
@@ -42,7 +45,7 @@ from gateway.mqtt.requests import (
 )
 from gateway.poller import Poller
 from gateway.profile import DriveProfile, describe_exception, exception_name, get_profile
-from gateway.router import Router
+from gateway.router import MAX_READ_WORDS, Router
 
 log = logging.getLogger(__name__)
 
@@ -69,33 +72,50 @@ class CommandHandler:
         self.executed = 0
         self.refused = 0
 
-    async def drive_set(self, drive: str, payload: bytes, retained: bool) -> Json:
+    # Each takes `received_at`, the monotonic time the bridge received the message: what waited
+    # longer than `command_max_age_s` before its turn came is refused, not run late.
+
+    async def drive_set(
+        self, drive: str, payload: bytes, retained: bool, received_at: float
+    ) -> Json:
         """`<base>/<drive>/set` → the `<base>/<drive>/set/response` payload."""
-        return await self._answer(payload, retained, True, lambda m: self._set(drive, m))
+        return await self._answer(
+            payload, retained, received_at, True, lambda m: self._set(drive, m)
+        )
 
-    async def write_parameter(self, payload: bytes, retained: bool) -> Json:
-        return await self._answer(payload, retained, True, self._bridge_write)
+    async def write_parameter(self, payload: bytes, retained: bool, received_at: float) -> Json:
+        return await self._answer(payload, retained, received_at, True, self._bridge_write)
 
-    async def read_parameter(self, payload: bytes, retained: bool) -> Json:
+    async def read_parameter(self, payload: bytes, retained: bool, received_at: float) -> Json:
         # A read changes nothing on the drive: monitoring-only gateways still answer it.
-        return await self._answer(payload, retained, False, self._bridge_read)
+        return await self._answer(payload, retained, received_at, False, self._bridge_read)
 
-    async def drive_get(self, drive: str, payload: bytes, retained: bool) -> bool:
+    async def drive_get(
+        self, drive: str, payload: bytes, retained: bool, received_at: float
+    ) -> bool:
         """`<base>/<drive>/get`: poll the drive now. False when the request was ignored."""
         if retained:
             log.warning("ignored a retained message on %s/get", drive)
+            return False
+        try:
+            check_waited(received_at, self.config.command_max_age_s, time.monotonic())
+        except CommandRefused as exc:
+            log.info("MQTT %s/get ignored: %s", drive, exc)
             return False
         await self.poller.refresh(drive)
         return True
 
     # -- one command, start to answer --------------------------------------------------------
 
-    async def _answer(self, payload: bytes, retained: bool, writes: bool, run: Any) -> Json:
+    async def _answer(
+        self, payload: bytes, retained: bool, received_at: float, writes: bool, run: Any
+    ) -> Json:
         transaction: Any = None
         try:
             message = parse_object(payload)
             transaction = transaction_of(message)
             self._check_allowed(message, retained, writes)
+            check_waited(received_at, self.config.command_max_age_s, time.monotonic())
             data: Json = await run(message)
         except CommandRefused as exc:
             self.refused += 1
@@ -120,21 +140,21 @@ class CommandHandler:
         check_age(message, self.config.command_max_age_s, time.time())
 
     async def _set(self, drive: str, message: Json) -> Json:
-        write = parse_set(message, self._profile(drive), self._ram_by_route(drive))
+        write = parse_set(message, self._profile(drive))
         await self._write(drive, write)
         return write.echo
 
     async def _bridge_write(self, message: Json) -> Json:
         check_keys(message, BRIDGE_WRITE_KEYS)
         drive = self._drive_named(message)
-        write = parse_write(message, self._profile(drive), self._ram_by_route(drive))
+        write = parse_write(message, self._profile(drive))
         await self._write(drive, write)
         return {"drive": drive, **write.echo}
 
     async def _bridge_read(self, message: Json) -> Json:
         check_keys(message, BRIDGE_READ_KEYS)
         drive = self._drive_named(message)
-        read = parse_read(message)
+        read = parse_read(message, self._read_limit(drive))
         words = await self._read(drive, read)
         return {"drive": drive, **read.echo, **read.result(words)}
 
@@ -143,7 +163,7 @@ class CommandHandler:
     async def _write(self, drive: str, write: RegisterWrite) -> None:
         await self._execute(drive, write.pdu)
         log.info("MQTT command to %s done: %s", drive, write.echo)
-        self.poller.after_write(drive, write.plain_start, len(write.words))
+        self.poller.after_write(drive)
 
     async def _read(self, drive: str, read: RegisterRead) -> list[int]:
         reply = await self._execute(drive, read.pdu)
@@ -168,8 +188,12 @@ class CommandHandler:
     def _profile(self, drive: str) -> DriveProfile:
         return self.profiles[drive]
 
-    def _ram_by_route(self, drive: str) -> bool:
-        return self.router.route_for_drive(drive).ram_address is not None
+    def _read_limit(self, drive: str) -> int:
+        # When the router splits reads for this drive (on by default for INVT models), one
+        # message may ask for what one Modbus read can carry; otherwise the drive's own limit.
+        if self.router.route_for_drive(drive).max_words is not None:
+            return MAX_READ_WORDS
+        return self._profile(drive).max_words
 
 
 def modbus_error(exc: ModbusError) -> tuple[str, int]:

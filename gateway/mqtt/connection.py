@@ -5,6 +5,11 @@ catching `MqttError`, which the bridge follows with a fresh client for every att
 message received on a lost connection is ever handled after the next one). Between attempts the
 wait doubles up to a cap, with jitter, so gateways that lost one broker together don't all come
 back in the same instant.
+
+The TLS context is built once, from the files named in the configuration, and then shared by
+every attempt. A file that exists but isn't what it should be (validation only checks that it can
+be read) is a `TlsSettingsError` naming the key: the bridge says so loudly and tries again later,
+so a certificate put right on disk is picked up without a restart.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import ssl
 import aiomqtt
 
 from gateway.config import GatewayConfig, MqttConfig
+from gateway.errors import GatewayError
 from gateway.mqtt.topics import Topics
 
 ONLINE = json.dumps({"state": "online"}, separators=(",", ":"))
@@ -30,16 +36,59 @@ def client_id(config: GatewayConfig) -> str:
     return config.mqtt.client_id or f"invt-gateway-{config.gateway_id}"
 
 
+class TlsSettingsError(GatewayError):
+    """A TLS file of the configuration can't be used; `key` names it (`mqtt.ca_file`)."""
+
+    def __init__(self, key: str, path: str | None, reason: str) -> None:
+        super().__init__(f"{key} ({path}): {reason}")
+        self.key = key
+        self.reason = reason
+
+
+class _PassphraseNeeded(Exception):
+    pass
+
+
+def _no_passphrase() -> str:
+    # Without a callback OpenSSL would prompt on the terminal, blocking the event loop.
+    raise _PassphraseNeeded
+
+
 def tls_context(mqtt: MqttConfig) -> ssl.SSLContext | None:
+    """The client's TLS context, or None without TLS. Raises TlsSettingsError."""
     if not mqtt.tls:
         return None
-    context = ssl.create_default_context(cafile=mqtt.ca_file)
+    try:
+        context = ssl.create_default_context(cafile=mqtt.ca_file)
+    except (ssl.SSLError, OSError) as exc:
+        key = "mqtt.ca_file" if mqtt.ca_file is not None else "the system's CA certificates"
+        raise TlsSettingsError(key, mqtt.ca_file, _reason(exc, "no CA certificate")) from None
     if mqtt.cert_file is not None:
-        context.load_cert_chain(mqtt.cert_file, mqtt.key_file)
+        key = "mqtt.cert_file" if mqtt.key_file is None else "mqtt.cert_file/mqtt.key_file"
+        path = mqtt.cert_file if mqtt.key_file is None else f"{mqtt.cert_file}, {mqtt.key_file}"
+        try:
+            context.load_cert_chain(mqtt.cert_file, mqtt.key_file, password=_no_passphrase)
+        except _PassphraseNeeded:
+            reason = "the private key is encrypted: give it without a passphrase"
+            raise TlsSettingsError(key, path, reason) from None
+        except (ssl.SSLError, OSError) as exc:
+            reason = _reason(exc, "not a PEM certificate and its private key")
+            raise TlsSettingsError(key, path, reason) from None
     return context
 
 
-def make_client(config: GatewayConfig, topics: Topics) -> aiomqtt.Client:
+def _reason(exc: ssl.SSLError | OSError, hint: str) -> str:
+    if not isinstance(exc, ssl.SSLError):
+        return str(exc.strerror or exc).lower()  # "no such file or directory": it went away
+    # OpenSSL's "PEM lib" says nothing to a person: say what the file should have been.
+    text = str(exc.reason or exc.strerror or exc)
+    return hint if "PEM lib" in text else f"{hint} ({text.replace('_', ' ').lower()})"
+
+
+def make_client(
+    config: GatewayConfig, topics: Topics, tls: ssl.SSLContext | None
+) -> aiomqtt.Client:
+    """A fresh client for one connection attempt; `tls` from `tls_context`, built once."""
     mqtt = config.mqtt
     assert mqtt is not None
     return aiomqtt.Client(
@@ -55,7 +104,7 @@ def make_client(config: GatewayConfig, topics: Topics) -> aiomqtt.Client:
         clean_session=True,
         keepalive=mqtt.keepalive_s,
         timeout=CONNECT_TIMEOUT_S,
-        tls_context=tls_context(mqtt),
+        tls_context=tls,
     )
 
 

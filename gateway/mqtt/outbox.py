@@ -4,6 +4,11 @@ The poller must never wait for the broker (it may be down for hours), so handing
 call that returns at once. States and availabilities are kept per drive, the newest replacing the
 older (only the newest matters, and there are as many as drives: bounded by nature). Events are
 each worth telling, so they queue, up to `max_events`; past that the oldest is dropped and counted.
+
+What the bridge took but could not publish (the connection broke halfway) it hands back with
+`restore`: events go back in front, in their order, so a `fault_raised` is late rather than lost;
+a state or availability goes back unless a newer one came meanwhile. Only an overflowing queue
+drops an event.
 """
 
 from __future__ import annotations
@@ -37,7 +42,7 @@ class OutboxStats:
 class Pending:
     states: dict[str, Telemetry] = field(default_factory=dict)
     availability: dict[str, bool] = field(default_factory=dict)
-    events: list[DriveEvent] = field(default_factory=list)
+    events: deque[DriveEvent] = field(default_factory=deque)
 
     def __bool__(self) -> bool:
         return bool(self.states or self.availability or self.events)
@@ -65,16 +70,8 @@ class Outbox:
 
     def put_event(self, event: DriveEvent) -> None:
         self.stats.events += 1
-        if len(self._events) >= self._max_events:
-            self._events.popleft()
-            self.stats.events_dropped += 1
-            if self.stats.events_dropped % DROP_LOG_EVERY == 1:
-                log.warning(
-                    "MQTT: %d events waiting for the broker (queue_size): %d dropped so far",
-                    self._max_events,
-                    self.stats.events_dropped,
-                )
         self._events.append(event)
+        self._drop_overflow()
         self._ready.set()
 
     async def wait(self, timeout_s: float) -> None:
@@ -85,8 +82,30 @@ class Outbox:
                     await self._ready.wait()
 
     def take(self) -> Pending:
-        pending = Pending(self._states, self._availability, list(self._events))
-        self._states, self._availability = {}, {}
-        self._events.clear()
+        pending = Pending(self._states, self._availability, self._events)
+        self._states, self._availability, self._events = {}, {}, deque()
         self._ready.clear()
         return pending
+
+    def restore(self, unsent: Pending) -> None:
+        """Hand back what was taken but not published: it goes out first next time."""
+        # Older than anything put since: in front, in their order.
+        self._events.extendleft(reversed(unsent.events))
+        self._drop_overflow()
+        for drive, telemetry in unsent.states.items():
+            self._states.setdefault(drive, telemetry)  # a newer state wins
+        for drive, online in unsent.availability.items():
+            self._availability.setdefault(drive, online)
+        if self._states or self._availability or self._events:
+            self._ready.set()
+
+    def _drop_overflow(self) -> None:
+        while len(self._events) > self._max_events:
+            self._events.popleft()  # the oldest: the newest tell the current story
+            self.stats.events_dropped += 1
+            if self.stats.events_dropped % DROP_LOG_EVERY == 1:
+                log.warning(
+                    "MQTT: %d events waiting for the broker (queue_size): %d dropped so far",
+                    self._max_events,
+                    self.stats.events_dropped,
+                )

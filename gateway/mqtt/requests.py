@@ -33,18 +33,17 @@ from gateway.profile import (
     control_command,
     format_register,
     is_parameter_register,
+    is_ram_address,
     parameter_at,
     parse_register,
-    ram_address,
     register_at,
     register_by_name,
 )
 from gateway.profile.addressing import RAM_BIT
+from gateway.profile.ram_writes import ram_write_address
 
 CONTROL_WORD: Final = register_by_name("control_word")
 FREQUENCY_SETPOINT: Final = register_by_name("frequency_setpoint")
-MAX_READ_WORDS: Final = 16
-"""An INVT drive reads at most 16 words in one request (03H)."""
 MILLISECONDS_EPOCH: Final = 1e11
 """A `time` above this is taken as milliseconds (JavaScript's Date.now()), not seconds."""
 
@@ -81,11 +80,6 @@ class RegisterWrite:
         count = len(self.words)
         header = struct.pack(">BHHB", WRITE_MULTIPLE_REGISTERS, self.start, count, 2 * count)
         return header + struct.pack(f">{count}H", *self.words)
-
-    @property
-    def plain_start(self) -> int:
-        """The register the write changes (a RAM-only address names the same parameter)."""
-        return self.start & ~RAM_BIT if is_parameter_register(self.start) else self.start
 
 
 @dataclass(frozen=True, slots=True)
@@ -149,6 +143,23 @@ def check_age(message: Json, max_age_s: float, now: float) -> None:
         )
 
 
+def check_waited(received_at: float, max_age_s: float, now: float) -> None:
+    """Refuse a command that waited in the gateway longer than `max_age_s` before it could start.
+
+    `time` is optional (Home Assistant's buttons send none), so the sender's clock can't be the
+    only guard: a `run_forward` pressed while this drive's earlier commands were stuck must not
+    run minutes later, when the queue clears and the plant may be in another state.
+    `received_at` and `now` are monotonic.
+    """
+    waited = now - received_at
+    if waited > max_age_s:
+        raise CommandRefused(
+            "stale",
+            f"waited {waited:.1f} s in the gateway behind earlier requests, more than "
+            f"{max_age_s:g} s: refused",
+        )
+
+
 def _epoch(sent: Any) -> float:
     if isinstance(sent, bool):
         raise CommandRefused("invalid_request", "time must be epoch seconds or ISO 8601")
@@ -167,9 +178,9 @@ def _epoch(sent: Any) -> float:
     raise CommandRefused("invalid_request", "time must be epoch seconds or ISO 8601")
 
 
-def parse_set(message: Json, profile: DriveProfile, ram_by_route: bool) -> RegisterWrite:
+def parse_set(message: Json, profile: DriveProfile) -> RegisterWrite:
     """A `<drive>/set` payload: a control command (with a set-point), a set-point alone, or a
-    parameter write. `ram_by_route`: the router already sends parameter writes to RAM."""
+    parameter write."""
     check_keys(message, SET_KEYS)
     has_command = "command" in message
     has_frequency = "frequency_hz" in message
@@ -179,7 +190,7 @@ def parse_set(message: Json, profile: DriveProfile, ram_by_route: bool) -> Regis
             "invalid_request", "one message is a command or a parameter write, not both"
         )
     if has_write:
-        return parse_write(message, profile, ram_by_route)
+        return parse_write(message, profile)
     if not has_command and not has_frequency:
         raise CommandRefused(
             "invalid_request", "nothing to do: give command, frequency_hz or parameter"
@@ -217,7 +228,7 @@ def _frequency(value: Any) -> int:
         raise CommandRefused("invalid_value", str(exc)) from None
 
 
-def parse_write(message: Json, profile: DriveProfile, ram_by_route: bool) -> RegisterWrite:
+def parse_write(message: Json, profile: DriveProfile) -> RegisterWrite:
     address, spelled = _address(message)
     has_value, has_raw = "value" in message, "raw" in message
     if has_value == has_raw:
@@ -240,25 +251,31 @@ def parse_write(message: Json, profile: DriveProfile, ram_by_route: bool) -> Reg
         echo["value"] = message["value"]
     start = address
     if ram_only:
-        start = _ram_target(address, spelled, profile, ram_by_route)
+        start = _ram_target(address, spelled, profile)
         echo["ram_only"] = True
     return RegisterWrite(start, (raw,), echo)
 
 
-def _ram_target(address: int, spelled: str, profile: DriveProfile, ram_by_route: bool) -> int:
+def _ram_target(address: int, spelled: str, profile: DriveProfile) -> int:
     if not profile.ram_writes_supported:
         raise CommandRefused("invalid_request", f"{profile.display_name} has no RAM-only writes")
-    if register_at(address) is not None or not is_parameter_register(address):
+    # The profile's one rule, the same the router applies to a drive with `ram_writes: true`
+    # (which then leaves this address alone: it is already the RAM-only one).
+    ram = ram_write_address(address)
+    if not is_ram_address(ram):
         raise CommandRefused("invalid_request", f"{spelled} is not a parameter: no RAM-only write")
-    # The router turns parameter writes into RAM writes for this drive already.
-    return address if ram_by_route else ram_address(address & ~RAM_BIT)
+    return ram
 
 
-def parse_read(message: Json) -> RegisterRead:
+def parse_read(message: Json, max_count: int) -> RegisterRead:
+    """`max_count`: the most words one read of this drive may ask for (the drive's word limit,
+    or Modbus's own when the router splits longer reads for it)."""
     address, spelled = _address(message)
     count = message.get("count", 1)
-    if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= MAX_READ_WORDS:
-        raise CommandRefused("invalid_request", f"count must be 1..{MAX_READ_WORDS}")
+    if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= max_count:
+        raise CommandRefused("invalid_request", f"count must be 1..{max_count}")
+    if address + count > 0x10000:
+        raise CommandRefused("invalid_request", f"count {count} from {spelled} passes FFFFH")
     decimals = _decimals(message, address)
     communication = register_at(address)
     signed = communication is not None and communication.signed

@@ -5,10 +5,13 @@ read is always served before any waiting poll, so a burst of polls never delays 
 Each answer is stored in the register cache and in the drive's state; listeners (the MQTT bridge)
 hear of every new state and event through plain calls that must not block.
 
-A drive that stops answering is offline: after `OFFLINE_AFTER_FAILED_POLLS` failed polls, or at
-once when its bus says so (the bus then answers its requests 0x0B without bus time). Its polls
-then back off, doubling up to `OFFLINE_POLL_MAX_S`, and it is polled at once when the bus's probe
-finds it back.
+Whether a drive is online is the bus's call, not the poller's: the bus counts every failed
+transaction to the drive (SCADA's too) against its `offline_after` and tells its listeners
+(`on_drive_health`); /health reads the same tracker, so MQTT availability and /health always
+agree. A failed poll the bus doesn't count as the drive going offline changes nothing here; an
+answered poll marks the drive online. An offline drive's polls back off, doubling up to
+`OFFLINE_POLL_MAX_S` (they cost no bus time: the bus answers 0x0B at once), and it is polled at
+once when the bus's probe finds it back.
 """
 
 from __future__ import annotations
@@ -22,10 +25,10 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Final, Protocol
 
-from gateway.bus import BusState, Priority
+from gateway.bus import Priority
 from gateway.cache import RegisterCache
 from gateway.config import DriveConfig
-from gateway.errors import DriveOffline, GatewayPathUnavailable, GatewayTargetFailed
+from gateway.errors import BusClosed, DriveOffline, GatewayPathUnavailable, GatewayTargetFailed
 from gateway.modbus.functions import READ_HOLDING_REGISTERS, is_exception
 from gateway.poller.drive_state import DriveEvent, DriveState
 from gateway.poller.plan import PollBlock, PollSchedule, poll_schedules
@@ -37,7 +40,6 @@ from gateway.tasks import cancel_and_wait
 log = logging.getLogger(__name__)
 
 POLL_CLIENT: Final = "poll"
-OFFLINE_AFTER_FAILED_POLLS: Final = 3
 OFFLINE_POLL_MAX_S: Final = 30.0
 STOP_BUDGET_S: Final = 0.5
 
@@ -67,6 +69,7 @@ class PolledDrive:
     wake: asyncio.Event = field(default_factory=asyncio.Event)
     polls: int = 0
     failed_polls: int = 0
+    """In a row, for diagnostics: whether the drive is offline is its bus's call."""
     offline_backoff: int = 0
     reported_exceptions: set[tuple[int, int]] = field(default_factory=set)
 
@@ -119,7 +122,7 @@ class Poller:
         else:
             self._set_online(drive, False)
 
-    def after_write(self, name: str, start: int, count: int) -> None:
+    def after_write(self, name: str) -> None:
         """A command wrote to the drive: forget the cached words and poll it again now."""
         self.cache.invalidate(name)
         drive = self.drives.get(name)
@@ -201,13 +204,14 @@ class Poller:
                 priority=Priority.POLL,
                 use_cache=False,
             )
+        except BusClosed:
+            return False  # shutting down: not the drive's failure, nothing to count
         except DriveOffline:
-            self._poll_failed(drive, offline=True)
+            self._poll_failed(drive, offline_on_bus=True)
             return False
         except GatewayTargetFailed as exc:
             log.debug("poll of %s at %s: %s", config.name, format_register(block.start), exc)
-            if self.router.route_for_drive(config.name).bus.state is not BusState.CLOSED:
-                self._poll_failed(drive, offline=False)  # shutting down is not the drive's fault
+            self._poll_failed(drive, offline_on_bus=False)
             return False
         except GatewayPathUnavailable as exc:
             # Queue full: the bus is busy with more urgent work; the next interval tries again.
@@ -234,12 +238,14 @@ class Poller:
         for listener in self._listeners:
             listener.state_updated(drive.config.name, telemetry)
 
-    def _poll_failed(self, drive: PolledDrive, *, offline: bool) -> None:
+    def _poll_failed(self, drive: PolledDrive, *, offline_on_bus: bool) -> None:
         self.poll_failures += 1
         drive.failed_polls += 1
         if drive.state.online is False:
             drive.offline_backoff = min(drive.offline_backoff + 1, 16)
-        elif offline or drive.failed_polls >= OFFLINE_AFTER_FAILED_POLLS:
+        elif offline_on_bus:
+            # The bus has isolated it (its listener call usually came first): agree with it.
+            # A poll that merely failed is one of the bus's `offline_after`, not a verdict.
             self._set_online(drive, False)
 
     def _set_online(self, drive: PolledDrive, online: bool) -> None:
