@@ -20,7 +20,7 @@ from typing import Protocol
 from gateway.bus import Bus, BusSettings
 from gateway.bus.line import LineSettings
 from gateway.cache import RegisterCache
-from gateway.config import BusConfig, DriveConfig, GatewayConfig
+from gateway.config import AccessRuleConfig, BusConfig, DriveConfig, GatewayConfig
 from gateway.health import Phase
 from gateway.modbus.timing import CharacterFormat
 from gateway.profile import get_profile
@@ -28,6 +28,7 @@ from gateway.profile.ram_writes import ram_write_address
 from gateway.router import Route, Router
 from gateway.tasks import cancel_and_wait
 from gateway.tcp import ModbusTcpServer, TcpSettings
+from gateway.tcp.access import AccessRule, merge_spans
 
 log = logging.getLogger(__name__)
 
@@ -85,6 +86,19 @@ def drive_route(drive: DriveConfig, bus: Bus) -> Route:
     )
 
 
+def access_rule(config: AccessRuleConfig, index: int) -> AccessRule:
+    spans = None
+    if config.registers is not None:
+        spans = merge_spans(span for entry in config.registers for span in entry.spans)
+    return AccessRule(
+        allow=config.allow,
+        unit_ids=None if config.unit_ids is None else frozenset(config.unit_ids),
+        functions=None if config.functions is None else frozenset(config.functions),
+        spans=spans,
+        label=config.name or f"access[{index}]",
+    )
+
+
 class Application:
     def __init__(self, config: GatewayConfig) -> None:
         self.config = config
@@ -106,6 +120,7 @@ class Application:
                 broadcast_reply=tcp.broadcast_reply,
                 allowed_networks=tcp.allowed_networks,
                 read_only=tcp.read_only,
+                access=tuple(access_rule(r, i) for i, r in enumerate(tcp.access)),
             ),
             self._handle_tcp,
         )

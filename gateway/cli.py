@@ -20,6 +20,7 @@ COMMAND_MODULES = (
     "gateway.commands.demo",
     "gateway.commands.simulate",
     "gateway.commands.bench",
+    "gateway.commands.stress",
     "gateway.commands.scan",
     "gateway.commands.read",
     "gateway.commands.write",

@@ -2,21 +2,34 @@
 
 The key names are a public interface (users' files depend on them): add, never rename. A file that
 doesn't validate raises ConfigError naming each key path and the reason; the service doesn't start.
-Secrets can come from the environment instead of the file (see `ENV_MQTT_PASSWORD`).
+Secrets can come from the environment instead of the file (`ENV_MQTT_USERNAME`,
+`ENV_MQTT_PASSWORD`).
 """
 
 from __future__ import annotations
 
 import ipaddress
 import os
+import re
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    PlainValidator,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from gateway.errors import ConfigError
 
+ENV_MQTT_USERNAME = "INVT_GATEWAY_MQTT_USERNAME"
 ENV_MQTT_PASSWORD = "INVT_GATEWAY_MQTT_PASSWORD"
 STANDARD_BAUDRATES = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200)
 
@@ -24,6 +37,96 @@ STANDARD_BAUDRATES = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200)
 class Section(BaseModel):
     # An unknown key is almost always a typo that would silently do nothing: refuse it.
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+@dataclass(frozen=True, slots=True)
+class RegisterRange:
+    """One entry of an access rule's `registers`: "2000H-2001H", "P00.00-P00.15", "2100H", 8192."""
+
+    first: int
+    last: int
+    parameters: bool
+    """Spelled as parameters (Pxx.yy): the range also covers their RAM-only addresses (8xxxH),
+    which write the same parameters without the EEPROM."""
+
+    @property
+    def spans(self) -> tuple[tuple[int, int], ...]:
+        if not self.parameters:
+            return ((self.first, self.last),)
+        from gateway.profile.addressing import RAM_BIT
+
+        return (self.first, self.last), (self.first | RAM_BIT, self.last | RAM_BIT)
+
+
+def _register_range(value: object) -> RegisterRange:
+    from gateway.profile.addressing import is_parameter_register, parse_register
+
+    if isinstance(value, RegisterRange):
+        return value
+    if isinstance(value, bool) or not isinstance(value, int | str):
+        raise ValueError(f"{value!r}: write a register or a range, e.g. 2000H-2001H")
+    if isinstance(value, int):
+        if not 0 <= value <= 0xFFFF:
+            raise ValueError(f"register {value} is outside 0..65535 (0000H..FFFFH)")
+        return RegisterRange(value, value, False)
+    ends = [end.strip() for end in value.split("-")]
+    if len(ends) > 2 or not all(ends):
+        raise ValueError(f"{value!r}: write one register or FIRST-LAST, e.g. 2000H-2001H")
+    try:
+        first, last = parse_register(ends[0]), parse_register(ends[-1])
+    except ValueError as exc:
+        raise ValueError(f"{value!r}: {exc}") from None
+    if first > last:
+        raise ValueError(f"{value!r}: the first register comes after the last")
+    parameters = all(_PARAMETER_NAME.fullmatch(end) for end in ends)
+    if parameters and not all(map(is_parameter_register, (first, last))):
+        raise ValueError(f"{value!r} is not a parameter range")
+    return RegisterRange(first, last, parameters)
+
+
+_PARAMETER_NAME = re.compile(r"P\d{1,2}\.\d{1,2}", re.IGNORECASE)
+
+
+def _function_code(value: object) -> object:
+    """16, "10H" or "0x10" (function codes are usually written in hex)."""
+    if isinstance(value, str):
+        text = value.strip()
+        try:
+            if text[-1:] in "hH" and text[:-1]:
+                return int(text[:-1], 16)
+            if text.lower().startswith("0x"):
+                return int(text, 16)
+        except ValueError:
+            pass
+    return value
+
+
+UnitId = Annotated[int, Field(ge=0, le=255)]
+FunctionCode = Annotated[int, BeforeValidator(_function_code), Field(ge=1, le=127)]
+Registers = Annotated[RegisterRange, PlainValidator(_register_range)]
+
+
+class AccessRuleConfig(Section):
+    """One rule of `modbus_tcp.access`: the first rule that matches a request decides."""
+
+    name: str | None = Field(None, min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
+    """Shown in logs and metrics (`rule` label); default `access[INDEX]`."""
+    unit_ids: tuple[UnitId, ...] | None = None
+    """The rule applies to these unit ids (0: broadcast); left out: to every unit id."""
+    functions: tuple[FunctionCode, ...] | None = None
+    """... to these function codes (3, "10H", "0x10"); left out: to every function code."""
+    registers: tuple[Registers, ...] | None = None
+    """... to requests for these registers (03H 04H 06H 10H 16H 17H): an allowing rule when every
+    register of the request is inside, a refusing rule when any one is. Left out: any request."""
+    allow: bool
+    """True lets a matching request through, false refuses it (01H, or 02H for its registers)."""
+
+    @field_validator("unit_ids", "functions", "registers")
+    @classmethod
+    def _not_empty(cls, value: tuple[object, ...] | None) -> tuple[object, ...] | None:
+        if value is not None and not value:
+            raise ValueError("an empty list matches nothing: leave the key out to match all")
+        return value
 
 
 class ModbusTcpConfig(Section):
@@ -40,6 +143,9 @@ class ModbusTcpConfig(Section):
     """Client networks (CIDR) allowed to connect; empty allows every client."""
     read_only: bool = False
     """Refuse every write function code with exception 01H."""
+    access: tuple[AccessRuleConfig, ...] = ()
+    """Rules by unit id, function code and register; the first that matches decides, a request
+    no rule matches is allowed. End with `{allow: false}` to refuse everything not listed."""
 
     @field_validator("allowed_networks")
     @classmethod
@@ -145,7 +251,8 @@ class MqttConfig(Section):
     publish_interval_s: float = Field(60.0, gt=0)
     """A drive's state is published on change and at least this often."""
     command_max_age_s: float = Field(10.0, gt=0)
-    """A command whose `time` is older than this is refused (it sat in a queue somewhere)."""
+    """A command whose `time` is older than this is refused (it sat in a queue somewhere), and
+    so is one that waited longer than this in the gateway before its turn came."""
     commands_enabled: bool = True
     """False: monitoring only, every command on MQTT is refused (`set`, `write_parameter`);
     reads (`get`, `read_parameter`) are still answered."""
@@ -160,6 +267,24 @@ class MqttConfig(Section):
         if any(c in value for c in "#+") or value.startswith("/") or value.endswith("/"):
             raise ValueError("no '#', '+', or leading/trailing '/' in a base topic")
         return value
+
+    @field_validator("ca_file", "cert_file", "key_file")
+    @classmethod
+    def _readable(cls, value: str | None) -> str | None:
+        # Found now rather than at the first connection attempt, retried in the background.
+        if value is not None and not os.access(value, os.R_OK):
+            reason = "no such file" if not os.path.exists(value) else "not readable"
+            raise ValueError(f"{value}: {reason}")
+        return value
+
+    @model_validator(mode="after")
+    def _tls_files(self) -> MqttConfig:
+        files = [k for k in ("ca_file", "cert_file", "key_file") if getattr(self, k) is not None]
+        if files and not self.tls:
+            raise ValueError(f"{', '.join(files)} given but tls is false: set tls: true")
+        if self.key_file is not None and self.cert_file is None:
+            raise ValueError("key_file without cert_file: give the client certificate too")
+        return self
 
 
 class MetricsConfig(Section):
@@ -194,6 +319,7 @@ class GatewayConfig(Section):
         _unique(problems, "drives", "unit_id", [(d.name, d.effective_unit_id) for d in drives])
         _unique(problems, "drives", "address", [(d.name, (d.bus, d.address)) for d in drives])
         bus_names = {b.name for b in self.buses}
+        problems += _access_unit_problems(self)
         for index, drive in enumerate(self.drives):
             if drive.bus not in bus_names:
                 known = ", ".join(sorted(bus_names))
@@ -207,6 +333,22 @@ class GatewayConfig(Section):
 
     def drive_by_unit_id(self) -> dict[int, DriveConfig]:
         return {d.effective_unit_id: d for d in self.drives}
+
+
+def _access_unit_problems(config: GatewayConfig) -> list[str]:
+    """A rule naming a unit id no drive has is most likely a typo that would protect nothing."""
+    known = {d.effective_unit_id for d in config.drives}
+    shown = ", ".join(map(str, sorted(known))) or "none"
+    problems = []
+    for index, rule in enumerate(config.modbus_tcp.access):
+        label = f" ({rule.name})" if rule.name else ""
+        for unit_id in rule.unit_ids or ():
+            if unit_id != 0 and unit_id not in known:
+                problems.append(
+                    f"modbus_tcp.access[{index}]{label}.unit_ids: no drive has unit id "
+                    f"{unit_id} (drives: {shown}; 0 is broadcast)"
+                )
+    return problems
 
 
 def _unique(
@@ -251,10 +393,16 @@ def parse_config(text: str, source: str = "<config>") -> GatewayConfig:
 
 
 def _apply_environment(data: dict[str, Any]) -> dict[str, Any]:
-    password = os.environ.get(ENV_MQTT_PASSWORD)
-    if password is not None and isinstance(data.get("mqtt"), dict):
-        data = {**data, "mqtt": {**data["mqtt"], "password": password}}
-    return data
+    """The broker's credentials from the environment win over the file's (systemd's
+    EnvironmentFile, Docker's --env-file: kept out of a file others may read)."""
+    if not isinstance(data.get("mqtt"), dict):
+        return data
+    mqtt = dict(data["mqtt"])
+    for key, variable in (("username", ENV_MQTT_USERNAME), ("password", ENV_MQTT_PASSWORD)):
+        value = os.environ.get(variable)
+        if value is not None:
+            mqtt[key] = value
+    return {**data, "mqtt": mqtt}
 
 
 def _problems(exc: ValidationError, data: dict[str, Any]) -> list[tuple[str, str]]:

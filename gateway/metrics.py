@@ -41,6 +41,7 @@ from gateway.config import GatewayConfig
 from gateway.health import Phase, health_report
 from gateway.http_endpoint import HttpEndpoint, Response
 from gateway.router import Router
+from gateway.tcp.access import AccessPolicy
 from gateway.tcp.server import ModbusTcpServer, TcpStats
 
 log = logging.getLogger(__name__)
@@ -154,6 +155,8 @@ class GatewayCollector(Collector):
         yield from self._buses()
         yield from self._drives()
         yield from self._tcp(self.service.tcp.stats)
+        if self.service.tcp.access is not None:
+            yield self._access(self.service.tcp.access)
 
     def _gateway(self) -> Iterable[GaugeMetricFamily | InfoMetricFamily]:
         info = InfoMetricFamily(f"{PREFIX}_build", "Version and id of this gateway")
@@ -264,6 +267,16 @@ class GatewayCollector(Collector):
         for name, doc in _TCP_COUNTERS.items():
             yield CounterMetricFamily(f"{PREFIX}_tcp_{name}", doc, value=getattr(stats, name))
 
+    def _access(self, access: AccessPolicy) -> CounterMetricFamily:
+        denied = CounterMetricFamily(
+            f"{PREFIX}_tcp_denied_by_rule",
+            "Modbus-TCP requests refused by each modbus_tcp.access rule",
+            labels=["rule"],
+        )
+        for rule, count in zip(access.rules, list(access.denied), strict=True):
+            denied.add_metric([rule.label], count)
+        return denied
+
     def _name(self, bus: str, address: int) -> str:
         if address == 0:
             return BROADCAST
@@ -301,7 +314,7 @@ _TCP_COUNTERS = {
     "exceptions": "Modbus-TCP requests answered with an exception",
     "malformed": "Connections closed for a malformed MBAP frame",
     "idle_closed": "Connections closed after the idle timeout",
-    "denied": "Writes refused because modbus_tcp.read_only is set",
+    "denied": "Requests refused by modbus_tcp.read_only or modbus_tcp.access",
 }
 
 

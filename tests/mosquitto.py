@@ -215,8 +215,13 @@ def _matches(received: Received, match: Callable[[Any], bool]) -> bool:
 
 
 @contextlib.asynccontextmanager
-async def mqtt_probe(broker: BrokerAddress, *subscriptions: str) -> AsyncIterator[MqttProbe]:
-    client = aiomqtt.Client(broker.host, broker.port, identifier=f"probe-{uuid.uuid4().hex[:8]}")
+async def mqtt_probe(
+    broker: BrokerAddress, *subscriptions: str, **connect: Any
+) -> AsyncIterator[MqttProbe]:
+    """`connect`: more of aiomqtt.Client's arguments (tls_context, username, password)."""
+    client = aiomqtt.Client(
+        broker.host, broker.port, identifier=f"probe-{uuid.uuid4().hex[:8]}", **connect
+    )
     async with client:
         for topic in subscriptions:
             await client.subscribe(topic, qos=1)
@@ -228,3 +233,81 @@ async def mqtt_probe(broker: BrokerAddress, *subscriptions: str) -> AsyncIterato
             task.cancel()
             with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
                 await task
+
+
+class BrokerProxy:
+    """A TCP relay in front of a broker, to break a client's connection at an exact point.
+
+    `freeze()` holds back everything clients send (kept in `held`, never forwarded: a publish
+    then waits for its acknowledgement); `cut()` closes every connection through the relay and
+    lets new ones pass normally again. The broker and everyone connected to it directly notice
+    nothing.
+    """
+
+    def __init__(self, broker: BrokerAddress) -> None:
+        self.broker = broker
+        self.host = "127.0.0.1"
+        self.port = 0
+        self.held = b""
+        self._frozen = False
+        self._held_changed = asyncio.Event()
+        self._server: asyncio.Server | None = None
+        self._writers: list[asyncio.StreamWriter] = []
+        self._tasks: set[asyncio.Task[None]] = set()
+
+    async def __aenter__(self) -> BrokerProxy:
+        self._server = await asyncio.start_server(self._relay, self.host, 0)
+        self.port = self._server.sockets[0].getsockname()[1]
+        return self
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        assert self._server is not None
+        self._server.close()
+        self.cut()
+        for task in list(self._tasks):
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        await self._server.wait_closed()
+
+    def freeze(self) -> None:
+        self._frozen = True
+        self.held = b""
+
+    def cut(self) -> None:
+        self._frozen = False
+        for writer in self._writers:
+            writer.transport.abort()  # a reset, as a broken cable or a dead router would give
+        self._writers.clear()
+
+    async def wait_held(self, needle: bytes, timeout_s: float = 10.0) -> None:
+        """Until a frozen client has sent `needle`."""
+        async with asyncio.timeout(timeout_s):
+            while needle not in self.held:
+                self._held_changed.clear()
+                await self._held_changed.wait()
+
+    async def _relay(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        broker_reader, broker_writer = await asyncio.open_connection(
+            self.broker.host, self.broker.port
+        )
+        self._writers += [writer, broker_writer]
+        for source, sink, outgoing in (
+            (reader, broker_writer, True),
+            (broker_reader, writer, False),
+        ):
+            task = asyncio.create_task(self._pump(source, sink, outgoing), name="broker-proxy")
+            self._tasks.add(task)
+            task.add_done_callback(self._tasks.discard)
+
+    async def _pump(
+        self, source: asyncio.StreamReader, sink: asyncio.StreamWriter, outgoing: bool
+    ) -> None:
+        with contextlib.suppress(OSError):
+            while data := await source.read(65536):
+                if outgoing and self._frozen:
+                    self.held += data
+                    self._held_changed.set()
+                    continue
+                sink.write(data)
+                await sink.drain()
+        sink.transport.abort()

@@ -23,7 +23,36 @@ def handle(args: argparse.Namespace) -> int:
         return EXIT_CONFIG
     print(f"{args.config}: valid")
     print(routing_table(config))
+    if config.modbus_tcp.access:
+        print()
+        print(access_table(config))
     return EXIT_OK
+
+
+def access_table(config: GatewayConfig) -> str:
+    """The access rules as the gateway reads them: what each one matches, in order."""
+    lines = ["Modbus-TCP access (first matching rule decides; no match: allowed):"]
+    for index, rule in enumerate(config.modbus_tcp.access):
+        units = "any unit id" if rule.unit_ids is None else "unit ids " + _listed(rule.unit_ids)
+        functions = (
+            "any function"
+            if rule.functions is None
+            else "functions " + ", ".join(f"{f:02X}H" for f in rule.functions)
+        )
+        registers = ""
+        if rule.registers is not None:
+            spans = [span for entry in rule.registers for span in entry.spans]
+            registers = ", registers " + ", ".join(
+                f"{a:04X}H" if a == b else f"{a:04X}H-{b:04X}H" for a, b in spans
+            )
+        verdict = "allow" if rule.allow else "refuse"
+        name = rule.name or f"access[{index}]"
+        lines.append(f"  {index + 1}. {verdict:6} {units}, {functions}{registers}  ({name})")
+    return "\n".join(lines)
+
+
+def _listed(values: tuple[int, ...]) -> str:
+    return ", ".join(map(str, values))
 
 
 def routing_table(config: GatewayConfig) -> str:

@@ -1,6 +1,7 @@
 """`invt-gateway simulate`: a line of simulated INVT drives on a pty (or a serial device).
 
     invt-gateway simulate --pty --address 1 --address 2 [--link /tmp/ttyINVT]
+    invt-gateway simulate --pty --address 1 --line-faults 0.05 --late-reply-ms 100
 
 The first line on stdout is the device path to point the gateway at. It serves until SIGTERM or
 SIGINT (exit 0). When stdin is not a terminal, it takes control commands there, one per line
@@ -23,6 +24,7 @@ from gateway.cli import EXIT_FAILURE, EXIT_OK
 from gateway.profile.invt import PROFILES
 from gateway.simulator.control import run_control_command
 from gateway.simulator.line import SimulatedLine
+from gateway.simulator.line_faults import KINDS
 
 PARITIES = ("N", "E", "O")
 INVT_MODELS = tuple(key for key, profile in PROFILES.items() if profile.is_invt)
@@ -65,6 +67,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--fault-history", type=_history, action="append", default=[],
         metavar="ADDR=CODE,CODE,...", help="P07.27-P07.32 of a drive, newest first",
+    )
+    parser.add_argument(
+        "--line-faults", type=_rate, default=0.0, metavar="RATE",
+        help="spoil this share of the replies (0.05: 5 %%), as a noisy line would",
+    )
+    parser.add_argument(
+        "--line-fault-kinds", type=_kinds, default=None, metavar="KIND,...",
+        help=f"which ways to spoil them (default all: {','.join(sorted(KINDS))})",
+    )
+    parser.add_argument("--line-fault-seed", type=int, default=None, metavar="N",
+                        help="the same seed spoils the same replies")
+    parser.add_argument(
+        "--late-reply-ms", type=float, default=500.0, metavar="MS",
+        help="how much later than due a 'late' reply comes (default 500)",
     )
 
 
@@ -109,6 +125,10 @@ def build_line(args: argparse.Namespace) -> SimulatedLine:
         line.inject_fault(address, code)
     for address in args.dead:
         line.set_dead(address, True)
+    if args.line_faults:
+        line.set_line_faults(
+            args.line_faults, args.line_fault_kinds, args.line_fault_seed, args.late_reply_ms
+        )
     return line
 
 
@@ -170,6 +190,21 @@ def _address(text: str) -> int:
     if not 1 <= value <= 247:
         raise argparse.ArgumentTypeError(f"drive address {value} is outside 1..247")
     return value
+
+
+def _rate(text: str) -> float:
+    value = float(text)
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"fault rate {value} is outside 0..1")
+    return value
+
+
+def _kinds(text: str) -> list[str]:
+    kinds = [kind.strip() for kind in text.split(",") if kind.strip()]
+    unknown = set(kinds) - KINDS
+    if unknown or not kinds:
+        raise argparse.ArgumentTypeError(f"line fault kinds are {', '.join(sorted(KINDS))}")
+    return kinds
 
 
 def _pair(text: str) -> tuple[int, int]:

@@ -7,19 +7,28 @@ is ready, in any order. Several frames in one TCP segment are all answered. A ma
 closes that connection only: after a bad length nothing on the stream can be trusted to start a
 frame. A Protocol rather than streams: no task or timer per read, which is most of the CPU a
 request costs here.
+
+What one client can cost the others is bounded: `max_requests_per_connection` requests in flight
+(then its socket is not read), a client that stops reading its answers is not read either (its
+answers wait in a buffer no larger than those requests' replies), a half-sent frame is given
+`PARTIAL_FRAME_TIMEOUT_S`, silence `idle_timeout_s`, and `max_connections` caps the rest. Access
+rules (`gateway.tcp.access`) are checked in `reply()`, where every refusal becomes its exception.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import ipaddress
 import logging
+import socket
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 
 from gateway.errors import MalformedFrame, ModbusError
 from gateway.modbus.functions import WRITES, exception_pdu
 from gateway.modbus.mbap import HEADER_LENGTH, build_adu, parse_header
+from gateway.tcp.access import AccessPolicy, AccessRule
 
 log = logging.getLogger(__name__)
 
@@ -31,6 +40,10 @@ SERVER_DEVICE_FAILURE = 0x04
 # Once part of a frame has arrived, the rest follows at once; a client that stops halfway is
 # broken, and waiting for it the whole idle timeout would hold a connection slot.
 PARTIAL_FRAME_TIMEOUT_S = 5.0
+# The kernel's buffers per client. Autotuned they grow to megabytes: requests of a client we have
+# stopped reading, answers to a client that doesn't read. A Modbus client has a few hundred bytes
+# in flight; these limits keep what a hostile one can make us hold small.
+SOCKET_BUFFER_BYTES = 32 * 1024
 
 
 @dataclass(frozen=True, slots=True)
@@ -43,6 +56,8 @@ class TcpSettings:
     broadcast_reply: bool = True
     allowed_networks: tuple[str, ...] = ()
     read_only: bool = False
+    access: tuple[AccessRule, ...] = ()
+    """First match wins; none: every request may pass (see `gateway.tcp.access`)."""
 
 
 @dataclass(slots=True)
@@ -66,6 +81,8 @@ class ModbusTcpServer:
         self._server: asyncio.Server | None = None
         self._connections: set[Connection] = set()
         self._networks = [ipaddress.ip_network(n, strict=False) for n in settings.allowed_networks]
+        # None without rules: the common case costs one attribute test per request.
+        self.access = AccessPolicy(settings.access) if settings.access else None
 
     @property
     def port(self) -> int:
@@ -78,6 +95,10 @@ class ModbusTcpServer:
         self._server = await loop.create_server(
             lambda: Connection(self), self.settings.host, self.settings.port, reuse_address=True
         )
+        for sock in self._server.sockets:  # accepted connections inherit them
+            for option in (socket.SO_SNDBUF, socket.SO_RCVBUF):
+                with contextlib.suppress(OSError):
+                    sock.setsockopt(socket.SOL_SOCKET, option, SOCKET_BUFFER_BYTES)
         log.info("Modbus-TCP listening on %s:%d", self.settings.host, self.port)
 
     def stop_accepting(self) -> None:
@@ -137,7 +158,22 @@ class ModbusTcpServer:
         if self.settings.read_only and function in WRITES:
             self.stats.denied += 1
             self.stats.exceptions += 1
+            log.debug("%s unit %d: %02XH refused: modbus_tcp.read_only", client, unit_id, function)
             return exception_pdu(function, ILLEGAL_FUNCTION)
+        if self.access is not None:
+            refusal = self.access.check(unit_id, pdu)
+            if refusal is not None:
+                self.stats.denied += 1
+                self.stats.exceptions += 1
+                log.debug(
+                    "%s unit %d: %s refused by modbus_tcp.access rule %s (exception %02XH)",
+                    client,
+                    unit_id,
+                    pdu[:5].hex(" "),
+                    self.access.rules[refusal.rule].label,
+                    refusal.code,
+                )
+                return exception_pdu(function, refusal.code)
         try:
             reply = await self.handler(unit_id, pdu, client)
         except ModbusError as exc:
@@ -163,6 +199,7 @@ class Connection(asyncio.Protocol):
         self._transport: asyncio.Transport | None = None
         self._buffer = bytearray()
         self._paused = False
+        self._write_blocked = False
         self._loop = asyncio.get_running_loop()
         self._last_data = self._loop.time()
         self._idle_timer: asyncio.TimerHandle | None = None
@@ -219,17 +256,37 @@ class Connection(asyncio.Protocol):
             answer.add_done_callback(self._answered)
             if len(self.answers) >= settings.max_requests_per_connection:
                 # Back-pressure: stop reading this client until an answer has gone out.
-                self._paused = True
-                if self._transport is not None:
-                    self._transport.pause_reading()
+                self._pause()
+
+    def pause_writing(self) -> None:
+        # The client doesn't read its answers: read no more of its requests either, or their
+        # answers would pile up in our buffer without bound.
+        self._write_blocked = True
+        self._pause()
+
+    def resume_writing(self) -> None:
+        self._write_blocked = False
+        self._maybe_resume()
 
     def _answered(self, task: asyncio.Task[None]) -> None:
         self.answers.discard(task)
-        if self._paused and len(self.answers) < self.server.settings.max_requests_per_connection:
-            self._paused = False
+        self._maybe_resume()
+
+    def _pause(self) -> None:
+        if not self._paused:
+            self._paused = True
             if self._transport is not None and not self._transport.is_closing():
-                self._transport.resume_reading()
-                self._take_frames()
+                self._transport.pause_reading()
+
+    def _maybe_resume(self) -> None:
+        if not self._paused or self._write_blocked:
+            return
+        if len(self.answers) >= self.server.settings.max_requests_per_connection:
+            return
+        self._paused = False
+        if self._transport is not None and not self._transport.is_closing():
+            self._transport.resume_reading()
+            self._take_frames()
 
     async def _answer(self, transaction_id: int, unit_id: int, pdu: bytes) -> None:
         reply = await self.server.reply(unit_id, pdu, self.client)
@@ -241,7 +298,9 @@ class Connection(asyncio.Protocol):
 
     def _arm_idle_timer(self) -> None:
         settings = self.server.settings
-        limit = PARTIAL_FRAME_TIMEOUT_S if self._buffer else settings.idle_timeout_s
+        limit = settings.idle_timeout_s
+        if self._buffer:
+            limit = min(PARTIAL_FRAME_TIMEOUT_S, limit)
         if self.answers:
             limit = settings.idle_timeout_s  # waiting for the line is not the client's idling
         # Never in the past: with answers outstanding, look again in a second at the earliest.
@@ -255,6 +314,8 @@ class Connection(asyncio.Protocol):
             self.server.stats.idle_closed += 1
             reason = "a partial frame" if self._buffer else "idle"
             log.info("%s closed: %s for %.0f s", self.client, reason, limit)
-            self.close()
+            # Abort, not close: close would wait for answers a stuck client never reads, and
+            # keep holding its slot.
+            self._transport.abort()
             return
         self._arm_idle_timer()

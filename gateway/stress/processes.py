@@ -1,0 +1,158 @@
+"""The simulated line, the gateway and a Mosquitto broker as subprocesses the scenario can
+unplug, kill and restart; the gateway's memory read from /proc."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import time
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from gateway.bench.processes import SimulatorProcess, gateway_command
+
+START_TIMEOUT_S = 15.0
+MOSQUITTO_PATHS = ("/usr/sbin/mosquitto", "/usr/local/sbin/mosquitto")
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def wait_listening(port: int, process: subprocess.Popen[Any], timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if process.poll() is not None:
+            raise RuntimeError(f"{process.args!r} exited with {process.returncode} at start")
+        with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), 0.2):
+            return
+        time.sleep(0.02)
+    raise RuntimeError(f"nothing listens on port {port} after {timeout_s:.0f} s")
+
+
+def stop_process(process: subprocess.Popen[Any]) -> None:
+    if process.poll() is None:
+        process.terminate()
+        try:
+            process.wait(5)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait(5)
+
+
+def start_simulator(arguments: list[str]) -> SimulatorProcess:
+    """`invt-gateway simulate --pty ARGUMENTS`: commands on its stdin, the path its first line."""
+    process = subprocess.Popen(
+        [*gateway_command(), "simulate", "--pty", *arguments],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    assert process.stdout is not None
+    path = process.stdout.readline().strip()
+    if not path.startswith("/"):
+        stop_process(process)
+        raise RuntimeError(f"the simulator did not start: {path!r}")
+    return SimulatorProcess(process, path)
+
+
+class Gateway:
+    """`invt-gateway run` on a configuration file; killed and started again at will."""
+
+    def __init__(self, config: dict[str, Any], directory: Path) -> None:
+        self.port = int(config["modbus_tcp"]["port"])
+        self.config_file = directory / "gateway.yaml"
+        self.config_file.write_text(yaml.safe_dump(config), encoding="utf-8")
+        self.log_file = directory / "gateway.log"
+        self.process: subprocess.Popen[bytes] | None = None
+        self.starts = 0
+
+    def start(self) -> None:
+        with self.log_file.open("ab") as log:
+            self.process = subprocess.Popen(
+                [*gateway_command(), "run", "--config", str(self.config_file)],
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.DEVNULL,
+                stderr=log,
+            )
+        self.starts += 1
+
+    def wait_listening(self, timeout_s: float = START_TIMEOUT_S) -> None:
+        assert self.process is not None
+        wait_listening(self.port, self.process, timeout_s)
+
+    def kill(self) -> None:
+        """SIGKILL: no shutdown, no last words; the kernel closes its port and sockets."""
+        if self.process is not None and self.process.poll() is None:
+            self.process.send_signal(signal.SIGKILL)
+            self.process.wait(5)
+
+    def stop(self) -> None:
+        if self.process is not None:
+            stop_process(self.process)
+
+    def memory_mb(self) -> tuple[float, float]:
+        """(resident now, peak resident) of the running process, in MB."""
+        assert self.process is not None
+        values = {}
+        for line in Path(f"/proc/{self.process.pid}/status").read_text().splitlines():
+            key, _, rest = line.partition(":")
+            if key in ("VmRSS", "VmHWM"):
+                values[key] = int(rest.split()[0]) / 1024
+        return values.get("VmRSS", 0.0), values.get("VmHWM", 0.0)
+
+    def log_tail(self, lines: int = 20) -> str:
+        try:
+            return "\n".join(self.log_file.read_text(errors="replace").splitlines()[-lines:])
+        except OSError:
+            return ""
+
+
+def mosquitto_path() -> str | None:
+    found = shutil.which("mosquitto")
+    if found:
+        return found
+    return next((path for path in MOSQUITTO_PATHS if os.access(path, os.X_OK)), None)
+
+
+class Broker:
+    """A Mosquitto of our own on a free port; killed and started again on the same port."""
+
+    def __init__(self, executable: str, directory: Path) -> None:
+        self.executable = executable
+        self.host = "127.0.0.1"
+        self.port = free_port()
+        self.config_file = directory / "mosquitto.conf"
+        self.config_file.write_text(
+            f"listener {self.port} {self.host}\nallow_anonymous true\npersistence false\n"
+            "log_dest none\n",
+            encoding="utf-8",
+        )
+        self.process: subprocess.Popen[bytes] | None = None
+
+    def start(self) -> None:
+        self.process = subprocess.Popen(
+            [self.executable, "-c", str(self.config_file)],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        wait_listening(self.port, self.process, START_TIMEOUT_S)
+
+    def kill(self) -> None:
+        if self.process is not None and self.process.poll() is None:
+            self.process.kill()
+            self.process.wait(5)
+
+    def stop(self) -> None:
+        if self.process is not None:
+            stop_process(self.process)

@@ -1,0 +1,79 @@
+"""`invt-gateway stress`: a short run of the real command (its subprocesses, line faults, a
+killed gateway, an unplugged port, a restarted broker), and its table."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+
+import pytest
+
+from gateway.stress.checked_load import STEADY, LoadStats
+from gateway.stress.report import problems, table
+from gateway.stress.scenario import Recovery, StressResult, StressSettings
+from tests.processes import run_cli
+
+
+def test_a_short_stress_run_passes_and_reports_every_figure(
+    record_property: pytest.RecordProperty,
+) -> None:
+    # Seed 2: its spoilt replies never hit all three attempts of one request in a short run,
+    # so the verdict doesn't hang on one unlucky error among a few hundred requests.
+    result = run_cli("stress", "--duration", "6", "--seed", "2", "--json", timeout_s=90)
+    assert result.returncode == 0, result.stdout + result.stderr
+    report = json.loads(result.stdout)
+    assert report["passed"], report["problems"]
+    assert report["wrong"] == 0
+    assert report["frames"] > 200
+    assert report["faults_injected"] > 0
+    assert report["requests"][STEADY] > 200
+    hostile = report["hostile"]
+    assert hostile["frames"] > 100
+    assert hostile["malformed"] > 0
+    assert hostile["wrong"] == 0
+    recoveries = {r["what"]: r["seconds"] for r in report["recoveries"]}
+    assert set(recoveries) == {"gateway SIGKILL", "serial port", "MQTT broker"}
+    assert all(0 < seconds < 10 for seconds in recoveries.values()), recoveries
+    assert 0 < report["memory_mb"]["start"] < 200
+    assert "stress: serial port: back" in result.stderr  # progress as it goes
+    times = ", ".join(f"{what} {seconds:.2f} s" for what, seconds in recoveries.items())
+    record_property(
+        "figure:stress 6 s",
+        f"{report['frames']} frames, {report['faults_injected']} faults, "
+        f"{report['errors'].get(STEADY, 0)} errors in {report['requests'][STEADY]} steady "
+        f"requests, {report['wrong']} wrong; {hostile['frames']} hostile frames "
+        f"({hostile['malformed']} malformed), {hostile['wrong']} answers not its own; "
+        f"recoveries {times}; RSS "
+        f"{report['memory_mb']['start']} -> {report['memory_mb']['end']} MB",
+    )
+
+
+def test_the_table_names_each_figure_and_the_verdict() -> None:
+    load = LoadStats(
+        requests=Counter({STEADY: 10000, "serial port": 50}),
+        errors=Counter({STEADY: 3, "serial port": 45}),
+        answered=9997,
+    )
+    result = StressResult(
+        StressSettings(duration_s=600),
+        elapsed_s=601,
+        frames=11000,
+        faults_injected=550,
+        faults_by_kind={"crc": 100, "late": 90},
+        load=load,
+        recoveries=[Recovery("serial port", "plugged back in", 0.5)],
+        memory_start_mb=40.0,
+        memory_end_mb=40.5,
+        memory_peak_mb=41.0,
+        broker=False,
+    )
+    text = table(result)
+    assert "frames tried (on the line)  11000" in text
+    assert "faults injected             550 (5.0% of frames): crc 100, late 90" in text
+    assert "3 (0.030% of steady requests" in text
+    assert "wrong values                0 (must be 0)" in text
+    assert "recovery: serial port       0.50 s after plugged back in" in text
+    assert "not run: mosquitto is not installed" in text
+    assert text.rstrip().endswith("verdict                     pass")
+    grown = StressResult(StressSettings(), load=load, memory_start_mb=40, memory_end_mb=47)
+    assert problems(grown) == ["memory grew from 40.0 to 47.0 MB"]
