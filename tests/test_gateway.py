@@ -339,3 +339,25 @@ async def test_idle_clients_are_closed_and_extra_connections_refused(
         assert app.tcp.stats.refused == 1
         for client in (first, second, third):
             await client.close()
+
+
+async def test_read_only_lets_only_reads_through(line: SimulatedLine) -> None:
+    config = GatewayConfig.model_validate(
+        {
+            "modbus_tcp": {"host": "127.0.0.1", "port": 0, "read_only": True},
+            "buses": [{"name": "line1", "port": line.path, "baudrate": 115200}],
+            "drives": [{"name": "pump1", "bus": "line1", "address": 1}],
+        }
+    )
+    async with running_gateway(config) as app:
+        client = await TcpClient.connect(app.tcp.port)
+        assert await client.read(1, STATE_WORD_1) == [STOPPED]
+        loopback = bytes.fromhex("08 00 00 12 AB")
+        assert await client.request(1, loopback) == loopback
+        assert await client.request(1, write_pdu(0x2000, 1)) == bytes.fromhex("86 01")
+        # 08H sub-function 0001 restarts communications: not a read.
+        assert await client.request(1, bytes.fromhex("08 00 01 00 00")) == bytes.fromhex("88 01")
+        assert await client.request(1, bytes.fromhex("41 00")) == bytes.fromhex("C1 01")  # vendor
+        assert await client.read(1, STATE_WORD_1) == [STOPPED]  # the run never reached it
+        assert app.tcp.stats.denied == 3
+        await client.close()

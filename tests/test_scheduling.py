@@ -249,3 +249,28 @@ async def test_a_drive_comes_back_and_polls_run_while_scada_reads_without_pause(
             await asyncio.gather(*load)
             for client in clients:
                 await client.close()
+
+
+async def test_reads_of_a_client_that_left_cost_no_bus_time(slow_line: SimulatedLine) -> None:
+    config = gateway_config(slow_line.path, DRIVES, baudrate=9600, timeout_ms=1000)
+    async with running_gateway(config) as app:
+        busy = await occupy_line(app, slow_line)
+        before = slow_line.stats["requests"]
+        leaving = await TcpClient.connect(app.tcp.port)
+        for register in range(0x3000, 0x300C):  # twelve distinct reads, queued
+            leaving.send(1, read_pdu(register))
+        leaving.send(1, write_pdu(0x0005, 4321))
+        await asyncio.sleep(0.05)
+        await leaving.close()  # gone before any answer
+        await busy
+        bus = app.buses["line1"]
+        for _ in range(200):  # until whatever stayed queued has gone out
+            if not bus.queue_depth and not bus.busy:
+                break
+            await asyncio.sleep(0.02)
+        # The write it sent was carried out; its twelve reads were not (one may have been on
+        # the wire already).
+        assert slow_line.stats["requests"] - before <= 2
+        stayer = await TcpClient.connect(app.tcp.port)
+        assert await stayer.read(1, 0x0005) == [4321]
+        await stayer.close()

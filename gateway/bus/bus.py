@@ -173,6 +173,11 @@ class Bus:
     def queue_depth(self) -> int:
         return len(self._queue)
 
+    @property
+    def busy(self) -> bool:
+        """A transaction is on the wire."""
+        return self._busy
+
     # -- what callers use (event loop) ---------------------------------------------------------
 
     async def request(

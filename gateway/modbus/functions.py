@@ -46,6 +46,21 @@ PURE_READS: Final = frozenset({0x01, 0x02, 0x03, 0x04})
 WRITES: Final = frozenset({0x05, 0x06, 0x0F, 0x10, 0x16, 0x17})
 BROADCAST_WRITES: Final = frozenset({0x05, 0x06, 0x0F, 0x10, 0x16})
 
+# Functions that only read: what `read_only` lets through. 08H only with sub-function 0000
+# (return query data): its other sub-functions restart, clear or silence the device.
+READ_ONLY_FUNCTIONS: Final = frozenset(
+    {0x01, 0x02, 0x03, 0x04, 0x07, 0x0B, 0x0C, 0x11, 0x14, 0x18, 0x2B}
+)
+
+
+def changes_nothing(pdu: bytes) -> bool:
+    """True for a request that only reads; an allow-list, so vendor codes count as writes."""
+    function = pdu[0]
+    if function == DIAGNOSTICS:
+        return pdu[1:3] == b"\x00\x00"
+    return function in READ_ONLY_FUNCTIONS
+
+
 NEED_MORE = 0
 """`rtu_reply_length` needs more header bytes before it can tell."""
 UNKNOWN_LENGTH = -1

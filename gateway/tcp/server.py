@@ -26,7 +26,7 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 
 from gateway.errors import MalformedFrame, ModbusError
-from gateway.modbus.functions import WRITES, exception_pdu
+from gateway.modbus.functions import PURE_READS, changes_nothing, exception_pdu
 from gateway.modbus.mbap import HEADER_LENGTH, build_adu, parse_header
 from gateway.tcp.access import AccessPolicy, AccessRule
 
@@ -155,7 +155,7 @@ class ModbusTcpServer:
     async def reply(self, unit_id: int, pdu: bytes, client: str) -> bytes | None:
         """The reply PDU for one request; every error becomes an exception PDU here, only here."""
         function = pdu[0]
-        if self.settings.read_only and function in WRITES:
+        if self.settings.read_only and not changes_nothing(pdu):
             self.stats.denied += 1
             self.stats.exceptions += 1
             log.debug("%s unit %d: %02XH refused: modbus_tcp.read_only", client, unit_id, function)
@@ -196,6 +196,8 @@ class Connection(asyncio.Protocol):
         self.client = "tcp:?:0"
         self.host = "?"
         self.answers: set[asyncio.Task[None]] = set()
+        self._reads: set[asyncio.Task[None]] = set()
+        """Answers to pure reads: nobody will receive them once the client has gone."""
         self._transport: asyncio.Transport | None = None
         self._buffer = bytearray()
         self._paused = False
@@ -219,8 +221,11 @@ class Connection(asyncio.Protocol):
         self.server.forget(self)
         if self._idle_timer is not None:
             self._idle_timer.cancel()
-        # Answers still on their way are dropped by `_answer` once it sees the closed transport;
-        # their bus transactions still complete for any other client waiting on the same read.
+        # A read nobody will receive must not cost bus time: cancelling its answer takes it out
+        # of the queue (a read shared with other clients still goes out for them). Writes go on:
+        # the client sent them, and a half-done split write is worse than a finished one.
+        for read in self._reads:
+            read.cancel()
 
     def close(self) -> None:
         if self._transport is not None:
@@ -253,6 +258,8 @@ class Connection(asyncio.Protocol):
                 self._answer(header.transaction_id, header.unit_id, pdu)
             )
             self.answers.add(answer)
+            if pdu[0] in PURE_READS:
+                self._reads.add(answer)
             answer.add_done_callback(self._answered)
             if len(self.answers) >= settings.max_requests_per_connection:
                 # Back-pressure: stop reading this client until an answer has gone out.
@@ -270,6 +277,7 @@ class Connection(asyncio.Protocol):
 
     def _answered(self, task: asyncio.Task[None]) -> None:
         self.answers.discard(task)
+        self._reads.discard(task)
         self._maybe_resume()
 
     def _pause(self) -> None:
