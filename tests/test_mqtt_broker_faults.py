@@ -74,7 +74,7 @@ async def test_broker_killed_and_restarted(mosquitto: Mosquitto) -> None:
                 await tcp.close()
             # Modbus-TCP didn't notice: as many reads, no slower.
             assert len(without_broker) >= 1.5 * len(with_broker)
-            assert max(without_broker) < 0.5
+            assert max(without_broker) < 1.5  # a bridge blocking the loop would stall for seconds
             assert app.mqtt.connected.is_set() is False
 
             mosquitto.start()  # a restarted broker without persistence: nothing retained
