@@ -3,14 +3,19 @@
 from __future__ import annotations
 
 import asyncio
-import socket
 import struct
 import time
 from dataclasses import dataclass
 from typing import Any
 
 from gateway.bench.load import LoadResult, Target, run_clients
-from gateway.bench.processes import GatewayProcess, SimulatorProcess, gateway, simulator
+from gateway.bench.processes import (
+    GatewayProcess,
+    SimulatorProcess,
+    free_port,
+    gateway,
+    simulator,
+)
 from gateway.bench.wire import WireBudget, read_budget
 
 RESPONSE_DELAY_MS = 5.0  # INVT P14.03's default
@@ -96,12 +101,6 @@ class CaseResult:
     def per_s_of(self, units: range) -> float:
         """Correct answers per second from the drives with these unit ids."""
         return sum(self.load.answered_by_unit[u] for u in units) / self.elapsed_s
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 def gateway_config(case: Case, line_path: str, port: int) -> dict[str, Any]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import socket
 import subprocess
 import sys
 import tempfile
@@ -61,7 +62,7 @@ def simulator(
             raise RuntimeError(f"simulator did not start: {path!r}")
         yield SimulatorProcess(process, path)
     finally:
-        _stop(process)
+        stop_process(process)
 
 
 @dataclass
@@ -92,26 +93,32 @@ def gateway(config: dict[str, Any], port: int) -> Iterator[GatewayProcess]:
             stderr=subprocess.DEVNULL,
         )
         try:
-            _wait_for_port(port, process)
+            wait_listening(port, process)
             yield GatewayProcess(process, port)
         finally:
-            _stop(process)
+            stop_process(process)
 
 
-def _wait_for_port(port: int, process: subprocess.Popen[bytes]) -> None:
-    import socket
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
 
-    deadline = time.monotonic() + 15
+
+def wait_listening(port: int, process: subprocess.Popen[Any], timeout_s: float = 15.0) -> None:
+    """Until something accepts on `port`; RuntimeError if `process` exits first or time runs out."""
+    deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if process.poll() is not None:
-            raise RuntimeError(f"gateway exited with {process.returncode} at start")
+            raise RuntimeError(f"{process.args!r} exited with {process.returncode} at start")
         with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), 0.2):
             return
-        time.sleep(0.05)
-    raise RuntimeError("gateway did not listen within 15 s")
+        time.sleep(0.02)
+    raise RuntimeError(f"nothing listens on port {port} after {timeout_s:.0f} s")
 
 
-def _stop(process: subprocess.Popen[Any]) -> None:
+def stop_process(process: subprocess.Popen[Any]) -> None:
+    """SIGTERM, then SIGKILL after 5 s; its pipes drained and closed either way."""
     if process.poll() is None:
         process.terminate()
         try:

@@ -197,8 +197,10 @@ class _Client:
         stats.requests[phase] += 1
         tid, unit_id, answer = reply
         if tid != self.tid or unit_id != self.unit_id or not answer or answer[0] & 0x7F != pdu[0]:
-            stats.add_wrong(f"unit {self.unit_id} tid {self.tid}: got tid {tid} unit {unit_id} "
-                            f"{answer.hex(' ')} for {pdu.hex(' ')}")
+            stats.add_wrong(
+                f"unit {self.unit_id} tid {self.tid}: got tid {tid} unit {unit_id} "
+                f"{answer.hex(' ')} for {pdu.hex(' ')}"
+            )
             raise ConnectionResetError("out of step with the gateway: reconnect")
         if answer[0] & 0x80:
             stats.errors[phase] += 1
@@ -242,8 +244,9 @@ class _Client:
         if pdu[0] != READ_HOLDING:
             expected_echo = pdu if pdu[0] == WRITE_SINGLE else pdu[:5]
             if answer != expected_echo:
-                stats.add_wrong(f"unit {self.unit_id}: write {pdu.hex(' ')} answered "
-                                f"{answer.hex(' ')}")
+                stats.add_wrong(
+                    f"unit {self.unit_id}: write {pdu.hex(' ')} answered {answer.hex(' ')}"
+                )
                 return False
             self.written = True
             for offset, value in enumerate(values):

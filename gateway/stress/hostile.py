@@ -78,8 +78,13 @@ class HostileClient:
             self.stats.frames += 1
         malformed = rng.random() < 0.3
         if malformed:
-            protocol, length = rng.choice([(rng.randint(1, 0xFFFF), 6), (0, rng.choice([0, 1])),
-                                           (0, rng.randint(255, 0xFFFF))])
+            protocol, length = rng.choice(
+                [
+                    (rng.randint(1, 0xFFFF), 6),
+                    (0, rng.choice([0, 1])),
+                    (0, rng.randint(255, 0xFFFF)),
+                ]
+            )
             stream += struct.pack(">HHHB", rng.randrange(0x10000), protocol, length, 200)
             stream += rng.randbytes(rng.randint(0, 20))
             self.stats.frames += 1
@@ -97,8 +102,11 @@ class HostileClient:
             try:
                 header = await asyncio.wait_for(reader.read(7), READ_TIMEOUT_S)
             except TimeoutError:  # the gateway is there (else: reset), but silent
-                self._wrong("a malformed header left the connection open" if malformed
-                            else "frames left unanswered")
+                self._wrong(
+                    "a malformed header left the connection open"
+                    if malformed
+                    else "frames left unanswered"
+                )
                 return
             if not header:
                 self.stats.closed_by_gateway += 1

@@ -26,16 +26,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from gateway.bench.processes import SimulatorProcess
+from gateway.bench.processes import SimulatorProcess, free_port
 from gateway.stress.checked_load import STEADY, CheckedLoad, LoadStats
 from gateway.stress.hostile import HostileClient, HostileStats
-from gateway.stress.processes import (
-    Broker,
-    Gateway,
-    free_port,
-    mosquitto_path,
-    start_simulator,
-)
+from gateway.stress.processes import Broker, Gateway, mosquitto_path, start_simulator
 
 if TYPE_CHECKING:
     from gateway.stress.broker_watch import OnlineWatch
