@@ -59,6 +59,19 @@ class Exchange:
     """Time the line was busy with this exchange: request, drive's delay, reply."""
 
 
+PTY_SLAVE_MAJORS = range(136, 144)
+"""Linux's device numbers for pseudo-terminal slaves (/dev/pts/N)."""
+
+
+def is_pseudo_terminal(port: str) -> bool:
+    """True for a pty (or a link to one): a virtual line, such as the simulator's."""
+    try:
+        device = os.stat(port).st_rdev  # follows links such as /dev/serial/by-id/...
+    except (OSError, ValueError):
+        return False  # not a path: a pyserial URL, or not there (open() will say so)
+    return os.major(device) in PTY_SLAVE_MAJORS
+
+
 class SerialLine:
     """Blocking, exact-timing access to one serial port. Not thread-safe: one thread owns it."""
 
@@ -75,11 +88,15 @@ class SerialLine:
 
     def open(self) -> None:
         fmt = self.settings.char_format
+        # A pty has no wire and no parity bit; Linux takes PARENB on one once and then refuses it
+        # (EINVAL), so a virtual line that is opened again (a reopen, a field tool after a scan)
+        # would fail. Timing still follows the configured format.
+        parity = "N" if is_pseudo_terminal(self.settings.port) else fmt.parity
         try:
             port = serial.serial_for_url(
                 self.settings.port,
                 baudrate=fmt.baudrate,
-                parity=fmt.parity,
+                parity=parity,
                 stopbits=fmt.stopbits,
                 bytesize=fmt.bytesize,
                 timeout=0,
