@@ -41,6 +41,7 @@ from gateway.errors import (
 from gateway.logs import dump_frame, frame_dump_enabled
 from gateway.modbus.functions import PURE_READS, is_exception
 from gateway.modbus.rtu import BROADCAST_ADDRESS, build_frame
+from gateway.timer_slack import tighten_timer_slack
 
 log = logging.getLogger(__name__)
 
@@ -321,6 +322,7 @@ class Bus:
     # -- the bus thread --------------------------------------------------------------------------
 
     def _serve(self) -> None:
+        tighten_timer_slack()
         while not self._closing:
             if not self.line.is_open:
                 self._open_with_backoff()

@@ -34,6 +34,7 @@ from gateway.simulator.drive import SimulatedDrive
 from gateway.simulator.endpoint import Endpoint, point_link, remove_link
 from gateway.simulator.framing import ReceivedFrame, RequestAssembler
 from gateway.simulator.line_faults import LineFaults
+from gateway.timer_slack import tighten_timer_slack
 
 log = logging.getLogger(__name__)
 
@@ -238,6 +239,7 @@ class SimulatedLine:
     # ----------------------------------------------------------------- the thread
 
     def _serve(self) -> None:
+        tighten_timer_slack()  # a drive answers on time, not when the kernel batches wake-ups
         while not self._stopping:
             try:
                 self._serve_once()
