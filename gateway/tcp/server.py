@@ -311,8 +311,11 @@ class Connection(asyncio.Protocol):
             limit = min(PARTIAL_FRAME_TIMEOUT_S, limit)
         if self.answers:
             limit = settings.idle_timeout_s  # waiting for the line is not the client's idling
-        # Never in the past: with answers outstanding, look again in a second at the earliest.
-        due = max(self._last_data + limit, self._loop.time() + 1.0)
+        due = self._last_data + limit
+        if self.answers:
+            # Its answers are still on their way: look again in a second at the earliest,
+            # rather than spin on a deadline that has passed.
+            due = max(due, self._loop.time() + 1.0)
         self._idle_timer = self._loop.call_at(due, self._check_idle, limit)
 
     def _check_idle(self, limit: float) -> None:
