@@ -11,6 +11,7 @@ import pytest
 
 from gateway.config import GatewayConfig
 from gateway.simulator import SimulatedLine
+from tests.protocol_frames import PROTOCOL_EXCHANGES
 from tests.support import TcpClient, gateway_config, read_pdu, running_gateway, write_pdu
 
 STATE_WORD_1 = 0x2100
@@ -30,32 +31,12 @@ DRIVES = [
     {"name": "drive3", "address": 3},
 ]
 
-# PROTOCOL.md's request frames and the replies the drives give, as (unit id, request PDU, reply
-# PDU). Run in this order: the writes set up what the later reads expect.
-PROTOCOL_EXCHANGES = [
-    ("01 03 00 04 00 02 85 CA", "01 03 04 13 88 00 00 7E 9D"),
-    ("01 08 00 00 12 AB AD 14", "01 08 00 00 12 AB AD 14"),
-    ("02 06 00 04 13 88 C5 6E", "02 06 00 04 13 88 C5 6E"),
-    ("02 10 00 04 00 02 04 13 88 00 32 F8 63", "02 10 00 04 00 02 00 3A"),
-    ("01 06 00 01 00 03 98 0B", "01 86 04 43 A3"),
-    ("01 03 21 00 00 01 8E 36", "01 03 02 00 03 F8 45"),
-    ("03 06 20 00 00 01 42 28", "03 06 20 00 00 01 42 28"),
-    ("03 06 00 03 27 10 62 14", "03 06 00 03 27 10 62 14"),
-    ("01 10 00 0B 00 02 04 00 64 00 C8 F2 55", "01 10 00 0B 00 02 30 0A"),
-    ("01 06 01 14 00 32 49 E7", "01 06 01 14 00 32 49 E7"),
-    ("01 03 01 14 00 01 C5 F2", "01 03 02 00 32 39 91"),
-    ("01 10 20 00 00 02 04 00 01 03 E8 3B 10", "01 10 20 00 00 02 4A 08"),
-]
-
 
 async def test_every_protocol_frame_through_the_gateway(line: SimulatedLine) -> None:
     line.set_fault_history(3, [35] * 6)
     async with running_gateway(gateway_config(line.path, DRIVES)) as app:
         client = await TcpClient.connect(app.tcp.port)
-        for request_hex, reply_hex in [
-            *PROTOCOL_EXCHANGES,
-            ("03 03 07 1B 00 06 B5 59", "03 03 0C 00 23 00 23 00 23 00 23 00 23 00 23 5F D2"),
-        ]:
+        for request_hex, reply_hex in PROTOCOL_EXCHANGES:
             request, reply = bytes.fromhex(request_hex), bytes.fromhex(reply_hex)
             answer = await client.request(request[0], request[1:-2])
             assert answer == reply[1:-2], f"{request_hex} answered {answer.hex(' ')}"

@@ -22,24 +22,8 @@ from gateway.modbus.functions import NEED_MORE, rtu_reply_length
 from gateway.modbus.rtu import build_frame
 from gateway.simulator import SimulatedLine
 from gateway.simulator.control import USAGE, run_control_command
+from tests.protocol_frames import PROTOCOL_EXCHANGES
 
-# PROTOCOL.md's "Frames to test against", in an order where each write sets up what a later read
-# expects. The P01.20 read-back request is ours: PROTOCOL gives only its reply.
-PROTOCOL_FRAMES = [
-    ("01 03 00 04 00 02 85 CA", "01 03 04 13 88 00 00 7E 9D"),
-    ("01 08 00 00 12 AB AD 14", "01 08 00 00 12 AB AD 14"),
-    ("02 06 00 04 13 88 C5 6E", "02 06 00 04 13 88 C5 6E"),
-    ("02 10 00 04 00 02 04 13 88 00 32 F8 63", "02 10 00 04 00 02 00 3A"),
-    ("01 06 00 01 00 03 98 0B", "01 86 04 43 A3"),
-    ("01 03 21 00 00 01 8E 36", "01 03 02 00 03 F8 45"),
-    ("03 03 07 1B 00 06 B5 59", "03 03 0C 00 23 00 23 00 23 00 23 00 23 00 23 5F D2"),
-    ("03 06 20 00 00 01 42 28", "03 06 20 00 00 01 42 28"),
-    ("03 06 00 03 27 10 62 14", "03 06 00 03 27 10 62 14"),
-    ("01 10 20 00 00 02 04 00 01 03 E8 3B 10", "01 10 20 00 00 02 4A 08"),
-    ("01 10 00 0B 00 02 04 00 64 00 C8 F2 55", "01 10 00 0B 00 02 30 0A"),
-    ("01 06 01 14 00 32 49 E7", "01 06 01 14 00 32 49 E7"),
-    ("01 03 01 14 00 01 C5 F2", "01 03 02 00 32 39 91"),
-]
 READ_STATE_WORD_1 = "01 03 21 00 00 01 8E 36"
 STOPPED_REPLY = "01 03 02 00 03 F8 45"
 
@@ -103,13 +87,13 @@ def test_every_protocol_frame_is_reproduced_byte_exact() -> None:
         ) as line,
         serial.Serial(line.path, 19200, parity="E", timeout=1) as port,
     ):
-        for request_hex, reply_hex in PROTOCOL_FRAMES:
+        for request_hex, reply_hex in PROTOCOL_EXCHANGES:
             request, expected = bytes.fromhex(request_hex), bytes.fromhex(reply_hex)
             reply = exchange(port, request)
             assert reply == expected, f"{request_hex} answered {reply.hex(' ').upper()}"
             time.sleep(0.003)  # t3.5 before the next request, as a master must
-        assert line.stats["requests"] == len(PROTOCOL_FRAMES)
-        assert line.stats["replies"] == len(PROTOCOL_FRAMES)
+        assert line.stats["requests"] == len(PROTOCOL_EXCHANGES)
+        assert line.stats["replies"] == len(PROTOCOL_EXCHANGES)
         assert line.stats["gap_violations"] == 0
 
 
@@ -302,9 +286,7 @@ def test_wire_time_at_9600_baud() -> None:
         durations = []
         for _ in range(3):
             started = time.monotonic()
-            assert exchange(port, bytes.fromhex(READ_STATE_WORD_1)) == bytes.fromhex(
-                STOPPED_REPLY
-            )
+            assert exchange(port, bytes.fromhex(READ_STATE_WORD_1)) == bytes.fromhex(STOPPED_REPLY)
             durations.append(time.monotonic() - started)
             time.sleep(0.01)
         assert min(durations) >= 15 * 11 / 9600 + 0.005
@@ -351,9 +333,7 @@ def test_unplug_and_replug_behind_a_link(tmp_path: Path) -> None:
     with SimulatedLine([1], baudrate=115200, wire_time=False, link=str(link)) as line:
         assert line.path == str(link)
         with serial.Serial(str(link), 115200, parity="E", timeout=1) as port:
-            assert exchange(port, bytes.fromhex(READ_STATE_WORD_1)) == bytes.fromhex(
-                STOPPED_REPLY
-            )
+            assert exchange(port, bytes.fromhex(READ_STATE_WORD_1)) == bytes.fromhex(STOPPED_REPLY)
             line.unplug()
             assert not link.exists()
             with pytest.raises(serial.SerialException, match="Input/output error"):
@@ -361,9 +341,7 @@ def test_unplug_and_replug_behind_a_link(tmp_path: Path) -> None:
         line.replug()
         assert link.is_symlink()
         with serial.Serial(str(link), 115200, parity="E", timeout=1) as port:
-            assert exchange(port, bytes.fromhex(READ_STATE_WORD_1)) == bytes.fromhex(
-                STOPPED_REPLY
-            )
+            assert exchange(port, bytes.fromhex(READ_STATE_WORD_1)) == bytes.fromhex(STOPPED_REPLY)
     assert not link.exists()  # stop removes the link it made
 
 
@@ -393,9 +371,7 @@ def test_the_gateway_closing_its_port_does_not_hang_up_the_line(line: SimulatedL
     # EINVAL to every later request for it, so pyserial can't open the same pty twice with "E".
     for _ in range(3):
         with serial.Serial(line.path, 115200, timeout=1) as port:
-            assert exchange(port, bytes.fromhex(READ_STATE_WORD_1)) == bytes.fromhex(
-                STOPPED_REPLY
-            )
+            assert exchange(port, bytes.fromhex(READ_STATE_WORD_1)) == bytes.fromhex(STOPPED_REPLY)
 
 
 def test_stop_is_prompt_and_leaves_no_thread() -> None:
@@ -419,9 +395,22 @@ def test_unknown_address_in_a_control_call_is_refused(line: SimulatedLine) -> No
 
 def test_simulate_command_serves_answers_commands_and_exits_on_sigterm() -> None:
     command = [
-        sys.executable, "-m", "gateway", "simulate", "--pty", "--address", "1",
-        "--address", "3", "--no-wire-time", "--baud", "115200",
-        "--fault-history", "3=35,35,35,35,35,35", "--dead", "3",
+        sys.executable,
+        "-m",
+        "gateway",
+        "simulate",
+        "--pty",
+        "--address",
+        "1",
+        "--address",
+        "3",
+        "--no-wire-time",
+        "--baud",
+        "115200",
+        "--fault-history",
+        "3=35,35,35,35,35,35",
+        "--dead",
+        "3",
     ]
     process = subprocess.Popen(
         command,
@@ -445,9 +434,7 @@ def test_simulate_command_serves_answers_commands_and_exits_on_sigterm() -> None
         path = process.stdout.readline().strip()
         assert path.startswith("/dev/")
         with serial.Serial(path, 115200, parity="E", timeout=1) as port:
-            assert exchange(port, bytes.fromhex(READ_STATE_WORD_1)) == bytes.fromhex(
-                STOPPED_REPLY
-            )
+            assert exchange(port, bytes.fromhex(READ_STATE_WORD_1)) == bytes.fromhex(STOPPED_REPLY)
             port.write(bytes.fromhex("03 03 07 1B 00 06 B5 59"))
             assert silent(port)  # --dead 3
             assert command_answer("alive 3") == "ok alive 3"
@@ -498,9 +485,7 @@ def test_control_commands_in_process(tmp_path: Path) -> None:
         assert not link.exists()
         assert run_control_command(line, "replug") == f"ok replug {link}"
         assert link.is_symlink()
-        assert run_control_command(line, "delay 1") == (
-            "error delay takes 2 argument(s); " + USAGE
-        )
+        assert run_control_command(line, "delay 1") == ("error delay takes 2 argument(s); " + USAGE)
         assert run_control_command(line, "fault one 35").startswith("error invalid literal")
         assert run_control_command(line, "noise XYZ").startswith("error non-hexadecimal")
         assert run_control_command(line, "").startswith("error empty command")
