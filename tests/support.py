@@ -6,7 +6,6 @@ import asyncio
 import contextlib
 import os
 import select
-import socket
 import struct
 import threading
 import tty
@@ -15,13 +14,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from gateway.app import Application
+from gateway.bench.processes import free_port as free_port  # the tests' one way to a free port
 from gateway.config import GatewayConfig
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 def gateway_config(port: str, drives: list[dict[str, Any]], **bus: Any) -> GatewayConfig:
