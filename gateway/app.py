@@ -165,8 +165,9 @@ class Application:
         return await self.router.execute(unit_id, pdu, client=client)
 
     async def run(self, stop: asyncio.Event, on_ready: Callable[[], None] | None = None) -> None:
-        # The bus threads need the GIL the moment a reply has arrived; with Python's default 5 ms
-        # switch interval a busy event loop would hold it, and the line, that long.
+        # The buses run on the loop, but threads may share the process (the demo's simulated
+        # drives): with Python's default 5 ms switch interval a busy thread would hold the GIL,
+        # and with it the line's timing, that long.
         sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
         async with asyncio.TaskGroup() as tasks:
             bus_tasks = [

@@ -351,9 +351,7 @@ def _access_unit_problems(config: GatewayConfig) -> list[str]:
     return problems
 
 
-def _unique(
-    problems: list[str], section: str, key: str, items: list[tuple[str, object]]
-) -> None:
+def _unique(problems: list[str], section: str, key: str, items: list[tuple[str, object]]) -> None:
     """Report every item whose value of `key` an earlier item already has."""
     seen: dict[object, tuple[int, str]] = {}
     for index, (name, value) in enumerate(items):

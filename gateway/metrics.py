@@ -2,8 +2,8 @@
 
 Most values are read at scrape time from the counters the parts already keep (`BusStats`,
 `DriveStats`, `TcpStats`, the health tracker): nothing is added to the bus's hot path for them.
-The bus thread writes those counters without a lock; a scrape reads plain numbers and copies
-each mapping in one step, so at worst it sees a transaction half counted, never an error.
+The buses write those counters on the same event loop the scrape runs on, so a scrape always sees
+whole transactions and needs no lock.
 Only what has to be seen per request, by who asked and how long it took, comes through the
 bus's request observer: a counter by source and function code, and a latency histogram.
 
@@ -284,7 +284,7 @@ class GatewayCollector(Collector):
 
 
 def _snapshot(mapping: Mapping[K, V]) -> dict[K, V]:
-    """A copy made in one step: the bus thread may add a key while a scrape reads."""
+    """A copy, so the samples of one scrape come from one moment."""
     return dict(mapping)
 
 

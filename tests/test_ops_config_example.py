@@ -74,4 +74,3 @@ def test_example_shows_every_key() -> None:
     document = yaml.safe_load(EXAMPLE.read_text(encoding="utf-8"))
     missing = sorted(key_paths(GatewayConfig) - present(document))
     assert not missing, f"config.example.yaml lacks: {', '.join(missing)}"
-

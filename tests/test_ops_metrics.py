@@ -198,4 +198,3 @@ async def test_health_is_503_until_the_gateway_is_started(line: SimulatedLine) -
         assert status == 200
     finally:
         await feature.stop()
-

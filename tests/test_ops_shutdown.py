@@ -72,4 +72,3 @@ async def test_signal_answers_queued_requests_0x0b_and_exits_0_within_2_s(
         # Answered at once, before the transaction on the wire has finished.
         assert after < wire_done, "queued requests are answered at once, not after the wire"
     assert f"{signum.name} received: shutting down" in gateway.log.text
-

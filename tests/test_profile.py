@@ -41,8 +41,14 @@ from gateway.profile.registers import RUNNING_VALUES
 
 @pytest.mark.parametrize(
     ("name", "address"),
-    [("P00.11", 0x000B), ("P07.27", 0x071B), ("P10.01", 0x0A01), ("p14.03", 0x0E03),
-     ("P99.99", 0x6363), (" P00.00 ", 0x0000)],
+    [
+        ("P00.11", 0x000B),
+        ("P07.27", 0x071B),
+        ("P10.01", 0x0A01),
+        ("p14.03", 0x0E03),
+        ("P99.99", 0x6363),
+        (" P00.00 ", 0x0000),
+    ],
 )
 def test_parameter_names_become_group_and_index_in_decimal(name: str, address: int) -> None:
     assert parse_parameter(name) == address
@@ -87,8 +93,15 @@ def test_ram_only_address_sets_the_top_bit() -> None:
 
 @pytest.mark.parametrize(
     ("text", "address"),
-    [("2100H", 0x2100), ("2100h", 0x2100), ("0x2100", 0x2100), ("8448", 0x2100),
-     ("P00.11", 0x000B), ("0", 0), ("FFFFH", 0xFFFF)],
+    [
+        ("2100H", 0x2100),
+        ("2100h", 0x2100),
+        ("0x2100", 0x2100),
+        ("8448", 0x2100),
+        ("P00.11", 0x000B),
+        ("0", 0),
+        ("FFFFH", 0xFFFF),
+    ],
 )
 def test_register_spellings_for_the_cli(text: str, address: int) -> None:
     assert parse_register(text) == address
@@ -188,8 +201,16 @@ def test_a_model_can_override_the_bus_voltage_scale() -> None:
 
 @pytest.mark.parametrize(
     ("value", "state"),
-    [(1, "running_forward"), (2, "running_reverse"), (3, "stopped"), (4, "fault"),
-     (5, "power_off"), (6, "pre_exciting"), (0, "unknown_0"), (9, "unknown_9")],
+    [
+        (1, "running_forward"),
+        (2, "running_reverse"),
+        (3, "stopped"),
+        (4, "fault"),
+        (5, "power_off"),
+        (6, "pre_exciting"),
+        (0, "unknown_0"),
+        (9, "unknown_9"),
+    ],
 )
 def test_state_word_1(value: int, state: str) -> None:
     assert decode_state_word_1(value) == state
@@ -216,8 +237,17 @@ def test_state_word_2_bits() -> None:
 
 @pytest.mark.parametrize(
     ("name", "value"),
-    [("run_forward", 1), ("run_reverse", 2), ("jog_forward", 3), ("jog_reverse", 4),
-     ("stop", 5), ("coast_stop", 6), ("fault_reset", 7), ("jog_stop", 8), ("Fault-Reset", 7)],
+    [
+        ("run_forward", 1),
+        ("run_reverse", 2),
+        ("jog_forward", 3),
+        ("jog_reverse", 4),
+        ("stop", 5),
+        ("coast_stop", 6),
+        ("fault_reset", 7),
+        ("jog_stop", 8),
+        ("Fault-Reset", 7),
+    ],
 )
 def test_control_word_commands(name: str, value: int) -> None:
     assert control_command(name) == value
@@ -268,9 +298,19 @@ def test_exception_codes_carry_invt_meanings() -> None:
 
 @pytest.mark.parametrize(
     ("code", "model"),
-    [(0x0106, "GD20"), (0x0107, "GD200A"), (0x010C, "GD200A"), (0x0108, "GD35"),
-     (0x0109, "GD35-H1"), (0x010A, "GD300"), (0x010B, "GD100"), (0x010D, "GD10"),
-     (0x01A0, "GD350"), (0x01A1, "GD350-UL"), (0x01A2, "GD350A")],
+    [
+        (0x0106, "GD20"),
+        (0x0107, "GD200A"),
+        (0x010C, "GD200A"),
+        (0x0108, "GD35"),
+        (0x0109, "GD35-H1"),
+        (0x010A, "GD300"),
+        (0x010B, "GD100"),
+        (0x010D, "GD10"),
+        (0x01A0, "GD350"),
+        (0x01A1, "GD350-UL"),
+        (0x01A2, "GD350A"),
+    ],
 )
 def test_identification_codes(code: int, model: str) -> None:
     assert model_from_identification(code) == model
@@ -283,7 +323,15 @@ def test_unknown_identification_is_shown_in_hex() -> None:
 
 def test_every_model_has_a_profile() -> None:
     assert set(PROFILES) == {
-        "gd20", "gd200a", "gd300", "gd350", "gd350a", "gd350ul", "gd10", "gd35", "gd100",
+        "gd20",
+        "gd200a",
+        "gd300",
+        "gd350",
+        "gd350a",
+        "gd350ul",
+        "gd10",
+        "gd35",
+        "gd100",
         "generic",
     }
     for key, profile in PROFILES.items():
@@ -338,8 +386,17 @@ def test_generic_device_is_never_split_and_has_no_invt_knowledge() -> None:
 
 @pytest.mark.parametrize(
     ("name", "decimals"),
-    [("P00.03", 2), ("P00.04", 2), ("P00.05", 2), ("P00.11", 1), ("P00.12", 1),
-     ("P01.20", 1), ("P08.06", 2), ("P14.03", 0), ("P14.04", 1)],
+    [
+        ("P00.03", 2),
+        ("P00.04", 2),
+        ("P00.05", 2),
+        ("P00.11", 1),
+        ("P00.12", 1),
+        ("P01.20", 1),
+        ("P08.06", 2),
+        ("P14.03", 0),
+        ("P14.04", 1),
+    ],
 )
 def test_known_parameter_decimals(name: str, decimals: int) -> None:
     assert parameter_decimals(name) == decimals

@@ -105,9 +105,7 @@ async def test_scada_may_write_commands_but_no_parameters(
             # Refused, 02H: a parameter, its RAM-only twin, and a 10H that reaches one
             # forbidden register (2002H is inside P00.00-P99.99) refused whole.
             assert await client.request(1, write_pdu(P00_11, 50)) == bytes.fromhex("86 02")
-            assert await client.request(2, write_pdu(0x8000 | P00_11, 50)) == bytes.fromhex(
-                "86 02"
-            )
+            assert await client.request(2, write_pdu(0x8000 | P00_11, 50)) == bytes.fromhex("86 02")
             assert await client.request(1, write_many(0x2001, 1000, 7)) == bytes.fromhex("90 02")
             # Refused, 01H: no writes at all to the conveyor; a broadcast reaches it too.
             assert await client.request(3, write_pdu(0x2000, 1)) == bytes.fromhex("86 01")

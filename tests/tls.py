@@ -45,18 +45,44 @@ def make_certificates(directory: Path) -> Certificates:
     def openssl(*args: str) -> None:
         subprocess.run(["openssl", *args], cwd=directory, check=True, capture_output=True)
 
-    openssl("req", "-x509", *CURVE, "-keyout", "ca.key", "-out", "ca.pem", "-days", DAYS,
-            "-subj", "/CN=invt-gateway test CA")
+    openssl(
+        "req",
+        "-x509",
+        *CURVE,
+        "-keyout",
+        "ca.key",
+        "-out",
+        "ca.pem",
+        "-days",
+        DAYS,
+        "-subj",
+        "/CN=invt-gateway test CA",
+    )
     for name, extensions in (
         ("server", "subjectAltName=IP:127.0.0.1,DNS:localhost\nextendedKeyUsage=serverAuth\n"),
         ("client", "extendedKeyUsage=clientAuth\n"),
     ):
         (directory / f"{name}.ext").write_text(extensions, encoding="utf-8")
-        openssl("req", *CURVE, "-keyout", f"{name}.key", "-out", f"{name}.csr",
-                "-subj", f"/CN={name}")
-        openssl("x509", "-req", "-in", f"{name}.csr", "-CA", "ca.pem", "-CAkey", "ca.key",
-                "-CAcreateserial", "-out", f"{name}.pem", "-days", DAYS,
-                "-extfile", f"{name}.ext")
+        openssl(
+            "req", *CURVE, "-keyout", f"{name}.key", "-out", f"{name}.csr", "-subj", f"/CN={name}"
+        )
+        openssl(
+            "x509",
+            "-req",
+            "-in",
+            f"{name}.csr",
+            "-CA",
+            "ca.pem",
+            "-CAkey",
+            "ca.key",
+            "-CAcreateserial",
+            "-out",
+            f"{name}.pem",
+            "-days",
+            DAYS,
+            "-extfile",
+            f"{name}.ext",
+        )
     return Certificates(
         directory / "ca.pem",
         directory / "server.pem",

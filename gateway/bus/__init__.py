@@ -1,9 +1,10 @@
 """One RS-485 line: its queue, its policy and its serial port.
 
-- `line`: the serial port, used from one thread only (blocking I/O with exact timing).
+- `line`: the serial port on the event loop (bytes taken in as they arrive, exact timing).
+- `line_timer`: exact wake-ups for the inter-frame gap (a timerfd the loop watches).
 - `queue`: the bounded priority queue with per-client fairness and coalescing of identical reads.
 - `health`: which drives are offline, and when to probe them.
-- `bus`: the asyncio side that owns all of the above and applies the timeout/retry policy.
+- `bus`: the coroutine that owns all of the above and applies the timeout/retry policy.
 """
 
 from gateway.bus.bus import Bus, BusSettings, BusState, BusStats, DriveStats, RequestDone

@@ -1,13 +1,15 @@
 """The bus: one owner per RS-485 line, one transaction at a time, timeout and retry policy.
 
-Callers on the event loop put requests into the bus's queue (`request()`); the bus's own thread
-takes them out one at a time and does the wire work with exact timing (`gateway.bus.line`).
+Callers put requests into the bus's queue (`request()`); the bus's own coroutine takes them out
+one at a time and does the wire work with exact timing (`gateway.bus.line`). Everything runs on
+the event loop: the port's descriptor is watched by the loop and the inter-frame gap ends on an
+exact timer, so no thread, lock or hand-over between threads is needed, and a transaction costs
+the process no more wake-ups than the line itself makes.
 
-The thread takes the next transaction at the last possible moment: when the inter-frame gap after
+The bus takes the next transaction at the last possible moment: when the inter-frame gap after
 the previous one has passed. A write that arrives during the gap still goes first, and identical
-reads that arrive during it join the one transaction. Each answer reaches the event loop with one
-`call_soon_threadsafe`; the loop never waits on the port. Buses are independent of each other:
-each has its own queue, thread and port.
+reads that arrive during it join the one transaction. Buses are independent of each other: each
+has its own queue, coroutine and port.
 """
 
 from __future__ import annotations
@@ -16,7 +18,6 @@ import asyncio
 import contextlib
 import logging
 import random
-import threading
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -41,6 +42,7 @@ from gateway.errors import (
 from gateway.logs import dump_frame, frame_dump_enabled
 from gateway.modbus.functions import PURE_READS, is_exception
 from gateway.modbus.rtu import BROADCAST_ADDRESS, build_frame
+from gateway.tasks import cancel_and_wait
 from gateway.timer_slack import tighten_timer_slack
 
 log = logging.getLogger(__name__)
@@ -50,11 +52,13 @@ log = logging.getLogger(__name__)
 PROBE_PDU = bytes.fromhex("0800000000")
 PROBE_CLIENT = "probe"
 IDLE_WAKE_S = 0.5
-"""With nothing queued, the thread still wakes this often to see whether a probe is due."""
+"""With nothing queued, the bus still wakes this often to see whether a probe is due."""
+FINISH_S = 5.0
+"""At shutdown, how long the transaction on the wire may take to finish before it is cut off."""
 
 
 class BusFailed(Exception):
-    """The bus thread died: the service can't serve this line and must be restarted."""
+    """The bus's coroutine died: the service can't serve this line and must be restarted."""
 
 
 class BusState(StrEnum):
@@ -80,7 +84,7 @@ class BusSettings:
 
 @dataclass(slots=True)
 class BusStats:
-    """Counters a dashboard or the benchmark reads; plain numbers, written by the bus thread."""
+    """Counters a dashboard or the benchmark reads; plain numbers, written by the bus only."""
 
     requests: int = 0
     transactions: int = 0
@@ -146,14 +150,12 @@ class Bus:
             settings.offline_after, settings.probe_initial_s, settings.probe_max_s
         )
         self._queue = RequestQueue(settings.queue_size)
-        # Guards the queue between the event loop (puts) and the bus thread (takes).
-        self._work = threading.Condition()
+        self._work: asyncio.Future[None] | None = None
+        """Set while the bus waits for work; a new request (or a lost port) resolves it."""
         self._closing = False
         self._busy = False
-        self._generation = 0
-        """Counts transactions taken, so `wait_idle` isn't released by an older one's hand-over."""
-        self._thread: threading.Thread | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
+        self.line.on_port_error = self._wake
         self._listeners: list[DriveListener] = []
         self._request_observers: list[RequestObserver] = []
         self._opened = asyncio.Event()
@@ -248,13 +250,12 @@ class Bus:
             coalescable=address != BROADCAST_ADDRESS and bool(pdu) and pdu[0] in PURE_READS,
             waiters=[waiter],
         )
-        with self._work:
-            try:
-                carrier = self._queue.put(transaction)
-            except GatewayError:
-                self.stats.queue_full += 1
-                raise
-            self._work.notify()
+        try:
+            carrier = self._queue.put(transaction)
+        except GatewayError:
+            self.stats.queue_full += 1
+            raise
+        self._wake()
         if carrier is not transaction:
             self.stats.coalesced += 1
         return await waiter
@@ -262,34 +263,26 @@ class Bus:
     # -- lifecycle (event loop) ----------------------------------------------------------------
 
     async def run(self) -> None:
-        """Own the port until cancelled: the bus thread opens it, serves the queue, probes."""
-        loop = asyncio.get_running_loop()
-        self._loop = loop
-        stopped: asyncio.Future[None] = loop.create_future()
-
-        failure: list[BaseException] = []
-
-        def serve() -> None:
-            try:
-                self._serve()
-            except BaseException as exc:
-                failure.append(exc)
-                log.critical("bus %s: worker thread died", self.name, exc_info=True)
-            finally:
-                loop.call_soon_threadsafe(_settle, stopped)
-
-        self._thread = threading.Thread(target=serve, name=f"bus-{self.name}", daemon=True)
-        self._thread.start()
+        """Own the port until cancelled or closed: open it, serve the queue, probe."""
+        self._loop = asyncio.get_running_loop()
+        serving = self._loop.create_task(self._serve(), name=f"bus-{self.name}")
         try:
-            await stopped
-        finally:
+            # Shielded: cancelling run() must not cut a transaction off halfway on the wire.
+            await asyncio.shield(serving)
+        except asyncio.CancelledError:
             self.close()
-            # The thread finishes the transaction on the wire and closes the port.
-            await loop.run_in_executor(None, self._thread.join, 5.0)
-        if failure:
-            # A bus that can't serve its line must not look alive: fail the service, so systemd
-            # or Docker restarts it (Restart=on-failure), rather than answer 0BH forever.
-            raise BusFailed(f"bus {self.name}: worker thread died: {failure[0]!r}")
+            done, _ = await asyncio.wait({serving}, timeout=FINISH_S)
+            if not done:
+                await cancel_and_wait(serving, 1.0)
+            raise
+        finally:
+            if serving.done() and not serving.cancelled() and serving.exception() is not None:
+                failure = serving.exception()
+                log.critical("bus %s: died", self.name, exc_info=failure)
+                # A bus that can't serve its line must not look alive: fail the service, so
+                # systemd or Docker restarts it (Restart=on-failure), rather than answer 0BH
+                # forever.
+                raise BusFailed(f"bus {self.name}: died: {failure!r}") from failure
 
     async def wait_open(self, timeout_s: float) -> bool:
         try:
@@ -301,10 +294,9 @@ class Bus:
     def close(self) -> None:
         """Refuse new requests and answer queued ones with 0x0B; the one on the wire finishes."""
         self.state = BusState.CLOSED
-        with self._work:
-            self._closing = True
-            queued = self._queue.take_all()
-            self._work.notify_all()
+        self._closing = True
+        queued = self._queue.take_all()
+        self._wake()
         error = BusClosed(f"bus {self.name} is shutting down")
         for transaction in queued:
             _fail(transaction, error)
@@ -314,66 +306,82 @@ class Bus:
         if not self._busy:
             return
         self._idle.clear()
-        if not self._busy:  # it finished between the check and the clear
-            return
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(self._idle.wait(), timeout_s)
 
-    # -- the bus thread --------------------------------------------------------------------------
+    # -- the bus's coroutine -------------------------------------------------------------------
 
-    def _serve(self) -> None:
+    async def _serve(self) -> None:
+        # The loop's epoll timeouts (probes, response timeouts) need no slack either.
         tighten_timer_slack()
-        while not self._closing:
-            if not self.line.is_open:
-                self._open_with_backoff()
-                continue
-            transaction = self._next_transaction()
-            if transaction is None:
-                continue
-            self._busy = True
-            self._generation += 1
-            outcome: Outcome
-            try:
-                outcome = self._execute(transaction)
-            except Exception as exc:  # a bug costs this one request, never the line
-                log.exception("bus %s: unexpected error in a transaction", self.name)
-                outcome = (_fail, (transaction, GatewayTargetFailed(f"bus {self.name}: {exc}")))
-            finally:
-                self._busy = False
-            # One hand-over to the event loop per transaction: answer, and mark idle.
-            self._post(self._finish, outcome, self._generation)
-        self.line.close()
+        try:
+            while not self._closing:
+                if not self.line.is_open:
+                    await self._open_with_backoff()
+                    continue
+                transaction = await self._next_transaction()
+                if transaction is None:
+                    continue
+                self._busy = True
+                outcome: Outcome
+                try:
+                    outcome = await self._execute(transaction)
+                except Exception as exc:  # a bug costs this one request, never the line
+                    log.exception("bus %s: unexpected error in a transaction", self.name)
+                    error = GatewayTargetFailed(f"bus {self.name}: {exc}")
+                    outcome = (_fail, (transaction, error))
+                finally:
+                    self._busy = False
+                callback, args = outcome
+                callback(*args)
+                self._idle.set()
+        finally:
+            self.line.close()
 
-    def _next_transaction(self) -> Transaction | None:
+    async def _next_transaction(self) -> Transaction | None:
         """Keep the inter-frame gap, wait for work, then take the best transaction there is now.
 
         The gap comes first: it must pass before anything can go out anyway, and a request that
-        arrives while the thread sleeps through it needs no wake-up of its own (each wake-up
-        costs tens of microseconds of CPU on a virtual machine).
+        arrives meanwhile simply waits in the queue for the gap's end.
         """
         try:
-            self.line.keep_gap()
+            await self.line.keep_gap()
         except PortError as exc:
             self._port_lost(exc)
             return None
-        with self._work:
-            # Every pass, not only when idle: a busy line must still find out a drive is back.
+        # Every pass, not only when idle: a busy line must still find out a drive is back.
+        self._queue_due_probes()
+        while not self._closing and not len(self._queue):
+            next_probe = self.health.next_probe_at()
+            wait = IDLE_WAKE_S if next_probe is None else next_probe - time.monotonic()
+            await self._wait_for_work(min(max(wait, 0.001), IDLE_WAKE_S))
+            if not self.line.is_open or self.line.failed:
+                return None  # the port went while idle: reopen it first
             self._queue_due_probes()
-            while not self._closing and not len(self._queue):
-                self._queue_due_probes()
-                if len(self._queue):
-                    break
-                next_probe = self.health.next_probe_at()
-                wait = IDLE_WAKE_S if next_probe is None else next_probe - time.monotonic()
-                self._work.wait(min(max(wait, 0.001), IDLE_WAKE_S))
-            if self._closing:
-                return None
-            while (transaction := self._queue.get_nowait()) is not None:
-                if transaction.wanted:
-                    return transaction
+        if self._closing:
+            return None
+        while (transaction := self._queue.get_nowait()) is not None:
+            if transaction.wanted:
+                return transaction
         return None
 
-    def _open_with_backoff(self) -> None:
+    async def _wait_for_work(self, timeout_s: float) -> None:
+        assert self._loop is not None
+        work = self._work = self._loop.create_future()
+        timer = self._loop.call_later(timeout_s, _settle, work)
+        try:
+            await work
+        finally:
+            timer.cancel()
+            self._work = None
+
+    def _wake(self) -> None:
+        """Something for the bus to do: a request, a lost port, shutdown."""
+        work = self._work
+        if work is not None and not work.done():
+            work.set_result(None)
+
+    async def _open_with_backoff(self) -> None:
         delay = self.settings.reopen_initial_s
         failures = 0
         while not self._closing:
@@ -387,8 +395,11 @@ class Bus:
                 # Say it loudly once, then quietly: a missing adapter shouldn't flood the journal.
                 level = logging.WARNING if failures == 1 else logging.DEBUG
                 log.log(level, "bus %s: %s; retrying (attempt %d)", self.name, exc, failures)
-                with self._work:
-                    self._work.wait(delay * random.uniform(0.8, 1.2))
+                # Only shutdown cuts the wait short: requests arriving meanwhile are refused
+                # (0BH) or queued, and must not turn the backoff into a retry per request.
+                until = time.monotonic() + delay * random.uniform(0.8, 1.2)
+                while not self._closing and (left := until - time.monotonic()) > 0:
+                    await self._wait_for_work(left)
                 delay = min(delay * 2, self.settings.reopen_max_s)
                 continue
             if self.state is BusState.REOPENING:
@@ -397,16 +408,10 @@ class Bus:
                 return
             self.state = BusState.OPEN
             log.info("bus %s: %s open", self.name, self.settings.line.port)
-            self._post(self._opened.set)
+            self._opened.set()
             return
 
-    def _finish(self, outcome: Outcome, generation: int) -> None:
-        callback, args = outcome
-        callback(*args)
-        if generation == self._generation:  # not an older transaction's late hand-over
-            self._idle.set()
-
-    def _execute(self, transaction: Transaction) -> Outcome:
+    async def _execute(self, transaction: Transaction) -> Outcome:
         """Carry one transaction through its attempts; what to tell its waiters."""
         address = transaction.address
         if (
@@ -432,7 +437,7 @@ class Bus:
             dump_frame(self.name, "tx", frame)
             started = time.monotonic()
             try:
-                exchange = self.line.transact(
+                exchange = await self.line.transact(
                     frame, expect_reply=not broadcast, timeout_s=transaction.timeout_s
                 )
             except ReplyTimeout as exc:
@@ -481,7 +486,7 @@ class Bus:
     def _answered(self, address: int) -> None:
         if self.health.record_answer(address):
             log.warning("bus %s: drive %d is back online", self.name, address)
-            self._post(self._notify, address, True)
+            self._notify(address, True)
 
     def _failed(self, address: int) -> None:
         if self.health.record_failure(address, time.monotonic()):
@@ -491,7 +496,7 @@ class Bus:
                 address,
                 self.settings.offline_after,
             )
-            self._post(self._notify, address, False)
+            self._notify(address, False)
 
     def _port_lost(self, exc: PortError) -> None:
         self.stats.port_errors += 1
@@ -499,22 +504,21 @@ class Bus:
         if not self._closing:
             self.state = BusState.REOPENING
         log.error("bus %s: port lost (%s); reopening with backoff", self.name, exc)
-        with self._work:
-            queued = self._queue.take_all()
+        queued = self._queue.take_all()
         error = GatewayTargetFailed(f"bus {self.name}: {exc}")
         for transaction in queued:
-            self._post(_fail, transaction, error)
+            _fail(transaction, error)
         # No drive on this line can be reached now: say so (MQTT availability, metrics); once
         # the port is back, the probes find each one again.
         now = time.monotonic()
         for address in self.health.known_addresses():
             if self.health.force_offline(address, now):
-                self._post(self._notify, address, False)
+                self._notify(address, False)
 
     def _queue_due_probes(self) -> None:
         """Queue one single-attempt probe for each offline drive whose backoff is over.
 
-        Called with `_work` held. A probe has no waiter: the health tracker reads its outcome.
+        A probe has no waiter: the health tracker reads its outcome.
         """
         if self.state is not BusState.OPEN:
             return
@@ -535,15 +539,7 @@ class Bus:
             except GatewayError:
                 return
 
-    # -- back to the event loop --------------------------------------------------------------
-
-    def _post(self, callback: Callable[..., Any], *args: Any) -> None:
-        loop = self._loop
-        if loop is None or loop.is_closed():
-            return
-        # The loop may close between the check and the call: then nobody waits for the answer.
-        with contextlib.suppress(RuntimeError):
-            loop.call_soon_threadsafe(callback, *args)
+    # -- telling the others --------------------------------------------------------------------
 
     def _notify(self, address: int, online: bool) -> None:
         for listener in self._listeners:

@@ -1,9 +1,11 @@
-"""The serial port of one RS-485 line, used from the bus's own thread only.
+"""The serial port of one RS-485 line, driven from the event loop.
 
-Why a thread and blocking calls: asyncio's selector rounds every timeout up to whole milliseconds,
-so a 1.75 ms gap would become 2-3 ms and a 115200-baud line would lose a quarter of its capacity.
-`select()` and `time.sleep()` in a dedicated thread keep the inter-frame gap to within tens of
-microseconds, and the event loop never blocks on the port.
+The port's descriptor is watched by the loop all the time: every byte is taken in as it arrives,
+with its arrival time, so the line knows when it last went quiet even between transactions (a late
+reply, noise). Reads are served from that buffer; the inter-frame gap is kept with an exact timer
+(`gateway.bus.line_timer`), not with asyncio's millisecond timeouts. Nothing here blocks the loop,
+and no thread is involved: a transaction costs the loop a wake-up when the reply arrives and one
+when the gap ends, which is all the CPU it needs.
 
 Timeouts, and which is which:
 - `timeout_s` (response timeout): from the end of the request on the wire to the first byte of the
@@ -13,19 +15,25 @@ Timeouts, and which is which:
   timer 16 ms), so this is longer than t1.5.
 - `drain_s`: after a timeout, how long to keep listening for a late reply before the next request,
   so it is never taken for the answer to the next one (RTU has no transaction id).
+
+Ports named by a pyserial URL (socket://, rfc2217://) have no descriptor to watch: their timed
+reads run in the loop's thread pool instead, which is slower but exact enough for a device server
+that sits behind a network anyway.
 """
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import os
-import select
 import termios
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import serial
 
+from gateway.bus.line_timer import LineTimer
 from gateway.errors import BadReply, PortError, ReplyTimeout
 from gateway.modbus.functions import NEED_MORE, UNKNOWN_LENGTH, rtu_reply_length
 from gateway.modbus.rtu import check_reply
@@ -34,6 +42,9 @@ from gateway.modbus.timing import CharacterFormat
 # Stray bytes that keep coming for this long are noise on the line, not a frame: stop draining and
 # let the next request take its chances rather than block the bus forever.
 MAX_DRAIN_S = 1.0
+RECEIVE_CHUNK = 4096
+MAX_BUFFERED = 4096
+"""Bytes kept while nobody reads (a frame is at most 256): a babbling line can't fill memory."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -73,20 +84,34 @@ def is_pseudo_terminal(port: str) -> bool:
 
 
 class SerialLine:
-    """Blocking, exact-timing access to one serial port. Not thread-safe: one thread owns it."""
+    """Exact-timing access to one serial port from the running event loop. One user at a time."""
 
     def __init__(self, settings: LineSettings) -> None:
         self.settings = settings
+        self.discarded_bytes = 0
+        self.on_port_error: Callable[[], None] | None = None
+        """Called when the port fails while nobody is reading it (an adapter unplugged)."""
         self._port: serial.SerialBase | None = None
         self._fd: int | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._timer: LineTimer | None = None
+        self._received = bytearray()
         self._quiet_since = 0.0
-        self.discarded_bytes = 0
+        self._error: PortError | None = None
+        self._waiter: asyncio.Future[None] | None = None
 
     @property
     def is_open(self) -> bool:
         return self._port is not None
 
+    @property
+    def failed(self) -> bool:
+        """The port has failed; the next use raises PortError (and closes it)."""
+        return self._error is not None
+
     def open(self) -> None:
+        """Open the port and start listening to it; call with the event loop running."""
+        loop = asyncio.get_running_loop()
         fmt = self.settings.char_format
         # A pty has no wire and no parity bit; Linux takes PARENB on one once and then refuses it
         # (EINVAL), so a virtual line that is opened again (a reopen, a field tool after a scan)
@@ -109,68 +134,88 @@ class SerialLine:
         with contextlib.suppress(Exception):
             port.set_low_latency_mode(True)
         try:
-            self._fd = port.fileno()
-        except Exception:  # URL ports (socket://, loop://) have no descriptor to select on
-            self._fd = None
+            fd: int | None = port.fileno()
+        except Exception:  # URL ports (socket://, loop://) have no descriptor to watch
+            fd = None
         with contextlib.suppress(Exception):
             port.reset_input_buffer()
-        self._port = port
+        self._port, self._fd, self._loop = port, fd, loop
+        self._received.clear()
+        self._error = None
+        self._timer = LineTimer(loop)
+        if fd is not None:
+            loop.add_reader(fd, self._receive)
         self._quiet_since = time.monotonic()
 
     def close(self) -> None:
-        port, self._port, self._fd = self._port, None, None
+        port, self._port = self._port, None
+        fd, self._fd = self._fd, None
+        if fd is not None and self._loop is not None and not self._loop.is_closed():
+            self._loop.remove_reader(fd)
+        if self._timer is not None:
+            self._timer.close()
+            self._timer = None
         if port is not None:
             with contextlib.suppress(Exception):
                 port.close()
+        self._wake()
 
     # -- one attempt -------------------------------------------------------------------------
 
-    def transact(self, frame: bytes, *, expect_reply: bool, timeout_s: float) -> Exchange:
+    async def transact(self, frame: bytes, *, expect_reply: bool, timeout_s: float) -> Exchange:
         """Send `frame` after the inter-frame gap and, unless a broadcast, read and check its reply.
 
         Raises ReplyTimeout or BadReply (after draining the line), or PortError (port closed).
         """
-        self.keep_gap()
+        await self.keep_gap()
         fmt = self.settings.char_format
         started = time.monotonic()
         gap = started - self._quiet_since
-        self._write(frame)
+        await self._write(frame)
         sent = started + fmt.wire_time_s(len(frame))
+        # Our own frame holds the line until its last character has left.
+        self._quiet_since = max(self._quiet_since, sent)
         if self.settings.echo:
-            self._read_echo(frame, sent)
+            await self._read_echo(frame, sent)
         if not expect_reply:
             self._quiet_since = sent + self.settings.turnaround_s
             return Exchange(None, gap, self._quiet_since - started)
         try:
-            reply = self._read_reply(frame, sent + timeout_s)
+            reply = await self._read_reply(frame, sent + timeout_s)
             pdu = check_reply(frame, reply)
         except ReplyTimeout:
-            self._drain(self.settings.drain_s)
+            await self._drain(self.settings.drain_s)
             raise
         except BadReply:
-            self._drain(0.0)
+            await self._drain(0.0)
             raise
         finally:
-            self._quiet_since = max(self._quiet_since, time.monotonic())
+            if self._fd is None:  # no arrival times without a descriptor: now is the safe bet
+                self._quiet_since = max(self._quiet_since, time.monotonic())
         return Exchange(pdu, gap, self._quiet_since - started)
 
-    def keep_gap(self) -> None:
+    async def keep_gap(self) -> None:
         """Wait until the line has been quiet for the gap; bytes arriving meanwhile restart it."""
         gap = self.settings.gap_s
         while True:
             self._discard_pending()
-            wait = self._quiet_since + gap - time.monotonic()
-            if wait <= 0:
+            due = self._quiet_since + gap
+            if due <= time.monotonic():
                 return
-            time.sleep(wait)
+            assert self._timer is not None  # _discard_pending raised if the port is closed
+            await self._timer.sleep_until(due)
 
     def _discard_pending(self) -> None:
         """Throw away bytes nobody asked for (noise, a reply later than every drain)."""
-        while data := self._read_some(256, 0.0):
-            self.discarded_bytes += len(data)
-            self._quiet_since = time.monotonic()
+        self._require_port()
+        if self._fd is None:
+            self._discard_pending_url()
+            return
+        if self._received:
+            self.discarded_bytes += len(self._received)
+            self._received.clear()
 
-    def _read_reply(self, frame: bytes, first_byte_deadline: float) -> bytes:
+    async def _read_reply(self, frame: bytes, first_byte_deadline: float) -> bytes:
         """Read exactly one reply, ending by its expected length (or on silence if unknown)."""
         reply = bytearray()
         deadline = first_byte_deadline
@@ -185,11 +230,10 @@ class SerialLine:
                 return bytes(reply)
             else:
                 want = expected - len(reply)
-            remaining = deadline - time.monotonic()
-            chunk = self._read_some(want, remaining) if remaining > 0 else b""
+            chunk = await self._read_some(want, deadline)
             if chunk:
                 reply += chunk
-                deadline = time.monotonic() + char_timeout
+                deadline = self._quiet_since + char_timeout
                 continue
             if not reply:
                 raise ReplyTimeout(f"no reply to {frame[:2].hex(' ')} within the response timeout")
@@ -197,21 +241,20 @@ class SerialLine:
                 return bytes(reply)
             raise BadReply("truncated", f"reply stopped after {len(reply)} bytes", bytes(reply))
 
-    def _read_echo(self, frame: bytes, sent: float) -> None:
+    async def _read_echo(self, frame: bytes, sent: float) -> None:
         """Adapters without echo suppression hand back what we sent; it must match exactly."""
         echo = bytearray()
         deadline = sent + self.settings.char_timeout_s
         while len(echo) < len(frame):
-            remaining = deadline - time.monotonic()
-            chunk = self._read_some(len(frame) - len(echo), remaining) if remaining > 0 else b""
+            chunk = await self._read_some(len(frame) - len(echo), deadline)
             if not chunk:
                 break
             echo += chunk
         if bytes(echo) != frame:
-            self._drain(0.0)
+            await self._drain(0.0)
             raise BadReply("echo", f"echo {bytes(echo).hex(' ')} differs from what was sent")
 
-    def _drain(self, wait_for_late_s: float) -> None:
+    async def _drain(self, wait_for_late_s: float) -> None:
         """Listen up to `wait_for_late_s` for a late frame, then until the line is quiet."""
         char_timeout = self.settings.char_timeout_s
         started = time.monotonic()
@@ -220,60 +263,151 @@ class SerialLine:
             now = time.monotonic()
             if now >= deadline or now - started > MAX_DRAIN_S:
                 return
-            data = self._read_some(256, deadline - now)
+            data = await self._read_some(256, deadline)
             if data:
                 self.discarded_bytes += len(data)
-                self._quiet_since = time.monotonic()
                 # A late frame is arriving: follow it to its end, then stop.
                 deadline = self._quiet_since + char_timeout
 
-    # -- raw port access ---------------------------------------------------------------------
+    # -- the port ----------------------------------------------------------------------------
 
-    def _write(self, frame: bytes) -> None:
+    def _receive(self) -> None:
+        """The loop's reader callback: take in what arrived, note when, wake a reader."""
+        assert self._fd is not None
+        try:
+            data = os.read(self._fd, RECEIVE_CHUNK)
+            if not data:
+                raise OSError("device reports data but returns none (unplugged?)")
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            self._fail(PortError(f"read from {self.settings.port} failed: {exc}"))
+            return
+        self._received += data
+        self._quiet_since = time.monotonic()
+        if len(self._received) > MAX_BUFFERED:
+            excess = len(self._received) - MAX_BUFFERED
+            self.discarded_bytes += excess
+            del self._received[:excess]
+        self._wake()
+
+    def _fail(self, error: PortError) -> None:
+        """The port is gone: stop watching it (a dead descriptor is readable forever)."""
+        self._error = error
+        if self._fd is not None and self._loop is not None:
+            self._loop.remove_reader(self._fd)
+        if self._waiter is None and self.on_port_error is not None:
+            self.on_port_error()
+        self._wake()
+
+    def _wake(self) -> None:
+        waiter = self._waiter
+        if waiter is not None and not waiter.done():
+            waiter.set_result(None)
+
+    async def _read_some(self, max_bytes: int, deadline: float) -> bytes:
+        """Up to `max_bytes` that arrive before `deadline` (monotonic); b"" when none do."""
+        self._require_port()
+        if self._fd is None:
+            return await self._read_some_url(max_bytes, deadline)
+        if not self._received:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return b""
+            assert self._loop is not None
+            waiter = self._waiter = self._loop.create_future()
+            # Response and character timeouts need no sub-millisecond precision: call_later.
+            timeout = self._loop.call_later(remaining, _settle, waiter)
+            try:
+                await waiter
+            finally:
+                timeout.cancel()
+                self._waiter = None
+            self._require_port()
+        data = bytes(self._received[:max_bytes])
+        del self._received[:max_bytes]
+        return data
+
+    async def _write(self, frame: bytes) -> None:
         port = self._require_port()
         try:
-            if self._fd is not None:
-                view = memoryview(frame)
-                # A frame takes its wire time to leave; an adapter that takes a second more
-                # is wedged, and a bus thread stuck here would hold the line forever.
-                deadline = time.monotonic() + self.settings.char_format.wire_time_s(len(frame)) + 1
-                while view:
-                    try:
-                        written = os.write(self._fd, view)
-                    except BlockingIOError:  # the port is non-blocking; its buffer is full
-                        remaining = deadline - time.monotonic()
-                        if remaining <= 0:
-                            raise OSError(
-                                "the port takes no more bytes (adapter wedged?)"
-                            ) from None
-                        select.select([], [self._fd], [], remaining)
-                        continue
-                    view = view[written:]
-            else:
+            if self._fd is None:
                 port.write(frame)
+                return
+            view = memoryview(frame)
+            # A frame takes its wire time to leave; an adapter that takes a second more is
+            # wedged, and a bus stuck here would hold the line forever.
+            deadline = time.monotonic() + self.settings.char_format.wire_time_s(len(frame)) + 1
+            while view:
+                try:
+                    written = os.write(self._fd, view)
+                except BlockingIOError:  # the port is non-blocking; its buffer is full
+                    if not await self._writable(deadline):
+                        raise OSError("the port takes no more bytes (adapter wedged?)") from None
+                    continue
+                view = view[written:]
         except (serial.SerialException, OSError, termios.error) as exc:
             self.close()
             raise PortError(f"write to {self.settings.port} failed: {exc}") from exc
 
-    def _read_some(self, max_bytes: int, timeout_s: float) -> bytes:
-        """Up to `max_bytes` that arrive within `timeout_s`; b"" when none do."""
-        port = self._require_port()
+    async def _writable(self, deadline: float) -> bool:
+        assert self._loop is not None
+        assert self._fd is not None
+        remaining = deadline - time.monotonic()
+        if remaining <= 0:
+            return False
+        waiter: asyncio.Future[None] = self._loop.create_future()
+        self._loop.add_writer(self._fd, _settle, waiter)
+        timeout = self._loop.call_later(remaining, _settle, waiter)
         try:
+            await waiter
+        finally:
+            timeout.cancel()
             if self._fd is not None:
-                ready, _, _ = select.select([self._fd], [], [], max(timeout_s, 0.0))
-                if not ready:
-                    return b""
-                data = os.read(self._fd, max_bytes)
-                if not data:
-                    raise OSError("device reports data but returns none (unplugged?)")
-                return data
-            port.timeout = max(timeout_s, 0.0)
-            return bytes(port.read(max_bytes))
-        except (serial.SerialException, OSError, termios.error) as exc:
-            self.close()
-            raise PortError(f"read from {self.settings.port} failed: {exc}") from exc
+                self._loop.remove_writer(self._fd)
+        return time.monotonic() < deadline
 
     def _require_port(self) -> serial.SerialBase:
+        if self._error is not None:
+            error = self._error
+            self.close()
+            self._error = None
+            raise error
         if self._port is None:
             raise PortError(f"{self.settings.port} is not open")
         return self._port
+
+    # -- ports without a descriptor (pyserial URLs) -------------------------------------------
+
+    def _discard_pending_url(self) -> None:
+        port = self._require_port()
+        try:
+            port.timeout = 0
+            while data := port.read(256):
+                self.discarded_bytes += len(data)
+                self._quiet_since = time.monotonic()
+        except (serial.SerialException, OSError) as exc:
+            self.close()
+            raise PortError(f"read from {self.settings.port} failed: {exc}") from exc
+
+    async def _read_some_url(self, max_bytes: int, deadline: float) -> bytes:
+        port = self._require_port()
+        assert self._loop is not None
+
+        def read() -> bytes:
+            port.timeout = max(deadline - time.monotonic(), 0.0)
+            return bytes(port.read(max_bytes))
+
+        try:
+            data = await self._loop.run_in_executor(None, read)
+        except (serial.SerialException, OSError) as exc:
+            self.close()
+            raise PortError(f"read from {self.settings.port} failed: {exc}") from exc
+        if data:
+            self._quiet_since = time.monotonic()
+        return data
+
+
+def _settle(waiter: asyncio.Future[None]) -> None:
+    if not waiter.done():
+        waiter.set_result(None)

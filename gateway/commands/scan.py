@@ -100,4 +100,3 @@ def handle(args: argparse.Namespace) -> int:
         return EXIT_FAILURE
     Console(soft_wrap=True).print(result_table(options, result))
     return EXIT_OK
-

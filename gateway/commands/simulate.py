@@ -47,7 +47,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     where.add_argument("--device", metavar="PATH", help="serve on an existing serial device")
     parser.add_argument("--link", metavar="PATH", help="a symlink to keep pointed at the port")
     parser.add_argument(
-        "--address", type=_address, action="append", metavar="ADDR",
+        "--address",
+        type=_address,
+        action="append",
+        metavar="ADDR",
         help="a drive address 1..247 (repeat for several drives; default 1)",
     )
     parser.add_argument("--model", default="gd350", choices=INVT_MODELS)
@@ -55,31 +58,55 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--parity", default="E", type=str.upper, choices=PARITIES)
     parser.add_argument("--stopbits", type=int, default=1, choices=(1, 2))
     parser.add_argument(
-        "--no-wire-time", dest="wire_time", action="store_false",
+        "--no-wire-time",
+        dest="wire_time",
+        action="store_false",
         help="answer as fast as the pty allows instead of at the baud rate's pace",
     )
     parser.add_argument("--response-delay-ms", type=float, default=5.0, metavar="MS")
     parser.add_argument(
-        "--fault", type=_pair, action="append", default=[], metavar="ADDR=CODE",
+        "--fault",
+        type=_pair,
+        action="append",
+        default=[],
+        metavar="ADDR=CODE",
         help="start with this drive tripped",
     )
     parser.add_argument("--dead", type=_address, action="append", default=[], metavar="ADDR")
     parser.add_argument(
-        "--fault-history", type=_history, action="append", default=[],
-        metavar="ADDR=CODE,CODE,...", help="P07.27-P07.32 of a drive, newest first",
+        "--fault-history",
+        type=_history,
+        action="append",
+        default=[],
+        metavar="ADDR=CODE,CODE,...",
+        help="P07.27-P07.32 of a drive, newest first",
     )
     parser.add_argument(
-        "--line-faults", type=_rate, default=0.0, metavar="RATE",
+        "--line-faults",
+        type=_rate,
+        default=0.0,
+        metavar="RATE",
         help="spoil this share of the replies (0.05: 5 %%), as a noisy line would",
     )
     parser.add_argument(
-        "--line-fault-kinds", type=_kinds, default=None, metavar="KIND,...",
+        "--line-fault-kinds",
+        type=_kinds,
+        default=None,
+        metavar="KIND,...",
         help=f"which ways to spoil them (default all: {','.join(sorted(KINDS))})",
     )
-    parser.add_argument("--line-fault-seed", type=int, default=None, metavar="N",
-                        help="the same seed spoils the same replies")
     parser.add_argument(
-        "--late-reply-ms", type=float, default=500.0, metavar="MS",
+        "--line-fault-seed",
+        type=int,
+        default=None,
+        metavar="N",
+        help="the same seed spoils the same replies",
+    )
+    parser.add_argument(
+        "--late-reply-ms",
+        type=float,
+        default=500.0,
+        metavar="MS",
         help="how much later than due a 'late' reply comes (default 500)",
     )
 

@@ -31,11 +31,17 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "--duration", type=_positive, default=60.0, metavar="S", help="seconds (default 60)"
     )
     parser.add_argument(
-        "--fault-rate", type=_rate, default=0.05, metavar="RATE",
+        "--fault-rate",
+        type=_rate,
+        default=0.05,
+        metavar="RATE",
         help="share of the drives' replies spoilt on the line (default 0.05)",
     )
     parser.add_argument(
-        "--clients", type=_clients, default=8, metavar="N",
+        "--clients",
+        type=_clients,
+        default=8,
+        metavar="N",
         help="Modbus-TCP clients, each writing and reading back its own parameters: 1..12 "
         "(3 parameter blocks on each of the 4 drives; default 8)",
     )

@@ -57,20 +57,28 @@ COMMUNICATION_MODE = (
 )
 
 _EXCEPTION_CHECKS: dict[int, tuple[str, ...]] = {
-    0x01: ("the drive has no such function, or it is in a fault state: read 2102H",
-           *COMMUNICATION_MODE),
-    0x02: ("the register exists on this model (manufacturer groups P29/P99 are never readable)",
-           "INVT reads at most 16 words at once"),
-    0x04: ("the value is inside the parameter's range; some ranges depend on another parameter "
-           "(P00.04 within P00.05...P00.03)",),
+    0x01: (
+        "the drive has no such function, or it is in a fault state: read 2102H",
+        *COMMUNICATION_MODE,
+    ),
+    0x02: (
+        "the register exists on this model (manufacturer groups P29/P99 are never readable)",
+        "INVT reads at most 16 words at once",
+    ),
+    0x04: (
+        "the value is inside the parameter's range; some ranges depend on another parameter "
+        "(P00.04 within P00.05...P00.03)",
+    ),
     0x05: ("the user password (P07.00)",),
     0x06: ("the frame reached the drive damaged: termination, wiring, baud rate",),
     0x07: ("the parameter is read-only",),
     0x08: ("the parameter can only be changed while the drive is stopped",),
     0x09: ("the drive is locked by a password (P07.00)",),
     0x0A: ("the gateway's configuration has a drive with this unit id (check-config lists them)",),
-    0x0B: ("the gateway got no answer from the drive: its log says why (offline, timeout, port)",
-           *NO_ANSWER[:2]),
+    0x0B: (
+        "the gateway got no answer from the drive: its log says why (offline, timeout, port)",
+        *NO_ANSWER[:2],
+    ),
 }
 
 

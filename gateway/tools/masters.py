@@ -5,11 +5,13 @@ above them treat a silent drive the same way whichever path they took. Exception
 back as exception PDUs: what they mean is for the caller to say.
 
 `RtuMaster` is the bus's `SerialLine` with a tool's settings (no retries, a short drain), so the
-field tools time and frame requests exactly as the service does.
+field tools time and frame requests exactly as the service does. The line lives on an event loop;
+the master keeps a private one and runs each request on it to the end.
 """
 
 from __future__ import annotations
 
+import asyncio
 import socket
 from dataclasses import dataclass
 from typing import Protocol
@@ -60,6 +62,7 @@ class SerialOptions:
 class RtuMaster:
     def __init__(self, options: SerialOptions) -> None:
         self.options = options
+        self._loop = asyncio.new_event_loop()
         char_format = options.char_format
         self.line = SerialLine(
             LineSettings(
@@ -71,21 +74,31 @@ class RtuMaster:
                 turnaround_s=0.1,
             )
         )
-        self.line.open()
+        try:
+            self._loop.run_until_complete(self._open())
+        except BaseException:
+            self._loop.close()
+            raise
 
     @property
     def where(self) -> str:
         return self.options.describe()
 
     def request(self, address: int, pdu: bytes) -> bytes:
-        exchange = self.line.transact(
-            build_frame(address, pdu), expect_reply=True, timeout_s=self.options.timeout_s
+        frame = build_frame(address, pdu)
+        exchange = self._loop.run_until_complete(
+            self.line.transact(frame, expect_reply=True, timeout_s=self.options.timeout_s)
         )
         assert exchange.reply_pdu is not None  # a request with a reply expected has one
         return exchange.reply_pdu
 
     def close(self) -> None:
-        self.line.close()
+        if not self._loop.is_closed():
+            self.line.close()
+            self._loop.close()
+
+    async def _open(self) -> None:
+        self.line.open()
 
 
 def parse_via(url: str) -> tuple[str, int]:

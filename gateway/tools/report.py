@@ -46,7 +46,6 @@ def no_drive_found(options: SerialOptions, result: ScanResult) -> FieldError:
             GARBLED,
         )
     delay = (
-        f"the drives' response delay P14.03 is below --timeout-ms "
-        f"({options.timeout_s * 1000:g} ms)"
+        f"the drives' response delay P14.03 is below --timeout-ms ({options.timeout_s * 1000:g} ms)"
     )
     return FieldError(f"no drive answered on {options.describe()}", (*NO_ANSWER, delay))

@@ -1,0 +1,126 @@
+"""Exact wake-ups on the event loop, for the inter-frame gap.
+
+asyncio's selector rounds every timeout up to whole milliseconds (epoll takes milliseconds), so a
+1.75 ms gap kept with `loop.call_at` would become 2-3 ms and a 115200-baud line would lose a
+quarter of its capacity. A Linux timerfd is a file descriptor that becomes readable at a
+nanosecond deadline: the loop watches it like any socket, and the wake-up comes when the gap ends,
+not at the next millisecond. The kernel applies no timer slack to it either.
+
+Where timerfd is missing (not Linux, or the call is refused) the timer falls back to `call_at`:
+the gap is still kept, only less tightly.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import ctypes
+import ctypes.util
+import logging
+import math
+import os
+import sys
+import time
+
+log = logging.getLogger(__name__)
+
+CLOCK_MONOTONIC = 1
+"""The clock behind `time.monotonic()` on Linux: deadlines are passed through unchanged."""
+TFD_NONBLOCK = os.O_NONBLOCK
+TFD_CLOEXEC = os.O_CLOEXEC
+TFD_TIMER_ABSTIME = 1
+
+
+class _Timespec(ctypes.Structure):
+    _fields_ = [("tv_sec", ctypes.c_long), ("tv_nsec", ctypes.c_long)]
+
+
+class _Itimerspec(ctypes.Structure):
+    _fields_ = [("it_interval", _Timespec), ("it_value", _Timespec)]
+
+
+def _libc() -> ctypes.CDLL | None:
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c"), use_errno=True)
+        libc.timerfd_create  # noqa: B018 - the attribute lookup is the check
+    except (OSError, AttributeError):
+        return None
+    return libc
+
+
+class LineTimer:
+    """One pending deadline at a time; `sleep_until` returns once it has passed."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
+        self._loop = loop
+        self._waiter: asyncio.Future[None] | None = None
+        self._spec = _Itimerspec()
+        self._fd = -1
+        self._libc = _libc()
+        if self._libc is not None:
+            fd = int(self._libc.timerfd_create(CLOCK_MONOTONIC, TFD_NONBLOCK | TFD_CLOEXEC))
+            if fd >= 0:
+                self._fd = fd
+                loop.add_reader(fd, self._expired)
+            else:
+                log.debug("timerfd_create failed (errno %d); gaps kept to 1 ms", ctypes.get_errno())
+
+    @property
+    def exact(self) -> bool:
+        """True when wake-ups come at the deadline (timerfd), not at the next millisecond."""
+        return self._fd >= 0
+
+    async def sleep_until(self, deadline: float) -> None:
+        """Return at `deadline` (a `time.monotonic()` value) or right after it."""
+        if deadline <= time.monotonic():
+            return
+        waiter = self._loop.create_future()
+        self._waiter = waiter
+        if self._fd >= 0 and self._arm(deadline):
+            try:
+                await waiter
+            finally:
+                self._waiter = None
+            return
+        handle = self._loop.call_at(
+            self._loop.time() + (deadline - time.monotonic()), _settle, waiter
+        )
+        try:
+            await waiter
+        finally:
+            handle.cancel()
+            self._waiter = None
+
+    def close(self) -> None:
+        fd, self._fd = self._fd, -1
+        if fd >= 0:
+            self._loop.remove_reader(fd)
+            os.close(fd)
+        if self._waiter is not None:
+            _settle(self._waiter)
+
+    def _arm(self, deadline: float) -> bool:
+        assert self._libc is not None
+        # Rounded up, never down: the gap may end a nanosecond late, never early. At least 1 ns:
+        # an all-zero it_value would disarm the timer instead of firing it.
+        seconds, nanoseconds = divmod(max(math.ceil(deadline * 1e9), 1), 1_000_000_000)
+        self._spec.it_value.tv_sec = seconds
+        self._spec.it_value.tv_nsec = nanoseconds
+        done = self._libc.timerfd_settime(
+            self._fd, TFD_TIMER_ABSTIME, ctypes.byref(self._spec), None
+        )
+        return int(done) == 0
+
+    def _expired(self) -> None:
+        try:
+            os.read(self._fd, 8)  # the expiry count; reading it re-arms readiness
+        except BlockingIOError:
+            return  # a deadline re-armed after this wake-up was queued: not due yet
+        if self._waiter is not None:
+            _settle(self._waiter)
+
+
+def _settle(waiter: asyncio.Future[None]) -> None:
+    if not waiter.done():
+        waiter.set_result(None)
