@@ -256,7 +256,9 @@ class Bus:
             self.stats.queue_full += 1
             raise
         self._wake()
-        if carrier is not transaction:
+        if carrier is transaction:
+            transaction.frame = build_frame(address, pdu)
+        else:
             self.stats.coalesced += 1
         return await waiter
 
@@ -344,13 +346,13 @@ class Bus:
         The gap comes first: it must pass before anything can go out anyway, and a request that
         arrives meanwhile simply waits in the queue for the gap's end.
         """
+        # Every pass, not only when idle: a busy line must still find out a drive is back.
+        self._queue_due_probes()
         try:
             await self.line.keep_gap()
         except PortError as exc:
             self._port_lost(exc)
             return None
-        # Every pass, not only when idle: a busy line must still find out a drive is back.
-        self._queue_due_probes()
         while not self._closing and not len(self._queue):
             next_probe = self.health.next_probe_at()
             wait = IDLE_WAKE_S if next_probe is None else next_probe - time.monotonic()
@@ -421,7 +423,7 @@ class Bus:
         ):
             self.stats.offline_rejected += 1
             return _fail, (transaction, DriveOffline(f"drive {address} on {self.name} is offline"))
-        frame = build_frame(address, transaction.pdu)
+        frame = transaction.frame or build_frame(address, transaction.pdu)
         broadcast = address == BROADCAST_ADDRESS
         retries = 0 if self.health.is_suspect(address) else transaction.retries
         drive = self.drive_stats.get(address)
@@ -533,6 +535,7 @@ class Bus:
                 timeout_s=self.settings.timeout_s,
                 retries=0,
                 probe=True,
+                frame=build_frame(address, PROBE_PDU),
             )
             try:
                 self._queue.put(probe)

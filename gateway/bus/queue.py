@@ -45,6 +45,8 @@ class Transaction:
     waiters: list[asyncio.Future[bytes | None]] = field(default_factory=list)
     probe: bool = False
     """A bus's own check of an offline drive: nobody waits for it, it is always wanted."""
+    frame: bytes = b""
+    """The RTU frame, built when queued: CRC work done while the line is busy, not in the gap."""
 
     @property
     def key(self) -> tuple[int, bytes, Priority]:

@@ -260,7 +260,6 @@ class Connection(asyncio.Protocol):
             self.answers.add(answer)
             if pdu[0] in PURE_READS:
                 self._reads.add(answer)
-            answer.add_done_callback(self._answered)
             if len(self.answers) >= settings.max_requests_per_connection:
                 # Back-pressure: stop reading this client until an answer has gone out.
                 self._pause()
@@ -275,7 +274,8 @@ class Connection(asyncio.Protocol):
         self._write_blocked = False
         self._maybe_resume()
 
-    def _answered(self, task: asyncio.Task[None]) -> None:
+    def _answered(self) -> None:
+        task = asyncio.current_task()
         self.answers.discard(task)
         self._reads.discard(task)
         self._maybe_resume()
@@ -297,12 +297,16 @@ class Connection(asyncio.Protocol):
             self._take_frames()
 
     async def _answer(self, transaction_id: int, unit_id: int, pdu: bytes) -> None:
-        reply = await self.server.reply(unit_id, pdu, self.client)
-        transport = self._transport
-        if reply is None or transport is None or transport.is_closing():
-            return
-        # One write per frame: answers finishing in any order never interleave.
-        transport.write(build_adu(transaction_id, unit_id, reply))
+        try:
+            reply = await self.server.reply(unit_id, pdu, self.client)
+            transport = self._transport
+            if reply is None or transport is None or transport.is_closing():
+                return
+            # One write per frame: answers finishing in any order never interleave.
+            transport.write(build_adu(transaction_id, unit_id, reply))
+        finally:
+            # Here rather than in a done callback, which would cost the loop one more pass.
+            self._answered()
 
     def _arm_idle_timer(self) -> None:
         settings = self.server.settings
