@@ -45,6 +45,9 @@ def test_bench_prints_checked_figures_as_json() -> None:
         assert row["bus tx/s"] > 0
         assert row["client tx/s"] > 0
         assert row["peak RSS MB"] > 0
+        # Coalescing answers several clients per transaction: never more CPU per answer.
+        assert row["CPU us/ans"] <= row["CPU us/tx"]
+        assert 0 <= row["CPU"] < 2  # the gateway's share of the machine's two cores
         # 115200 8E1, 8 + 9 bytes, t3.5 1.75 ms, the drive's 5 ms: 8.37 ms a transaction.
         assert abs(row["wire max/s"] - 1 / (17 * 11 / 115200 + 0.00175 + 0.005)) < 0.1
     assert any("served by coalescing alone" in line for line in report["summary"])

@@ -88,6 +88,16 @@ class CaseResult:
     def cpu_per_transaction_us(self) -> float:
         return 1e6 * self.cpu_s / max(self.bus_transactions, 1)
 
+    @property
+    def cpu_per_answer_us(self) -> float:
+        """Per client request answered: with coalescing, one transaction answers several."""
+        return 1e6 * self.cpu_s / max(self.load.answered + self.load.dead_answers, 1)
+
+    @property
+    def cpu_share(self) -> float:
+        """The gateway's CPU time over wall time: 1.0 is one core kept busy."""
+        return self.cpu_s / self.elapsed_s
+
     def latency_ms(self, quantile: float) -> float:
         latencies = sorted(self.load.latencies_s)
         if not latencies:

@@ -22,6 +22,8 @@ COLUMNS = (
     ("of max", "{:>7.1%}"),
     ("t3.5 viol", "{:>9}"),
     ("CPU us/tx", "{:>9.0f}"),
+    ("CPU us/ans", "{:>10.0f}"),
+    ("CPU", "{:>6.1%}"),
     ("peak RSS MB", "{:>11.1f}"),
 )
 
@@ -45,6 +47,8 @@ def row(result: CaseResult) -> dict[str, Any]:
         "of max": result.client_per_s / result.wire_max_per_s,
         "t3.5 viol": result.gap_violations,
         "CPU us/tx": result.cpu_per_transaction_us,
+        "CPU us/ans": result.cpu_per_answer_us,
+        "CPU": result.cpu_share,
         "peak RSS MB": result.peak_rss_mb,
     }
 
