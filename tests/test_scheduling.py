@@ -60,6 +60,32 @@ async def test_writes_go_before_reads_and_reads_before_polls(slow_line: Simulate
         assert finished == ["write", "read", "read", "poll", "poll"]
 
 
+async def test_the_next_request_is_chosen_when_the_gap_ends_not_when_it_begins(
+    slow_line: SimulatedLine,
+) -> None:
+    """A read waits while a transaction is on the wire; a write comes during the gap after it:
+    the write goes first, because the bus chooses in the wake-up that ends the gap (a long gap
+    makes the order sure however slow the machine)."""
+    config = gateway_config(slow_line.path, DRIVES, baudrate=9600, timeout_ms=1000, gap_ms=400)
+    async with running_gateway(config) as app:
+        finished: list[str] = []
+
+        async def send(label: str, pdu: bytes) -> None:
+            await app.router.execute(1, pdu, client=label)
+            finished.append(label)
+
+        busy = await occupy_line(app, slow_line)
+        read = asyncio.create_task(send("read", read_pdu(0x2101)))  # queued before the gap
+        await busy  # the gap starts now
+        await asyncio.sleep(0.02)
+        write = asyncio.create_task(send("write", write_pdu(0x0005, 321)))
+        await asyncio.gather(read, write)
+        assert finished == ["write", "read"]
+        min_gap = app.buses["line1"].stats.min_gap_s
+        assert min_gap is not None
+        assert min_gap >= 0.4
+
+
 async def test_a_busy_client_does_not_starve_another(slow_line: SimulatedLine) -> None:
     async with running_gateway(
         gateway_config(slow_line.path, DRIVES, baudrate=9600, timeout_ms=1000)

@@ -6,10 +6,10 @@ the event loop: the port's descriptor is watched by the loop and the inter-frame
 exact timer, so no thread, lock or hand-over between threads is needed, and a transaction costs
 the process no more wake-ups than the line itself makes.
 
-The bus takes the next transaction at the last possible moment: when the inter-frame gap after
-the previous one has passed. A write that arrives during the gap still goes first, and identical
-reads that arrive during it join the one transaction. Buses are independent of each other: each
-has its own queue, coroutine and port.
+The bus takes the next transaction at the last possible moment: in the wake-up that ends the
+inter-frame gap after the previous one, where its frame is written too. A write that arrives
+during the gap still goes first, and identical reads that arrive during it join the one
+transaction. Buses are independent of each other: each has its own queue, coroutine and port.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from enum import StrEnum
 from typing import Any
 
 from gateway.bus.health import HealthTracker
-from gateway.bus.line import Exchange, LineSettings, SerialLine
+from gateway.bus.line import Exchange, LineSettings, Sending, SerialLine
 from gateway.bus.queue import Priority, RequestQueue, Transaction
 from gateway.errors import (
     BadReply,
@@ -151,6 +151,8 @@ class Bus:
         )
         self._queue = RequestQueue(settings.queue_size)
         self._work: asyncio.Future[None] | None = None
+        self._picked: Transaction | None = None
+        """The transaction `_pick` chose at the end of the gap, until `_start_next` takes it."""
         """Set while the bus waits for work; a new request (or a lost port) resolves it."""
         self._closing = False
         self._busy = False
@@ -321,13 +323,13 @@ class Bus:
                 if not self.line.is_open:
                     await self._open_with_backoff()
                     continue
-                transaction = await self._next_transaction()
-                if transaction is None:
+                started = await self._start_next()
+                if started is None:
                     continue
-                self._busy = True
+                transaction, sending = started
                 outcome: Outcome
                 try:
-                    outcome = await self._execute(transaction)
+                    outcome = await self._execute(transaction, sending)
                 except Exception as exc:  # a bug costs this one request, never the line
                     log.exception("bus %s: unexpected error in a transaction", self.name)
                     error = GatewayTargetFailed(f"bus {self.name}: {exc}")
@@ -340,31 +342,63 @@ class Bus:
         finally:
             self.line.close()
 
-    async def _next_transaction(self) -> Transaction | None:
-        """Keep the inter-frame gap, wait for work, then take the best transaction there is now.
+    async def _start_next(self) -> tuple[Transaction, Sending] | None:
+        """Keep the inter-frame gap, then send the best transaction there is at its end.
 
-        The gap comes first: it must pass before anything can go out anyway, and a request that
-        arrives meanwhile simply waits in the queue for the gap's end.
+        The choice is made in the wake-up that ends the gap (`SerialLine.send_after_gap` calls
+        `_pick` there): a write that arrives during the gap still goes first, identical reads
+        that arrive during it join the one transaction, and the frame leaves without another
+        pass of the event loop. With nothing queued, the bus waits for work.
         """
         # Every pass, not only when idle: a busy line must still find out a drive is back.
         self._queue_due_probes()
-        try:
-            await self.line.keep_gap()
-        except PortError as exc:
-            self._port_lost(exc)
-            return None
-        while not self._closing and not len(self._queue):
+        while not self._closing:
+            try:
+                sending = await self.line.send_after_gap(self._pick)
+            except PortError as exc:
+                picked, self._picked = self._picked, None
+                if picked is not None:  # taken from the queue, but the port failed under it
+                    self._busy = False
+                    _fail(picked, GatewayTargetFailed(f"bus {self.name}: {exc}"))
+                self._port_lost(exc)
+                return None
+            if sending is not None:
+                transaction, self._picked = self._picked, None
+                assert transaction is not None  # a frame went out, so `_pick` chose one
+                return transaction, sending
+            if self._closing:
+                return None
+            if len(self._queue):
+                # Queued after the gap's end found nothing, before this coroutine resumed: its
+                # wake-up found nobody waiting, so look again rather than sleep on it.
+                continue
             next_probe = self.health.next_probe_at()
             wait = IDLE_WAKE_S if next_probe is None else next_probe - time.monotonic()
             await self._wait_for_work(min(max(wait, 0.001), IDLE_WAKE_S))
             if not self.line.is_open or self.line.failed:
                 return None  # the port went while idle: reopen it first
             self._queue_due_probes()
+        return None
+
+    def _pick(self) -> bytes | None:
+        """Take the best transaction queued now and return its frame; None if there is none."""
         if self._closing:
             return None
         while (transaction := self._queue.get_nowait()) is not None:
-            if transaction.wanted:
-                return transaction
+            if not transaction.wanted:
+                continue  # every waiter has gone: no bus time for it
+            address = transaction.address
+            if (
+                address != BROADCAST_ADDRESS
+                and not transaction.probe
+                and self.health.is_offline(address)
+            ):  # went offline while this waited: 0BH at once, without bus time
+                self.stats.offline_rejected += 1
+                _fail(transaction, DriveOffline(f"drive {address} on {self.name} is offline"))
+                continue
+            self._picked = transaction
+            self._busy = True
+            return transaction.frame or build_frame(address, transaction.pdu)
         return None
 
     async def _wait_for_work(self, timeout_s: float) -> None:
@@ -413,17 +447,11 @@ class Bus:
             self._opened.set()
             return
 
-    async def _execute(self, transaction: Transaction) -> Outcome:
-        """Carry one transaction through its attempts; what to tell its waiters."""
+    async def _execute(self, transaction: Transaction, first: Sending) -> Outcome:
+        """Carry one transaction through its attempts, the first already sent; what to tell
+        its waiters."""
         address = transaction.address
-        if (
-            address != BROADCAST_ADDRESS
-            and not transaction.probe
-            and self.health.is_offline(address)
-        ):
-            self.stats.offline_rejected += 1
-            return _fail, (transaction, DriveOffline(f"drive {address} on {self.name} is offline"))
-        frame = transaction.frame or build_frame(address, transaction.pdu)
+        frame = first.frame
         broadcast = address == BROADCAST_ADDRESS
         retries = 0 if self.health.is_suspect(address) else transaction.retries
         drive = self.drive_stats.get(address)
@@ -437,11 +465,16 @@ class Bus:
             self.stats.transactions += 1
             drive.transactions += 1
             dump_frame(self.name, "tx", frame)
-            started = time.monotonic()
+            started = first.started if attempt == 0 else time.monotonic()
             try:
-                exchange = await self.line.transact(
-                    frame, expect_reply=not broadcast, timeout_s=transaction.timeout_s
-                )
+                if attempt == 0:
+                    exchange = await self.line.finish(
+                        first, expect_reply=not broadcast, timeout_s=transaction.timeout_s
+                    )
+                else:
+                    exchange = await self.line.transact(
+                        frame, expect_reply=not broadcast, timeout_s=transaction.timeout_s
+                    )
             except ReplyTimeout as exc:
                 self.stats.timeouts += 1
                 drive.timeouts += 1

@@ -30,6 +30,7 @@ import termios
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 
 import serial
 
@@ -56,6 +57,19 @@ class LineSettings:
     drain_s: float
     turnaround_s: float
     echo: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class Sending:
+    """An attempt whose frame has started to go out."""
+
+    frame: bytes
+    started: float
+    """When the first byte was handed to the port (`time.monotonic()`)."""
+    gap_s: float
+    """Silence kept before it (measured, not assumed)."""
+    written: int
+    """Bytes the port took at once; `finish` writes the rest."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -167,19 +181,58 @@ class SerialLine:
 
         Raises ReplyTimeout or BadReply (after draining the line), or PortError (port closed).
         """
-        await self.keep_gap()
-        fmt = self.settings.char_format
-        started = time.monotonic()
-        gap = started - self._quiet_since
-        await self._write(frame)
-        sent = started + fmt.wire_time_s(len(frame))
+        sending = await self.send_after_gap(lambda: frame)
+        assert sending is not None  # the pick always has a frame
+        return await self.finish(sending, expect_reply=expect_reply, timeout_s=timeout_s)
+
+    async def send_after_gap(self, pick: Callable[[], bytes | None]) -> Sending | None:
+        """At the end of the inter-frame gap, ask `pick` for a frame and start writing it.
+
+        `pick` runs in the very wake-up that ends the gap (inside the gap timer's callback), so
+        the gap is not stretched by another pass of the event loop: it chooses the request at
+        the last possible moment and the frame goes out at once. None from `pick`: nothing to
+        send now (returned as None). Bytes arriving during the gap restart it.
+        """
+        gap = self.settings.gap_s
+        while True:
+            self._discard_pending()
+            due = self._quiet_since + gap
+            if due <= time.monotonic():
+                return self._send_now(pick)
+            picked: list[Sending | PortError | None] = []
+            assert self._timer is not None  # _discard_pending raised if the port is closed
+            await self._timer.sleep_until(due, partial(self._send_at_gap_end, pick, picked))
+            if picked:
+                if isinstance(picked[0], PortError):
+                    raise picked[0]
+                return picked[0]
+
+    def _send_at_gap_end(
+        self, pick: Callable[[], bytes | None], picked: list[Sending | PortError | None]
+    ) -> None:
+        """The gap timer's action: send now, if the line is still quiet and usable."""
+        if self._port is None or self._error is not None or self._received:
+            return  # closed, failed or not quiet after all: `send_after_gap` looks again
+        if self._quiet_since + self.settings.gap_s > time.monotonic():
+            return
+        try:
+            picked.append(self._send_now(pick))
+        except PortError as exc:
+            picked.append(exc)
+
+    async def finish(self, sending: Sending, *, expect_reply: bool, timeout_s: float) -> Exchange:
+        """The rest of an attempt begun by `send_after_gap`: the frame's tail, echo, reply."""
+        frame, started = sending.frame, sending.started
+        if sending.written < len(frame):
+            await self._write(frame[sending.written :])
+        sent = started + self.settings.char_format.wire_time_s(len(frame))
         # Our own frame holds the line until its last character has left.
         self._quiet_since = max(self._quiet_since, sent)
         if self.settings.echo:
             await self._read_echo(frame, sent)
         if not expect_reply:
             self._quiet_since = sent + self.settings.turnaround_s
-            return Exchange(None, gap, self._quiet_since - started)
+            return Exchange(None, sending.gap_s, self._quiet_since - started)
         try:
             reply = await self._read_reply(frame, sent + timeout_s)
             pdu = check_reply(frame, reply)
@@ -192,18 +245,19 @@ class SerialLine:
         finally:
             if self._fd is None:  # no arrival times without a descriptor: now is the safe bet
                 self._quiet_since = max(self._quiet_since, time.monotonic())
-        return Exchange(pdu, gap, self._quiet_since - started)
+        return Exchange(pdu, sending.gap_s, self._quiet_since - started)
 
     async def keep_gap(self) -> None:
         """Wait until the line has been quiet for the gap; bytes arriving meanwhile restart it."""
-        gap = self.settings.gap_s
-        while True:
-            self._discard_pending()
-            due = self._quiet_since + gap
-            if due <= time.monotonic():
-                return
-            assert self._timer is not None  # _discard_pending raised if the port is closed
-            await self._timer.sleep_until(due)
+        await self.send_after_gap(_nothing)
+
+    def _send_now(self, pick: Callable[[], bytes | None]) -> Sending | None:
+        frame = pick()
+        if frame is None:
+            return None
+        started = time.monotonic()
+        gap = started - self._quiet_since
+        return Sending(frame, started, gap, self._write_now(frame))
 
     def _discard_pending(self) -> None:
         """Throw away bytes nobody asked for (noise, a reply later than every drain)."""
@@ -328,6 +382,21 @@ class SerialLine:
         del self._received[:max_bytes]
         return data
 
+    def _write_now(self, frame: bytes) -> int:
+        """Write what the port takes without waiting; how many bytes that was."""
+        port = self._require_port()
+        try:
+            if self._fd is None:
+                port.write(frame)
+                return len(frame)
+            try:
+                return os.write(self._fd, frame)
+            except BlockingIOError:  # the port's buffer is full: `finish` waits for room
+                return 0
+        except (serial.SerialException, OSError, termios.error) as exc:
+            self.close()
+            raise PortError(f"write to {self.settings.port} failed: {exc}") from exc
+
     async def _write(self, frame: bytes) -> None:
         port = self._require_port()
         try:
@@ -406,6 +475,10 @@ class SerialLine:
         if data:
             self._quiet_since = time.monotonic()
         return data
+
+
+def _nothing() -> None:
+    return None
 
 
 def _settle(waiter: asyncio.Future[None]) -> None:

@@ -20,6 +20,7 @@ import math
 import os
 import sys
 import time
+from collections.abc import Callable
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +56,7 @@ class LineTimer:
     def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
         self._loop = loop
         self._waiter: asyncio.Future[None] | None = None
+        self._at_deadline: Callable[[], None] | None = None
         self._spec = _Itimerspec()
         self._fd = -1
         self._libc = _libc()
@@ -71,26 +73,33 @@ class LineTimer:
         """True when wake-ups come at the deadline (timerfd), not at the next millisecond."""
         return self._fd >= 0
 
-    async def sleep_until(self, deadline: float) -> None:
-        """Return at `deadline` (a `time.monotonic()` value) or right after it."""
+    async def sleep_until(
+        self, deadline: float, at_deadline: Callable[[], None] | None = None
+    ) -> None:
+        """Return at `deadline` (a `time.monotonic()` value) or right after it.
+
+        `at_deadline` runs inside the timer's own callback, in the wake-up that ends the wait,
+        before the waiting coroutine resumes (which costs the loop one more pass): the line
+        writes its next frame there. It doesn't run when the deadline has already passed (the
+        caller acts at once then) or when the timer is closed.
+        """
         if deadline <= time.monotonic():
             return
         waiter = self._loop.create_future()
-        self._waiter = waiter
-        if self._fd >= 0 and self._arm(deadline):
+        self._waiter, self._at_deadline = waiter, at_deadline
+        try:
+            if self._fd >= 0 and self._arm(deadline):
+                await waiter
+                return
+            handle = self._loop.call_at(
+                self._loop.time() + (deadline - time.monotonic()), self._deadline_reached
+            )
             try:
                 await waiter
             finally:
-                self._waiter = None
-            return
-        handle = self._loop.call_at(
-            self._loop.time() + (deadline - time.monotonic()), _settle, waiter
-        )
-        try:
-            await waiter
+                handle.cancel()
         finally:
-            handle.cancel()
-            self._waiter = None
+            self._waiter = self._at_deadline = None
 
     def close(self) -> None:
         fd, self._fd = self._fd, -1
@@ -117,8 +126,18 @@ class LineTimer:
             os.read(self._fd, 8)  # the expiry count; reading it re-arms readiness
         except BlockingIOError:
             return  # a deadline re-armed after this wake-up was queued: not due yet
-        if self._waiter is not None:
-            _settle(self._waiter)
+        self._deadline_reached()
+
+    def _deadline_reached(self) -> None:
+        waiter, action = self._waiter, self._at_deadline
+        if waiter is None or waiter.done():
+            return
+        self._at_deadline = None
+        try:
+            if action is not None:
+                action()
+        finally:
+            _settle(waiter)  # whatever the action did, the waiting coroutine goes on
 
 
 def _settle(waiter: asyncio.Future[None]) -> None:
