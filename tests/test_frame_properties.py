@@ -15,6 +15,7 @@ import os
 import select
 import struct
 import threading
+import time
 import tty
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -241,4 +242,21 @@ def test_hostile_bytes_on_the_line_never_pass_and_never_desynchronise(
     # The next exchange gets exactly its own reply: nothing of the hostile one is left over.
     exchange = line.transact(READ_REQUEST, timeout_s=0.2)
     assert exchange.reply_pdu == good_pdu
+    assert not drive.script
+
+
+def test_bytes_arriving_between_two_exchanges_are_never_taken_for_the_next_reply(
+    pty_line: tuple[LineOnLoop, ScriptedDrive],
+) -> None:
+    """A late reply from another drive lands while nobody reads the line (a field tool between
+    two requests): the next exchange still gets exactly its own reply."""
+    line, drive = pty_line
+    good_pdu = bytes.fromhex("03 04 00 01 00 02")
+    drive.requests.clear()
+    drive.script = [[build_frame(ADDRESS, good_pdu)]]
+    assert line.transact(READ_REQUEST, timeout_s=0.2).reply_pdu == good_pdu
+    os.write(drive.fd, build_frame(ADDRESS + 1, bytes.fromhex("03 04 00 09 00 09")))
+    time.sleep(0.02)  # the line is quiet again for far longer than t3.5
+    drive.script = [[build_frame(ADDRESS, good_pdu)]]
+    assert line.transact(READ_REQUEST, timeout_s=0.2).reply_pdu == good_pdu
     assert not drive.script

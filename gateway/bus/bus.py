@@ -282,6 +282,7 @@ class Bus:
         finally:
             if serving.done() and not serving.cancelled() and serving.exception() is not None:
                 failure = serving.exception()
+                self.close()  # nothing will serve the queue now: answer it, refuse the rest
                 log.critical("bus %s: died", self.name, exc_info=failure)
                 # A bus that can't serve its line must not look alive: fail the service, so
                 # systemd or Docker restarts it (Restart=on-failure), rather than answer 0BH
@@ -409,7 +410,8 @@ class Bus:
             await work
         finally:
             timer.cancel()
-            self._work = None
+            if self._work is work:
+                self._work = None
 
     def _wake(self) -> None:
         """Something for the bus to do: a request, a lost port, shutdown."""

@@ -26,6 +26,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import os
+import select
 import termios
 import time
 from collections.abc import Callable
@@ -113,6 +114,7 @@ class SerialLine:
         self._quiet_since = 0.0
         self._error: PortError | None = None
         self._waiter: asyncio.Future[None] | None = None
+        self._poll: select.poll | None = None
 
     @property
     def is_open(self) -> bool:
@@ -159,11 +161,14 @@ class SerialLine:
         self._timer = LineTimer(loop)
         if fd is not None:
             loop.add_reader(fd, self._receive)
+            self._poll = select.poll()
+            self._poll.register(fd, select.POLLIN)
         self._quiet_since = time.monotonic()
 
     def close(self) -> None:
         port, self._port = self._port, None
         fd, self._fd = self._fd, None
+        self._poll = None
         if fd is not None and self._loop is not None and not self._loop.is_closed():
             self._loop.remove_reader(fd)
         if self._timer is not None:
@@ -213,6 +218,9 @@ class SerialLine:
         """The gap timer's action: send now, if the line is still quiet and usable."""
         if self._port is None or self._error is not None or self._received:
             return  # closed, failed or not quiet after all: `send_after_gap` looks again
+        if self._bytes_waiting():
+            self._quiet_since = time.monotonic()
+            return
         if self._quiet_since + self.settings.gap_s > time.monotonic():
             return
         try:
@@ -231,7 +239,7 @@ class SerialLine:
         if self.settings.echo:
             await self._read_echo(frame, sent)
         if not expect_reply:
-            self._quiet_since = sent + self.settings.turnaround_s
+            self._quiet_since = max(self._quiet_since, sent + self.settings.turnaround_s)
             return Exchange(None, sending.gap_s, self._quiet_since - started)
         try:
             reply = await self._read_reply(frame, sent + timeout_s)
@@ -268,6 +276,17 @@ class SerialLine:
         if self._received:
             self.discarded_bytes += len(self._received)
             self._received.clear()
+        if self._bytes_waiting():
+            self._quiet_since = time.monotonic()  # the line is not quiet: the gap starts again
+
+    def _bytes_waiting(self) -> bool:
+        """Bytes the kernel holds that the loop hasn't taken in yet.
+
+        The loop runs callbacks in the order they were queued: the bus (or the gap timer) may
+        run before the reader callback for bytes that came in the same wake-up. They count:
+        a frame must not go out less than t3.5 after them, nor they be taken for its reply.
+        """
+        return self._poll is not None and bool(self._poll.poll(0))
 
     async def _read_reply(self, frame: bytes, first_byte_deadline: float) -> bytes:
         """Read exactly one reply, ending by its expected length (or on silence if unknown)."""
@@ -330,6 +349,8 @@ class SerialLine:
         assert self._fd is not None
         try:
             data = os.read(self._fd, RECEIVE_CHUNK)
+            # Called only when the loop saw the port readable, and nothing else reads it: a
+            # serial port that is readable yet gives nothing has gone (pyserial reads it so too).
             if not data:
                 raise OSError("device reports data but returns none (unplugged?)")
         except BlockingIOError:
@@ -376,7 +397,8 @@ class SerialLine:
                 await waiter
             finally:
                 timeout.cancel()
-                self._waiter = None
+                if self._waiter is waiter:
+                    self._waiter = None
             self._require_port()
         data = bytes(self._received[:max_bytes])
         del self._received[:max_bytes]

@@ -99,7 +99,8 @@ class LineTimer:
             finally:
                 handle.cancel()
         finally:
-            self._waiter = self._at_deadline = None
+            if self._waiter is waiter:  # not a newer sleep's, if this one ended late
+                self._waiter = self._at_deadline = None
 
     def close(self) -> None:
         fd, self._fd = self._fd, -1
