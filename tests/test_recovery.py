@@ -58,6 +58,9 @@ async def test_serial_port_unplugged_and_plugged_back_in(
 ) -> None:
     config = GatewayConfig.model_validate(line_config(line.path))
     async with running_gateway(config) as app:
+        # The drives were fine, the port wasn't: they are probed the moment it is back, not
+        # after an offline drive's backoff (made far longer than LIMIT_S here to show it).
+        app.buses["line1"].health.probe_initial_s = 60.0
         load = CheckedLoad(app.tcp.port, UNITS, CLIENTS)
         stop = asyncio.Event()
         task = asyncio.create_task(load.run(stop))

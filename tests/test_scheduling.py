@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import struct
+import time
 from collections.abc import Iterator
 
 import pytest
@@ -84,6 +85,23 @@ async def test_the_next_request_is_chosen_when_the_gap_ends_not_when_it_begins(
         min_gap = app.buses["line1"].stats.min_gap_s
         assert min_gap is not None
         assert min_gap >= 0.4
+
+
+async def test_bytes_arriving_during_the_gap_start_it_again(slow_line: SimulatedLine) -> None:
+    """Noise on the line in the middle of a gap: the next request waits a whole gap after it,
+    and the noise is thrown away, not taken for the reply."""
+    config = gateway_config(slow_line.path, DRIVES, baudrate=9600, timeout_ms=1000, gap_ms=300)
+    async with running_gateway(config) as app:
+        line = app.buses["line1"].line
+        await app.router.execute(1, read_pdu(0x2100), client="first")  # the gap starts now
+        queued = asyncio.create_task(app.router.execute(1, read_pdu(0x2100), client="next"))
+        await asyncio.sleep(0.15)
+        slow_line.write_raw(b"\x00\xff")
+        noise_sent = time.monotonic()
+        assert await queued == bytes.fromhex("03 02 00 03")
+        # The reply comes back after the request went out, which is a whole gap after the noise.
+        assert time.monotonic() - noise_sent >= 0.3
+        assert line.discarded_bytes == 2
 
 
 async def test_a_busy_client_does_not_starve_another(slow_line: SimulatedLine) -> None:

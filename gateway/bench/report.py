@@ -90,6 +90,13 @@ def summary(results: list[CaseResult]) -> list[str]:
             share = result.bus_per_s / result.wire_max_per_s
             lines.append(
                 f"{case.baudrate} baud, {case.name}: bus at {share:.1%} of the wire maximum, "
-                f"{result.gap_violations} t3.5 violations (target >= 95 %)"
+                f"{result.gap_violations} t3.5 violations (target >= 95 %); "
+                f"gateway CPU {result.cpu_per_transaction_us:.0f} us per bus transaction "
+                "(target <= 150 us)"
+            )
+        elif case.drives > 4:
+            lines.append(
+                f"{case.baudrate} baud, {case.name}: peak RSS {result.peak_rss_mb:.1f} MB "
+                "(target <= 60 MB)"
             )
     return lines

@@ -319,6 +319,7 @@ class Bus:
     async def _serve(self) -> None:
         # The loop's epoll timeouts (probes, response timeouts) need no slack either.
         tighten_timer_slack()
+        transaction: Transaction | None = None
         try:
             while not self._closing:
                 if not self.line.is_open:
@@ -335,13 +336,24 @@ class Bus:
                     log.exception("bus %s: unexpected error in a transaction", self.name)
                     error = GatewayTargetFailed(f"bus {self.name}: {exc}")
                     outcome = (_fail, (transaction, error))
-                finally:
-                    self._busy = False
-                callback, args = outcome
-                callback(*args)
-                self._idle.set()
+                transaction = None
+                self._done(*outcome)
+        except BaseException:
+            # Cancelled or died holding a transaction taken from the queue (on the wire, or
+            # chosen at the gap's end): answer it, nobody else will.
+            for taken in (transaction, self._picked):
+                if taken is not None:
+                    self._done(_fail, (taken, BusClosed(f"bus {self.name} stopped")))
+            self._picked = None
+            raise
         finally:
             self.line.close()
+
+    def _done(self, callback: Callable[..., None], args: tuple[Any, ...]) -> None:
+        """A transaction taken from the queue is over: tell its waiters, and `wait_idle`."""
+        self._busy = False
+        callback(*args)
+        self._idle.set()
 
     async def _start_next(self) -> tuple[Transaction, Sending] | None:
         """Keep the inter-frame gap, then send the best transaction there is at its end.
@@ -359,10 +371,15 @@ class Bus:
             except PortError as exc:
                 picked, self._picked = self._picked, None
                 if picked is not None:  # taken from the queue, but the port failed under it
-                    self._busy = False
-                    _fail(picked, GatewayTargetFailed(f"bus {self.name}: {exc}"))
+                    self._done(_fail, (picked, GatewayTargetFailed(f"bus {self.name}: {exc}")))
                 self._port_lost(exc)
                 return None
+            except Exception as exc:  # a bug in choosing or framing costs that one request
+                log.exception("bus %s: unexpected error starting a transaction", self.name)
+                picked, self._picked = self._picked, None
+                if picked is not None:
+                    self._done(_fail, (picked, GatewayTargetFailed(f"bus {self.name}: {exc}")))
+                continue
             if sending is not None:
                 transaction, self._picked = self._picked, None
                 assert transaction is not None  # a frame went out, so `_pick` chose one
@@ -397,7 +414,7 @@ class Bus:
                 self.stats.offline_rejected += 1
                 _fail(transaction, DriveOffline(f"drive {address} on {self.name} is offline"))
                 continue
-            self._picked = transaction
+            self._picked = transaction  # before anything can fail: it must be answered
             self._busy = True
             return transaction.frame or build_frame(address, transaction.pdu)
         return None
@@ -442,6 +459,7 @@ class Bus:
                 continue
             if self.state is BusState.REOPENING:
                 self.stats.reopens += 1
+                self.health.line_back(time.monotonic())
             if self._closing:
                 return
             self.state = BusState.OPEN
@@ -455,7 +473,10 @@ class Bus:
         address = transaction.address
         frame = first.frame
         broadcast = address == BROADCAST_ADDRESS
-        retries = 0 if self.health.is_suspect(address) else transaction.retries
+        # A probe brings its own retries; a drive that just failed gets none.
+        retries = transaction.retries
+        if not transaction.probe and self.health.is_suspect(address):
+            retries = 0
         drive = self.drive_stats.get(address)
         if drive is None:
             drive = self.drive_stats[address] = DriveStats()
@@ -553,7 +574,8 @@ class Bus:
                 self._notify(address, False)
 
     def _queue_due_probes(self) -> None:
-        """Queue one single-attempt probe for each offline drive whose backoff is over.
+        """Queue one probe for each offline drive whose backoff is over: a single attempt, or
+        the bus's retries for a drive that went offline only because the port did.
 
         A probe has no waiter: the health tracker reads its outcome.
         """
@@ -568,7 +590,7 @@ class Bus:
                 priority=Priority.READ,
                 client=PROBE_CLIENT,
                 timeout_s=self.settings.timeout_s,
-                retries=0,
+                retries=self.settings.retries if self.health.lost_with_line(address) else 0,
                 probe=True,
                 frame=build_frame(address, PROBE_PDU),
             )

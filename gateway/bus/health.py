@@ -19,6 +19,8 @@ class DriveHealth:
     offline: bool = False
     probe_delay_s: float = 0.0
     next_probe_at: float = 0.0
+    lost_with_line: bool = False
+    """Offline because the port went, not because the drive fell silent."""
 
 
 class HealthTracker:
@@ -57,12 +59,14 @@ class HealthTracker:
         health.consecutive_failures = 0
         health.offline = False
         health.probe_delay_s = 0.0
+        health.lost_with_line = False
         return was_offline
 
     def record_failure(self, address: int, now: float) -> bool:
         """A transaction got no valid reply. True if this made the drive go offline."""
         health = self._get(address)
         health.consecutive_failures += 1
+        health.lost_with_line = False  # silent on a working line: from now on, a dead drive
         if health.offline:
             self._schedule_probe(health, now)
             return False
@@ -82,10 +86,26 @@ class HealthTracker:
         if health.offline:
             return False
         health.offline = True
+        health.lost_with_line = True
         health.consecutive_failures = max(health.consecutive_failures, 1)
         health.probe_delay_s = 0.0
         self._schedule_probe(health, now)
         return True
+
+    def line_back(self, now: float) -> list[int]:
+        """The port is open again: the drives it took offline are worth a probe at once."""
+        back = []
+        for address, health in self._drives.items():
+            if health.offline and health.lost_with_line:
+                health.next_probe_at = now
+                back.append(address)
+        return back
+
+    def lost_with_line(self, address: int) -> bool:
+        """Offline only because the port went: its probe deserves the line's usual retries,
+        so one noisy reply doesn't keep a healthy drive away for a whole backoff."""
+        health = self._drives.get(address)
+        return health is not None and health.offline and health.lost_with_line
 
     def due_probes(self, now: float) -> list[int]:
         return [a for a, h in self._drives.items() if h.offline and h.next_probe_at <= now]

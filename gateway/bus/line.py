@@ -204,20 +204,22 @@ class SerialLine:
             due = self._quiet_since + gap
             if due <= time.monotonic():
                 return self._send_now(pick)
-            picked: list[Sending | PortError | None] = []
+            picked: list[Sending | Exception | None] = []
             assert self._timer is not None  # _discard_pending raised if the port is closed
             await self._timer.sleep_until(due, partial(self._send_at_gap_end, pick, picked))
             if picked:
-                if isinstance(picked[0], PortError):
-                    raise picked[0]
+                if isinstance(picked[0], Exception):
+                    raise picked[0]  # in the caller's coroutine, not lost in a loop callback
                 return picked[0]
 
     def _send_at_gap_end(
-        self, pick: Callable[[], bytes | None], picked: list[Sending | PortError | None]
+        self, pick: Callable[[], bytes | None], picked: list[Sending | Exception | None]
     ) -> None:
         """The gap timer's action: send now, if the line is still quiet and usable."""
         if self._port is None or self._error is not None or self._received:
             return  # closed, failed or not quiet after all: `send_after_gap` looks again
+        if self._fd is None:
+            return  # a URL port: only `_discard_pending_url` can tell if bytes came meanwhile
         if self._bytes_waiting():
             self._quiet_since = time.monotonic()
             return
@@ -225,7 +227,7 @@ class SerialLine:
             return
         try:
             picked.append(self._send_now(pick))
-        except PortError as exc:
+        except Exception as exc:
             picked.append(exc)
 
     async def finish(self, sending: Sending, *, expect_reply: bool, timeout_s: float) -> Exchange:
