@@ -1,0 +1,85 @@
+"""A serial device server between the gateway and the line: socat (nobody here wrote it) listens on
+TCP and passes bytes to the drives' serial line, and the gateway's bus port is
+`socket://host:port`, as the configuration reference offers for Ethernet-to-RS-485 converters.
+The device server going away is a lost port: 0BH meanwhile, and the gateway is back when it is."""
+
+from __future__ import annotations
+
+import asyncio
+import shutil
+import subprocess
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from gateway.bench.processes import free_port, stop_process
+from gateway.simulator import SimulatedLine
+from tests.support import TcpClient, gateway_config, running_gateway
+
+pytestmark = pytest.mark.skipif(shutil.which("socat") is None, reason="socat not installed")
+
+
+def device_server(line_path: str, port: int) -> subprocess.Popen[bytes]:
+    """socat serving one TCP connection on `port` with the line's bytes, listening on return.
+
+    Not probed by connecting (socat serves one connection, then exits): its listening socket is
+    looked up in /proc/net/tcp instead."""
+    process = subprocess.Popen(
+        ["socat", f"TCP-LISTEN:{port},bind=127.0.0.1,reuseaddr", f"FILE:{line_path},raw,echo=0"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    deadline = time.monotonic() + 10
+    while not listening(port):
+        assert process.poll() is None, "socat exited"
+        assert time.monotonic() < deadline, "socat is not listening"
+        time.sleep(0.01)
+    return process
+
+
+def listening(port: int) -> bool:
+    rows = Path("/proc/net/tcp").read_text().splitlines()[1:]
+    return any(
+        row.split()[1].endswith(f":{port:04X}") and row.split()[3] == "0A"  # 0A: LISTEN
+        for row in rows
+    )
+
+
+@pytest.fixture
+def line() -> Iterator[SimulatedLine]:
+    with SimulatedLine(addresses=[1, 2], baudrate=19200, parity="N", wire_time=True) as sim:
+        yield sim
+
+
+async def read_until_answered(client: TcpClient, unit: int, seconds: float) -> list[int]:
+    deadline = asyncio.get_running_loop().time() + seconds
+    while True:
+        reply = await client.request(unit, bytes.fromhex("03 21 00 00 01"))
+        if not reply[0] & 0x80:
+            return [int.from_bytes(reply[2:4], "big")]
+        assert reply == bytes.fromhex("83 0B")  # meanwhile: gateway target failed, nothing else
+        assert asyncio.get_running_loop().time() < deadline, "not back in time"
+        await asyncio.sleep(0.1)
+
+
+async def test_drives_behind_a_serial_device_server(line: SimulatedLine) -> None:
+    port = free_port()
+    server = device_server(line.path, port)
+    try:
+        drives = [{"name": "pump1", "address": 1}, {"name": "fan2", "address": 2}]
+        config = gateway_config(f"socket://127.0.0.1:{port}", drives, baudrate=19200, parity="N")
+        async with running_gateway(config) as app:
+            client = await TcpClient.connect(app.tcp.port)
+            assert await client.read(1, 0x2100, 1) == [3]  # state word 1: stopped
+            assert await client.read(2, 0x2100, 1) == [3]
+            assert line.stats["gap_violations"] == 0
+
+            stop_process(server)  # the converter loses power
+            server = device_server(line.path, port)  # and comes back
+            assert await read_until_answered(client, 1, 10.0) == [3]
+            assert app.buses["line1"].stats.reopens >= 1
+            await client.close()
+    finally:
+        stop_process(server)
