@@ -375,10 +375,11 @@ class Bus:
                 self._port_lost(exc)
                 return None
             except Exception as exc:  # a bug in choosing or framing costs that one request
-                log.exception("bus %s: unexpected error starting a transaction", self.name)
                 picked, self._picked = self._picked, None
-                if picked is not None:
-                    self._done(_fail, (picked, GatewayTargetFailed(f"bus {self.name}: {exc}")))
+                if picked is None:
+                    raise  # nothing was taken: trying again would spin; let the bus fail
+                log.exception("bus %s: unexpected error starting a transaction", self.name)
+                self._done(_fail, (picked, GatewayTargetFailed(f"bus {self.name}: {exc}")))
                 continue
             if sending is not None:
                 transaction, self._picked = self._picked, None
@@ -527,7 +528,9 @@ class Bus:
             return _resolve, (transaction, exchange.reply_pdu)
         self.stats.failed += 1
         drive.failed += 1
-        if all(isinstance(error, ReplyTimeout) for error in errors):
+        # A probe that got nothing usable counts as a failure whatever went wrong, so its drive
+        # backs off; a request that got bad replies proves its drive is there.
+        if transaction.probe or all(isinstance(error, ReplyTimeout) for error in errors):
             self._failed(address)
         error = GatewayTargetFailed(f"drive {address} on {self.name}: {errors[-1]}")
         return _fail, (transaction, error)
@@ -592,6 +595,9 @@ class Bus:
                 timeout_s=self.settings.timeout_s,
                 retries=self.settings.retries if self.health.lost_with_line(address) else 0,
                 probe=True,
+                # A probe that comes due again while the last one still waits joins it: a long
+                # queue after a reopen must not fill with copies, each costing its timeouts.
+                coalescable=True,
                 frame=build_frame(address, PROBE_PDU),
             )
             try:
