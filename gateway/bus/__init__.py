@@ -2,6 +2,7 @@
 
 - `line`: the serial port on the event loop (bytes taken in as they arrive, exact timing).
 - `line_timer`: exact wake-ups for the inter-frame gap (a timerfd the loop watches).
+- `wakeup`: how a waiting coroutine of the bus or the line is woken, or times out.
 - `queue`: the bounded priority queue with per-client fairness and coalescing of identical reads.
 - `health`: which drives are offline, and when to probe them.
 - `bus`: the coroutine that owns all of the above and applies the timeout/retry policy.

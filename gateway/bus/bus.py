@@ -28,6 +28,7 @@ from typing import Any
 from gateway.bus.health import HealthTracker
 from gateway.bus.line import Exchange, LineSettings, Sending, SerialLine
 from gateway.bus.queue import Priority, RequestQueue, Transaction
+from gateway.bus.wakeup import woken_or_timeout
 from gateway.errors import (
     BadReply,
     BusClosed,
@@ -423,11 +424,9 @@ class Bus:
     async def _wait_for_work(self, timeout_s: float) -> None:
         assert self._loop is not None
         work = self._work = self._loop.create_future()
-        timer = self._loop.call_later(timeout_s, _settle, work)
         try:
-            await work
+            await woken_or_timeout(work, timeout_s)
         finally:
-            timer.cancel()
             if self._work is work:
                 self._work = None
 
@@ -613,11 +612,6 @@ class Bus:
                 listener(self.name, address, online)
             except Exception:
                 log.exception("bus %s: drive listener failed", self.name)
-
-
-def _settle(future: asyncio.Future[None]) -> None:
-    if not future.done():
-        future.set_result(None)
 
 
 def _resolve(transaction: Transaction, reply: bytes | None) -> None:

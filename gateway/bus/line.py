@@ -36,6 +36,7 @@ from functools import partial
 import serial
 
 from gateway.bus.line_timer import LineTimer
+from gateway.bus.wakeup import settle, woken_or_timeout
 from gateway.errors import BadReply, PortError, ReplyTimeout
 from gateway.modbus.functions import NEED_MORE, UNKNOWN_LENGTH, rtu_reply_length
 from gateway.modbus.rtu import check_reply
@@ -394,11 +395,9 @@ class SerialLine:
             assert self._loop is not None
             waiter = self._waiter = self._loop.create_future()
             # Response and character timeouts need no sub-millisecond precision: call_later.
-            timeout = self._loop.call_later(remaining, _settle, waiter)
             try:
-                await waiter
+                await woken_or_timeout(waiter, remaining)
             finally:
-                timeout.cancel()
                 if self._waiter is waiter:
                     self._waiter = None
             self._require_port()
@@ -450,12 +449,10 @@ class SerialLine:
         if remaining <= 0:
             return False
         waiter: asyncio.Future[None] = self._loop.create_future()
-        self._loop.add_writer(self._fd, _settle, waiter)
-        timeout = self._loop.call_later(remaining, _settle, waiter)
+        self._loop.add_writer(self._fd, settle, waiter)
         try:
-            await waiter
+            await woken_or_timeout(waiter, remaining)
         finally:
-            timeout.cancel()
             if self._fd is not None:
                 self._loop.remove_writer(self._fd)
         return time.monotonic() < deadline
@@ -503,8 +500,3 @@ class SerialLine:
 
 def _nothing() -> None:
     return None
-
-
-def _settle(waiter: asyncio.Future[None]) -> None:
-    if not waiter.done():
-        waiter.set_result(None)

@@ -22,6 +22,8 @@ import sys
 import time
 from collections.abc import Callable
 
+from gateway.bus.wakeup import settle
+
 log = logging.getLogger(__name__)
 
 CLOCK_MONOTONIC = 1
@@ -108,7 +110,7 @@ class LineTimer:
             self._loop.remove_reader(fd)
             os.close(fd)
         if self._waiter is not None:
-            _settle(self._waiter)
+            settle(self._waiter)
 
     def _arm(self, deadline: float) -> bool:
         assert self._libc is not None
@@ -138,9 +140,4 @@ class LineTimer:
             if action is not None:
                 action()
         finally:
-            _settle(waiter)  # whatever the action did, the waiting coroutine goes on
-
-
-def _settle(waiter: asyncio.Future[None]) -> None:
-    if not waiter.done():
-        waiter.set_result(None)
+            settle(waiter)  # whatever the action did, the waiting coroutine goes on
