@@ -1,12 +1,10 @@
-"""Tighter timer slack for the threads that keep a serial line's timing (the event loop's thread,
-the simulated drives' thread).
+"""Tighter timer slack for the simulated drives' thread, which answers on a schedule.
 
 Linux lets a sleeping thread wake up to `timer_slack_ns` (50 µs by default) late, to batch wake-ups.
 At 115200 baud the inter-frame gap is 1.75 ms and a whole transaction about 8 ms: 50 µs on every
-gap is a measurable share of the line. The buses (for the loop's thread: probe and response
-timeouts) and the simulated drives ask for 1 ns; the gap itself ends on a timerfd, which has no
-slack.
-Elsewhere (or if the call is refused) nothing changes: the gap is still kept, only less tightly.
+reply is a measurable share of the line. The gateway itself needs none of this: its gap ends on a
+timerfd, which has no slack, and nothing else it waits for is timed that finely.
+Elsewhere (or if the call is refused) nothing changes: replies only come a little later.
 """
 
 from __future__ import annotations

@@ -44,7 +44,6 @@ from gateway.logs import dump_frame, frame_dump_enabled
 from gateway.modbus.functions import PURE_READS, is_exception
 from gateway.modbus.rtu import BROADCAST_ADDRESS, build_frame
 from gateway.tasks import cancel_and_wait
-from gateway.timer_slack import tighten_timer_slack
 
 log = logging.getLogger(__name__)
 
@@ -318,8 +317,6 @@ class Bus:
     # -- the bus's coroutine -------------------------------------------------------------------
 
     async def _serve(self) -> None:
-        # The loop's epoll timeouts (probes, response timeouts) need no slack either.
-        tighten_timer_slack()
         transaction: Transaction | None = None
         try:
             while not self._closing:

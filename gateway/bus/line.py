@@ -258,10 +258,6 @@ class SerialLine:
                 self._quiet_since = max(self._quiet_since, time.monotonic())
         return Exchange(pdu, sending.gap_s, self._quiet_since - started)
 
-    async def keep_gap(self) -> None:
-        """Wait until the line has been quiet for the gap; bytes arriving meanwhile restart it."""
-        await self.send_after_gap(_nothing)
-
     def _send_now(self, pick: Callable[[], bytes | None]) -> Sending | None:
         frame = pick()
         if frame is None:
@@ -496,7 +492,3 @@ class SerialLine:
         if data:
             self._quiet_since = time.monotonic()
         return data
-
-
-def _nothing() -> None:
-    return None
