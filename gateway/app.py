@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import sys
 from collections.abc import Callable
 from typing import Protocol
 
@@ -32,7 +31,6 @@ from gateway.tcp.access import AccessRule, merge_spans
 
 log = logging.getLogger(__name__)
 
-GIL_SWITCH_INTERVAL_S = 0.0002
 SHUTDOWN_BUDGET_S = 1.5
 FEATURE_STOP_S = 0.5
 """Time for the transaction on the wire and the answers in flight, inside the 2 s promise."""
@@ -165,10 +163,6 @@ class Application:
         return await self.router.execute(unit_id, pdu, client=client)
 
     async def run(self, stop: asyncio.Event, on_ready: Callable[[], None] | None = None) -> None:
-        # The buses run on the loop, but threads may share the process (the demo's simulated
-        # drives): with Python's default 5 ms switch interval a busy thread would hold the GIL,
-        # and with it the line's timing, that long.
-        sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
         async with asyncio.TaskGroup() as tasks:
             bus_tasks = [
                 tasks.create_task(bus.run(), name=f"bus:{name}") for name, bus in self.buses.items()

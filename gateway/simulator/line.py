@@ -21,6 +21,7 @@ import itertools
 import logging
 import os
 import select
+import sys
 import threading
 import time
 from collections import deque
@@ -41,6 +42,7 @@ log = logging.getLogger(__name__)
 STOP_TIMEOUT_S: Final = 1.0
 CALL_TIMEOUT_S: Final = 5.0
 READ_SIZE: Final = 4096
+GIL_SWITCH_INTERVAL_S: Final = 0.0002
 WAKE_EARLY_S: Final = 0.0003
 
 
@@ -121,6 +123,10 @@ class SimulatedLine:
             self._close_wake_pipe()
             raise
         self._stopping = False
+        # The simulated drives may share a process with an event loop (the demo, the tests):
+        # with Python's default 5 ms switch interval a busy loop would hold the GIL, and the
+        # drives' answers, that long.
+        sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
         self._thread = threading.Thread(target=self._serve, name="simulated-line", daemon=True)
         self._thread.start()
 
