@@ -15,6 +15,7 @@ import pytest
 
 from gateway.app import Application
 from gateway.bus import Priority
+from gateway.errors import GatewayTargetFailed
 from gateway.modbus.timing import CharacterFormat
 from gateway.simulator import SimulatedLine
 from tests.support import TcpClient, gateway_config, read_pdu, running_gateway, write_pdu
@@ -318,3 +319,27 @@ async def test_reads_of_a_client_that_left_cost_no_bus_time(slow_line: Simulated
         stayer = await TcpClient.connect(app.tcp.port)
         assert await stayer.read(1, 0x0005) == [4321]
         await stayer.close()
+
+
+async def test_a_drive_that_only_garbles_its_probes_backs_off_like_a_silent_one() -> None:
+    """An offline drive whose every reply is corrupted (a wrong baud rate, a bad termination):
+    its probes fail, so they come further and further apart, never at the first interval."""
+    with SimulatedLine(addresses=[1], baudrate=115200) as line:
+        config = gateway_config(line.path, [{"name": "pump1", "address": 1}], timeout_ms=50)
+        async with running_gateway(config) as app:
+            bus = app.buses["line1"]
+            bus.health.probe_initial_s = 0.1
+            line.set_dead(1, True)
+            for _ in range(3):  # offline after three failed requests
+                with pytest.raises(GatewayTargetFailed):
+                    await app.router.execute(1, read_pdu(0x2100), client="scada")
+            assert bus.health.is_offline(1)
+            line.set_line_faults(1.0, ["crc"])
+            line.set_dead(1, False)
+            before = line.stats["requests"]
+            await asyncio.sleep(1.6)
+            probes = line.stats["requests"] - before
+            # Doubling from 0.1 s: at most 0.1 + 0.2 + 0.4 + 0.8 s apart, 4 or 5 probes;
+            # at the first interval it would be about 16.
+            assert 1 <= probes <= 8
+            assert bus.health.is_offline(1)
