@@ -17,9 +17,16 @@ from collections.abc import Callable
 from typing import Protocol
 
 from gateway.bus import Bus, BusSettings
+from gateway.bus.direction import DirectionControl, DirectionMode
 from gateway.bus.line import LineSettings
 from gateway.cache import RegisterCache
-from gateway.config import AccessRuleConfig, BusConfig, DriveConfig, GatewayConfig
+from gateway.config import (
+    AccessRuleConfig,
+    BusConfig,
+    DriveConfig,
+    GatewayConfig,
+    Rs485Config,
+)
 from gateway.health import Phase
 from gateway.modbus.timing import CharacterFormat
 from gateway.profile import get_profile
@@ -57,12 +64,25 @@ def bus_settings(config: BusConfig) -> BusSettings:
             drain_s=config.drain_ms / 1000,
             turnaround_s=config.turnaround_ms / 1000,
             echo=config.echo,
+            direction=direction_control(config.rs485),
+            name=config.name,
         ),
         timeout_s=config.timeout_ms / 1000,
         retries=config.retries,
         queue_size=config.queue_size,
         offline_after=config.offline_after,
         probe_max_s=config.probe_max_s,
+    )
+
+
+def direction_control(config: Rs485Config | None) -> DirectionControl | None:
+    if config is None:
+        return None
+    return DirectionControl(
+        mode=DirectionMode(config.mode),
+        rts_level_for_tx=config.rts_level_for_tx == "high",
+        delay_before_tx_s=config.delay_before_tx_ms / 1000,
+        delay_after_tx_s=config.delay_after_tx_ms / 1000,
     )
 
 

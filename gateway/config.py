@@ -158,6 +158,24 @@ class ModbusTcpConfig(Section):
         return value
 
 
+class Rs485Config(Section):
+    """Who switches the RS-485 transceiver's driver on around each request (`buses[].rs485`).
+
+    Leave it out for USB adapters, which do it themselves. A UART with a transceiver on it
+    (a Raspberry Pi hat, an industrial box's ttyS port) needs one of the two modes."""
+
+    mode: Literal["kernel", "rts"]
+    """`kernel`: the serial driver's RS-485 mode (TIOCSRS485) switches RTS; `rts`: the gateway
+    toggles RTS around each write and releases it once the UART has drained."""
+    rts_level_for_tx: Literal["high", "low"] = "high"
+    """RTS level while transmitting (low where the board inverts DE)."""
+    delay_before_tx_ms: float = Field(0.0, ge=0, le=1000)
+    """From driver enabled to the first bit (kernel mode: whole milliseconds)."""
+    delay_after_tx_ms: float = Field(0.0, ge=0, le=1000)
+    """From the last bit sent to driver released; must stay below the drives' response delay
+    (P14.03) or their replies meet a line still driven (kernel mode: whole milliseconds)."""
+
+
 class BusConfig(Section):
     name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
     port: str = Field(min_length=1)
@@ -184,6 +202,8 @@ class BusConfig(Section):
     """Longest wait between two probes of an offline drive."""
     echo: bool = False
     """The adapter echoes what it sends (no echo suppression): read it back and check it."""
+    rs485: Rs485Config | None = None
+    """RS-485 direction control for UARTs with a transceiver; None for adapters that do it."""
 
     @field_validator("baudrate")
     @classmethod

@@ -5,7 +5,7 @@
     ├── MalformedFrame          bytes that are not a Modbus frame: close that connection only
     ├── LineError               one attempt on the wire failed; internal to the bus, which retries
     │   ├── ReplyTimeout        no reply (or not all of it) within the response timeout
-    │   ├── BadReply            CRC wrong, truncated, wrong address or function code, echo mismatch
+    │   ├── BadReply            bad CRC, truncated, wrong address or function, echo mismatch, noise
     │   └── PortError           the serial port is closed, vanished or can't be opened
     └── ModbusError             answered to the client as a Modbus exception (has `code`)
         ├── DriveException      the drive itself answered an exception (its code, byte-exact)

@@ -37,6 +37,7 @@ from prometheus_client.registry import Collector
 
 from gateway import __version__
 from gateway.bus import Bus, BusState, RequestDone
+from gateway.bus.line import SerialLine
 from gateway.config import GatewayConfig
 from gateway.health import Phase, health_report
 from gateway.http_endpoint import HttpEndpoint, Response
@@ -193,7 +194,9 @@ class GatewayCollector(Collector):
             "Bytes nobody asked for: late replies, echoes, noise",
             labels=["bus"],
         )
+        line = _LineFamilies()
         for name, bus in buses.items():
+            line.add(name, bus.line)
             for value in BusState:
                 state.add_metric([name, str(value)], 1.0 if bus.state is value else 0.0)
             depth.add_metric([name], bus.queue_depth)
@@ -209,6 +212,7 @@ class GatewayCollector(Collector):
         yield busy
         yield exchange
         yield discarded
+        yield from line.families()
 
     def _drives(self) -> Iterable[CounterMetricFamily | GaugeMetricFamily | InfoMetricFamily]:
         buses = self.service.buses
@@ -376,3 +380,32 @@ class MetricsFeature:
 
     def _live(self) -> Response:
         return Response(HTTPStatus.OK, "application/json", json.dumps(self._report()).encode())
+
+
+class _LineFamilies:
+    """What a line's hardware does to replies: glitches, echoes, bursts (`gateway.bus.line`)."""
+
+    def __init__(self) -> None:
+        self.garbage = CounterMetricFamily(
+            f"{PREFIX}_line_garbage_bytes",
+            "Bytes skipped before replies that could not start them (transceiver glitches, noise)",
+            labels=["bus"],
+        )
+        self.echoes = CounterMetricFamily(
+            f"{PREFIX}_line_echoes",
+            "Requests the adapter handed back though the bus has echo: false (set echo: true)",
+            labels=["bus"],
+        )
+        self.silence = GaugeMetricFamily(
+            f"{PREFIX}_line_reply_silence_max_seconds",
+            "Longest silence seen inside a reply (an adapter delivering in bursts shows here)",
+            labels=["bus"],
+        )
+
+    def add(self, bus: str, line: SerialLine) -> None:
+        self.garbage.add_metric([bus], line.garbage_bytes)
+        self.echoes.add_metric([bus], line.echoes)
+        self.silence.add_metric([bus], line.longest_reply_silence_s)
+
+    def families(self) -> Iterable[CounterMetricFamily | GaugeMetricFamily]:
+        return (self.garbage, self.echoes, self.silence)

@@ -60,6 +60,16 @@ def test_the_issue_example_is_valid_and_prints_the_routing_table(tmp_path: Path)
         (("parity: E", "parity: X"), "buses[0] (line1).parity", "'N', 'E' or 'O'"),
         (("model: gd350", "model: gd999"), "drives[1] (fan3).model", "gd999"),
         (("port: 5020", "port: 70000"), "modbus_tcp.port", "less than or equal to 65535"),
+        (
+            ("retries: 2", "retries: 2\n    rs485: {mode: auto}"),
+            "buses[0] (line1).rs485.mode",
+            "'kernel' or 'rts'",
+        ),
+        (
+            ("retries: 2", "retries: 2\n    rs485: {mode: rts, delay_after_tx_ms: -1}"),
+            "buses[0] (line1).rs485.delay_after_tx_ms",
+            "greater than or equal to 0",
+        ),
     ],
 )
 def test_a_bad_file_names_the_key_and_the_reason(
@@ -70,6 +80,15 @@ def test_a_bad_file_names_the_key_and_the_reason(
     assert key_path in result.stderr
     assert reason in result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_rs485_direction_control_is_accepted(tmp_path: Path) -> None:
+    text = GOOD.replace(
+        "retries: 2",
+        "retries: 2\n    rs485: {mode: kernel, rts_level_for_tx: low, delay_before_tx_ms: 1}",
+    )
+    result = check_config(tmp_path, text)
+    assert result.returncode == 0, result.stderr
 
 
 def test_two_buses_on_one_port_are_refused(tmp_path: Path) -> None:

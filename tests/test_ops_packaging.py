@@ -173,7 +173,11 @@ def fresh_venv(directory: Path) -> Path:
 def image_config(example: dict[str, Any], lines: dict[str, str], tcp: int, metrics: int) -> str:
     """The example configuration as the image ships it, on simulated lines and free ports."""
     config = dict(example)
-    config["buses"] = [{**bus, "port": lines[bus["name"]]} for bus in example["buses"]]
+    # A pty stands in for each adapter; it has no RS-485 driver enable for `rs485` to switch.
+    config["buses"] = [
+        {**{k: v for k, v in bus.items() if k != "rs485"}, "port": lines[bus["name"]]}
+        for bus in example["buses"]
+    ]
     config["modbus_tcp"] = {**example["modbus_tcp"], "host": "127.0.0.1", "port": tcp}
     config["metrics"] = {**example["metrics"], "host": "127.0.0.1", "port": metrics}
     config["mqtt"] = {**example["mqtt"], "enabled": False}  # no broker in this test

@@ -77,7 +77,9 @@ def test_unit_runs_the_service_as_the_issue_asks() -> None:
     for key, values in expected.items():
         assert settings.get(key) == values, key
     assert settings["WatchdogSec"][0].rstrip("s").isdigit()
-    assert "char-ttyUSB rw" in settings["DeviceAllow"]
+    # USB adapters, on-board UARTs, Raspberry Pi UARTs and SPI RS-485 hats.
+    for group in ("ttyUSB", "ttyACM", "ttyS", "ttyAMA", "ttySC"):
+        assert f"char-{group} rw" in settings["DeviceAllow"], group
     assert settings["ExecStart"] == [f"{INSTALLED_PATH} run --config /etc/invt-gateway/config.yaml"]
 
 

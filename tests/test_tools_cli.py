@@ -177,3 +177,18 @@ def test_read_and_write_via_a_running_gateway(tmp_path: Path) -> None:
     result = run_cli("read", "--via", f"tcp://127.0.0.1:{tcp_port}", "P00.11")
     assert result.returncode == 1
     assert "cannot connect to the gateway" in result.stderr
+
+
+def test_scan_on_an_echoing_bursty_glitching_adapter_names_what_it_saw() -> None:
+    # A 2-wire adapter without echo suppression that hands bytes over every 20 ms, behind a
+    # transceiver that glitches before each reply: the drives are found all the same (the
+    # echo of a loop-back is never taken for a drive's answer), and the scan says what to set.
+    adapter = ("--echo", "--burst-ms", "20", "--glitch", "FF")
+    with simulator_process("--address", "1", "--address", "3", *LINE, *adapter) as sim:
+        result = run_cli("scan", "--port", sim.path, *LINE, "--addresses", "1-5")
+    assert result.returncode == 0, result.stderr
+    assert sorted(scan_rows(result.stdout)) == [1, 3]
+    assert "this adapter echoes what is sent" in result.stdout
+    assert "set `echo: true`" in result.stdout
+    assert "replies arrive in bursts" in result.stdout
+    assert "stray byte(s) came before replies" in result.stdout

@@ -21,6 +21,7 @@ from gateway.bench.wire import WireBudget, read_budget
 RESPONSE_DELAY_MS = 5.0  # INVT P14.03's default
 SET_POINT = 0x2001  # 2001H..2002H: frequency set-point and PID reference, written per drive
 RUNNING_VALUES = 0x3000  # 3000H..: running values; static while the drives stand still
+ADAPTER_BAUD = 19200  # where the real-adapter cases run: the factory setting of P14.01
 
 
 def matrix(baudrates: tuple[int, ...]) -> list[Case]:
@@ -32,6 +33,12 @@ def matrix(baudrates: tuple[int, ...]) -> list[Case]:
                 cases.append(Case(f"{words}w {clients}c", baud, words, clients))
         cases.append(Case("2w 8c same registers", baud, 2, 8, same_registers=True))
         cases.append(Case("2w 8c one dead of 4", baud, 2, 8, dead=1))
+        if baud == ADAPTER_BAUD:
+            # Real adapters: bursts cutting every reply, a glitch byte before every reply, an
+            # echo nobody configured; the wire maximum counts what the bursts hold back.
+            cases.append(Case("16w 1c bursts 40 ms", baud, 16, 1, burst_ms=40))
+            cases.append(Case("2w 8c glitch FFH", baud, 2, 8, glitch=True))
+            cases.append(Case("2w 8c echo, echo: false", baud, 2, 8, echo=True))
     fastest = max(baudrates)
     cases.append(Case("2w 8c same regs, cache", fastest, 2, 8, same_registers=True, cache=True))
     cases.append(Case("2w 64c on 32 drives", fastest, 2, 64, drives=32))
@@ -48,6 +55,16 @@ class Case:
     same_registers: bool = False
     dead: int = 0
     cache: bool = False
+    burst_ms: float = 0.0
+    glitch: bool = False
+    echo: bool = False
+
+    @property
+    def adapter_args(self) -> list[str]:
+        """`simulate` options for the adapter this case's line has."""
+        args = ["--burst-ms", f"{self.burst_ms:g}"] if self.burst_ms else []
+        args += ["--glitch", "FF"] if self.glitch else []
+        return args + (["--echo"] if self.echo else [])
 
     def baseline(self) -> Case:
         """The same load with every drive alive."""
@@ -55,7 +72,9 @@ class Case:
 
     @property
     def budget(self) -> WireBudget:
-        return read_budget(self.baudrate, self.words, RESPONSE_DELAY_MS / 1000)
+        return read_budget(
+            self.baudrate, self.words, RESPONSE_DELAY_MS / 1000, burst_s=self.burst_ms / 1000
+        )
 
 
 @dataclass
@@ -136,7 +155,7 @@ def gateway_config(case: Case, line_path: str, port: int) -> dict[str, Any]:
 def run_case(case: Case, duration_s: float, warmup_s: float) -> CaseResult:
     dead = list(range(case.drives - case.dead + 1, case.drives + 1))
     addresses = list(range(1, case.drives + 1))
-    with simulator(addresses, case.baudrate, dead, RESPONSE_DELAY_MS) as line:
+    with simulator(addresses, case.baudrate, dead, RESPONSE_DELAY_MS, case.adapter_args) as line:
         port = free_port()
         with gateway(gateway_config(case, line.path, port), port) as process:
             return asyncio.run(_measure(case, line, process, dead, duration_s, warmup_s))

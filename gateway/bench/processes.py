@@ -10,7 +10,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -44,9 +44,13 @@ class SimulatorProcess:
 
 @contextlib.contextmanager
 def simulator(
-    addresses: list[int], baudrate: int, dead: list[int], response_delay_ms: float
+    addresses: list[int],
+    baudrate: int,
+    dead: list[int],
+    response_delay_ms: float,
+    extra_args: Sequence[str] = (),
 ) -> Iterator[SimulatorProcess]:
-    args = [*gateway_command(), "simulate", "--pty", "--baud", str(baudrate)]
+    args = [*gateway_command(), "simulate", "--pty", "--baud", str(baudrate), *extra_args]
     args += ["--response-delay-ms", str(response_delay_ms)]
     for address in addresses:
         args += ["--address", str(address)]

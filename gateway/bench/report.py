@@ -86,6 +86,14 @@ def summary(results: list[CaseResult]) -> list[str]:
             lines.append(
                 f"{case.baudrate} baud, {case.name}: {ratio:.1f}x the wire maximum served {how}"
             )
+        elif case.adapter_args:
+            share = result.bus_per_s / result.wire_max_per_s
+            lines.append(
+                f"{case.baudrate} baud, {case.name}: {result.bus_per_s:.1f} transactions/s, "
+                f"{share:.1%} of what the line and the adapter allow, {result.load.errors} errors, "
+                f"{result.load.wrong} wrong values (target: 0 errors, the throughput the adapter "
+                "allows)"
+            )
         elif not case.cache and case.drives == 4:
             share = result.bus_per_s / result.wire_max_per_s
             lines.append(

@@ -27,12 +27,16 @@ class WireBudget:
     request_bytes: int
     reply_bytes: int
     response_delay_s: float
+    adapter_delay_s: float = 0.0
+    """What the master's adapter adds to every transaction: with replies handed over in bursts,
+    the wait for the part of each reply held back until the next burst."""
 
     @property
     def transaction_s(self) -> float:
         fmt = self.char_format
         delay = max(self.response_delay_s, fmt.t35_s)
-        return fmt.t35_s + fmt.wire_time_s(self.request_bytes + self.reply_bytes) + delay
+        wire = fmt.t35_s + fmt.wire_time_s(self.request_bytes + self.reply_bytes) + delay
+        return wire + self.adapter_delay_s
 
     @property
     def max_per_s(self) -> float:
@@ -40,11 +44,11 @@ class WireBudget:
 
 
 def read_budget(
-    baudrate: int, words: int, response_delay_s: float, parity: str = "E"
+    baudrate: int, words: int, response_delay_s: float, parity: str = "E", burst_s: float = 0.0
 ) -> WireBudget:
-    return WireBudget(
-        CharacterFormat(baudrate, parity),
-        READ_REQUEST_BYTES,
-        read_reply_bytes(words),
-        response_delay_s,
-    )
+    fmt = CharacterFormat(baudrate, parity)
+    reply = read_reply_bytes(words)
+    # The simulated adapter cuts each reply in the middle and hands the rest over one burst
+    # period later (`gateway.simulator.adapter`), instead of as it leaves the wire.
+    held_back = burst_s - fmt.wire_time_s(reply - reply // 2) if burst_s else 0.0
+    return WireBudget(fmt, READ_REQUEST_BYTES, reply, response_delay_s, max(held_back, 0.0))

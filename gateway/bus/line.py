@@ -10,11 +10,24 @@ when the gap ends, which is all the CPU it needs.
 Timeouts, and which is which:
 - `timeout_s` (response timeout): from the end of the request on the wire to the first byte of the
   reply. A drive answers after its own response delay (INVT P14.03, default 5 ms).
-- `char_timeout_s` (inter-character timeout): silence inside a reply that ends it. A reply cut short
-  is `truncated`; a reply of unknown length ends there. USB adapters deliver in bursts (FTDI latency
-  timer 16 ms), so this is longer than t1.5.
+- `char_timeout_s` (inter-character timeout): silence that ends a reply whose length no rule gives
+  (a function code the table doesn't know), and that ends a drain. A reply whose length its header
+  gives is never ended by silence before the response deadline: adapters deliver received bytes in
+  bursts (FTDI's latency timer: 16 ms; serial device servers pack bytes into TCP segments), so a
+  silence inside a reply says nothing about the line. Such a reply that truly stops short is caught
+  at that deadline, by its length and CRC. After the response deadline, a reply still arriving
+  ends after `char_timeout_s` of silence.
 - `drain_s`: after a timeout, how long to keep listening for a late reply before the next request,
   so it is never taken for the answer to the next one (RTU has no transaction id).
+
+The reply is searched for among the bytes received, not assumed to start at the first one
+(`gateway.modbus.reply_search`): a glitch byte from a transceiver switching on, or the request
+echoed by an adapter without echo suppression, is skipped and counted, never trusted. The line
+also watches what real hardware does to replies (the longest silence inside one, an echo where
+`echo: false` says there is none) and says once in the log what to change.
+
+Direction control for UARTs with an RS-485 transceiver (`gateway.bus.direction`): the kernel's
+RS-485 mode, or RTS toggled by the line around each write.
 
 Ports named by a pyserial URL (socket://, rfc2217://) have no descriptor to watch: their timed
 reads run in the loop's thread pool instead, which is slower but exact enough for a device server
@@ -25,6 +38,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
+import logging
 import os
 import select
 import termios
@@ -35,12 +50,16 @@ from functools import partial
 
 import serial
 
+from gateway.bus.direction import DirectionControl, DirectionMode, apply_kernel_mode, set_rts
+from gateway.bus.hardware_hints import burst_hint, echo_hint
 from gateway.bus.line_timer import LineTimer
 from gateway.bus.wakeup import settle, woken_or_timeout
 from gateway.errors import BadReply, PortError, ReplyTimeout
-from gateway.modbus.functions import NEED_MORE, UNKNOWN_LENGTH, rtu_reply_length
-from gateway.modbus.rtu import check_reply
+from gateway.modbus.reply_search import MIN_REPLY, Found, ReplySearch, search_reply
+from gateway.modbus.rtu import MAX_FRAME, check_reply
 from gateway.modbus.timing import CharacterFormat
+
+log = logging.getLogger(__name__)
 
 # Stray bytes that keep coming for this long are noise on the line, not a frame: stop draining and
 # let the next request take its chances rather than block the bus forever.
@@ -48,6 +67,9 @@ MAX_DRAIN_S = 1.0
 RECEIVE_CHUNK = 4096
 MAX_BUFFERED = 4096
 """Bytes kept while nobody reads (a frame is at most 256): a babbling line can't fill memory."""
+BURSTS_FROM_S = 0.005
+"""A silence inside a reply longer than this (beyond its bytes' own wire time) means the adapter
+delivers in bursts: worth a word in the log once. Clean USB adapters show well under 1 ms."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -59,6 +81,14 @@ class LineSettings:
     drain_s: float
     turnaround_s: float
     echo: bool = False
+    direction: DirectionControl | None = None
+    """Who switches the RS-485 driver: None for adapters that do it themselves."""
+    name: str = ""
+    """The bus's name, for messages; the port's path when empty."""
+
+    @property
+    def where(self) -> str:
+        return f"bus {self.name} ({self.port})" if self.name else self.port
 
 
 @dataclass(frozen=True, slots=True)
@@ -72,6 +102,9 @@ class Sending:
     """Silence kept before it (measured, not assumed)."""
     written: int
     """Bytes the port took at once; `finish` writes the rest."""
+    write_at: float = 0.0
+    """RTS direction control with a set-up delay: when `finish` may write the frame (the
+    driver was switched on at `started`)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -105,6 +138,18 @@ class SerialLine:
     def __init__(self, settings: LineSettings) -> None:
         self.settings = settings
         self.discarded_bytes = 0
+        self.garbage_bytes = 0
+        """Bytes skipped before replies: glitches, noise (`invt_gateway_line_garbage_bytes`)."""
+        self.echoes = 0
+        """Requests the adapter handed back although `echo: false` said it wouldn't."""
+        self.longest_reply_silence_s = 0.0
+        """The longest silence seen inside a reply (beyond its bytes' wire time): an adapter's
+        burst delivery shows here."""
+        self._arrivals: list[tuple[int, float]] | None = None
+        """While a reply is awaited: (buffer length after each read, its time)."""
+        self._bursts_told = False
+        self._virtual = False
+        """The port is a pty: no wire, so no wire timing to judge an echo by."""
         self.on_port_error: Callable[[], None] | None = None
         """Called when the port fails while nobody is reading it (an adapter unplugged)."""
         self._port: serial.SerialBase | None = None
@@ -133,7 +178,8 @@ class SerialLine:
         # A pty has no wire and no parity bit; Linux takes PARENB on one once and then refuses it
         # (EINVAL), so a virtual line that is opened again (a reopen, a field tool after a scan)
         # would fail. Timing still follows the configured format.
-        parity = "N" if is_pseudo_terminal(self.settings.port) else fmt.parity
+        virtual = is_pseudo_terminal(self.settings.port)
+        parity = "N" if virtual else fmt.parity
         try:
             port = serial.serial_for_url(
                 self.settings.port,
@@ -147,6 +193,11 @@ class SerialLine:
             )
         except (serial.SerialException, OSError, ValueError, termios.error) as exc:
             raise PortError(f"cannot open {self.settings.port}: {exc}") from exc
+        try:
+            self._take_direction(port)
+        except PortError:
+            port.close()
+            raise
         # FTDI adapters hold received bytes up to 16 ms unless asked not to; not every port can.
         with contextlib.suppress(Exception):
             port.set_low_latency_mode(True)
@@ -157,6 +208,7 @@ class SerialLine:
         with contextlib.suppress(Exception):
             port.reset_input_buffer()
         self._port, self._fd, self._loop = port, fd, loop
+        self._virtual = virtual
         self._received.clear()
         self._error = None
         self._timer = LineTimer(loop)
@@ -165,6 +217,22 @@ class SerialLine:
             self._poll = select.poll()
             self._poll.register(fd, select.POLLIN)
         self._quiet_since = time.monotonic()
+
+    def _take_direction(self, port: serial.SerialBase) -> None:
+        """Set the port up for the bus's RS-485 direction control, if any."""
+        control = self.settings.direction
+        if control is None:
+            return
+        where = self.settings.where
+        if control.mode is DirectionMode.KERNEL:
+            apply_kernel_mode(port, control, where)
+        else:
+            set_rts(port, not control.rts_level_for_tx, where)  # listening until a request
+
+    @property
+    def echo_detected(self) -> bool:
+        """The adapter has handed back a request though `echo: false` says it doesn't echo."""
+        return self.echoes > 0
 
     def close(self) -> None:
         port, self._port = self._port, None
@@ -234,9 +302,13 @@ class SerialLine:
     async def finish(self, sending: Sending, *, expect_reply: bool, timeout_s: float) -> Exchange:
         """The rest of an attempt begun by `send_after_gap`: the frame's tail, echo, reply."""
         frame, started = sending.frame, sending.started
-        if sending.written < len(frame):
-            await self._write(frame[sending.written :])
-        sent = started + self.settings.char_format.wire_time_s(len(frame))
+        control = self.settings.direction
+        if control is not None and control.mode is DirectionMode.RTS:
+            sent = await self._finish_rts(sending, control)
+        else:
+            if sending.written < len(frame):
+                await self._write(frame[sending.written :])
+            sent = started + self.settings.char_format.wire_time_s(len(frame))
         # Our own frame holds the line until its last character has left.
         self._quiet_since = max(self._quiet_since, sent)
         if self.settings.echo:
@@ -245,7 +317,7 @@ class SerialLine:
             self._quiet_since = max(self._quiet_since, sent + self.settings.turnaround_s)
             return Exchange(None, sending.gap_s, self._quiet_since - started)
         try:
-            reply = await self._read_reply(frame, sent + timeout_s)
+            reply = await self._read_reply(frame, sent, sent + timeout_s)
             pdu = check_reply(frame, reply)
         except ReplyTimeout:
             await self._drain(self.settings.drain_s)
@@ -264,7 +336,69 @@ class SerialLine:
             return None
         started = time.monotonic()
         gap = started - self._quiet_since
+        control = self.settings.direction
+        if control is not None and control.mode is DirectionMode.RTS:
+            return self._start_rts(frame, started, gap, control)
         return Sending(frame, started, gap, self._write_now(frame))
+
+    # -- RTS direction control -----------------------------------------------------------------
+
+    def _start_rts(
+        self, frame: bytes, started: float, gap: float, control: DirectionControl
+    ) -> Sending:
+        """Switch the driver on; write at once unless the transceiver needs a set-up delay."""
+        self._set_rts(control.rts_level_for_tx)
+        if control.delay_before_tx_s > 0:
+            return Sending(frame, started, gap, 0, write_at=started + control.delay_before_tx_s)
+        self._write_whole(frame)
+        return Sending(frame, started, gap, len(frame))
+
+    async def _finish_rts(self, sending: Sending, control: DirectionControl) -> float:
+        """Write (after the set-up delay), wait for the UART to drain, hold, release the driver.
+
+        Returns when the last bit left (the drain), the moment the response timeout counts from.
+        """
+        assert self._timer is not None
+        if sending.written < len(sending.frame):
+            await self._timer.sleep_until(sending.write_at)
+            self._write_whole(sending.frame)
+        wire_s = self.settings.char_format.wire_time_s(len(sending.frame))
+        await self._drained(wire_s + 1.0)
+        sent = time.monotonic()
+        if control.delay_after_tx_s > 0:
+            await self._timer.sleep_until(sent + control.delay_after_tx_s)
+        self._set_rts(not control.rts_level_for_tx)
+        return sent
+
+    def _set_rts(self, level: bool) -> None:
+        try:
+            set_rts(self._require_port(), level, self.settings.where)
+        except PortError:
+            self.close()
+            raise
+
+    def _write_whole(self, frame: bytes) -> None:
+        """The whole frame through pyserial (RTS mode: the port's own write, then its drain)."""
+        port = self._require_port()
+        try:
+            port.write(frame)
+        except (serial.SerialException, OSError, termios.error) as exc:
+            self.close()
+            raise PortError(f"write to {self.settings.port} failed: {exc}") from exc
+
+    async def _drained(self, within_s: float) -> None:
+        """Wait until the UART has sent its last bit (tcdrain blocks: a worker thread does it)."""
+        port = self._require_port()
+        assert self._loop is not None
+        try:
+            await asyncio.wait_for(self._loop.run_in_executor(None, port.flush), within_s)
+        except TimeoutError:
+            self.close()
+            wedged = f"{self.settings.port} doesn't finish sending (adapter wedged?)"
+            raise PortError(wedged) from None
+        except (serial.SerialException, OSError, termios.error) as exc:
+            self.close()
+            raise PortError(f"drain of {self.settings.port} failed: {exc}") from exc
 
     def _discard_pending(self) -> None:
         """Throw away bytes nobody asked for (noise, a reply later than every drain)."""
@@ -287,31 +421,135 @@ class SerialLine:
         """
         return self._poll is not None and bool(self._poll.poll(0))
 
-    async def _read_reply(self, frame: bytes, first_byte_deadline: float) -> bytes:
-        """Read exactly one reply, ending by its expected length (or on silence if unknown)."""
-        reply = bytearray()
-        deadline = first_byte_deadline
+    async def _read_reply(self, frame: bytes, sent: float, response_deadline: float) -> bytes:
+        """Find the reply to `frame` among the bytes that arrive, and return exactly it.
+
+        Bytes before the reply that can't start it (a glitch, the adapter's echo) are skipped;
+        bytes after it stay for `_discard_pending`. `check_reply` judges what is returned.
+        """
+        self._arrivals = [(len(self._received), self._quiet_since)]
+        # A reply can't be complete before the request has left the wire and the reply has
+        # crossed it: a copy of the request complete sooner is the adapter's echo (05H, 06H and
+        # 08H replies are copies too; time tells them apart where the bytes can't). Not on a pty:
+        # a virtual line has no wire, and a peer behind it may answer at once.
+        fmt = self.settings.char_format
+        echo_by = sent + fmt.wire_time_s(len(frame)) if not self._virtual else 0.0
+        try:
+            return await self._search_reply(frame, response_deadline, echo_by)
+        finally:
+            self._arrivals = None
+
+    async def _search_reply(self, frame: bytes, response_deadline: float, echo_by: float) -> bytes:
         char_timeout = self.settings.char_timeout_s
+        wire_time = self.settings.char_format.wire_time_s
+        # However the bytes trickle in, one attempt ends: a babbling line can't hold the bus.
+        give_up = response_deadline + wire_time(MAX_FRAME) + char_timeout
         while True:
-            expected = rtu_reply_length(reply, len(frame))
-            if expected == NEED_MORE:
-                want = (3 if len(reply) >= 2 else 2) - len(reply)
-            elif expected == UNKNOWN_LENGTH:
-                want = 256
-            elif len(reply) >= expected:
-                return bytes(reply)
-            else:
-                want = expected - len(reply)
-            chunk = await self._read_some(want, deadline)
-            if chunk:
-                reply += chunk
+            seen = len(self._received)
+            echoes = self.echo_detected or self._arrived_by(len(frame), echo_by)
+            search = search_reply(self._received, frame, adapter_echoes=echoes)
+            found = search.found
+            if found is Found.COMPLETE or found is Found.CORRUPT:
+                return self._take_reply(search, search.end)
+            if found is Found.SILENCE_ENDS:
                 deadline = self._quiet_since + char_timeout
+            elif found is Found.PARTIAL:
+                missing = search.end - seen if search.end else 3
+                # Not ended by a silence before the response deadline: bursts cut replies.
+                deadline = max(
+                    response_deadline, self._quiet_since + char_timeout + wire_time(missing)
+                )
+            else:
+                deadline = response_deadline
+            if await self._more_bytes(seen, min(deadline, give_up)):
                 continue
-            if not reply:
-                raise ReplyTimeout(f"no reply to {frame[:2].hex(' ')} within the response timeout")
-            if expected == UNKNOWN_LENGTH:
-                return bytes(reply)
-            raise BadReply("truncated", f"reply stopped after {len(reply)} bytes", bytes(reply))
+            return self._reply_at_deadline(frame, search)
+
+    def _reply_at_deadline(self, frame: bytes, search: ReplySearch) -> bytes:
+        """Nothing more came in time: the reply as far as it is, or why there is none."""
+        received = self._received
+        if search.found is Found.SILENCE_ENDS:
+            return self._take_reply(search, len(received))
+        if search.found is Found.PARTIAL:
+            # The candidate never completed; a frame further on may have (the candidate was a
+            # glitch that happened to look like the start of a reply).
+            later = search_reply(
+                received, frame, adapter_echoes=self.echo_detected, after=search.start
+            )
+            if later.found is Found.COMPLETE:
+                return self._take_reply(later, later.end)
+            partial = bytes(received[search.start :])
+            raise BadReply("truncated", f"reply stopped after {len(partial)} bytes", partial)
+        noise = bytes(received[search.echo :])
+        if len(noise) >= MIN_REPLY:
+            what = f"{len(noise)} bytes came, none of them a reply: {noise.hex(' ')}"
+            raise BadReply("noise", what, noise)
+        # A glitch byte or two is not an answer: the drive is silent as far as anyone can tell.
+        raise ReplyTimeout(f"no reply to {frame[:2].hex(' ')} within the response timeout", noise)
+
+    def _arrived_by(self, count: int, moment: float) -> bool:
+        """Had the first `count` bytes of this read arrived before `moment`?"""
+        for end, at in self._arrivals or ():
+            if end >= count:
+                return at < moment
+        return False
+
+    def _take_reply(self, search: ReplySearch, end: int) -> bytes:
+        """Take `received[search.start:end]` as the reply: count what came before it."""
+        if search.garbage:
+            self.garbage_bytes += search.garbage
+        if search.echo:
+            self._echo_found()
+        reply = bytes(self._received[search.start : end])
+        self._note_silences(search.start, end)
+        del self._received[:end]
+        return reply
+
+    def _note_silences(self, start: int, end: int) -> None:
+        """The longest silence inside the reply at `start:end`, from the arrival times."""
+        arrivals = self._arrivals
+        if not arrivals or len(arrivals) < 2:
+            return
+        wire_time = self.settings.char_format.wire_time_s
+        longest = 0.0
+        for (before, before_at), (after, after_at) in itertools.pairwise(arrivals):
+            if start < before < end:  # this read continued the reply after a pause
+                silence = after_at - before_at - wire_time(min(after, end) - before)
+                longest = max(longest, silence)
+        if longest > self.longest_reply_silence_s:
+            self.longest_reply_silence_s = longest
+        if longest > BURSTS_FROM_S and not self._bursts_told:
+            self._bursts_told = True
+            log.warning("%s", burst_hint(self.settings.where, self.settings.port, longest))
+
+    def _echo_found(self) -> None:
+        self.echoes += 1
+        if self.echoes == 1:
+            log.warning("%s", echo_hint(self.settings.where))
+
+    async def _more_bytes(self, seen: int, deadline: float) -> bool:
+        """Wait until more than `seen` bytes are buffered (True) or `deadline` passes (False)."""
+        while len(self._received) <= seen:
+            if self._fd is None:
+                data = await self._read_some_url(256, deadline)
+                if not data:
+                    return False
+                self._received += data
+                if self._arrivals is not None:
+                    self._arrivals.append((len(self._received), self._quiet_since))
+                return True
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return False
+            assert self._loop is not None
+            waiter = self._waiter = self._loop.create_future()
+            try:
+                await woken_or_timeout(waiter, remaining)
+            finally:
+                if self._waiter is waiter:
+                    self._waiter = None
+            self._require_port()
+        return True
 
     async def _read_echo(self, frame: bytes, sent: float) -> None:
         """Adapters without echo suppression hand back what we sent; it must match exactly."""
@@ -358,11 +596,15 @@ class SerialLine:
             self._fail(PortError(f"read from {self.settings.port} failed: {exc}"))
             return
         self._received += data
-        self._quiet_since = time.monotonic()
+        now = self._quiet_since = time.monotonic()
         if len(self._received) > MAX_BUFFERED:
             excess = len(self._received) - MAX_BUFFERED
             self.discarded_bytes += excess
             del self._received[:excess]
+            if self._arrivals is not None:
+                self._arrivals.clear()  # offsets moved; the silence measure starts again
+        if self._arrivals is not None:
+            self._arrivals.append((len(self._received), now))
         self._wake()
 
     def _fail(self, error: PortError) -> None:

@@ -58,7 +58,7 @@ def handle(args: argparse.Namespace) -> int:
 
     from gateway.tools.advice import FieldError
     from gateway.tools.open import open_serial, serial_options
-    from gateway.tools.report import no_drive_found, result_table
+    from gateway.tools.report import line_notes, no_drive_found, result_table
     from gateway.tools.scan import FoundDrive, scan
 
     if args.timeout_ms <= 0:
@@ -93,10 +93,16 @@ def handle(args: argparse.Namespace) -> int:
                 progress.update(task, advance=1, found=count)
 
             result = scan(master, args.addresses, advance)
+        notes = line_notes(master.line)
     finally:
         master.close()
     if not result.found:
         print(f"invt-gateway scan: {no_drive_found(options, result)}", file=sys.stderr)
+        for note in notes:
+            print(f"line: {note}", file=sys.stderr)
         return EXIT_FAILURE
-    Console(soft_wrap=True).print(result_table(options, result))
+    console = Console(soft_wrap=True)
+    console.print(result_table(options, result))
+    for note in notes:
+        console.print(f"line: {note}", markup=False)
     return EXIT_OK

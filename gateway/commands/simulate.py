@@ -2,6 +2,7 @@
 
     invt-gateway simulate --pty --address 1 --address 2 [--link /tmp/ttyINVT]
     invt-gateway simulate --pty --address 1 --line-faults 0.05 --late-reply-ms 100
+    invt-gateway simulate --pty --address 1 --burst-ms 40 --glitch FF --echo
 
 The first line on stdout is the device path to point the gateway at. It serves until SIGTERM or
 SIGINT (exit 0). When stdin is not a terminal, it takes control commands there, one per line
@@ -110,6 +111,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="how much later than due a 'late' reply comes (default 500)",
     )
 
+    adapter = parser.add_argument_group(
+        "the gateway's adapter", "what real RS-485 adapters do to the bytes the gateway receives"
+    )
+    adapter.add_argument(
+        "--burst-ms",
+        type=float,
+        default=0.0,
+        metavar="MS",
+        help="hand replies over in bursts every MS ms, each reply cut in the middle, as a USB "
+        "adapter's latency timer or a serial device server does (default 0: off)",
+    )
+    adapter.add_argument(
+        "--glitch",
+        type=_glitch,
+        default=b"",
+        metavar="HEX",
+        help="one spurious byte (00 or FF) before every reply, as a transceiver switching "
+        "direction puts on the line",
+    )
+    adapter.add_argument(
+        "--echo",
+        action="store_true",
+        help="hand every request back as it arrives, as a 2-wire adapter without echo "
+        "suppression does",
+    )
+
 
 def handle(args: argparse.Namespace) -> int:
     # Signal handlers first: whoever reads the path may signal at once, and must get a clean
@@ -123,9 +150,12 @@ def handle(args: argparse.Namespace) -> int:
             return EXIT_FAILURE
         try:
             print(line.path, flush=True)
+            adapter = (
+                "" if line.adapter.describe() == "none" else f"; adapter: {line.adapter.describe()}"
+            )
             print(
                 f"simulating {args.model} drives {sorted(line.drives)} on "
-                f"{line.path} ({args.baud} baud 8{args.parity}{args.stopbits})",
+                f"{line.path} ({args.baud} baud 8{args.parity}{args.stopbits}){adapter}",
                 file=sys.stderr,
                 flush=True,
             )
@@ -152,6 +182,8 @@ def build_line(args: argparse.Namespace) -> SimulatedLine:
         line.inject_fault(address, code)
     for address in args.dead:
         line.set_dead(address, True)
+    if args.burst_ms or args.glitch or args.echo:
+        line.set_adapter(burst_ms=args.burst_ms, glitch=args.glitch, echo=args.echo)
     if args.line_faults:
         line.set_line_faults(
             args.line_faults, args.line_fault_kinds, args.line_fault_seed, args.late_reply_ms
@@ -232,6 +264,16 @@ def _kinds(text: str) -> list[str]:
     if unknown or not kinds:
         raise argparse.ArgumentTypeError(f"line fault kinds are {', '.join(sorted(KINDS))}")
     return kinds
+
+
+def _glitch(text: str) -> bytes:
+    try:
+        value = bytes.fromhex(text.removesuffix("H").removesuffix("h"))
+    except ValueError:
+        value = b""
+    if len(value) != 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: one byte in hex, e.g. 00 or FF")
+    return value
 
 
 def _pair(text: str) -> tuple[int, int]:

@@ -6,6 +6,9 @@
     alive ADDR          ... and answers again                → ok alive 2
     delay ADDR MS       the address answers MS ms late       → ok delay 1 100
     noise HEX           bytes put on the line now            → ok noise 3
+    bursts MS           replies handed over in bursts (0 off) → ok bursts 40
+    glitch HEX|off      a spurious byte before each reply    → ok glitch ff
+    echo on|off         the adapter echoes every request     → ok echo on
     unplug              the port goes away                   → ok unplug
     replug              a new port, the link re-pointed      → ok replug /dev/pts/7
     stats               the line's counters                  → ok {"requests": 3, ...}
@@ -23,7 +26,7 @@ from gateway.simulator.line import SimulatedLine
 
 USAGE: Final = (
     "commands: fault ADDR CODE, clear ADDR, dead ADDR, alive ADDR, delay ADDR MS, noise HEX, "
-    "unplug, replug, stats"
+    "bursts MS, glitch HEX|off, echo on|off, unplug, replug, stats"
 )
 
 
@@ -81,6 +84,28 @@ def _noise(line: SimulatedLine, arguments: list[str]) -> str:
     return f"noise {len(data)}"
 
 
+def _bursts(line: SimulatedLine, arguments: list[str]) -> str:
+    adapter = line.adapter
+    line.set_adapter(burst_ms=float(arguments[0]), glitch=adapter.glitch, echo=adapter.echo)
+    return f"bursts {float(arguments[0]):g}"
+
+
+def _glitch(line: SimulatedLine, arguments: list[str]) -> str:
+    glitch = b"" if arguments[0].lower() == "off" else bytes.fromhex(arguments[0])
+    adapter = line.adapter
+    line.set_adapter(burst_ms=adapter.burst_s * 1000, glitch=glitch, echo=adapter.echo)
+    return f"glitch {glitch.hex() or 'off'}"
+
+
+def _echo(line: SimulatedLine, arguments: list[str]) -> str:
+    if arguments[0].lower() not in ("on", "off"):
+        raise ValueError("echo takes on or off")
+    echo = arguments[0].lower() == "on"
+    adapter = line.adapter
+    line.set_adapter(burst_ms=adapter.burst_s * 1000, glitch=adapter.glitch, echo=echo)
+    return f"echo {'on' if echo else 'off'}"
+
+
 def _unplug(line: SimulatedLine, arguments: list[str]) -> str:
     line.unplug()
     return "unplug"
@@ -102,6 +127,9 @@ _COMMANDS: Final[dict[str, tuple[Callable[[SimulatedLine, list[str]], str], int]
     "alive": (_alive, 1),
     "delay": (_delay, 2),
     "noise": (_noise, 1),
+    "bursts": (_bursts, 1),
+    "glitch": (_glitch, 1),
+    "echo": (_echo, 1),
     "unplug": (_unplug, 0),
     "replug": (_replug, 0),
     "stats": (_stats, 0),

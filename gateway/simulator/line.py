@@ -31,6 +31,7 @@ from typing import Any, Final
 
 from gateway.modbus.rtu import BROADCAST_ADDRESS, build_frame
 from gateway.modbus.timing import CharacterFormat
+from gateway.simulator.adapter import AdapterEffects
 from gateway.simulator.drive import SimulatedDrive
 from gateway.simulator.endpoint import Endpoint, point_link, remove_link
 from gateway.simulator.framing import ReceivedFrame, RequestAssembler
@@ -86,6 +87,7 @@ class SimulatedLine:
         self._dead: set[int] = set()
         self._extra_delay_s: dict[int, float] = {}
         self._faults = LineFaults()
+        self._adapter = AdapterEffects()
         self._stats: dict[str, Any] = {
             "requests": 0,
             "replies": 0,
@@ -105,7 +107,8 @@ class SimulatedLine:
         self._wake_read = self._wake_write = -1
         self._calls: deque[_Call] = deque()
         self._assembler = RequestAssembler(self.t35_s)
-        self._pending: list[tuple[float, int, bytes]] = []  # (due, sequence, frame): a heap
+        # (due, sequence, bytes, ends a reply): a heap. A reply delivered in bursts is several.
+        self._pending: list[tuple[float, int, bytes, bool]] = []
         self._sequence = itertools.count()
         self._last_frame_end: float | None = None
         self._request_wire_end = 0.0
@@ -210,6 +213,25 @@ class SimulatedLine:
         with self._lock:
             self._faults.configure(rate, kinds, seed, late_ms / 1000)
 
+    def set_adapter(
+        self, *, burst_ms: float = 0.0, glitch: bytes = b"", echo: bool = False
+    ) -> AdapterEffects:
+        """How the gateway's adapter hands over what it receives: in bursts every `burst_ms`
+        (each reply cut in the middle), with a `glitch` byte before each reply, echoing each
+        request. All off by default."""
+        if burst_ms < 0:
+            raise ValueError(f"burst period {burst_ms} ms is negative")
+        if len(glitch) > 1:
+            raise ValueError("a glitch is one byte, e.g. 00 or FF")
+        effects = AdapterEffects(burst_ms / 1000, bytes(glitch), echo)
+        with self._lock:
+            self._adapter = effects
+        return effects
+
+    @property
+    def adapter(self) -> AdapterEffects:
+        return self._adapter
+
     def write_raw(self, data: bytes) -> None:
         """Put arbitrary bytes (noise) on the line now."""
         self._in_loop(lambda: self._write(data))
@@ -293,6 +315,8 @@ class SimulatedLine:
             log.warning("simulated line: %s closed", endpoint.path)
             self._unplug()
             return
+        if self._adapter.echo:  # the adapter hands the master's bytes straight back
+            self._write(data)
         with self._lock:
             for frame in self._assembler.feed(data, now):
                 self._on_frame(frame)
@@ -332,7 +356,9 @@ class SimulatedLine:
                 return
             reply, delay_s = spoilt.frame, delay_s + spoilt.extra_delay_s
         due = wire_end + delay_s + len(reply) * character_s
-        heapq.heappush(self._pending, (due, next(self._sequence), reply))
+        parts = self._adapter.deliveries(reply, due, character_s)
+        for index, (at, part) in enumerate(parts, 1):
+            heapq.heappush(self._pending, (at, next(self._sequence), part, index == len(parts)))
 
     def _response_delay_s(self, drive: SimulatedDrive) -> float:
         """P14.03 once written over Modbus, else the line's `response_delay_ms`; at least t3.5
@@ -345,7 +371,7 @@ class SimulatedLine:
         gaps = []
         if self._last_frame_end is not None:
             gaps.append(first_byte_at - self._last_frame_end)
-        for due, _, reply in self._pending:
+        for due, _, reply, _ in self._pending:
             reply_starts = due - len(reply) * character_s
             if first_byte_at + request_wire_s + self.t35_s > reply_starts:
                 gaps.append(first_byte_at - due)  # collides with a reply still to go out
@@ -368,9 +394,9 @@ class SimulatedLine:
                 pass
             now = time.monotonic()
         while self._pending and self._pending[0][0] <= now:
-            _, _, reply = heapq.heappop(self._pending)
+            _, _, reply, ends_reply = heapq.heappop(self._pending)
             written_at = time.monotonic()
-            if self._write(reply):
+            if self._write(reply) and ends_reply:
                 with self._lock:
                     self._stats["replies"] += 1
                     self._frame_ended(written_at)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from rich import box
 from rich.table import Table
 
+from gateway.bus.line import BURSTS_FROM_S, SerialLine
 from gateway.tools.advice import COMMUNICATION_MODE, GARBLED, NO_ANSWER, FieldError
 from gateway.tools.masters import SerialOptions
 from gateway.tools.scan import ScanResult
@@ -49,3 +50,26 @@ def no_drive_found(options: SerialOptions, result: ScanResult) -> FieldError:
         f"the drives' response delay P14.03 is below --timeout-ms ({options.timeout_s * 1000:g} ms)"
     )
     return FieldError(f"no drive answered on {options.describe()}", (*NO_ANSWER, delay))
+
+
+def line_notes(line: SerialLine) -> list[str]:
+    """What the scan learnt about the line's hardware, and what to set for it."""
+    notes = []
+    if line.echo_detected:
+        notes.append(
+            "this adapter echoes what is sent (no echo suppression): set `echo: true` for this "
+            "bus in the gateway's configuration"
+        )
+    silence = line.longest_reply_silence_s
+    if silence > BURSTS_FROM_S:
+        notes.append(
+            f"replies arrive in bursts (up to {silence * 1000:.0f} ms of silence inside one): "
+            "the gateway reads them whole; for an FTDI adapter set its latency_timer to 1 "
+            "(/sys/bus/usb-serial/devices/<ttyUSBn>/latency_timer)"
+        )
+    if line.garbage_bytes:
+        notes.append(
+            f"{line.garbage_bytes} stray byte(s) came before replies (a transceiver glitching as "
+            "the bus turns around): skipped; check termination and biasing if they are many"
+        )
+    return notes

@@ -9,6 +9,7 @@ in one read (state word 1, state word 2, fault code, identification code).
 
 from __future__ import annotations
 
+import contextlib
 import struct
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -73,6 +74,9 @@ Progress = Callable[[int, FoundDrive | None], None]
 
 def scan(master: Master, addresses: Iterable[int], progress: Progress | None = None) -> ScanResult:
     result = ScanResult()
+    addresses = list(addresses)
+    if addresses:
+        learn_the_adapter(master, addresses[0])
     for address in addresses:
         found = probe(master, address, result)
         if found is not None:
@@ -80,6 +84,19 @@ def scan(master: Master, addresses: Iterable[int], progress: Progress | None = N
         if progress is not None:
             progress(address, found)
     return result
+
+
+def learn_the_adapter(master: Master, address: int) -> None:
+    """One read before the loop-backs, so an echoing adapter shows itself.
+
+    A loop-back's reply is a copy of the request, and so is an adapter's echo of it: the line
+    can tell them apart only once it has seen the adapter echo a request whose reply differs
+    (a read), or by wire timing on a real port. Without this, every silent address of a scan
+    through an echoing adapter on a virtual line would look like a drive.
+    """
+    pdu = struct.pack(">BHH", READ_HOLDING_REGISTERS, STATE_WORD_1, 1)
+    with contextlib.suppress(ReplyTimeout, BadReply):
+        master.request(address, pdu)
 
 
 def probe(master: Master, address: int, result: ScanResult) -> FoundDrive | None:
