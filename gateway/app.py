@@ -22,7 +22,6 @@ from gateway.cache import RegisterCache
 from gateway.config import AccessRuleConfig, BusConfig, DriveConfig, GatewayConfig
 from gateway.health import Phase
 from gateway.modbus.timing import CharacterFormat
-from gateway.profile import get_profile
 from gateway.profile.ram_writes import ram_write_address
 from gateway.router import Route, Router
 from gateway.tasks import cancel_and_wait
@@ -67,7 +66,7 @@ def bus_settings(config: BusConfig) -> BusSettings:
 
 
 def drive_route(drive: DriveConfig, bus: Bus) -> Route:
-    profile = get_profile(drive.model)
+    profile = drive.profile()
     split = profile.is_invt if drive.split is None else drive.split
     return Route(
         unit_id=drive.effective_unit_id,

@@ -18,7 +18,6 @@ from typing import Any, Final
 from gateway import __version__
 from gateway.config import GatewayConfig
 from gateway.mqtt.topics import Topics
-from gateway.profile import get_profile
 
 MAX_SETPOINT_HZ: Final = 630.0
 """The highest P00.03 (max. output frequency) of any Goodrive; the drive refuses above its own."""
@@ -80,7 +79,7 @@ def discovery_messages(config: GatewayConfig, prefix: str, topics: Topics) -> li
     ]
     commands = config.mqtt is not None and config.mqtt.commands_enabled
     for drive in config.drives:
-        profile = get_profile(drive.model)
+        profile = drive.profile()
         if not profile.is_invt:
             continue  # nothing decoded to show
         common = {

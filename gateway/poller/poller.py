@@ -32,7 +32,7 @@ from gateway.errors import BusClosed, DriveOffline, GatewayPathUnavailable, Gate
 from gateway.modbus.functions import READ_HOLDING_REGISTERS, is_exception
 from gateway.poller.drive_state import DriveEvent, DriveState
 from gateway.poller.plan import PollBlock, PollSchedule, poll_schedules
-from gateway.profile import exception_name, format_register, get_profile
+from gateway.profile import exception_name, format_register
 from gateway.profile.telemetry import Telemetry
 from gateway.router import Router
 from gateway.tasks import cancel_and_wait
@@ -81,7 +81,7 @@ class Poller:
         self.drives: dict[str, PolledDrive] = {}
         self._by_bus_address: dict[tuple[str, int], str] = {}
         for config in drives:
-            profile = get_profile(config.model)
+            profile = config.profile()
             timers = [_GroupTimer(s) for s in poll_schedules(config, profile)]
             self.drives[config.name] = PolledDrive(config, DriveState(config.name, profile), timers)
             self._by_bus_address[(config.bus, config.address)] = config.name
