@@ -6,16 +6,27 @@ the config and on the command line; a fault code one series lists and another do
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
+import serial
 
 from gateway.config import parse_config
 from gateway.profile import describe_identification, get_profile
 from gateway.profile.telemetry import decode_telemetry
-from tests.processes import run_cli
+from gateway.simulator import SimulatedLine
+from gateway.tools.scan import FoundDrive
+from tests.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
+from tests.mosquitto import mosquitto as mosquitto
+from tests.mqtt_setup import FAST_POLL, mqtt_config
+from tests.processes import run_cli, simulator_process
+from tests.protocol_frames import PROTOCOL_EXCHANGES
+from tests.support import running_gateway
+from tests.test_simulator import exchange
 
 FIVE_SERIES = ("gd30", "ipe300", "gd350a", "gd300l", "gd350ul")
 
@@ -139,3 +150,149 @@ def test_decode_fault_with_a_model_uses_its_table_and_exits_1_for_a_code_it_lack
     result = run_cli("decode-fault", "--model", "gd999", "35")
     assert result.returncode == 2
     assert "valid profiles are" in result.stderr
+
+
+# ---------------------------------------------------------------- the simulated series
+
+
+@pytest.mark.parametrize("series", FIVE_SERIES)
+def test_every_protocol_frame_against_each_simulated_series(series: str) -> None:
+    with (
+        SimulatedLine(
+            addresses=[1, 2, 3], model=series, baudrate=19200, fault_history={3: [35] * 6}
+        ) as line,
+        serial.Serial(line.path, 19200, parity="E", timeout=1) as port,
+    ):
+        for request_hex, reply_hex in PROTOCOL_EXCHANGES:
+            reply = exchange(port, bytes.fromhex(request_hex))
+            assert reply == bytes.fromhex(reply_hex), (
+                f"{series}: {request_hex} answered {reply.hex(' ').upper()}"
+            )
+            time.sleep(0.003)  # t3.5 before the next request, as a master must
+        assert line.stats["gap_violations"] == 0
+
+
+def test_each_simulated_series_answers_its_own_identification() -> None:
+    answers = {}
+    with (
+        SimulatedLine(
+            addresses=[1, 2, 3, 4, 5],
+            models=dict(enumerate(FIVE_SERIES, start=1)),
+            baudrate=19200,
+        ) as line,
+        serial.Serial(line.path, 19200, parity="E", timeout=1) as port,
+    ):
+        for address in range(1, 6):
+            request = bytes.fromhex(f"{address:02X} 03 21 03 00 01")
+            reply = exchange(port, request + crc(request))
+            answers[address] = int.from_bytes(reply[3:5], "big")
+            time.sleep(0.003)
+    assert answers == {1: 0x01F0, 2: 0x01F1, 3: 0x01A2, 4: 0x010A, 5: 0x01A1}
+
+
+def crc(frame: bytes) -> bytes:
+    from pymodbus.framer import FramerRTU
+
+    return FramerRTU.compute_CRC(frame).to_bytes(2, "big")
+
+
+def test_a_goodrive30_has_two_motor_parameter_sets() -> None:
+    with (
+        SimulatedLine(addresses=[1, 2], models={1: "gd30", 2: "gd350a"}, baudrate=19200) as line,
+        serial.Serial(line.path, 19200, parity="E", timeout=1) as port,
+    ):
+        select_motor_3 = bytes.fromhex("01 06 20 09 00 02")
+        assert exchange(port, select_motor_3 + crc(select_motor_3))[1] == 0x86  # 04H refused
+        time.sleep(0.003)
+        select_motor_3 = bytes.fromhex("02 06 20 09 00 02")
+        request = select_motor_3 + crc(select_motor_3)
+        assert exchange(port, request) == request
+
+
+def test_a_gd300l_reports_ready_with_bit_0_clear() -> None:
+    # The Goodrive300-LIFT manual: 2101H bit 0 "=0: ready for operation".
+    registers = {0x2100: 3, 0x2101: 0x0040, 0x2102: 0}
+    assert decode_telemetry(get_profile("gd300l"), registers)["ready"] is True
+    assert decode_telemetry(get_profile("gd20"), registers)["ready"] is False
+
+
+# ---------------------------------------------------------------- scan
+
+
+def scan_rows(output: str) -> dict[int, list[str]]:
+    rows = {}
+    for line in output.splitlines():
+        cells = re.split(r"\s{2,}", line.strip())
+        if cells and cells[0].isdigit():
+            rows[int(cells[0])] = cells[1:]
+    return rows
+
+
+def test_scan_names_each_series_as_far_as_its_code_tells() -> None:
+    drives = [arg for i, m in enumerate(FIVE_SERIES, start=1) for arg in ("--drive", f"{i}={m}")]
+    line = ("--baud", "115200", "--parity", "N")
+    with simulator_process(
+        *drives, *line, "--response-delay-ms", "2", "--fault", "1=40", "--fault", "3=40"
+    ) as sim:
+        result = run_cli("scan", "--port", sim.path, *line, "--addresses", "1-6")
+    assert result.returncode == 0, result.stderr
+    rows = scan_rows(result.stdout)
+    assert {address: cells[0] for address, cells in rows.items()} == {
+        1: "GD30 (01F0H unconfirmed)",
+        2: "IPE300 (01F1H unconfirmed)",
+        3: "GD350A",
+        4: "GD300 or GD300-LIFT",
+        5: "GD350-UL",
+    }
+    assert rows[1][2] == "unknown fault 40"  # a Goodrive30 lists no fault 40
+    assert rows[3][2] == "STO"  # a Goodrive350A does
+    assert rows[2][1:3] == ["stopped", "none"]
+
+
+def test_scan_shows_an_unplaceable_invt_code_raw() -> None:
+    drive = FoundDrive(9, identification=0x0150, state_word_1=3, state_word_2=0x40, fault=35)
+    assert drive.model == "unknown series (0150H)"
+    assert drive.fault_text == "STo: maladjustment"
+
+
+# ---------------------------------------------------------------- MQTT
+
+
+async def test_a_fault_one_series_lists_is_unknown_for_another_over_mqtt(
+    mosquitto: Mosquitto,
+) -> None:
+    base = unique_base_topic()
+    drives = [
+        {"name": "hoist1", "address": 1, "model": "gd350a", "poll": FAST_POLL},
+        {"name": "fan2", "address": 2, "model": "gd30", "poll": FAST_POLL},
+    ]
+    with SimulatedLine(
+        addresses=[1, 2], models={1: "gd350a", 2: "gd30"}, baudrate=115200, response_delay_ms=1
+    ) as line:
+        config = mqtt_config(line.path, mosquitto, base, drives=drives, bus={"baudrate": 115200})
+        async with mqtt_probe(mosquitto, f"{base}/#") as probe, running_gateway(config):
+            await probe.wait_for(f"{base}/hoist1")
+            await probe.wait_for(f"{base}/fan2")
+            line.inject_fault(1, 40)
+            line.inject_fault(2, 40)
+            hoist = await probe.wait_for(f"{base}/hoist1", lambda s: s["fault_code"] == 40)
+            fan = await probe.wait_for(f"{base}/fan2", lambda s: s["fault_code"] == 40)
+            assert (hoist.json()["fault_name"], hoist.json()["fault_description"]) == (
+                "STO",
+                "STO",
+            )
+            assert (fan.json()["fault_name"], fan.json()["fault_description"]) == (
+                "40",
+                "unknown fault 40",
+            )
+            await probe.wait_for(
+                f"{base}/bridge/event",
+                lambda e: e["type"] == "fault_raised" and e["data"]["drive"] == "fan2",
+            )
+            events = {
+                e.json()["data"]["drive"]: e.json()["data"]
+                for e in probe.on(f"{base}/bridge/event")
+                if e.json()["type"] == "fault_raised"
+            }
+            assert events["fan2"]["fault_description"] == "unknown fault 40"
+            assert events["hoist1"]["fault_name"] == "STO"
