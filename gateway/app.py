@@ -155,6 +155,8 @@ class Application:
         from gateway.mqtt import MqttBridge  # aiomqtt only loaded when MQTT is configured
 
         self.mqtt = MqttBridge(config, self.router, self.poller)
+        assert config.mqtt is not None
+        self.poller.read_max_frequency = config.mqtt.homeassistant_discovery
         self.poller.add_listener(self.mqtt)
         self.features.append(self.mqtt)
 

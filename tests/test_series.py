@@ -296,3 +296,36 @@ async def test_a_fault_one_series_lists_is_unknown_for_another_over_mqtt(
             }
             assert events["fan2"]["fault_description"] == "unknown fault 40"
             assert events["hoist1"]["fault_name"] == "STO"
+
+
+# ---------------------------------------------------------------- Home Assistant
+
+
+async def test_discovery_set_point_maximum_is_the_drives_own_p00_03(mosquitto: Mosquitto) -> None:
+    base = unique_base_topic()
+    prefix = unique_base_topic("ha")
+    drives = [
+        {"name": "hoist1", "address": 1, "model": "gd350a", "poll": FAST_POLL},
+        {"name": "lift2", "address": 2, "model": "gd300l", "poll": FAST_POLL},
+    ]
+    with SimulatedLine(
+        addresses=[1, 2], models={1: "gd350a", 2: "gd300l"}, baudrate=115200, response_delay_ms=1
+    ) as line:
+        with serial.Serial(line.path, 115200, parity="E", timeout=1) as port:
+            set_max = bytes.fromhex("01 06 00 03 17 70")  # P00.03 = 60.00 Hz
+            assert exchange(port, set_max + crc(set_max)) == set_max + crc(set_max)
+        line.set_dead(2, True)  # lift2 can't be asked: its profile's factory 50.00 Hz
+        config = mqtt_config(
+            line.path, mosquitto, base, drives=drives, bus={"baudrate": 115200},
+            discovery_prefix=prefix,
+        )  # fmt: skip
+        async with mqtt_probe(mosquitto, f"{prefix}/#") as probe, running_gateway(config):
+            hoist = await probe.wait_for(
+                f"{prefix}/number/invt_test/hoist1_frequency_setpoint/config"
+            )
+            lift = await probe.wait_for(
+                f"{prefix}/number/invt_test/lift2_frequency_setpoint/config"
+            )
+            assert hoist.json()["max"] == 60.0
+            assert lift.json()["max"] == 50.0
+            assert lift.json()["device"]["model"] == "GD300-LIFT"

@@ -89,6 +89,10 @@ class Poller:
         self._task: asyncio.Task[None] | None = None
         self.polls = 0
         self.poll_failures = 0
+        self.read_max_frequency = False
+        """Read each drive's P00.03 at start (for Home Assistant's set-point maximum)."""
+        self.max_frequency_hz: dict[str, float] = {}
+        """Drive name → its P00.03, for the drives that answered at start."""
 
     def add_listener(self, listener: PollListener) -> None:
         self._listeners.append(listener)
@@ -96,6 +100,11 @@ class Poller:
     # -- lifecycle ---------------------------------------------------------------------------
 
     async def start(self) -> None:
+        if self.read_max_frequency:
+            from gateway.poller.max_frequency import read_max_frequencies
+
+            configs = [drive.config for drive in self.drives.values()]
+            self.max_frequency_hz = await read_max_frequencies(self.router, configs)
         self._task = asyncio.create_task(self._run(), name="poller")
 
     async def stop(self) -> None:
