@@ -29,7 +29,6 @@ from gateway.config import (
 )
 from gateway.health import Phase
 from gateway.modbus.timing import CharacterFormat
-from gateway.profile import get_profile
 from gateway.profile.ram_writes import ram_write_address
 from gateway.router import Route, Router
 from gateway.tasks import cancel_and_wait
@@ -87,7 +86,7 @@ def direction_control(config: Rs485Config | None) -> DirectionControl | None:
 
 
 def drive_route(drive: DriveConfig, bus: Bus) -> Route:
-    profile = get_profile(drive.model)
+    profile = drive.profile()
     split = profile.is_invt if drive.split is None else drive.split
     return Route(
         unit_id=drive.effective_unit_id,
@@ -176,6 +175,8 @@ class Application:
         from gateway.mqtt import MqttBridge  # aiomqtt only loaded when MQTT is configured
 
         self.mqtt = MqttBridge(config, self.router, self.poller)
+        assert config.mqtt is not None
+        self.poller.read_max_frequency = config.mqtt.homeassistant_discovery
         self.poller.add_listener(self.mqtt)
         self.features.append(self.mqtt)
 

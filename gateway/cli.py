@@ -25,6 +25,7 @@ COMMAND_MODULES = (
     "gateway.commands.read",
     "gateway.commands.write",
     "gateway.commands.decode_fault",
+    "gateway.commands.params",
     "gateway.commands.healthcheck",
 )
 

@@ -13,7 +13,7 @@ import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import yaml
 from pydantic import (
@@ -28,6 +28,9 @@ from pydantic import (
 )
 
 from gateway.errors import ConfigError
+
+if TYPE_CHECKING:
+    from gateway.profile import DriveProfile
 
 ENV_MQTT_USERNAME = "INVT_GATEWAY_MQTT_USERNAME"
 ENV_MQTT_PASSWORD = "INVT_GATEWAY_MQTT_PASSWORD"
@@ -101,7 +104,21 @@ def _function_code(value: object) -> object:
     return value
 
 
+def _word(value: object) -> object:
+    """0x01F0, "01F0H" or "0x01F0" (identification codes are written in hex)."""
+    if isinstance(value, str):
+        text = value.strip()
+        try:
+            if text[-1:] in "hH" and text[:-1]:
+                return int(text[:-1], 16)
+            return int(text, 0)
+        except ValueError:
+            pass
+    return value
+
+
 UnitId = Annotated[int, Field(ge=0, le=255)]
+Word = Annotated[int, BeforeValidator(_word), Field(ge=0, le=0xFFFF)]
 FunctionCode = Annotated[int, BeforeValidator(_function_code), Field(ge=1, le=127)]
 Registers = Annotated[RegisterRange, PlainValidator(_register_range)]
 
@@ -238,10 +255,27 @@ class DriveConfig(Section):
     """Answer SCADA reads inside a polled range from the poll cache when no older than this."""
     poll: tuple[PollGroupConfig, ...] | None = None
     """Poll groups; default from the model's profile."""
+    identification: tuple[Word, ...] | None = None
+    """Codes this drive answers at 2103H ("01F0H"), where the profile's are unconfirmed."""
+    faults: dict[Annotated[int, Field(ge=1, le=0xFFFF)], str] | None = None
+    """Fault names this drive's series uses where the profile's table is wrong or unconfirmed:
+    code → "SHORT: description" (e.g. `40: "BRKE: brake feedback fault"`)."""
+    ready_bit_set_means_ready: bool | None = None
+    """The polarity of state word 2 bit 0 where the profile's is unconfirmed."""
 
     @property
     def effective_unit_id(self) -> int:
         return self.address if self.unit_id is None else self.unit_id
+
+    def profile(self) -> DriveProfile:
+        """The model's profile with this drive's corrections applied."""
+        from gateway.profile import get_profile
+
+        return get_profile(self.model).with_overrides(
+            identification=self.identification,
+            faults=self.faults,
+            ready_bit_set_means_ready=self.ready_bit_set_means_ready,
+        )
 
     @field_validator("model")
     @classmethod

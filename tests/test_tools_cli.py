@@ -140,6 +140,7 @@ def test_decode_fault() -> None:
     result = run_cli("decode-fault", "35")
     assert (result.returncode, result.stdout) == (0, "STo: maladjustment\n")
     result = run_cli("decode-fault", "23H", "0", "99")
+    assert result.returncode == 1  # 99 is in no table
     assert result.stdout.splitlines() == [
         "35: STo: maladjustment",
         "0: none",

@@ -3,6 +3,7 @@
     invt-gateway simulate --pty --address 1 --address 2 [--link /tmp/ttyINVT]
     invt-gateway simulate --pty --address 1 --line-faults 0.05 --late-reply-ms 100
     invt-gateway simulate --pty --address 1 --burst-ms 40 --glitch FF --echo
+    invt-gateway simulate --pty --drive 1=gd30 --drive 2=ipe300 --drive 3=gd300l  (a mixed line)
 
 The first line on stdout is the device path to point the gateway at. It serves until SIGTERM or
 SIGINT (exit 0). When stdin is not a terminal, it takes control commands there, one per line
@@ -22,7 +23,7 @@ from collections.abc import Iterator, Sequence
 from types import FrameType
 
 from gateway.cli import EXIT_FAILURE, EXIT_OK
-from gateway.profile.invt import PROFILES
+from gateway.profile.invt import PROFILES, get_profile
 from gateway.simulator.control import run_control_command
 from gateway.simulator.line import SimulatedLine
 from gateway.simulator.line_faults import KINDS
@@ -54,7 +55,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="ADDR",
         help="a drive address 1..247 (repeat for several drives; default 1)",
     )
-    parser.add_argument("--model", default="gd350", choices=INVT_MODELS)
+    parser.add_argument(
+        "--model",
+        default="gd350",
+        choices=INVT_MODELS,
+        help="the series of every drive not given with --drive (default gd350)",
+    )
+    parser.add_argument(
+        "--drive",
+        type=_drive,
+        action="append",
+        default=[],
+        metavar="ADDR=MODEL",
+        help="a drive of another series at ADDR, e.g. 3=gd300l (repeat for a mixed line)",
+    )
     parser.add_argument("--baud", type=int, default=19200)
     parser.add_argument("--parity", default="E", type=str.upper, choices=PARITIES)
     parser.add_argument("--stopbits", type=int, default=1, choices=(1, 2))
@@ -154,7 +168,7 @@ def handle(args: argparse.Namespace) -> int:
                 "" if line.adapter.describe() == "none" else f"; adapter: {line.adapter.describe()}"
             )
             print(
-                f"simulating {args.model} drives {sorted(line.drives)} on "
+                f"simulating {describe_drives(line)} on "
                 f"{line.path} ({args.baud} baud 8{args.parity}{args.stopbits}){adapter}",
                 file=sys.stderr,
                 flush=True,
@@ -165,9 +179,27 @@ def handle(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def describe_drives(line: SimulatedLine) -> str:
+    """ "gd350 drives [1, 2], gd30 drive [3] (2103H = 01F0H, a placeholder: unconfirmed)"."""
+    by_model: dict[str, list[int]] = {}
+    for address, drive in sorted(line.drives.items()):
+        by_model.setdefault(drive.profile.key, []).append(address)
+    parts = []
+    for key, addresses in by_model.items():
+        profile = line.drives[addresses[0]].profile
+        text = f"{key} drive{'s' if len(addresses) > 1 else ''} {addresses}"
+        if not profile.identification_confirmed:
+            text += f" (2103H = {profile.identification[0]:04X}H, a placeholder: unconfirmed)"
+        parts.append(text)
+    return ", ".join(parts)
+
+
 def build_line(args: argparse.Namespace) -> SimulatedLine:
+    models = dict(args.drive)
+    addresses = sorted({*(args.address or ([] if models else [1])), *models})
     line = SimulatedLine(
-        addresses=args.address or [1],
+        addresses=addresses,
+        models=models,
         model=args.model,
         baudrate=args.baud,
         parity=args.parity,
@@ -274,6 +306,19 @@ def _glitch(text: str) -> bytes:
     if len(value) != 1:
         raise argparse.ArgumentTypeError(f"{text!r}: one byte in hex, e.g. 00 or FF")
     return value
+
+
+def _drive(text: str) -> tuple[int, str]:
+    address, _, model = text.partition("=")
+    try:
+        key = get_profile(model).key
+        if not PROFILES[key].is_invt:
+            raise ValueError(model)
+        return _address(address), key
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected ADDR=MODEL with MODEL one of {', '.join(INVT_MODELS)}"
+        ) from None
 
 
 def _pair(text: str) -> tuple[int, int]:

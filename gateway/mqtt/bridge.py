@@ -273,7 +273,9 @@ class MqttBridge:
                 await self._publish_state(client, drive, telemetry, force=True)
 
     async def _publish_discovery(self, client: aiomqtt.Client) -> None:
-        messages = discovery_messages(self.config, self.mqtt.discovery_prefix, self.topics)
+        messages = discovery_messages(
+            self.config, self.mqtt.discovery_prefix, self.topics, self.poller.max_frequency_hz
+        )
         for topic, payload in messages:
             await self._publish(client, topic, payload, retain=True)
         log.info("MQTT: Home Assistant discovery published (%d entities)", len(messages))

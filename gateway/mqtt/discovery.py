@@ -12,16 +12,16 @@ each other's entities.
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Final
 
 from gateway import __version__
 from gateway.config import GatewayConfig
 from gateway.mqtt.topics import Topics
-from gateway.profile import get_profile
 
 MAX_SETPOINT_HZ: Final = 630.0
-"""The highest P00.03 (max. output frequency) of any Goodrive; the drive refuses above its own."""
+"""The highest P00.03 (max. output frequency) of any Goodrive: no set-point entity goes above."""
 
 ON_STATE: Final = "{{ value_json.state }}"
 
@@ -54,8 +54,17 @@ BUTTONS: Final = (
 )
 
 
-def discovery_messages(config: GatewayConfig, prefix: str, topics: Topics) -> list[tuple[str, str]]:
-    """(topic, payload) of every entity's config message, to be published retained."""
+def discovery_messages(
+    config: GatewayConfig,
+    prefix: str,
+    topics: Topics,
+    max_frequency_hz: Mapping[str, float] | None = None,
+) -> list[tuple[str, str]]:
+    """(topic, payload) of every entity's config message, to be published retained.
+
+    The set-point's maximum is the drive's own P00.03 where `max_frequency_hz` has it (read at
+    start), else its profile's factory P00.03."""
+    read = max_frequency_hz or {}
     gateway_id = config.gateway_id
     node = f"invt_{gateway_id}"
     origin = {"name": "invt-gateway", "sw_version": __version__}
@@ -80,7 +89,7 @@ def discovery_messages(config: GatewayConfig, prefix: str, topics: Topics) -> li
     ]
     commands = config.mqtt is not None and config.mqtt.commands_enabled
     for drive in config.drives:
-        profile = get_profile(drive.model)
+        profile = drive.profile()
         if not profile.is_invt:
             continue  # nothing decoded to show
         common = {
@@ -140,7 +149,7 @@ def discovery_messages(config: GatewayConfig, prefix: str, topics: Topics) -> li
             "state_topic": topics.drive_state(drive.name),
             "value_template": "{{ value_json.set_frequency_hz }}",
             "min": 0,
-            "max": MAX_SETPOINT_HZ,
+            "max": min(read.get(drive.name, profile.max_frequency_hz), MAX_SETPOINT_HZ),
             "step": 0.01,
             "mode": "box",
             "unit_of_measurement": "Hz",

@@ -79,10 +79,13 @@ class DriveState:
 
     def _fault_changed(self, before: int, now: int) -> list[DriveEvent]:
         events = []
+        table = self.profile.faults
         if before:
-            events.append(DriveEvent(EventKind.FAULT_CLEARED, self.name, fault_fields(before)))
+            cleared = fault_fields(before, table)
+            events.append(DriveEvent(EventKind.FAULT_CLEARED, self.name, cleared))
         if now:
-            events.append(DriveEvent(EventKind.FAULT_RAISED, self.name, fault_fields(now)))
+            raised = fault_fields(now, table)
+            events.append(DriveEvent(EventKind.FAULT_RAISED, self.name, raised))
         return events
 
 

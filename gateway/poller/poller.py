@@ -32,7 +32,7 @@ from gateway.errors import BusClosed, DriveOffline, GatewayPathUnavailable, Gate
 from gateway.modbus.functions import READ_HOLDING_REGISTERS, is_exception
 from gateway.poller.drive_state import DriveEvent, DriveState
 from gateway.poller.plan import PollBlock, PollSchedule, poll_schedules
-from gateway.profile import exception_name, format_register, get_profile
+from gateway.profile import exception_name, format_register
 from gateway.profile.telemetry import Telemetry
 from gateway.router import Router
 from gateway.tasks import cancel_and_wait
@@ -81,7 +81,7 @@ class Poller:
         self.drives: dict[str, PolledDrive] = {}
         self._by_bus_address: dict[tuple[str, int], str] = {}
         for config in drives:
-            profile = get_profile(config.model)
+            profile = config.profile()
             timers = [_GroupTimer(s) for s in poll_schedules(config, profile)]
             self.drives[config.name] = PolledDrive(config, DriveState(config.name, profile), timers)
             self._by_bus_address[(config.bus, config.address)] = config.name
@@ -89,6 +89,10 @@ class Poller:
         self._task: asyncio.Task[None] | None = None
         self.polls = 0
         self.poll_failures = 0
+        self.read_max_frequency = False
+        """Read each drive's P00.03 at start (for Home Assistant's set-point maximum)."""
+        self.max_frequency_hz: dict[str, float] = {}
+        """Drive name → its P00.03, for the drives that answered at start."""
 
     def add_listener(self, listener: PollListener) -> None:
         self._listeners.append(listener)
@@ -96,6 +100,11 @@ class Poller:
     # -- lifecycle ---------------------------------------------------------------------------
 
     async def start(self) -> None:
+        if self.read_max_frequency:
+            from gateway.poller.max_frequency import read_max_frequencies
+
+            configs = [drive.config for drive in self.drives.values()]
+            self.max_frequency_hz = await read_max_frequencies(self.router, configs)
         self._task = asyncio.create_task(self._run(), name="poller")
 
     async def stop(self) -> None:

@@ -4,7 +4,7 @@
 - `registers`: the communication registers (2000H..., 2100H..., 3000H...) and the telemetry keys.
 - `parameters`: the Pxx.yy parameters known by name: decimals, range, default.
 - `states`: control word commands, state words 1 and 2.
-- `faults`: fault codes → short code and description.
+- `faults`: fault codes → short code and description, one table per series.
 - `exception_codes`: INVT's meanings of exception codes 01H-09H, and the gateway's 0AH/0BH.
 - `invt`: model identification codes and the `DriveProfile` of each model.
 """
@@ -19,7 +19,7 @@ from gateway.profile.addressing import (
     ram_address,
 )
 from gateway.profile.exception_codes import EXCEPTIONS, describe_exception, exception_name
-from gateway.profile.faults import FAULTS, describe_fault, fault_short_code
+from gateway.profile.faults import FAULTS, FaultTable, describe_fault, fault_short_code
 from gateway.profile.invt import (
     IDENTIFICATION_CODES,
     PROFILES,
@@ -28,6 +28,7 @@ from gateway.profile.invt import (
     describe_identification,
     get_profile,
     model_from_identification,
+    profiles_for_identification,
 )
 from gateway.profile.parameters import (
     PARAMETERS,
@@ -71,6 +72,7 @@ __all__ = [
     "CommandSource",
     "ControlCommand",
     "DriveProfile",
+    "FaultTable",
     "Parameter",
     "PollGroup",
     "Register",
@@ -98,6 +100,7 @@ __all__ = [
     "parameter_decimals",
     "parse_parameter",
     "parse_register",
+    "profiles_for_identification",
     "ram_address",
     "register_at",
     "register_by_name",

@@ -1,18 +1,36 @@
-"""Drive profiles: what differs between INVT models, as data.
+"""Drive profiles: what differs between INVT series, as data.
 
 Facts marked **unconfirmed** in the INVT notes are fields here rather than code, so a site can
-correct them without a code change:
+correct them without a code change (`drives[].identification`, `drives[].faults`,
+`drives[].ready_bit_set_means_ready` in the config: see `with_overrides`):
+- `identification`: Goodrive30 and IPE300 publish no code at 2103H that we could find; their
+  profiles carry a placeholder (`identification_confirmed=False`) that the simulator answers and
+  `scan` reports as unconfirmed;
+- `faults`: the fault table; Goodrive30, IPE300 and Goodrive300-LIFT have the common Goodrive one,
+  unconfirmed;
 - `ready_bit_set_means_ready`: the polarity of 2101H bit 0 "differs by model";
 - `decimals_overrides`: the bus-voltage scale (3002H) on GD200A/GD20;
 - `ram_writes_via_10h`: whether 10H accepts RAM-only (8xxxH) addresses.
+
+Model names users type: the profile keys (`gd30`, `ipe300`, `gd300l`, `gd350a`...), spelled in
+any case, with or without `-`, `_` or spaces, "Goodrive" for "GD" (`Goodrive30`), and each
+profile's `aliases` (`gd300lift` for `gd300l`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Final
+
+from gateway.profile.faults import (
+    GD350_FAULTS,
+    GOODRIVE_FAULTS,
+    UNCONFIRMED_GOODRIVE_FAULTS,
+    FaultTable,
+)
+from gateway.profile.parameters import PARAMETERS, Parameter, parameter_groups
 
 STATE_WORD_1: Final = 0x2100
 FAULT_CODE: Final = 0x2102
@@ -25,28 +43,12 @@ INVT_MAX_WORDS: Final = 16
 MODBUS_MAX_WORDS: Final = 125
 """The Modbus limit for 03H: a generic device never needs a request split."""
 
-IDENTIFICATION_CODES: Final[dict[int, str]] = {
-    0x0106: "GD20",
-    0x0107: "GD200A",
-    0x010C: "GD200A",  # the manuals disagree between 0107H and 010CH: both are taken as GD200A
-    0x0108: "GD35",
-    0x0109: "GD35-H1",
-    0x010A: "GD300",
-    0x010B: "GD100",
-    0x010D: "GD10",
-    0x01A0: "GD350",
-    0x01A1: "GD350-UL",
-    0x01A2: "GD350A",
-}
-
-
-def model_from_identification(code: int) -> str | None:
-    """ "GD350" for 01A0H; None for a code no manual lists (GD30 and IPE300 are unknown)."""
-    return IDENTIFICATION_CODES.get(code)
-
-
-def describe_identification(code: int) -> str:
-    return model_from_identification(code) or f"unknown model ({code:04X}H)"
+GD30_PLACEHOLDER_CODE: Final = 0x01F0
+IPE300_PLACEHOLDER_CODE: Final = 0x01F1
+"""No public manual we could reach gives the 2103H code of a Goodrive30 or an IPE300. These
+placeholders lie outside every code INVT publishes, so they are never mistaken for another
+series; they are what the simulator answers, and `scan` calls them unconfirmed. A site whose
+drives answer something else sets `drives[].identification` in the config."""
 
 
 @dataclass(frozen=True)
@@ -71,6 +73,10 @@ class DriveProfile:
     display_name: str
     identification: tuple[int, ...] = ()
     """Codes the drive answers at 2103H; the first is the one a simulated drive answers."""
+    identification_confirmed: bool = True
+    """False: no public manual gives the code; `identification` is a placeholder."""
+    aliases: tuple[str, ...] = ()
+    """Other names users type for this series (normalised as `get_profile` does)."""
     max_words: int = INVT_MAX_WORDS
     fault_registers: tuple[int, ...] = (FAULT_CODE,)
     poll_groups: tuple[PollGroup, ...] = (STATE_POLL, RUNNING_POLL)
@@ -82,11 +88,46 @@ class DriveProfile:
     decimals_overrides: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
     """Register name → decimals where this model differs from the register map."""
     virtual_input_bits: int = 9
-    max_fault_code: int = 36
+    faults: FaultTable = GOODRIVE_FAULTS
+    """The series' own fault list: a code outside it is "unknown fault N" for this drive."""
+    motors: int = 4
+    """Motor parameter sets the special control word (2009H bits 1-0) may select."""
+    max_frequency_hz: float = 50.0
+    """P00.03's factory value: the set-point maximum until the drive's own is read."""
+    parameters: tuple[Parameter, ...] = PARAMETERS
+    """The Pxx.yy parameters known for this series (ranges, decimals, read-only marks)."""
+    unconfirmed: tuple[str, ...] = ()
+    """Facts of this profile no public manual confirmed, in words (docs, `scan`, `decode-fault`)."""
 
     @property
     def is_invt(self) -> bool:
         return bool(self.identification)
+
+    @property
+    def max_fault_code(self) -> int:
+        return max(self.faults.entries, default=0)
+
+    @property
+    def parameter_groups(self) -> dict[str, tuple[Parameter, ...]]:
+        """ "P00" → its parameters, in order: how `params backup` files them."""
+        return parameter_groups(self.parameters)
+
+    def with_overrides(
+        self,
+        *,
+        identification: tuple[int, ...] | None = None,
+        faults: Mapping[int, str] | None = None,
+        ready_bit_set_means_ready: bool | None = None,
+    ) -> DriveProfile:
+        """This profile with a site's corrections of unconfirmed facts (from the config)."""
+        profile = self
+        if identification:
+            profile = replace(profile, identification=identification, identification_confirmed=True)
+        if faults:
+            profile = replace(profile, faults=profile.faults.with_overrides(faults))
+        if ready_bit_set_means_ready is not None:
+            profile = replace(profile, ready_bit_set_means_ready=ready_bit_set_means_ready)
+        return profile
 
     @property
     def fault_register(self) -> int | None:
@@ -106,7 +147,7 @@ def _gd350_family(key: str, name: str, code: int) -> DriveProfile:
         manufacturer_group=99,
         ready_bit_set_means_ready=False,  # unconfirmed: GD350 lists bit 0 = 0 as "ready"
         virtual_input_bits=10,
-        max_fault_code=69,
+        faults=GD350_FAULTS,
     )
 
 
@@ -120,6 +161,47 @@ _PROFILES: Final = (
     DriveProfile("gd10", "GD10", identification=(0x010D,), manufacturer_group=29),
     DriveProfile("gd35", "GD35", identification=(0x0108,), manufacturer_group=29),
     DriveProfile("gd100", "GD100", identification=(0x010B,)),
+    # Goodrive30: its manual's 2101H table has bit 0 = 1 "ready to run" and only motors 1-2
+    # (10/11 "reserved"); virtual inputs 0x000-0x1FF. Its 2103H code and fault list: not found.
+    DriveProfile(
+        "gd30",
+        "GD30",
+        identification=(GD30_PLACEHOLDER_CODE,),
+        identification_confirmed=False,
+        aliases=("goodrive30",),
+        manufacturer_group=29,
+        faults=UNCONFIRMED_GOODRIVE_FAULTS,
+        motors=2,
+        unconfirmed=("identification code (placeholder 01F0H)", "fault table"),
+    ),
+    # IPE300 (engineering VFD): its communication chapter gives the same exception codes and
+    # frames, and names fault 35 STo; its 2103H code and full fault list: not found.
+    DriveProfile(
+        "ipe300",
+        "IPE300",
+        identification=(IPE300_PLACEHOLDER_CODE,),
+        identification_confirmed=False,
+        aliases=("ipe", "ipe300series"),
+        faults=UNCONFIRMED_GOODRIVE_FAULTS,
+        unconfirmed=(
+            "identification code (placeholder 01F1H)",
+            "fault table",
+            "state word 2 ready-bit polarity",
+            "manufacturer parameter group",
+        ),
+    ),
+    # Goodrive300-LIFT: its manual answers 2103H "GD300-----0x010a", like a GD300, and lists
+    # 2101H bit 0 = 0 as "ready for operation". Its fault list: not found.
+    DriveProfile(
+        "gd300l",
+        "GD300-LIFT",
+        identification=(0x010A,),
+        aliases=("gd300lift", "goodrive300lift"),
+        manufacturer_group=29,
+        ready_bit_set_means_ready=False,
+        faults=UNCONFIRMED_GOODRIVE_FAULTS,
+        unconfirmed=("fault table", "manufacturer parameter group"),
+    ),
     DriveProfile(
         "generic",
         "generic Modbus device",
@@ -135,12 +217,64 @@ PROFILES: Final[Mapping[str, DriveProfile]] = MappingProxyType(
 )
 
 
+def _normalise(name: str) -> str:
+    key = "".join(name.strip().lower().split()).replace("-", "").replace("_", "")
+    return "gd" + key.removeprefix("goodrive") if key.startswith("goodrive") else key
+
+
+_BY_NAME: Final = {
+    _normalise(spelled): profile
+    for profile in _PROFILES
+    for spelled in (profile.key, *profile.aliases)
+}
+
+
 def get_profile(name: str) -> DriveProfile:
-    """The profile called `name` ("gd350", case-insensitive); ValueError lists the valid ones."""
-    key = name.strip().lower().replace("-", "").replace("_", "")
+    """The profile called `name` ("gd350", "Goodrive30", "GD300-LIFT"); ValueError lists them."""
     try:
-        return PROFILES[key]
+        return _BY_NAME[_normalise(name)]
     except KeyError:
         raise ValueError(
             f"unknown drive profile {name!r}: valid profiles are {', '.join(PROFILES)}"
         ) from None
+
+
+_SERIES_WITHOUT_PROFILE: Final = {0x0109: "GD35-H1"}
+"""Codes the manuals list for series the gateway has no profile of (yet): named, not driven."""
+
+
+def profiles_for_identification(code: int) -> tuple[DriveProfile, ...]:
+    """Every series that answers `code` at 2103H (010AH: GD300 and GD300-LIFT)."""
+    return tuple(p for p in _PROFILES if code in p.identification)
+
+
+def model_from_identification(code: int) -> str | None:
+    """ "GD350" for 01A0H, "GD300 or GD300-LIFT" for 010AH; None for a code no profile has."""
+    names = [profile.display_name for profile in profiles_for_identification(code)]
+    if code in _SERIES_WITHOUT_PROFILE:
+        names.append(_SERIES_WITHOUT_PROFILE[code])
+    return " or ".join(names) if names else None
+
+
+def describe_identification(code: int) -> str:
+    """What a scan shows: the series, "(01F0H unconfirmed)" after a placeholder code, or
+    "unknown series (0199H)" for an INVT drive no profile places."""
+    profiles = profiles_for_identification(code)
+    names = model_from_identification(code)
+    if names is None:
+        return f"unknown series ({code:04X}H)"
+    if profiles and not all(profile.identification_confirmed for profile in profiles):
+        return f"{names} ({code:04X}H unconfirmed)"
+    return names
+
+
+IDENTIFICATION_CODES: Final[Mapping[int, str]] = MappingProxyType(
+    {
+        code: names
+        for code in sorted(
+            {*_SERIES_WITHOUT_PROFILE, *(c for p in _PROFILES for c in p.identification)}
+        )
+        if (names := model_from_identification(code)) is not None
+    }
+)
+"""2103H code → the series it names (GD200A answers 0107H or 010CH: the manuals disagree)."""

@@ -138,3 +138,11 @@ def unscale_parameter(name: str, raw: int) -> float | int:
     """Engineering value of a raw register value: `unscale_parameter("P00.03", 5000) == 50.0`."""
     decimals = parameter(name).decimals
     return raw / float(10**decimals) if decimals else raw
+
+
+def parameter_groups(parameters: tuple[Parameter, ...]) -> dict[str, tuple[Parameter, ...]]:
+    """ "P00" → the parameters of group 00, in table order."""
+    groups: dict[str, list[Parameter]] = {}
+    for spec in parameters:
+        groups.setdefault(spec.name.split(".")[0], []).append(spec)
+    return {group: tuple(specs) for group, specs in groups.items()}

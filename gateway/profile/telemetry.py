@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Final
 
-from gateway.profile.faults import NO_FAULT, describe_fault, fault_short_code
+from gateway.profile.faults import GD350_FAULTS, NO_FAULT, FaultTable
 from gateway.profile.invt import STATE_WORD_1, DriveProfile
 from gateway.profile.registers import RUNNING_VALUES
 from gateway.profile.states import decode_state_word_1, decode_state_word_2
@@ -26,16 +26,19 @@ TelemetryValue = str | int | float | bool
 Telemetry = dict[str, TelemetryValue]
 
 
-def fault_name(code: int) -> str:
-    """The keypad's short code ("OL1"), "none" for 0, the number for a code nobody lists."""
-    return "none" if code == NO_FAULT else fault_short_code(code)
+def fault_name(code: int, table: FaultTable = GD350_FAULTS) -> str:
+    """The keypad's short code ("OL1"), "none" for 0, the number for a code `table` doesn't
+    list."""
+    return "none" if code == NO_FAULT else table.short_code(code)
 
 
-def fault_fields(code: int) -> Telemetry:
+def fault_fields(code: int, table: FaultTable = GD350_FAULTS) -> Telemetry:
+    """The fault as the drive's own series names it: a code outside its table is
+    "unknown fault N", never another series' name for that number."""
     return {
         "fault_code": code,
-        "fault_name": fault_name(code),
-        "fault_description": describe_fault(code),
+        "fault_name": fault_name(code, table),
+        "fault_description": table.describe(code),
     }
 
 
@@ -55,7 +58,7 @@ def decode_telemetry(profile: DriveProfile, registers: Mapping[int, int]) -> Tel
         telemetry["overload_pre_alarm"] = decoded.overload_pre_alarm
     fault = current_fault(profile, registers)
     if fault is not None:
-        telemetry.update(fault_fields(fault))
+        telemetry.update(fault_fields(fault, profile.faults))
     for running in RUNNING_VALUES:
         raw = registers.get(running.register.address)
         if raw is not None:

@@ -340,6 +340,9 @@ class SimulatedDrive:
             high = parameters[parse_parameter(register.maximum_from)]
         if register.name == "virtual_input_terminals":
             high = (1 << self.profile.virtual_input_bits) - 1
+        if register.name == "special_control_word" and (value & 0b11) >= self.profile.motors:
+            # Bits 1-0 select the motor; a GD30 has two parameter sets (10, 11 "reserved").
+            raise Refused(exc.OPERATION_FAILURE, f"motor {(value & 0b11) + 1} not on this model")
         if not low <= number <= high:
             raise Refused(
                 exc.OPERATION_FAILURE, f"{register.name} = {number} outside {low}..{high}"
@@ -467,7 +470,8 @@ class SimulatedDrive:
 
     @property
     def identification(self) -> int:
-        """What the drive answers at 2103H (and 3016H): 01A0H for a GD350."""
+        """What the drive answers at 2103H (and 3016H): 01A0H for a GD350; for a series whose
+        code no manual gives (GD30, IPE300), the profile's placeholder, marked unconfirmed."""
         return self.profile.identification[0]
 
     @property

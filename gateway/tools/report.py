@@ -21,6 +21,7 @@ def result_table(options: SerialOptions, result: ScanResult) -> Table:
     columns = ["address", "model", "state", "fault", "command source"] + (["note"] if notes else [])
     for column in columns:
         table.add_column(column, justify="right" if column == "address" else "left")
+    table.columns[1].no_wrap = True  # "GD30 (01F0H unconfirmed)": one cell, one line
     table.columns[3].no_wrap = True  # "STo: maladjustment" reads badly on two lines
     for drive in result.found:
         cells = [

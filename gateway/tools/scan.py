@@ -19,9 +19,10 @@ from gateway.modbus.functions import DIAGNOSTICS, READ_HOLDING_REGISTERS, is_exc
 from gateway.profile import (
     decode_state_word_1,
     decode_state_word_2,
-    describe_fault,
     describe_identification,
+    profiles_for_identification,
 )
+from gateway.profile.faults import GD350_FAULTS, FaultTable
 from gateway.profile.invt import STATE_WORD_1
 from gateway.tools.masters import Master
 
@@ -59,7 +60,17 @@ class FoundDrive:
 
     @property
     def fault_text(self) -> str:
-        return "-" if self.fault is None else describe_fault(self.fault)
+        return "-" if self.fault is None else self.fault_table.describe(self.fault)
+
+    @property
+    def fault_table(self) -> FaultTable:
+        """The series' own table where the code places it (GD300 and GD300-LIFT list the same
+        codes); the widest table for a drive no profile places."""
+        profiles = (
+            () if self.identification is None else profiles_for_identification(self.identification)
+        )
+        tables = {tuple(profile.faults.entries.items()) for profile in profiles}
+        return profiles[0].faults if len(tables) == 1 else GD350_FAULTS
 
 
 @dataclass

@@ -1,0 +1,189 @@
+"""`invt-gateway params backup|diff|restore FILE`: a drive's parameter set in a YAML file.
+
+    invt-gateway params backup pump1.yaml --port /dev/ttyUSB0 --address 1
+    invt-gateway params diff pump1.yaml --port /dev/ttyUSB0 --address 2
+    invt-gateway params restore pump1.yaml --port /dev/ttyUSB0 --address 2 [--apply] [--ram]
+
+`backup` saves every writable parameter of the drive's profile by group, with units and the
+model (from 2103H, or --model). `diff` lists what differs (exit 1 when anything does). `restore`
+shows that list and writes only what differs, and only with --apply (a dry run otherwise);
+--ram writes RAM only (8xxxH, lost at power-off). Read-only and can't-change-while-running
+parameters are skipped with the reason; the first exception the drive answers stops it, naming
+the parameter. `--via tcp://HOST:PORT` goes through a running gateway (address = unit id).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from gateway.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
+from gateway.commands.line_options import add_target_arguments
+
+if TYPE_CHECKING:
+    from gateway.tools.masters import Master
+    from gateway.tools.params import Difference, ParameterSet
+
+
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = subparsers.add_parser(
+        "params",
+        help="back up, compare and restore a drive's parameters (YAML)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
+    backup = actions.add_parser("backup", help="save the drive's writable parameters to FILE")
+    backup.add_argument("--model", help="the drive's series when 2103H can't tell (010AH)")
+    diff = actions.add_parser("diff", help="compare FILE with the drive (exit 1 if they differ)")
+    restore = actions.add_parser("restore", help="write what differs from FILE (with --apply)")
+    restore.add_argument("--apply", action="store_true", help="write; without it, a dry run")
+    restore.add_argument("--ram", action="store_true", help="write RAM only (8xxxH), no EEPROM")
+    for action in (backup, diff, restore):
+        action.add_argument("file", metavar="FILE", type=Path)
+        add_target_arguments(action)
+    parser.set_defaults(handler=handle)
+
+
+def handle(args: argparse.Namespace) -> int:
+    from gateway.tools.advice import FieldError
+    from gateway.tools.open import open_master
+
+    try:
+        wanted = None if args.action == "backup" else load(args.file)
+    except ValueError as exc:
+        print(f"invt-gateway params: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        master = open_master(args)
+    except FieldError as exc:
+        print(f"invt-gateway params: {exc}", file=sys.stderr)
+        return EXIT_FAILURE
+    try:
+        if wanted is None:
+            return backup(master, args)
+        return compare(master, args, wanted)
+    except FieldError as exc:
+        print(f"invt-gateway params: {exc}", file=sys.stderr)
+        return EXIT_FAILURE
+    finally:
+        master.close()
+
+
+def load(path: Path) -> ParameterSet:
+    from gateway.tools.params import from_yaml
+
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ValueError(f"cannot read {path}: {exc.strerror or exc}") from None
+    return from_yaml(text, str(path))
+
+
+def backup(master: Master, args: argparse.Namespace) -> int:
+    from gateway.tools.params import (
+        ParameterSet,
+        profile_of,
+        read_parameters,
+        saved_parameters,
+        to_yaml,
+    )
+
+    try:
+        profile, code = profile_of(master, args.address, args.model)
+    except ValueError as exc:  # an unknown --model
+        print(f"invt-gateway params: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    specs = saved_parameters(profile)
+    with progress(f"reading {profile.display_name} at {args.address}", len(specs)) as step:
+        values = read_parameters(master, args.address, specs, step)
+    text = to_yaml(ParameterSet(profile, values), code, args.address)
+    try:
+        args.file.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        print(f"invt-gateway params: cannot write {args.file}: {exc.strerror}", file=sys.stderr)
+        return EXIT_FAILURE
+    groups = sorted({spec.name.split(".")[0] for spec in specs})
+    print(
+        f"{args.file}: {len(specs)} parameters of {profile.display_name} at address "
+        f"{args.address} ({', '.join(groups)})"
+    )
+    return EXIT_OK
+
+
+def compare(master: Master, args: argparse.Namespace, wanted: ParameterSet) -> int:
+    from gateway.tools.advice import FieldError
+    from gateway.tools.params import differences, identify, is_running, plan, read_parameters
+
+    profile = wanted.profile
+    code = identify(master, args.address)
+    if code not in profile.identification:
+        from gateway.profile import model_from_identification
+
+        series = model_from_identification(code) or "unknown series"
+        raise FieldError(
+            f"the drive at address {args.address} answers 2103H = {code:04X}H ({series}); "
+            f"{args.file} is of a {profile.display_name}: not compared"
+        )
+    specs = wanted.specs()
+    with progress(f"reading {profile.display_name} at {args.address}", len(specs)) as step:
+        actual = read_parameters(master, args.address, specs, step)
+    changes = differences(wanted, actual)
+    for change in changes:
+        print(change.line())
+    if args.action == "diff":
+        print(f"{len(changes)} difference(s) in {len(specs)} parameters", file=sys.stderr)
+        return EXIT_OK if not changes else EXIT_FAILURE
+    writes, skipped = plan(changes, actual, is_running(master, args.address))
+    for skip in skipped:
+        print(f"skipped {skip.difference.spec.name}: {skip.reason}")
+    if not args.apply:
+        print(f"dry run: {len(writes)} parameter(s) to write; --apply writes them")
+        return EXIT_OK
+    return write_all(master, args, writes)
+
+
+def write_all(master: Master, args: argparse.Namespace, writes: list[Difference]) -> int:
+    from gateway.tools.advice import FieldError
+    from gateway.tools.params import show, write_parameter
+
+    done = 0
+    with progress(f"writing address {args.address}", len(writes)) as step:
+        for change in writes:
+            try:
+                write_parameter(master, args.address, change.spec, change.file, args.ram)
+            except FieldError as exc:
+                exc.message += f" ({done} of {len(writes)} written before it; stopped here)"
+                raise
+            done += 1
+            step(change.spec.name)
+            print(f"{change.spec.name} <- {show(change.spec, change.file)}", flush=True)
+    where = " to RAM only" if args.ram else ""
+    print(f"{done} parameter(s) written{where}")
+    return EXIT_OK
+
+
+@contextmanager
+def progress(description: str, total: int) -> Iterator[Callable[[str], None]]:
+    """A progress bar on stderr while it is a terminal; nothing otherwise."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+
+    console = Console(stderr=True)
+    if not console.is_terminal:
+        yield lambda name: None
+        return
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.fields[name]}"),
+        console=console,
+        transient=True,
+    ) as bar:
+        task = bar.add_task(description, total=total, name="")
+        yield lambda name: bar.update(task, advance=1, name=name)

@@ -1,0 +1,66 @@
+"""Each drive's maximum output frequency (P00.03), read once at start.
+
+Home Assistant's set-point entity needs a maximum; the drive's own P00.03 is the true one (it
+refuses a set-point above it). Read through the router at poll priority, every drive at once,
+within a budget: a drive that doesn't answer in time keeps its profile's factory value, and the
+gateway's start is never held up for longer than the budget.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import struct
+from collections.abc import Iterable
+from typing import Final
+
+from gateway.bus import Priority
+from gateway.config import DriveConfig
+from gateway.errors import GatewayError
+from gateway.modbus.functions import READ_HOLDING_REGISTERS, is_exception
+from gateway.profile.parameters import parameter, unscale_parameter
+from gateway.router import Router
+
+log = logging.getLogger(__name__)
+
+MAX_FREQUENCY: Final = "P00.03"
+READ_BUDGET_S: Final = 1.0
+
+
+async def read_max_frequencies(
+    router: Router, drives: Iterable[DriveConfig], budget_s: float = READ_BUDGET_S
+) -> dict[str, float]:
+    """Drive name → P00.03 in Hz, for the INVT drives that answered within `budget_s`."""
+    invt = [drive for drive in drives if drive.profile().is_invt]
+    tasks = {
+        drive.name: asyncio.create_task(_read(router, drive), name=f"p00.03:{drive.name}")
+        for drive in invt
+    }
+    if not tasks:
+        return {}
+    done, pending = await asyncio.wait(tasks.values(), timeout=budget_s)
+    for task in pending:
+        task.cancel()
+    if pending:
+        await asyncio.wait(pending)
+    found = {}
+    for name, task in tasks.items():
+        if task in done and not task.cancelled() and task.exception() is None:
+            value = task.result()
+            if value is not None:
+                found[name] = value
+    return found
+
+
+async def _read(router: Router, drive: DriveConfig) -> float | None:
+    pdu = struct.pack(">BHH", READ_HOLDING_REGISTERS, parameter(MAX_FREQUENCY).address, 1)
+    try:
+        reply = await router.execute(
+            drive.effective_unit_id, pdu, client="poll", priority=Priority.POLL, use_cache=False
+        )
+    except GatewayError as exc:
+        log.debug("drive %s: %s not read at start: %s", drive.name, MAX_FREQUENCY, exc)
+        return None
+    if reply is None or is_exception(reply) or len(reply) != 4:
+        return None
+    return float(unscale_parameter(MAX_FREQUENCY, int.from_bytes(reply[2:4], "big")))

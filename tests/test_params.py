@@ -1,0 +1,141 @@
+"""`invt-gateway params backup|diff|restore` as a technician replacing a drive runs them: real
+subprocesses against simulated drives on a pty (parity N: see test_tools_cli), and through a
+running gateway with --via."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import yaml
+
+from gateway.simulator import SimulatedLine
+from tests.processes import SimulatorProcess, gateway_process, run_cli, simulator_process
+from tests.support import free_port
+
+LINE = ("--baud", "115200", "--parity", "N")
+
+
+@pytest.fixture
+def line() -> Iterator[SimulatorProcess]:
+    with simulator_process(
+        "--drive", "1=gd350a", "--drive", "2=gd350a", "--drive", "3=gd30", *LINE,
+        "--response-delay-ms", "1",
+    ) as sim:  # fmt: skip
+        yield sim
+
+
+def params(sim: SimulatorProcess, *args: str) -> tuple[int, str, str]:
+    result = run_cli("params", *args, "--port", sim.path, *LINE)
+    return result.returncode, result.stdout, result.stderr
+
+
+def test_backup_change_by_hand_restore_then_no_difference(
+    line: SimulatorProcess, tmp_path: Path
+) -> None:
+    backup = tmp_path / "hoist.yaml"
+    code, out, err = params(line, "backup", str(backup), "--address", "1")
+    assert code == 0, err
+    saved = yaml.safe_load(backup.read_text())
+    assert (saved["model"], saved["identification"], saved["address"]) == ("gd350a", "01A2H", 1)
+    assert saved["parameters"]["P00"]["P00.11"] == {
+        "value": 10.0,
+        "unit": "s",
+        "description": "acceleration time 1",
+    }
+    assert "P07" not in saved["parameters"]  # the fault history is read-only
+    assert "P14.00" not in saved["parameters"]["P14"]  # the line's own settings stay put
+
+    changed = run_cli(
+        "write", "--port", line.path, *LINE, "--address", "2", "P00.11=25.0", "P14.03=20",
+        "P00.03=60.00",
+    )  # fmt: skip
+    assert changed.returncode == 0, changed.stderr
+    code, out, err = params(line, "diff", str(backup), "--address", "2")
+    assert code == 1
+    assert out.splitlines() == [
+        "P00.03  max. output frequency: drive 60.00 Hz, file 50.00 Hz",
+        "P00.11  acceleration time 1: drive 25.0 s, file 10.0 s",
+        "P14.03  communication response delay: drive 20 ms, file 5 ms",
+    ]
+
+    code, out, err = params(line, "restore", str(backup), "--address", "2")
+    assert code == 0, err
+    assert "dry run: 3 parameter(s) to write; --apply writes them" in out
+    assert params(line, "diff", str(backup), "--address", "2")[0] == 1  # nothing written
+
+    code, out, err = params(line, "restore", str(backup), "--address", "2", "--apply")
+    assert code == 0, err
+    assert "P00.11 <- 10.0 s" in out
+    assert "3 parameter(s) written" in out
+
+    code, out, err = params(line, "diff", str(backup), "--address", "2")
+    assert (code, out) == (0, "")
+    assert "0 difference(s)" in err
+
+
+def test_restore_skips_what_the_drive_cant_take_and_stops_at_its_first_exception(
+    line: SimulatorProcess, tmp_path: Path
+) -> None:
+    backup = tmp_path / "drive1.yaml"
+    assert params(line, "backup", str(backup), "--address", "1")[0] == 0
+    document = yaml.safe_load(backup.read_text())
+    document["parameters"]["P00"]["P00.00"]["value"] = 1  # locked while running
+    document["parameters"]["P00"]["P00.04"]["value"] = 55.0  # above P00.03 = 50 Hz: refused
+    document["parameters"]["P00"]["P00.12"]["value"] = 30.0
+    backup.write_text(yaml.safe_dump(document, sort_keys=False))
+    started = run_cli("write", "--port", line.path, *LINE, "--address", "2", "2000H=run_forward")
+    assert started.returncode == 0, started.stderr
+
+    code, out, err = params(line, "restore", str(backup), "--address", "2", "--apply")
+    assert code == 1
+    assert "skipped P00.00: can't change while the drive runs: stop it first" in out
+    assert "P00.12 <- 30.0 s" in out  # what fits is written before what the drive refuses
+    assert "writing P00.04" in err
+    assert "04H operation failure" in err
+    assert "1 of 2 written before it" in err
+
+
+def test_a_file_of_another_series_is_refused_and_a_bad_value_named(
+    line: SimulatorProcess, tmp_path: Path
+) -> None:
+    backup = tmp_path / "drive1.yaml"
+    assert params(line, "backup", str(backup), "--address", "1")[0] == 0
+    code, _, err = params(line, "restore", str(backup), "--address", "3", "--apply")
+    assert code == 1
+    assert "answers 2103H = 01F0H (GD30)" in err
+    assert "is of a GD350A" in err
+    document = yaml.safe_load(backup.read_text())
+    document["parameters"]["P14"]["P14.03"]["value"] = 500
+    backup.write_text(yaml.safe_dump(document))
+    code, _, err = params(line, "diff", str(backup), "--address", "1")
+    assert code == 2
+    assert "parameters.P14.P14.03.value: 500 is outside 0 ms ... 200 ms" in err
+
+
+def test_diff_through_a_running_gateway(tmp_path: Path) -> None:
+    tcp_port = free_port()
+    with SimulatedLine(addresses=[1], model="gd300l", baudrate=115200, parity="N") as sim:
+        backup = tmp_path / "lift.yaml"
+        result = run_cli(
+            "params", "backup", str(backup), "--model", "gd300l", "--port", sim.path, *LINE
+        )
+        assert result.returncode == 0, result.stderr
+        assert yaml.safe_load(backup.read_text())["series"] == "GD300-LIFT"
+        config = {
+            "gateway_id": "params",
+            "modbus_tcp": {"host": "127.0.0.1", "port": tcp_port},
+            "buses": [{"name": "line1", "port": sim.path, "baudrate": 115200, "parity": "N"}],
+            "drives": [
+                {"name": "lift1", "bus": "line1", "address": 1, "unit_id": 21, "model": "gd300l"}
+            ],
+        }
+        with gateway_process(config, tmp_path) as gateway:
+            gateway.wait_ready()
+            via = ("--via", f"tcp://127.0.0.1:{tcp_port}", "--address", "21")
+            result = run_cli("write", *via, "P00.12=40.0")
+            assert result.returncode == 0, result.stderr
+            result = run_cli("params", "diff", str(backup), *via)
+            assert result.returncode == 1
+            assert result.stdout == ("P00.12  deceleration time 1: drive 40.0 s, file 10.0 s\n")
