@@ -57,7 +57,8 @@ def add_serial_arguments(
         type=float,
         default=20.0,
         metavar="MS",
-        help="silence that ends a reply (default 20; USB adapters deliver in bursts)",
+        help="silence that ends a reply of unknown length (default 20); replies of known "
+        "length are read whole up to the response timeout, however the adapter bursts them",
     )
 
 
