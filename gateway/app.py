@@ -19,6 +19,7 @@ from typing import Protocol
 from gateway.bus import Bus, BusSettings
 from gateway.bus.direction import DirectionControl, DirectionMode
 from gateway.bus.line import LineSettings
+from gateway.bus.line_share import LineShares
 from gateway.cache import RegisterCache
 from gateway.config import (
     AccessRuleConfig,
@@ -71,6 +72,7 @@ def bus_settings(config: BusConfig) -> BusSettings:
         queue_size=config.queue_size,
         offline_after=config.offline_after,
         probe_max_s=config.probe_max_s,
+        shares=LineShares(config.write_share, config.broadcast_share),
     )
 
 
@@ -138,6 +140,9 @@ class Application:
                 allowed_networks=tcp.allowed_networks,
                 read_only=tcp.read_only,
                 access=tuple(access_rule(r, i) for i, r in enumerate(tcp.access)),
+                first_request_timeout_s=tcp.first_request_timeout_s,
+                max_connections_per_client=tcp.max_connections_per_client,
+                max_queued_writes_per_client=tcp.max_queued_writes_per_client,
             ),
             self._handle_tcp,
         )

@@ -154,6 +154,13 @@ class ModbusTcpConfig(Section):
     idle_timeout_s: float = Field(300.0, gt=0)
     max_requests_per_connection: int = Field(16, ge=1, le=1024)
     """Outstanding (pipelined) requests one connection may have; more wait in its socket."""
+    max_connections_per_client: int | None = Field(None, ge=1, le=10000)
+    """Connections one client address may hold; default half of max_connections (a few HMIs
+    behind one NAT still fit, one host can't take every slot)."""
+    first_request_timeout_s: float = Field(10.0, gt=0, le=3600)
+    """A new connection must complete a request within this; otherwise it is closed."""
+    max_queued_writes_per_client: int = Field(16, ge=1, le=1024)
+    """Writes one connection may have waiting for the line; beyond, exception 0AH."""
     broadcast_reply: bool = True
     """Answer a broadcast (unit id 0) write with an echo, as if a drive had answered."""
     allowed_networks: tuple[str, ...] = ()
@@ -221,6 +228,11 @@ class BusConfig(Section):
     """The adapter echoes what it sends (no echo suppression): read it back and check it."""
     rs485: Rs485Config | None = None
     """RS-485 direction control for UARTs with a transceiver; None for adapters that do it."""
+    write_share: float = Field(0.5, gt=0, le=1)
+    """While reads wait, the most of the line's time writes may take (writes still go first)."""
+    broadcast_share: float = Field(0.1, gt=0, le=1)
+    """While other requests wait, the most of the line's time broadcasts (and their turnaround)
+    may take."""
 
     @field_validator("baudrate")
     @classmethod

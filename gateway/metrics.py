@@ -319,6 +319,9 @@ _TCP_COUNTERS = {
     "malformed": "Connections closed for a malformed MBAP frame",
     "idle_closed": "Connections closed after the idle timeout",
     "denied": "Requests refused by modbus_tcp.read_only or modbus_tcp.access",
+    "evicted": "Connections closed to make room for a new one: they had never completed a request",
+    "slow_closed": "Connections closed for a frame not completed in time, or no first request",
+    "write_limited": "Writes answered 0AH: the client had max_queued_writes_per_client waiting",
 }
 
 

@@ -82,7 +82,10 @@ async def test_pipelined_requests_each_get_their_own_answer(line: SimulatedLine)
 
 
 async def test_twenty_concurrent_clients_every_value_checked(line: SimulatedLine) -> None:
-    async with running_gateway(gateway_config(line.path, DRIVES)) as app:
+    config = gateway_config(line.path, DRIVES)
+    # Twenty clients from one address: more than half of max_connections, the default limit.
+    tcp = config.modbus_tcp.model_copy(update={"max_connections_per_client": 32})
+    async with running_gateway(config.model_copy(update={"modbus_tcp": tcp})) as app:
         setup = await TcpClient.connect(app.tcp.port)
         for unit in (1, 2, 3):
             await setup.request(unit, write_pdu(0x0004, 2000 + unit))
@@ -301,6 +304,7 @@ async def test_idle_clients_are_closed_and_extra_connections_refused(
                 "host": "127.0.0.1",
                 "port": 0,
                 "max_connections": 2,
+                "max_connections_per_client": 2,
                 "idle_timeout_s": 0.5,
             },
             "buses": [{"name": "line1", "port": line.path, "baudrate": 115200}],
@@ -311,6 +315,7 @@ async def test_idle_clients_are_closed_and_extra_connections_refused(
         first = await TcpClient.connect(app.tcp.port)
         second = await TcpClient.connect(app.tcp.port)
         assert await first.read(1, STATE_WORD_1) == [STOPPED]
+        assert await second.read(1, STATE_WORD_1) == [STOPPED]  # both served: none evicted
         third = await TcpClient.connect(app.tcp.port)
         assert await asyncio.wait_for(third.reader.read(100), 5) == b""  # refused: closed at once
         assert await second.read(1, STATE_WORD_1) == [STOPPED]  # the others keep working

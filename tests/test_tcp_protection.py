@@ -181,9 +181,12 @@ async def test_a_client_stuck_halfway_through_a_frame_is_closed(
 async def test_one_connection_too_many_is_refused_while_the_others_work(
     line: SimulatedLine,
 ) -> None:
-    async with running_gateway(protected_config(line.path, max_connections=3)) as app:
+    config = protected_config(line.path, max_connections=3, max_connections_per_client=3)
+    async with running_gateway(config) as app:
         clients = [await TcpClient.connect(app.tcp.port) for _ in range(3)]
         try:
+            for client in clients:  # served: none of them may be evicted for a newcomer
+                assert await client.read(1, STATE_WORD_1) == [STOPPED]
             extra_reader, extra = await asyncio.open_connection("127.0.0.1", app.tcp.port)
             assert await asyncio.wait_for(extra_reader.read(), 2) == b""  # closed at once
             extra.close()

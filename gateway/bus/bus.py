@@ -27,6 +27,7 @@ from typing import Any
 
 from gateway.bus.health import HealthTracker
 from gateway.bus.line import Exchange, LineSettings, Sending, SerialLine
+from gateway.bus.line_share import LineShares
 from gateway.bus.queue import Priority, RequestQueue, Transaction
 from gateway.bus.wakeup import woken_or_timeout
 from gateway.errors import (
@@ -80,6 +81,8 @@ class BusSettings:
     probe_max_s: float = 30.0
     reopen_initial_s: float = 0.5
     reopen_max_s: float = 10.0
+    shares: LineShares = field(default_factory=LineShares)
+    """While reads wait, the most of the line's time writes and broadcasts may take."""
 
 
 @dataclass(slots=True)
@@ -149,7 +152,7 @@ class Bus:
         self.health = HealthTracker(
             settings.offline_after, settings.probe_initial_s, settings.probe_max_s
         )
-        self._queue = RequestQueue(settings.queue_size)
+        self._queue = RequestQueue(settings.queue_size, settings.shares)
         self._work: asyncio.Future[None] | None = None
         self._picked: Transaction | None = None
         """The transaction `_pick` chose at the end of the gap, until `_start_next` takes it."""
@@ -334,6 +337,9 @@ class Bus:
                     log.exception("bus %s: unexpected error in a transaction", self.name)
                     error = GatewayTargetFailed(f"bus {self.name}: {exc}")
                     outcome = (_fail, (transaction, error))
+                now = time.monotonic()
+                held = max(now, self.line.busy_until) - sending.started
+                self._queue.charge(transaction, held, now)
                 transaction = None
                 self._done(*outcome)
         except BaseException:
@@ -401,7 +407,8 @@ class Bus:
         """Take the best transaction queued now and return its frame; None if there is none."""
         if self._closing:
             return None
-        while (transaction := self._queue.get_nowait()) is not None:
+        now = time.monotonic()
+        while (transaction := self._queue.get_nowait(now)) is not None:
             if not transaction.wanted:
                 continue  # every waiter has gone: no bus time for it
             address = transaction.address

@@ -230,6 +230,11 @@ class SerialLine:
             set_rts(port, not control.rts_level_for_tx, where)  # listening until a request
 
     @property
+    def busy_until(self) -> float:
+        """When the line is quiet again: the last byte heard, or a broadcast's turnaround end."""
+        return self._quiet_since
+
+    @property
     def echo_detected(self) -> bool:
         """The adapter has handed back a request though `echo: false` says it doesn't echo."""
         return self.echoes > 0

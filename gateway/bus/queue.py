@@ -3,7 +3,10 @@
 Order of service:
 1. priority: writes first (a stop command never waits behind polls), then client reads, then polls,
    except that polls get one turn in `POLL_SHARE` while reads are waiting too (telemetry and
-   dead-drive probes must not starve under a SCADA that reads without pause);
+   dead-drive probes must not starve under a SCADA that reads without pause), and that writes
+   take at most their share of the line's time while reads wait, broadcasts theirs while
+   anything else waits (`gateway.bus.line_share`): one client's flood of writes can't freeze
+   the others' reads;
 2. within a priority, round-robin between clients (one busy SCADA can't starve another);
 3. within a client, first come first served.
 
@@ -19,8 +22,11 @@ from collections import deque
 from dataclasses import dataclass, field
 from enum import IntEnum
 
+from gateway.bus.line_share import LineShares, LineUse, ShareMeter
 from gateway.errors import QueueFull
 
+BROADCAST = 0
+"""Address 0: every drive, no reply."""
 POLL_SHARE = 4
 """While reads and polls both wait, one transaction in this many goes to a poll."""
 
@@ -61,11 +67,14 @@ class Transaction:
 class RequestQueue:
     """Not thread-safe by itself: the bus holds its lock around every call."""
 
-    def __init__(self, maxsize: int) -> None:
+    def __init__(self, maxsize: int, shares: LineShares | None = None) -> None:
         self.maxsize = maxsize
         # priority -> client -> that client's transactions; dicts keep insertion order, and a
         # client served goes to the back, which is the round robin.
         self._levels: dict[Priority, dict[str, deque[Transaction]]] = {p: {} for p in Priority}
+        # Broadcasts (address 0) wait apart from the other writes: they have a share of their own.
+        self._broadcasts: dict[str, deque[Transaction]] = {}
+        self._meter = ShareMeter(shares or LineShares())
         self._coalescing: dict[tuple[int, bytes, Priority], Transaction] = {}
         self._size = 0
         self._reads_while_polls_wait = 0
@@ -87,18 +96,28 @@ class RequestQueue:
                 return queued
         if self._size >= self.maxsize:
             raise QueueFull(f"bus queue full ({self.maxsize} requests waiting)")
-        clients = self._levels[transaction.priority]
+        clients = self._clients_of(transaction)
         clients.setdefault(transaction.client, deque()).append(transaction)
         if transaction.coalescable:
             self._coalescing[transaction.key] = transaction
         self._size += 1
         return transaction
 
-    def get_nowait(self) -> Transaction | None:
-        level = self._next_level()
-        if level is None:
+    def charge(self, transaction: Transaction, seconds: float, now: float) -> None:
+        """`transaction` held the line for `seconds`: count it against its kind's share."""
+        if transaction.address == BROADCAST:
+            use = LineUse.BROADCAST
+        elif transaction.priority is Priority.WRITE:
+            use = LineUse.WRITE
+        else:
+            use = LineUse.OTHER
+        self._meter.charge(use, seconds, now)
+
+    def get_nowait(self, now: float = 0.0) -> Transaction | None:
+        """The next transaction to serve; `now` (monotonic) for the line-time shares."""
+        clients = self._next_clients(now)
+        if clients is None:
             return None
-        clients = self._levels[level]
         client, waiting = next(iter(clients.items()))
         transaction = waiting.popleft()
         del clients[client]
@@ -109,12 +128,31 @@ class RequestQueue:
             del self._coalescing[transaction.key]
         return transaction
 
-    def _next_level(self) -> Priority | None:
-        """Writes first, then reads; but polls get every POLL_SHARE-th turn while reads wait,
-        so telemetry never stops under a SCADA that reads without pause."""
+    def _clients_of(self, transaction: Transaction) -> dict[str, deque[Transaction]]:
+        if transaction.address == BROADCAST and transaction.priority is Priority.WRITE:
+            return self._broadcasts
+        return self._levels[transaction.priority]
+
+    def _next_clients(self, now: float) -> dict[str, deque[Transaction]] | None:
+        """Broadcasts and writes first, each within its share of the line while others wait."""
         levels = self._levels
-        if levels[Priority.WRITE]:
-            return Priority.WRITE
+        reads_wait = bool(levels[Priority.READ] or levels[Priority.POLL])
+        if self._broadcasts and (
+            not (reads_wait or levels[Priority.WRITE]) or self._meter.broadcasts_may_go(now)
+        ):
+            return self._broadcasts
+        if levels[Priority.WRITE] and (not reads_wait or self._meter.writes_may_go(now)):
+            return levels[Priority.WRITE]
+        level = self._next_level()
+        if level is not None:
+            return levels[level]
+        # Only writes wait, over their share: the share is for sharing, not for idling.
+        return self._broadcasts or None
+
+    def _next_level(self) -> Priority | None:
+        """Reads, then polls; but polls get every POLL_SHARE-th turn while reads wait, so
+        telemetry never stops under a SCADA that reads without pause."""
+        levels = self._levels
         if not levels[Priority.POLL]:
             self._reads_while_polls_wait = 0
             return Priority.READ if levels[Priority.READ] else None

@@ -9,10 +9,16 @@ frame. A Protocol rather than streams: no task or timer per read, which is most 
 request costs here.
 
 What one client can cost the others is bounded: `max_requests_per_connection` requests in flight
-(then its socket is not read), a client that stops reading its answers is not read either (its
-answers wait in a buffer no larger than those requests' replies), a half-sent frame is given
-`PARTIAL_FRAME_TIMEOUT_S`, silence `idle_timeout_s`, and `max_connections` caps the rest. Access
-rules (`gateway.tcp.access`) are checked in `reply()`, where every refusal becomes its exception.
+(then its socket is not read), `max_queued_writes_per_client` writes among them (beyond, 0AH), a
+client that stops reading its answers is not read either (its answers wait in a buffer no larger
+than those requests' replies), a frame must be complete `PARTIAL_FRAME_TIMEOUT_S` after its first
+byte (however slowly the rest trickles in), a new connection must complete a request within
+`first_request_timeout_s`, silence gets `idle_timeout_s`, one address may hold at most
+`max_connections_per_client` slots, and `max_connections` caps the rest. When every slot is
+taken, a newcomer gets the slot of the oldest connection that has never completed a request: slow
+senders can't keep well-behaved clients out, and a client that has been served is never the one
+evicted. Access rules (`gateway.tcp.access`) are checked in `reply()`, where every refusal becomes
+its exception.
 """
 
 from __future__ import annotations
@@ -37,6 +43,7 @@ RequestHandler = Callable[[int, bytes, str], Awaitable[bytes | None]]
 
 ILLEGAL_FUNCTION = 0x01
 SERVER_DEVICE_FAILURE = 0x04
+GATEWAY_PATH_UNAVAILABLE = 0x0A
 # Once part of a frame has arrived, the rest follows at once; a client that stops halfway is
 # broken, and waiting for it the whole idle timeout would hold a connection slot.
 PARTIAL_FRAME_TIMEOUT_S = 5.0
@@ -58,6 +65,16 @@ class TcpSettings:
     read_only: bool = False
     access: tuple[AccessRule, ...] = ()
     """First match wins; none: every request may pass (see `gateway.tcp.access`)."""
+    first_request_timeout_s: float = 10.0
+    max_connections_per_client: int | None = None
+    """Slots one client address may hold; None: half of `max_connections` (at least 1)."""
+    max_queued_writes_per_client: int = 16
+
+    @property
+    def per_client_limit(self) -> int:
+        if self.max_connections_per_client is not None:
+            return self.max_connections_per_client
+        return max(1, self.max_connections // 2)
 
 
 @dataclass(slots=True)
@@ -70,6 +87,12 @@ class TcpStats:
     requests: int = 0
     exceptions: int = 0
     denied: int = 0
+    evicted: int = 0
+    """Connections closed to make room: they had never completed a request."""
+    slow_closed: int = 0
+    """Connections closed for a frame not completed in time, or no request after connecting."""
+    write_limited: int = 0
+    """Writes refused with 0AH: the client had `max_queued_writes_per_client` waiting."""
     active: set[str] = field(default_factory=set)
 
 
@@ -126,7 +149,17 @@ class ModbusTcpServer:
             self.stats.refused += 1
             log.warning("%s refused: not in modbus_tcp.allowed_networks", connection.client)
             return False
-        if len(self._connections) >= self.settings.max_connections:
+        same_host = sum(1 for other in self._connections if other.host == connection.host)
+        if same_host >= self.settings.per_client_limit:
+            self.stats.refused += 1
+            log.warning(
+                "%s refused: %d connections open from %s (modbus_tcp.max_connections_per_client)",
+                connection.client,
+                same_host,
+                connection.host,
+            )
+            return False
+        if len(self._connections) >= self.settings.max_connections and not self._evict_one():
             self.stats.refused += 1
             log.warning(
                 "%s refused: %d connections open (modbus_tcp.max_connections)",
@@ -137,6 +170,18 @@ class ModbusTcpServer:
         self._connections.add(connection)
         self.stats.accepted += 1
         self.stats.active.add(connection.client)
+        return True
+
+    def _evict_one(self) -> bool:
+        """Free a slot: close the oldest connection that has never completed a request."""
+        silent = [c for c in self._connections if not c.served and not c.closing]
+        if not silent:
+            return False
+        oldest = min(silent, key=lambda connection: connection.connected_at)
+        self.stats.evicted += 1
+        log.info("%s closed to make room: it never completed a request", oldest.client)
+        oldest.abort()
+        self._connections.discard(oldest)  # its slot is free now, whatever its close does
         return True
 
     def forget(self, connection: Connection) -> None:
@@ -203,8 +248,14 @@ class Connection(asyncio.Protocol):
         self._paused = False
         self._write_blocked = False
         self._loop = asyncio.get_running_loop()
-        self._last_data = self._loop.time()
+        self._last_data = self.connected_at = self._loop.time()
+        self._frame_started = 0.0
+        """When the first byte of the frame now in the buffer arrived."""
+        self.served = False
+        """A request of this connection has been completed (parsed whole)."""
+        self._writes_waiting = 0
         self._idle_timer: asyncio.TimerHandle | None = None
+        self._idle_due = float("inf")
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         assert isinstance(transport, asyncio.Transport)
@@ -231,10 +282,25 @@ class Connection(asyncio.Protocol):
         if self._transport is not None:
             self._transport.close()
 
+    def abort(self) -> None:
+        if self._transport is not None:
+            self._transport.abort()
+
+    @property
+    def closing(self) -> bool:
+        return self._transport is None or self._transport.is_closing()
+
     def data_received(self, data: bytes) -> None:
-        self._last_data = self._loop.time()
+        now = self._last_data = self._loop.time()
+        if not self._buffer:
+            self._frame_started = now
         self._buffer += data
         self._take_frames()
+        if self._buffer and not self.answers:
+            # A frame has begun and stays incomplete: its own deadline may be the nearest now.
+            limit = min(PARTIAL_FRAME_TIMEOUT_S, self.server.settings.idle_timeout_s)
+            if self._frame_started + limit < self._idle_due:
+                self._rearm_idle_timer()
 
     def _take_frames(self) -> None:
         settings = self.server.settings
@@ -253,7 +319,15 @@ class Connection(asyncio.Protocol):
                 return
             pdu = bytes(buffer[HEADER_LENGTH:end])
             del buffer[:end]
+            self.served = True
+            if buffer:
+                self._frame_started = self._last_data  # the next frame began in the last chunk
             self.server.stats.requests += 1
+            if not changes_nothing(pdu):
+                if self._writes_waiting >= settings.max_queued_writes_per_client:
+                    self._refuse_write(header.transaction_id, header.unit_id, pdu)
+                    continue
+                self._writes_waiting += 1
             answer = self._loop.create_task(
                 self._answer(header.transaction_id, header.unit_id, pdu)
             )
@@ -263,6 +337,15 @@ class Connection(asyncio.Protocol):
             if len(self.answers) >= settings.max_requests_per_connection:
                 # Back-pressure: stop reading this client until an answer has gone out.
                 self._pause()
+
+    def _refuse_write(self, transaction_id: int, unit_id: int, pdu: bytes) -> None:
+        """0AH at once: this client has too many writes waiting for the line already."""
+        stats = self.server.stats
+        stats.write_limited += 1
+        stats.exceptions += 1
+        if self._transport is not None and not self._transport.is_closing():
+            reply = exception_pdu(pdu[0], GATEWAY_PATH_UNAVAILABLE)
+            self._transport.write(build_adu(transaction_id, unit_id, reply))
 
     def pause_writing(self) -> None:
         # The client doesn't read its answers: read no more of its requests either, or their
@@ -297,6 +380,7 @@ class Connection(asyncio.Protocol):
             self._take_frames()
 
     async def _answer(self, transaction_id: int, unit_id: int, pdu: bytes) -> None:
+        write = not changes_nothing(pdu)
         try:
             reply = await self.server.reply(unit_id, pdu, self.client)
             transport = self._transport
@@ -306,31 +390,58 @@ class Connection(asyncio.Protocol):
             transport.write(build_adu(transaction_id, unit_id, reply))
         finally:
             # Here rather than in a done callback, which would cost the loop one more pass.
+            if write:
+                self._writes_waiting -= 1
             self._answered()
 
     def _arm_idle_timer(self) -> None:
-        settings = self.server.settings
-        limit = settings.idle_timeout_s
-        if self._buffer:
-            limit = min(PARTIAL_FRAME_TIMEOUT_S, limit)
-        if self.answers:
-            limit = settings.idle_timeout_s  # waiting for the line is not the client's idling
-        due = self._last_data + limit
+        due = min(self._deadlines().values())
         if self.answers:
             # Its answers are still on their way: look again in a second at the earliest,
             # rather than spin on a deadline that has passed.
             due = max(due, self._loop.time() + 1.0)
-        self._idle_timer = self._loop.call_at(due, self._check_idle, limit)
+        self._idle_due = due
+        self._idle_timer = self._loop.call_at(due, self._check_idle)
 
-    def _check_idle(self, limit: float) -> None:
+    def _rearm_idle_timer(self) -> None:
+        if self._idle_timer is not None:
+            self._idle_timer.cancel()
+        self._arm_idle_timer()
+
+    def _deadlines(self) -> dict[str, float]:
+        """When this connection is closed, and why: the earliest that applies."""
+        settings = self.server.settings
+        idle = settings.idle_timeout_s
+        deadlines = {f"idle for {idle:g} s": self._last_data + idle}
+        if self.answers:
+            return deadlines  # waiting for the line is not the client's idling
+        if self._buffer:
+            # From the frame's first byte: a byte now and then must not keep it alive.
+            limit = min(PARTIAL_FRAME_TIMEOUT_S, idle)
+            deadlines[f"a partial frame for {limit:g} s"] = self._frame_started + limit
+        if not self.served:
+            first = settings.first_request_timeout_s
+            deadlines[f"no complete request {first:g} s after connecting"] = (
+                self.connected_at + first
+            )
+        return deadlines
+
+    def _check_idle(self) -> None:
         if self._transport is None or self._transport.is_closing():
             return
-        if self._loop.time() - self._last_data >= limit and not self.answers:
-            self.server.stats.idle_closed += 1
-            reason = "a partial frame" if self._buffer else "idle"
-            log.info("%s closed: %s for %.0f s", self.client, reason, limit)
-            # Abort, not close: close would wait for answers a stuck client never reads, and
-            # keep holding its slot.
-            self._transport.abort()
-            return
+        now = self._loop.time()
+        if not self.answers:
+            for reason, due in self._deadlines().items():
+                if now < due:
+                    continue
+                stats = self.server.stats
+                if reason.startswith("idle"):
+                    stats.idle_closed += 1
+                else:
+                    stats.slow_closed += 1
+                log.info("%s closed: %s", self.client, reason)
+                # Abort, not close: close would wait for answers a stuck client never reads,
+                # and keep holding its slot.
+                self._transport.abort()
+                return
         self._arm_idle_timer()

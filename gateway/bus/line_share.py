@@ -1,0 +1,77 @@
+"""How the line's time was shared lately between writes, broadcasts and the rest.
+
+Writes go before reads (a stop command must not wait behind polls), but a client that keeps writes
+queued would then hold the line for everyone: 400 pipelined writes froze every reader for
+seconds, and each broadcast holds the line for its whole turnaround. So while reads wait, writes
+may take at most `write_share` of the line's time and broadcasts at most `broadcast_share`; with
+nothing else waiting, they take all of it.
+
+Line time is counted per transaction (timeouts and a broadcast's turnaround included), in sums that
+decay with a half-life of a couple of seconds: recent use decides, an old burst is forgotten.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import Enum
+
+HALF_LIFE_S = 2.0
+
+
+class LineUse(Enum):
+    WRITE = "write"
+    BROADCAST = "broadcast"
+    OTHER = "other"
+
+
+@dataclass(frozen=True, slots=True)
+class LineShares:
+    write_share: float = 0.5
+    """Most of the line's time writes (broadcasts included) take while reads wait."""
+    broadcast_share: float = 0.1
+    """Most of the line's time broadcasts take while anything else waits."""
+
+
+class ShareMeter:
+    def __init__(self, shares: LineShares) -> None:
+        self.shares = shares
+        self._writes = 0.0  # broadcasts included
+        self._broadcasts = 0.0
+        self._total = 0.0
+        self._at = 0.0
+
+    def charge(self, use: LineUse, seconds: float, now: float) -> None:
+        """`seconds` of line time went to a transaction of this kind."""
+        self._decay(now)
+        self._total += seconds
+        if use is not LineUse.OTHER:
+            self._writes += seconds
+        if use is LineUse.BROADCAST:
+            self._broadcasts += seconds
+
+    def writes_may_go(self, now: float) -> bool:
+        """May a write go before the reads waiting now?"""
+        return self._within(self._writes, self.shares.write_share, now)
+
+    def broadcasts_may_go(self, now: float) -> bool:
+        """May a broadcast go before the other requests waiting now?"""
+        return self._within(self._broadcasts, self.shares.broadcast_share, now) and (
+            self.writes_may_go(now)
+        )
+
+    def _within(self, used: float, share: float, now: float) -> bool:
+        self._decay(now)
+        if self._total <= 0 or share >= 1.0:  # 1: no limit, writes always first
+            return True
+        return used / self._total < share
+
+    def _decay(self, now: float) -> None:
+        elapsed = now - self._at
+        if elapsed <= 0:
+            return
+        factor = math.exp2(-elapsed / HALF_LIFE_S)
+        self._writes *= factor
+        self._broadcasts *= factor
+        self._total *= factor
+        self._at = now
