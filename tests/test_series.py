@@ -196,17 +196,43 @@ def crc(frame: bytes) -> bytes:
     return FramerRTU.compute_CRC(frame).to_bytes(2, "big")
 
 
-def test_a_goodrive30_has_two_motor_parameter_sets() -> None:
+def test_a_goodrive30_takes_the_motors_its_2009h_row_lists() -> None:
+    # The Goodrive30 manual (page -135-): 2009H bits 1-0 "=10: Motor 3 =11: Motor 4", while its
+    # 2101H marks 10 and 11 "Reserved". The simulator follows the 2009H row: motor 3 is taken.
+    assert get_profile("gd30").motors == 2
     with (
-        SimulatedLine(addresses=[1, 2], models={1: "gd30", 2: "gd350a"}, baudrate=19200) as line,
+        SimulatedLine(addresses=[1], models={1: "gd30"}, baudrate=19200) as line,
         serial.Serial(line.path, 19200, parity="E", timeout=1) as port,
     ):
         select_motor_3 = bytes.fromhex("01 06 20 09 00 02")
-        assert exchange(port, select_motor_3 + crc(select_motor_3))[1] == 0x86  # 04H refused
-        time.sleep(0.003)
-        select_motor_3 = bytes.fromhex("02 06 20 09 00 02")
         request = select_motor_3 + crc(select_motor_3)
         assert exchange(port, request) == request
+        time.sleep(0.003)
+        read_back = bytes.fromhex("01 03 20 09 00 01")
+        assert exchange(port, read_back + crc(read_back))[3:5] == b"\x00\x02"
+
+
+def read_word(port: serial.Serial, address: int, register: int) -> bytes:
+    request = bytes.fromhex(f"{address:02X} 03 {register >> 8:02X} {register & 0xFF:02X} 00 01")
+    reply = exchange(port, request + crc(request))
+    time.sleep(0.003)  # t3.5 before the next request
+    return reply
+
+
+def test_a_gd300l_answers_its_fault_at_5000h_and_its_code_at_3016h() -> None:
+    # The Goodrive300-LIFT manual (10.4.5, page -127-): 3016H "Identifying code of the inverter"
+    # and 5000H "Fault code", after 2102H and 2103H.
+    assert get_profile("gd300l").fault_registers == (0x2102, 0x5000)
+    with (
+        SimulatedLine(addresses=[4], models={4: "gd300l"}, baudrate=19200) as line,
+        serial.Serial(line.path, 19200, parity="E", timeout=1) as port,
+    ):
+        line.inject_fault(4, 23)
+        assert read_word(port, 4, 0x2102)[3:5] == b"\x00\x17"
+        assert read_word(port, 4, 0x5000)[3:5] == b"\x00\x17"  # 23 = bCE at both
+        assert read_word(port, 4, 0x3016)[3:5] == b"\x01\x0a"  # as 2103H: "GD300 0x010a"
+    telemetry = decode_telemetry(get_profile("gd300l"), {0x2100: 4, 0x2101: 0, 0x5000: 23})
+    assert telemetry["fault_description"] == "bCE: braking unit fault"
 
 
 def test_a_gd300l_reports_ready_with_bit_0_clear() -> None:

@@ -7,9 +7,12 @@ drive, never another series' name for the same number (a GD20 reporting 40 is no
   GD200A, GD35, GD100, GD300).
 - `GD350_FAULTS`: the GD350 family (GD350, GD350A, GD350-UL) goes on to 69; its manual gives short
   codes only for 37-69, so they are shown as the short code alone.
-- Goodrive30, IPE300 and Goodrive300-LIFT: no public fault list was found for them (see the
-  protocol notes in the README), so their tables are the common Goodrive one, marked unconfirmed,
-  and a site corrects them with `drives[].faults` in the config (`with_overrides`).
+- Goodrive30, IPE300 and Goodrive300-LIFT: no public fault list was found for them. Their
+  communication chapters were reachable (the IPE300's and the GD300-LIFT's name 35 STo in their
+  P07.27-P07.32 example), their fault chapters (GD300-LIFT 8.5 "Inverter faults and solutions",
+  page 95) were not; see the protocol notes in the README. Their tables are the common Goodrive
+  one, marked unconfirmed, and a site corrects them with `drives[].faults` in the config
+  (`with_overrides`).
 
 `FAULTS`, `describe_fault` and `fault_short_code` without a table use the GD350 family's table,
 the widest one: what `decode-fault` without `--model` shows.

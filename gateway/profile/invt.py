@@ -3,11 +3,12 @@
 Facts marked **unconfirmed** in the INVT notes are fields here rather than code, so a site can
 correct them without a code change (`drives[].identification`, `drives[].faults`,
 `drives[].ready_bit_set_means_ready` in the config: see `with_overrides`):
-- `identification`: Goodrive30 and IPE300 publish no code at 2103H that we could find; their
-  profiles carry a placeholder (`identification_confirmed=False`) that the simulator answers and
-  `scan` reports as unconfirmed;
+- `identification`: Goodrive30 and IPE300 publish no code at 2103H that we could find (their
+  manuals' device-code tables were not reachable; the Goodrive10 and Goodrive300-LIFT tables list
+  only 0108H-010DH); their profiles carry a placeholder (`identification_confirmed=False`) that
+  the simulator answers and `scan` reports as unconfirmed;
 - `faults`: the fault table; Goodrive30, IPE300 and Goodrive300-LIFT have the common Goodrive one,
-  unconfirmed;
+  unconfirmed (their manuals' fault chapters were not reachable);
 - `ready_bit_set_means_ready`: the polarity of 2101H bit 0 "differs by model";
 - `decimals_overrides`: the bus-voltage scale (3002H) on GD200A/GD20;
 - `ram_writes_via_10h`: whether 10H accepts RAM-only (8xxxH) addresses.
@@ -34,7 +35,8 @@ from gateway.profile.parameters import PARAMETERS, Parameter, parameter_groups
 
 STATE_WORD_1: Final = 0x2100
 FAULT_CODE: Final = 0x2102
-FAULT_CODE_GD350: Final = 0x5000
+FAULT_CODE_MIRROR: Final = 0x5000
+"""A second fault-code register some series list after 3016H (GD350 family, GD300-LIFT)."""
 IDENTIFICATION: Final = 0x2103
 RUNNING_FREQUENCY: Final = 0x3000
 
@@ -91,7 +93,8 @@ class DriveProfile:
     faults: FaultTable = GOODRIVE_FAULTS
     """The series' own fault list: a code outside it is "unknown fault N" for this drive."""
     motors: int = 4
-    """Motor parameter sets the special control word (2009H bits 1-0) may select."""
+    """Motors state word 2 (2101H bits 2-1) reports: a GD30's lists 10 and 11 as "reserved".
+    2009H bits 1-0 select a motor; every manual's 2009H row, the GD30's included, lists 1-4."""
     max_frequency_hz: float = 50.0
     """P00.03's factory value: the set-point maximum until the drive's own is read."""
     parameters: tuple[Parameter, ...] = PARAMETERS
@@ -131,7 +134,8 @@ class DriveProfile:
 
     @property
     def fault_register(self) -> int | None:
-        """The register the current fault code is read from (2102H on every INVT model)."""
+        """The register the current fault code is read from (2102H on every INVT model; 5000H
+        mirrors it on the GD350 family and the GD300-LIFT)."""
         return self.fault_registers[0] if self.fault_registers else None
 
     def decimals(self, register_name: str, default: int) -> int:
@@ -143,7 +147,7 @@ def _gd350_family(key: str, name: str, code: int) -> DriveProfile:
         key,
         name,
         identification=(code,),
-        fault_registers=(FAULT_CODE, FAULT_CODE_GD350),
+        fault_registers=(FAULT_CODE, FAULT_CODE_MIRROR),
         manufacturer_group=99,
         ready_bit_set_means_ready=False,  # unconfirmed: GD350 lists bit 0 = 0 as "ready"
         virtual_input_bits=10,
@@ -161,8 +165,11 @@ _PROFILES: Final = (
     DriveProfile("gd10", "GD10", identification=(0x010D,), manufacturer_group=29),
     DriveProfile("gd35", "GD35", identification=(0x0108,), manufacturer_group=29),
     DriveProfile("gd100", "GD100", identification=(0x010B,)),
-    # Goodrive30: its manual's 2101H table has bit 0 = 1 "ready to run" and only motors 1-2
-    # (10/11 "reserved"); virtual inputs 0x000-0x1FF. Its 2103H code and fault list: not found.
+    # Goodrive30 ("Goodrive30 Series VFD", chapter 7 Communication protocol, manual page -135-,
+    # easymanua.ls/invt/goodrive30-vfd-series/manual?p=141): 2101H bit 0 "=1: Ready to run", bits
+    # 2-1 motor 1 or 2 ("=10: Reserved =11: Reserved"); 2009H's own row lists motors 1-4, so a
+    # write of 3 or 4 is not refused; virtual inputs 0x000-0x1FF, outputs 0x00-0x0F. Its 2103H
+    # code and fault list: not found (see the module docstring).
     DriveProfile(
         "gd30",
         "GD30",
@@ -174,8 +181,11 @@ _PROFILES: Final = (
         motors=2,
         unconfirmed=("identification code (placeholder 01F0H)", "fault table"),
     ),
-    # IPE300 (engineering VFD): its communication chapter gives the same exception codes and
-    # frames, and names fault 35 STo; its 2103H code and full fault list: not found.
+    # IPE300 ("IPE300 series engineering VFD", 9.4 Communication protocol, manual pages
+    # -281- to -291-, easymanua.ls/invt/ipe300-series/manual?p=292..302): 03H/10H at most 16
+    # words, 08H loop-back, exceptions 01H-09H, 2000H 0001H forward run, 2001H set-point,
+    # P00.01 = 2 and P00.06 = 8 for remote control, fault 35 = STo: the common map. Its register
+    # table pages (2100H-2103H) and fault chapter were not reachable: code and fault list unknown.
     DriveProfile(
         "ipe300",
         "IPE300",
@@ -190,13 +200,17 @@ _PROFILES: Final = (
             "manufacturer parameter group",
         ),
     ),
-    # Goodrive300-LIFT: its manual answers 2103H "GD300-----0x010a", like a GD300, and lists
-    # 2101H bit 0 = 0 as "ready for operation". Its fault list: not found.
+    # Goodrive300-LIFT ("Goodrive300-LIFT series inverter", 10.4.5 Data address definition,
+    # manual pages -126-/-127-, manualshive.com/en/manual/invt/gd300l-series/2085743?page=130
+    # and ?page=131): 2103H "GD300-----0x010a", mirrored at 3016H; fault code at 2102H and again
+    # at 5000H; 2101H bit 0 "=0: ready for operation"; running values 3000H-3015H as the common
+    # map (3007H output torque -250.0..250.0 %, 300AH/300BH 000-1FF). Its fault list: not found.
     DriveProfile(
         "gd300l",
         "GD300-LIFT",
         identification=(0x010A,),
         aliases=("gd300lift", "goodrive300lift"),
+        fault_registers=(FAULT_CODE, FAULT_CODE_MIRROR),
         manufacturer_group=29,
         ready_bit_set_means_ready=False,
         faults=UNCONFIRMED_GOODRIVE_FAULTS,

@@ -105,7 +105,7 @@ COMMUNICATION_REGISTERS: Final[tuple[Register, ...]] = (
     _R("count", 0x3014),
     _R("torque_reference", 0x3015, 1, "%", signed=True),
     _R("identification_mirror", 0x3016, description="same as 2103H"),
-    _R("fault_code_5000", 0x5000, description="GD350 family only"),
+    _R("fault_code_5000", 0x5000, description="GD350 family and GD300-LIFT"),
 )
 del _R
 

@@ -340,9 +340,6 @@ class SimulatedDrive:
             high = parameters[parse_parameter(register.maximum_from)]
         if register.name == "virtual_input_terminals":
             high = (1 << self.profile.virtual_input_bits) - 1
-        if register.name == "special_control_word" and (value & 0b11) >= self.profile.motors:
-            # Bits 1-0 select the motor; a GD30 has two parameter sets (10, 11 "reserved").
-            raise Refused(exc.OPERATION_FAILURE, f"motor {(value & 0b11) + 1} not on this model")
         if not low <= number <= high:
             raise Refused(
                 exc.OPERATION_FAILURE, f"{register.name} = {number} outside {low}..{high}"
