@@ -33,8 +33,51 @@ class JsonFormatter(logging.Formatter):
         return json.dumps(entry, ensure_ascii=False)
 
 
+REPEAT_WINDOW_S = 60.0
+
+
+def repeated(source: str) -> dict[str, str]:
+    """`extra=` for a log call that a hostile client can repeat at will (a malformed frame, a
+    refused connection): the first is logged at once, the rest once a minute with their count."""
+    return {"repeat_source": source}
+
+
+class RepeatFilter(logging.Filter):
+    """Aggregates records marked with `repeated(source)`: one line per source per minute.
+
+    The first record of a source passes. Further ones within `REPEAT_WINDOW_S` are held back and
+    counted; the first after the window passes with "(N more like this since HH:MM:SS)" added,
+    and starts a new window. The counters in the metrics see every one: only the log is spared.
+    """
+
+    def __init__(self, window_s: float = REPEAT_WINDOW_S) -> None:
+        super().__init__()
+        self.window_s = window_s
+        self._windows: dict[str, tuple[float, int]] = {}  # source -> (window start, held back)
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        source = getattr(record, "repeat_source", None)
+        if source is None:
+            return True
+        started, held = self._windows.get(source, (0.0, 0))
+        now = record.created
+        if now - started < self.window_s:
+            self._windows[source] = (started, held + 1)
+            return False
+        self._windows[source] = (now, 0)
+        if held:
+            since = time.strftime("%H:%M:%S", time.localtime(started))
+            record.msg = f"{record.msg} ({held} more like this since {since})"
+        return True
+
+    def held_back(self) -> dict[str, int]:
+        """Records held back so far in each source's current window."""
+        return {source: held for source, (_, held) in self._windows.items() if held}
+
+
 def setup_logging(level: str = "info", fmt: str = "text") -> None:
     handler = logging.StreamHandler(sys.stderr)
+    handler.addFilter(RepeatFilter())
     if fmt == "json":
         handler.setFormatter(JsonFormatter())
     else:

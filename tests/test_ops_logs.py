@@ -114,3 +114,58 @@ def test_json_log_lines_from_a_real_process(line: SimulatedLine, tmp_path: Path)
     assert {"time", "level", "logger", "message"} <= entries[0].keys()
     assert any(e["message"].startswith("ready:") and e["level"] == "info" for e in entries)
     assert any(e["message"] == "SIGTERM received: shutting down" for e in entries)
+
+
+async def test_a_flood_of_malformed_frames_logs_one_line_and_counts_them_all(
+    line: SimulatedLine, tmp_path: Path
+) -> None:
+    port, metrics = free_port(), free_port()
+    config = {
+        "modbus_tcp": {"host": "127.0.0.1", "port": port},
+        "buses": [{"name": "line1", "port": line.path, "baudrate": 115200}],
+        "drives": [{"name": "pump1", "bus": "line1", "address": 1}],
+        "metrics": {"enabled": True, "host": "127.0.0.1", "port": metrics},
+    }
+    with gateway_process(config, tmp_path) as gateway:
+        gateway.wait_ready()
+        for _ in range(200):  # protocol id 7: malformed, the connection is closed
+            reader, writer = await asyncio.open_connection("127.0.0.1", port)
+            writer.write(bytes.fromhex("0001 0007 0006 01 03 2100 0001"))
+            assert await asyncio.wait_for(reader.read(), 5) == b""
+            writer.close()
+        # A served client is unaffected.
+        client = await TcpClient.connect(port)
+        assert await client.read(1, STATE_WORD_1) == [3]
+        await client.close()
+        reader, writer = await asyncio.open_connection("127.0.0.1", metrics)
+        writer.write(b"GET /metrics HTTP/1.0\r\n\r\n")
+        body = (await asyncio.wait_for(reader.read(), 5)).decode()
+        writer.close()
+        gateway.signal(signal.SIGTERM)
+        assert gateway.wait(5.0) == 0
+    malformed_lines = [text for text in gateway.log.lines if "malformed frame" in text]
+    assert len(malformed_lines) == 1, malformed_lines  # the first at once, the rest held back
+    assert "invt_gateway_tcp_malformed_total 200.0" in body  # every one counted
+
+
+def test_repeats_pass_once_a_window_with_their_count() -> None:
+    from gateway.logs import RepeatFilter, repeated
+
+    repeats = RepeatFilter(window_s=60)
+    logger = logging.getLogger("test.repeats")
+
+    def record(at: float, source: str | None = "tcp-malformed") -> logging.LogRecord:
+        extra = repeated(source) if source else {}
+        made = logger.makeRecord(
+            "test", logging.WARNING, "x", 1, "closed: %s", ("bad",), None, extra=extra
+        )
+        made.created = at
+        return made
+
+    assert repeats.filter(record(1000.0))  # the first at once
+    assert not any(repeats.filter(record(1000.0 + n)) for n in range(1, 50))  # 49 held back
+    assert repeats.held_back() == {"tcp-malformed": 49}
+    assert repeats.filter(record(1000.0 + 10, source=None))  # unmarked records always pass
+    late = record(1061.0)
+    assert repeats.filter(late)  # the window is over: passes, with the count of the others
+    assert late.getMessage().startswith("closed: bad (49 more like this since ")

@@ -32,6 +32,7 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 
 from gateway.errors import MalformedFrame, ModbusError
+from gateway.logs import repeated
 from gateway.modbus.functions import PURE_READS, changes_nothing, exception_pdu
 from gateway.modbus.mbap import HEADER_LENGTH, build_adu, parse_header
 from gateway.tcp.access import AccessPolicy, AccessRule
@@ -147,7 +148,11 @@ class ModbusTcpServer:
     def admit(self, connection: Connection) -> bool:
         if not self._allowed(connection.host):
             self.stats.refused += 1
-            log.warning("%s refused: not in modbus_tcp.allowed_networks", connection.client)
+            log.warning(
+                "%s refused: not in modbus_tcp.allowed_networks",
+                connection.client,
+                extra=repeated("tcp-not-allowed"),
+            )
             return False
         same_host = sum(1 for other in self._connections if other.host == connection.host)
         if same_host >= self.settings.per_client_limit:
@@ -157,6 +162,7 @@ class ModbusTcpServer:
                 connection.client,
                 same_host,
                 connection.host,
+                extra=repeated("tcp-per-client-limit"),
             )
             return False
         if len(self._connections) >= self.settings.max_connections and not self._evict_one():
@@ -165,6 +171,7 @@ class ModbusTcpServer:
                 "%s refused: %d connections open (modbus_tcp.max_connections)",
                 connection.client,
                 len(self._connections),
+                extra=repeated("tcp-max-connections"),
             )
             return False
         self._connections.add(connection)
@@ -179,7 +186,11 @@ class ModbusTcpServer:
             return False
         oldest = min(silent, key=lambda connection: connection.connected_at)
         self.stats.evicted += 1
-        log.info("%s closed to make room: it never completed a request", oldest.client)
+        log.info(
+            "%s closed to make room: it never completed a request",
+            oldest.client,
+            extra=repeated("tcp-evicted"),
+        )
         oldest.abort()
         self._connections.discard(oldest)  # its slot is free now, whatever its close does
         return True
@@ -310,7 +321,12 @@ class Connection(asyncio.Protocol):
                 header = parse_header(bytes(buffer[:HEADER_LENGTH]))
             except MalformedFrame as exc:
                 self.server.stats.malformed += 1
-                log.warning("%s closed: malformed frame (%s)", self.client, exc)
+                log.warning(
+                    "%s closed: malformed frame (%s)",
+                    self.client,
+                    exc,
+                    extra=repeated("tcp-malformed"),
+                )
                 self.close()
                 buffer.clear()
                 return
@@ -439,7 +455,7 @@ class Connection(asyncio.Protocol):
                     stats.idle_closed += 1
                 else:
                     stats.slow_closed += 1
-                log.info("%s closed: %s", self.client, reason)
+                log.info("%s closed: %s", self.client, reason, extra=repeated("tcp-slow"))
                 # Abort, not close: close would wait for answers a stuck client never reads,
                 # and keep holding its slot.
                 self._transport.abort()
