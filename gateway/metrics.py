@@ -100,8 +100,22 @@ def request_source(client: str) -> str:
     return head if head in SOURCES else "other"
 
 
+KNOWN_FUNCTIONS = frozenset(
+    {0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07, 0x08, 0x0B, 0x0C, 0x0F, 0x10, 0x11, 0x14, 0x15}
+    | {0x16, 0x17, 0x18, 0x2B}
+)
+"""The Modbus spec's public function codes: the only ones a label names. A client choosing
+random codes must not grow the metrics by a series per code."""
+OTHER = "other"
+
+
 def function_label(function: int) -> str:
-    return f"{function:02X}"
+    return f"{function:02X}" if function in KNOWN_FUNCTIONS else OTHER
+
+
+def exception_label(code: int) -> str:
+    """01H-0BH by name of code; anything else a drive might send, "other"."""
+    return f"{code:02X}" if 0x01 <= code <= 0x0B else OTHER
 
 
 class RequestMetrics:
@@ -121,6 +135,12 @@ class RequestMetrics:
             ["bus", "drive", "source", "code"],
             registry=registry,
         )
+        self.broadcasts = Counter(
+            f"{PREFIX}_broadcast_requests",
+            "Broadcasts (unit id 0) by who asked and function code: every drive, no reply",
+            ["bus", "source", "function"],
+            registry=registry,
+        )
         self.latency = Histogram(
             f"{PREFIX}_request_duration_seconds",
             "Time from a request reaching the bus to its answer: queue, retries, wire",
@@ -130,11 +150,15 @@ class RequestMetrics:
         )
 
     def observe(self, done: RequestDone) -> None:
-        drive = self.drive_name(done.bus, done.address)
         source = request_source(done.client)
-        self.requests.labels(done.bus, drive, source, function_label(done.function)).inc()
+        function = function_label(done.function)
+        if done.address == 0:  # their own series: a broadcast is no drive's request
+            self.broadcasts.labels(done.bus, source, function).inc()
+            return
+        drive = self.drive_name(done.bus, done.address)
+        self.requests.labels(done.bus, drive, source, function).inc()
         if done.code is not None:
-            self.errors.labels(done.bus, drive, source, f"{done.code:02X}").inc()
+            self.errors.labels(done.bus, drive, source, exception_label(done.code)).inc()
         self.latency.labels(done.bus, drive, source).observe(done.duration_s)
 
     def drive_name(self, bus: str, address: int) -> str:
@@ -251,14 +275,20 @@ class GatewayCollector(Collector):
         )
         for bus_name, bus in buses.items():
             for address, stats in sorted(_snapshot(bus.drive_stats).items()):
+                if address == 0:
+                    continue  # broadcasts are no drive's: bus_broadcasts_total counts them
                 drive = self._name(bus_name, address)
                 for counter_name, family in counters.items():
                     family.add_metric([bus_name, drive], getattr(stats, counter_name))
                 busy.add_metric([bus_name, drive], stats.line_s)
                 for kind, count in sorted(_snapshot(stats.bad_replies).items()):
                     bad.add_metric([bus_name, drive, kind], count)
-                for code, count in sorted(_snapshot(stats.exceptions).items()):
-                    exceptions.add_metric([bus_name, drive, f"{code:02X}"], count)
+                by_label: dict[str, int] = {}
+                for code, count in _snapshot(stats.exceptions).items():
+                    label = exception_label(code)
+                    by_label[label] = by_label.get(label, 0) + count
+                for label, count in sorted(by_label.items()):
+                    exceptions.add_metric([bus_name, drive, label], count)
         yield from counters.values()
         yield busy
         yield bad

@@ -198,3 +198,28 @@ async def test_health_is_503_until_the_gateway_is_started(line: SimulatedLine) -
         assert status == 200
     finally:
         await feature.stop()
+
+
+async def test_clients_can_not_choose_label_values(line: SimulatedLine) -> None:
+    metrics_port = free_port()
+    async with running_gateway(metrics_config(line.path, metrics_port)) as app:
+        client = await TcpClient.connect(app.tcp.port)
+        # Thirty vendor or unassigned function codes: the drive answers each with 01H.
+        for function in range(0x41, 0x5F):
+            answer = await client.request(1, bytes((function, 0x00)))
+            assert answer == bytes((function | 0x80, 0x01))
+        # A broadcast write: its own series, never a "drive".
+        assert await client.request(0, write_pdu(0x2000, 5)) == write_pdu(0x2000, 5)
+        await client.close()
+        _, _, text = await http_get(metrics_port, "/metrics")
+    m = Scrape(text)
+    functions = {
+        dict(labels)["function"]
+        for (name, labels) in m.samples
+        if name == "invt_gateway_requests_total"
+    }
+    assert functions == {"other", "08"} or functions == {"other"}  # 08H: the gateway's probes
+    assert m("requests_total", bus="line1", drive="pump1", source="tcp", function="other") == 30
+    drives = {dict(labels).get("drive") for (_, labels) in m.samples}
+    assert "broadcast" not in drives
+    assert m("broadcast_requests_total", bus="line1", source="tcp", function="06") == 1
