@@ -462,11 +462,18 @@ def _key_path(loc: tuple[int | str, ...], data: Any) -> str:
     return path
 
 
-class _Unreadable:
-    """A value the file doesn't give in a usable form, for the cross-field checks: equal only to
-    itself (never a duplicate of anything), empty when iterated, sorted last, shown as "?"."""
+class _Unreadable(str):
+    """A value the file doesn't give in a usable form, for the cross-field checks: shown as "?"
+    (a string, so it joins and formats), equal only to itself (never a duplicate of anything),
+    empty when iterated, sorted last."""
 
     __slots__ = ()
+    __eq__ = object.__eq__
+    __ne__ = object.__ne__
+    __hash__ = object.__hash__
+
+    def __new__(cls) -> _Unreadable:
+        return super().__new__(cls, "?")
 
     def __iter__(self) -> Any:
         return iter(())
@@ -543,11 +550,17 @@ def _construct(
     raw = item if isinstance(item, dict) else {}
     values: dict[str, Any] = {}
     for name, field in model.model_fields.items():
-        if (*loc, name) in failed or (name not in raw and field.is_required()):
-            values[name] = _Unreadable()
+        where = (*loc, name)
+        if any(f[: len(where)] == where for f in failed) or (
+            name not in raw and field.is_required()
+        ):
+            values[name] = _Unreadable()  # the field, or something inside it, is invalid
         elif name in raw:
             # The field passed validation: read it the same way ("5" is 5, a list a tuple).
             field_type = cast("type[Any]", Annotated[field.annotation, field])
             adapter: TypeAdapter[Any] = TypeAdapter(field_type)
-            values[name] = adapter.validate_python(raw[name])
+            try:
+                values[name] = adapter.validate_python(raw[name])
+            except ValidationError:
+                values[name] = _Unreadable()
     return model.model_construct(**values)
