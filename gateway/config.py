@@ -13,7 +13,7 @@ import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal, cast
 
 import yaml
 from pydantic import (
@@ -22,6 +22,7 @@ from pydantic import (
     ConfigDict,
     Field,
     PlainValidator,
+    TypeAdapter,
     ValidationError,
     field_validator,
     model_validator,
@@ -35,6 +36,8 @@ if TYPE_CHECKING:
 ENV_MQTT_USERNAME = "INVT_GATEWAY_MQTT_USERNAME"
 ENV_MQTT_PASSWORD = "INVT_GATEWAY_MQTT_PASSWORD"
 STANDARD_BAUDRATES = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200)
+CONFIG_VERSIONS = (1,)
+"""The file format versions this gateway reads (`version:` in the file; without it, 1)."""
 
 
 class Section(BaseModel):
@@ -365,6 +368,8 @@ class LoggingConfig(Section):
 
 
 class GatewayConfig(Section):
+    version: int | None = None
+    """The file format's version (see `CONFIG_VERSIONS`); a file without it is read as version 1."""
     gateway_id: str = Field("invt-gateway", min_length=1, pattern=r"^[A-Za-z0-9_-]+$")
     modbus_tcp: ModbusTcpConfig = ModbusTcpConfig()
     buses: tuple[BusConfig, ...]
@@ -446,14 +451,35 @@ def parse_config(text: str, source: str = "<config>") -> GatewayConfig:
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise ConfigError([("", f"not valid YAML: {exc}")], source) from exc
+        raise ConfigError([("", _yaml_problem(exc))], source) from None
     if not isinstance(data, dict):
         raise ConfigError([("", "the file must be a YAML mapping (key: value)")], source)
+    version = data.get("version")
+    if version is not None and (isinstance(version, bool) or version not in CONFIG_VERSIONS):
+        # Checked alone, first: every other complaint about a newer format would be noise.
+        readable = ", ".join(map(str, CONFIG_VERSIONS))
+        raise ConfigError(
+            [("version", f"{version!r} is not a version this gateway reads (it reads {readable})")],
+            source,
+        )
     data = _apply_environment(data)
     try:
         return GatewayConfig.model_validate(data)
     except ValidationError as exc:
-        raise ConfigError(_problems(exc, data), source) from None
+        problems = _problems(exc, data)
+        raise ConfigError(problems + _cross_problems(exc, data, problems), source) from None
+
+
+def _yaml_problem(exc: yaml.YAMLError) -> str:
+    """'line 12, column 5: not valid YAML: ...' (PyYAML's own text names "<unicode string>")."""
+    if not isinstance(exc, yaml.MarkedYAMLError) or exc.problem_mark is None:
+        return f"not valid YAML: {exc}"
+    mark = exc.problem_mark
+    reason = f"line {mark.line + 1}, column {mark.column + 1}: not valid YAML: {exc.problem}"
+    if exc.context is not None and exc.context_mark is not None:
+        start = exc.context_mark
+        reason += f" ({exc.context} at line {start.line + 1}, column {start.column + 1})"
+    return reason
 
 
 def _apply_environment(data: dict[str, Any]) -> dict[str, Any]:
@@ -500,3 +526,107 @@ def _key_path(loc: tuple[int | str, ...], data: Any) -> str:
             path += f".{part}" if path else str(part)
             node = node.get(part) if isinstance(node, dict) else None
     return path
+
+
+class _Unreadable(str):
+    """A value the file doesn't give in a usable form, for the cross-field checks: shown as "?"
+    (a string, so it joins and formats), equal only to itself (never a duplicate of anything),
+    empty when iterated, sorted last."""
+
+    __slots__ = ()
+    __eq__ = object.__eq__
+    __ne__ = object.__ne__
+    __hash__ = object.__hash__
+
+    def __new__(cls) -> _Unreadable:
+        return super().__new__(cls, "?")
+
+    def __iter__(self) -> Any:
+        return iter(())
+
+    def __bool__(self) -> bool:
+        return False
+
+    def __lt__(self, other: object) -> bool:
+        return False
+
+    def __gt__(self, other: object) -> bool:
+        return not isinstance(other, _Unreadable)
+
+    def __repr__(self) -> str:
+        return "?"
+
+
+def _cross_problems(
+    exc: ValidationError, data: dict[str, Any], reported: list[tuple[str, str]]
+) -> list[tuple[str, str]]:
+    """The cross-field checks (duplicates, undefined buses...) on a file with invalid fields.
+
+    pydantic runs the model validator only once every field is valid, so a duplicate unit id
+    would show up only after the other mistakes were fixed. Here the same checks run on what the
+    file says, each invalid or missing field taken as unreadable, so one run reports everything.
+    A cross-field problem about a key already reported is left out.
+    """
+    failed = {tuple(error["loc"]) for error in exc.errors()}
+    config = GatewayConfig.model_construct(
+        buses=_construct_all(BusConfig, data.get("buses"), ("buses",), failed),
+        drives=_construct_all(DriveConfig, data.get("drives"), ("drives",), failed),
+        modbus_tcp=ModbusTcpConfig.model_construct(
+            access=_construct_all(
+                AccessRuleConfig,
+                (data.get("modbus_tcp") or {}).get("access")
+                if isinstance(data.get("modbus_tcp"), dict)
+                else None,
+                ("modbus_tcp", "access"),
+                failed,
+            )
+        ),
+    )
+    try:
+        config._cross_checks()  # type: ignore[operator]  # pydantic's proxy of the same method
+    except ValueError as cross:
+        paths = {path for path, _ in reported if path}
+        if not isinstance(data.get("buses"), list):
+            paths.add("buses")  # no bus to check a drive's `bus` against: that's the problem
+        return [
+            ("", line)
+            for line in str(cross).splitlines()
+            if not _about(line.split(": ", 1)[0], paths)
+        ]
+    return []
+
+
+def _about(path: str, reported: set[str]) -> bool:
+    """A cross-field problem at `path` follows from a problem already reported."""
+    return path in reported or ("buses" in reported and path.endswith(".bus"))
+
+
+def _construct_all(
+    model: type[Section], items: object, loc: tuple[str, ...], failed: set[tuple[Any, ...]]
+) -> tuple[Any, ...]:
+    if not isinstance(items, list):
+        return ()
+    return tuple(_construct(model, item, (*loc, index), failed) for index, item in enumerate(items))
+
+
+def _construct(
+    model: type[Section], item: object, loc: tuple[Any, ...], failed: set[tuple[Any, ...]]
+) -> Section:
+    """One item with each valid field as the model reads it and each other one unreadable."""
+    raw = item if isinstance(item, dict) else {}
+    values: dict[str, Any] = {}
+    for name, field in model.model_fields.items():
+        where = (*loc, name)
+        if any(f[: len(where)] == where for f in failed) or (
+            name not in raw and field.is_required()
+        ):
+            values[name] = _Unreadable()  # the field, or something inside it, is invalid
+        elif name in raw:
+            # The field passed validation: read it the same way ("5" is 5, a list a tuple).
+            field_type = cast("type[Any]", Annotated[field.annotation, field])
+            adapter: TypeAdapter[Any] = TypeAdapter(field_type)
+            try:
+                values[name] = adapter.validate_python(raw[name])
+            except ValidationError:
+                values[name] = _Unreadable()
+    return model.model_construct(**values)

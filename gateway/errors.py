@@ -127,3 +127,10 @@ class BusClosed(GatewayTargetFailed):
 
     Lets a caller tell shutdown from a drive that failed without asking the bus for its state.
     """
+
+
+class CannotListen(GatewayError):
+    """A port the gateway serves on can't be bound: the service can't start (exit code 1).
+
+    Its message is one line a person can act on: what, where, and the likely cause.
+    """

@@ -15,6 +15,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from http import HTTPStatus
 
+from gateway.listen import cannot_listen
+
 log = logging.getLogger(__name__)
 
 REQUEST_TIMEOUT_S = 5.0
@@ -50,9 +52,13 @@ class HttpEndpoint:
         return int(self._server.sockets[0].getsockname()[1])
 
     async def start(self) -> None:
-        self._server = await asyncio.start_server(
-            self._serve, self.host, self.requested_port, reuse_address=True, limit=MAX_LINE
-        )
+        host, port = self.host, self.requested_port
+        try:
+            self._server = await asyncio.start_server(
+                self._serve, host, port, reuse_address=True, limit=MAX_LINE
+            )
+        except OSError as exc:
+            raise cannot_listen("metrics and health", host, port, "metrics.host/port", exc) from exc
 
     async def stop(self) -> None:
         if self._server is not None:

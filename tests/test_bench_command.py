@@ -4,7 +4,11 @@ a wire maximum computed from the case)."""
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+import pty
+import re
 import subprocess
 import sys
 
@@ -51,3 +55,46 @@ def test_bench_prints_checked_figures_as_json() -> None:
         # 115200 8E1, 8 + 9 bytes, t3.5 1.75 ms, the drive's 5 ms: 8.37 ms a transaction.
         assert abs(row["wire max/s"] - 1 / (17 * 11 / 115200 + 0.00175 + 0.005)) < 0.1
     assert any("served by coalescing alone" in line for line in report["summary"])
+    # Overall progress on stderr, plain lines when not on a terminal: one per case.
+    steps = [line for line in result.stderr.splitlines() if line.startswith("bench: case")]
+    assert [step.split(" (")[0] for step in steps] == [
+        f"bench: case {n} of 4" for n in (1, 2, 3, 4)
+    ]
+    assert all(re.search(r"% done, .* ends ~\d\d:\d\d:\d\d \(in ", step) for step in steps)
+
+
+def test_bench_on_a_terminal_redraws_one_progress_line_under_the_table() -> None:
+    pid, terminal = pty.fork()
+    if pid == 0:  # the child: bench with a terminal as stdout and stderr
+        arguments = ["--baud", "115200", "--case", "2w 1c", "--duration", "1", "--warmup", "0.3"]
+        os.execv(sys.executable, [sys.executable, "-m", "gateway", "bench", *arguments])
+    screen = b""
+    with contextlib.suppress(OSError):  # EIO once the child has closed the terminal
+        while chunk := os.read(terminal, 4096):
+            screen += chunk
+    os.close(terminal)
+    _, status = os.waitpid(pid, 0)
+    assert os.waitstatus_to_exitcode(status) == 0, screen
+    text = screen.decode()
+    redraws = [part for part in text.split("\r\x1b[K") if part.startswith("bench: case 1 of 1")]
+    assert redraws, text
+    assert all("ends ~" in part and "\n" not in part for part in redraws)
+    # What stays on the screen: each line as left after its last "clear line". The row is
+    # printed over the status line, which is cleared at the end.
+    visible = [line.split("\r\x1b[K")[-1] for line in text.split("\r\n")]
+    assert visible[0].startswith("case ")
+    assert visible[1].split()[:4] == ["2w", "1c", "115200", "2"]
+    assert not any(line.startswith("bench: case") for line in visible), visible
+
+
+def test_bench_and_stress_help_show_the_defaults() -> None:
+    bench = subprocess.run(
+        [sys.executable, "-m", "gateway", "bench", "--help"], capture_output=True, text=True
+    ).stdout
+    for default in ("(default 4)", "(default 1.5;", "(default 1)", "(default: all of 9600"):
+        assert default in " ".join(bench.split()), bench
+    stress = subprocess.run(
+        [sys.executable, "-m", "gateway", "stress", "--help"], capture_output=True, text=True
+    ).stdout
+    for default in ("(default 60)", "(default 0.05)", "default 8)", "(default 115200)"):
+        assert default in " ".join(stress.split()), stress

@@ -2,11 +2,19 @@
 
 from __future__ import annotations
 
+import copy
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
+import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from gateway.config import parse_config
+from gateway.errors import ConfigError
 
 GOOD = """
 modbus_tcp: {host: 0.0.0.0, port: 5020, max_connections: 32, idle_timeout_s: 300}
@@ -119,3 +127,100 @@ def test_missing_required_keys(tmp_path: Path) -> None:
     result = check_config(tmp_path, "drives: []\n")
     assert result.returncode == 3
     assert "buses: required key is missing" in result.stderr
+
+
+def test_every_problem_of_a_file_in_one_run_cross_field_ones_included(tmp_path: Path) -> None:
+    # Four mistakes, as a newcomer makes them: a typo in a key, a value out of range, a drive on
+    # a bus that doesn't exist and a duplicate unit id. The last two are cross-field checks,
+    # which pydantic runs only once every field is valid.
+    text = (
+        GOOD.replace("retries: 2", "retrys: 2")
+        .replace("address: 3", "address: 248")
+        .replace("unit_id: 13", "unit_id: 1")
+        + "  - {name: pump2, bus: line9, address: 2}\n"
+    )
+    result = check_config(tmp_path, text)
+    assert result.returncode == 3
+    problems = result.stderr.splitlines()[1:]
+    assert problems == [
+        "  buses[0] (line1).retrys: unknown key",
+        "  drives[1] (fan3).address: Input should be less than or equal to 247",
+        "  drives[1] (fan3).unit_id: duplicate unit_id 1 (also drives[0] (pump1))",
+        "  drives[2] (pump2).bus: bus 'line9' is not defined (buses: line1)",
+    ]
+
+
+def test_a_cross_field_problem_that_follows_from_a_reported_one_is_left_out(
+    tmp_path: Path,
+) -> None:
+    # Without `buses`, no drive's bus can be defined: that is one problem, not one per drive.
+    result = check_config(
+        tmp_path, GOOD.split("buses:")[0] + "drives: [{name: a, bus: x, address: 1}]\n"
+    )
+    assert result.returncode == 3
+    assert result.stderr.splitlines()[1:] == ["  buses: required key is missing"]
+
+
+def test_a_yaml_syntax_error_names_the_file_line_and_column(tmp_path: Path) -> None:
+    # The third line is indented one space less than its sibling: a YAML syntax error.
+    text = "buses:\n  - name: line1\n   port: /dev/ttyUSB0\n"
+    result = check_config(tmp_path, text)
+    assert result.returncode == 3
+    first, reason = result.stderr.splitlines()
+    assert first == f"invt-gateway: {tmp_path / 'config.yaml'}: invalid configuration"
+    assert reason.startswith("  line 3, column 4: not valid YAML: ")
+    assert "<unicode string>" not in result.stderr
+
+
+def test_version_1_is_read_and_an_unknown_version_is_refused_naming_the_ones_read(
+    tmp_path: Path,
+) -> None:
+    assert check_config(tmp_path, "version: 1\n" + GOOD).returncode == 0
+    result = check_config(tmp_path, "version: 2\n" + GOOD)
+    assert result.returncode == 3
+    assert result.stderr.splitlines()[1:] == [
+        "  version: 2 is not a version this gateway reads (it reads 1)"
+    ]
+
+
+EXAMPLE = Path(__file__).resolve().parent.parent / "config" / "config.example.yaml"
+ODD_VALUES = [None, [], {}, "", "x", "line1", 0, -1, 300, True, 1.5, [1, "a"], {"a": 1}, [None]]
+
+
+def _key_paths(node: Any, prefix: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
+    paths = [prefix] if prefix else []
+    children = (
+        node.items()
+        if isinstance(node, dict)
+        else enumerate(node)
+        if isinstance(node, list)
+        else ()
+    )
+    for key, child in children:
+        paths += _key_paths(child, (*prefix, key))
+    return paths
+
+
+@settings(max_examples=150, deadline=None)
+@given(data=st.data())
+def test_any_mistake_gets_a_config_error_never_a_crash(data: st.DataObject) -> None:
+    # The cross-field checks also run on files whose fields are invalid: whatever a file holds
+    # in place of a value, the result is a configuration or a ConfigError listing problems.
+    config = yaml.safe_load(EXAMPLE.read_text(encoding="utf-8"))
+    for _ in range(data.draw(st.integers(1, 4))):
+        # Paths of the file as it is now: an earlier change may have replaced a section.
+        *parents, key = data.draw(st.sampled_from(_key_paths(config)))
+        node = config
+        for parent in parents:
+            node = node[parent]
+        node[key] = copy.deepcopy(data.draw(st.sampled_from(ODD_VALUES)))
+    problems = _problems_of(yaml.safe_dump(config))
+    assert all(reason for _, reason in problems), problems
+
+
+def _problems_of(text: str) -> list[tuple[str, str]]:
+    try:
+        parse_config(text, "mutated.yaml")
+    except ConfigError as exc:
+        return exc.problems or [("", "")]  # an error with no problem listed fails the test
+    return []

@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import os
 import signal
+import subprocess
 import sys
 import time
 from collections.abc import AsyncIterator
@@ -18,6 +20,7 @@ import yaml
 from gateway.commands.demo import demo_config_text
 from gateway.mqtt.embedded_broker import EmbeddedBroker
 from tests.mosquitto import Address, mqtt_probe, unique_base_topic
+from tests.processes import LineCollector, entry_point
 from tests.support import free_port
 
 
@@ -122,3 +125,99 @@ async def wait_listening(host: str, port: int, within_s: float = 10.0) -> None:
         writer.close()
         await writer.wait_closed()
         return
+
+
+class DemoProcess:
+    """`invt-gateway demo ARGS`, its stdout and stderr collected line by line."""
+
+    def __init__(self, *args: str) -> None:
+        self.process = subprocess.Popen(
+            [entry_point(), "demo", *args],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        self.out = LineCollector(self.process.stdout)
+        self.err = LineCollector(self.process.stderr)
+
+    async def wait_for(self, text: str, stream: str = "out") -> str:
+        collector = self.out if stream == "out" else self.err
+        return await asyncio.to_thread(collector.wait_for, text)
+
+    async def interrupt(self) -> int:
+        """Ctrl-C, as a person stops it; the exit code."""
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGINT)
+        try:
+            return await asyncio.to_thread(self.process.wait, 10)
+        finally:
+            if self.process.poll() is None:
+                self.process.kill()
+                await asyncio.to_thread(self.process.wait, 5)
+            for collector, stream in (
+                (self.out, self.process.stdout),
+                (self.err, self.process.stderr),
+            ):
+                collector.join()
+                if stream is not None:
+                    stream.close()
+
+
+async def test_watch_watches_the_running_demo_and_no_two_client_ids_collide(
+    tmp_path: Path,
+) -> None:
+    # The demos' broker runs in this process, so the test sees its sessions by client id.
+    broker = EmbeddedBroker("127.0.0.1", 0)
+    await broker.start()
+    base = unique_base_topic("demo")
+    config = yaml.safe_load(demo_config_text(None))  # gateway_id "demo" in both demos
+    config["mqtt"].update({"port": broker.port, "base_topic": base})
+    config_file = tmp_path / "demo.yaml"
+    config_file.write_text(yaml.safe_dump(config), encoding="utf-8")
+    modbus_port = free_port()
+    demos: list[DemoProcess] = []
+    try:
+        first = DemoProcess("--config", str(config_file), "--port", str(modbus_port))
+        demos.append(first)
+        await first.wait_for("Stop with Ctrl-C")
+        second = DemoProcess("--config", str(config_file), "--port", str(free_port()))
+        demos.append(second)
+        await second.wait_for("Stop with Ctrl-C")
+        # The banner's own watch line, given the first demo's Modbus-TCP port besides: a
+        # second gateway could not bind it, a watcher doesn't try.
+        watch_line = await first.wait_for("demo --watch")
+        watch_args = watch_line.split("invt-gateway demo ")[1].split("  ")[0].split()
+        assert watch_args == [
+            *("--watch", "--config", str(config_file), "--mqtt-port", str(broker.port))
+        ]
+        watcher = DemoProcess(*watch_args, "--port", str(modbus_port))
+        demos.append(watcher)
+
+        state = await watcher.wait_for(f"{base}/pump1 ")
+        assert json.loads(state.split(" ", 1)[1])["state"] == "stopped"
+        watching = await watcher.wait_for("watching", "err")
+        assert watching == f"watching {base}/# at 127.0.0.1:{broker.port} (Ctrl-C to stop)"
+        # Two demos and the watcher connected at once: with one client id between two of
+        # them, the broker would hold only one of their sessions (the last to connect wins).
+        ids = await sessions(broker, 3)
+        assert sorted(i.rsplit("-", 1)[0] for i in ids) == [
+            "invt-gateway-demo",
+            "invt-gateway-demo",
+            "invt-gateway-watch",
+        ]
+        assert watcher.process.poll() is None, watcher.err.text
+        assert "Modbus-TCP" not in watcher.out.text + watcher.err.text  # no gateway in it
+    finally:
+        codes = [await demo.interrupt() for demo in demos]
+        await broker.stop()
+    assert codes[:2] == [0, 0]
+
+
+async def sessions(broker: EmbeddedBroker, count: int, within_s: float = 15.0) -> list[str]:
+    """The broker's client ids once it holds `count` sessions at once."""
+    deadline = time.monotonic() + within_s
+    while len(broker.sessions) < count:
+        assert time.monotonic() < deadline, f"sessions: {sorted(broker.sessions)}"
+        await asyncio.sleep(0.05)
+    return sorted(broker.sessions)

@@ -4,6 +4,7 @@ killed gateway, an unplugged port, a restarted broker), and its table."""
 from __future__ import annotations
 
 import json
+import re
 from collections import Counter
 
 import pytest
@@ -36,6 +37,11 @@ def test_a_short_stress_run_passes_and_reports_every_figure(
     assert all(0 < seconds < 10 for seconds in recoveries.values()), recoveries
     assert 0 < report["memory_mb"]["start"] < 200
     assert "stress: serial port: back" in result.stderr  # progress as it goes
+    # Not a terminal: plain lines, each with the overall progress and the expected end.
+    assert "\r" not in result.stderr
+    events = [line for line in result.stderr.splitlines() if line.startswith("stress: ")]
+    assert len(events) >= 4, result.stderr
+    assert all(re.search(r"\d+% done, .* ends ~\d\d:\d\d:\d\d \(in ", e) for e in events)
     times = ", ".join(f"{what} {seconds:.2f} s" for what, seconds in recoveries.items())
     record_property(
         "figure:stress 6 s",

@@ -7,8 +7,12 @@ import json
 import sys
 
 from gateway.cli import EXIT_OK
+from gateway.progress import Progress
 
 BAUDRATES = (9600, 19200, 115200)
+CASE_START_S = 1.0
+"""About what starting and stopping a case's processes takes here, for the first estimate of
+the end (later ones go by the pace of the cases done)."""
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -19,13 +23,34 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "gateway and Modbus-TCP clients as separate processes, and prints one row per case.",
     )
     parser.add_argument(
-        "--baud", type=int, action="append", choices=BAUDRATES, help="repeatable; default all"
+        "--baud",
+        type=int,
+        action="append",
+        choices=BAUDRATES,
+        help="repeatable (default: all of " + ", ".join(map(str, BAUDRATES)) + ")",
     )
-    parser.add_argument("--duration", type=float, default=4.0, help="seconds measured per case")
-    parser.add_argument("--warmup", type=float, default=1.5, help="seconds before measuring")
-    parser.add_argument("--runs", type=int, default=1, help="runs per case; the median is shown")
-    parser.add_argument("--case", help="only cases whose name contains this text")
-    parser.add_argument("--json", action="store_true", help="one JSON document instead")
+    parser.add_argument(
+        "--duration",
+        type=float,
+        default=4.0,
+        help="seconds measured per case (default %(default)g)",
+    )
+    parser.add_argument(
+        "--warmup",
+        type=float,
+        default=1.5,
+        help="seconds before measuring (default %(default)g; at least 3 with a dead drive)",
+    )
+    parser.add_argument(
+        "--runs",
+        type=int,
+        default=1,
+        help="runs per case; the median is shown (default %(default)d)",
+    )
+    parser.add_argument("--case", help="only cases whose name contains this text (default: all)")
+    parser.add_argument(
+        "--json", action="store_true", help="one JSON document instead of the table"
+    )
     parser.set_defaults(handler=handle)
 
 
@@ -39,14 +64,18 @@ def handle(args: argparse.Namespace) -> int:
     results: list[CaseResult] = []
     if not args.json:
         print(header(), flush=True)
-    for case in cases:
-        # Isolating a dead drive takes a few timeouts: measure the steady state after it.
-        warmup = max(args.warmup, 3.0) if case.dead else args.warmup
-        runs = [run_case(case, args.duration, warmup) for _ in range(args.runs)]
-        result = sorted(runs, key=lambda r: r.client_per_s)[len(runs) // 2]
-        results.append(result)
-        if not args.json:
-            print(format_row(row(result)), flush=True)
+    # Isolating a dead drive takes a few timeouts: measure the steady state after it.
+    warmups = [max(args.warmup, 3.0) if case.dead else args.warmup for case in cases]
+    planned = [(args.duration + warmup + CASE_START_S) * args.runs for warmup in warmups]
+    with Progress("bench", sum(planned), sys.stderr) as progress:
+        for number, (case, warmup, plan) in enumerate(zip(cases, warmups, planned, strict=True)):
+            progress.step(f"case {number + 1} of {len(cases)} ({case.name}, {case.baudrate} baud)")
+            runs = [run_case(case, args.duration, warmup) for _ in range(args.runs)]
+            progress.advance(plan)
+            result = sorted(runs, key=lambda r: r.client_per_s)[len(runs) // 2]
+            results.append(result)
+            if not args.json:
+                progress.print(format_row(row(result)), sys.stdout)
     if args.json:
         json.dump(
             {"cases": [row(r) for r in results], "summary": summary(results)}, sys.stdout, indent=2

@@ -9,16 +9,21 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import shutil
 import sys
+import uuid
 from importlib import resources
 from pathlib import Path
 
 from gateway.app import Application
-from gateway.cli import EXIT_CONFIG
+from gateway.cli import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
 from gateway.commands.run import serve
 from gateway.config import GatewayConfig, parse_config
 from gateway.errors import ConfigError
 from gateway.logs import setup_logging
+
+DEMO_MQTT_PORT = 1883
+"""The embedded demo.yaml's broker port: `demo --watch` without options looks there."""
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -28,9 +33,17 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.add_argument(
         "--config", "-c", help="configuration to simulate (default: the embedded demo.yaml)"
     )
-    parser.add_argument("--port", type=int, help="Modbus-TCP port (default from the config)")
+    parser.add_argument("--port", type=int, help="Modbus-TCP port (default from the config: 5020)")
     parser.add_argument(
-        "--watch", action="store_true", help="print every MQTT message of the gateway here"
+        "--mqtt-port",
+        type=int,
+        help="the MQTT broker's port, used or started (default from the config: 1883)",
+    )
+    parser.add_argument(
+        "--watch",
+        action="store_true",
+        help="watch a running demo: print every MQTT message under its base topic "
+        "(starts no gateway)",
     )
     parser.set_defaults(handler=handle)
 
@@ -51,32 +64,54 @@ def handle(args: argparse.Namespace) -> int:
         config = config.model_copy(
             update={"modbus_tcp": config.modbus_tcp.model_copy(update={"port": args.port})}
         )
+    if args.mqtt_port is not None and config.mqtt is not None:
+        config = config.model_copy(
+            update={"mqtt": config.mqtt.model_copy(update={"port": args.mqtt_port})}
+        )
     setup_logging(config.logging.level, config.logging.format)
+    if args.watch:
+        return asyncio.run(watch_demo(config))
     with contextlib.ExitStack() as stack:
         config = simulate_buses(config, stack)
-        return asyncio.run(serve_demo(config, watch=args.watch))
+        return asyncio.run(serve_demo(config, args.config))
 
 
-async def serve_demo(config: GatewayConfig, watch: bool = False) -> int:
+async def watch_demo(config: GatewayConfig) -> int:
+    """`demo --watch`: print the running demo's MQTT messages until Ctrl-C; no gateway here.
+
+    A second gateway would find the demo's Modbus-TCP port taken; watching needs only the broker.
+    """
+    if config.mqtt is None or not config.mqtt.enabled:
+        print("invt-gateway demo --watch: this configuration has no MQTT", file=sys.stderr)
+        return EXIT_FAILURE
+    from gateway.mqtt.demo_broker import watch_messages
+
+    await watch_messages(config.mqtt, f"{config.mqtt.base_topic}/#", status=sys.stderr)
+    return EXIT_OK
+
+
+async def serve_demo(config: GatewayConfig, config_path: str | None = None) -> int:
     """Serve the demo; with MQTT configured, against a broker even on a machine that has none."""
     mqtt = config.mqtt
     if mqtt is None or not mqtt.enabled:
         return await serve(config, on_ready=lambda app: print_banner(app, config))
-    from gateway.mqtt.demo_broker import broker_for_demo, watch_messages
+    from gateway.mqtt.demo_broker import broker_for_demo
 
     broker = await broker_for_demo(mqtt)
-    config = config.model_copy(update={"mqtt": broker.config})
-    watcher = None
-    if watch:
-        topic = f"{broker.config.base_topic}/#"
-        watcher = asyncio.create_task(watch_messages(broker.config, topic), name="demo:watch")
+    mqtt = broker.config
+    if mqtt.client_id is None:
+        # Two demos on one broker (or a demo beside a service with gateway_id "demo") must not
+        # share a client id: the broker would keep throwing one off for the other. The
+        # service's documented default (invt-gateway-<gateway_id>) is for one gateway per id.
+        unique = f"invt-gateway-{config.gateway_id}-{uuid.uuid4().hex[:8]}"
+        mqtt = mqtt.model_copy(update={"client_id": unique})
+    config = config.model_copy(update={"mqtt": mqtt})
     try:
-        return await serve(config, on_ready=lambda app: print_banner(app, config, broker.note))
+        watch = watch_command(config_path, mqtt.port)
+        return await serve(
+            config, on_ready=lambda app: print_banner(app, config, (broker.note, watch))
+        )
     finally:
-        if watcher is not None:
-            watcher.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await watcher
         if broker.embedded is not None:
             await broker.embedded.stop()
 
@@ -102,7 +137,19 @@ def simulate_buses(config: GatewayConfig, stack: contextlib.ExitStack) -> Gatewa
     return config.model_copy(update={"buses": tuple(buses)})
 
 
-def print_banner(app: Application, config: GatewayConfig, mqtt_note: str | None = None) -> None:
+def watch_command(config_path: str | None, mqtt_port: int) -> str:
+    """The `demo --watch` line that finds this demo's broker and topics."""
+    command = f"{own_command()} demo --watch"
+    if config_path is not None:
+        command += f" --config {config_path}"
+    if config_path is not None or mqtt_port != DEMO_MQTT_PORT:
+        command += f" --mqtt-port {mqtt_port}"
+    return command
+
+
+def print_banner(
+    app: Application, config: GatewayConfig, mqtt_note: tuple[str, str] | None = None
+) -> None:
     host = config.modbus_tcp.host
     port = app.tcp.port
     lines = [
@@ -115,14 +162,18 @@ def print_banner(app: Application, config: GatewayConfig, mqtt_note: str | None 
             f"  unit id {drive.effective_unit_id:>3}  {drive.name:<10} {drive.model:<7} "
             f"address {drive.address} on {bus.name} ({bus.port}, {bus.baudrate} baud)"
         )
+    me = own_command()
+    via = f"--via tcp://{host}:{port} --address 1"
     lines += [
-        "Read state word 1 (2100H) of drive 1:",
-        f"  mbpoll -m tcp -p {port} -a 1 -0 -r 0x2100 -c 1 -1 {host}",
-        "Start it forward at 25.00 Hz (control word 2000H = 1, set-point 2001H = 2500):",
-        f"  mbpoll -m tcp -p {port} -a 1 -0 -r 0x2000 {host} 1 2500",
+        "Read state word 1 (2100H) of drive 1 (3 = stopped), in another terminal:",
+        f"  {me} read {via} 2100H        (or: mbpoll -m tcp -p {port} -a 1 -0 -r 0x2100 -c 1 -1 "
+        f"{host})",
+        "Start it forward at 25.00 Hz (control word 2000H, set-point 2001H), read its frequency:",
+        f"  {me} write {via} frequency_setpoint=25.00 control_word=run_forward",
+        f"  {me} read {via} output_frequency",
     ]
     if mqtt_note is not None and config.mqtt is not None:
-        lines += mqtt_banner(config, mqtt_note)
+        lines += mqtt_banner(config, *mqtt_note)
     lines += [
         "Stop with Ctrl-C.",
         "",
@@ -130,7 +181,19 @@ def print_banner(app: Application, config: GatewayConfig, mqtt_note: str | None 
     print("\n".join(lines), flush=True)
 
 
-def mqtt_banner(config: GatewayConfig, note: str) -> list[str]:
+def own_command() -> str:
+    """How to call this program from another terminal: `invt-gateway` when the PATH finds this
+    one, else its full path (installed in a virtual environment that isn't activated)."""
+    beside = Path(sys.executable).with_name("invt-gateway")
+    found = shutil.which("invt-gateway")
+    if not beside.exists() or (found is not None and Path(found).resolve() == beside.resolve()):
+        return "invt-gateway"
+    if beside.is_relative_to(Path.cwd()):
+        return str(beside.relative_to(Path.cwd()))  # .venv/bin/invt-gateway, as in the README
+    return str(beside)
+
+
+def mqtt_banner(config: GatewayConfig, note: str, watch: str) -> list[str]:
     assert config.mqtt is not None
     mqtt = config.mqtt
     base = mqtt.base_topic
@@ -139,7 +202,7 @@ def mqtt_banner(config: GatewayConfig, note: str) -> list[str]:
     run = '{"command": "run_forward", "frequency_hz": 25.0, "transaction": "t1"}'
     return [
         f"{note}; telemetry under {base}/:",
-        f"  mosquitto_sub {where} -t '{base}/#' -v      (or: invt-gateway demo --watch)",
+        f"  {watch}      (or: mosquitto_sub {where} -t '{base}/#' -v)",
         f"Start {first} forward at 25.00 Hz over MQTT (answer on {base}/{first}/set/response):",
         f"  mosquitto_pub {where} -t {base}/{first}/set -m '{run}'",
     ]

@@ -13,7 +13,7 @@ from gateway.app import Application
 from gateway.bus.bus import BusFailed
 from gateway.cli import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
 from gateway.config import GatewayConfig, load_config
-from gateway.errors import ConfigError
+from gateway.errors import CannotListen, ConfigError
 from gateway.logs import setup_logging
 from gateway.systemd import Notifier, keep_watchdog, watchdog_interval_s
 
@@ -91,6 +91,11 @@ async def serve(
         log.error("cannot start: %s", exc)
         return EXIT_FAILURE
     except ExceptionGroup as group:
+        unbound = group.subgroup(CannotListen)
+        if unbound is not None:
+            # A port taken or a wrong address: one line that says which and why, no traceback.
+            log.error("cannot start: %s", unbound.exceptions[0])
+            return EXIT_FAILURE
         failed = group.subgroup(BusFailed)
         if failed is None:
             raise

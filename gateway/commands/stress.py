@@ -15,6 +15,7 @@ import json
 import sys
 
 from gateway.cli import EXIT_FAILURE, EXIT_OK
+from gateway.progress import Progress
 
 BAUDRATES = (9600, 19200, 38400, 57600, 115200)
 MAX_CLIENTS = 12
@@ -28,14 +29,18 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument(
-        "--duration", type=_positive, default=60.0, metavar="S", help="seconds (default 60)"
+        "--duration",
+        type=_positive,
+        default=60.0,
+        metavar="S",
+        help="seconds under load (default %(default)g)",
     )
     parser.add_argument(
         "--fault-rate",
         type=_rate,
         default=0.05,
         metavar="RATE",
-        help="share of the drives' replies spoilt on the line (default 0.05)",
+        help="share of the drives' replies spoilt on the line (default %(default)g)",
     )
     parser.add_argument(
         "--clients",
@@ -43,13 +48,20 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         default=8,
         metavar="N",
         help="Modbus-TCP clients, each writing and reading back its own parameters: 1..12 "
-        "(3 parameter blocks on each of the 4 drives; default 8)",
+        "(3 parameter blocks on each of the 4 drives; default %(default)d)",
     )
-    parser.add_argument("--baud", type=int, default=115200, choices=BAUDRATES)
     parser.add_argument(
-        "--seed", type=int, default=1, help="the same seed spoils the same replies (default 1)"
+        "--baud", type=int, default=115200, choices=BAUDRATES, help="(default %(default)d)"
     )
-    parser.add_argument("--json", action="store_true", help="one JSON document instead")
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=1,
+        help="the same seed spoils the same replies (default %(default)d)",
+    )
+    parser.add_argument(
+        "--json", action="store_true", help="one JSON document instead of the table"
+    )
     parser.set_defaults(handler=handle)
 
 
@@ -65,14 +77,13 @@ def handle(args: argparse.Namespace) -> int:
         seed=args.seed,
     )
 
-    def progress(text: str) -> None:
-        print(f"stress: {text}", file=sys.stderr, flush=True)
-
-    try:
-        result = asyncio.run(run_stress(settings, progress))
-    except (RuntimeError, ValueError, OSError) as exc:
-        print(f"invt-gateway stress: {exc}", file=sys.stderr)
-        return EXIT_FAILURE
+    # The run is its duration; starting and stopping the processes add a few seconds.
+    with Progress("stress", settings.duration_s, sys.stderr) as overall:
+        try:
+            result = asyncio.run(run_stress(settings, overall.note))
+        except (RuntimeError, ValueError, OSError) as exc:
+            overall.print(f"invt-gateway stress: {exc}", sys.stderr)
+            return EXIT_FAILURE
     if args.json:
         print(json.dumps(document(result), indent=2))
     else:

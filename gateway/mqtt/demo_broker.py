@@ -79,9 +79,17 @@ async def watch_messages(
     topic: str,
     out: TextIO = sys.stdout,
     on_line: Callable[[str], None] | None = None,
+    status: TextIO | None = None,
 ) -> None:
-    """Print every message on `topic` as `topic payload`, as `mosquitto_sub -v` does; forever."""
+    """Print every message on `topic` as `topic payload`, as `mosquitto_sub -v` does; forever.
+
+    With `status`, says there when it is watching and, once per outage, when no broker answers
+    (the demo isn't running yet, or was stopped): it keeps trying until cancelled.
+    """
+    # Its own client id every time: a watcher must never throw another client off the broker.
     client_id = f"invt-gateway-watch-{uuid.uuid4().hex[:8]}"
+    where = f"{mqtt.host}:{mqtt.port}"
+    waiting = False
     while True:
         try:
             async with aiomqtt.Client(
@@ -92,6 +100,9 @@ async def watch_messages(
                 password=mqtt.password,
             ) as client:
                 await client.subscribe(topic)
+                waiting = False
+                if status is not None:
+                    print(f"watching {topic} at {where} (Ctrl-C to stop)", file=status, flush=True)
                 async for message in client.messages:
                     payload = message.payload
                     text = (
@@ -105,4 +116,12 @@ async def watch_messages(
                         on_line(line)
         except aiomqtt.MqttError as exc:
             log.debug("watch: %s; retrying", exc)
+            if status is not None and not waiting:
+                print(
+                    f"no MQTT broker answers at {where} ({exc}): is `invt-gateway demo` "
+                    "running? waiting for it",
+                    file=status,
+                    flush=True,
+                )
+            waiting = True
         await asyncio.sleep(WATCH_RETRY_S)

@@ -32,6 +32,7 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 
 from gateway.errors import MalformedFrame, ModbusError
+from gateway.listen import cannot_listen
 from gateway.logs import repeated
 from gateway.modbus.functions import PURE_READS, changes_nothing, exception_pdu
 from gateway.modbus.mbap import HEADER_LENGTH, build_adu, parse_header
@@ -116,9 +117,13 @@ class ModbusTcpServer:
 
     async def start(self) -> None:
         loop = asyncio.get_running_loop()
-        self._server = await loop.create_server(
-            lambda: Connection(self), self.settings.host, self.settings.port, reuse_address=True
-        )
+        host, port = self.settings.host, self.settings.port
+        try:
+            self._server = await loop.create_server(
+                lambda: Connection(self), host, port, reuse_address=True
+            )
+        except OSError as exc:
+            raise cannot_listen("Modbus-TCP", host, port, "modbus_tcp.host/port", exc) from exc
         for sock in self._server.sockets:  # accepted connections inherit them
             for option in (socket.SO_SNDBUF, socket.SO_RCVBUF):
                 with contextlib.suppress(OSError):

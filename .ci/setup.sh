@@ -1,0 +1,83 @@
+# Sourced by .ci/demo and .ci/test: what a fresh machine lacks, installed the Debian way.
+#
+# Debian 12 and 13 ship python3 without pip or a working venv module (python3-venv) and forbid
+# pip outside a virtual environment (PEP 668). So: Debian packages from apt (as root, or through
+# sudo), Python packages into the project's own .venv, never into the system's Python.
+
+# The Python that makes .venv: $PYTHON when set, else the first python3 of 3.11 or later among
+# the PATH's and Debian's own (a pyenv or an older python3 first on the PATH isn't a dead end).
+pick_python() {
+  local candidate path
+  if [ -n "${PYTHON:-}" ]; then
+    candidate=$(command -v "$PYTHON") || { echo "invt-gateway: PYTHON=$PYTHON not found" >&2; return 1; }
+    "$candidate" -c 'import sys; sys.exit(sys.version_info < (3, 11))' || {
+      echo "invt-gateway: PYTHON=$PYTHON is older than Python 3.11" >&2; return 1; }
+    echo "$candidate"
+    return
+  fi
+  for candidate in python3 /usr/bin/python3; do
+    path=$(command -v "$candidate" 2>/dev/null) || continue
+    if "$path" -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null; then
+      echo "$path"
+      return
+    fi
+  done
+  echo "invt-gateway: needs Python 3.11 or later (Debian 12 and later have it as python3)" >&2
+  return 1
+}
+
+# Run a command as root: directly when root, else through sudo.
+as_root() {
+  if [ "$(id -u)" = 0 ]; then
+    "$@"
+  elif command -v sudo >/dev/null 2>&1; then
+    sudo "$@"
+  else
+    echo "invt-gateway: '$*' needs root: run this as root, or install sudo" >&2
+    return 1
+  fi
+}
+
+# Install Debian packages (names as arguments); nothing when none are given.
+install_debian_packages() {
+  [ $# -gt 0 ] || return 0
+  if ! command -v apt-get >/dev/null 2>&1; then
+    echo "invt-gateway: please install $* (no apt-get here: not Debian or Ubuntu)" >&2
+    return 1
+  fi
+  echo "invt-gateway: installing Debian packages: $*" >&2
+  as_root apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive as_root apt-get install -y -qq --no-install-recommends "$@" >/dev/null
+}
+
+# .venv with the package installed (editable: the clone is the code), extras as $1 (e.g. test).
+# pip runs again only when pyproject.toml changed or other extras are asked for.
+setup_venv() {
+  local extras=${1:-} python hash stamp have_hash have_extras
+  # A .venv without pip is what a `python3 -m venv` without python3-venv leaves: made again.
+  if ! .venv/bin/python -m pip --version >/dev/null 2>&1; then
+    python=$(pick_python) || return 1
+    # Debian ships ensurepip, which `python3 -m venv` needs for pip, in python3-venv.
+    if ! "$python" -c 'import ensurepip' 2>/dev/null; then
+      case "$python" in
+        /usr/bin/*) install_debian_packages python3-venv || return 1 ;;
+        *) echo "invt-gateway: $python has no ensurepip: it can't make a virtual environment" >&2
+           return 1 ;;
+      esac
+    fi
+    echo "invt-gateway: creating .venv with $python ($("$python" --version 2>&1))" >&2
+    rm -rf .venv
+    "$python" -m venv .venv
+  fi
+  hash=$(sha256sum pyproject.toml | cut -d' ' -f1)
+  stamp=.venv/.invt-gateway-installed
+  if [ -f "$stamp" ]; then
+    read -r have_hash have_extras < "$stamp" || true
+    if [ "$have_hash" = "$hash" ] && { [ -z "$extras" ] || [ "${have_extras:-}" = "$extras" ]; }; then
+      return 0
+    fi
+  fi
+  echo "invt-gateway: installing the package${extras:+ with its $extras extras} into .venv (pip)" >&2
+  .venv/bin/python -m pip install -q --disable-pip-version-check -e ".${extras:+[$extras]}"
+  echo "$hash $extras" > "$stamp"
+}
