@@ -14,6 +14,7 @@ import sys
 import uuid
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 from gateway.app import Application
 from gateway.cli import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
@@ -45,6 +46,24 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         help="watch a running demo: print every MQTT message under its base topic "
         "(starts no gateway)",
     )
+    adapter = parser.add_argument_group(
+        "real hardware", "show what common RS-485 hardware does to the line, and the gateway coping"
+    )
+    adapter.add_argument(
+        "--burst-ms",
+        type=float,
+        default=0.0,
+        metavar="MS",
+        help="the adapter hands replies over in bursts every MS ms (a USB latency timer)",
+    )
+    adapter.add_argument(
+        "--glitch",
+        action="store_true",
+        help="a transceiver glitch byte (FFH) before every reply",
+    )
+    adapter.add_argument(
+        "--echo", action="store_true", help="the adapter echoes every request (echo: false)"
+    )
     parser.set_defaults(handler=handle)
 
 
@@ -72,7 +91,12 @@ def handle(args: argparse.Namespace) -> int:
     if args.watch:
         return asyncio.run(watch_demo(config))
     with contextlib.ExitStack() as stack:
-        config = simulate_buses(config, stack)
+        adapter = {
+            "burst_ms": args.burst_ms,
+            "glitch": b"\xff" if args.glitch else b"",
+            "echo": args.echo,
+        }
+        config = simulate_buses(config, stack, adapter)
         return asyncio.run(serve_demo(config, args.config))
 
 
@@ -116,8 +140,13 @@ async def serve_demo(config: GatewayConfig, config_path: str | None = None) -> i
             await broker.embedded.stop()
 
 
-def simulate_buses(config: GatewayConfig, stack: contextlib.ExitStack) -> GatewayConfig:
-    """Start a simulated line for each bus and return the config pointing at them."""
+def simulate_buses(
+    config: GatewayConfig,
+    stack: contextlib.ExitStack,
+    adapter: dict[str, Any] | None = None,
+) -> GatewayConfig:
+    """Start a simulated line for each bus and return the config pointing at them; `adapter`:
+    `SimulatedLine.set_adapter`'s options, for every line."""
     from gateway.simulator import SimulatedLine  # only the demo needs the simulator loaded
 
     buses = []
@@ -131,6 +160,8 @@ def simulate_buses(config: GatewayConfig, stack: contextlib.ExitStack) -> Gatewa
             stopbits=bus.stopbits,
             wire_time=True,
         )
+        if adapter and any(adapter.values()):
+            line.set_adapter(**adapter)
         line.start()
         stack.callback(line.stop)
         buses.append(bus.model_copy(update={"port": line.path}))
