@@ -26,6 +26,7 @@ from gateway.config import (
     BusConfig,
     DriveConfig,
     GatewayConfig,
+    ModbusTcpConfig,
     Rs485Config,
 )
 from gateway.health import Phase
@@ -35,6 +36,7 @@ from gateway.router import Route, Router
 from gateway.tasks import cancel_and_wait
 from gateway.tcp import ModbusTcpServer, TcpSettings
 from gateway.tcp.access import AccessRule, merge_spans
+from gateway.tcp.server import TlsListener
 
 log = logging.getLogger(__name__)
 
@@ -115,6 +117,22 @@ def access_rule(config: AccessRuleConfig, index: int) -> AccessRule:
         functions=None if config.functions is None else frozenset(config.functions),
         spans=spans,
         label=config.name or f"access[{index}]",
+        roles=None if config.roles is None else frozenset(config.roles),
+    )
+
+
+def tls_listener(config: ModbusTcpConfig) -> TlsListener | None:
+    tls = config.tls
+    if not tls.enabled:
+        return None
+    # The config refuses tls.enabled without the three files.
+    return TlsListener(
+        host=tls.host or config.host,
+        port=tls.port,
+        cert_file=tls.cert_file or "",
+        key_file=tls.key_file or "",
+        ca_file=tls.ca_file or "",
+        role_map=dict(tls.role_map),
     )
 
 
@@ -141,6 +159,8 @@ class Application:
                 read_only=tcp.read_only,
                 access=tuple(access_rule(r, i) for i, r in enumerate(tcp.access)),
                 first_request_timeout_s=tcp.first_request_timeout_s,
+                plain=tcp.plain,
+                tls=tls_listener(tcp),
                 max_connections_per_client=tcp.max_connections_per_client,
                 max_queued_writes_per_client=tcp.max_queued_writes_per_client,
             ),

@@ -140,13 +140,42 @@ class AccessRuleConfig(Section):
     register of the request is inside, a refusing rule when any one is. Left out: any request."""
     allow: bool
     """True lets a matching request through, false refuses it (01H, or 02H for its registers)."""
+    roles: tuple[str, ...] | None = None
+    """... to clients of the TLS listener whose certificate carries one of these roles
+    (`viewer`, `operator` or a site's own); left out: to every client."""
 
-    @field_validator("unit_ids", "functions", "registers")
+    @field_validator("unit_ids", "functions", "registers", "roles")
     @classmethod
     def _not_empty(cls, value: tuple[object, ...] | None) -> tuple[object, ...] | None:
         if value is not None and not value:
             raise ValueError("an empty list matches nothing: leave the key out to match all")
         return value
+
+
+class ModbusTlsConfig(Section):
+    """Modbus/TCP Security (the Modbus Organization's TLS profile): a second listener where
+    clients prove who they are with a certificate, and their role limits what they may do."""
+
+    enabled: bool = False
+    host: str | None = None
+    """Bind address; default `modbus_tcp.host`."""
+    port: int = Field(802, ge=0, le=65535)
+    """802 is the profile's port (needs root or CAP_NET_BIND_SERVICE); 0 picks a free one."""
+    cert_file: str | None = None
+    key_file: str | None = None
+    ca_file: str | None = None
+    """The CA that signs client certificates: only clients it vouches for get a connection."""
+    role_map: dict[str, str] = {}
+    """Role by the client certificate's common name, for certificates without the role
+    extension (OID 1.3.6.1.4.1.50316.802.1)."""
+
+    @model_validator(mode="after")
+    def _files(self) -> ModbusTlsConfig:
+        if self.enabled:
+            missing = [k for k in ("cert_file", "key_file", "ca_file") if getattr(self, k) is None]
+            if missing:
+                raise ValueError(f"TLS needs {', '.join(missing)}")
+        return self
 
 
 class ModbusTcpConfig(Section):
@@ -168,6 +197,9 @@ class ModbusTcpConfig(Section):
     """Answer a broadcast (unit id 0) write with an echo, as if a drive had answered."""
     allowed_networks: tuple[str, ...] = ()
     """Client networks (CIDR) allowed to connect; empty allows every client."""
+    plain: bool = True
+    """The plain (unencrypted) listener; false leaves only the TLS one."""
+    tls: ModbusTlsConfig = ModbusTlsConfig()
     read_only: bool = False
     """Refuse every write function code with exception 01H."""
     access: tuple[AccessRuleConfig, ...] = ()
@@ -183,6 +215,12 @@ class ModbusTcpConfig(Section):
             except ValueError as exc:
                 raise ValueError(f"{network!r} is not a network in CIDR form: {exc}") from exc
         return value
+
+    @model_validator(mode="after")
+    def _a_listener(self) -> ModbusTcpConfig:
+        if not self.plain and not self.tls.enabled:
+            raise ValueError("plain: false needs tls.enabled: true, or no client could connect")
+        return self
 
 
 class Rs485Config(Section):

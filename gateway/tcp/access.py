@@ -62,6 +62,8 @@ class AccessRule:
     """Merged and sorted by `merge_spans`; None: any register, and requests without any."""
     label: str = ""
     """How logs and metrics name the rule (its `name`, else its place in the list)."""
+    roles: frozenset[str] | None = None
+    """Only for TLS clients whose certificate carries one of these roles; None: every client."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -87,25 +89,30 @@ class AccessPolicy:
             None,
         )
 
-    def check(self, unit_id: int, pdu: bytes) -> Refusal | None:
-        """None when the request may go on; else which rule refused it and with what code."""
+    def check(self, unit_id: int, pdu: bytes, role: str | None = None) -> Refusal | None:
+        """None when the request may go on; else which rule refused it and with what code.
+
+        `role`: a TLS client's role (rules with `roles` apply only to those); None otherwise.
+        """
         if unit_id != BROADCAST_UNIT:
-            refusal = self._decide(unit_id, pdu)
+            refusal = self._decide(unit_id, pdu, role)
         else:
             refusal = next(
-                (r for v in self._broadcast_views if (r := self._decide(v, pdu)) is not None),
+                (r for v in self._broadcast_views if (r := self._decide(v, pdu, role)) is not None),
                 None,
             )
         if refusal is not None:
             self.denied[refusal.rule] += 1
         return refusal
 
-    def _decide(self, unit_id: int | None, pdu: bytes) -> Refusal | None:
+    def _decide(self, unit_id: int | None, pdu: bytes, role: str | None) -> Refusal | None:
         function = pdu[0]
         touched: tuple[Span, ...] | None = None
         looked = False
         address_refused = False
         for index, rule in enumerate(self.rules):
+            if rule.roles is not None and role not in rule.roles:
+                continue
             if rule.unit_ids is not None and unit_id not in rule.unit_ids:
                 continue
             if rule.functions is not None and function not in rule.functions:

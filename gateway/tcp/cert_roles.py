@@ -100,7 +100,7 @@ def _find_role(data: bytes, start: int, end: int) -> str | None:
         oid_tag, oid_start, oid_end = parts[0]
         if oid_tag != _OID or data[oid_start:oid_end] != _ROLE_OID_BYTES:
             continue
-        value_tag, value_start, value_end = parts[-1]
+        value_tag, value_start, _ = parts[-1]
         if value_tag != _OCTET_STRING:
             return None
         inner_tag, text_start, text_end = _read(data, value_start)

@@ -28,7 +28,8 @@ import contextlib
 import ipaddress
 import logging
 import socket
-from collections.abc import Awaitable, Callable
+import ssl
+from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
 
 from gateway.errors import MalformedFrame, ModbusError
@@ -37,6 +38,7 @@ from gateway.logs import repeated
 from gateway.modbus.functions import PURE_READS, changes_nothing, exception_pdu
 from gateway.modbus.mbap import HEADER_LENGTH, build_adu, parse_header
 from gateway.tcp.access import AccessPolicy, AccessRule
+from gateway.tcp.cert_roles import client_role
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +69,10 @@ class TcpSettings:
     read_only: bool = False
     access: tuple[AccessRule, ...] = ()
     """First match wins; none: every request may pass (see `gateway.tcp.access`)."""
+    plain: bool = True
+    """The plain listener (`host`, `port`); false: TLS only."""
+    tls: TlsListener | None = None
+    """The Modbus/TCP Security listener, if enabled."""
     first_request_timeout_s: float = 10.0
     max_connections_per_client: int | None = None
     """Slots one client address may hold; None: half of `max_connections` (at least 1)."""
@@ -77,6 +83,25 @@ class TcpSettings:
         if self.max_connections_per_client is not None:
             return self.max_connections_per_client
         return max(1, self.max_connections // 2)
+
+
+@dataclass(frozen=True, slots=True)
+class TlsListener:
+    host: str
+    port: int
+    cert_file: str
+    key_file: str
+    ca_file: str
+    role_map: Mapping[str, str] = field(default_factory=dict)
+
+    def context(self) -> ssl.SSLContext:
+        """TLS 1.2 or later, and a client certificate the CA signed, or no connection."""
+        context = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+        context.minimum_version = ssl.TLSVersion.TLSv1_2
+        context.verify_mode = ssl.CERT_REQUIRED
+        context.load_cert_chain(self.cert_file, self.key_file)
+        context.load_verify_locations(self.ca_file)
+        return context
 
 
 @dataclass(slots=True)
@@ -104,6 +129,7 @@ class ModbusTcpServer:
         self.stats = TcpStats()
         self.handler = handler
         self._server: asyncio.Server | None = None
+        self._tls_server: asyncio.Server | None = None
         self._connections: set[Connection] = set()
         self._networks = [ipaddress.ip_network(n, strict=False) for n in settings.allowed_networks]
         # None without rules: the common case costs one attribute test per request.
@@ -111,28 +137,54 @@ class ModbusTcpServer:
 
     @property
     def port(self) -> int:
-        """The bound port (useful when configured as 0)."""
-        assert self._server is not None, "start() first"
-        return int(self._server.sockets[0].getsockname()[1])
+        """The plain listener's bound port (useful when configured as 0); the TLS one's when
+        there is no plain listener."""
+        server = self._server or self._tls_server
+        assert server is not None, "start() first"
+        return int(server.sockets[0].getsockname()[1])
+
+    @property
+    def tls_port(self) -> int | None:
+        if self._tls_server is None:
+            return None
+        return int(self._tls_server.sockets[0].getsockname()[1])
 
     async def start(self) -> None:
+        settings = self.settings
+        if settings.plain:
+            self._server = await self._listen(settings.host, settings.port, None)
+            log.info("Modbus-TCP listening on %s:%d", settings.host, self.port)
+        tls = settings.tls
+        if tls is not None:
+            try:
+                context = tls.context()
+            except (OSError, ssl.SSLError) as exc:
+                raise cannot_listen(
+                    "Modbus/TCP Security", tls.host, tls.port, "modbus_tcp.tls files", exc
+                ) from exc
+            self._tls_server = await self._listen(tls.host, tls.port, context)
+            log.info("Modbus/TCP Security (TLS) listening on %s:%d", tls.host, self.tls_port)
+
+    async def _listen(self, host: str, port: int, context: ssl.SSLContext | None) -> asyncio.Server:
         loop = asyncio.get_running_loop()
-        host, port = self.settings.host, self.settings.port
+        what = "Modbus-TCP" if context is None else "Modbus/TCP Security"
+        keys = "modbus_tcp.host/port" if context is None else "modbus_tcp.tls.host/port"
         try:
-            self._server = await loop.create_server(
-                lambda: Connection(self), host, port, reuse_address=True
+            server = await loop.create_server(
+                lambda: Connection(self), host, port, reuse_address=True, ssl=context
             )
         except OSError as exc:
-            raise cannot_listen("Modbus-TCP", host, port, "modbus_tcp.host/port", exc) from exc
-        for sock in self._server.sockets:  # accepted connections inherit them
+            raise cannot_listen(what, host, port, keys, exc) from exc
+        for sock in server.sockets:  # accepted connections inherit them
             for option in (socket.SO_SNDBUF, socket.SO_RCVBUF):
                 with contextlib.suppress(OSError):
                     sock.setsockopt(socket.SOL_SOCKET, option, SOCKET_BUFFER_BYTES)
-        log.info("Modbus-TCP listening on %s:%d", self.settings.host, self.port)
+        return server
 
     def stop_accepting(self) -> None:
-        if self._server is not None:
-            self._server.close()
+        for server in (self._server, self._tls_server):
+            if server is not None:
+                server.close()
 
     async def stop(self, grace_s: float = 0.5) -> None:
         """Stop accepting, give answers in flight `grace_s` to go out, then close connections."""
@@ -213,7 +265,9 @@ class ModbusTcpServer:
             return False
         return any(address in network for network in self._networks)
 
-    async def reply(self, unit_id: int, pdu: bytes, client: str) -> bytes | None:
+    async def reply(
+        self, unit_id: int, pdu: bytes, client: str, role: str | None = None
+    ) -> bytes | None:
         """The reply PDU for one request; every error becomes an exception PDU here, only here."""
         function = pdu[0]
         if self.settings.read_only and not changes_nothing(pdu):
@@ -222,7 +276,7 @@ class ModbusTcpServer:
             log.debug("%s unit %d: %02XH refused: modbus_tcp.read_only", client, unit_id, function)
             return exception_pdu(function, ILLEGAL_FUNCTION)
         if self.access is not None:
-            refusal = self.access.check(unit_id, pdu)
+            refusal = self.access.check(unit_id, pdu, role)
             if refusal is not None:
                 self.stats.denied += 1
                 self.stats.exceptions += 1
@@ -272,6 +326,8 @@ class Connection(asyncio.Protocol):
         self._writes_waiting = 0
         self._idle_timer: asyncio.TimerHandle | None = None
         self._idle_due = float("inf")
+        self.role: str | None = None
+        """A TLS client's role, from its certificate; None on the plain listener."""
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         assert isinstance(transport, asyncio.Transport)
@@ -279,6 +335,14 @@ class Connection(asyncio.Protocol):
         peer = transport.get_extra_info("peername") or ("?", 0)
         self.host = str(peer[0])
         self.client = f"tcp:{peer[0]}:{peer[1]}"
+        secure = transport.get_extra_info("ssl_object")
+        if secure is not None and self.server.settings.tls is not None:
+            # The handshake is done: the certificate is one the configured CA signed.
+            role_map = self.server.settings.tls.role_map
+            self.role = client_role(
+                secure.getpeercert(binary_form=True), secure.getpeercert(), role_map
+            )
+            log.debug("%s: TLS client, role %s", self.client, self.role or "(none)")
         if not self.server.admit(self):
             transport.close()
             return
@@ -403,7 +467,7 @@ class Connection(asyncio.Protocol):
     async def _answer(self, transaction_id: int, unit_id: int, pdu: bytes) -> None:
         write = not changes_nothing(pdu)
         try:
-            reply = await self.server.reply(unit_id, pdu, self.client)
+            reply = await self.server.reply(unit_id, pdu, self.client, self.role)
             transport = self._transport
             if reply is None or transport is None or transport.is_closing():
                 return
