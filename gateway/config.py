@@ -339,6 +339,9 @@ class DriveConfig(Section):
         return value
 
 
+_DOT = "RabbitMQ's MQTT plugin turns it into '/', so topics would differ between brokers"
+
+
 class MqttConfig(Section):
     enabled: bool = True
     host: str = "127.0.0.1"
@@ -368,11 +371,20 @@ class MqttConfig(Section):
     reconnect_max_s: float = Field(30.0, gt=0, le=3600)
     """Longest wait between two attempts to reach the broker (the wait doubles up to it)."""
 
-    @field_validator("base_topic")
+    @field_validator("base_topic", "discovery_prefix")
     @classmethod
     def _topic(cls, value: str) -> str:
-        if any(c in value for c in "#+") or value.startswith("/") or value.endswith("/"):
-            raise ValueError("no '#', '+', or leading/trailing '/' in a base topic")
+        # Topics must travel between brokers unchanged: '+' and '#' are wildcards, an empty
+        # level (a leading, trailing or double '/') is a different topic on some brokers, and
+        # RabbitMQ's MQTT plugin turns '.' into '/', so commands on "site.a/pump1/set" would
+        # silently never arrive.
+        if not value:
+            raise ValueError("must not be empty")
+        for character, why in (("+", "a wildcard"), ("#", "a wildcard"), (".", _DOT)):
+            if character in value:
+                raise ValueError(f"no {character!r} in a topic: {why}")
+        if "" in value.split("/"):
+            raise ValueError("no empty level: no leading, trailing or double '/'")
         return value
 
     @field_validator("ca_file", "cert_file", "key_file")

@@ -224,3 +224,24 @@ def _problems_of(text: str) -> list[tuple[str, str]]:
     except ConfigError as exc:
         return exc.problems or [("", "")]  # an error with no problem listed fails the test
     return []
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "reason"),
+    [
+        ("base_topic", "site.a", "no '.' in a topic"),
+        ("base_topic", "plant/+/x", "no '+' in a topic"),
+        ("base_topic", "plant/#", "no '#' in a topic"),
+        ("base_topic", "plant//a", "no empty level"),
+        ("discovery_prefix", "home.assistant", "no '.' in a topic"),
+        ("discovery_prefix", "ha/", "no empty level"),
+    ],
+)
+def test_mqtt_topics_that_would_not_travel_between_brokers_are_refused(
+    tmp_path: Path, key: str, value: str, reason: str
+) -> None:
+    text = GOOD + f"mqtt: {{host: 127.0.0.1, {key}: '{value}'}}\n"
+    result = check_config(tmp_path, text)
+    assert result.returncode == 3
+    assert f"mqtt.{key}" in result.stderr
+    assert reason in result.stderr
