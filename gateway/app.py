@@ -18,13 +18,12 @@ from typing import Protocol
 
 from gateway.bus import Bus, BusSettings
 from gateway.bus.line import LineSettings
-from gateway.cache import RegisterCache
 from gateway.config import AccessRuleConfig, BusConfig, DriveConfig, GatewayConfig
 from gateway.health import Phase
 from gateway.modbus.timing import CharacterFormat
 from gateway.profile import get_profile
 from gateway.profile.ram_writes import ram_write_address
-from gateway.router import Route, Router
+from gateway.routing import RegisterCache, Route, Router
 from gateway.tasks import cancel_and_wait
 from gateway.tcp import ModbusTcpServer, TcpSettings
 from gateway.tcp.access import AccessRule, merge_spans
@@ -101,12 +100,11 @@ class Application:
     def __init__(self, config: GatewayConfig) -> None:
         self.config = config
         self.buses = {b.name: Bus(bus_settings(b)) for b in config.buses}
-        self.cache = RegisterCache()
         self.router = Router(
-            (drive_route(d, self.buses[d.bus]) for d in config.drives),
-            self.buses.values(),
-            self.cache,
+            (drive_route(d, self.buses[d.bus]) for d in config.drives), self.buses.values()
         )
+        for bus in self.buses.values():
+            bus.add_listener(self.router.on_drive_health)
         tcp = config.modbus_tcp
         self.tcp = ModbusTcpServer(
             TcpSettings(
@@ -145,7 +143,7 @@ class Application:
         from gateway.event_log import DriveEventLog
         from gateway.poller import Poller
 
-        self.poller = Poller(drives, self.router, self.cache)
+        self.poller = Poller(drives, self.router)
         for bus in self.buses.values():
             bus.add_listener(self.poller.on_drive_health)
         self.poller.add_listener(DriveEventLog())
@@ -158,6 +156,10 @@ class Application:
         self.mqtt = MqttBridge(config, self.router, self.poller)
         self.poller.add_listener(self.mqtt)
         self.features.append(self.mqtt)
+
+    @property
+    def cache(self) -> RegisterCache:
+        return self.router.cache
 
     async def _handle_tcp(self, unit_id: int, pdu: bytes, client: str) -> bytes | None:
         return await self.router.execute(unit_id, pdu, client=client)

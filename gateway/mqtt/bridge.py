@@ -57,7 +57,7 @@ from gateway.mqtt.topics import BRIDGE_REQUESTS, Topics
 from gateway.poller import DriveEvent, Poller
 from gateway.poller.drive_state import iso_time
 from gateway.profile.telemetry import Telemetry
-from gateway.router import Router
+from gateway.routing import Router
 from gateway.tasks import cancel_and_wait
 
 log = logging.getLogger(__name__)

@@ -45,7 +45,7 @@ from gateway.mqtt.requests import (
 )
 from gateway.poller import Poller
 from gateway.profile import DriveProfile, describe_exception, exception_name, get_profile
-from gateway.router import MAX_READ_WORDS, Router
+from gateway.routing import MAX_READ_WORDS, Router
 
 log = logging.getLogger(__name__)
 
@@ -163,7 +163,7 @@ class CommandHandler:
     async def _write(self, drive: str, write: RegisterWrite) -> None:
         await self._execute(drive, write.pdu)
         log.info("MQTT command to %s done: %s", drive, write.echo)
-        self.poller.after_write(drive)
+        self.poller.poll_now(drive)
 
     async def _read(self, drive: str, read: RegisterRead) -> list[int]:
         reply = await self._execute(drive, read.pdu)
@@ -171,8 +171,7 @@ class CommandHandler:
 
     async def _execute(self, drive: str, pdu: bytes) -> bytes:
         route = self.router.route_for_drive(drive)
-        reply = await self.router.execute(route.unit_id, pdu, client=MQTT_CLIENT)
-        assert reply is not None  # only broadcasts have none
+        reply = await self.router.request(route, pdu, client=MQTT_CLIENT)
         if is_exception(reply):
             code = reply[1] if len(reply) > 1 else 0
             raise DriveRefused(describe_exception(code), code)
