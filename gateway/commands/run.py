@@ -16,6 +16,7 @@ from gateway.config import GatewayConfig, load_config
 from gateway.errors import ConfigError
 from gateway.logs import setup_logging
 from gateway.systemd import Notifier, keep_watchdog, watchdog_interval_s
+from gateway.tasks import FeatureFailed
 
 log = logging.getLogger(__name__)
 
@@ -91,7 +92,7 @@ async def serve(
         log.error("cannot start: %s", exc)
         return EXIT_FAILURE
     except ExceptionGroup as group:
-        failed = group.subgroup(BusFailed)
+        failed = group.subgroup((BusFailed, FeatureFailed))
         if failed is None:
             raise
         # Exit non-zero so the service manager restarts the gateway (Restart=on-failure).

@@ -34,6 +34,7 @@ from gateway.poller import DriveEvent, Poller
 from gateway.profile import get_profile
 from gateway.profile.telemetry import Telemetry
 from gateway.routing import Router
+from gateway.tasks import ServiceTasks
 
 STOP_TASK_BUDGET_S = 0.6
 """With the offline message, inside the 1 s the application gives each feature to stop."""
@@ -42,13 +43,15 @@ MAX_WAITING_PER_LANE = 16
 
 
 class MqttBridge:
-    def __init__(self, config: GatewayConfig, router: Router, poller: Poller) -> None:
+    def __init__(
+        self, config: GatewayConfig, router: Router, poller: Poller, tasks: ServiceTasks
+    ) -> None:
         assert config.mqtt is not None
         mqtt: MqttConfig = config.mqtt
         self.stats = BridgeStats()
         self.topics = Topics(mqtt.base_topic)
         self.outbox = Outbox(mqtt.queue_size)
-        self.lanes = Lanes(MAX_WAITING_PER_LANE)
+        self.lanes = Lanes(MAX_WAITING_PER_LANE, tasks)
         self.publisher = Publisher(config, self.topics, self.outbox, poller, self.stats)
         drives = {
             d.name: CommandDrive(d.name, router.route_for_drive(d.name), get_profile(d.model))
@@ -67,7 +70,7 @@ class MqttBridge:
         )
         kinds = command_kinds(context, drives, mqtt.homeassistant_discovery)
         self.dispatcher = Dispatcher(kinds, self.lanes, self.publisher.answer, self.stats)
-        self.session = Session(config, self.topics, self.stats, self._connected, self._lost)
+        self.session = Session(config, self.topics, self.stats, tasks, self._connected, self._lost)
 
     @property
     def connected(self) -> asyncio.Event:

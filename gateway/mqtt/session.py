@@ -35,7 +35,7 @@ from gateway.mqtt.connection import (
 )
 from gateway.mqtt.stats import BridgeStats
 from gateway.mqtt.topics import Topics
-from gateway.tasks import cancel_and_wait
+from gateway.tasks import ServiceTasks, cancel_and_wait
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +52,7 @@ class Session:
         config: GatewayConfig,
         topics: Topics,
         stats: BridgeStats,
+        tasks: ServiceTasks,
         on_connect: OnConnect,
         on_lost: Callable[[], None],
     ) -> None:
@@ -60,6 +61,7 @@ class Session:
         self.mqtt: MqttConfig = config.mqtt
         self.topics = topics
         self.stats = stats
+        self.tasks = tasks
         self.connected = asyncio.Event()
         """Set by the bridge once a connection is set up; cleared when it is lost."""
         self._on_connect = on_connect
@@ -68,7 +70,7 @@ class Session:
         self._task: asyncio.Task[None] | None = None
 
     async def start(self) -> None:
-        self._task = asyncio.create_task(self._run(), name="mqtt:bridge")
+        self._task = self.tasks.start("mqtt:bridge", self._run())
 
     async def say_offline(self) -> None:
         """A clean disconnect sends no last will: say "offline" ourselves, if connected."""

@@ -34,7 +34,7 @@ from gateway.poller.plan import PollBlock, PollSchedule, poll_schedules
 from gateway.profile import exception_name, format_register, get_profile
 from gateway.profile.telemetry import Telemetry
 from gateway.routing import Route, Router
-from gateway.tasks import cancel_and_wait
+from gateway.tasks import ServiceTasks, cancel_and_wait
 
 log = logging.getLogger(__name__)
 
@@ -74,8 +74,9 @@ class PolledDrive:
 
 
 class Poller:
-    def __init__(self, drives: Iterable[DriveConfig], router: Router) -> None:
+    def __init__(self, drives: Iterable[DriveConfig], router: Router, tasks: ServiceTasks) -> None:
         self.router = router
+        self.tasks = tasks
         self.drives: dict[str, PolledDrive] = {}
         self._by_bus_address: dict[tuple[str, int], str] = {}
         for config in drives:
@@ -96,7 +97,7 @@ class Poller:
     # -- lifecycle ---------------------------------------------------------------------------
 
     async def start(self) -> None:
-        self._task = asyncio.create_task(self._run(), name="poller")
+        self._task = self.tasks.start("poller", self._run())
 
     async def stop(self) -> None:
         if self._task is not None:
