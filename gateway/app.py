@@ -1,7 +1,9 @@
 """The application: wires the configured parts together and runs their lifecycle.
 
     startup   buses open their ports (in the background, with backoff), the TCP server listens,
-              features (poller, MQTT bridge, metrics) start, then "ready" is reported
+              features (poller, MQTT bridge, metrics) start, then "ready" is reported; every
+              background task (buses, poller, MQTT) runs in one TaskGroup: one that dies of a
+              bug stops the service (`BusFailed`, `FeatureFailed`: exit code 1)
     serve     until the stop event is set (SIGTERM / SIGINT)
     shutdown  stop accepting; queued requests are answered 0x0B; the transaction on the wire
               finishes; features stop (MQTT publishes offline); within 2 s in all
@@ -20,7 +22,6 @@ from gateway.bus import Bus, BusSettings
 from gateway.bus.direction import DirectionControl, DirectionMode
 from gateway.bus.line import LineSettings
 from gateway.bus.line_share import LineShares
-from gateway.cache import RegisterCache
 from gateway.config import (
     AccessRuleConfig,
     BusConfig,
@@ -32,8 +33,8 @@ from gateway.config import (
 from gateway.health import Phase
 from gateway.modbus.timing import CharacterFormat
 from gateway.profile.ram_writes import ram_write_address
-from gateway.router import Route, Router
-from gateway.tasks import cancel_and_wait
+from gateway.routing import RegisterCache, Route, Router
+from gateway.tasks import ServiceTasks, cancel_and_wait
 from gateway.tcp import ModbusTcpServer, TcpSettings
 from gateway.tcp.access import AccessRule, merge_spans
 from gateway.tcp.server import TlsListener
@@ -140,12 +141,11 @@ class Application:
     def __init__(self, config: GatewayConfig) -> None:
         self.config = config
         self.buses = {b.name: Bus(bus_settings(b)) for b in config.buses}
-        self.cache = RegisterCache()
         self.router = Router(
-            (drive_route(d, self.buses[d.bus]) for d in config.drives),
-            self.buses.values(),
-            self.cache,
+            (drive_route(d, self.buses[d.bus]) for d in config.drives), self.buses.values()
         )
+        for bus in self.buses.values():
+            bus.add_listener(self.router.on_drive_health)
         tcp = config.modbus_tcp
         self.tcp = ModbusTcpServer(
             TcpSettings(
@@ -167,6 +167,7 @@ class Application:
             self._handle_tcp,
         )
         self.features: list[Feature] = []
+        self.tasks = ServiceTasks()
         self.phase = Phase.STARTING
         mqtt = config.mqtt is not None and config.mqtt.enabled
         # Without MQTT only the drives that ask for it are polled: polls cost line time, and a
@@ -189,7 +190,7 @@ class Application:
         from gateway.event_log import DriveEventLog
         from gateway.poller import Poller
 
-        self.poller = Poller(drives, self.router, self.cache)
+        self.poller = Poller(drives, self.router, self.tasks)
         for bus in self.buses.values():
             bus.add_listener(self.poller.on_drive_health)
         self.poller.add_listener(DriveEventLog())
@@ -199,17 +200,22 @@ class Application:
         """The bridge stops before the poller that feeds it (features stop in reverse)."""
         from gateway.mqtt import MqttBridge  # aiomqtt only loaded when MQTT is configured
 
-        self.mqtt = MqttBridge(config, self.router, self.poller)
+        self.mqtt = MqttBridge(config, self.router, self.poller, self.tasks)
         assert config.mqtt is not None
         self.poller.read_max_frequency = config.mqtt.homeassistant_discovery
         self.poller.add_listener(self.mqtt)
         self.features.append(self.mqtt)
+
+    @property
+    def cache(self) -> RegisterCache:
+        return self.router.cache
 
     async def _handle_tcp(self, unit_id: int, pdu: bytes, client: str) -> bytes | None:
         return await self.router.execute(unit_id, pdu, client=client)
 
     async def run(self, stop: asyncio.Event, on_ready: Callable[[], None] | None = None) -> None:
         async with asyncio.TaskGroup() as tasks:
+            self.tasks.bind(tasks)
             bus_tasks = [
                 tasks.create_task(bus.run(), name=f"bus:{name}") for name, bus in self.buses.items()
             ]
@@ -223,6 +229,7 @@ class Application:
                 await self._shutdown()
                 for task in bus_tasks:
                     task.cancel()
+                self.tasks.bind(None)
 
     async def _startup(self) -> None:
         # A port that isn't there yet must not keep SCADA from connecting: the bus keeps trying

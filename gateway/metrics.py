@@ -41,7 +41,7 @@ from gateway.bus.line import SerialLine
 from gateway.config import GatewayConfig
 from gateway.health import Phase, health_report
 from gateway.http_endpoint import HttpEndpoint, Response
-from gateway.router import Router
+from gateway.routing import Router
 from gateway.tcp.access import AccessPolicy
 from gateway.tcp.server import ModbusTcpServer, TcpStats
 

@@ -1,4 +1,4 @@
-"""Stopping a background task for sure, within a time budget."""
+"""Background tasks: run under the service's TaskGroup, and stopped for sure within a budget."""
 
 from __future__ import annotations
 
@@ -6,6 +6,8 @@ import asyncio
 import contextlib
 import logging
 import time
+from collections.abc import Coroutine
+from typing import Any
 
 log = logging.getLogger(__name__)
 
@@ -32,3 +34,43 @@ async def cancel_and_wait(task: asyncio.Task[None], budget_s: float) -> bool:
         if exception is not None:
             log.error("task %s ended with %r", task.get_name(), exception)
     return True
+
+
+class FeatureFailed(Exception):
+    """A feature's background work died of a bug: the service stops (exit code 1) so that its
+    manager restarts it, rather than run on without, say, its polls."""
+
+
+class ServiceTasks:
+    """Where every feature runs its background work: the application's one TaskGroup.
+
+    Handed to each feature when it is built; the application binds it to its TaskGroup while it
+    runs. Work that dies of a bug stops the whole service, saying why (`FeatureFailed`).
+    """
+
+    def __init__(self) -> None:
+        self._group: asyncio.TaskGroup | None = None
+
+    def bind(self, group: asyncio.TaskGroup | None) -> None:
+        self._group = group
+
+    def start(self, name: str, work: Coroutine[Any, Any, None]) -> asyncio.Task[None]:
+        if self._group is None:
+            work.close()
+            raise RuntimeError(f"{name}: the service is not running")
+        return self._group.create_task(_failing_loudly(name, work), name=name)
+
+
+async def _failing_loudly(name: str, work: Coroutine[Any, Any, None]) -> None:
+    try:
+        await work
+    except Exception as exc:
+        log.critical("%s died", name, exc_info=exc)
+        raise FeatureFailed(f"{name} died: {_first(exc)!r}") from exc
+
+
+def _first(exc: BaseException) -> BaseException:
+    """The exception itself, not the group a TaskGroup wrapped it in."""
+    while isinstance(exc, BaseExceptionGroup) and len(exc.exceptions) == 1:
+        exc = exc.exceptions[0]
+    return exc

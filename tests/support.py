@@ -41,7 +41,13 @@ def gateway_config(port: str, drives: list[dict[str, Any]], **bus: Any) -> Gatew
 @contextlib.asynccontextmanager
 async def running_gateway(config: GatewayConfig) -> AsyncIterator[Application]:
     """The whole application in this event loop, listening on a real TCP port."""
-    app = Application(config)
+    async with running_application(Application(config)) as app:
+        yield app
+
+
+@contextlib.asynccontextmanager
+async def running_application(app: Application) -> AsyncIterator[Application]:
+    """`running_gateway` for an application a test has built (and may have added to)."""
     stop = asyncio.Event()
     ready = asyncio.Event()
     task = asyncio.create_task(app.run(stop, ready.set))

@@ -197,7 +197,7 @@ async def test_same_base_topic_is_reported(
     with simulated_line() as one_line, simulated_line() as other_line:
         one = mqtt_config(one_line.path, mosquitto, base, gateway_id="one")
         other = mqtt_config(other_line.path, mosquitto, base, gateway_id="other")
-        with caplog.at_level(logging.ERROR, logger="gateway.mqtt.bridge"):
+        with caplog.at_level(logging.ERROR, logger="gateway.mqtt.kinds"):
             async with running_gateway(one) as one_app, running_gateway(other):
                 for _ in range(100):
                     if one_app.mqtt.stats.conflicts:

@@ -16,6 +16,7 @@ from gateway.config import GatewayConfig, load_config
 from gateway.errors import CannotListen, ConfigError
 from gateway.logs import setup_logging
 from gateway.systemd import Notifier, keep_watchdog, watchdog_interval_s
+from gateway.tasks import FeatureFailed
 
 log = logging.getLogger(__name__)
 
@@ -96,7 +97,7 @@ async def serve(
             # A port taken or a wrong address: one line that says which and why, no traceback.
             log.error("cannot start: %s", unbound.exceptions[0])
             return EXIT_FAILURE
-        failed = group.subgroup(BusFailed)
+        failed = group.subgroup((BusFailed, FeatureFailed))
         if failed is None:
             raise
         # Exit non-zero so the service manager restarts the gateway (Restart=on-failure).

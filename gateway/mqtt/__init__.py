@@ -2,12 +2,18 @@
 
 - `topics`: the topic names, a public interface (Zigbee2MQTT's conventions).
 - `outbox`: the bounded hand-over from the poller, which never waits for the broker.
-- `requests`: command payloads read into bus requests, answers written back (no I/O).
+- `requests`: command payloads read into bus requests, answers written back (no I/O); what a
+  command means in registers is the profile's (`gateway.profile.commands`).
 - `commands`: the safety checks, then the requests carried to the drives through the router.
 - `discovery`: Home Assistant MQTT discovery messages (no I/O).
 - `connection`: client id, TLS, last will, reconnect backoff.
+- `session`: the connection loop: connect, back off, TLS retry, subscribe, online/offline.
+- `publisher`: info, discovery, states, availability and events out, de-duplicated.
+- `dispatcher`: received messages to their command kind, in lanes; busy and internal errors.
+- `kinds`: the kinds of message (`/set`, `/get`, `bridge/request/<op>`, ...), a registry.
 - `lanes`: received messages handled off the receive loop, in order per drive, bounded.
-- `bridge`: `MqttBridge`, the feature that connects, publishes and receives.
+- `stats`: the bridge's counters.
+- `bridge`: `MqttBridge`, the feature that puts the jobs above together.
 - `embedded_broker`: a tiny loopback broker so `invt-gateway demo` needs nothing installed.
 """
 

@@ -7,6 +7,8 @@ longer than `command_max_age_s` since it was received), and none at all with
 `commands_enabled: false`.
 Writes then go through the router at write priority, as a SCADA write would; the drive's own
 exception comes back by its INVT name (`operation_failure` for 04H), the gateway's as its reason.
+Each drive is resolved to its route once, when the bridge is built: a command names a drive and
+goes straight to its route.
 """
 
 from __future__ import annotations
@@ -14,6 +16,8 @@ from __future__ import annotations
 import logging
 import struct
 import time
+from collections.abc import Awaitable, Callable, Mapping
+from dataclasses import dataclass
 from typing import Any, Final
 
 from gateway.config import MqttConfig
@@ -25,98 +29,77 @@ from gateway.errors import (
     QueueFull,
 )
 from gateway.modbus.functions import is_exception
+from gateway.mqtt.dispatcher import Incoming
 from gateway.mqtt.requests import (
-    BRIDGE_READ_KEYS,
-    BRIDGE_WRITE_KEYS,
     CommandRefused,
     Json,
     RegisterRead,
     RegisterWrite,
     check_age,
-    check_keys,
     check_waited,
     error_response,
     ok_response,
     parse_object,
-    parse_read,
-    parse_set,
-    parse_write,
     transaction_of,
 )
 from gateway.poller import Poller
-from gateway.profile import DriveProfile, describe_exception, exception_name, get_profile
-from gateway.router import MAX_READ_WORDS, Router
+from gateway.profile import DriveProfile, describe_exception, exception_name
+from gateway.routing import MAX_READ_WORDS, Route, Router
 
 log = logging.getLogger(__name__)
 
 MQTT_CLIENT: Final = "mqtt"
 """The bus's name for requests from MQTT (its own round-robin share, like one SCADA client)."""
 
+Run = Callable[[Json], Awaitable[Json]]
+
 
 class DriveRefused(ModbusError):
     """The drive answered with an exception response."""
 
 
-class CommandHandler:
+@dataclass(frozen=True, slots=True)
+class CommandDrive:
+    """A drive as commands reach it: its route and its profile."""
+
+    name: str
+    route: Route
+    profile: DriveProfile
+
+    @property
+    def read_limit(self) -> int:
+        # When the router splits reads for this drive (on by default for INVT models), one
+        # message may ask for what one Modbus read can carry; otherwise the drive's own limit.
+        return MAX_READ_WORDS if self.route.max_words is not None else self.profile.max_words
+
+
+class Commands:
     def __init__(
         self,
         config: MqttConfig,
         router: Router,
         poller: Poller,
-        models: dict[str, str],
+        drives: Mapping[str, CommandDrive],
     ) -> None:
         self.config = config
         self.router = router
         self.poller = poller
-        self.profiles: dict[str, DriveProfile] = {n: get_profile(m) for n, m in models.items()}
+        self.drives = drives
         self.executed = 0
         self.refused = 0
 
-    # Each takes `received_at`, the monotonic time the bridge received the message: what waited
+    # `received_at` of each message is the monotonic time the bridge received it: what waited
     # longer than `command_max_age_s` before its turn came is refused, not run late.
 
-    async def drive_set(
-        self, drive: str, payload: bytes, retained: bool, received_at: float
-    ) -> Json:
-        """`<base>/<drive>/set` → the `<base>/<drive>/set/response` payload."""
-        return await self._answer(
-            payload, retained, received_at, True, lambda m: self._set(drive, m)
-        )
-
-    async def write_parameter(self, payload: bytes, retained: bool, received_at: float) -> Json:
-        return await self._answer(payload, retained, received_at, True, self._bridge_write)
-
-    async def read_parameter(self, payload: bytes, retained: bool, received_at: float) -> Json:
-        # A read changes nothing on the drive: monitoring-only gateways still answer it.
-        return await self._answer(payload, retained, received_at, False, self._bridge_read)
-
-    async def drive_get(
-        self, drive: str, payload: bytes, retained: bool, received_at: float
-    ) -> bool:
-        """`<base>/<drive>/get`: poll the drive now. False when the request was ignored."""
-        if retained:
-            log.warning("ignored a retained message on %s/get", drive)
-            return False
-        try:
-            check_waited(received_at, self.config.command_max_age_s, time.monotonic())
-        except CommandRefused as exc:
-            log.info("MQTT %s/get ignored: %s", drive, exc)
-            return False
-        await self.poller.refresh(drive)
-        return True
-
-    # -- one command, start to answer --------------------------------------------------------
-
-    async def _answer(
-        self, payload: bytes, retained: bool, received_at: float, writes: bool, run: Any
-    ) -> Json:
+    async def acknowledge(self, message: Incoming, writes: bool, run: Run) -> Json:
+        """Check the command, `run` it, and the answer: ok with its data, or why not."""
         transaction: Any = None
         try:
-            message = parse_object(payload)
-            transaction = transaction_of(message)
-            self._check_allowed(message, retained, writes)
-            check_waited(received_at, self.config.command_max_age_s, time.monotonic())
-            data: Json = await run(message)
+            payload = parse_object(message.payload)
+            transaction = transaction_of(payload)
+            self._check_allowed(payload, message.retained, writes)
+            check_waited(message.received_at, self.config.command_max_age_s, time.monotonic())
+            data = await run(payload)
         except CommandRefused as exc:
             self.refused += 1
             log.warning("MQTT command refused (%s): %s", exc.reason, exc)
@@ -128,7 +111,37 @@ class CommandHandler:
         self.executed += 1
         return ok_response(transaction, data)
 
-    def _check_allowed(self, message: Json, retained: bool, writes: bool) -> None:
+    def may_refresh(self, drive: str, message: Incoming) -> bool:
+        """`<base>/<drive>/get`: False (and logged) when the request is to be ignored."""
+        if message.retained:
+            log.warning("ignored a retained message on %s/get", drive)
+            return False
+        try:
+            check_waited(message.received_at, self.config.command_max_age_s, time.monotonic())
+        except CommandRefused as exc:
+            log.info("MQTT %s/get ignored: %s", drive, exc)
+            return False
+        return True
+
+    def drive_named(self, payload: Json) -> CommandDrive:
+        """The drive a bridge request names in its `drive` key."""
+        name = payload.get("drive")
+        drive = self.drives.get(name) if isinstance(name, str) else None
+        if drive is None:
+            known = ", ".join(sorted(self.drives))
+            raise CommandRefused("unknown_drive", f"drive must be one of: {known}")
+        return drive
+
+    async def write(self, drive: CommandDrive, write: RegisterWrite) -> None:
+        await self._execute(drive, write.pdu)
+        log.info("MQTT command to %s done: %s", drive.name, write.echo)
+        self.poller.poll_now(drive.name)  # its new state out at once, not at the next interval
+
+    async def read(self, drive: CommandDrive, read: RegisterRead) -> list[int]:
+        reply = await self._execute(drive, read.pdu)
+        return list(struct.unpack(f">{read.count}H", reply[2 : 2 + 2 * read.count]))
+
+    def _check_allowed(self, payload: Json, retained: bool, writes: bool) -> None:
         if retained:
             raise CommandRefused(
                 "retained", "a retained command is never executed: publish without retain"
@@ -137,63 +150,14 @@ class CommandHandler:
             raise CommandRefused(
                 "commands_disabled", "this gateway is monitoring only (commands_enabled: false)"
             )
-        check_age(message, self.config.command_max_age_s, time.time())
+        check_age(payload, self.config.command_max_age_s, time.time())
 
-    async def _set(self, drive: str, message: Json) -> Json:
-        write = parse_set(message, self._profile(drive))
-        await self._write(drive, write)
-        return write.echo
-
-    async def _bridge_write(self, message: Json) -> Json:
-        check_keys(message, BRIDGE_WRITE_KEYS)
-        drive = self._drive_named(message)
-        write = parse_write(message, self._profile(drive))
-        await self._write(drive, write)
-        return {"drive": drive, **write.echo}
-
-    async def _bridge_read(self, message: Json) -> Json:
-        check_keys(message, BRIDGE_READ_KEYS)
-        drive = self._drive_named(message)
-        read = parse_read(message, self._read_limit(drive))
-        words = await self._read(drive, read)
-        return {"drive": drive, **read.echo, **read.result(words)}
-
-    # -- the bus -----------------------------------------------------------------------------
-
-    async def _write(self, drive: str, write: RegisterWrite) -> None:
-        await self._execute(drive, write.pdu)
-        log.info("MQTT command to %s done: %s", drive, write.echo)
-        self.poller.after_write(drive)
-
-    async def _read(self, drive: str, read: RegisterRead) -> list[int]:
-        reply = await self._execute(drive, read.pdu)
-        return list(struct.unpack(f">{read.count}H", reply[2 : 2 + 2 * read.count]))
-
-    async def _execute(self, drive: str, pdu: bytes) -> bytes:
-        route = self.router.route_for_drive(drive)
-        reply = await self.router.execute(route.unit_id, pdu, client=MQTT_CLIENT)
-        assert reply is not None  # only broadcasts have none
+    async def _execute(self, drive: CommandDrive, pdu: bytes) -> bytes:
+        reply = await self.router.request(drive.route, pdu, client=MQTT_CLIENT)
         if is_exception(reply):
             code = reply[1] if len(reply) > 1 else 0
             raise DriveRefused(describe_exception(code), code)
         return reply
-
-    def _drive_named(self, message: Json) -> str:
-        drive = message.get("drive")
-        if not isinstance(drive, str) or drive not in self.profiles:
-            known = ", ".join(sorted(self.profiles))
-            raise CommandRefused("unknown_drive", f"drive must be one of: {known}")
-        return drive
-
-    def _profile(self, drive: str) -> DriveProfile:
-        return self.profiles[drive]
-
-    def _read_limit(self, drive: str) -> int:
-        # When the router splits reads for this drive (on by default for INVT models), one
-        # message may ask for what one Modbus read can carry; otherwise the drive's own limit.
-        if self.router.route_for_drive(drive).max_words is not None:
-            return MAX_READ_WORDS
-        return self._profile(drive).max_words
 
 
 def modbus_error(exc: ModbusError) -> tuple[str, int]:

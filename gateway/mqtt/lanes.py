@@ -19,7 +19,7 @@ import logging
 from collections import deque
 from collections.abc import Awaitable, Callable
 
-from gateway.tasks import cancel_and_wait
+from gateway.tasks import ServiceTasks, cancel_and_wait
 
 log = logging.getLogger(__name__)
 
@@ -27,8 +27,11 @@ Job = Callable[[], Awaitable[None]]
 
 
 class Lanes:
-    def __init__(self, max_waiting: int) -> None:
+    def __init__(self, max_waiting: int, tasks: ServiceTasks | None = None) -> None:
+        """`tasks`: the service's, so a lane that dies of a bug stops the service; without
+        (lanes used on their own), plain tasks."""
         self.max_waiting = max_waiting
+        self._service_tasks = tasks
         self.dropped = 0
         """Jobs forgotten before they started (their connection was lost, or stop)."""
         self._waiting: dict[str, deque[Job]] = {}
@@ -43,7 +46,12 @@ class Lanes:
             return False
         waiting.append(job)
         if lane not in self._workers:
-            task = asyncio.create_task(self._run(lane, waiting), name=f"mqtt:lane:{lane}")
+            name = f"mqtt:lane:{lane}"
+            work = self._run(lane, waiting)
+            if self._service_tasks is not None:
+                task = self._service_tasks.start(name, work)
+            else:
+                task = asyncio.create_task(work, name=name)
             self._workers[lane] = task
             self._tasks.add(task)
             task.add_done_callback(self._tasks.discard)

@@ -1,5 +1,9 @@
 """MQTT command payloads read into bus requests, and the answers written back. No I/O.
 
+This module reads JSON: keys, types, spellings. What a command means in registers (a command
+with a set-point is one 10H write of 2000H-2001H, where a RAM-only write goes, a register's
+decimals) is the drive profile's (`gateway.profile.commands`).
+
 A command is refused before it reaches the bus when it is malformed, retained, stale or its value
 can't be written; every refusal is a `CommandRefused` with a short `reason` the response carries
 (`invalid_request`, `invalid_value`, `stale`, `retained`, `commands_disabled`, `unknown_drive`).
@@ -28,22 +32,15 @@ from gateway.modbus.functions import (
     WRITE_MULTIPLE_REGISTERS,
     WRITE_SINGLE_REGISTER,
 )
-from gateway.profile import (
-    DriveProfile,
-    control_command,
-    format_register,
-    is_parameter_register,
-    is_ram_address,
-    parameter_at,
-    parse_register,
-    register_at,
-    register_by_name,
+from gateway.profile import DriveProfile, control_command, format_register, parse_register
+from gateway.profile.commands import (
+    control_write,
+    is_signed,
+    known_decimals,
+    ram_only_address,
+    setpoint_word,
 )
-from gateway.profile.addressing import RAM_BIT
-from gateway.profile.ram_writes import ram_write_address
 
-CONTROL_WORD: Final = register_by_name("control_word")
-FREQUENCY_SETPOINT: Final = register_by_name("frequency_setpoint")
 MILLISECONDS_EPOCH: Final = 1e11
 """A `time` above this is taken as milliseconds (JavaScript's Date.now()), not seconds."""
 
@@ -197,23 +194,20 @@ def parse_set(message: Json, profile: DriveProfile) -> RegisterWrite:
         )
     frequency = _frequency(message["frequency_hz"]) if has_frequency else None
     echo: Json = {}
-    if not has_command:
-        assert frequency is not None
+    command = None
+    if has_command:
+        name = message["command"]
+        if not isinstance(name, str):
+            raise CommandRefused("invalid_request", "command must be a string")
+        try:
+            command = control_command(name)
+        except ValueError as exc:
+            raise CommandRefused("invalid_request", str(exc)) from None
+        echo["command"] = command.name.lower()
+    if has_frequency:
         echo["frequency_hz"] = message["frequency_hz"]
-        return RegisterWrite(FREQUENCY_SETPOINT.address, (frequency,), echo)
-    name = message["command"]
-    if not isinstance(name, str):
-        raise CommandRefused("invalid_request", "command must be a string")
-    try:
-        command = control_command(name)
-    except ValueError as exc:
-        raise CommandRefused("invalid_request", str(exc)) from None
-    echo["command"] = command.name.lower()
-    if frequency is None:
-        return RegisterWrite(CONTROL_WORD.address, (int(command),), echo)
-    echo["frequency_hz"] = message["frequency_hz"]
-    # One 10H write of 2000H-2001H: the command and its set-point reach the drive together.
-    return RegisterWrite(CONTROL_WORD.address, (int(command), frequency), echo)
+    write = control_write(command, frequency)
+    return RegisterWrite(write.start, write.words, echo)
 
 
 def _frequency(value: Any) -> int:
@@ -223,7 +217,7 @@ def _frequency(value: Any) -> int:
             "invalid_value", "frequency_hz must be 0 or more: use run_reverse for reverse"
         )
     try:
-        return FREQUENCY_SETPOINT.encode(number)
+        return setpoint_word(number)
     except ValueError as exc:
         raise CommandRefused("invalid_value", str(exc)) from None
 
@@ -251,20 +245,12 @@ def parse_write(message: Json, profile: DriveProfile) -> RegisterWrite:
         echo["value"] = message["value"]
     start = address
     if ram_only:
-        start = _ram_target(address, spelled, profile)
+        try:
+            start = ram_only_address(address, spelled, profile)
+        except ValueError as exc:
+            raise CommandRefused("invalid_request", str(exc)) from None
         echo["ram_only"] = True
     return RegisterWrite(start, (raw,), echo)
-
-
-def _ram_target(address: int, spelled: str, profile: DriveProfile) -> int:
-    if not profile.ram_writes_supported:
-        raise CommandRefused("invalid_request", f"{profile.display_name} has no RAM-only writes")
-    # The profile's one rule, the same the router applies to a drive with `ram_writes: true`
-    # (which then leaves this address alone: it is already the RAM-only one).
-    ram = ram_write_address(address)
-    if not is_ram_address(ram):
-        raise CommandRefused("invalid_request", f"{spelled} is not a parameter: no RAM-only write")
-    return ram
 
 
 def parse_read(message: Json, max_count: int) -> RegisterRead:
@@ -277,8 +263,7 @@ def parse_read(message: Json, max_count: int) -> RegisterRead:
     if address + count > 0x10000:
         raise CommandRefused("invalid_request", f"count {count} from {spelled} passes FFFFH")
     decimals = _decimals(message, address)
-    communication = register_at(address)
-    signed = communication is not None and communication.signed
+    signed = is_signed(address)
     echo: Json = {"parameter": spelled, "register": format_register(address)}
     if count != 1:
         echo["count"] = count
@@ -307,11 +292,7 @@ def _decimals(message: Json, address: int) -> int | None:
         if isinstance(decimals, bool) or not isinstance(decimals, int) or not 0 <= decimals <= 4:
             raise CommandRefused("invalid_request", "decimals must be 0..4")
         return decimals
-    communication = register_at(address)
-    if communication is not None:
-        return communication.decimals
-    known = parameter_at(address & ~RAM_BIT) if is_parameter_register(address) else None
-    return None if known is None else known.decimals
+    return known_decimals(address)
 
 
 def _number(value: Any, key: str) -> float:
@@ -366,3 +347,8 @@ def error_response(
     if transaction is not None:
         response["transaction"] = transaction
     return response
+
+
+def dump(payload: Json) -> str:
+    """A payload as the bridge publishes it: compact JSON."""
+    return json.dumps(payload, separators=(",", ":"))

@@ -20,9 +20,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Final
-
-BRIDGE_REQUESTS: Final = ("read_parameter", "write_parameter")
 
 
 @dataclass(frozen=True, slots=True)

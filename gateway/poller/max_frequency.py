@@ -10,16 +10,14 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import struct
 from collections.abc import Iterable
 from typing import Final
 
-from gateway.bus import Priority
 from gateway.config import DriveConfig
 from gateway.errors import GatewayError
-from gateway.modbus.functions import READ_HOLDING_REGISTERS, is_exception
+from gateway.modbus.functions import is_exception
 from gateway.profile.parameters import parameter, unscale_parameter
-from gateway.router import Router
+from gateway.routing import Router
 
 log = logging.getLogger(__name__)
 
@@ -53,11 +51,9 @@ async def read_max_frequencies(
 
 
 async def _read(router: Router, drive: DriveConfig) -> float | None:
-    pdu = struct.pack(">BHH", READ_HOLDING_REGISTERS, parameter(MAX_FREQUENCY).address, 1)
     try:
-        reply = await router.execute(
-            drive.effective_unit_id, pdu, client="poll", priority=Priority.POLL, use_cache=False
-        )
+        route = router.route_for_drive(drive.name)
+        reply = await router.poll(route, parameter(MAX_FREQUENCY).address, 1)
     except GatewayError as exc:
         log.debug("drive %s: %s not read at start: %s", drive.name, MAX_FREQUENCY, exc)
         return None

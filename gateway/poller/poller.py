@@ -1,9 +1,10 @@
 """The poller: one loop per drive reading its poll groups through the router, at poll priority.
 
-Polls go through the same router and bus queue as SCADA, with `Priority.POLL`: a SCADA write or
-read is always served before any waiting poll, so a burst of polls never delays a stop command.
-Each answer is stored in the register cache and in the drive's state; listeners (the MQTT bridge)
-hear of every new state and event through plain calls that must not block.
+The poller only schedules: it asks the router to `poll` (the router carries the read at
+`Priority.POLL` through the same bus queue as SCADA, so a SCADA write or read is always served
+before any waiting poll, and keeps the answer in its cache). Each answer goes into the drive's
+state; listeners (the MQTT bridge) hear of every new state and event through plain calls that
+must not block.
 
 Whether a drive is online is the bus's call, not the poller's: the bus counts every failed
 transaction to the drive (SCADA's too) against its `offline_after` and tells its listeners
@@ -25,21 +26,18 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Final, Protocol
 
-from gateway.bus import Priority
-from gateway.cache import RegisterCache
 from gateway.config import DriveConfig
 from gateway.errors import BusClosed, DriveOffline, GatewayPathUnavailable, GatewayTargetFailed
-from gateway.modbus.functions import READ_HOLDING_REGISTERS, is_exception
+from gateway.modbus.functions import is_exception
 from gateway.poller.drive_state import DriveEvent, DriveState
 from gateway.poller.plan import PollBlock, PollSchedule, poll_schedules
 from gateway.profile import exception_name, format_register
 from gateway.profile.telemetry import Telemetry
-from gateway.router import Router
-from gateway.tasks import cancel_and_wait
+from gateway.routing import Route, Router
+from gateway.tasks import ServiceTasks, cancel_and_wait
 
 log = logging.getLogger(__name__)
 
-POLL_CLIENT: Final = "poll"
 OFFLINE_POLL_MAX_S: Final = 30.0
 STOP_BUDGET_S: Final = 0.5
 
@@ -63,6 +61,7 @@ class _GroupTimer:
 @dataclass(slots=True)
 class PolledDrive:
     config: DriveConfig
+    route: Route
     state: DriveState
     timers: list[_GroupTimer]
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)
@@ -75,15 +74,17 @@ class PolledDrive:
 
 
 class Poller:
-    def __init__(self, drives: Iterable[DriveConfig], router: Router, cache: RegisterCache) -> None:
+    def __init__(self, drives: Iterable[DriveConfig], router: Router, tasks: ServiceTasks) -> None:
         self.router = router
-        self.cache = cache
+        self.tasks = tasks
         self.drives: dict[str, PolledDrive] = {}
         self._by_bus_address: dict[tuple[str, int], str] = {}
         for config in drives:
             profile = config.profile()
             timers = [_GroupTimer(s) for s in poll_schedules(config, profile)]
-            self.drives[config.name] = PolledDrive(config, DriveState(config.name, profile), timers)
+            route = router.route_for_drive(config.name)
+            state = DriveState(config.name, profile)
+            self.drives[config.name] = PolledDrive(config, route, state, timers)
             self._by_bus_address[(config.bus, config.address)] = config.name
         self._listeners: list[PollListener] = []
         self._task: asyncio.Task[None] | None = None
@@ -105,7 +106,7 @@ class Poller:
 
             configs = [drive.config for drive in self.drives.values()]
             self.max_frequency_hz = await read_max_frequencies(self.router, configs)
-        self._task = asyncio.create_task(self._run(), name="poller")
+        self._task = self.tasks.start("poller", self._run())
 
     async def stop(self) -> None:
         if self._task is not None:
@@ -131,9 +132,8 @@ class Poller:
         else:
             self._set_online(drive, False)
 
-    def after_write(self, name: str) -> None:
-        """A command wrote to the drive: forget the cached words and poll it again now."""
-        self.cache.invalidate(name)
+    def poll_now(self, name: str) -> None:
+        """Poll drive `name` again now (a command wrote to it: show its new state at once)."""
         drive = self.drives.get(name)
         if drive is not None:
             self._poll_soon(drive)
@@ -199,20 +199,10 @@ class Poller:
     async def _poll_block(self, drive: PolledDrive, block: PollBlock) -> bool:
         """Read one block; False when the drive gave no answer (skip the rest of the group)."""
         config = drive.config
-        pdu = struct.pack(">BHH", READ_HOLDING_REGISTERS, block.start, block.count)
         self.polls += 1
         drive.polls += 1
-        # The cache only takes what was true when the poll was issued and no write followed.
-        issued_at = time.monotonic()
-        generation = self.cache.generation(config.name)
         try:
-            reply = await self.router.execute(
-                config.effective_unit_id,
-                pdu,
-                client=POLL_CLIENT,
-                priority=Priority.POLL,
-                use_cache=False,
-            )
+            reply = await self.router.poll(drive.route, block.start, block.count)
         except BusClosed:
             return False  # shutting down: not the drive's failure, nothing to count
         except DriveOffline:
@@ -226,12 +216,10 @@ class Poller:
             # Queue full: the bus is busy with more urgent work; the next interval tries again.
             log.debug("poll of %s skipped: %s", config.name, exc)
             return True
-        assert reply is not None
         if is_exception(reply):
             self._drive_refused(drive, block, reply[1] if len(reply) > 1 else 0)
             return True
         words = list(struct.unpack(f">{(len(reply) - 2) // 2}H", reply[2:]))
-        self.cache.store(config.name, block.start, words, issued_at, generation)
         self._answered(drive, block.start, words)
         return True
 
@@ -258,8 +246,6 @@ class Poller:
             self._set_online(drive, False)
 
     def _set_online(self, drive: PolledDrive, online: bool) -> None:
-        if not online:
-            self.cache.forget(drive.config.name)  # what it said before is no longer current
         events = drive.state.set_online(online)
         if events:
             log.warning("drive %s is %s", drive.config.name, "online" if online else "offline")

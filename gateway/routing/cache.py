@@ -1,14 +1,15 @@
 """The poll cache: the last value polled of each register, with when the poll was issued.
 
-The poller stores every poll result here; the router may answer a SCADA read from it when every
-register asked for is fresh enough (`cache_max_age_ms` of that drive), so many readers of the same
-values cost no bus time at all.
+The router owns it (`gateway.routing.router`): it stores every poll's answer here and may answer a
+SCADA read from it when every register asked for is fresh enough (`cache_max_age_ms` of that
+drive), so many readers of the same values cost no bus time at all.
 
 Two rules keep it from ever answering with a value the drive no longer has:
 - a value is as old as the moment its poll was *issued* (queued), not answered: the drive may
   have changed in between, never after;
-- a write through the gateway bumps the drive's write generation and forgets what the drive said;
-  a poll issued before that write (it may carry the old value) is not stored.
+- a write through the gateway bumps the drive's write generation and forgets what the drive said,
+  when it goes out and again when it is answered; a poll issued before the write is answered (it
+  may carry the old value) is not stored.
 Polls themselves never read the cache: a poll is how the cache learns what the drive says.
 """
 

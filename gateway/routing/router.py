@@ -1,19 +1,31 @@
-"""Routing: a Modbus unit id to a drive, its bus and its address on that bus.
+"""Routing: a Modbus unit id (or a drive's name) to a drive, its bus and its address on that bus.
 
-Besides the lookup, the router applies what a drive's profile says about its requests (handed in
-as data: the router knows no vendor): reads and writes over the drive's word limit are split into
-several transactions and reassembled; writes to parameters may go to their RAM-only address.
+The router is the one way to a drive, for every part that asks: the TCP server (`execute`, by
+unit id), the MQTT commands (`request`, by the `Route` they resolved once) and the poller
+(`poll`). It owns the poll cache, and is the only part that touches it:
+
+    read-through   a 03H read of a drive with `cache_max_age_s` is answered from the cache when
+                   every word asked for is fresh enough; otherwise it goes to the drive
+    write-through  a write invalidates the drive's cache before it goes out and again when it is
+                   answered: no poll issued before or during the write is ever stored
+    polls          `poll` always asks the drive (a poll is how the cache learns) and stores what
+                   it says, unless a write went out since the poll was issued
+    offline        a drive its bus isolates as offline is forgotten (`on_drive_health`)
+
+Besides, the router applies what a drive's profile says about its requests (handed in as data:
+the router knows no vendor): reads and writes over the drive's word limit are split into several
+transactions and reassembled; writes to parameters may go to their RAM-only address.
 """
 
 from __future__ import annotations
 
 import asyncio
 import struct
+import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 from gateway.bus import Bus, Priority
-from gateway.cache import RegisterCache
 from gateway.errors import GatewayPathUnavailable
 from gateway.modbus.functions import (
     BROADCAST_WRITES,
@@ -25,9 +37,12 @@ from gateway.modbus.functions import (
     is_exception,
 )
 from gateway.modbus.rtu import BROADCAST_ADDRESS
+from gateway.routing.cache import RegisterCache
 
 MAX_READ_WORDS = 125  # the Modbus limit; beyond it the request is the drive's to refuse
 MAX_WRITE_WORDS = 123
+POLL_CLIENT = "poll"
+"""The bus's name for the poller's requests (its own round-robin share, like one SCADA client)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -47,12 +62,11 @@ class Route:
 
 
 class Router:
-    def __init__(
-        self, routes: Iterable[Route], buses: Iterable[Bus], cache: RegisterCache | None = None
-    ) -> None:
-        self.cache = cache or RegisterCache()
+    def __init__(self, routes: Iterable[Route], buses: Iterable[Bus]) -> None:
+        self.cache = RegisterCache()
         self._routes = {route.unit_id: route for route in routes}
         self._by_drive = {route.drive: route for route in self._routes.values()}
+        self._by_bus_address = {(r.bus.name, r.address): r for r in self._routes.values()}
         self.buses = tuple(buses)
 
     @property
@@ -71,36 +85,64 @@ class Router:
             raise GatewayPathUnavailable(f"no drive named {name!r}")
         return route
 
-    async def execute(
-        self,
-        unit_id: int,
-        pdu: bytes,
-        *,
-        client: str,
-        priority: Priority | None = None,
-        use_cache: bool = True,
-    ) -> bytes | None:
-        """Carry `pdu` to the drive with `unit_id`; its reply PDU, or None for a broadcast.
+    # -- the route API -------------------------------------------------------------------------
 
-        `use_cache=False` always asks the drive: polls (which fill the cache) and explicit
-        refreshes must never be answered from it.
-        """
-        function = pdu[0]
-        if priority is None:
-            priority = Priority.WRITE if function in WRITES else Priority.READ
+    async def execute(
+        self, unit_id: int, pdu: bytes, *, client: str, priority: Priority | None = None
+    ) -> bytes | None:
+        """Carry `pdu` to the drive with `unit_id`; its reply PDU, or None for a broadcast."""
         if unit_id == BROADCAST_ADDRESS:
             for route in self._routes.values():  # every drive may have changed
                 self.cache.invalidate(route.drive)
             await self._broadcast(pdu, client)
             return None
-        route = self.route(unit_id)
-        if use_cache and route.cache_max_age_s is not None:
+        return await self.request(self.route(unit_id), pdu, client=client, priority=priority)
+
+    async def request(
+        self, route: Route, pdu: bytes, *, client: str, priority: Priority | None = None
+    ) -> bytes:
+        """Carry `pdu` to the drive of `route`: from the cache when it may, through it always."""
+        if pdu[0] in WRITES:
+            return await self._write_through(route, pdu, client, priority or Priority.WRITE)
+        if route.cache_max_age_s is not None:
             cached = self._from_cache(route, pdu)
             if cached is not None:
                 return cached
-        if function in WRITES:
-            # Whatever the cache holds for this drive may be what the write is about to change.
+        return await self._forward(route, pdu, client, priority or Priority.READ)
+
+    async def poll(self, route: Route, start: int, count: int) -> bytes:
+        """Read `count` words from `start` of the drive, never from the cache, at poll priority;
+        the reply PDU (an exception reply too). What the drive says goes into the cache."""
+        pdu = struct.pack(">BHH", READ_HOLDING_REGISTERS, start, count)
+        # The cache only takes what was true when the poll was issued and no write followed.
+        issued_at = time.monotonic()
+        generation = self.cache.generation(route.drive)
+        reply = await self._forward(route, pdu, POLL_CLIENT, Priority.POLL)
+        if not is_exception(reply):
+            words = struct.unpack(f">{(len(reply) - 2) // 2}H", reply[2:])
+            self.cache.store(route.drive, start, words, issued_at, generation)
+        return reply
+
+    def on_drive_health(self, bus: str, address: int, online: bool) -> None:
+        """Bus listener: nothing an offline drive said before may be served as current."""
+        route = self._by_bus_address.get((bus, address))
+        if route is not None and not online:
+            self.cache.forget(route.drive)
+
+    # -- inside ----------------------------------------------------------------------------------
+
+    async def _write_through(
+        self, route: Route, pdu: bytes, client: str, priority: Priority
+    ) -> bytes:
+        # Whatever the cache holds for this drive may be what the write is about to change; a
+        # poll issued while the write is on its way may read it half done: forget both.
+        self.cache.invalidate(route.drive)
+        try:
+            return await self._forward(route, pdu, client, priority)
+        finally:
             self.cache.invalidate(route.drive)
+
+    async def _forward(self, route: Route, pdu: bytes, client: str, priority: Priority) -> bytes:
         sent = pdu if route.ram_address is None else _to_ram(pdu, route.ram_address)
         split = None if route.max_words is None else _split(sent, route.max_words)
         if split is not None:

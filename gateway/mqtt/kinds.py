@@ -1,0 +1,249 @@
+"""The kinds of message the bridge takes, each knowing its lane, how to run it and answer it.
+
+| topic                                  | kind            | lane                           |
+|----------------------------------------|-----------------|--------------------------------|
+| <base>/<drive>/set                     | DriveCommand    | the drive's                    |
+| <base>/<drive>/get                     | DriveRefresh    | the drive's refreshes          |
+| <base>/bridge/request/<op>             | BRIDGE_REQUESTS | the named drive's, or "bridge" |
+| <discovery_prefix>/status              | DiscoveryAsked  | "discovery"                    |
+| <base>/bridge/info                     | GatewayInfo     | none: checked at once          |
+
+A new `bridge/request/<op>` is one class here, derived from `BridgeRequest` and listed in
+`BRIDGE_REQUESTS`: its topic, subscription, lane, safety checks and answer come with it. What a
+command means in registers is the profile's (`gateway.profile.commands`), its payload's shape
+`gateway.mqtt.requests`'.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import ClassVar, Final
+
+import aiomqtt
+
+from gateway.mqtt.commands import CommandDrive, Commands
+from gateway.mqtt.dispatcher import CommandKind, Incoming
+from gateway.mqtt.lanes import Lanes
+from gateway.mqtt.publisher import Publisher
+from gateway.mqtt.requests import (
+    BRIDGE_READ_KEYS,
+    BRIDGE_WRITE_KEYS,
+    CommandRefused,
+    Json,
+    check_keys,
+    dump,
+    parse_object,
+    parse_read,
+    parse_set,
+    parse_write,
+)
+from gateway.mqtt.stats import BridgeStats
+from gateway.mqtt.topics import Topics
+from gateway.poller import Poller
+
+log = logging.getLogger(__name__)
+
+BRIDGE_LANE: Final = "bridge"
+
+
+@dataclass(slots=True)
+class Context:
+    """What the kinds share: the parts they use, and where the gateway stands on the broker."""
+
+    topics: Topics
+    commands: Commands
+    publisher: Publisher
+    poller: Poller
+    lanes: Lanes
+    stats: BridgeStats
+    gateway_id: str
+    discovery_prefix: str
+    other_gateways: set[str] = field(default_factory=set)
+
+
+def drive_lane(drive: str) -> str:
+    """Commands to one drive run in the order they came, a bridge request about it too."""
+    return f"drive:{drive}"
+
+
+class DriveCommand:
+    """`<base>/<drive>/set`: a control command, a set-point, or a parameter write."""
+
+    def __init__(self, context: Context, drive: CommandDrive) -> None:
+        self.context = context
+        self.drive = drive
+        self.response_topic = context.topics.set_response(drive.name)
+
+    def lane(self, message: Incoming) -> str | None:
+        self.context.stats.commands_received += 1
+        return drive_lane(self.drive.name)
+
+    async def run(self, client: aiomqtt.Client, message: Incoming) -> None:
+        response = await self.context.commands.acknowledge(message, True, self._set)
+        await self.context.publisher.publish(client, self.response_topic, dump(response))
+
+    async def _set(self, payload: Json) -> Json:
+        write = parse_set(payload, self.drive.profile)
+        await self.context.commands.write(self.drive, write)
+        return write.echo
+
+
+class DriveRefresh:
+    """`<base>/<drive>/get`: poll the drive now and publish its state (no answer of its own)."""
+
+    response_topic = None
+
+    def __init__(self, context: Context, drive: str) -> None:
+        self.context = context
+        self.drive = drive
+
+    def lane(self, message: Incoming) -> str | None:
+        lane = f"get:{self.drive}"
+        if self.context.lanes.waiting(lane):
+            self.context.stats.ignored += 1  # the refresh already waiting publishes the same
+            return None
+        return lane
+
+    async def run(self, client: aiomqtt.Client, message: Incoming) -> None:
+        context = self.context
+        if context.commands.may_refresh(self.drive, message):
+            await context.poller.refresh(self.drive)
+            telemetry = context.poller.telemetry(self.drive)
+            await context.publisher.state(client, self.drive, telemetry, force=True)
+
+
+class BridgeRequest:
+    """`<base>/bridge/request/<operation>`, answered on `<base>/bridge/response/<operation>`."""
+
+    operation: ClassVar[str]
+    writes: ClassVar[bool]
+    """A request that changes the drive: refused with `commands_enabled: false`."""
+
+    def __init__(self, context: Context) -> None:
+        self.context = context
+        self.response_topic = context.topics.bridge_response(self.operation)
+
+    def lane(self, message: Incoming) -> str | None:
+        try:
+            drive = parse_object(message.payload).get("drive")
+        except CommandRefused:
+            return BRIDGE_LANE  # answered at once: invalid_request
+        if isinstance(drive, str) and drive in self.context.commands.drives:
+            return drive_lane(drive)
+        return BRIDGE_LANE
+
+    async def run(self, client: aiomqtt.Client, message: Incoming) -> None:
+        response = await self.context.commands.acknowledge(message, self.writes, self.execute)
+        await self.context.publisher.publish(client, self.response_topic, dump(response))
+
+    async def execute(self, payload: Json) -> Json:
+        """The request's `data` once done; raises CommandRefused or a ModbusError."""
+        raise NotImplementedError
+
+
+class ReadParameter(BridgeRequest):
+    """`{"drive": "pump1", "parameter": "P07.27", "count": 6}`; a read changes nothing on the
+    drive: monitoring-only gateways still answer it."""
+
+    operation = "read_parameter"
+    writes = False
+
+    async def execute(self, payload: Json) -> Json:
+        check_keys(payload, BRIDGE_READ_KEYS)
+        drive = self.context.commands.drive_named(payload)
+        read = parse_read(payload, drive.read_limit)
+        words = await self.context.commands.read(drive, read)
+        return {"drive": drive.name, **read.echo, **read.result(words)}
+
+
+class WriteParameter(BridgeRequest):
+    """`{"drive": "pump1", "parameter": "P00.11", "value": 10.0}`."""
+
+    operation = "write_parameter"
+    writes = True
+
+    def lane(self, message: Incoming) -> str | None:
+        self.context.stats.commands_received += 1
+        return super().lane(message)
+
+    async def execute(self, payload: Json) -> Json:
+        check_keys(payload, BRIDGE_WRITE_KEYS)
+        drive = self.context.commands.drive_named(payload)
+        write = parse_write(payload, drive.profile)
+        await self.context.commands.write(drive, write)
+        return {"drive": drive.name, **write.echo}
+
+
+BRIDGE_REQUESTS: Final[tuple[type[BridgeRequest], ...]] = (ReadParameter, WriteParameter)
+"""Every `bridge/request/<op>` the gateway answers."""
+
+
+class DiscoveryAsked:
+    """Home Assistant came (back) online: it wants the discovery messages again."""
+
+    response_topic = None
+
+    def __init__(self, context: Context) -> None:
+        self.context = context
+
+    def lane(self, message: Incoming) -> str | None:
+        if message.payload.strip() != b"online" or self.context.lanes.waiting("discovery"):
+            return None
+        return "discovery"
+
+    async def run(self, client: aiomqtt.Client, message: Incoming) -> None:
+        await self.context.publisher.discovery(client)
+
+
+class GatewayInfo:
+    """Our own `bridge/info`: another gateway publishing it would overwrite our retained state."""
+
+    response_topic = None
+
+    def __init__(self, context: Context) -> None:
+        self.context = context
+
+    def lane(self, message: Incoming) -> str | None:
+        self._check_alone(message.payload)
+        return None
+
+    async def run(self, client: aiomqtt.Client, message: Incoming) -> None:
+        pass  # never queued: `lane` checked it
+
+    def _check_alone(self, payload: bytes) -> None:
+        context = self.context
+        try:
+            other = json.loads(payload).get("gateway_id")
+        except (ValueError, AttributeError):
+            return
+        if isinstance(other, str) and other != context.gateway_id:
+            context.stats.conflicts += 1
+            if other not in context.other_gateways:
+                context.other_gateways.add(other)
+                log.error(
+                    "MQTT: gateway %r also publishes under %r: give each gateway its own "
+                    "base_topic",
+                    other,
+                    context.topics.base,
+                )
+
+
+def command_kinds(
+    context: Context, drives: Mapping[str, CommandDrive], discovery: bool
+) -> dict[str, CommandKind]:
+    """Topic → kind, for every topic the bridge subscribes to."""
+    topics = context.topics
+    kinds: dict[str, CommandKind] = {}
+    for name, drive in drives.items():
+        kinds[topics.set(name)] = DriveCommand(context, drive)
+    for name in drives:
+        kinds[topics.get(name)] = DriveRefresh(context, name)
+    kinds[topics.bridge_info] = GatewayInfo(context)
+    for request in BRIDGE_REQUESTS:
+        kinds[topics.bridge_request(request.operation)] = request(context)
+    if discovery:
+        kinds[f"{context.discovery_prefix}/status"] = DiscoveryAsked(context)
+    return kinds

@@ -1,0 +1,171 @@
+"""What the bridge publishes: gateway info, discovery, drive states, availability and events.
+
+The poller never waits for the broker: it hands states and events to the bounded `Outbox` and
+returns; `run` drains it while connected. A drive's state is published when it changed
+(`last_seen` aside) or every `publish_interval_s`, retained, so a dashboard that subscribes late
+still gets it at once; an availability is published once per connection and change. What a
+broken connection kept from being published goes back to the outbox, to go out after the next
+connect.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import time
+
+import aiomqtt
+
+from gateway import __version__
+from gateway.config import GatewayConfig, MqttConfig
+from gateway.mqtt.connection import OFFLINE, ONLINE
+from gateway.mqtt.discovery import discovery_messages
+from gateway.mqtt.outbox import Outbox, Pending
+from gateway.mqtt.requests import Json, dump
+from gateway.mqtt.stats import BridgeStats
+from gateway.mqtt.topics import Topics
+from gateway.poller import DriveEvent, Poller
+from gateway.poller.drive_state import iso_time
+from gateway.profile.telemetry import Telemetry
+
+log = logging.getLogger(__name__)
+
+QOS = 1
+PUBLISH_TICK_S = 1.0
+"""How often the publisher looks again when nothing new came (the periodic republish)."""
+
+
+class Publisher:
+    def __init__(
+        self,
+        config: GatewayConfig,
+        topics: Topics,
+        outbox: Outbox,
+        poller: Poller,
+        stats: BridgeStats,
+    ) -> None:
+        assert config.mqtt is not None
+        self.config = config
+        self.mqtt: MqttConfig = config.mqtt
+        self.topics = topics
+        self.outbox = outbox
+        self.poller = poller
+        self.stats = stats
+        self._published: dict[str, tuple[str, float]] = {}
+        """Drive → (its last state payload without last_seen, monotonic time published)."""
+        self._availability: dict[str, bool] = {}
+        """Drive → the availability last published on this connection."""
+
+    # -- once per connection -------------------------------------------------------------------
+
+    async def info(self, client: aiomqtt.Client) -> None:
+        await self.publish(client, self.topics.bridge_info, self._info(), retain=True)
+
+    async def catch_up(self, client: aiomqtt.Client) -> None:
+        """After (re)connecting: discovery, every drive's availability and last state."""
+        if self.mqtt.homeassistant_discovery:
+            await self.discovery(client)
+        self._published.clear()
+        self._availability.clear()
+        for drive in self.poller.drives:
+            online = self.poller.availability(drive)
+            if online is not None:
+                await self._publish_availability(client, drive, online)
+            telemetry = self.poller.telemetry(drive)
+            if "last_seen" in telemetry:
+                await self.state(client, drive, telemetry, force=True)
+
+    async def discovery(self, client: aiomqtt.Client) -> None:
+        messages = discovery_messages(
+            self.config, self.mqtt.discovery_prefix, self.topics, self.poller.max_frequency_hz
+        )
+        for topic, payload in messages:
+            await self.publish(client, topic, payload, retain=True)
+        log.info("MQTT: Home Assistant discovery published (%d entities)", len(messages))
+
+    # -- while connected -----------------------------------------------------------------------
+
+    async def run(self, client: aiomqtt.Client) -> None:
+        """Drain the outbox for as long as the connection lasts."""
+        while True:
+            await self.outbox.wait(PUBLISH_TICK_S)
+            pending = self.outbox.take()
+            try:
+                await self._publish_pending(client, pending)
+            finally:
+                # An error or the session's end (a cancellation) halfway: what is left was not
+                # sent; it goes back, in front, for the next connection.
+                if pending:
+                    self.outbox.restore(pending)
+
+    async def state(
+        self, client: aiomqtt.Client, drive: str, telemetry: Telemetry, force: bool = False
+    ) -> None:
+        compared = json.dumps({k: v for k, v in telemetry.items() if k != "last_seen"})
+        last = self._published.get(drive)
+        now = time.monotonic()
+        if not force and last is not None:
+            unchanged = last[0] == compared
+            if unchanged and now - last[1] < self.mqtt.publish_interval_s:
+                return
+        await self.publish(client, self.topics.drive_state(drive), dump(telemetry), retain=True)
+        self._published[drive] = (compared, now)
+
+    async def answer(self, client: aiomqtt.Client, topic: str, response: Json) -> None:
+        """A command's answer; when the connection is gone, there is nobody to tell."""
+        with contextlib.suppress(aiomqtt.MqttError):
+            await self.publish(client, topic, dump(response))
+
+    async def publish(
+        self, client: aiomqtt.Client, topic: str, payload: str, retain: bool = False
+    ) -> None:
+        await client.publish(topic, payload, qos=QOS, retain=retain)
+        self.stats.published += 1
+
+    # -- inside ----------------------------------------------------------------------------------
+
+    async def _publish_pending(self, client: aiomqtt.Client, pending: Pending) -> None:
+        """Publish and remove each item in turn: what is left in `pending` was not sent."""
+        while pending.availability:
+            drive, online = next(iter(pending.availability.items()))
+            await self._publish_availability(client, drive, online)
+            del pending.availability[drive]
+        while pending.events:
+            await self._publish_event(client, pending.events[0])
+            pending.events.popleft()
+        while pending.states:
+            drive, telemetry = next(iter(pending.states.items()))
+            await self.state(client, drive, telemetry)
+            del pending.states[drive]
+
+    async def _publish_availability(self, client: aiomqtt.Client, drive: str, online: bool) -> None:
+        if self._availability.get(drive) is online:
+            return  # already said, on this connection
+        payload = ONLINE if online else OFFLINE
+        await self.publish(client, self.topics.availability(drive), payload, retain=True)
+        self._availability[drive] = online
+
+    async def _publish_event(self, client: aiomqtt.Client, event: DriveEvent) -> None:
+        data = {"drive": event.drive, **event.data, "time": iso_time(event.at)}
+        payload = dump({"type": str(event.kind), "data": data})
+        await self.publish(client, self.topics.bridge_event, payload)
+
+    def _info(self) -> str:
+        return dump(
+            {
+                "gateway_id": self.config.gateway_id,
+                "version": __version__,
+                "commands_enabled": self.mqtt.commands_enabled,
+                "drives": [
+                    {
+                        "name": d.name,
+                        "model": d.model,
+                        "bus": d.bus,
+                        "address": d.address,
+                        "unit_id": d.effective_unit_id,
+                    }
+                    for d in self.config.drives
+                ],
+            }
+        )

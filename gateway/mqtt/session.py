@@ -1,0 +1,172 @@
+"""The bridge's connection to the broker: connect, back off, TLS, subscriptions, offline at stop.
+
+    start    one named task runs the connection loop; start() returns at once (a broker that is
+             down must never delay the gateway: Modbus-TCP serves without it)
+    tls      the TLS context is built once, before the first attempt; a bad file is logged once,
+             naming its key, and tried again with backoff (the loop never ends over it)
+    connect  publish online, then hand the client to `on_connect` (the bridge's session: what to
+             publish, what to subscribe, the tasks that run while connected)
+    lost     any error ends the session; `on_lost`; wait (jittered, capped backoff), connect again
+    stop     publish offline, end the loop
+
+The session knows nothing of what is published or received: that is the publisher's and the
+dispatcher's.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import ssl
+from collections.abc import Awaitable, Callable, Iterable
+
+import aiomqtt
+
+from gateway.config import GatewayConfig, MqttConfig
+from gateway.mqtt.connection import (
+    OFFLINE,
+    ONLINE,
+    Backoff,
+    TlsSettingsError,
+    client_id,
+    make_client,
+    tls_context,
+)
+from gateway.mqtt.stats import BridgeStats
+from gateway.mqtt.topics import Topics
+from gateway.tasks import ServiceTasks, cancel_and_wait
+
+log = logging.getLogger(__name__)
+
+QOS = 1
+RECONNECT_INITIAL_S = 0.5
+STOP_PUBLISH_TIMEOUT_S = 0.3
+
+OnConnect = Callable[[aiomqtt.Client], Awaitable[None]]
+
+
+class Session:
+    def __init__(
+        self,
+        config: GatewayConfig,
+        topics: Topics,
+        stats: BridgeStats,
+        tasks: ServiceTasks,
+        on_connect: OnConnect,
+        on_lost: Callable[[], None],
+    ) -> None:
+        assert config.mqtt is not None
+        self.config = config
+        self.mqtt: MqttConfig = config.mqtt
+        self.topics = topics
+        self.stats = stats
+        self.tasks = tasks
+        self.connected = asyncio.Event()
+        """Set by the bridge once a connection is set up; cleared when it is lost."""
+        self._on_connect = on_connect
+        self._on_lost = on_lost
+        self._client: aiomqtt.Client | None = None
+        self._task: asyncio.Task[None] | None = None
+
+    async def start(self) -> None:
+        self._task = self.tasks.start("mqtt:bridge", self._run())
+
+    async def say_offline(self) -> None:
+        """A clean disconnect sends no last will: say "offline" ourselves, if connected."""
+        client = self._client
+        if client is not None:  # connected, maybe still setting up: online may be out
+            with contextlib.suppress(aiomqtt.MqttError):
+                await client.publish(
+                    self.topics.bridge_state,
+                    OFFLINE,
+                    qos=QOS,
+                    retain=True,
+                    timeout=STOP_PUBLISH_TIMEOUT_S,
+                )
+
+    async def stop(self, budget_s: float) -> None:
+        if self._task is not None:
+            await cancel_and_wait(self._task, budget_s)
+            self._task = None
+
+    async def subscribe(self, client: aiomqtt.Client, topics: Iterable[str]) -> None:
+        await client.subscribe([(topic, QOS) for topic in topics])
+
+    async def _run(self) -> None:
+        backoff = Backoff(RECONNECT_INITIAL_S, self.mqtt.reconnect_max_s)
+        tls = await self._tls_context(backoff)
+        failures = 0
+        while True:
+            try:
+                # Inside the try: whatever building a client raises is one more failed attempt,
+                # never the end of the loop.
+                client = make_client(self.config, self.topics, tls)
+                async with client:
+                    self._client = client
+                    if failures:
+                        log.info("MQTT: connected again after %d failed attempts", failures)
+                    failures = 0
+                    backoff.reset()
+                    await self._connected(client)
+            except* aiomqtt.MqttError as group:
+                failures += 1
+                self.stats.connect_failures += 1
+                self._log_failure(failures, group.exceptions[0])
+            except* Exception:
+                # A bug, or a client that can't be built: not the broker, but the bridge must not
+                # die of it either. The whole story once, then a line per attempt.
+                failures += 1
+                self.stats.connect_failures += 1
+                if failures == 1:
+                    log.exception("MQTT bridge failed; retrying with backoff")
+                else:
+                    log.debug("MQTT bridge failed again (attempt %d)", failures, exc_info=True)
+            finally:
+                self._client = None
+                self.connected.clear()
+                self._on_lost()
+            await asyncio.sleep(backoff.next_delay())
+
+    async def _connected(self, client: aiomqtt.Client) -> None:
+        self.stats.connects += 1
+        log.info(
+            "MQTT: connected to %s:%d as %s", self.mqtt.host, self.mqtt.port, client_id(self.config)
+        )
+        await client.publish(self.topics.bridge_state, ONLINE, qos=QOS, retain=True)
+        self.stats.published += 1
+        await self._on_connect(client)
+
+    async def _tls_context(self, backoff: Backoff) -> ssl.SSLContext | None:
+        """Built once for every attempt; until the files are usable, tried again with backoff."""
+        while True:
+            try:
+                tls = tls_context(self.mqtt)
+            except TlsSettingsError as exc:
+                self.stats.tls_failures += 1
+                if self.stats.tls_failures == 1:
+                    log.error(
+                        "MQTT: %s; no connection to the broker until it is fixed "
+                        "(checking again with backoff)",
+                        exc,
+                    )
+                else:
+                    log.debug("MQTT: %s (attempt %d)", exc, self.stats.tls_failures)
+                await asyncio.sleep(backoff.next_delay())
+                continue
+            if self.stats.tls_failures:
+                log.info("MQTT: the TLS files are usable now")
+                backoff.reset()
+            return tls
+
+    def _log_failure(self, failures: int, exc: BaseException) -> None:
+        where = f"{self.mqtt.host}:{self.mqtt.port}"
+        # Loudly once, then quietly: a broker down for a night must not flood the journal.
+        level = logging.WARNING if failures == 1 else logging.DEBUG
+        log.log(
+            level,
+            "MQTT broker %s: %s; reconnecting with backoff (attempt %d)",
+            where,
+            exc,
+            failures,
+        )
