@@ -32,6 +32,7 @@ from gateway.bus.wakeup import woken_or_timeout
 from gateway.errors import (
     BadReply,
     BusClosed,
+    BusFailed,
     DriveOffline,
     GatewayError,
     GatewayTargetFailed,
@@ -55,10 +56,6 @@ IDLE_WAKE_S = 0.5
 """With nothing queued, the bus still wakes this often to see whether a probe is due."""
 FINISH_S = 5.0
 """At shutdown, how long the transaction on the wire may take to finish before it is cut off."""
-
-
-class BusFailed(Exception):
-    """The bus's coroutine died: the service can't serve this line and must be restarted."""
 
 
 class BusState(StrEnum):

@@ -10,10 +10,9 @@ import sys
 from collections.abc import Callable
 
 from gateway.app import Application
-from gateway.bus.bus import BusFailed
 from gateway.cli import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
 from gateway.config import GatewayConfig, load_config
-from gateway.errors import ConfigError
+from gateway.errors import BusFailed, ConfigError
 from gateway.logs import setup_logging
 from gateway.systemd import Notifier, keep_watchdog, watchdog_interval_s
 

@@ -38,13 +38,12 @@ import aiomqtt
 
 from gateway import __version__
 from gateway.config import GatewayConfig, MqttConfig
-from gateway.errors import ExceptionCode
+from gateway.errors import CommandRefused, ExceptionCode, TlsSettingsError
 from gateway.mqtt.commands import CommandHandler
 from gateway.mqtt.connection import (
     OFFLINE,
     ONLINE,
     Backoff,
-    TlsSettingsError,
     client_id,
     make_client,
     tls_context,
@@ -52,7 +51,7 @@ from gateway.mqtt.connection import (
 from gateway.mqtt.discovery import discovery_messages
 from gateway.mqtt.lanes import Lanes
 from gateway.mqtt.outbox import Outbox, Pending
-from gateway.mqtt.requests import CommandRefused, Json, error_response, parse_object
+from gateway.mqtt.requests import Json, error_response, parse_object
 from gateway.mqtt.topics import BRIDGE_REQUESTS, Topics
 from gateway.poller import DriveEvent, Poller
 from gateway.poller.drive_state import iso_time

@@ -18,6 +18,8 @@ from typing import Any, Final
 
 from gateway.config import MqttConfig
 from gateway.errors import (
+    CommandRefused,
+    DriveException,
     DriveOffline,
     GatewayPathUnavailable,
     GatewayTargetFailed,
@@ -28,7 +30,6 @@ from gateway.modbus.functions import is_exception
 from gateway.mqtt.requests import (
     BRIDGE_READ_KEYS,
     BRIDGE_WRITE_KEYS,
-    CommandRefused,
     Json,
     RegisterRead,
     RegisterWrite,
@@ -51,10 +52,6 @@ log = logging.getLogger(__name__)
 
 MQTT_CLIENT: Final = "mqtt"
 """The bus's name for requests from MQTT (its own round-robin share, like one SCADA client)."""
-
-
-class DriveRefused(ModbusError):
-    """The drive answered with an exception response."""
 
 
 class CommandHandler:
@@ -175,7 +172,7 @@ class CommandHandler:
         assert reply is not None  # only broadcasts have none
         if is_exception(reply):
             code = reply[1] if len(reply) > 1 else 0
-            raise DriveRefused(describe_exception(code), code)
+            raise DriveException(pdu[0], code, describe_exception(code))
         return reply
 
     def _drive_named(self, message: Json) -> str:
@@ -198,7 +195,7 @@ class CommandHandler:
 
 def modbus_error(exc: ModbusError) -> tuple[str, int]:
     """The response's `error` and `exception_code` for a Modbus exception, drive's or gateway's."""
-    if isinstance(exc, DriveRefused):
+    if isinstance(exc, DriveException):
         return exception_name(exc.code), exc.code
     if isinstance(exc, DriveOffline):
         return "offline", exc.code

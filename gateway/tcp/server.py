@@ -25,7 +25,7 @@ import socket
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 
-from gateway.errors import MalformedFrame, ModbusError
+from gateway.errors import ExceptionCode, MalformedFrame, ModbusError
 from gateway.modbus.functions import PURE_READS, changes_nothing, exception_pdu
 from gateway.modbus.mbap import HEADER_LENGTH, build_adu, parse_header
 from gateway.tcp.access import AccessPolicy, AccessRule
@@ -35,8 +35,6 @@ log = logging.getLogger(__name__)
 RequestHandler = Callable[[int, bytes, str], Awaitable[bytes | None]]
 """(unit id, request PDU, client) -> reply PDU, or None when nothing answers (a broadcast)."""
 
-ILLEGAL_FUNCTION = 0x01
-SERVER_DEVICE_FAILURE = 0x04
 # Once part of a frame has arrived, the rest follows at once; a client that stops halfway is
 # broken, and waiting for it the whole idle timeout would hold a connection slot.
 PARTIAL_FRAME_TIMEOUT_S = 5.0
@@ -159,7 +157,7 @@ class ModbusTcpServer:
             self.stats.denied += 1
             self.stats.exceptions += 1
             log.debug("%s unit %d: %02XH refused: modbus_tcp.read_only", client, unit_id, function)
-            return exception_pdu(function, ILLEGAL_FUNCTION)
+            return exception_pdu(function, ExceptionCode.ILLEGAL_FUNCTION)
         if self.access is not None:
             refusal = self.access.check(unit_id, pdu)
             if refusal is not None:
@@ -182,7 +180,7 @@ class ModbusTcpServer:
             return exception_pdu(function, exc.code)
         except Exception:  # a bug must cost one answer, not the connection: log it loudly
             log.exception("%s unit %d: unexpected error", client, unit_id)
-            return exception_pdu(function, SERVER_DEVICE_FAILURE)
+            return exception_pdu(function, ExceptionCode.SERVER_DEVICE_FAILURE)
         if reply is None:  # a broadcast: no drive answers it
             return pdu if self.settings.broadcast_reply else None
         return reply

@@ -5,7 +5,8 @@ from __future__ import annotations
 from rich import box
 from rich.table import Table
 
-from gateway.tools.advice import COMMUNICATION_MODE, GARBLED, NO_ANSWER, FieldError
+from gateway.errors import FieldError
+from gateway.tools.advice import COMMUNICATION_MODE, GARBLED, NO_ANSWER
 from gateway.tools.masters import SerialOptions
 from gateway.tools.scan import ScanResult
 
