@@ -42,7 +42,7 @@ from gateway.errors import (
     ReplyTimeout,
 )
 from gateway.logs import dump_frame, frame_dump_enabled
-from gateway.modbus.functions import PURE_READS, is_exception
+from gateway.modbus.functions import is_exception, lookup
 from gateway.modbus.rtu import BROADCAST_ADDRESS, build_frame
 from gateway.tasks import cancel_and_wait
 
@@ -246,7 +246,7 @@ class Bus:
             client=client,
             timeout_s=self.settings.timeout_s if timeout_s is None else timeout_s,
             retries=self.settings.retries if retries is None else retries,
-            coalescable=address != BROADCAST_ADDRESS and bool(pdu) and pdu[0] in PURE_READS,
+            coalescable=address != BROADCAST_ADDRESS and bool(pdu) and lookup(pdu[0]).coalescable,
             waiters=[waiter],
         )
         try:

@@ -26,7 +26,7 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 
 from gateway.errors import ExceptionCode, MalformedFrame, ModbusError
-from gateway.modbus.functions import PURE_READS, changes_nothing, exception_pdu
+from gateway.modbus.functions import changes_nothing, exception_pdu, lookup
 from gateway.modbus.mbap import HEADER_LENGTH, build_adu, parse_header
 from gateway.tcp.access import AccessPolicy, AccessRule
 
@@ -256,7 +256,7 @@ class Connection(asyncio.Protocol):
                 self._answer(header.transaction_id, header.unit_id, pdu)
             )
             self.answers.add(answer)
-            if pdu[0] in PURE_READS:
+            if lookup(pdu[0]).coalescable:  # a pure read
                 self._reads.add(answer)
             if len(self.answers) >= settings.max_requests_per_connection:
                 # Back-pressure: stop reading this client until an answer has gone out.
