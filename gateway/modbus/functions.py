@@ -36,6 +36,8 @@ reply fits it (`replies`), and what the gateway may do with it:
 - `changes_nothing` (what `modbus_tcp.read_only` lets through): every read above, and 08H only
   with sub-function 0000H (return query data): its others restart, clear or silence the device.
   An allow-list: an unknown code counts as a write there.
+- `registers`: the registers a request reads or writes (03H 04H 06H 10H 16H 17H; `registers`),
+  for the access rules that name registers.
 """
 
 from __future__ import annotations
@@ -45,8 +47,9 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Final
 
-from gateway.modbus import replies
+from gateway.modbus import registers, replies
 from gateway.modbus import request_checks as checks
+from gateway.modbus.registers import RegistersTouched
 from gateway.modbus.replies import (
     EXCEPTION_REPLY,
     NEED_MORE,
@@ -158,6 +161,8 @@ class Function:
     coalescable: bool = False
     split: Split | None = None
     changes_nothing: Callable[[bytes], bool] = _always
+    registers: RegistersTouched = registers.none
+    """The registers it reads or writes, for `modbus_tcp.access` rules that name registers."""
 
 
 FUNCTIONS: Final[Mapping[int, Function]] = MappingProxyType(
@@ -183,6 +188,7 @@ FUNCTIONS: Final[Mapping[int, Function]] = MappingProxyType(
             replies.words_counted,
             coalescable=True,
             split=REGISTER_READ,
+            registers=registers.block,
         ),
         READ_INPUT_REGISTERS: Function(
             "read input registers",
@@ -191,6 +197,7 @@ FUNCTIONS: Final[Mapping[int, Function]] = MappingProxyType(
             replies.words_counted,
             coalescable=True,
             split=REGISTER_READ,
+            registers=registers.block,
         ),
         WRITE_SINGLE_COIL: Function(
             "write single coil",
@@ -209,6 +216,7 @@ FUNCTIONS: Final[Mapping[int, Function]] = MappingProxyType(
             writes=True,
             broadcastable=True,
             changes_nothing=_never,
+            registers=registers.single,
         ),
         READ_EXCEPTION_STATUS: Function(
             "read exception status", checks.exactly(1), replies.fixed(5)
@@ -238,6 +246,7 @@ FUNCTIONS: Final[Mapping[int, Function]] = MappingProxyType(
             broadcastable=True,
             split=REGISTER_WRITE,
             changes_nothing=_never,
+            registers=registers.block,
         ),
         REPORT_SERVER_ID: Function("report server id", checks.exactly(1), replies.byte_count),
         READ_FILE_RECORD: Function(
@@ -260,6 +269,7 @@ FUNCTIONS: Final[Mapping[int, Function]] = MappingProxyType(
             writes=True,
             broadcastable=True,
             changes_nothing=_never,
+            registers=registers.single,
         ),
         READ_WRITE_MULTIPLE_REGISTERS: Function(
             "read/write multiple registers",
@@ -268,6 +278,7 @@ FUNCTIONS: Final[Mapping[int, Function]] = MappingProxyType(
             replies.read_words_counted,
             writes=True,
             changes_nothing=_never,
+            registers=registers.read_and_write,
         ),
         READ_FIFO_QUEUE: Function("read FIFO queue", checks.exactly(3), replies.two_byte_count),
         ENCAPSULATED_INTERFACE: Function(

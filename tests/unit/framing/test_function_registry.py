@@ -328,6 +328,8 @@ def test_what_the_gateway_may_do_with_each_code() -> None:
     assert codes("broadcastable") == [0x05, 0x06, 0x0F, 0x10, 0x16]
     assert codes("coalescable") == [0x01, 0x02, 0x03, 0x04]
     assert codes("split") == [0x03, 0x04, 0x10]
+    with_registers = sorted(c for c, f in FUNCTIONS.items() if f.registers(bytes((c,))))
+    assert with_registers == [0x03, 0x04, 0x06, 0x10, 0x16, 0x17]
     unknown = lookup(0x41)
     assert (unknown.writes, unknown.broadcastable, unknown.coalescable) == (False, False, False)
     assert unknown.split is None
