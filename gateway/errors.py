@@ -2,13 +2,24 @@
 
     GatewayError
     ├── ConfigError             the YAML file is wrong: names the key path and the reason; no start
-    ├── MalformedFrame          bytes that are not a Modbus frame: close that connection only
+    ├── TlsSettingsError        a TLS file the configuration names can't be used (`key` names it):
+    │                           the MQTT session says so loudly and tries again later
+    ├── CannotListen            a port to serve on can't be bound: one line, exit code 1
+    ├── ServiceFailed           the service can't go on: stop with exit code 1 (systemd restarts it)
+    │   ├── BusFailed           a bus's coroutine died of a bug
+    │   └── FeatureFailed       a feature's background work died of a bug
+    ├── MalformedFrame          bytes a peer sent that break its protocol: close that connection
+    │   ├── MalformedPacket     an MQTT packet the demo broker can't take
+    │   └── MalformedCertificate  a client certificate's DER the role reader can't walk
     ├── LineError               one attempt on the wire failed; internal to the bus, which retries
     │   ├── ReplyTimeout        no reply (or not all of it) within the response timeout
     │   ├── BadReply            bad CRC, truncated, wrong address or function, echo mismatch, noise
     │   └── PortError           the serial port is closed, vanished or can't be opened
+    ├── CommandRefused          an MQTT command refused before it reached the bus: `reason` says why
+    ├── FieldError              a field tool failed: what happened, and what to check on site
     └── ModbusError             answered to the client as a Modbus exception (has `code`)
         ├── DriveException      the drive itself answered an exception (its code, byte-exact)
+        ├── RequestRefused      this side refuses a request with `code` (the simulated drive)
         ├── GatewayPathUnavailable   0x0A: unknown unit id, queue full, broadcast not allowed
         │   └── QueueFull
         └── GatewayTargetFailed      0x0B: no valid reply after retries, drive offline, port lost
@@ -16,16 +27,22 @@
             └── BusClosed        the gateway is shutting down: nobody's fault, nothing to retry
 
 A `LineError` becomes `GatewayTargetFailed` in exactly one place: the bus's retry policy
-(`gateway.bus.bus.Bus`), once the retries are spent.
+(`gateway.bus.bus.Bus`), once the retries are spent. A `ModbusError` becomes an exception PDU in
+one place per front door: `gateway.tcp.server` for SCADA, `gateway.mqtt.commands` for MQTT.
+
+`ExceptionCode` names each Modbus exception code once, by the standard's names; what INVT means
+by 04H-09H (06H is "data frame error" there, not "busy") is the profile's
+(`gateway.profile.exception_codes`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from enum import IntEnum
 
 
 class ExceptionCode(IntEnum):
-    """Modbus exception codes by their standard names (INVT's own meanings: `gateway.profile`)."""
+    """Modbus exception codes (application protocol V1.1b3, section 7), one name each."""
 
     ILLEGAL_FUNCTION = 0x01
     ILLEGAL_DATA_ADDRESS = 0x02
@@ -34,7 +51,10 @@ class ExceptionCode(IntEnum):
     ACKNOWLEDGE = 0x05
     SERVER_DEVICE_BUSY = 0x06
     NEGATIVE_ACKNOWLEDGE = 0x07
+    """Not in V1.1b3 (the older PI-MBUS-300 has it); INVT uses 07H for "parameter read-only"."""
     MEMORY_PARITY_ERROR = 0x08
+    UNASSIGNED_09 = 0x09
+    """The standard leaves 09H unassigned; INVT uses it for "password protection"."""
     GATEWAY_PATH_UNAVAILABLE = 0x0A
     GATEWAY_TARGET_FAILED = 0x0B
 
@@ -54,8 +74,34 @@ class ConfigError(GatewayError):
         super().__init__(where + "invalid configuration\n  " + "\n  ".join(lines))
 
 
+class TlsSettingsError(GatewayError):
+    """A TLS file of the configuration can't be used; `key` names it (`mqtt.ca_file`)."""
+
+    def __init__(self, key: str, path: str | None, reason: str) -> None:
+        super().__init__(f"{key} ({path}): {reason}")
+        self.key = key
+        self.reason = reason
+
+
+class ServiceFailed(GatewayError):
+    """The service can't go on; it stops with exit code 1 so its service manager restarts it."""
+
+
+class BusFailed(ServiceFailed):
+    """The bus's coroutine died: the service can't serve this line and must be restarted."""
+
+
+class FeatureFailed(ServiceFailed):
+    """A feature's background work died of a bug: the service stops (exit code 1) so that its
+    manager restarts it, rather than run on without, say, its polls."""
+
+
 class MalformedFrame(GatewayError):
-    """Bytes that cannot be a Modbus frame."""
+    """Bytes a peer sent that break its protocol (a Modbus frame, an MQTT packet)."""
+
+
+class MalformedPacket(MalformedFrame):
+    """An MQTT client broke MQTT 3.1.1 (seen by the demo broker): close its connection."""
 
 
 class LineError(GatewayError):
@@ -83,6 +129,28 @@ class PortError(LineError):
     """The serial port is not usable (unplugged, permission denied, not there)."""
 
 
+class CommandRefused(GatewayError):
+    """The gateway refuses an MQTT command without sending anything to the drive."""
+
+    def __init__(self, reason: str, message: str) -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+class FieldError(GatewayError):
+    """A field tool's failure: what happened, and what to check."""
+
+    def __init__(self, message: str, checks: Sequence[str] = ()) -> None:
+        super().__init__(message)
+        self.message = message
+        self.checks = tuple(checks)
+
+    def __str__(self) -> str:
+        if not self.checks:
+            return self.message
+        return self.message + "\ncheck:\n" + "\n".join(f"  - {check}" for check in self.checks)
+
+
 class ModbusError(GatewayError):
     """An error the Modbus client receives as an exception response with `code`."""
 
@@ -100,6 +168,13 @@ class DriveException(ModbusError):
     def __init__(self, function: int, code: int, message: str = "") -> None:
         self.function = function
         super().__init__(message or f"drive answered exception {code:#04x}", code)
+
+
+class RequestRefused(ModbusError):
+    """This side refuses a request with exception `code` (the simulated drive answers so)."""
+
+    def __init__(self, code: int, reason: str) -> None:
+        super().__init__(reason, code)
 
 
 class GatewayPathUnavailable(ModbusError):
@@ -134,3 +209,7 @@ class CannotListen(GatewayError):
 
     Its message is one line a person can act on: what, where, and the likely cause.
     """
+
+
+class MalformedCertificate(MalformedFrame):
+    """A client certificate's DER that the role reader can't walk (it then has no role)."""

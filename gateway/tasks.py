@@ -9,6 +9,8 @@ import time
 from collections.abc import Coroutine
 from typing import Any
 
+from gateway.errors import FeatureFailed
+
 log = logging.getLogger(__name__)
 
 RETRY_S = 0.1
@@ -34,11 +36,6 @@ async def cancel_and_wait(task: asyncio.Task[None], budget_s: float) -> bool:
         if exception is not None:
             log.error("task %s ended with %r", task.get_name(), exception)
     return True
-
-
-class FeatureFailed(Exception):
-    """A feature's background work died of a bug: the service stops (exit code 1) so that its
-    manager restarts it, rather than run on without, say, its polls."""
 
 
 class ServiceTasks:

@@ -68,7 +68,7 @@ async def test_gateway_as_master_of_pymodbus_rtu_server(pymodbus_slave: str) -> 
         assert await client.request(1, bytes.fromhex("08 00 00 12 AB")) == bytes.fromhex(
             "08 00 00 12 AB"
         )
-        # 2BH/0EH is not in the length table: its reply ends on silence and still arrives whole.
+        # 2BH/0EH ends at the length its objects add up to, as another implementation wrote it.
         reply = await client.request(1, bytes.fromhex("2B 0E 01 00"))
         assert reply[:3] == bytes.fromhex("2B 0E 01")
         await client.close()

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -14,7 +15,8 @@ import pytest
 import yaml
 
 from gateway.config import ENV_MQTT_PASSWORD, ENV_MQTT_USERNAME, parse_config
-from gateway.errors import ConfigError
+from gateway.errors import ConfigError, TlsSettingsError
+from gateway.mqtt.connection import tls_context
 from gateway.simulator import SimulatedLine
 from tests.mosquitto import mqtt_probe, unique_base_topic
 from tests.mqtt_setup import simulated_line
@@ -168,6 +170,28 @@ def test_tls_settings_are_checked_at_load(tmp_path: Path, monkeypatch: pytest.Mo
     mqtt = parse_config(base + "{username: from-file, tls: true}").mqtt
     assert mqtt is not None
     assert (mqtt.username, mqtt.password) == ("from-environment", "secret")
+
+
+def test_an_encrypted_private_key_is_named_and_never_prompted_for(
+    certificates: Certificates, tmp_path: Path
+) -> None:
+    """OpenSSL would ask for the passphrase on the terminal, blocking the service: instead the
+    error names the keys and says what to do."""
+    encrypted = tmp_path / "encrypted.key"
+    encrypt = ["openssl", "pkey", "-in", str(certificates.client_key), "-out", str(encrypted)]
+    subprocess.run(
+        [*encrypt, "-aes256", "-passout", "pass:operator"], check=True, capture_output=True
+    )
+    mqtt = {"tls": True, "cert_file": str(certificates.client_cert), "key_file": str(encrypted)}
+    config = parse_config(
+        yaml.safe_dump({"buses": [{"name": "l", "port": "/dev/null"}], "mqtt": mqtt})
+    )
+    assert config.mqtt is not None
+    with pytest.raises(TlsSettingsError) as raised:
+        tls_context(config.mqtt)
+    assert raised.value.key == "mqtt.cert_file/mqtt.key_file"
+    assert "encrypted" in raised.value.reason
+    assert str(encrypted) in str(raised.value)
 
 
 async def test_a_bad_tls_file_is_reported_once_and_retried_until_it_is_right(

@@ -33,6 +33,7 @@ from gateway.bus.wakeup import woken_or_timeout
 from gateway.errors import (
     BadReply,
     BusClosed,
+    BusFailed,
     DriveOffline,
     GatewayError,
     GatewayTargetFailed,
@@ -42,7 +43,7 @@ from gateway.errors import (
     ReplyTimeout,
 )
 from gateway.logs import dump_frame, frame_dump_enabled
-from gateway.modbus.functions import PURE_READS, is_exception
+from gateway.modbus.functions import is_exception, lookup
 from gateway.modbus.rtu import BROADCAST_ADDRESS, build_frame
 from gateway.tasks import cancel_and_wait
 
@@ -56,10 +57,6 @@ IDLE_WAKE_S = 0.5
 """With nothing queued, the bus still wakes this often to see whether a probe is due."""
 FINISH_S = 5.0
 """At shutdown, how long the transaction on the wire may take to finish before it is cut off."""
-
-
-class BusFailed(Exception):
-    """The bus's coroutine died: the service can't serve this line and must be restarted."""
 
 
 class BusState(StrEnum):
@@ -252,7 +249,7 @@ class Bus:
             client=client,
             timeout_s=self.settings.timeout_s if timeout_s is None else timeout_s,
             retries=self.settings.retries if retries is None else retries,
-            coalescable=address != BROADCAST_ADDRESS and bool(pdu) and pdu[0] in PURE_READS,
+            coalescable=address != BROADCAST_ADDRESS and bool(pdu) and lookup(pdu[0]).coalescable,
             waiters=[waiter],
         )
         try:

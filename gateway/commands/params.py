@@ -50,7 +50,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 
 def handle(args: argparse.Namespace) -> int:
-    from gateway.tools.advice import FieldError
+    from gateway.errors import FieldError
     from gateway.tools.open import open_master
 
     try:
@@ -116,7 +116,7 @@ def backup(master: Master, args: argparse.Namespace) -> int:
 
 
 def compare(master: Master, args: argparse.Namespace, wanted: ParameterSet) -> int:
-    from gateway.tools.advice import FieldError
+    from gateway.errors import FieldError
     from gateway.tools.params import differences, identify, is_running, plan, read_parameters
 
     profile = wanted.profile
@@ -148,7 +148,7 @@ def compare(master: Master, args: argparse.Namespace, wanted: ParameterSet) -> i
 
 
 def write_all(master: Master, args: argparse.Namespace, writes: list[Difference]) -> int:
-    from gateway.tools.advice import FieldError
+    from gateway.errors import FieldError
     from gateway.tools.params import show, write_parameter
 
     done = 0

@@ -10,13 +10,11 @@ import sys
 from collections.abc import Callable
 
 from gateway.app import Application
-from gateway.bus.bus import BusFailed
 from gateway.cli import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
 from gateway.config import GatewayConfig, load_config
-from gateway.errors import CannotListen, ConfigError
+from gateway.errors import BusFailed, CannotListen, ConfigError, FeatureFailed
 from gateway.logs import setup_logging
 from gateway.systemd import Notifier, keep_watchdog, watchdog_interval_s
-from gateway.tasks import FeatureFailed
 
 log = logging.getLogger(__name__)
 

@@ -56,7 +56,7 @@ def handle(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
-    from gateway.tools.advice import FieldError
+    from gateway.errors import FieldError
     from gateway.tools.open import open_serial, serial_options
     from gateway.tools.report import line_notes, no_drive_found, result_table
     from gateway.tools.scan import FoundDrive, scan

@@ -33,8 +33,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 
 def handle(args: argparse.Namespace) -> int:
+    from gateway.errors import FieldError
     from gateway.tools.access import write_point
-    from gateway.tools.advice import FieldError
     from gateway.tools.open import open_master
     from gateway.tools.points import Point, resolve
 

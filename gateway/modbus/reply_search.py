@@ -23,9 +23,16 @@ from dataclasses import dataclass
 from enum import Enum
 
 from gateway.modbus.crc import crc_ok
-from gateway.modbus.functions import EXCEPTION_BIT, NEED_MORE, UNKNOWN_LENGTH, rtu_reply_length
-from gateway.modbus.rtu import answers
+from gateway.modbus.functions import (
+    EXCEPTION_BIT,
+    NEED_MORE,
+    UNKNOWN_LENGTH,
+    lookup,
+    rtu_reply_length,
+)
 
+MAX_FRAME = 256
+"""An RTU frame is at most this long: no length rule needs to see more."""
 MIN_REPLY = 5
 """The shortest RTU reply: an exception (address, function, code, CRC)."""
 
@@ -68,7 +75,8 @@ def echo_passes_for_reply(request: bytes) -> bool:
     if len(request) < 4:
         return False
     length = rtu_reply_length(request, len(request))
-    return length == len(request) and answers(request[1:-2], request[1:-2])
+    pdu = request[1:-2]
+    return length == len(request) and lookup(request[1]).fits(pdu, pdu)
 
 
 def search_reply(
@@ -95,7 +103,8 @@ def search_reply(
     corrupt: ReplySearch | None = None
     size = len(received)
     for start in range(max(echo, after + 1), size):
-        header = received[start : start + 3]
+        # All that came from here on: some rules (2BH/0EH, 18H) read the reply field by field.
+        header = received[start : start + MAX_FRAME]
         length = rtu_reply_length(header, len(request))
         ours = header[0] == address and (
             len(header) < 2 or header[1] in (function, function | EXCEPTION_BIT)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from gateway.errors import BadReply
 from gateway.modbus.crc import crc16, crc_bytes
-from gateway.modbus.functions import EXCEPTION_BIT
+from gateway.modbus.functions import EXCEPTION_BIT, lookup
 
 BROADCAST_ADDRESS = 0
 MAX_FRAME = 256
@@ -36,32 +36,11 @@ def check_reply(request: bytes, reply: bytes) -> bytes:
             "function", f"reply function {reply[1]:#04x} to a request {function:#04x}", reply
         )
     pdu = reply[1:-2]
-    if not pdu[0] & EXCEPTION_BIT and not answers(request[1:-2], pdu):
+    if not pdu[0] & EXCEPTION_BIT and not lookup(function).fits(request[1:-2], pdu):
         # RTU has no transaction id: a reply that doesn't fit what was asked is most likely a
         # late answer to an earlier request, and must not pass for this one's.
         raise BadReply("mismatch", f"reply {pdu.hex(' ')} does not answer the request", reply)
     return pdu
-
-
-def answers(request: bytes, reply: bytes) -> bool:
-    """Does a normal reply PDU fit the request PDU: the byte count of a read, the echo of a write?
-
-    Only requests of the standard shape are checked; anything else passes through as it is.
-    """
-    function = request[0]
-    if function in (0x03, 0x04) and len(request) == 5:
-        return len(reply) >= 2 and reply[1] == 2 * int.from_bytes(request[3:5], "big")
-    if function in (0x01, 0x02) and len(request) == 5:
-        return len(reply) >= 2 and reply[1] == (int.from_bytes(request[3:5], "big") + 7) // 8
-    if function in (0x05, 0x06) and len(request) == 5:
-        return reply == request
-    if function in (0x0F, 0x10) and len(request) >= 6:
-        return reply == request[:5]
-    if function == 0x16 and len(request) == 7:
-        return reply == request
-    if function == 0x17 and len(request) >= 10:
-        return len(reply) >= 2 and reply[1] == 2 * int.from_bytes(request[3:5], "big")
-    return True
 
 
 def split_frame(frame: bytes) -> tuple[int, bytes]:

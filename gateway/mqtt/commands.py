@@ -22,6 +22,8 @@ from typing import Any, Final
 
 from gateway.config import MqttConfig
 from gateway.errors import (
+    CommandRefused,
+    DriveException,
     DriveOffline,
     GatewayPathUnavailable,
     GatewayTargetFailed,
@@ -31,7 +33,6 @@ from gateway.errors import (
 from gateway.modbus.functions import is_exception
 from gateway.mqtt.dispatcher import Incoming
 from gateway.mqtt.requests import (
-    CommandRefused,
     Json,
     RegisterRead,
     RegisterWrite,
@@ -52,10 +53,6 @@ MQTT_CLIENT: Final = "mqtt"
 """The bus's name for requests from MQTT (its own round-robin share, like one SCADA client)."""
 
 Run = Callable[[Json], Awaitable[Json]]
-
-
-class DriveRefused(ModbusError):
-    """The drive answered with an exception response."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -156,13 +153,13 @@ class Commands:
         reply = await self.router.request(drive.route, pdu, client=MQTT_CLIENT)
         if is_exception(reply):
             code = reply[1] if len(reply) > 1 else 0
-            raise DriveRefused(describe_exception(code), code)
+            raise DriveException(pdu[0], code, describe_exception(code))
         return reply
 
 
 def modbus_error(exc: ModbusError) -> tuple[str, int]:
     """The response's `error` and `exception_code` for a Modbus exception, drive's or gateway's."""
-    if isinstance(exc, DriveRefused):
+    if isinstance(exc, DriveException):
         return exception_name(exc.code), exc.code
     if isinstance(exc, DriveOffline):
         return "offline", exc.code

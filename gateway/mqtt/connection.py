@@ -21,7 +21,7 @@ import ssl
 import aiomqtt
 
 from gateway.config import GatewayConfig, MqttConfig
-from gateway.errors import GatewayError
+from gateway.errors import TlsSettingsError
 from gateway.mqtt.topics import Topics
 
 ONLINE = json.dumps({"state": "online"}, separators=(",", ":"))
@@ -36,24 +36,6 @@ def client_id(config: GatewayConfig) -> str:
     return config.mqtt.client_id or f"invt-gateway-{config.gateway_id}"
 
 
-class TlsSettingsError(GatewayError):
-    """A TLS file of the configuration can't be used; `key` names it (`mqtt.ca_file`)."""
-
-    def __init__(self, key: str, path: str | None, reason: str) -> None:
-        super().__init__(f"{key} ({path}): {reason}")
-        self.key = key
-        self.reason = reason
-
-
-class _PassphraseNeeded(Exception):
-    pass
-
-
-def _no_passphrase() -> str:
-    # Without a callback OpenSSL would prompt on the terminal, blocking the event loop.
-    raise _PassphraseNeeded
-
-
 def tls_context(mqtt: MqttConfig) -> ssl.SSLContext | None:
     """The client's TLS context, or None without TLS. Raises TlsSettingsError."""
     if not mqtt.tls:
@@ -66,11 +48,15 @@ def tls_context(mqtt: MqttConfig) -> ssl.SSLContext | None:
     if mqtt.cert_file is not None:
         key = "mqtt.cert_file" if mqtt.key_file is None else "mqtt.cert_file/mqtt.key_file"
         path = mqtt.cert_file if mqtt.key_file is None else f"{mqtt.cert_file}, {mqtt.key_file}"
-        try:
-            context.load_cert_chain(mqtt.cert_file, mqtt.key_file, password=_no_passphrase)
-        except _PassphraseNeeded:
+
+        def no_passphrase() -> str:
+            # Without a callback OpenSSL would prompt on the terminal, blocking the event loop;
+            # what the callback raises comes out of load_cert_chain as it is.
             reason = "the private key is encrypted: give it without a passphrase"
-            raise TlsSettingsError(key, path, reason) from None
+            raise TlsSettingsError(key, path, reason)
+
+        try:
+            context.load_cert_chain(mqtt.cert_file, mqtt.key_file, password=no_passphrase)
         except (ssl.SSLError, OSError) as exc:
             reason = _reason(exc, "not a PEM certificate and its private key")
             raise TlsSettingsError(key, path, reason) from None

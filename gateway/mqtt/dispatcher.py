@@ -18,9 +18,9 @@ from typing import Any, Protocol
 
 import aiomqtt
 
-from gateway.errors import ExceptionCode
+from gateway.errors import CommandRefused, ExceptionCode
 from gateway.mqtt.lanes import Lanes
-from gateway.mqtt.requests import CommandRefused, Json, error_response, parse_object
+from gateway.mqtt.requests import Json, error_response, parse_object
 from gateway.mqtt.stats import BridgeStats
 
 log = logging.getLogger(__name__)

@@ -20,6 +20,8 @@ import uuid
 from dataclasses import dataclass, field
 from typing import Final
 
+from gateway.errors import MalformedPacket
+
 log = logging.getLogger(__name__)
 
 CONNECT, CONNACK, PUBLISH, PUBACK, PUBREC, PUBREL, PUBCOMP = 1, 2, 3, 4, 5, 6, 7
@@ -29,10 +31,6 @@ UNACCEPTABLE_PROTOCOL: Final = 1
 MAX_PACKET: Final = 1 << 20
 MAX_BUFFERED: Final = 4 << 20
 """A subscriber this far behind is disconnected rather than buffered without bound."""
-
-
-class ProtocolError(Exception):
-    """The client broke MQTT 3.1.1: close its connection."""
 
 
 @dataclass(eq=False)
@@ -93,7 +91,7 @@ class EmbeddedBroker:
                     return
                 self._handle(session, kind, flags, body)
                 await writer.drain()
-        except (ProtocolError, asyncio.IncompleteReadError, ConnectionError, TimeoutError) as exc:
+        except (MalformedPacket, asyncio.IncompleteReadError, ConnectionError, TimeoutError) as exc:
             log.debug("embedded broker: connection closed: %r", exc)
         finally:
             self._connections.discard(task)
@@ -106,14 +104,14 @@ class EmbeddedBroker:
     ) -> tuple[Session, int]:
         kind, _, body = await asyncio.wait_for(read_packet(reader), 10)
         if kind != CONNECT:
-            raise ProtocolError("the first packet must be CONNECT")
+            raise MalformedPacket("the first packet must be CONNECT")
         fields = Fields(body)
         fields.string()  # "MQTT"
         level, flags = fields.byte(), fields.byte()
         if level != MQTT_311:
             writer.write(bytes((CONNACK << 4, 2, 0, UNACCEPTABLE_PROTOCOL)))
             await writer.drain()
-            raise ProtocolError(f"protocol level {level}: only MQTT 3.1.1 (4)")
+            raise MalformedPacket(f"protocol level {level}: only MQTT 3.1.1 (4)")
         keepalive = fields.short()
         client_id = fields.string() or f"anonymous-{uuid.uuid4().hex[:8]}"
         will = None
@@ -169,7 +167,7 @@ class EmbeddedBroker:
         elif kind == PINGREQ:
             session.send(bytes((PINGRESP << 4, 0)))
         elif kind not in (PUBACK, PUBREC, PUBCOMP):
-            raise ProtocolError(f"unexpected packet type {kind}")
+            raise MalformedPacket(f"unexpected packet type {kind}")
 
     def publish(self, topic: str, payload: bytes, retain: bool) -> None:
         if retain:
@@ -207,9 +205,9 @@ async def read_packet(reader: asyncio.StreamReader) -> tuple[int, int, bytes]:
             break
         multiplier *= 128
     else:
-        raise ProtocolError("remaining length longer than 4 bytes")
+        raise MalformedPacket("remaining length longer than 4 bytes")
     if length > MAX_PACKET:
-        raise ProtocolError(f"packet of {length} bytes is over the {MAX_PACKET} limit")
+        raise MalformedPacket(f"packet of {length} bytes is over the {MAX_PACKET} limit")
     return first >> 4, first & 0x0F, await reader.readexactly(length)
 
 
@@ -236,7 +234,7 @@ class Fields:
 
     def _take(self, count: int) -> bytes:
         if self._at + count > len(self._body):
-            raise ProtocolError("packet shorter than its fields")
+            raise MalformedPacket("packet shorter than its fields")
         chunk = self._body[self._at : self._at + count]
         self._at += count
         return chunk
@@ -255,7 +253,7 @@ class Fields:
         try:
             return self.binary().decode()
         except UnicodeDecodeError:
-            raise ProtocolError("a string that is not UTF-8") from None
+            raise MalformedPacket("a string that is not UTF-8") from None
 
     def rest(self) -> bytes:
         return self._take(len(self._body) - self._at)

@@ -24,6 +24,7 @@ from typing import ClassVar, Final
 
 import aiomqtt
 
+from gateway.errors import CommandRefused
 from gateway.mqtt.commands import CommandDrive, Commands
 from gateway.mqtt.dispatcher import CommandKind, Incoming
 from gateway.mqtt.lanes import Lanes
@@ -31,7 +32,6 @@ from gateway.mqtt.publisher import Publisher
 from gateway.mqtt.requests import (
     BRIDGE_READ_KEYS,
     BRIDGE_WRITE_KEYS,
-    CommandRefused,
     Json,
     check_keys,
     dump,

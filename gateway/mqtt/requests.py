@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any, Final
 
-from gateway.errors import GatewayError
+from gateway.errors import CommandRefused
 from gateway.modbus.functions import (
     READ_HOLDING_REGISTERS,
     WRITE_MULTIPLE_REGISTERS,
@@ -51,14 +51,6 @@ BRIDGE_WRITE_KEYS: Final = COMMON_KEYS | WRITE_KEYS | {"drive"}
 BRIDGE_READ_KEYS: Final = COMMON_KEYS | {"drive", "parameter", "register", "count", "decimals"}
 
 Json = dict[str, Any]
-
-
-class CommandRefused(GatewayError):
-    """The gateway refuses a command without sending anything to the drive."""
-
-    def __init__(self, reason: str, message: str) -> None:
-        super().__init__(message)
-        self.reason = reason
 
 
 @dataclass(frozen=True, slots=True)

@@ -24,11 +24,11 @@ from collections.abc import Awaitable, Callable, Iterable
 import aiomqtt
 
 from gateway.config import GatewayConfig, MqttConfig
+from gateway.errors import TlsSettingsError
 from gateway.mqtt.connection import (
     OFFLINE,
     ONLINE,
     Backoff,
-    TlsSettingsError,
     client_id,
     make_client,
     tls_context,

@@ -2,24 +2,27 @@
 
 INVT gives 04H-09H meanings of its own, unlike the Modbus standard: 06H is "data frame error"
 (wrong length or CRC), not "server busy", so a 06H must never be retried as if the drive were busy.
-0AH and 0BH are never sent by a drive: the gateway makes them.
+0AH and 0BH are never sent by a drive: the gateway makes them. The codes themselves are
+`gateway.errors.ExceptionCode`; the names below are INVT's for the same members.
 """
 
 from __future__ import annotations
 
 from typing import Final
 
-ILLEGAL_COMMAND: Final = 0x01
-ILLEGAL_DATA_ADDRESS: Final = 0x02
-ILLEGAL_DATA_VALUE: Final = 0x03
-OPERATION_FAILURE: Final = 0x04
-PASSWORD_ERROR: Final = 0x05
-DATA_FRAME_ERROR: Final = 0x06
-PARAMETER_READ_ONLY: Final = 0x07
-NOT_CHANGEABLE_WHILE_RUNNING: Final = 0x08
-PASSWORD_PROTECTION: Final = 0x09
-GATEWAY_PATH_UNAVAILABLE: Final = 0x0A
-GATEWAY_TARGET_FAILED: Final = 0x0B
+from gateway.errors import ExceptionCode
+
+ILLEGAL_COMMAND: Final = ExceptionCode.ILLEGAL_FUNCTION
+ILLEGAL_DATA_ADDRESS: Final = ExceptionCode.ILLEGAL_DATA_ADDRESS
+ILLEGAL_DATA_VALUE: Final = ExceptionCode.ILLEGAL_DATA_VALUE
+OPERATION_FAILURE: Final = ExceptionCode.SERVER_DEVICE_FAILURE
+PASSWORD_ERROR: Final = ExceptionCode.ACKNOWLEDGE
+DATA_FRAME_ERROR: Final = ExceptionCode.SERVER_DEVICE_BUSY
+PARAMETER_READ_ONLY: Final = ExceptionCode.NEGATIVE_ACKNOWLEDGE
+NOT_CHANGEABLE_WHILE_RUNNING: Final = ExceptionCode.MEMORY_PARITY_ERROR
+PASSWORD_PROTECTION: Final = ExceptionCode.UNASSIGNED_09
+GATEWAY_PATH_UNAVAILABLE: Final = ExceptionCode.GATEWAY_PATH_UNAVAILABLE
+GATEWAY_TARGET_FAILED: Final = ExceptionCode.GATEWAY_TARGET_FAILED
 
 EXCEPTIONS: Final[dict[int, tuple[str, str]]] = {
     ILLEGAL_COMMAND: ("illegal_command", "function not supported, or the drive is faulty"),

@@ -28,19 +28,19 @@ from dataclasses import dataclass
 from gateway.bus import Bus, Priority
 from gateway.errors import GatewayPathUnavailable
 from gateway.modbus.functions import (
-    BROADCAST_WRITES,
+    MAX_READ_REGISTERS,
     READ_HOLDING_REGISTERS,
-    READ_INPUT_REGISTERS,
     WRITE_MULTIPLE_REGISTERS,
     WRITE_SINGLE_REGISTER,
-    WRITES,
     is_exception,
+    join_replies,
+    lookup,
+    split_request,
 )
 from gateway.modbus.rtu import BROADCAST_ADDRESS
 from gateway.routing.cache import RegisterCache
 
-MAX_READ_WORDS = 125  # the Modbus limit; beyond it the request is the drive's to refuse
-MAX_WRITE_WORDS = 123
+MAX_READ_WORDS = MAX_READ_REGISTERS  # the Modbus limit; beyond it the request is the drive's
 POLL_CLIENT = "poll"
 """The bus's name for the poller's requests (its own round-robin share, like one SCADA client)."""
 
@@ -102,7 +102,7 @@ class Router:
         self, route: Route, pdu: bytes, *, client: str, priority: Priority | None = None
     ) -> bytes:
         """Carry `pdu` to the drive of `route`: from the cache when it may, through it always."""
-        if pdu[0] in WRITES:
+        if lookup(pdu[0]).writes:
             return await self._write_through(route, pdu, client, priority or Priority.WRITE)
         if route.cache_max_age_s is not None:
             cached = self._from_cache(route, pdu)
@@ -144,7 +144,7 @@ class Router:
 
     async def _forward(self, route: Route, pdu: bytes, client: str, priority: Priority) -> bytes:
         sent = pdu if route.ram_address is None else _to_ram(pdu, route.ram_address)
-        split = None if route.max_words is None else _split(sent, route.max_words)
+        split = None if route.max_words is None else split_request(sent, route.max_words)
         if split is not None:
             reply = await self._execute_split(route, sent, split, client, priority)
         else:
@@ -177,7 +177,7 @@ class Router:
         return reply
 
     async def _broadcast(self, pdu: bytes, client: str) -> None:
-        if pdu[0] not in BROADCAST_WRITES:
+        if not lookup(pdu[0]).broadcastable:
             raise GatewayPathUnavailable(
                 f"unit id 0 is broadcast: only write function codes, not {pdu[0]:#04x}"
             )
@@ -199,37 +199,7 @@ class Router:
             if is_exception(reply):
                 return reply
             replies.append(reply)
-        if pdu[0] == WRITE_MULTIPLE_REGISTERS:
-            return pdu[:5]  # function, start, count: what one write would have echoed
-        data = b"".join(reply[2:] for reply in replies)
-        return bytes((pdu[0], len(data))) + data
-
-
-def _split(pdu: bytes, max_words: int) -> list[bytes] | None:
-    """The parts of a read or write longer than `max_words`, or None if it needs no split."""
-    function = pdu[0]
-    if function in (READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS) and len(pdu) == 5:
-        start, count = struct.unpack(">HH", pdu[1:5])
-        if not max_words < count <= MAX_READ_WORDS or start + count > 0x10000:
-            return None
-        return [
-            struct.pack(">BHH", function, start + offset, min(max_words, count - offset))
-            for offset in range(0, count, max_words)
-        ]
-    if function == WRITE_MULTIPLE_REGISTERS and len(pdu) >= 6:
-        start, count, byte_count = struct.unpack(">HHB", pdu[1:6])
-        values = pdu[6:]
-        if not max_words < count <= MAX_WRITE_WORDS or byte_count != 2 * count:
-            return None
-        if len(values) != byte_count or start + count > 0x10000:
-            return None
-        parts = []
-        for offset in range(0, count, max_words):
-            words = min(max_words, count - offset)
-            chunk = values[2 * offset : 2 * (offset + words)]
-            parts.append(struct.pack(">BHHB", function, start + offset, words, 2 * words) + chunk)
-        return parts
-    return None
+        return join_replies(pdu, replies)
 
 
 def _to_ram(pdu: bytes, ram_address: Callable[[int], int]) -> bytes:

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import Final
 
+from gateway.errors import RequestRefused
 from gateway.modbus.functions import (
     DIAGNOSTICS,
     READ_HOLDING_REGISTERS,
@@ -55,14 +56,6 @@ CONTROL_WORD: Final = 0x2000
 MODBUS_FREQUENCY_SOURCE: Final = 8
 KEYPAD_FREQUENCY_SOURCE: Final = 0
 REVERSE_FORBIDDEN: Final = 2
-
-
-class Refused(Exception):
-    """The request is answered with exception `code`."""
-
-    def __init__(self, code: int, reason: str) -> None:
-        super().__init__(reason)
-        self.code = code
 
 
 class Mode(Enum):
@@ -145,8 +138,8 @@ class SimulatedDrive:
                 return self._write_multiple(pdu, now)
             if function == DIAGNOSTICS:
                 return self._diagnose(pdu)
-            raise Refused(exc.ILLEGAL_COMMAND, f"function {function:#04x} not supported")
-        except Refused as refused:
+            raise RequestRefused(exc.ILLEGAL_COMMAND, f"function {function:#04x} not supported")
+        except RequestRefused as refused:
             return exception_pdu(function, refused.code)
 
     def apply_broadcast(self, pdu: bytes, now: float) -> None:
@@ -169,35 +162,37 @@ class SimulatedDrive:
 
     def _write_multiple(self, pdu: bytes, now: float) -> bytes:
         if len(pdu) < 6 or len(pdu) != 6 + pdu[5]:
-            raise Refused(exc.DATA_FRAME_ERROR, f"10H request of {len(pdu)} bytes")
+            raise RequestRefused(exc.DATA_FRAME_ERROR, f"10H request of {len(pdu)} bytes")
         start, count = struct.unpack_from(">HH", pdu, 1)
         self._check_count(count)
         if pdu[5] != 2 * count:
-            raise Refused(exc.ILLEGAL_DATA_VALUE, f"byte count {pdu[5]} for {count} words")
+            raise RequestRefused(exc.ILLEGAL_DATA_VALUE, f"byte count {pdu[5]} for {count} words")
         _check_span(start, count)
         if start & RAM_BIT and not self.profile.ram_writes_via_10h:
-            raise Refused(exc.ILLEGAL_DATA_ADDRESS, "10H to a RAM-only address")
+            raise RequestRefused(exc.ILLEGAL_DATA_ADDRESS, "10H to a RAM-only address")
         values = struct.unpack_from(f">{count}H", pdu, 6)
         self._write(zip(range(start, start + count), values, strict=True), now)
         return pdu[:5]
 
     def _diagnose(self, pdu: bytes) -> bytes:
         if len(pdu) != 5:
-            raise Refused(exc.DATA_FRAME_ERROR, f"08H request of {len(pdu)} bytes")
+            raise RequestRefused(exc.DATA_FRAME_ERROR, f"08H request of {len(pdu)} bytes")
         if pdu[1:3] != LOOP_BACK:
             # Only "return data based on query requests" (0000) is documented.
-            raise Refused(exc.ILLEGAL_COMMAND, f"08H sub-function {pdu[1:3].hex()}")
+            raise RequestRefused(exc.ILLEGAL_COMMAND, f"08H sub-function {pdu[1:3].hex()}")
         return pdu
 
     def _check_count(self, count: int) -> None:
         if not 1 <= count <= self.profile.max_words:
-            raise Refused(exc.ILLEGAL_DATA_VALUE, f"{count} words (1..{self.profile.max_words})")
+            raise RequestRefused(
+                exc.ILLEGAL_DATA_VALUE, f"{count} words (1..{self.profile.max_words})"
+            )
 
     # ----------------------------------------------------------------- reading
 
     def _read_word(self, address: int, live: Mapping[int, int]) -> int:
         if address & RAM_BIT:
-            raise Refused(exc.ILLEGAL_DATA_ADDRESS, "RAM-only addresses are write-only")
+            raise RequestRefused(exc.ILLEGAL_DATA_ADDRESS, "RAM-only addresses are write-only")
         spec = self._parameter_spec(address)
         if spec is not None:
             return self._parameters[spec.address]
@@ -205,7 +200,7 @@ class SimulatedDrive:
             return self._registers[address]
         if address in self._live_addresses:
             return live[address]
-        raise Refused(exc.ILLEGAL_DATA_ADDRESS, f"{address:04X}H cannot be read")
+        raise RequestRefused(exc.ILLEGAL_DATA_ADDRESS, f"{address:04X}H cannot be read")
 
     def _live_values(self, now: float) -> dict[int, int]:
         """State words, fault code, identification and running values (3000H-3016H)."""
@@ -287,7 +282,7 @@ class SimulatedDrive:
             spec = self._parameter_spec(address)
             if spec is not None:
                 if address & RAM_BIT and not self.profile.ram_writes_supported:
-                    raise Refused(exc.ILLEGAL_DATA_ADDRESS, "RAM-only writes not supported")
+                    raise RequestRefused(exc.ILLEGAL_DATA_ADDRESS, "RAM-only writes not supported")
                 self._check_parameter_write(spec, value, parameters)
                 parameters[spec.address] = value
                 written.append(spec.name)
@@ -299,8 +294,8 @@ class SimulatedDrive:
             register = register_at(address)
             if register is None or not register.writable:
                 if address in self._live_addresses:
-                    raise Refused(exc.PARAMETER_READ_ONLY, f"{address:04X}H is read-only")
-                raise Refused(exc.ILLEGAL_DATA_ADDRESS, f"{address:04X}H cannot be written")
+                    raise RequestRefused(exc.PARAMETER_READ_ONLY, f"{address:04X}H is read-only")
+                raise RequestRefused(exc.ILLEGAL_DATA_ADDRESS, f"{address:04X}H cannot be written")
             self._check_register_write(register, value, parameters)
             if address == CONTROL_WORD:
                 commands.append(self._check_command(value))
@@ -318,9 +313,11 @@ class SimulatedDrive:
         self, spec: Parameter, value: int, parameters: Mapping[int, int]
     ) -> None:
         if spec.read_only:
-            raise Refused(exc.PARAMETER_READ_ONLY, f"{spec.name} is read-only")
+            raise RequestRefused(exc.PARAMETER_READ_ONLY, f"{spec.name} is read-only")
         if spec.locked_while_running and self._mode in _OUTPUT_ACTIVE:
-            raise Refused(exc.NOT_CHANGEABLE_WHILE_RUNNING, f"{spec.name} is locked while running")
+            raise RequestRefused(
+                exc.NOT_CHANGEABLE_WHILE_RUNNING, f"{spec.name} is locked while running"
+            )
         low = spec.minimum
         if spec.minimum_from is not None:
             low = parameters[parse_parameter(spec.minimum_from)]
@@ -328,7 +325,9 @@ class SimulatedDrive:
         if spec.maximum_from is not None:
             high = parameters[parse_parameter(spec.maximum_from)]
         if not low <= value <= high:
-            raise Refused(exc.OPERATION_FAILURE, f"{spec.name} = {value} outside {low}..{high}")
+            raise RequestRefused(
+                exc.OPERATION_FAILURE, f"{spec.name} = {value} outside {low}..{high}"
+            )
 
     def _check_register_write(
         self, register: Register, value: int, parameters: Mapping[int, int]
@@ -341,7 +340,7 @@ class SimulatedDrive:
         if register.name == "virtual_input_terminals":
             high = (1 << self.profile.virtual_input_bits) - 1
         if not low <= number <= high:
-            raise Refused(
+            raise RequestRefused(
                 exc.OPERATION_FAILURE, f"{register.name} = {number} outside {low}..{high}"
             )
 
@@ -349,7 +348,7 @@ class SimulatedDrive:
         command = ControlCommand(value)  # the range was checked against the register map
         starts = command in _STARTING_COMMANDS
         if starts and self._mode is Mode.FAULT:
-            raise Refused(exc.ILLEGAL_COMMAND, "the drive is faulty: reset the fault first")
+            raise RequestRefused(exc.ILLEGAL_COMMAND, "the drive is faulty: reset the fault first")
         return command
 
     def _command(self, command: ControlCommand, now: float) -> None:
@@ -527,11 +526,11 @@ _STARTING_COMMANDS: Final = frozenset(
 def _unpack_header(pdu: bytes, expected_length: int) -> tuple[int, int]:
     """(address, count or value) of a fixed-length request; 06H when the length is wrong."""
     if len(pdu) != expected_length:
-        raise Refused(exc.DATA_FRAME_ERROR, f"request of {len(pdu)} bytes")
+        raise RequestRefused(exc.DATA_FRAME_ERROR, f"request of {len(pdu)} bytes")
     first, second = struct.unpack_from(">HH", pdu, 1)
     return int(first), int(second)
 
 
 def _check_span(start: int, count: int) -> None:
     if start + count > 0x10000:
-        raise Refused(exc.ILLEGAL_DATA_ADDRESS, "the block runs past FFFFH")
+        raise RequestRefused(exc.ILLEGAL_DATA_ADDRESS, "the block runs past FFFFH")

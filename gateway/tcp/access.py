@@ -24,33 +24,15 @@ business, not this layer's.
 
 from __future__ import annotations
 
-import struct
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Final
 
 from gateway.errors import ExceptionCode
-from gateway.modbus.functions import (
-    MASK_WRITE_REGISTER,
-    READ_HOLDING_REGISTERS,
-    READ_INPUT_REGISTERS,
-    READ_WRITE_MULTIPLE_REGISTERS,
-    WRITE_MULTIPLE_REGISTERS,
-    WRITE_SINGLE_REGISTER,
-)
-
-Span = tuple[int, int]
-"""First and last register, both included."""
+from gateway.modbus.functions import lookup
+from gateway.modbus.registers import Span
 
 BROADCAST_UNIT: Final = 0
-LAST_REGISTER: Final = 0xFFFF
-EVERY_REGISTER: Final[tuple[Span, ...]] = ((0, LAST_REGISTER),)
-_BLOCK_REQUESTS: Final = frozenset(
-    {READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS, WRITE_MULTIPLE_REGISTERS}
-)
-_SINGLE_REQUESTS: Final = frozenset({WRITE_SINGLE_REGISTER, MASK_WRITE_REGISTER})
-_TWO_WORDS: Final = struct.Struct(">HH")
-_FOUR_WORDS: Final = struct.Struct(">HHHH")
 
 
 @dataclass(frozen=True, slots=True)
@@ -145,28 +127,7 @@ def touched_spans(pdu: bytes) -> tuple[Span, ...] | None:
     A request too short to say which registers it means is taken to touch all of them: refusing
     rules catch it, allowing rules with registers don't (the drive would refuse it anyway).
     """
-    function = pdu[0]
-    if function in _BLOCK_REQUESTS:
-        if len(pdu) < 5:
-            return EVERY_REGISTER
-        start, count = _TWO_WORDS.unpack_from(pdu, 1)
-        return (_block(start, count),)
-    if function in _SINGLE_REQUESTS:
-        if len(pdu) < 3:
-            return EVERY_REGISTER
-        address = int.from_bytes(pdu[1:3], "big")
-        return ((address, address),)
-    if function == READ_WRITE_MULTIPLE_REGISTERS:
-        if len(pdu) < 9:
-            return EVERY_REGISTER
-        read_start, read_count, write_start, write_count = _FOUR_WORDS.unpack_from(pdu, 1)
-        return (_block(read_start, read_count), _block(write_start, write_count))
-    return None
-
-
-def _block(start: int, count: int) -> Span:
-    # A count of 0 is invalid, but it names its start register: treat it as touching that one.
-    return start, min(start + max(count, 1) - 1, LAST_REGISTER)
+    return lookup(pdu[0]).registers(pdu)
 
 
 def merge_spans(spans: Iterable[Span]) -> tuple[Span, ...]:

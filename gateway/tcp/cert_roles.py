@@ -13,6 +13,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Final
 
+from gateway.errors import MalformedCertificate
+
 ROLE_OID: Final = "1.3.6.1.4.1.50316.802.1"
 
 _SEQUENCE = 0x30
@@ -40,25 +42,21 @@ def encode_oid(dotted: str) -> bytes:
 _ROLE_OID_BYTES: Final = encode_oid(ROLE_OID)
 
 
-class DerError(ValueError):
-    """Bytes that are not the DER this module expects."""
-
-
 def _read(data: bytes, offset: int) -> tuple[int, int, int]:
     """(tag, start of the value, end of the value) of the TLV at `offset`."""
     if offset + 2 > len(data):
-        raise DerError("truncated")
+        raise MalformedCertificate("truncated")
     tag, length = data[offset], data[offset + 1]
     start = offset + 2
     if length & 0x80:
         count = length & 0x7F
         if count == 0 or count > 4 or start + count > len(data):
-            raise DerError("bad length")
+            raise MalformedCertificate("bad length")
         length = int.from_bytes(data[start : start + count], "big")
         start += count
     end = start + length
     if end > len(data):
-        raise DerError("truncated")
+        raise MalformedCertificate("truncated")
     return tag, start, end
 
 
@@ -84,7 +82,7 @@ def role_extension(certificate_der: bytes) -> str | None:
         for tag, value_start, value_end in _children(certificate_der, tbs_start, tbs_end):
             if tag == _EXTENSIONS:
                 return _find_role(certificate_der, value_start, value_end)
-    except (DerError, IndexError):
+    except (MalformedCertificate, IndexError):
         return None
     return None
 

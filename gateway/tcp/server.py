@@ -32,10 +32,10 @@ import ssl
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
 
-from gateway.errors import MalformedFrame, ModbusError
+from gateway.errors import ExceptionCode, MalformedFrame, ModbusError
 from gateway.listen import cannot_listen
 from gateway.logs import repeated
-from gateway.modbus.functions import PURE_READS, changes_nothing, exception_pdu
+from gateway.modbus.functions import changes_nothing, exception_pdu, lookup
 from gateway.modbus.mbap import HEADER_LENGTH, build_adu, parse_header
 from gateway.tcp.access import AccessPolicy, AccessRule
 from gateway.tcp.cert_roles import client_role
@@ -45,9 +45,6 @@ log = logging.getLogger(__name__)
 RequestHandler = Callable[[int, bytes, str], Awaitable[bytes | None]]
 """(unit id, request PDU, client) -> reply PDU, or None when nothing answers (a broadcast)."""
 
-ILLEGAL_FUNCTION = 0x01
-SERVER_DEVICE_FAILURE = 0x04
-GATEWAY_PATH_UNAVAILABLE = 0x0A
 # Once part of a frame has arrived, the rest follows at once; a client that stops halfway is
 # broken, and waiting for it the whole idle timeout would hold a connection slot.
 PARTIAL_FRAME_TIMEOUT_S = 5.0
@@ -274,7 +271,7 @@ class ModbusTcpServer:
             self.stats.denied += 1
             self.stats.exceptions += 1
             log.debug("%s unit %d: %02XH refused: modbus_tcp.read_only", client, unit_id, function)
-            return exception_pdu(function, ILLEGAL_FUNCTION)
+            return exception_pdu(function, ExceptionCode.ILLEGAL_FUNCTION)
         if self.access is not None:
             refusal = self.access.check(unit_id, pdu, role)
             if refusal is not None:
@@ -297,7 +294,7 @@ class ModbusTcpServer:
             return exception_pdu(function, exc.code)
         except Exception:  # a bug must cost one answer, not the connection: log it loudly
             log.exception("%s unit %d: unexpected error", client, unit_id)
-            return exception_pdu(function, SERVER_DEVICE_FAILURE)
+            return exception_pdu(function, ExceptionCode.SERVER_DEVICE_FAILURE)
         if reply is None:  # a broadcast: no drive answers it
             return pdu if self.settings.broadcast_reply else None
         return reply
@@ -417,7 +414,7 @@ class Connection(asyncio.Protocol):
                 self._answer(header.transaction_id, header.unit_id, pdu)
             )
             self.answers.add(answer)
-            if pdu[0] in PURE_READS:
+            if lookup(pdu[0]).coalescable:  # a pure read
                 self._reads.add(answer)
             if len(self.answers) >= settings.max_requests_per_connection:
                 # Back-pressure: stop reading this client until an answer has gone out.
@@ -429,7 +426,7 @@ class Connection(asyncio.Protocol):
         stats.write_limited += 1
         stats.exceptions += 1
         if self._transport is not None and not self._transport.is_closing():
-            reply = exception_pdu(pdu[0], GATEWAY_PATH_UNAVAILABLE)
+            reply = exception_pdu(pdu[0], ExceptionCode.GATEWAY_PATH_UNAVAILABLE)
             self._transport.write(build_adu(transaction_id, unit_id, reply))
 
     def pause_writing(self) -> None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
-from gateway.errors import BadReply, PortError, ReplyTimeout
+from gateway.errors import BadReply, FieldError, PortError, ReplyTimeout
 from gateway.modbus.functions import READ_HOLDING_REGISTERS, WRITE_SINGLE_REGISTER, is_exception
 from gateway.profile import parse_parameter
 from gateway.profile.ram_writes import ram_write_address
@@ -20,7 +20,6 @@ from gateway.tools.advice import (
     GATEWAY,
     NO_ANSWER,
     PORT,
-    FieldError,
     exception_error,
 )
 from gateway.tools.masters import Master, TcpMaster

@@ -7,24 +7,9 @@ P00.06 frequency source.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
+from gateway.errors import FieldError
 from gateway.profile import describe_exception
-
-
-class FieldError(Exception):
-    """A tool's failure: what happened, and what to check."""
-
-    def __init__(self, message: str, checks: Sequence[str] = ()) -> None:
-        super().__init__(message)
-        self.message = message
-        self.checks = tuple(checks)
-
-    def __str__(self) -> str:
-        if not self.checks:
-            return self.message
-        return self.message + "\ncheck:\n" + "\n".join(f"  - {check}" for check in self.checks)
-
+from gateway.profile import exception_codes as invt
 
 NO_ANSWER = (
     "baud rate and data format: the drive's P14.01 and P14.02 must match --baud and --parity "
@@ -57,25 +42,29 @@ COMMUNICATION_MODE = (
 )
 
 _EXCEPTION_CHECKS: dict[int, tuple[str, ...]] = {
-    0x01: (
+    invt.ILLEGAL_COMMAND: (
         "the drive has no such function, or it is in a fault state: read 2102H",
         *COMMUNICATION_MODE,
     ),
-    0x02: (
+    invt.ILLEGAL_DATA_ADDRESS: (
         "the register exists on this model (manufacturer groups P29/P99 are never readable)",
         "INVT reads at most 16 words at once",
     ),
-    0x04: (
+    invt.OPERATION_FAILURE: (
         "the value is inside the parameter's range; some ranges depend on another parameter "
         "(P00.04 within P00.05...P00.03)",
     ),
-    0x05: ("the user password (P07.00)",),
-    0x06: ("the frame reached the drive damaged: termination, wiring, baud rate",),
-    0x07: ("the parameter is read-only",),
-    0x08: ("the parameter can only be changed while the drive is stopped",),
-    0x09: ("the drive is locked by a password (P07.00)",),
-    0x0A: ("the gateway's configuration has a drive with this unit id (check-config lists them)",),
-    0x0B: (
+    invt.PASSWORD_ERROR: ("the user password (P07.00)",),
+    invt.DATA_FRAME_ERROR: ("the frame reached the drive damaged: termination, wiring, baud rate",),
+    invt.PARAMETER_READ_ONLY: ("the parameter is read-only",),
+    invt.NOT_CHANGEABLE_WHILE_RUNNING: (
+        "the parameter can only be changed while the drive is stopped",
+    ),
+    invt.PASSWORD_PROTECTION: ("the drive is locked by a password (P07.00)",),
+    invt.GATEWAY_PATH_UNAVAILABLE: (
+        "the gateway's configuration has a drive with this unit id (check-config lists them)",
+    ),
+    invt.GATEWAY_TARGET_FAILED: (
         "the gateway got no answer from the drive: its log says why (offline, timeout, port)",
         *NO_ANSWER[:2],
     ),

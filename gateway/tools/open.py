@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import argparse
 
-from gateway.errors import PortError
+from gateway.errors import FieldError, PortError
 from gateway.tools import SERIAL_TIMEOUT_MS, VIA_TIMEOUT_MS
-from gateway.tools.advice import GATEWAY, PORT, FieldError
+from gateway.tools.advice import GATEWAY, PORT
 from gateway.tools.masters import Master, RtuMaster, SerialOptions, TcpMaster, parse_via
 
 

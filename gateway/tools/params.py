@@ -32,6 +32,7 @@ from typing import Any
 
 import yaml
 
+from gateway.errors import FieldError
 from gateway.modbus.functions import READ_HOLDING_REGISTERS, WRITE_SINGLE_REGISTER
 from gateway.profile import DriveProfile, Parameter, get_profile, parse_parameter
 from gateway.profile.addressing import ram_address
@@ -39,7 +40,7 @@ from gateway.profile.invt import IDENTIFICATION, STATE_WORD_1, describe_identifi
 from gateway.profile.parameters import parameter_at
 from gateway.profile.states import RunState
 from gateway.tools.access import ask
-from gateway.tools.advice import GARBLED, FieldError
+from gateway.tools.advice import GARBLED
 from gateway.tools.masters import Master
 
 LINE_SETTINGS = frozenset({"P14.00", "P14.01", "P14.02"})

@@ -6,7 +6,8 @@ from rich import box
 from rich.table import Table
 
 from gateway.bus.line import BURSTS_FROM_S, SerialLine
-from gateway.tools.advice import COMMUNICATION_MODE, GARBLED, NO_ANSWER, FieldError
+from gateway.errors import FieldError
+from gateway.tools.advice import COMMUNICATION_MODE, GARBLED, NO_ANSWER
 from gateway.tools.masters import SerialOptions
 from gateway.tools.scan import ScanResult
 
