@@ -41,6 +41,7 @@ from gateway.bus.line import SerialLine
 from gateway.config import GatewayConfig
 from gateway.health import Phase, health_report
 from gateway.http_endpoint import HttpEndpoint, Response
+from gateway.modbus.request_checks import Reason
 from gateway.routing import Router
 from gateway.tcp.access import AccessPolicy
 from gateway.tcp.server import ModbusTcpServer, TcpStats
@@ -300,6 +301,15 @@ class GatewayCollector(Collector):
         yield clients
         for name, doc in _TCP_COUNTERS.items():
             yield CounterMetricFamily(f"{PREFIX}_tcp_{name}", doc, value=getattr(stats, name))
+        malformed = CounterMetricFamily(
+            f"{PREFIX}_tcp_malformed_requests",
+            "Requests answered at the front door without bus time (01H or 03H), by reason",
+            labels=["reason"],
+        )
+        counts = dict(stats.malformed_requests)
+        for reason in Reason:  # every reason, from the start: a fixed set of series
+            malformed.add_metric([str(reason)], counts.get(reason, 0))
+        yield malformed
 
     def _access(self, access: AccessPolicy) -> CounterMetricFamily:
         denied = CounterMetricFamily(

@@ -29,13 +29,14 @@ import ipaddress
 import logging
 import socket
 import ssl
+from collections import Counter
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
 
 from gateway.errors import ExceptionCode, MalformedFrame, ModbusError
 from gateway.listen import cannot_listen
 from gateway.logs import repeated
-from gateway.modbus.functions import changes_nothing, exception_pdu, lookup
+from gateway.modbus.functions import changes_nothing, check_request, exception_pdu, lookup
 from gateway.modbus.mbap import HEADER_LENGTH, build_adu, parse_header
 from gateway.tcp.access import AccessPolicy, AccessRule
 from gateway.tcp.cert_roles import client_role
@@ -117,6 +118,8 @@ class TcpStats:
     """Connections closed for a frame not completed in time, or no request after connecting."""
     write_limited: int = 0
     """Writes refused with 0AH: the client had `max_queued_writes_per_client` waiting."""
+    malformed_requests: Counter[str] = field(default_factory=Counter)
+    """Requests answered at the front door (01H or 03H), by reason (`Reason` of the registry)."""
     active: set[str] = field(default_factory=set)
 
 
@@ -267,6 +270,15 @@ class ModbusTcpServer:
     ) -> bytes | None:
         """The reply PDU for one request; every error becomes an exception PDU here, only here."""
         function = pdu[0]
+        malformed = check_request(pdu)
+        if malformed is not None:
+            # Answered at the front door, without bus time: a drive may misbehave on it, and it
+            # would cost every other client the line.
+            self.stats.malformed_requests[malformed.reason] += 1
+            self.stats.exceptions += 1
+            detail = f"{malformed.reason}: {malformed.detail}"
+            log.debug("%s unit %d: %s refused: %s", client, unit_id, pdu[:8].hex(" "), detail)
+            return exception_pdu(function, malformed.exception_code)
         if self.settings.read_only and not changes_nothing(pdu):
             self.stats.denied += 1
             self.stats.exceptions += 1
