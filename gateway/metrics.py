@@ -22,7 +22,7 @@ import time
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from http import HTTPStatus
-from typing import Protocol, TypeVar
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
 from prometheus_client import (
     CONTENT_TYPE_LATEST,
@@ -42,6 +42,9 @@ from gateway.config import GatewayConfig
 from gateway.health import Phase, health_report
 from gateway.http_endpoint import HttpEndpoint, Response
 from gateway.modbus.request_checks import Reason
+
+if TYPE_CHECKING:
+    from gateway.mqtt import MqttBridge
 from gateway.routing import Router
 from gateway.tcp.access import AccessPolicy
 from gateway.tcp.server import ModbusTcpServer, TcpStats
@@ -181,6 +184,9 @@ class GatewayCollector(Collector):
         yield from self._buses()
         yield from self._drives()
         yield from self._tcp(self.service.tcp.stats)
+        bridge = getattr(self.service, "mqtt", None)
+        if bridge is not None:
+            yield from _mqtt_families(bridge)
         if self.service.tcp.access is not None:
             yield self._access(self.service.tcp.access)
 
@@ -452,3 +458,31 @@ class _LineFamilies:
 
     def families(self) -> Iterable[CounterMetricFamily | GaugeMetricFamily]:
         return (self.garbage, self.echoes, self.silence)
+
+
+def _mqtt_families(bridge: MqttBridge) -> Iterable[CounterMetricFamily | GaugeMetricFamily]:
+    connected = GaugeMetricFamily(
+        f"{PREFIX}_mqtt_connected", "1 while the bridge is connected to the broker"
+    )
+    connected.add_metric([], 1.0 if bridge.connected.is_set() else 0.0)
+    yield connected
+    yield CounterMetricFamily(
+        f"{PREFIX}_mqtt_messages_published",
+        "Messages the bridge published (states, availability, events, answers, discovery)",
+        value=bridge.stats.published,
+    )
+    yield CounterMetricFamily(
+        f"{PREFIX}_mqtt_messages_dropped",
+        "Events dropped because the queue for the broker was full (it was away too long)",
+        value=bridge.outbox.stats.events_dropped,
+    )
+    commands = CounterMetricFamily(
+        f"{PREFIX}_mqtt_commands",
+        "Commands answered, by status: ok, or why not (retained, stale, busy, ...)",
+        labels=["status"],
+    )
+    statuses = dict(bridge.commands.statuses)
+    statuses["busy"] = statuses.get("busy", 0) + bridge.stats.busy  # refused before their turn
+    for status, count in sorted(statuses.items()):
+        commands.add_metric([status], count)
+    yield commands

@@ -16,12 +16,14 @@ it came is answered `stale` instead of being run; a lane that is full answers `b
 from __future__ import annotations
 
 import asyncio
+import logging
 from collections.abc import Awaitable
 
 import aiomqtt
 
 from gateway.config import GatewayConfig, MqttConfig
 from gateway.mqtt.commands import CommandDrive, Commands
+from gateway.mqtt.discovery_cleanup import own_discovery_topics, remove_stale_entities
 from gateway.mqtt.dispatcher import Dispatcher
 from gateway.mqtt.kinds import Context, command_kinds
 from gateway.mqtt.lanes import Lanes
@@ -35,6 +37,8 @@ from gateway.profile import get_profile
 from gateway.profile.telemetry import Telemetry
 from gateway.routing import Router
 from gateway.tasks import ServiceTasks
+
+log = logging.getLogger(__name__)
 
 STOP_TASK_BUDGET_S = 0.6
 """With the offline message, inside the 1 s the application gives each feature to stop."""
@@ -69,8 +73,13 @@ class MqttBridge:
             mqtt.discovery_prefix,
         )
         kinds = command_kinds(context, drives, mqtt.homeassistant_discovery)
-        self.dispatcher = Dispatcher(kinds, self.lanes, self.publisher.answer, self.stats)
+        self.dispatcher = Dispatcher(
+            kinds, self.lanes, self.publisher.answer, self.stats, self.publisher.clear_retained
+        )
         self.session = Session(config, self.topics, self.stats, tasks, self._connected, self._lost)
+        self.config = config
+        self.tasks = tasks
+        self._discovery_cleaned = False
 
     @property
     def connected(self) -> asyncio.Event:
@@ -108,9 +117,24 @@ class MqttBridge:
         await self.session.subscribe(client, self.dispatcher.topics)
         await self.publisher.catch_up(client)
         self.session.connected.set()
+        if not self._discovery_cleaned:
+            self._discovery_cleaned = True
+            self.tasks.start("mqtt:discovery-cleanup", self._clean_discovery())
         async with asyncio.TaskGroup() as tasks:
             tasks.create_task(self.publisher.run(client), name="mqtt:publish")
             tasks.create_task(self.dispatcher.run(client), name="mqtt:receive")
+
+    async def _clean_discovery(self) -> None:
+        """Once per start: entities published before and no longer offered are removed."""
+        assert self.config.mqtt is not None
+        pattern = own_discovery_topics(self.config.mqtt.discovery_prefix, self.config.gateway_id)
+        try:
+            await remove_stale_entities(
+                self.session.side_client("cleanup"), pattern, self.publisher.discovery_topics()
+            )
+        except aiomqtt.MqttError as exc:
+            # Not worth a restart: the broker went away meanwhile; the next start tries again.
+            log.info("MQTT: stale Home Assistant entities not checked: %s", exc)
 
     def _lost(self) -> None:
         self.lanes.drop_waiting()

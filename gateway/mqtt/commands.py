@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 import struct
 import time
+from collections import Counter
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Final
@@ -82,6 +83,8 @@ class Commands:
         self.router = router
         self.poller = poller
         self.drives = drives
+        self.statuses: Counter[str] = Counter()
+        """Commands answered, by status: ok, or the error (a fixed set of names)."""
         self.executed = 0
         self.refused = 0
 
@@ -99,13 +102,16 @@ class Commands:
             data = await run(payload)
         except CommandRefused as exc:
             self.refused += 1
+            self.statuses[exc.reason] += 1
             log.warning("MQTT command refused (%s): %s", exc.reason, exc)
             return error_response(transaction, exc.reason, str(exc))
         except ModbusError as exc:
             self.refused += 1
             error, code = modbus_error(exc)
+            self.statuses[error] += 1
             return error_response(transaction, error, str(exc), code)
         self.executed += 1
+        self.statuses["ok"] += 1
         return ok_response(transaction, data)
 
     def may_refresh(self, drive: str, message: Incoming) -> bool:

@@ -19,6 +19,7 @@ import random
 import ssl
 
 import aiomqtt
+from paho.mqtt.client import MQTT_CLEAN_START_FIRST_ONLY
 
 from gateway.config import GatewayConfig, MqttConfig
 from gateway.errors import TlsSettingsError
@@ -71,23 +72,41 @@ def _reason(exc: ssl.SSLError | OSError, hint: str) -> str:
     return hint if "PEM lib" in text else f"{hint} ({text.replace('_', ' ').lower()})"
 
 
+MQTT_5 = aiomqtt.ProtocolVersion.V5
+MQTT_3_1_1 = aiomqtt.ProtocolVersion.V311
+
+
 def make_client(
-    config: GatewayConfig, topics: Topics, tls: ssl.SSLContext | None
+    config: GatewayConfig,
+    topics: Topics,
+    tls: ssl.SSLContext | None,
+    protocol: aiomqtt.ProtocolVersion = MQTT_3_1_1,
+    identifier: str | None = None,
+    will: bool = True,
 ) -> aiomqtt.Client:
-    """A fresh client for one connection attempt; `tls` from `tls_context`, built once."""
+    """A fresh client for one connection attempt; `tls` from `tls_context`, built once.
+
+    MQTT 5 where the broker speaks it: only there does a subscription keep the retain flag of a
+    message delivered live (retain-as-published), so a retained command can always be refused.
+    """
     mqtt = config.mqtt
     assert mqtt is not None
+    five = protocol == MQTT_5
     return aiomqtt.Client(
         mqtt.host,
         mqtt.port,
         username=mqtt.username,
         password=mqtt.password,
-        identifier=client_id(config),
-        # The broker says "offline" for us if we vanish (power cut, kill -9, cable).
-        will=aiomqtt.Will(topics.bridge_state, OFFLINE, qos=1, retain=True),
+        identifier=identifier or client_id(config),
+        # The broker says "offline" for us if we vanish (power cut, kill -9, cable). A side
+        # connection (`will=False`) must not: the gateway is still there.
+        will=aiomqtt.Will(topics.bridge_state, OFFLINE, qos=1, retain=True) if will else None,
         # No session kept on the broker: commands sent while we were away are not delivered
-        # later, when the plant may be in another state.
-        clean_session=True,
+        # later, when the plant may be in another state. (MQTT 5: a clean start, and a
+        # session that ends with the connection, the default expiry of 0.)
+        clean_session=None if five else True,
+        clean_start=True if five else MQTT_CLEAN_START_FIRST_ONLY,
+        protocol=protocol,
         keepalive=mqtt.keepalive_s,
         timeout=CONNECT_TIMEOUT_S,
         tls_context=tls,

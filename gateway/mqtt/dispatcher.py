@@ -30,6 +30,8 @@ BUSY_LOG_EVERY = 100
 
 Answer = Callable[[aiomqtt.Client, str, Json], Awaitable[None]]
 """Publishes a response on a topic; says nothing when the connection is gone."""
+ClearRetained = Callable[[aiomqtt.Client, str], Awaitable[None]]
+"""Removes the retained message on a topic (an empty retained publish), and says so."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -45,6 +47,10 @@ class Incoming:
 
 class CommandKind(Protocol):
     """What one kind of message does; one instance per topic it is subscribed on."""
+
+    @property
+    def command(self) -> bool:
+        """Sent by someone to have something done: never taken retained, never empty."""
 
     @property
     def response_topic(self) -> str | None:
@@ -64,11 +70,13 @@ class Dispatcher:
         lanes: Lanes,
         answer: Answer,
         stats: BridgeStats,
+        clear_retained: ClearRetained | None = None,
     ) -> None:
         self.kinds = kinds
         self.lanes = lanes
         self.answer = answer
         self.stats = stats
+        self.clear_retained = clear_retained
 
     @property
     def topics(self) -> Iterable[str]:
@@ -97,6 +105,15 @@ class Dispatcher:
         if kind is None:
             self.stats.ignored += 1
             return
+        if kind.command and not incoming.payload.strip():
+            # An empty payload is how a retained message is cleared (ours, or someone's):
+            # nothing to do, nothing to answer.
+            self.stats.ignored += 1
+            return
+        if kind.command and incoming.retained and self.clear_retained is not None:
+            # Refused by the kind as `retained`; cleared here, or it runs again for the next
+            # subscriber (another gateway, this one after a restart).
+            self._clear(client, incoming.topic)
         lane = kind.lane(incoming)
         if lane is None:
             return
@@ -123,6 +140,15 @@ class Dispatcher:
                     "the gateway failed; see its log",
                 )
                 await self.answer(client, kind.response_topic, response)
+
+    def _clear(self, client: aiomqtt.Client, topic: str) -> None:
+        clear = self.clear_retained
+        assert clear is not None
+
+        async def job() -> None:
+            await clear(client, topic)
+
+        self.lanes.submit("retained", job)
 
     def _refuse_busy(
         self, client: aiomqtt.Client, lane: str, incoming: Incoming, response_topic: str | None

@@ -70,6 +70,7 @@ def drive_lane(drive: str) -> str:
 
 
 class DriveCommand:
+    command = True
     """`<base>/<drive>/set`: a control command, a set-point, or a parameter write."""
 
     def __init__(self, context: Context, drive: CommandDrive) -> None:
@@ -92,6 +93,7 @@ class DriveCommand:
 
 
 class DriveRefresh:
+    command = True
     """`<base>/<drive>/get`: poll the drive now and publish its state (no answer of its own)."""
 
     response_topic = None
@@ -116,6 +118,7 @@ class DriveRefresh:
 
 
 class BridgeRequest:
+    command = True
     """`<base>/bridge/request/<operation>`, answered on `<base>/bridge/response/<operation>`."""
 
     operation: ClassVar[str]
@@ -182,6 +185,7 @@ BRIDGE_REQUESTS: Final[tuple[type[BridgeRequest], ...]] = (ReadParameter, WriteP
 
 
 class DiscoveryAsked:
+    command = False  # Home Assistant's retained "online" is how it is meant to be
     """Home Assistant came (back) online: it wants the discovery messages again."""
 
     response_topic = None
@@ -199,6 +203,7 @@ class DiscoveryAsked:
 
 
 class GatewayInfo:
+    command = False
     """Our own `bridge/info`: another gateway publishing it would overwrite our retained state."""
 
     response_topic = None

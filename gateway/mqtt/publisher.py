@@ -26,7 +26,7 @@ from gateway.mqtt.requests import Json, dump
 from gateway.mqtt.stats import BridgeStats
 from gateway.mqtt.topics import Topics
 from gateway.poller import DriveEvent, Poller
-from gateway.poller.drive_state import iso_time
+from gateway.poller.drive_state import EventKind, iso_time
 from gateway.profile.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
@@ -76,6 +76,15 @@ class Publisher:
             if "last_seen" in telemetry:
                 await self.state(client, drive, telemetry, force=True)
 
+    def discovery_topics(self) -> set[str]:
+        """The discovery configs this gateway offers now (none with discovery off)."""
+        if not self.mqtt.homeassistant_discovery:
+            return set()
+        return {
+            topic
+            for topic, _ in discovery_messages(self.config, self.mqtt.discovery_prefix, self.topics)
+        }
+
     async def discovery(self, client: aiomqtt.Client) -> None:
         messages = discovery_messages(
             self.config, self.mqtt.discovery_prefix, self.topics, self.poller.max_frequency_hz
@@ -116,6 +125,17 @@ class Publisher:
         """A command's answer; when the connection is gone, there is nobody to tell."""
         with contextlib.suppress(aiomqtt.MqttError):
             await self.publish(client, topic, dump(response))
+
+    async def clear_retained(self, client: aiomqtt.Client, topic: str) -> None:
+        """Remove a retained command from the broker (an empty retained publish), and say so in
+        an event: left there, it would run for the next subscriber."""
+        with contextlib.suppress(aiomqtt.MqttError):
+            await self.publish(client, topic, "", retain=True)
+        log.warning("MQTT: a retained command on %s was refused and cleared from the broker", topic)
+        drive = self.topics.drive_of(topic) or "bridge"
+        self.outbox.put_event(
+            DriveEvent(EventKind.RETAINED_COMMAND_CLEARED, drive, {"topic": topic})
+        )
 
     async def publish(
         self, client: aiomqtt.Client, topic: str, payload: str, retain: bool = False

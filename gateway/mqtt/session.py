@@ -22,10 +22,14 @@ import ssl
 from collections.abc import Awaitable, Callable, Iterable
 
 import aiomqtt
+from paho.mqtt.reasoncodes import ReasonCode
+from paho.mqtt.subscribeoptions import SubscribeOptions
 
 from gateway.config import GatewayConfig, MqttConfig
 from gateway.errors import TlsSettingsError
 from gateway.mqtt.connection import (
+    MQTT_3_1_1,
+    MQTT_5,
     OFFLINE,
     ONLINE,
     Backoff,
@@ -40,6 +44,8 @@ from gateway.tasks import ServiceTasks, cancel_and_wait
 log = logging.getLogger(__name__)
 
 QOS = 1
+UNSUPPORTED_PROTOCOL = frozenset({1, 0x84})
+"""CONNACK's "unacceptable protocol version" (3.1.1) and "unsupported protocol version" (5)."""
 RECONNECT_INITIAL_S = 0.5
 STOP_PUBLISH_TIMEOUT_S = 0.3
 
@@ -68,6 +74,9 @@ class Session:
         self._on_lost = on_lost
         self._client: aiomqtt.Client | None = None
         self._task: asyncio.Task[None] | None = None
+        self.protocol = MQTT_5
+        self._tls: ssl.SSLContext | None = None
+        """MQTT 5 until the broker refuses it; then 3.1.1 for as long as the gateway runs."""
 
     async def start(self) -> None:
         self._task = self.tasks.start("mqtt:bridge", self._run())
@@ -90,18 +99,33 @@ class Session:
             await cancel_and_wait(self._task, budget_s)
             self._task = None
 
+    def side_client(self, purpose: str) -> aiomqtt.Client:
+        """A second, short connection with the session's broker, TLS and protocol: its own
+        client id (`<id>-<purpose>`), no last will. Call once the session has connected."""
+        identifier = f"{client_id(self.config)}-{purpose}"
+        return make_client(
+            self.config, self.topics, self._tls, self.protocol, identifier=identifier, will=False
+        )
+
     async def subscribe(self, client: aiomqtt.Client, topics: Iterable[str]) -> None:
+        if self.protocol == MQTT_5:
+            # Retain-as-published: a retained command keeps its flag when delivered live too,
+            # so it is refused however it comes (under 3.1.1 the broker clears it).
+            options = SubscribeOptions(qos=QOS, retainAsPublished=True)
+            await client.subscribe([(topic, options) for topic in topics])
+            return
         await client.subscribe([(topic, QOS) for topic in topics])
 
     async def _run(self) -> None:
         backoff = Backoff(RECONNECT_INITIAL_S, self.mqtt.reconnect_max_s)
-        tls = await self._tls_context(backoff)
+        tls = self._tls = await self._tls_context(backoff)
         failures = 0
+        retry_at_once = False
         while True:
             try:
                 # Inside the try: whatever building a client raises is one more failed attempt,
                 # never the end of the loop.
-                client = make_client(self.config, self.topics, tls)
+                client = make_client(self.config, self.topics, tls, self.protocol)
                 async with client:
                     self._client = client
                     if failures:
@@ -110,9 +134,12 @@ class Session:
                     backoff.reset()
                     await self._connected(client)
             except* aiomqtt.MqttError as group:
-                failures += 1
-                self.stats.connect_failures += 1
-                self._log_failure(failures, group.exceptions[0])
+                # Refused MQTT 5: again at once, in 3.1.1; the broker is there, it answered.
+                retry_at_once = self._refused_mqtt_5(group.exceptions[0])
+                if not retry_at_once:
+                    failures += 1
+                    self.stats.connect_failures += 1
+                    self._log_failure(failures, group.exceptions[0])
             except* Exception:
                 # A bug, or a client that can't be built: not the broker, but the bridge must not
                 # die of it either. The whole story once, then a line per attempt.
@@ -126,7 +153,28 @@ class Session:
                 self._client = None
                 self.connected.clear()
                 self._on_lost()
+            if retry_at_once:
+                retry_at_once = False
+                continue
             await asyncio.sleep(backoff.next_delay())
+
+    def _refused_mqtt_5(self, error: BaseException) -> bool:
+        """The broker refused MQTT 5 (an MQTT 3.1.1-only broker, such as RabbitMQ's plugin):
+        speak 3.1.1 from now on, and say once what that costs."""
+        if self.protocol != MQTT_5 or not isinstance(error, aiomqtt.MqttCodeError):
+            return False
+        code = error.rc.value if isinstance(error.rc, ReasonCode) else error.rc
+        if code not in UNSUPPORTED_PROTOCOL:
+            return False
+        self.protocol = MQTT_3_1_1
+        log.warning(
+            "MQTT: the broker %s:%d refuses MQTT 5; speaking 3.1.1. A retained command it "
+            "delivers while the gateway is connected arrives without its retain flag there, so "
+            "it can't be told from a fresh one (retained ones found on subscribing still are).",
+            self.mqtt.host,
+            self.mqtt.port,
+        )
+        return True
 
     async def _connected(self, client: aiomqtt.Client) -> None:
         self.stats.connects += 1

@@ -21,6 +21,8 @@ class EventKind(StrEnum):
     FAULT_CLEARED = "fault_cleared"
     DRIVE_OFFLINE = "drive_offline"
     DRIVE_ONLINE = "drive_online"
+    RETAINED_COMMAND_CLEARED = "retained_command_cleared"
+    """A retained command was refused and removed from the broker (the MQTT bridge's)."""
 
 
 @dataclass(frozen=True, slots=True)

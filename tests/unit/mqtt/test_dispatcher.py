@@ -30,6 +30,7 @@ class Echo:
     response_topic: str | None
     lane_name: str
     gate: asyncio.Event = field(default_factory=asyncio.Event)
+    command: bool = True
     ran: list[bytes] = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -50,6 +51,8 @@ class Echo:
 
 class Broken:
     """A kind with a bug."""
+
+    command = True
 
     def __init__(self, response_topic: str) -> None:
         self.response_topic = response_topic
