@@ -34,6 +34,7 @@ from gateway.health import Phase
 from gateway.modbus.timing import CharacterFormat
 from gateway.profile.ram_writes import ram_write_address
 from gateway.routing import RegisterCache, Route, Router
+from gateway.store import EventStore
 from gateway.tasks import ServiceTasks, cancel_and_wait
 from gateway.tcp import ModbusTcpServer, TcpSettings
 from gateway.tcp.access import AccessRule, merge_spans
@@ -41,6 +42,8 @@ from gateway.tcp.server import TlsListener
 
 log = logging.getLogger(__name__)
 
+EVENTS_WAITING = 1000
+"""Events waiting in memory for the store's disk (without MQTT, whose queue_size says it)."""
 SHUTDOWN_BUDGET_S = 1.5
 FEATURE_STOP_S = 0.5
 """Time for the transaction on the wire and the answers in flight, inside the 2 s promise."""
@@ -170,6 +173,16 @@ class Application:
         self.tasks = ServiceTasks()
         self.phase = Phase.STARTING
         mqtt = config.mqtt is not None and config.mqtt.enabled
+        # Started before the features that record events, stopped after them: none is lost.
+        self.events = EventStore(
+            config.storage,
+            self.tasks,
+            forwarding=mqtt,
+            max_waiting=config.mqtt.queue_size if config.mqtt is not None else EVENTS_WAITING,
+        )
+        self.features.append(self.events)
+        for bus in self.buses.values():
+            bus.add_port_listener(self.events.port_changed)
         # Without MQTT only the drives that ask for it are polled: polls cost line time, and a
         # pure Modbus-TCP gateway shouldn't spend it unasked.
         polled = [
@@ -194,13 +207,14 @@ class Application:
         for bus in self.buses.values():
             bus.add_listener(self.poller.on_drive_health)
         self.poller.add_listener(DriveEventLog())
+        self.poller.add_listener(self.events)
         self.features.append(self.poller)
 
     def _add_mqtt(self, config: GatewayConfig) -> None:
         """The bridge stops before the poller that feeds it (features stop in reverse)."""
         from gateway.mqtt import MqttBridge  # aiomqtt only loaded when MQTT is configured
 
-        self.mqtt = MqttBridge(config, self.router, self.poller, self.tasks)
+        self.mqtt = MqttBridge(config, self.router, self.poller, self.tasks, self.events)
         assert config.mqtt is not None
         self.poller.read_max_frequency = config.mqtt.homeassistant_discovery
         self.poller.add_listener(self.mqtt)

@@ -170,9 +170,13 @@ def fresh_venv(directory: Path) -> Path:
     return venv
 
 
-def image_config(example: dict[str, Any], lines: dict[str, str], tcp: int, metrics: int) -> str:
-    """The example configuration as the image ships it, on simulated lines and free ports."""
+def image_config(
+    example: dict[str, Any], lines: dict[str, str], tcp: int, metrics: int, state: Path
+) -> str:
+    """The example configuration as the image ships it, on simulated lines and free ports, its
+    store in `state` (the image's volume)."""
     config = dict(example)
+    config["storage"] = {**example["storage"], "path": str(state / "events.db")}
     # A pty stands in for each adapter; it has no RS-485 driver enable for `rs485` to switch.
     config["buses"] = [
         {**{k: v for k, v in bus.items() if k != "rs485"}, "port": lines[bus["name"]]}
@@ -240,7 +244,9 @@ def test_image_install_and_start_commands_work_in_a_fresh_virtualenv(tmp_path: P
     ):
         config = etc / "config.yaml"
         lines = {"line1": line1.path, "line2": line2.path}
-        config.write_text(image_config(example, lines, tcp, metrics), encoding="utf-8")
+        config.write_text(
+            image_config(example, lines, tcp, metrics, tmp_path / "state"), encoding="utf-8"
+        )
         command = [str(config) if part == IMAGE_CONFIG else part for part in start]
         process = subprocess.Popen(
             command, env=env, cwd=tmp_path, stderr=subprocess.PIPE, text=True

@@ -30,6 +30,8 @@ class DriveEvent:
     data: Telemetry = field(default_factory=dict)
     at: float = field(default_factory=time.time)
     """Wall-clock time (epoch seconds) the gateway noticed it."""
+    snapshot: Telemetry = field(default_factory=dict)
+    """For a raised fault: the drive's telemetry as last polled, at the moment it was raised."""
 
 
 class DriveState:
@@ -85,7 +87,8 @@ class DriveState:
             events.append(DriveEvent(EventKind.FAULT_CLEARED, self.name, cleared))
         if now:
             raised = fault_fields(now, table)
-            events.append(DriveEvent(EventKind.FAULT_RAISED, self.name, raised))
+            snapshot = self.telemetry()
+            events.append(DriveEvent(EventKind.FAULT_RAISED, self.name, raised, snapshot=snapshot))
         return events
 
 
