@@ -30,11 +30,14 @@ from gateway.config import (
     ModbusTcpConfig,
     Rs485Config,
 )
+from gateway.errors import GatewayError, GatewayPathUnavailable
 from gateway.health import Phase
+from gateway.modbus.functions import is_exception
 from gateway.modbus.timing import CharacterFormat
 from gateway.profile.ram_writes import ram_write_address
 from gateway.routing import RegisterCache, Route, Router
 from gateway.store import EventStore
+from gateway.store.modbus_writes import WriteTally
 from gateway.tasks import ServiceTasks, cancel_and_wait
 from gateway.tcp import ModbusTcpServer, TcpSettings
 from gateway.tcp.access import AccessRule, merge_spans
@@ -183,6 +186,8 @@ class Application:
         self.features.append(self.events)
         for bus in self.buses.values():
             bus.add_port_listener(self.events.port_changed)
+        self.writes = WriteTally(self.events, self._drive_of, self.tasks)
+        self.features.append(self.writes)
         # Without MQTT only the drives that ask for it are polled: polls cost line time, and a
         # pure Modbus-TCP gateway shouldn't spend it unasked.
         polled = [
@@ -225,7 +230,19 @@ class Application:
         return self.router.cache
 
     async def _handle_tcp(self, unit_id: int, pdu: bytes, client: str) -> bytes | None:
-        return await self.router.execute(unit_id, pdu, client=client)
+        try:
+            reply = await self.router.execute(unit_id, pdu, client=client)
+        except GatewayError:
+            self.writes.count(client, unit_id, pdu, refused=True)
+            raise
+        self.writes.count(client, unit_id, pdu, refused=reply is not None and is_exception(reply))
+        return reply
+
+    def _drive_of(self, unit_id: int) -> str | None:
+        try:
+            return self.router.route(unit_id).drive
+        except GatewayPathUnavailable:
+            return None
 
     async def run(self, stop: asyncio.Event, on_ready: Callable[[], None] | None = None) -> None:
         async with asyncio.TaskGroup() as tasks:

@@ -64,7 +64,7 @@ class MqttBridge:
             d.name: CommandDrive(d.name, router.route_for_drive(d.name), get_profile(d.model))
             for d in config.drives
         }
-        self.commands = Commands(mqtt, router, poller, drives)
+        self.commands = Commands(mqtt, router, poller, drives, events)
         self.context = context = Context(
             self.topics,
             self.commands,
@@ -74,6 +74,7 @@ class MqttBridge:
             self.stats,
             config.gateway_id,
             mqtt.discovery_prefix,
+            events,
         )
         kinds = command_kinds(context, drives, mqtt.homeassistant_discovery)
         self.dispatcher = Dispatcher(kinds, self.lanes, self.publisher.answer, self.stats)
