@@ -42,6 +42,7 @@ from gateway.config import GatewayConfig
 from gateway.health import Phase, health_report
 from gateway.http_endpoint import HttpEndpoint, Response
 from gateway.routing import Router
+from gateway.store import EventStore
 from gateway.tcp.access import AccessPolicy
 from gateway.tcp.server import ModbusTcpServer, TcpStats
 
@@ -75,6 +76,9 @@ class Service(Protocol):
 
     @property
     def phase(self) -> Phase: ...
+
+    @property
+    def events(self) -> EventStore: ...
 
 
 @dataclass(frozen=True, slots=True)
@@ -182,6 +186,7 @@ class GatewayCollector(Collector):
         yield from self._tcp(self.service.tcp.stats)
         if self.service.tcp.access is not None:
             yield self._access(self.service.tcp.access)
+        yield from self._store(self.service.events)
 
     def _gateway(self) -> Iterable[GaugeMetricFamily | InfoMetricFamily]:
         info = InfoMetricFamily(f"{PREFIX}_build", "Version and id of this gateway")
@@ -300,6 +305,21 @@ class GatewayCollector(Collector):
         yield clients
         for name, doc in _TCP_COUNTERS.items():
             yield CounterMetricFamily(f"{PREFIX}_tcp_{name}", doc, value=getattr(stats, name))
+
+    def _store(self, store: EventStore) -> Iterable[CounterMetricFamily | GaugeMetricFamily]:
+        stats = store.stats
+        for name, doc in _STORE_COUNTERS.items():
+            yield CounterMetricFamily(f"{PREFIX}_store_{name}", doc, value=getattr(stats, name))
+        yield GaugeMetricFamily(
+            f"{PREFIX}_store_events_undelivered",
+            "Events in the store the broker has not acknowledged yet",
+            value=stats.undelivered,
+        )
+        yield GaugeMetricFamily(
+            f"{PREFIX}_store_persistent",
+            "1 when the store is on disk (storage.path), 0 when it could not be opened (memory)",
+            value=1.0 if store.persistent else 0.0,
+        )
 
     def _access(self, access: AccessPolicy) -> CounterMetricFamily:
         denied = CounterMetricFamily(
@@ -442,3 +462,11 @@ class _LineFamilies:
 
     def families(self) -> Iterable[CounterMetricFamily | GaugeMetricFamily]:
         return (self.garbage, self.echoes, self.silence)
+
+
+_STORE_COUNTERS = {
+    "events_recorded": "Events recorded (faults, availability, ports, commands, writes, reloads)",
+    "events_delivered": "Events the broker acknowledged",
+    "events_dropped": "Events removed before the broker had them (storage.max_mb or max_age_days)",
+    "write_failures": "Writes to the store that failed (a full or failing disk); retried",
+}

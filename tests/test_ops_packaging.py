@@ -98,7 +98,8 @@ def test_image_runs_as_non_root_and_signals_reach_the_gateway() -> None:
     ]
     assert runtime["STOPSIGNAL"] == "SIGTERM"
     assert "HEALTHCHECK" in runtime
-    assert exec_form(runtime["VOLUME"]) == ["/etc/invt-gateway"]
+    # The configuration, and the store (storage.path's default): a volume outlives the image.
+    assert exec_form(runtime["VOLUME"]) == ["/etc/invt-gateway", "/var/lib/invt-gateway"]
     example = yaml.safe_load(EXAMPLE.read_text(encoding="utf-8"))
     ports = {int(port) for port in runtime["EXPOSE"].split()}
     assert ports == {example["modbus_tcp"]["port"], example["metrics"]["port"]}

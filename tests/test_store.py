@@ -99,7 +99,7 @@ async def test_the_size_bound_holds_oldest_out_counted_and_logged(
         await store.flush()
         assert await store.size_bytes() <= bound
         waiting = await store.undelivered(5000)
-        dropped = store.stats.dropped
+        dropped = store.stats.events_dropped
     assert path.stat().st_size <= bound  # the file itself, once closed
     assert not path.with_name("events.db-wal").exists()
     assert 0 < len(waiting) < 3000
@@ -121,7 +121,7 @@ async def test_events_older_than_max_age_go_at_start(tmp_path: Path) -> None:
         await store.flush()
     async with running_store(config) as store:
         waiting = await store.undelivered(10)
-        assert store.stats.dropped == 1
+        assert store.stats.events_dropped == 1
     assert [e.data["n"] for e in waiting] == ["new"]
 
 
@@ -196,5 +196,5 @@ async def test_without_mqtt_events_are_history_not_waiting(tmp_path: Path) -> No
             store.record("command", {"n": n, "note": "x" * 40})
         await store.flush()
         assert await store.undelivered(10) == []
-        assert store.stats.dropped == 0  # trimmed history is no loss: nobody waited for it
+        assert store.stats.events_dropped == 0  # trimmed history is no loss: nobody waited for it
         assert len(await store.recent_events(5)) == 5

@@ -18,11 +18,13 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from gateway.config import MetricsConfig, StorageConfig
 from gateway.store import EventType
 from tests.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
 from tests.mqtt_setup import FAST_POLL, mqtt_config, simulated_line
 from tests.processes import GatewayProcess, gateway_process
-from tests.support import running_gateway
+from tests.support import free_port, running_gateway
+from tests.test_ops_metrics import Scrape, http_get
 
 DASHBOARD = {"identifier": "dashboard", "clean_session": False}
 DRIVES = [
@@ -156,9 +158,11 @@ async def test_an_outage_longer_than_the_store_keeps_the_newest(tmp_path: Path) 
         await subscribe_dashboard(broker, base)
         broker.stop(graceful=True)
         config = mqtt_config(line.path, broker, base, homeassistant_discovery=False)
+        metrics_port = free_port()
         config = config.model_copy(
             update={
-                "storage": config.storage.model_copy(update={"path": str(store), "max_mb": 0.1})
+                "storage": StorageConfig(path=str(store), max_mb=0.1),
+                "metrics": MetricsConfig(enabled=True, host="127.0.0.1", port=metrics_port),
             }
         )
         async with running_gateway(config) as app:
@@ -166,7 +170,9 @@ async def test_an_outage_longer_than_the_store_keeps_the_newest(tmp_path: Path) 
             for n in range(3000):
                 app.events.record(EventType.COMMAND, {"drive": "pump1", "n": n, "pad": "x" * 40})
             await app.events.flush()
-            dropped = app.events.stats.dropped
+            _, _, text = await http_get(metrics_port, "/metrics")
+            dropped = Scrape(text)("store_events_dropped_total")
+            assert Scrape(text)("store_events_undelivered") == 3000 - dropped
             assert await app.events.size_bytes() <= bound
             broker.start()
             topic = f"{base}/bridge/event"

@@ -48,10 +48,10 @@ SNAPSHOT_LEAVES_OUT: Final = frozenset(
 
 @dataclass(slots=True)
 class StoreStats:
-    recorded: int = 0
+    events_recorded: int = 0
     stored: int = 0
-    delivered: int = 0
-    dropped: int = 0
+    events_delivered: int = 0
+    events_dropped: int = 0
     """Events removed (size or age bound, or memory while the disk failed) before the broker
     had them."""
     write_failures: int = 0
@@ -98,7 +98,7 @@ class EventStore:
         at: float | None = None,
         snapshot: Json | None = None,
     ) -> None:
-        self.stats.recorded += 1
+        self.stats.events_recorded += 1
         event = NewEvent(str(type), time.time() if at is None else at, data, drive, snapshot)
         self._waiting.append(event)
         while len(self._waiting) > self._max_waiting:
@@ -192,7 +192,7 @@ class EventStore:
         if not ids:
             return
         self._delivered_up_to = max(self._delivered_up_to, *ids)
-        self.stats.delivered += len(ids)
+        self.stats.events_delivered += len(ids)
         self.stats.undelivered = max(0, self.stats.undelivered - len(ids))
         if self._executor is not None:
             self._executor.submit(self._db.mark_delivered, ids).add_done_callback(_log_failure)
@@ -257,7 +257,7 @@ class EventStore:
                 self._waiting.popleft()  # only now: a failed write keeps them waiting
             self.stats.stored += len(batch)
             if self._db.forwarding:
-                self.stats.undelivered += len(batch) - appended.dropped
+                self.stats.undelivered += len(batch)
             self._dropped(appended.dropped, f"storage.max_mb ({self.config.max_mb:g}) reached")
             self._stored.set()
             async with self._written:
@@ -274,7 +274,7 @@ class EventStore:
     def _dropped(self, count: int, why: str, stored: bool = True) -> None:
         if not count:
             return
-        self.stats.dropped += count
+        self.stats.events_dropped += count
         if stored:
             self.stats.undelivered = max(0, self.stats.undelivered - count)
         self._drops_unlogged += count
@@ -286,7 +286,7 @@ class EventStore:
             "(%d dropped since the start)",
             self._drops_unlogged,
             why,
-            self.stats.dropped,
+            self.stats.events_dropped,
         )
         self._drops_logged_at = now
         self._drops_unlogged = 0
