@@ -34,9 +34,12 @@ from gateway.errors import GatewayError, GatewayPathUnavailable
 from gateway.health import Phase
 from gateway.modbus.functions import is_exception
 from gateway.modbus.timing import CharacterFormat
+from gateway.poller import Poller
 from gateway.profile.ram_writes import ram_write_address
+from gateway.reload import ReloadPlan
+from gateway.reload import plan as plan_reload
 from gateway.routing import RegisterCache, Route, Router
-from gateway.store import EventStore
+from gateway.store import EventStore, EventType
 from gateway.store.modbus_writes import WriteTally
 from gateway.tasks import ServiceTasks, cancel_and_wait
 from gateway.tcp import ModbusTcpServer, TcpSettings
@@ -143,6 +146,25 @@ def tls_listener(config: ModbusTcpConfig) -> TlsListener | None:
     )
 
 
+def tcp_settings(tcp: ModbusTcpConfig) -> TcpSettings:
+    return TcpSettings(
+        host=tcp.host,
+        port=tcp.port,
+        max_connections=tcp.max_connections,
+        idle_timeout_s=tcp.idle_timeout_s,
+        max_requests_per_connection=tcp.max_requests_per_connection,
+        broadcast_reply=tcp.broadcast_reply,
+        allowed_networks=tcp.allowed_networks,
+        read_only=tcp.read_only,
+        access=tuple(access_rule(r, i) for i, r in enumerate(tcp.access)),
+        first_request_timeout_s=tcp.first_request_timeout_s,
+        plain=tcp.plain,
+        tls=tls_listener(tcp),
+        max_connections_per_client=tcp.max_connections_per_client,
+        max_queued_writes_per_client=tcp.max_queued_writes_per_client,
+    )
+
+
 class Application:
     def __init__(self, config: GatewayConfig) -> None:
         self.config = config
@@ -152,26 +174,7 @@ class Application:
         )
         for bus in self.buses.values():
             bus.add_listener(self.router.on_drive_health)
-        tcp = config.modbus_tcp
-        self.tcp = ModbusTcpServer(
-            TcpSettings(
-                host=tcp.host,
-                port=tcp.port,
-                max_connections=tcp.max_connections,
-                idle_timeout_s=tcp.idle_timeout_s,
-                max_requests_per_connection=tcp.max_requests_per_connection,
-                broadcast_reply=tcp.broadcast_reply,
-                allowed_networks=tcp.allowed_networks,
-                read_only=tcp.read_only,
-                access=tuple(access_rule(r, i) for i, r in enumerate(tcp.access)),
-                first_request_timeout_s=tcp.first_request_timeout_s,
-                plain=tcp.plain,
-                tls=tls_listener(tcp),
-                max_connections_per_client=tcp.max_connections_per_client,
-                max_queued_writes_per_client=tcp.max_queued_writes_per_client,
-            ),
-            self._handle_tcp,
-        )
+        self.tcp = ModbusTcpServer(tcp_settings(config.modbus_tcp), self._handle_tcp)
         self.features: list[Feature] = []
         self.tasks = ServiceTasks()
         self.phase = Phase.STARTING
@@ -190,9 +193,7 @@ class Application:
         self.features.append(self.writes)
         # Without MQTT only the drives that ask for it are polled: polls cost line time, and a
         # pure Modbus-TCP gateway shouldn't spend it unasked.
-        polled = [
-            d for d in config.drives if mqtt or d.poll is not None or d.cache_max_age_ms is not None
-        ]
+        polled = [d for d in config.drives if self._polled(d)]
         if polled:
             self._add_poller(polled)
         if mqtt:
@@ -206,7 +207,6 @@ class Application:
     def _add_poller(self, drives: list[DriveConfig]) -> None:
         """Polls feed the cache, the fault log and (when configured) the MQTT bridge."""
         from gateway.event_log import DriveEventLog
-        from gateway.poller import Poller
 
         self.poller = Poller(drives, self.router, self.tasks)
         for bus in self.buses.values():
@@ -224,6 +224,33 @@ class Application:
         self.poller.read_max_frequency = config.mqtt.homeassistant_discovery
         self.poller.add_listener(self.mqtt)
         self.features.append(self.mqtt)
+
+    def reload(self, new: GatewayConfig) -> ReloadPlan:
+        """Apply a new, valid configuration in place (see `gateway.reload`); what changed."""
+        poller: Poller | None = getattr(self, "poller", None)
+        plan = plan_reload(self.config, new, mqtt_running=hasattr(self, "mqtt"))
+        running = plan.running
+        if poller is None and any(self._polled(d) for d in plan.added):
+            plan.restart_needed.append("polling (no drive was polled at start)")
+        for name in plan.removed:
+            if poller is not None:
+                poller.remove_drive(name)
+        self.router.replace_routes(drive_route(d, self.buses[d.bus]) for d in running.drives)
+        for drive in plan.added:
+            if poller is not None and self._polled(drive):
+                poller.add_drive(drive)
+        self.tcp.update(tcp_settings(running.modbus_tcp))
+        self.events.update_bounds(running.storage)
+        logging.getLogger().setLevel(running.logging.level.upper())
+        self.config = running
+        data = {"changed": plan.changed, "restart_needed": plan.restart_needed}
+        self.events.record(EventType.CONFIG_RELOADED, data)
+        log.warning("config reloaded: %s", plan.summary)
+        return plan
+
+    def _polled(self, drive: DriveConfig) -> bool:
+        mqtt = self.config.mqtt is not None and self.config.mqtt.enabled
+        return mqtt or drive.poll is not None or drive.cache_max_age_ms is not None
 
     @property
     def cache(self) -> RegisterCache:

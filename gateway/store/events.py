@@ -83,6 +83,12 @@ class EventStore:
         self._drops_logged_at = 0.0
         self._drops_unlogged = 0
 
+    def update_bounds(self, config: StorageConfig) -> None:
+        """A reload: max_mb and max_age_days from now on (the path stays until a restart)."""
+        self.config = config.model_copy(update={"path": self.config.path})
+        self._db.max_bytes = int(config.max_mb * 1024 * 1024)
+        self._db.max_age_s = config.max_age_days * 86400
+
     @property
     def persistent(self) -> bool:
         return self._db.persistent
