@@ -3,7 +3,9 @@
 #   docker build -t invt-gateway .
 #   docker run -d --name invt-gateway --restart unless-stopped \
 #     --device /dev/serial/by-id/usb-FTDI_...-if00-port0:/dev/ttyRS485-1 \
-#     -v /etc/invt-gateway:/etc/invt-gateway:ro -p 5020:5020 -p 9102:9102 invt-gateway
+#     -v /etc/invt-gateway:/etc/invt-gateway:ro -v invt-gateway-state:/var/lib/invt-gateway \
+#     -p 5020:5020 -p 9102:9102 invt-gateway
+#   docker kill -s HUP invt-gateway     (reloads the configuration without a restart)
 #
 # The build stage installs the package from this source tree into a virtualenv; the runtime
 # stage copies only that virtualenv, so no compiler, pip cache or source ends up in the image.
@@ -22,7 +24,8 @@ FROM python:3.11-slim-bookworm
 RUN groupadd --system --gid 10001 invt-gateway \
     && useradd --system --uid 10001 --gid 10001 --groups dialout --no-create-home \
         --home-dir /nonexistent --shell /usr/sbin/nologin invt-gateway \
-    && mkdir -p /etc/invt-gateway
+    && mkdir -p /etc/invt-gateway \
+    && install -d -o 10001 -g 10001 -m 0700 /var/lib/invt-gateway
 COPY --from=build /opt/invt-gateway /opt/invt-gateway
 COPY config/config.example.yaml /etc/invt-gateway/config.yaml
 ENV PATH=/opt/invt-gateway/bin:$PATH \
@@ -33,7 +36,9 @@ ENV PATH=/opt/invt-gateway/bin:$PATH \
 USER 10001
 # Modbus-TCP (modbus_tcp.port) and metrics/health (metrics.port).
 EXPOSE 5020 9102
-VOLUME ["/etc/invt-gateway"]
+# The configuration, and the store (events waiting for the broker, fault history: storage.path
+# defaults to /var/lib/invt-gateway/events.db): a named volume keeps it across new images.
+VOLUME ["/etc/invt-gateway", "/var/lib/invt-gateway"]
 HEALTHCHECK --interval=30s --timeout=5s --start-period=15s --retries=3 \
     CMD ["invt-gateway", "healthcheck", "--config", "/etc/invt-gateway/config.yaml"]
 # Exec form: the gateway is PID 1 and gets SIGTERM itself (no shell in between to swallow it);

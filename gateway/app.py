@@ -30,10 +30,17 @@ from gateway.config import (
     ModbusTcpConfig,
     Rs485Config,
 )
+from gateway.errors import GatewayError, GatewayPathUnavailable
 from gateway.health import Phase
+from gateway.modbus.functions import is_exception
 from gateway.modbus.timing import CharacterFormat
+from gateway.poller import Poller
 from gateway.profile.ram_writes import ram_write_address
+from gateway.reload import ReloadPlan
+from gateway.reload import plan as plan_reload
 from gateway.routing import RegisterCache, Route, Router
+from gateway.store import EventStore, EventType
+from gateway.store.modbus_writes import WriteTally
 from gateway.tasks import ServiceTasks, cancel_and_wait
 from gateway.tcp import ModbusTcpServer, TcpSettings
 from gateway.tcp.access import AccessRule, merge_spans
@@ -41,6 +48,8 @@ from gateway.tcp.server import TlsListener
 
 log = logging.getLogger(__name__)
 
+EVENTS_WAITING = 1000
+"""Events waiting in memory for the store's disk (without MQTT, whose queue_size says it)."""
 SHUTDOWN_BUDGET_S = 1.5
 FEATURE_STOP_S = 0.5
 """Time for the transaction on the wire and the answers in flight, inside the 2 s promise."""
@@ -137,6 +146,25 @@ def tls_listener(config: ModbusTcpConfig) -> TlsListener | None:
     )
 
 
+def tcp_settings(tcp: ModbusTcpConfig) -> TcpSettings:
+    return TcpSettings(
+        host=tcp.host,
+        port=tcp.port,
+        max_connections=tcp.max_connections,
+        idle_timeout_s=tcp.idle_timeout_s,
+        max_requests_per_connection=tcp.max_requests_per_connection,
+        broadcast_reply=tcp.broadcast_reply,
+        allowed_networks=tcp.allowed_networks,
+        read_only=tcp.read_only,
+        access=tuple(access_rule(r, i) for i, r in enumerate(tcp.access)),
+        first_request_timeout_s=tcp.first_request_timeout_s,
+        plain=tcp.plain,
+        tls=tls_listener(tcp),
+        max_connections_per_client=tcp.max_connections_per_client,
+        max_queued_writes_per_client=tcp.max_queued_writes_per_client,
+    )
+
+
 class Application:
     def __init__(self, config: GatewayConfig) -> None:
         self.config = config
@@ -146,35 +174,26 @@ class Application:
         )
         for bus in self.buses.values():
             bus.add_listener(self.router.on_drive_health)
-        tcp = config.modbus_tcp
-        self.tcp = ModbusTcpServer(
-            TcpSettings(
-                host=tcp.host,
-                port=tcp.port,
-                max_connections=tcp.max_connections,
-                idle_timeout_s=tcp.idle_timeout_s,
-                max_requests_per_connection=tcp.max_requests_per_connection,
-                broadcast_reply=tcp.broadcast_reply,
-                allowed_networks=tcp.allowed_networks,
-                read_only=tcp.read_only,
-                access=tuple(access_rule(r, i) for i, r in enumerate(tcp.access)),
-                first_request_timeout_s=tcp.first_request_timeout_s,
-                plain=tcp.plain,
-                tls=tls_listener(tcp),
-                max_connections_per_client=tcp.max_connections_per_client,
-                max_queued_writes_per_client=tcp.max_queued_writes_per_client,
-            ),
-            self._handle_tcp,
-        )
+        self.tcp = ModbusTcpServer(tcp_settings(config.modbus_tcp), self._handle_tcp)
         self.features: list[Feature] = []
         self.tasks = ServiceTasks()
         self.phase = Phase.STARTING
         mqtt = config.mqtt is not None and config.mqtt.enabled
+        # Started before the features that record events, stopped after them: none is lost.
+        self.events = EventStore(
+            config.storage,
+            self.tasks,
+            forwarding=mqtt,
+            max_waiting=config.mqtt.queue_size if config.mqtt is not None else EVENTS_WAITING,
+        )
+        self.features.append(self.events)
+        for bus in self.buses.values():
+            bus.add_port_listener(self.events.port_changed)
+        self.writes = WriteTally(self.events, self._drive_of, self.tasks)
+        self.features.append(self.writes)
         # Without MQTT only the drives that ask for it are polled: polls cost line time, and a
         # pure Modbus-TCP gateway shouldn't spend it unasked.
-        polled = [
-            d for d in config.drives if mqtt or d.poll is not None or d.cache_max_age_ms is not None
-        ]
+        polled = [d for d in config.drives if self._polled(d)]
         if polled:
             self._add_poller(polled)
         if mqtt:
@@ -188,30 +207,69 @@ class Application:
     def _add_poller(self, drives: list[DriveConfig]) -> None:
         """Polls feed the cache, the fault log and (when configured) the MQTT bridge."""
         from gateway.event_log import DriveEventLog
-        from gateway.poller import Poller
 
         self.poller = Poller(drives, self.router, self.tasks)
         for bus in self.buses.values():
             bus.add_listener(self.poller.on_drive_health)
         self.poller.add_listener(DriveEventLog())
+        self.poller.add_listener(self.events)
         self.features.append(self.poller)
 
     def _add_mqtt(self, config: GatewayConfig) -> None:
         """The bridge stops before the poller that feeds it (features stop in reverse)."""
         from gateway.mqtt import MqttBridge  # aiomqtt only loaded when MQTT is configured
 
-        self.mqtt = MqttBridge(config, self.router, self.poller, self.tasks)
+        self.mqtt = MqttBridge(config, self.router, self.poller, self.tasks, self.events)
         assert config.mqtt is not None
         self.poller.read_max_frequency = config.mqtt.homeassistant_discovery
         self.poller.add_listener(self.mqtt)
         self.features.append(self.mqtt)
+
+    def reload(self, new: GatewayConfig) -> ReloadPlan:
+        """Apply a new, valid configuration in place (see `gateway.reload`); what changed."""
+        poller: Poller | None = getattr(self, "poller", None)
+        plan = plan_reload(self.config, new, mqtt_running=hasattr(self, "mqtt"))
+        running = plan.running
+        if poller is None and any(self._polled(d) for d in plan.added):
+            plan.restart_needed.append("polling (no drive was polled at start)")
+        for name in plan.removed:
+            if poller is not None:
+                poller.remove_drive(name)
+        self.router.replace_routes(drive_route(d, self.buses[d.bus]) for d in running.drives)
+        for drive in plan.added:
+            if poller is not None and self._polled(drive):
+                poller.add_drive(drive)
+        self.tcp.update(tcp_settings(running.modbus_tcp))
+        self.events.update_bounds(running.storage)
+        logging.getLogger().setLevel(running.logging.level.upper())
+        self.config = running
+        data = {"changed": plan.changed, "restart_needed": plan.restart_needed}
+        self.events.record(EventType.CONFIG_RELOADED, data)
+        log.warning("config reloaded: %s", plan.summary)
+        return plan
+
+    def _polled(self, drive: DriveConfig) -> bool:
+        mqtt = self.config.mqtt is not None and self.config.mqtt.enabled
+        return mqtt or drive.poll is not None or drive.cache_max_age_ms is not None
 
     @property
     def cache(self) -> RegisterCache:
         return self.router.cache
 
     async def _handle_tcp(self, unit_id: int, pdu: bytes, client: str) -> bytes | None:
-        return await self.router.execute(unit_id, pdu, client=client)
+        try:
+            reply = await self.router.execute(unit_id, pdu, client=client)
+        except GatewayError:
+            self.writes.count(client, unit_id, pdu, refused=True)
+            raise
+        self.writes.count(client, unit_id, pdu, refused=reply is not None and is_exception(reply))
+        return reply
+
+    def _drive_of(self, unit_id: int) -> str | None:
+        try:
+            return self.router.route(unit_id).drive
+        except GatewayPathUnavailable:
+            return None
 
     async def run(self, stop: asyncio.Event, on_ready: Callable[[], None] | None = None) -> None:
         async with asyncio.TaskGroup() as tasks:

@@ -412,6 +412,31 @@ class MetricsConfig(Section):
     port: int = Field(9102, ge=1, le=65535)
 
 
+DEFAULT_STATE_DIRECTORY = "/var/lib/invt-gateway"
+ENV_STATE_DIRECTORY = "STATE_DIRECTORY"
+"""Set by systemd's `StateDirectory=`: where the store goes when `storage.path` is left out."""
+
+
+class StorageConfig(Section):
+    """The local store: events waiting for the broker, and each drive's fault history."""
+
+    path: str | None = Field(None, min_length=1)
+    """The SQLite file; default `events.db` in $STATE_DIRECTORY (systemd's StateDirectory=),
+    else in /var/lib/invt-gateway/."""
+    max_mb: float = Field(64.0, ge=0.05, le=100000)
+    """The most the store may take on disk; past it the oldest events go first (counted and
+    logged when they had not reached the broker yet)."""
+    max_age_days: float = Field(90.0, gt=0, le=36500)
+    """Events and faults older than this are removed."""
+
+    def resolved_path(self, environ: dict[str, str] | None = None) -> str:
+        if self.path is not None:
+            return self.path
+        env = os.environ if environ is None else environ
+        directory = env.get(ENV_STATE_DIRECTORY, "").split(":")[0] or DEFAULT_STATE_DIRECTORY
+        return str(Path(directory) / "events.db")
+
+
 class LoggingConfig(Section):
     level: Literal["debug", "info", "warning", "error"] = "info"
     format: Literal["text", "json"] = "text"
@@ -427,6 +452,7 @@ class GatewayConfig(Section):
     mqtt: MqttConfig | None = None
     metrics: MetricsConfig = MetricsConfig()
     logging: LoggingConfig = LoggingConfig()
+    storage: StorageConfig = StorageConfig()
 
     @model_validator(mode="after")
     def _cross_checks(self) -> GatewayConfig:

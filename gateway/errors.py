@@ -5,6 +5,8 @@
     ├── TlsSettingsError        a TLS file the configuration names can't be used (`key` names it):
     │                           the MQTT session says so loudly and tries again later
     ├── CannotListen            a port to serve on can't be bound: one line, exit code 1
+    ├── StoreError              the event store's file can't be opened or used (names it and why):
+    │                           events are kept in memory meanwhile
     ├── ServiceFailed           the service can't go on: stop with exit code 1 (systemd restarts it)
     │   ├── BusFailed           a bus's coroutine died of a bug
     │   └── FeatureFailed       a feature's background work died of a bug
@@ -213,3 +215,8 @@ class CannotListen(GatewayError):
 
 class MalformedCertificate(MalformedFrame):
     """A client certificate's DER that the role reader can't walk (it then has no role)."""
+
+
+class StoreError(GatewayError):
+    """The event store's database could not be opened or used (the message names the file and
+    why): the gateway goes on, keeping events in memory."""

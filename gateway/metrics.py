@@ -46,6 +46,7 @@ from gateway.modbus.request_checks import Reason
 if TYPE_CHECKING:
     from gateway.mqtt import MqttBridge
 from gateway.routing import Router
+from gateway.store import EventStore
 from gateway.tcp.access import AccessPolicy
 from gateway.tcp.server import ModbusTcpServer, TcpStats
 
@@ -79,6 +80,9 @@ class Service(Protocol):
 
     @property
     def phase(self) -> Phase: ...
+
+    @property
+    def events(self) -> EventStore: ...
 
 
 @dataclass(frozen=True, slots=True)
@@ -189,6 +193,7 @@ class GatewayCollector(Collector):
             yield from _mqtt_families(bridge)
         if self.service.tcp.access is not None:
             yield self._access(self.service.tcp.access)
+        yield from self._store(self.service.events)
 
     def _gateway(self) -> Iterable[GaugeMetricFamily | InfoMetricFamily]:
         info = InfoMetricFamily(f"{PREFIX}_build", "Version and id of this gateway")
@@ -316,6 +321,21 @@ class GatewayCollector(Collector):
         for reason in Reason:  # every reason, from the start: a fixed set of series
             malformed.add_metric([str(reason)], counts.get(reason, 0))
         yield malformed
+
+    def _store(self, store: EventStore) -> Iterable[CounterMetricFamily | GaugeMetricFamily]:
+        stats = store.stats
+        for name, doc in _STORE_COUNTERS.items():
+            yield CounterMetricFamily(f"{PREFIX}_store_{name}", doc, value=getattr(stats, name))
+        yield GaugeMetricFamily(
+            f"{PREFIX}_store_events_undelivered",
+            "Events in the store the broker has not acknowledged yet",
+            value=stats.undelivered,
+        )
+        yield GaugeMetricFamily(
+            f"{PREFIX}_store_persistent",
+            "1 when the store is on disk (storage.path), 0 when it could not be opened (memory)",
+            value=1.0 if store.persistent else 0.0,
+        )
 
     def _access(self, access: AccessPolicy) -> CounterMetricFamily:
         denied = CounterMetricFamily(
@@ -473,8 +493,9 @@ def _mqtt_families(bridge: MqttBridge) -> Iterable[CounterMetricFamily | GaugeMe
     )
     yield CounterMetricFamily(
         f"{PREFIX}_mqtt_messages_dropped",
-        "Events dropped because the queue for the broker was full (it was away too long)",
-        value=bridge.outbox.stats.events_dropped,
+        "Events dropped before the broker had them (the store's bounds: the broker was away "
+        "too long); states are never dropped, only superseded by newer ones",
+        value=bridge.publisher.events.stats.events_dropped,
     )
     commands = CounterMetricFamily(
         f"{PREFIX}_mqtt_commands",
@@ -486,3 +507,11 @@ def _mqtt_families(bridge: MqttBridge) -> Iterable[CounterMetricFamily | GaugeMe
     for status, count in sorted(statuses.items()):
         commands.add_metric([status], count)
     yield commands
+
+
+_STORE_COUNTERS = {
+    "events_recorded": "Events recorded (faults, availability, ports, commands, writes, reloads)",
+    "events_delivered": "Events the broker acknowledged",
+    "events_dropped": "Events removed before the broker had them (storage.max_mb or max_age_days)",
+    "write_failures": "Writes to the store that failed (a full or failing disk); retried",
+}

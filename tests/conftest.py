@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import pytest
 
+from gateway.config import ENV_STATE_DIRECTORY
+
 FIGURE = "figure:"
 
 
@@ -23,3 +25,13 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
         terminalreporter.section("figures")
         for name, value in figures:
             terminalreporter.write_line(f"{name}: {value}")
+
+
+@pytest.fixture(autouse=True)
+def own_state_directory(
+    tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Each test its own store (`storage.path` defaults to $STATE_DIRECTORY/events.db), for the
+    gateways it runs in-process and the ones it starts as subprocesses alike: never the machine's
+    /var/lib/invt-gateway, never what another test left."""
+    monkeypatch.setenv(ENV_STATE_DIRECTORY, str(tmp_path_factory.mktemp("state")))

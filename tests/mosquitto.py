@@ -32,16 +32,23 @@ START_TIMEOUT_S = 5.0
 class Mosquitto:
     """One broker process; `stop()`/`start()` keep its port, as a restarted broker would."""
 
-    def __init__(self, directory: Path, port: int | None = None) -> None:
+    def __init__(self, directory: Path, port: int | None = None, persistent: bool = False) -> None:
+        """`persistent`: sessions and their queued messages survive a `stop(graceful=True)`."""
         self.host = "127.0.0.1"
         self.port = port or free_port()
         self.directory = directory
         self.config_file = directory / f"mosquitto-{self.port}.conf"
         self.log_file = directory / f"mosquitto-{self.port}.log"
+        persistence = (
+            f"persistence true\npersistence_location {directory}/\n"
+            f"persistence_file mosquitto-{self.port}.db\n"
+            if persistent
+            else "persistence false\n"
+        )
         self.config_file.write_text(
             f"listener {self.port} {self.host}\n"
             "allow_anonymous true\n"
-            "persistence false\n"
+            f"{persistence}"
             "log_type error\nlog_type warning\nlog_type notice\n"
             f"log_dest file {self.log_file}\n",
             encoding="utf-8",
@@ -73,11 +80,15 @@ class Mosquitto:
             time.sleep(0.02)
         raise RuntimeError(f"mosquitto did not listen on {self.port}: {self.log()}")
 
-    def stop(self) -> None:
-        """Kill the broker at once (SIGKILL): clients see their connection drop."""
+    def stop(self, graceful: bool = False) -> None:
+        """Kill the broker at once (SIGKILL): clients see their connection drop. `graceful`:
+        SIGTERM, so that a persistent broker saves its sessions first."""
         process, self._process = self._process, None
         if process is not None and process.poll() is None:
-            process.kill()
+            if graceful:
+                process.terminate()
+            else:
+                process.kill()
             process.wait(5)
         if process is not None and process.stderr is not None:
             process.stderr.close()
@@ -218,10 +229,10 @@ def _matches(received: Received, match: Callable[[Any], bool]) -> bool:
 async def mqtt_probe(
     broker: BrokerAddress, *subscriptions: str, **connect: Any
 ) -> AsyncIterator[MqttProbe]:
-    """`connect`: more of aiomqtt.Client's arguments (tls_context, username, password)."""
-    client = aiomqtt.Client(
-        broker.host, broker.port, identifier=f"probe-{uuid.uuid4().hex[:8]}", **connect
-    )
+    """`connect`: more of aiomqtt.Client's arguments (tls_context, username, password; an
+    `identifier` with `clean_session=False` for a session the broker keeps while it is away)."""
+    identifier = connect.pop("identifier", f"probe-{uuid.uuid4().hex[:8]}")
+    client = aiomqtt.Client(broker.host, broker.port, identifier=identifier, **connect)
     async with client:
         for topic in subscriptions:
             await client.subscribe(topic, qos=1)

@@ -73,6 +73,22 @@ class LineCollector:
         assert line is not None
         return line
 
+    def count(self, text: str) -> int:
+        with self._changed:
+            return sum(text in line for line in self.lines)
+
+    def wait_for_count(self, text: str, count: int, timeout_s: float = START_TIMEOUT_S) -> None:
+        """Until `count` lines (or more) contain `text`."""
+
+        def enough() -> bool:
+            return sum(text in line for line in self.lines) >= count
+
+        with self._changed:
+            if not self._changed.wait_for(enough, timeout_s):
+                raise AssertionError(
+                    f"{text!r} not seen {count} times in {timeout_s} s: {self.text}"
+                )
+
     @property
     def text(self) -> str:
         return "\n".join(self.lines)

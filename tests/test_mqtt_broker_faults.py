@@ -232,5 +232,5 @@ async def test_an_event_being_published_when_the_connection_breaks_is_not_lost(
                 )
                 assert event.json()["data"]["drive"] == "fan2"
                 assert event.json()["data"]["fault_code"] == 13
-                assert app.mqtt.outbox.stats.events_dropped == 0
+                assert app.events.stats.events_dropped == 0
                 assert app.mqtt.stats.connects == 2

@@ -23,7 +23,7 @@ from gateway.mqtt.requests import (
     parse_set,
     parse_write,
 )
-from gateway.poller import DriveEvent, EventKind, PollBlock, poll_schedules
+from gateway.poller import PollBlock, poll_schedules
 from gateway.profile import get_profile, is_ram_address
 from gateway.profile.ram_writes import ram_write_address
 
@@ -177,28 +177,16 @@ def test_time_waited_in_the_gateway() -> None:
     assert reason(lambda: check_waited(100.0, 10, 111.0)) == "stale"
 
 
-def test_outbox_takes_back_what_was_not_sent_in_front() -> None:
-    outbox = Outbox(max_events=3)
-    for code in (1, 2):
-        outbox.put_event(DriveEvent(EventKind.FAULT_RAISED, "pump1", {"fault_code": code}))
+def test_outbox_takes_back_what_was_not_sent_unless_newer_came() -> None:
+    outbox = Outbox()
     outbox.put_state("pump1", {"state": "fault"})
     outbox.put_availability("pump1", True)
     pending = outbox.take()
-    pending.events.popleft()  # event 1 was published, then the connection broke
-    outbox.put_event(DriveEvent(EventKind.FAULT_RAISED, "pump1", {"fault_code": 3}))
     outbox.put_state("pump1", {"state": "stopped"})
-    outbox.restore(pending)
+    outbox.restore(pending)  # the connection broke before any of it went out
     again = outbox.take()
-    assert [e.data["fault_code"] for e in again.events] == [2, 3]  # older first
     assert again.states == {"pump1": {"state": "stopped"}}  # the newer state wins
     assert again.availability == {"pump1": True}
-    assert outbox.stats.events_dropped == 0
-    # Only an overflow drops, the oldest first, counted.
-    for code in (4, 5, 6):
-        outbox.put_event(DriveEvent(EventKind.FAULT_RAISED, "pump1", {"fault_code": code}))
-    outbox.restore(again)
-    assert [e.data["fault_code"] for e in outbox.take().events] == [4, 5, 6]
-    assert outbox.stats.events_dropped == 2
 
 
 async def test_lanes_keep_order_within_a_lane_and_run_lanes_side_by_side() -> None:
@@ -258,16 +246,12 @@ async def test_lanes_close_cancels_running_and_drops_waiting_jobs() -> None:
     assert lanes.running == 0
 
 
-def test_outbox_keeps_the_newest_state_and_counts_dropped_events() -> None:
-    outbox = Outbox(max_events=2)
+def test_outbox_keeps_the_newest_state() -> None:
+    outbox = Outbox()
     outbox.put_state("pump1", {"state": "stopped"})
     outbox.put_state("pump1", {"state": "running_forward"})
-    for code in (1, 2, 3):
-        outbox.put_event(DriveEvent(EventKind.FAULT_RAISED, "pump1", {"fault_code": code}))
     pending = outbox.take()
     assert pending.states == {"pump1": {"state": "running_forward"}}
-    assert [e.data["fault_code"] for e in pending.events] == [2, 3]
-    assert outbox.stats.events_dropped == 1
     assert outbox.stats.states_superseded == 1
     assert not outbox.take()
 

@@ -98,7 +98,8 @@ def test_image_runs_as_non_root_and_signals_reach_the_gateway() -> None:
     ]
     assert runtime["STOPSIGNAL"] == "SIGTERM"
     assert "HEALTHCHECK" in runtime
-    assert exec_form(runtime["VOLUME"]) == ["/etc/invt-gateway"]
+    # The configuration, and the store (storage.path's default): a volume outlives the image.
+    assert exec_form(runtime["VOLUME"]) == ["/etc/invt-gateway", "/var/lib/invt-gateway"]
     example = yaml.safe_load(EXAMPLE.read_text(encoding="utf-8"))
     ports = {int(port) for port in runtime["EXPOSE"].split()}
     assert ports == {example["modbus_tcp"]["port"], example["metrics"]["port"]}
@@ -170,9 +171,13 @@ def fresh_venv(directory: Path) -> Path:
     return venv
 
 
-def image_config(example: dict[str, Any], lines: dict[str, str], tcp: int, metrics: int) -> str:
-    """The example configuration as the image ships it, on simulated lines and free ports."""
+def image_config(
+    example: dict[str, Any], lines: dict[str, str], tcp: int, metrics: int, state: Path
+) -> str:
+    """The example configuration as the image ships it, on simulated lines and free ports, its
+    store in `state` (the image's volume)."""
     config = dict(example)
+    config["storage"] = {**example["storage"], "path": str(state / "events.db")}
     # A pty stands in for each adapter; it has no RS-485 driver enable for `rs485` to switch.
     config["buses"] = [
         {**{k: v for k, v in bus.items() if k != "rs485"}, "port": lines[bus["name"]]}
@@ -240,7 +245,9 @@ def test_image_install_and_start_commands_work_in_a_fresh_virtualenv(tmp_path: P
     ):
         config = etc / "config.yaml"
         lines = {"line1": line1.path, "line2": line2.path}
-        config.write_text(image_config(example, lines, tcp, metrics), encoding="utf-8")
+        config.write_text(
+            image_config(example, lines, tcp, metrics, tmp_path / "state"), encoding="utf-8"
+        )
         command = [str(config) if part == IMAGE_CONFIG else part for part in start]
         process = subprocess.Popen(
             command, env=env, cwd=tmp_path, stderr=subprocess.PIPE, text=True

@@ -73,6 +73,9 @@ def test_unit_runs_the_service_as_the_issue_asks() -> None:
         "SupplementaryGroups": ["dialout"],
         "User": ["invt-gateway"],
         "RestartPreventExitStatus": ["3"],  # a bad configuration: restarting won't help
+        # The store, writable under ProtectSystem=strict and DynamicUser, kept across restarts.
+        "StateDirectory": ["invt-gateway"],
+        "ExecReload": ["/bin/kill -HUP $MAINPID"],  # systemctl reload: the config read again
     }
     for key, values in expected.items():
         assert settings.get(key) == values, key

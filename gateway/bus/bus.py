@@ -136,6 +136,9 @@ Outcome = tuple[Callable[..., None], tuple[Any, ...]]
 DriveListener = Callable[[str, int, bool], None]
 """Called on the event loop with (bus name, address, online) when a drive goes offline or back."""
 RequestObserver = Callable[[RequestDone], None]
+PortListener = Callable[[str, str, bool, str], None]
+"""Called on the event loop with (bus name, port, lost, reason) when the port is lost (or can't
+be opened at start) and when it is open again."""
 
 
 class Bus:
@@ -160,12 +163,16 @@ class Bus:
         self.line.on_port_error = self._wake
         self._listeners: list[DriveListener] = []
         self._request_observers: list[RequestObserver] = []
+        self._port_listeners: list[PortListener] = []
         self._opened = asyncio.Event()
         self._idle = asyncio.Event()
         self._last_port_error = ""
 
     def add_listener(self, listener: DriveListener) -> None:
         self._listeners.append(listener)
+
+    def add_port_listener(self, listener: PortListener) -> None:
+        self._port_listeners.append(listener)
 
     def add_request_observer(self, observer: RequestObserver) -> None:
         self._request_observers.append(observer)
@@ -446,6 +453,8 @@ class Bus:
             except PortError as exc:
                 failures += 1
                 self._last_port_error = str(exc)
+                if self.state is BusState.OPENING:
+                    self._notify_port(True, str(exc))  # missing from the start: lost too
                 if not self._closing:
                     self.state = BusState.REOPENING
                 # Say it loudly once, then quietly: a missing adapter shouldn't flood the journal.
@@ -461,6 +470,7 @@ class Bus:
             if self.state is BusState.REOPENING:
                 self.stats.reopens += 1
                 self.health.line_back(time.monotonic())
+                self._notify_port(False, "")
             if self._closing:
                 return
             self.state = BusState.OPEN
@@ -565,6 +575,7 @@ class Bus:
         if not self._closing:
             self.state = BusState.REOPENING
         log.error("bus %s: port lost (%s); reopening with backoff", self.name, exc)
+        self._notify_port(True, str(exc))
         queued = self._queue.take_all()
         error = GatewayTargetFailed(f"bus {self.name}: {exc}")
         for transaction in queued:
@@ -606,6 +617,13 @@ class Bus:
                 return
 
     # -- telling the others --------------------------------------------------------------------
+
+    def _notify_port(self, lost: bool, reason: str) -> None:
+        for listener in self._port_listeners:
+            try:
+                listener(self.name, self.settings.line.port, lost, reason)
+            except Exception:
+                log.exception("bus %s: port listener failed", self.name)
 
     def _notify(self, address: int, online: bool) -> None:
         for listener in self._listeners:

@@ -11,6 +11,7 @@ import asyncio
 import contextlib
 import shutil
 import sys
+import tempfile
 import uuid
 from importlib import resources
 from pathlib import Path
@@ -97,6 +98,11 @@ def handle(args: argparse.Namespace) -> int:
             "echo": args.echo,
         }
         config = simulate_buses(config, stack, adapter)
+        if config.storage.path is None:
+            # Simulated drives' events: a store of the demo's own, gone with it.
+            state = stack.enter_context(tempfile.TemporaryDirectory(prefix="invt-gateway-demo-"))
+            storage = config.storage.model_copy(update={"path": f"{state}/events.db"})
+            config = config.model_copy(update={"storage": storage})
         return asyncio.run(serve_demo(config, args.config))
 
 

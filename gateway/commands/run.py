@@ -13,6 +13,7 @@ from gateway.app import Application
 from gateway.cli import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
 from gateway.config import GatewayConfig, load_config
 from gateway.errors import BusFailed, CannotListen, ConfigError, FeatureFailed
+from gateway.health import Phase
 from gateway.logs import setup_logging
 from gateway.systemd import Notifier, keep_watchdog, watchdog_interval_s
 
@@ -34,7 +35,7 @@ def handle(args: argparse.Namespace) -> int:
     if config is None:
         return EXIT_CONFIG
     setup_logging(config.logging.level, config.logging.format)
-    return asyncio.run(serve(config))
+    return asyncio.run(serve(config, config_path=args.config))
 
 
 def load_or_report(path: str) -> GatewayConfig | None:
@@ -48,11 +49,14 @@ def load_or_report(path: str) -> GatewayConfig | None:
 async def serve(
     config: GatewayConfig,
     on_ready: Callable[[Application], None] | None = None,
+    config_path: str | None = None,
 ) -> int:
     """Run the gateway until SIGTERM or SIGINT; the exit code.
 
     Under systemd (`Type=notify`) it reports READY=1 once the buses and the TCP port are up,
-    STOPPING=1 on the signal, and pings the watchdog from this event loop meanwhile.
+    STOPPING=1 on the signal, and pings the watchdog from this event loop meanwhile. SIGHUP
+    reads `config_path` again and applies it in place (`Application.reload`); a file that
+    doesn't validate changes nothing and is logged with each key path and reason.
     """
     app = Application(config)
     stop = asyncio.Event()
@@ -67,6 +71,11 @@ async def serve(
 
     for signum in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(signum, on_signal, signum)
+    reload_asked = asyncio.Event()
+    loop.add_signal_handler(signal.SIGHUP, reload_asked.set)
+    reloading = asyncio.create_task(
+        reload_on_hangup(app, config_path, reload_asked, notifier), name="reload"
+    )
 
     def ready() -> None:
         status = (
@@ -102,9 +111,38 @@ async def serve(
         log.critical("stopping: %s", failed.exceptions[0])
         return EXIT_FAILURE
     finally:
-        for signum in (signal.SIGTERM, signal.SIGINT):
+        for signum in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
             loop.remove_signal_handler(signum)
+        reloading.cancel()
         if watchdog is not None:
             watchdog.cancel()
         notifier.close()
     return EXIT_OK
+
+
+async def reload_on_hangup(
+    app: Application, path: str | None, asked: asyncio.Event, notifier: Notifier
+) -> None:
+    """Each SIGHUP: read the file again (off the event loop), apply it if it is valid."""
+    while True:
+        await asked.wait()
+        asked.clear()
+        if path is None:
+            log.warning("SIGHUP received: no configuration file to read again")
+            continue
+        notifier.notify("RELOADING=1", "STATUS=reloading the configuration")
+        log.info("SIGHUP received: reading %s again", path)
+        try:
+            config = await asyncio.to_thread(load_config, path)
+        except ConfigError as exc:
+            # As check-config says it: every problem, with its key path, one line each (the
+            # journal shows a line at a time). Nothing changes.
+            for key, reason in exc.problems:
+                problem = f"{key}: {reason}" if key else reason
+                log.error("reload refused, the running configuration stays: %s: %s", path, problem)
+        else:
+            if app.phase is Phase.READY:
+                app.reload(config)
+            else:
+                log.warning("reload skipped: the gateway is %s", app.phase.value)
+        notifier.notify("READY=1", "STATUS=ready")

@@ -3,7 +3,8 @@
 A feature of the application, put together from its jobs:
 
 - `session`: the connection (connect, backoff, TLS, subscriptions, online and offline);
-- `publisher`: info, discovery, and what the poller hands the `outbox`, de-duplicated;
+- `publisher`: info, discovery, what the poller hands the `outbox` (de-duplicated), and the
+  events the store keeps until the broker acknowledged them;
 - `dispatcher`: each received message to its kind (`kinds`), run in its lane (`lanes`).
 
 On every connection: online, info, subscriptions, discovery, every drive's availability and
@@ -36,6 +37,7 @@ from gateway.poller import DriveEvent, Poller
 from gateway.profile import get_profile
 from gateway.profile.telemetry import Telemetry
 from gateway.routing import Router
+from gateway.store import EventStore
 from gateway.tasks import ServiceTasks
 
 log = logging.getLogger(__name__)
@@ -48,20 +50,25 @@ MAX_WAITING_PER_LANE = 16
 
 class MqttBridge:
     def __init__(
-        self, config: GatewayConfig, router: Router, poller: Poller, tasks: ServiceTasks
+        self,
+        config: GatewayConfig,
+        router: Router,
+        poller: Poller,
+        tasks: ServiceTasks,
+        events: EventStore,
     ) -> None:
         assert config.mqtt is not None
         mqtt: MqttConfig = config.mqtt
         self.stats = BridgeStats()
         self.topics = Topics(mqtt.base_topic)
-        self.outbox = Outbox(mqtt.queue_size)
+        self.outbox = Outbox()
         self.lanes = Lanes(MAX_WAITING_PER_LANE, tasks)
-        self.publisher = Publisher(config, self.topics, self.outbox, poller, self.stats)
+        self.publisher = Publisher(config, self.topics, self.outbox, poller, self.stats, events)
         drives = {
             d.name: CommandDrive(d.name, router.route_for_drive(d.name), get_profile(d.model))
             for d in config.drives
         }
-        self.commands = Commands(mqtt, router, poller, drives)
+        self.commands = Commands(mqtt, router, poller, drives, events)
         self.context = context = Context(
             self.topics,
             self.commands,
@@ -71,6 +78,7 @@ class MqttBridge:
             self.stats,
             config.gateway_id,
             mqtt.discovery_prefix,
+            events,
         )
         kinds = command_kinds(context, drives, mqtt.homeassistant_discovery)
         self.dispatcher = Dispatcher(
@@ -94,7 +102,7 @@ class MqttBridge:
         self.outbox.put_availability(drive, online)
 
     def drive_event(self, event: DriveEvent) -> None:
-        self.outbox.put_event(event)
+        pass  # events reach the broker from the store, where the store's own listener put them
 
     # -- lifecycle ---------------------------------------------------------------------------
 
@@ -122,6 +130,7 @@ class MqttBridge:
             self.tasks.start("mqtt:discovery-cleanup", self._clean_discovery())
         async with asyncio.TaskGroup() as tasks:
             tasks.create_task(self.publisher.run(client), name="mqtt:publish")
+            tasks.create_task(self.publisher.forward_events(client), name="mqtt:events")
             tasks.create_task(self.dispatcher.run(client), name="mqtt:receive")
 
     async def _clean_discovery(self) -> None:

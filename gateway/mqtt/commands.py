@@ -47,6 +47,7 @@ from gateway.mqtt.requests import (
 from gateway.poller import Poller
 from gateway.profile import DriveProfile, describe_exception, exception_name
 from gateway.routing import MAX_READ_WORDS, Route, Router
+from gateway.store import EventStore, EventType
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +79,7 @@ class Commands:
         router: Router,
         poller: Poller,
         drives: Mapping[str, CommandDrive],
+        events: EventStore,
     ) -> None:
         self.config = config
         self.router = router
@@ -85,6 +87,7 @@ class Commands:
         self.drives = drives
         self.statuses: Counter[str] = Counter()
         """Commands answered, by status: ok, or the error (a fixed set of names)."""
+        self.events = events
         self.executed = 0
         self.refused = 0
 
@@ -136,13 +139,25 @@ class Commands:
         return drive
 
     async def write(self, drive: CommandDrive, write: RegisterWrite) -> None:
-        await self._execute(drive, write.pdu)
+        """Carry a command or parameter write to the drive; a `command` event says what came of
+        it (who changed what on a drive, and when, is what a plant asks after an incident)."""
+        try:
+            await self._execute(drive, write.pdu)
+        except ModbusError as exc:
+            error, code = modbus_error(exc)
+            self._record(drive, write, {"result": error, "exception_code": code})
+            raise
+        self._record(drive, write, {"result": "ok"})
         log.info("MQTT command to %s done: %s", drive.name, write.echo)
         self.poller.poll_now(drive.name)  # its new state out at once, not at the next interval
 
     async def read(self, drive: CommandDrive, read: RegisterRead) -> list[int]:
         reply = await self._execute(drive, read.pdu)
         return list(struct.unpack(f">{read.count}H", reply[2 : 2 + 2 * read.count]))
+
+    def _record(self, drive: CommandDrive, write: RegisterWrite, outcome: Json) -> None:
+        data = {"drive": drive.name, "source": "mqtt", **write.echo, **outcome}
+        self.events.record(EventType.COMMAND, data, drive=drive.name)
 
     def _check_allowed(self, payload: Json, retained: bool, writes: bool) -> None:
         if retained:

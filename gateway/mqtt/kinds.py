@@ -5,6 +5,7 @@
 | <base>/<drive>/set                     | DriveCommand    | the drive's                    |
 | <base>/<drive>/get                     | DriveRefresh    | the drive's refreshes          |
 | <base>/bridge/request/<op>             | BRIDGE_REQUESTS | the named drive's, or "bridge" |
+| <base>/bridge/request/fault_history    | FaultHistory    | "store" (never waits on a line)|
 | <discovery_prefix>/status              | DiscoveryAsked  | "discovery"                    |
 | <base>/bridge/info                     | GatewayInfo     | none: checked at once          |
 
@@ -32,6 +33,7 @@ from gateway.mqtt.publisher import Publisher
 from gateway.mqtt.requests import (
     BRIDGE_READ_KEYS,
     BRIDGE_WRITE_KEYS,
+    COMMON_KEYS,
     Json,
     check_keys,
     dump,
@@ -43,6 +45,7 @@ from gateway.mqtt.requests import (
 from gateway.mqtt.stats import BridgeStats
 from gateway.mqtt.topics import Topics
 from gateway.poller import Poller
+from gateway.store import EventStore
 
 log = logging.getLogger(__name__)
 
@@ -61,6 +64,7 @@ class Context:
     stats: BridgeStats
     gateway_id: str
     discovery_prefix: str
+    events: EventStore
     other_gateways: set[str] = field(default_factory=set)
 
 
@@ -180,7 +184,37 @@ class WriteParameter(BridgeRequest):
         return {"drive": drive.name, **write.echo}
 
 
-BRIDGE_REQUESTS: Final[tuple[type[BridgeRequest], ...]] = (ReadParameter, WriteParameter)
+class FaultHistory(BridgeRequest):
+    """`{"drive": "pump1", "limit": 20}`: the drive's faults kept in the store, newest first,
+    each with its raise and clear time and the running values when it was raised."""
+
+    operation = "fault_history"
+    writes = False
+    DEFAULT_LIMIT: ClassVar[int] = 20
+    MAX_LIMIT: ClassVar[int] = 1000
+
+    def lane(self, message: Incoming) -> str | None:
+        return "store"  # a read of the store: never behind a drive's commands on its line
+
+    async def execute(self, payload: Json) -> Json:
+        check_keys(payload, COMMON_KEYS | {"drive", "limit"})
+        drive = self.context.commands.drive_named(payload)
+        limit = payload.get("limit", self.DEFAULT_LIMIT)
+        if (
+            isinstance(limit, bool)
+            or not isinstance(limit, int)
+            or not 1 <= limit <= self.MAX_LIMIT
+        ):
+            raise CommandRefused("invalid_request", "limit must be a whole number 1..1000")
+        faults = await self.context.events.fault_history(drive.name, limit)
+        return {"drive": drive.name, "faults": [fault.as_json() for fault in faults]}
+
+
+BRIDGE_REQUESTS: Final[tuple[type[BridgeRequest], ...]] = (
+    ReadParameter,
+    WriteParameter,
+    FaultHistory,
+)
 """Every `bridge/request/<op>` the gateway answers."""
 
 

@@ -1,11 +1,14 @@
 """What the bridge publishes: gateway info, discovery, drive states, availability and events.
 
-The poller never waits for the broker: it hands states and events to the bounded `Outbox` and
-returns; `run` drains it while connected. A drive's state is published when it changed
-(`last_seen` aside) or every `publish_interval_s`, retained, so a dashboard that subscribes late
-still gets it at once; an availability is published once per connection and change. What a
-broken connection kept from being published goes back to the outbox, to go out after the next
-connect.
+The poller never waits for the broker: it hands states to the bounded `Outbox` and returns; `run`
+drains it while connected. Events come from the store (`gateway.store`), where they were written
+first: `forward_events` publishes them in id order and marks each delivered only once the broker
+acknowledged it (QoS 1), so an outage or a restart loses none.
+
+A drive's state is published when it changed (`last_seen` aside) or every `publish_interval_s`,
+retained, so a dashboard that subscribes late still gets it at once; an availability is published
+once per connection and change. What a broken connection kept from being published goes back to
+the outbox, to go out after the next connect.
 """
 
 from __future__ import annotations
@@ -25,15 +28,17 @@ from gateway.mqtt.outbox import Outbox, Pending
 from gateway.mqtt.requests import Json, dump
 from gateway.mqtt.stats import BridgeStats
 from gateway.mqtt.topics import Topics
-from gateway.poller import DriveEvent, Poller
-from gateway.poller.drive_state import EventKind, iso_time
+from gateway.poller import Poller
 from gateway.profile.telemetry import Telemetry
+from gateway.store import EventStore, EventType
 
 log = logging.getLogger(__name__)
 
 QOS = 1
 PUBLISH_TICK_S = 1.0
 """How often the publisher looks again when nothing new came (the periodic republish)."""
+EVENT_BATCH = 100
+"""Events read from the store at a time; each is still published and acknowledged in turn."""
 
 
 class Publisher:
@@ -44,6 +49,7 @@ class Publisher:
         outbox: Outbox,
         poller: Poller,
         stats: BridgeStats,
+        events: EventStore,
     ) -> None:
         assert config.mqtt is not None
         self.config = config
@@ -52,6 +58,7 @@ class Publisher:
         self.outbox = outbox
         self.poller = poller
         self.stats = stats
+        self.events = events
         self._published: dict[str, tuple[str, float]] = {}
         """Drive → (its last state payload without last_seen, monotonic time published)."""
         self._availability: dict[str, bool] = {}
@@ -108,6 +115,23 @@ class Publisher:
                 if pending:
                     self.outbox.restore(pending)
 
+    async def forward_events(self, client: aiomqtt.Client) -> None:
+        """Publish what the store holds for the broker, oldest first, for as long as the
+        connection lasts; each one marked delivered once acknowledged."""
+        self.events.redeliver()  # what the last connection sent unacknowledged goes again
+        while True:
+            batch = await self.events.undelivered(EVENT_BATCH)
+            if not batch:
+                await self.events.wait_stored(PUBLISH_TICK_S)
+                continue
+            acknowledged: list[int] = []
+            try:
+                for event in batch:
+                    await self.publish(client, self.topics.bridge_event, dump(event.payload()))
+                    acknowledged.append(event.id)  # QoS 1: publish returned on the PUBACK
+            finally:
+                self.events.delivered(acknowledged)
+
     async def state(
         self, client: aiomqtt.Client, drive: str, telemetry: Telemetry, force: bool = False
     ) -> None:
@@ -132,10 +156,9 @@ class Publisher:
         with contextlib.suppress(aiomqtt.MqttError):
             await self.publish(client, topic, "", retain=True)
         log.warning("MQTT: a retained command on %s was refused and cleared from the broker", topic)
-        drive = self.topics.drive_of(topic) or "bridge"
-        self.outbox.put_event(
-            DriveEvent(EventKind.RETAINED_COMMAND_CLEARED, drive, {"topic": topic})
-        )
+        drive = self.topics.drive_of(topic)
+        data: Json = {"drive": drive or "bridge", "topic": topic}
+        self.events.record(EventType.RETAINED_COMMAND_CLEARED, data, drive=drive)
 
     async def publish(
         self, client: aiomqtt.Client, topic: str, payload: str, retain: bool = False
@@ -151,9 +174,6 @@ class Publisher:
             drive, online = next(iter(pending.availability.items()))
             await self._publish_availability(client, drive, online)
             del pending.availability[drive]
-        while pending.events:
-            await self._publish_event(client, pending.events[0])
-            pending.events.popleft()
         while pending.states:
             drive, telemetry = next(iter(pending.states.items()))
             await self.state(client, drive, telemetry)
@@ -165,11 +185,6 @@ class Publisher:
         payload = ONLINE if online else OFFLINE
         await self.publish(client, self.topics.availability(drive), payload, retain=True)
         self._availability[drive] = online
-
-    async def _publish_event(self, client: aiomqtt.Client, event: DriveEvent) -> None:
-        data = {"drive": event.drive, **event.data, "time": iso_time(event.at)}
-        payload = dump({"type": str(event.kind), "data": data})
-        await self.publish(client, self.topics.bridge_event, payload)
 
     def _info(self) -> str:
         return dump(

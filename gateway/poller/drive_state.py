@@ -21,8 +21,6 @@ class EventKind(StrEnum):
     FAULT_CLEARED = "fault_cleared"
     DRIVE_OFFLINE = "drive_offline"
     DRIVE_ONLINE = "drive_online"
-    RETAINED_COMMAND_CLEARED = "retained_command_cleared"
-    """A retained command was refused and removed from the broker (the MQTT bridge's)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -32,6 +30,8 @@ class DriveEvent:
     data: Telemetry = field(default_factory=dict)
     at: float = field(default_factory=time.time)
     """Wall-clock time (epoch seconds) the gateway noticed it."""
+    snapshot: Telemetry = field(default_factory=dict)
+    """For a raised fault: the drive's telemetry as last polled, at the moment it was raised."""
 
 
 class DriveState:
@@ -87,7 +87,8 @@ class DriveState:
             events.append(DriveEvent(EventKind.FAULT_CLEARED, self.name, cleared))
         if now:
             raised = fault_fields(now, table)
-            events.append(DriveEvent(EventKind.FAULT_RAISED, self.name, raised))
+            snapshot = self.telemetry()
+            events.append(DriveEvent(EventKind.FAULT_RAISED, self.name, raised, snapshot=snapshot))
         return events
 
 

@@ -71,6 +71,8 @@ class PolledDrive:
     """In a row, for diagnostics: whether the drive is offline is its bus's call."""
     offline_backoff: int = 0
     reported_exceptions: set[tuple[int, int]] = field(default_factory=set)
+    removed: bool = False
+    """A reload removed it: its loop ends."""
 
 
 class Poller:
@@ -80,20 +82,26 @@ class Poller:
         self.drives: dict[str, PolledDrive] = {}
         self._by_bus_address: dict[tuple[str, int], str] = {}
         for config in drives:
-            profile = config.profile()
-            timers = [_GroupTimer(s) for s in poll_schedules(config, profile)]
-            route = router.route_for_drive(config.name)
-            state = DriveState(config.name, profile)
-            self.drives[config.name] = PolledDrive(config, route, state, timers)
-            self._by_bus_address[(config.bus, config.address)] = config.name
+            self._polled(config)
         self._listeners: list[PollListener] = []
         self._task: asyncio.Task[None] | None = None
+        self._added: dict[str, asyncio.Task[None]] = {}
+        """Drives added by a reload: each polled by its own task in the service's TaskGroup."""
         self.polls = 0
         self.poll_failures = 0
         self.read_max_frequency = False
         """Read each drive's P00.03 at start (for Home Assistant's set-point maximum)."""
         self.max_frequency_hz: dict[str, float] = {}
         """Drive name → its P00.03, for the drives that answered at start."""
+
+    def _polled(self, config: DriveConfig) -> PolledDrive:
+        profile = config.profile()
+        timers = [_GroupTimer(s) for s in poll_schedules(config, profile)]
+        route = self.router.route_for_drive(config.name)
+        drive = PolledDrive(config, route, DriveState(config.name, profile), timers)
+        self.drives[config.name] = drive
+        self._by_bus_address[(config.bus, config.address)] = config.name
+        return drive
 
     def add_listener(self, listener: PollListener) -> None:
         self._listeners.append(listener)
@@ -109,9 +117,35 @@ class Poller:
         self._task = self.tasks.start("poller", self._run())
 
     async def stop(self) -> None:
+        for task in self._added.values():
+            task.cancel()
         if self._task is not None:
             await cancel_and_wait(self._task, STOP_BUDGET_S)
             self._task = None
+        for task in list(self._added.values()):
+            await cancel_and_wait(task, STOP_BUDGET_S)
+        self._added.clear()
+
+    # -- a reload ----------------------------------------------------------------------------
+
+    def add_drive(self, config: DriveConfig) -> None:
+        """Poll a drive a reload added (its route is in the router already)."""
+        drive = self._polled(config)
+        if drive.timers:
+            name = config.name
+            self._added[name] = self.tasks.start(f"poller:{name}", self._poll_forever(drive))
+
+    def remove_drive(self, name: str) -> None:
+        """Stop polling a drive a reload removed; a poll on the wire finishes on its own."""
+        drive = self.drives.pop(name, None)
+        if drive is None:
+            return
+        self._by_bus_address.pop((drive.config.bus, drive.config.address), None)
+        drive.removed = True
+        drive.wake.set()
+        task = self._added.pop(name, None)
+        if task is not None:
+            task.cancel()
 
     async def _run(self) -> None:
         async with asyncio.TaskGroup() as tasks:
@@ -154,7 +188,7 @@ class Poller:
     # -- the loop ----------------------------------------------------------------------------
 
     async def _poll_forever(self, drive: PolledDrive) -> None:
-        while True:
+        while not drive.removed:
             now = time.monotonic()
             for timer in drive.timers:
                 if timer.next_at <= now:

@@ -135,6 +135,13 @@ class ModbusTcpServer:
         # None without rules: the common case costs one attribute test per request.
         self.access = AccessPolicy(settings.access) if settings.access else None
 
+    def update(self, settings: TcpSettings) -> None:
+        """A reload: new rules for the next requests and connections; the listeners (host, port,
+        TLS) stay as they are and open connections stay open."""
+        self.settings = settings
+        self._networks = [ipaddress.ip_network(n, strict=False) for n in settings.allowed_networks]
+        self.access = AccessPolicy(settings.access) if settings.access else None
+
     @property
     def port(self) -> int:
         """The plain listener's bound port (useful when configured as 0); the TLS one's when

@@ -32,7 +32,7 @@ class ReadStateWord(BridgeRequest):
 
 def test_every_bridge_request_has_its_own_operation() -> None:
     operations = [request.operation for request in BRIDGE_REQUESTS]
-    assert operations == ["read_parameter", "write_parameter"]  # the README's, and no more
+    assert operations == ["read_parameter", "write_parameter", "fault_history"]  # the README's
 
 
 async def test_a_new_bridge_request_is_subscribed_checked_and_answered(

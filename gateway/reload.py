@@ -1,0 +1,152 @@
+"""A live reload (SIGHUP, `systemctl reload`): a new configuration applied without a restart.
+
+What changes in place, SCADA's connections staying open and requests in flight finishing:
+
+    drives        on buses that didn't change: the router's table (a removed drive's unit id
+                  answers 0AH from then on, an added one answers at once) and the poller
+    modbus_tcp    access rules, read_only, allowed_networks, the per-client and per-connection
+                  limits, timeouts and broadcast_reply
+    storage       max_mb and max_age_days
+    logging       level
+
+What keeps its running value until a restart, named in the log and the `config_reloaded` event
+("restart needed for: ..."): the listeners (`modbus_tcp.host`, `port`, `plain`, `tls`),
+`gateway_id`, `storage.path`, and in this version the buses' settings, the `mqtt` and `metrics`
+sections, and the MQTT side of drives added or removed (their topics, discovery and commands).
+A drive on a bus whose settings changed is left as it was, named too.
+
+The planning (`plan`) is pure: it compares two configurations and says what to do; the
+application (`Application.reload`) carries it out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from gateway.config import DriveConfig, GatewayConfig, ModbusTcpConfig
+
+LISTENER_KEYS = ("host", "port", "plain", "tls")
+"""`modbus_tcp` keys that belong to the listening sockets: a change needs a restart."""
+
+
+@dataclass(slots=True)
+class ReloadPlan:
+    running: GatewayConfig
+    """The configuration the gateway runs with afterwards: the new one, with every key that
+    needs a restart kept at its running value."""
+    added: list[DriveConfig] = field(default_factory=list)
+    removed: list[str] = field(default_factory=list)
+    changed: list[str] = field(default_factory=list)
+    """What is applied, as key paths and drive names."""
+    restart_needed: list[str] = field(default_factory=list)
+
+    @property
+    def summary(self) -> str:
+        applied = ", ".join(self.changed) or "nothing changed"
+        if self.restart_needed:
+            return f"{applied}; restart needed for: {', '.join(self.restart_needed)}"
+        return applied
+
+
+def plan(old: GatewayConfig, new: GatewayConfig, mqtt_running: bool) -> ReloadPlan:
+    restart: list[str] = []
+    changed: list[str] = []
+    for key in ("gateway_id",):
+        if getattr(old, key) != getattr(new, key):
+            restart.append(key)
+    if old.storage.path != new.storage.path:
+        restart.append("storage.path")
+    tcp = _tcp(old.modbus_tcp, new.modbus_tcp, changed, restart)
+    storage = new.storage.model_copy(update={"path": old.storage.path})
+    if storage != old.storage:
+        changed.append("storage")
+    if new.logging != old.logging:
+        changed.append("logging")
+    for section in ("mqtt", "metrics"):
+        if getattr(old, section) != getattr(new, section):
+            restart.append(section)
+    if old.buses != new.buses:
+        restart.append("buses")
+    steady = {b.name for b in old.buses} & {b.name for b in new.buses}
+    steady = {name for name in steady if _bus(old, name) == _bus(new, name)}
+    drives, added, removed = _drives(old, new, steady, changed, restart)
+    if (added or removed) and mqtt_running:
+        restart.append("MQTT topics of drives added or removed")
+    running = new.model_copy(
+        update={
+            "gateway_id": old.gateway_id,
+            "modbus_tcp": tcp,
+            "storage": storage,
+            "buses": old.buses,
+            "drives": drives,
+            "mqtt": old.mqtt,
+            "metrics": old.metrics,
+        }
+    )
+    return ReloadPlan(running, added, removed, changed, restart)
+
+
+def _tcp(
+    old: ModbusTcpConfig, new: ModbusTcpConfig, changed: list[str], restart: list[str]
+) -> ModbusTcpConfig:
+    kept = {key: getattr(old, key) for key in LISTENER_KEYS}
+    restart += [f"modbus_tcp.{key}" for key in LISTENER_KEYS if getattr(new, key) != kept[key]]
+    running = new.model_copy(update=kept)
+    changed += [
+        f"modbus_tcp.{key}"
+        for key in type(new).model_fields
+        if key not in LISTENER_KEYS and getattr(old, key) != getattr(new, key)
+    ]
+    return running
+
+
+def _drives(
+    old: GatewayConfig,
+    new: GatewayConfig,
+    steady: set[str],
+    changed: list[str],
+    restart: list[str],
+) -> tuple[tuple[DriveConfig, ...], list[DriveConfig], list[str]]:
+    """The drives to run with: new ones on steady buses, the old ones elsewhere."""
+    before = {d.name: d for d in old.drives}
+    after = {d.name: d for d in new.drives}
+    running: dict[str, DriveConfig] = {}
+    added: list[DriveConfig] = []
+    removed: list[str] = []
+    for name, drive in after.items():
+        was = before.get(name)
+        if drive.bus not in steady or (was is not None and was.bus not in steady):
+            if was is not None:
+                running[name] = was
+            if was != drive:
+                restart.append(f"drive {name} (its bus changed)")
+            continue
+        running[name] = drive
+        if was is None:
+            added.append(drive)
+        elif was != drive:
+            removed.append(name)  # replaced: out with the old, in with the new
+            added.append(drive)
+    for name, was in before.items():
+        if name in after:
+            continue
+        if was.bus in steady:
+            removed.append(name)
+        else:
+            running[name] = was
+            restart.append(f"drive {name} (its bus changed)")
+    gone = [name for name in removed if name not in after]
+    came = [d.name for d in added if d.name not in before]
+    replaced = [d.name for d in added if d.name in before]
+    for label, names in (("drives added", came), ("drives removed", gone)):
+        if names:
+            changed.append(f"{label}: {', '.join(names)}")
+    if replaced:
+        changed.append(f"drives changed: {', '.join(replaced)}")
+    order = [d.name for d in new.drives] + [n for n in before if n not in after]
+    drives = tuple(running[name] for name in order if name in running)
+    return drives, added, removed
+
+
+def _bus(config: GatewayConfig, name: str) -> object:
+    return next(b for b in config.buses if b.name == name)

@@ -1,0 +1,77 @@
+"""What the store keeps: events (each with its id and the time it happened) and faults."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import Any
+
+from gateway.poller.drive_state import iso_time
+
+Json = dict[str, Any]
+
+
+class EventType(StrEnum):
+    """The `type` of a `<base>/bridge/event` (a public interface: add, never rename)."""
+
+    FAULT_RAISED = "fault_raised"
+    FAULT_CLEARED = "fault_cleared"
+    DRIVE_OFFLINE = "drive_offline"
+    DRIVE_ONLINE = "drive_online"
+    PORT_LOST = "port_lost"
+    PORT_BACK = "port_back"
+    COMMAND = "command"
+    MODBUS_WRITES = "modbus_writes"
+    CONFIG_RELOADED = "config_reloaded"
+    RETAINED_COMMAND_CLEARED = "retained_command_cleared"
+    """A retained command was refused and removed from the broker (the MQTT bridge)."""
+
+
+@dataclass(frozen=True, slots=True)
+class NewEvent:
+    """An event on its way into the store (it gets its id there)."""
+
+    type: str
+    time: float
+    """Wall-clock time (epoch seconds) it happened: kept through outages and restarts."""
+    data: Json
+    drive: str | None = None
+    snapshot: Json | None = None
+    """For a raised fault: the drive's running values at that moment (its fault history)."""
+
+
+@dataclass(frozen=True, slots=True)
+class StoredEvent:
+    id: int
+    """Strictly increasing, across restarts too: consumers de-duplicate by it."""
+    type: str
+    time: float
+    data: Json = field(default_factory=dict)
+
+    def payload(self) -> Json:
+        """What `<base>/bridge/event` carries."""
+        return {"id": self.id, "type": self.type, "time": iso_time(self.time), "data": self.data}
+
+
+@dataclass(frozen=True, slots=True)
+class FaultRecord:
+    """One fault of one drive: when it came, when it went, what the drive was doing."""
+
+    drive: str
+    code: int
+    name: str
+    description: str
+    raised: float
+    cleared: float | None
+    snapshot: Json
+
+    def as_json(self) -> Json:
+        return {
+            "code": self.code,
+            "name": self.name,
+            "description": self.description,
+            "raised": iso_time(self.raised),
+            "cleared": None if self.cleared is None else iso_time(self.cleared),
+            "duration_s": None if self.cleared is None else round(self.cleared - self.raised, 3),
+            "snapshot": self.snapshot,
+        }

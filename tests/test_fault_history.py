@@ -1,0 +1,86 @@
+"""Fault history: five faults of a running drive, each with the running values at its raise,
+read back over MQTT (`bridge/request/fault_history`) after the gateway restarted; the commands
+that ran the drive are events too."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from tests.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
+from tests.mosquitto import mosquitto as mosquitto
+from tests.mqtt_setup import mqtt_config, simulated_line
+from tests.support import running_gateway
+
+CODES = (2, 11, 15, 23, 40)
+"""OUt2, OL1, OH1, bCE, STO on the GD350: five different trips."""
+
+
+async def request(probe: MqttProbe, base: str, operation: str, payload: dict[str, Any]) -> Any:
+    return await probe.request(
+        f"{base}/bridge/request/{operation}", payload, f"{base}/bridge/response/{operation}"
+    )
+
+
+async def test_five_faults_with_snapshots_read_back_after_a_restart(mosquitto: Mosquitto) -> None:
+    base = unique_base_topic()
+    events = f"{base}/bridge/event"
+    with simulated_line() as line:
+        config = mqtt_config(line.path, mosquitto, base, homeassistant_discovery=False)
+        async with mqtt_probe(mosquitto, f"{base}/#") as probe, running_gateway(config):
+            await probe.wait_for(f"{base}/pump1/availability", lambda a: a["state"] == "online")
+            for code in CODES:
+                mark = len(probe.messages)
+                run = {"command": "run_forward", "frequency_hz": 30.0}
+                response = await probe.request(
+                    f"{base}/pump1/set", run, f"{base}/pump1/set/response"
+                )
+                assert response["status"] == "ok", response
+                command = await probe.wait_for(events, lambda e: e["type"] == "command", after=mark)
+                assert command.json()["data"] | {"transaction": None} == {
+                    "drive": "pump1",
+                    "source": "mqtt",
+                    "command": "run_forward",
+                    "frequency_hz": 30.0,
+                    "result": "ok",
+                    "transaction": None,
+                }
+                await probe.wait_for(
+                    f"{base}/pump1", lambda s: s.get("output_frequency_hz", 0) > 0, after=mark
+                )
+                line.inject_fault(1, code)
+                await probe.wait_for(
+                    events,
+                    lambda e, c=code: e["type"] == "fault_raised" and e["data"]["fault_code"] == c,
+                    after=mark,
+                )
+                line.clear_fault(1)
+                await probe.wait_for(events, lambda e: e["type"] == "fault_cleared", after=mark)
+
+        # A restart: a new gateway on the same store.
+        async with mqtt_probe(mosquitto, f"{base}/#") as probe, running_gateway(config) as app:
+            await app.mqtt.connected.wait()  # subscribed: a request now is heard
+            answer = await request(probe, base, "fault_history", {"drive": "pump1", "limit": 20})
+            two = await request(probe, base, "fault_history", {"drive": "pump1", "limit": 2})
+            none = await request(probe, base, "fault_history", {"drive": "fan2"})
+            unknown = await request(probe, base, "fault_history", {"drive": "pump9"})
+            bad = await request(probe, base, "fault_history", {"drive": "pump1", "limit": 0})
+
+    assert answer["status"] == "ok", answer
+    faults = answer["data"]["faults"]
+    assert answer["data"]["drive"] == "pump1"
+    assert [f["code"] for f in faults] == list(reversed(CODES))  # newest first
+    assert faults[-1]["name"] == "OUt2"
+    assert faults[-1]["description"] == "OUt2: inverter unit phase V protection"
+    for fault in faults:
+        assert fault["raised"] < fault["cleared"]
+        assert fault["duration_s"] > 0
+        snapshot = fault["snapshot"]
+        assert snapshot["output_frequency_hz"] > 0  # it was running when it tripped
+        for key in ("output_current_a", "bus_voltage_v", "state_word_1", "state_word_2"):
+            assert key in snapshot, (key, snapshot)
+    assert [f["raised"] for f in faults] == sorted((f["raised"] for f in faults), reverse=True)
+    assert two["data"]["faults"] == faults[:2]
+    assert none["data"] == {"drive": "fan2", "faults": []}
+    assert unknown["status"] == "error"
+    assert unknown["error"] == "unknown_drive"
+    assert bad["error"] == "invalid_request"

@@ -1,0 +1,183 @@
+"""A live reload under load: a real `invt-gateway run` on two simulated lines, a SCADA client
+reading every 20 ms, and SIGHUP with a new file that adds a drive, removes another and changes an
+access rule; then SIGHUP with an invalid file. The client's one connection stays open
+throughout."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import signal
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from gateway.config import GatewayConfig
+from gateway.profile.invt import STATE_WORD_1
+from gateway.reload import plan
+from gateway.simulator import SimulatedLine
+from tests.processes import GatewayProcess, gateway_process
+from tests.support import TcpClient, free_port, read_pdu, write_pdu
+
+FREQUENCY_SETPOINT = 0x2001
+
+
+def config(line1: str, line2: str, port: int, drives: list[dict[str, Any]], **tcp: Any) -> Any:
+    bus = {"baudrate": 115200, "parity": "E", "timeout_ms": 200, "retries": 1}
+    return {
+        "gateway_id": "reload",
+        "modbus_tcp": {"host": "127.0.0.1", "port": port, **tcp},
+        "buses": [{"name": "line1", "port": line1, **bus}, {"name": "line2", "port": line2, **bus}],
+        "drives": drives,
+    }
+
+
+BEFORE = [
+    {"name": "pump1", "bus": "line1", "address": 1},
+    {"name": "fan2", "bus": "line1", "address": 2},
+    {"name": "conv3", "bus": "line2", "address": 1, "unit_id": 3},
+]
+AFTER = [
+    {"name": "pump1", "bus": "line1", "address": 1},
+    {"name": "conv3", "bus": "line2", "address": 1, "unit_id": 3},
+    {"name": "mixer4", "bus": "line2", "address": 2, "unit_id": 4},
+]
+NO_SETPOINT_WRITES_TO_PUMP1 = [
+    {"name": "pump1-read-only", "unit_ids": [1], "functions": [6], "allow": False}
+]
+
+
+class Load:
+    """One connection reading the unaffected drives in turn, every 20 ms."""
+
+    def __init__(self, client: TcpClient) -> None:
+        self.client = client
+        self.ok = 0
+        self.errors: list[str] = []
+        self.lock = asyncio.Lock()  # the test's own requests share the connection
+        self.progress = asyncio.Condition()
+
+    async def run(self) -> None:
+        while True:
+            for unit_id in (1, 3):
+                async with self.lock:
+                    reply = await self.client.request(unit_id, read_pdu(STATE_WORD_1))
+                if reply == bytes.fromhex("03 02 00 03"):
+                    self.ok += 1
+                else:
+                    self.errors.append(f"unit {unit_id}: {reply.hex(' ')}")
+                async with self.progress:
+                    self.progress.notify_all()
+                await asyncio.sleep(0.02)  # the client's own pace, not synchronisation
+
+    async def more(self, count: int) -> None:
+        """Until `count` more reads have been answered."""
+        target = self.ok + count
+        async with self.progress:
+            await asyncio.wait_for(self.progress.wait_for(lambda: self.ok >= target), 10)
+
+    async def request(self, unit_id: int, pdu: bytes) -> bytes:
+        async with self.lock:
+            return await self.client.request(unit_id, pdu)
+
+
+@contextlib.asynccontextmanager
+async def load_on(port: int) -> AsyncIterator[Load]:
+    client = await TcpClient.connect(port)
+    load = Load(client)
+    task = asyncio.create_task(load.run())
+    try:
+        yield load
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+        await client.close()
+
+
+def reload_with(gateway: GatewayProcess, content: str, expect: str) -> str:
+    count = gateway.log.count(expect)
+    gateway.config_file.write_text(content, encoding="utf-8")
+    gateway.signal(signal.SIGHUP)
+    gateway.log.wait_for_count(expect, count + 1)
+    return [line for line in gateway.log.lines if expect in line][-1]
+
+
+async def test_reload_under_load_adds_removes_and_changes_a_rule(tmp_path: Path) -> None:
+    port = free_port()
+    with (
+        SimulatedLine(addresses=[1, 2], baudrate=115200, parity="E") as line1,
+        SimulatedLine(addresses=[1, 2], baudrate=115200, parity="E") as line2,
+        gateway_process(config(line1.path, line2.path, port, BEFORE), tmp_path) as gateway,
+    ):
+        await asyncio.to_thread(gateway.wait_ready)
+        async with load_on(port) as load:
+            await load.more(10)
+            assert await load.request(2, read_pdu(STATE_WORD_1)) == bytes.fromhex("03 02 00 03")
+            assert (await load.request(1, write_pdu(FREQUENCY_SETPOINT, 1000)))[0] == 0x06
+            assert (await load.request(4, read_pdu(STATE_WORD_1))) == bytes.fromhex("83 0A")
+
+            new = config(line1.path, line2.path, port, AFTER, access=NO_SETPOINT_WRITES_TO_PUMP1)
+            line = await asyncio.to_thread(
+                reload_with, gateway, yaml.safe_dump(new), "config reloaded"
+            )
+            assert "drives added: mixer4" in line
+            assert "drives removed: fan2" in line
+            assert "modbus_tcp.access" in line
+            assert "restart needed" not in line
+            await load.more(10)
+            assert await load.request(2, read_pdu(STATE_WORD_1)) == bytes.fromhex("83 0A")
+            assert await load.request(4, read_pdu(STATE_WORD_1)) == bytes.fromhex("03 02 00 03")
+            # The new rule: set-point writes to pump1 refused (01H), other drives still written.
+            refused = await load.request(1, write_pdu(FREQUENCY_SETPOINT, 1000))
+            assert refused == bytes.fromhex("86 01")
+            assert (await load.request(3, write_pdu(FREQUENCY_SETPOINT, 1000)))[0] == 0x06
+
+            # An invalid file changes nothing: named key, and everything keeps running.
+            broken = config(
+                line1.path, line2.path, port, [*AFTER, {"name": "x", "bus": "line9", "address": 1}]
+            )
+            line = await asyncio.to_thread(
+                reload_with, gateway, yaml.safe_dump(broken), "reload refused"
+            )
+            assert "drives[3] (x).bus" in line
+            await load.more(10)
+            assert await load.request(4, read_pdu(STATE_WORD_1)) == bytes.fromhex("03 02 00 03")
+            assert await load.request(2, read_pdu(STATE_WORD_1)) == bytes.fromhex("83 0A")
+
+            # Keys that need a restart keep their running values, and say so.
+            moved = config(line1.path, line2.path, free_port(), AFTER)
+            line = await asyncio.to_thread(
+                reload_with, gateway, yaml.safe_dump(moved), "config reloaded"
+            )
+            assert "restart needed for: modbus_tcp.port" in line
+            assert "modbus_tcp.access" in line  # the rule, gone from the file, is lifted
+            await load.more(10)
+            assert (await load.request(1, write_pdu(FREQUENCY_SETPOINT, 1000)))[0] == 0x06
+            assert not load.client.reader.at_eof()  # the one connection, open throughout
+        assert load.errors == []
+        assert gateway.process.poll() is None  # still running
+
+
+def test_what_a_reload_applies_and_what_waits_for_a_restart() -> None:
+    old = GatewayConfig.model_validate(config("/dev/ttyA", "/dev/ttyB", 5020, BEFORE))
+    changed_bus = config("/dev/ttyA", "/dev/ttyB", 5020, AFTER)
+    changed_bus["buses"][1]["baudrate"] = 9600
+    changed_bus["gateway_id"] = "renamed"
+    changed_bus["storage"] = {"path": "/elsewhere/events.db", "max_mb": 10}
+    result = plan(old, GatewayConfig.model_validate(changed_bus), mqtt_running=False)
+    assert "buses" in result.restart_needed
+    assert "gateway_id" in result.restart_needed
+    assert "storage.path" in result.restart_needed
+    assert "drive mixer4 (its bus changed)" in result.restart_needed
+    assert result.changed == ["storage", "drives removed: fan2"]  # fan2's line1 is unchanged
+    running = result.running
+    assert running.gateway_id == "reload"  # the running values stay
+    assert running.storage.path is None
+    assert running.storage.max_mb == 10
+    assert running.buses == old.buses
+    assert [d.name for d in running.drives] == ["pump1", "conv3"]
+    assert [d.name for d in result.added] == []
+    assert result.removed == ["fan2"]
