@@ -169,10 +169,13 @@ class Application:
         self.features: list[Feature] = []
         self.phase = Phase.STARTING
         mqtt = config.mqtt is not None and config.mqtt.enabled
-        # Without MQTT only the drives that ask for it are polled: polls cost line time, and a
-        # pure Modbus-TCP gateway shouldn't spend it unasked.
+        console = config.console.enabled
+        # Without MQTT or the console only the drives that ask for it are polled: polls cost
+        # line time, and a pure Modbus-TCP gateway shouldn't spend it unasked.
         polled = [
-            d for d in config.drives if mqtt or d.poll is not None or d.cache_max_age_ms is not None
+            d
+            for d in config.drives
+            if mqtt or console or d.poll is not None or d.cache_max_age_ms is not None
         ]
         if polled:
             self._add_poller(polled)
@@ -183,6 +186,8 @@ class Application:
 
             # First to start, last to stop: /health answers while the others come and go.
             self.features.insert(0, MetricsFeature(self))
+        if console:
+            self._add_console(config)
 
     def _add_poller(self, drives: list[DriveConfig]) -> None:
         """Polls feed the cache, the fault log and (when configured) the MQTT bridge."""
@@ -204,6 +209,21 @@ class Application:
         self.poller.read_max_frequency = config.mqtt.homeassistant_discovery
         self.poller.add_listener(self.mqtt)
         self.features.append(self.mqtt)
+
+    def _add_console(self, config: GatewayConfig) -> None:
+        """The console reads the poller's state and sends through the router, with Modbus-TCP's
+        write policy; it starts after the poller and stops before it."""
+        from gateway.console.feature import ConsoleFeature  # aiohttp only when asked for
+
+        self.console = ConsoleFeature(
+            config,
+            self.buses,
+            self.router,
+            getattr(self, "poller", None),
+            read_only=config.modbus_tcp.read_only,
+            access=self.tcp.access,
+        )
+        self.features.append(self.console)
 
     async def _handle_tcp(self, unit_id: int, pdu: bytes, client: str) -> bytes | None:
         return await self.router.execute(unit_id, pdu, client=client)

@@ -27,6 +27,7 @@ COMMAND_MODULES = (
     "gateway.commands.decode_fault",
     "gateway.commands.params",
     "gateway.commands.healthcheck",
+    "gateway.commands.hash_password",
 )
 
 EXIT_OK = 0
