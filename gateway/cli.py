@@ -28,6 +28,7 @@ COMMAND_MODULES = (
     "gateway.commands.params",
     "gateway.commands.healthcheck",
     "gateway.commands.hash_password",
+    "gateway.commands.monitor",
 )
 
 EXIT_OK = 0
