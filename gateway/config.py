@@ -412,7 +412,6 @@ class MetricsConfig(Section):
     port: int = Field(9102, ge=1, le=65535)
 
 
-
 class ConsoleUserConfig(Section):
     name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.@-]+$")
     password_hash: str

@@ -60,9 +60,7 @@ def test_bench_prints_checked_figures_as_json() -> None:
     assert any("served by coalescing alone" in line for line in report["summary"])
     # Overall progress on stderr, plain lines when not on a terminal: one per case.
     steps = [line for line in result.stderr.splitlines() if line.startswith("bench: case")]
-    assert [step.split(" (")[0] for step in steps] == [
-        f"bench: case {n} of 7" for n in range(1, 8)
-    ]
+    assert [step.split(" (")[0] for step in steps] == [f"bench: case {n} of 7" for n in range(1, 8)]
     assert all(re.search(r"% done, .* ends ~\d\d:\d\d:\d\d \(in ", step) for step in steps)
 
 
