@@ -318,3 +318,8 @@ async def test_a_modbus_tcp_write_shows_on_the_overview(
         return pump["state"] == "running forward"
 
     await until(shows_running, within_s=2.0)
+    audit = (await web.get_json("/api/events?drive=pump1"))["events"][0]
+    assert audit["kind"] == "write"
+    assert audit["text"] == "function 10H to address 1"
+    assert audit["who"].startswith("tcp:127.0.0.1:")
+    assert audit["result"] == "ok"

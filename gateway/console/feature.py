@@ -60,6 +60,7 @@ class ConsoleFeature:
         self._runner: web.AppRunner | None = None
         self._site: web.TCPSite | None = None
         self._sampler: asyncio.Task[None] | None = None
+        self._live: LiveState | None = None
 
     @property
     def port(self) -> int:
@@ -77,6 +78,9 @@ class ConsoleFeature:
         live = LiveState(self.buses, self.config.buses, drives, self.poller, self.events)
         if self.poller is not None:
             self.poller.add_listener(live)
+        for bus in self.buses.values():
+            bus.add_request_observer(live.request_done)
+        self._live = live
         labels = {
             (d.bus, d.address): DriveLabel(d.name, d.effective_unit_id, d.profile().is_invt)
             for d in drives
@@ -121,6 +125,9 @@ class ConsoleFeature:
         if self.console is not None:
             self.console.closing.set()  # every stream ends its loop
             self.console.traffic.close()
+        if self._live is not None:
+            for bus in self.buses.values():
+                bus.remove_request_observer(self._live.request_done)
         if self._sampler is not None:
             await cancel_and_wait(self._sampler, 0.2)
         if self._runner is not None:

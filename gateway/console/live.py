@@ -15,11 +15,13 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
 
-from gateway.bus import Bus, BusState
+from gateway.bus import Bus, BusState, RequestDone
 from gateway.config import BusConfig, DriveConfig
 from gateway.console.events import EventStore, GatewayEvent
+from gateway.modbus.functions import WRITES
 from gateway.poller import Poller
 from gateway.poller.drive_state import DriveEvent, EventKind, iso_time
+from gateway.profile import exception_name
 from gateway.profile.telemetry import Telemetry
 
 HISTORY_S: Final = 15 * 60.0
@@ -29,6 +31,8 @@ RATE_WINDOW_S: Final = 5.0
 """Transactions per second and utilisation: over the last few seconds, so a change shows soon."""
 MINUTE_S: Final = 60.0
 CHART_KEYS: Final = ("output_frequency_hz", "output_current_a", "bus_voltage_v")
+AUDITED_ELSEWHERE: Final = ("console:", "poll", "probe")
+"""The console audits its own writes in words; polls and probes never write."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,6 +74,7 @@ class LiveState:
             name: deque(maxlen=int(MINUTE_S) + 2) for name in buses
         }
         self._bus_states = {name: bus.state for name, bus in buses.items()}
+        self._by_address = {(d.bus, d.address): d.name for d in drives}
 
     # -- poll listener ----------------------------------------------------------------------
 
@@ -98,6 +103,26 @@ class LiveState:
         else:
             text = "online again"
         self.events.record(GatewayEvent(str(event.kind), text, event.drive, bus, at=event.at))
+
+    # -- the audit of writes from Modbus-TCP and MQTT (a bus request observer) ---------------
+
+    def request_done(self, done: RequestDone) -> None:
+        """A request answered: a write from SCADA or MQTT becomes an audit line."""
+        if done.function not in WRITES or done.client.startswith(AUDITED_ELSEWHERE):
+            return
+        code = done.code
+        result = "ok" if code is None else f"exception {code:02X}H {exception_name(code)}"
+        target = "broadcast" if done.address == 0 else f"address {done.address}"
+        self.events.record(
+            GatewayEvent(
+                "write",
+                f"function {done.function:02X}H to {target}",
+                self._by_address.get((done.bus, done.address)),
+                done.bus,
+                who=done.client,
+                result=result,
+            )
+        )
 
     # -- bus sampling (once a second, from the console's own task) --------------------------
 
