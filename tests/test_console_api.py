@@ -323,3 +323,21 @@ async def test_a_modbus_tcp_write_shows_on_the_overview(
     assert audit["text"] == "function 10H to address 1"
     assert audit["who"].startswith("tcp:127.0.0.1:")
     assert audit["result"] == "ok"
+
+
+async def test_open_streams_do_not_hold_up_the_shutdown(line: SimulatedLine) -> None:
+    """The service promises to stop within 2 s: a browser's open monitor and live page end."""
+    config = console_config(line.path, anonymous_view=True)
+    async with aiohttp.ClientSession() as session:
+        async with running_gateway(config) as app:
+            base = f"http://127.0.0.1:{app.console.port}"
+            traffic = await session.get(f"{base}/api/buses/line1/traffic")
+            live = await session.get(f"{base}/api/live")
+            assert (await traffic.content.readline()).startswith(b"event: watching")
+            assert (await live.content.readline()).startswith(b"event: overview")
+            stopping_from = asyncio.get_running_loop().time()
+        assert asyncio.get_running_loop().time() - stopping_from < 2.0
+        rest = await traffic.content.read()  # to the end of the stream: the gateway ended it
+        assert rest == b"" or rest.endswith(b"\n\n")  # after a whole event, never in one
+        traffic.release()
+        live.release()

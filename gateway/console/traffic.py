@@ -63,7 +63,10 @@ class Record:
 @dataclass(slots=True)
 class Watcher:
     bus: str
-    queue: asyncio.Queue[Record] = field(default_factory=lambda: asyncio.Queue(WATCHER_QUEUE))
+    queue: asyncio.Queue[Record | None] = field(
+        default_factory=lambda: asyncio.Queue(WATCHER_QUEUE)
+    )
+    """None at the end: the console is stopping."""
     dropped: int = 0
 
 
@@ -96,9 +99,14 @@ class TrafficMonitor:
             self.buses[watcher.bus].tap = None
 
     def close(self) -> None:
+        """Stop recording and tell every watcher it is over (None in its queue)."""
         for name, watchers in self._watchers.items():
-            watchers.clear()
             self.buses[name].tap = None
+            for watcher in watchers:
+                if watcher.queue.full():
+                    watcher.queue.get_nowait()  # the end matters more than one more record
+                watcher.queue.put_nowait(None)
+            watchers.clear()
 
     def recent(self, bus: str) -> list[Record]:
         return list(self.rings[bus])

@@ -18,6 +18,7 @@ import logging
 from collections.abc import Awaitable, Callable
 from importlib import resources
 from typing import Any, Final
+from urllib.parse import quote
 
 from aiohttp import web
 
@@ -171,7 +172,7 @@ async def _guarded(console: Console, request: web.Request, handler: Handler) -> 
     if who is None:
         if path.startswith("/api/"):
             raise _error(401, "log in, or send an API token (Authorization: Bearer TOKEN)")
-        raise web.HTTPFound(f"/login?next={path}")
+        raise web.HTTPFound(f"/login?next={quote(path)}")
     if request.method not in ("GET", "HEAD") and path != "/api/logout":
         if not who.may_write:
             raise _error(403, f"{who.name} ({who.role}) may not make changes: operators only")
@@ -435,8 +436,8 @@ async def traffic_stream(request: web.Request) -> web.StreamResponse:
         response = await _open_stream(request)
         recent = _limit(request, "recent", default=0)
         if recent:
-            for record in traffic.recent(bus)[-recent:]:
-                await _send_event(response, "traffic", traffic.to_json(record))
+            for kept in traffic.recent(bus)[-recent:]:
+                await _send_event(response, "traffic", traffic.to_json(kept))
         await _send_event(response, "watching", {"bus": bus})
         while not console.closing.is_set():
             try:
@@ -444,6 +445,8 @@ async def traffic_stream(request: web.Request) -> web.StreamResponse:
             except TimeoutError:
                 await response.write(b": still here\n\n")
                 continue
+            if record is None:
+                break  # the console is stopping
             await _send_event(response, "traffic", traffic.to_json(record))
         return response
     finally:

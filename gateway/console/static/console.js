@@ -140,15 +140,19 @@ function eventRow(event, withDrive) {
   return el("tr", { class: `event ${event.kind}` }, ...cells);
 }
 
-function fill(tableId, rows) {
+function fill(tableId, rows, empty) {
   const tbody = document.querySelector(`#${tableId} tbody`);
+  if (!rows.length && empty) {
+    const columns = document.querySelectorAll(`#${tableId} thead th`).length;
+    rows = [el("tr", {}, el("td", { colSpan: columns, class: "muted" }, empty))];
+  }
   tbody.replaceChildren(...rows);
 }
 
 function overviewPage() {
   const refreshEvents = async () => {
     const data = await api("/api/events?limit=50");
-    fill("events", data.events.map((e) => eventRow(e, true)));
+    fill("events", data.events.map((e) => eventRow(e, true)), "no events since the gateway started");
   };
   stream("/api/live", {
     overview: (data) => {
@@ -249,7 +253,7 @@ async function loadFaults(name) {
     fill("fault-history", data.fault_history.map((f) =>
       el("tr", { class: f.code ? "fault" : "" }, el("td", {}, f.parameter),
         el("td", {}, f.code ? `${f.code} ${f.name}` : "none"), el("td", {}, f.description))));
-    fill("drive-events", data.events.map((e) => eventRow(e, false)));
+    fill("drive-events", data.events.map((e) => eventRow(e, false)), "no events for this drive since the gateway started");
   } catch (error) {
     fill("fault-history", [el("tr", {}, el("td", { colSpan: 3, class: "muted" },
       `fault history not readable: ${error.message}`))]);
