@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import asyncio
 import json
+import ssl
 import struct
 from collections.abc import AsyncIterator, Iterator
+from pathlib import Path
 from typing import Any
 
 import aiohttp
@@ -24,6 +26,7 @@ from tests.console_support import (
     console_config,
 )
 from tests.support import TcpClient, read_pdu, running_gateway
+from tests.tls import make_certificates
 
 STATE_WORD_1 = 0x2100
 RUNNING_FORWARD = 1
@@ -341,3 +344,25 @@ async def test_open_streams_do_not_hold_up_the_shutdown(line: SimulatedLine) -> 
         assert rest == b"" or rest.endswith(b"\n\n")  # after a whole event, never in one
         traffic.release()
         live.release()
+
+
+async def test_with_a_certificate_the_console_speaks_https_only(
+    line: SimulatedLine, tmp_path: Path
+) -> None:
+    certificates = make_certificates(tmp_path)
+    config = console_config(
+        line.path, cert_file=str(certificates.server_cert), key_file=str(certificates.server_key)
+    )
+    trusting = ssl.create_default_context(cafile=str(certificates.ca))
+    async with running_gateway(config) as app, aiohttp.ClientSession() as session:
+        port = app.console.port
+        assert app.console.url == f"https://127.0.0.1:{port}/"
+        login = {"name": "olga", "password": OPERATOR_PASSWORD}
+        async with session.post(
+            f"https://127.0.0.1:{port}/api/login", json=login, ssl=trusting
+        ) as response:
+            assert response.status == 200
+            assert "Secure" in response.headers["Set-Cookie"]
+        with pytest.raises(aiohttp.ClientError):
+            async with session.get(f"http://127.0.0.1:{port}/api/overview") as response:
+                await response.read()
