@@ -18,7 +18,7 @@ import pytest
 from selenium import webdriver
 from selenium.webdriver.chrome.service import Service
 from selenium.webdriver.common.by import By
-from selenium.webdriver.support.ui import WebDriverWait
+from selenium.webdriver.support.ui import Select, WebDriverWait
 
 from gateway.app import Application
 from gateway.simulator import SimulatedLine
@@ -257,3 +257,33 @@ async def test_a_dead_drive_turns_offline_and_its_timeouts_show_in_the_monitor(
     await browser.wait(showing("#drives tr[data-drive=fan2] td.online", "offline"), 5.0)
     await browser.wait(showing("#events", "drive offline"), 5.0)
     await browser.screenshot("overview-dead-drive")
+
+
+async def test_the_monitor_filters_pauses_and_downloads_what_it_shows(
+    console: tuple[Application, Browser], tmp_path: Path
+) -> None:
+    _, browser = console
+    await browser.run(
+        browser.driver.execute_cdp_cmd,
+        "Page.setDownloadBehavior",
+        {"behavior": "allow", "downloadPath": str(tmp_path)},
+    )
+    await browser.open("/monitor/line1")
+    await browser.wait(showing("#traffic tbody", "fan2"))
+    await browser.run(
+        lambda: Select(browser.driver.find_element(By.ID, "f-drive")).select_by_value("pump1")
+    )
+    await browser.wait(lambda d: "fan2" not in d.find_element(By.ID, "traffic").text)
+    await browser.click("#pause")
+    await browser.wait(showing("#count", "paused"))
+    rows = await browser.text("#traffic tbody")
+    # The line goes on (polls every half second): a paused page holds them back, and says so.
+    await browser.wait(lambda d: "paused (0 waiting)" not in d.find_element(By.ID, "count").text)
+    assert await browser.text("#traffic tbody") == rows
+    await browser.click("#download-csv")
+    csv_file = tmp_path / "traffic-line1.csv"
+    await browser.wait(lambda _: csv_file.exists() and csv_file.stat().st_size > 0)
+    lines = csv_file.read_text(encoding="utf-8").splitlines()
+    assert lines[0].startswith("time,client,unit_id,address,drive,function,meaning,outcome")
+    assert len(lines) > 1
+    assert all('"pump1"' in line for line in lines[1:])
