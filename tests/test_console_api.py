@@ -366,3 +366,22 @@ async def test_with_a_certificate_the_console_speaks_https_only(
         with pytest.raises(aiohttp.ClientError):
             async with session.get(f"http://127.0.0.1:{port}/api/overview") as response:
                 await response.read()
+
+
+async def test_a_lost_port_and_its_return_are_events(
+    traffic: tuple[Application, ConsoleClient], line: SimulatedLine
+) -> None:
+    _, web = traffic
+
+    def kinds(events: list[dict[str, Any]]) -> list[str]:
+        return [e["kind"] for e in events if e["bus"] == "line1" and e["drive"] is None]
+
+    async def seen(kind: str) -> bool:
+        return kind in kinds((await web.get_json("/api/events"))["events"])
+
+    line.unplug()
+    await until(lambda: seen("port_lost"))
+    line.replug()
+    await until(lambda: seen("port_back"), within_s=15.0)
+    bus = (await web.get_json("/api/overview"))["buses"][0]
+    assert bus["state"] == "open"
