@@ -415,11 +415,14 @@ async def live_stream(request: web.Request) -> web.StreamResponse:
     if drive is not None and drive not in console.live.drives:
         raise _error(404, f"no drive named {drive!r}")
     response = await _open_stream(request)
-    while not console.closing.is_set():
-        await _send_event(response, "overview", console.live.overview())
-        if drive is not None:
-            await _send_event(response, "drive", _drive_json(console, drive))
-        await _wait(console, LIVE_PERIOD_S)
+    try:
+        while not console.closing.is_set():
+            await _send_event(response, "overview", console.live.overview())
+            if drive is not None:
+                await _send_event(response, "drive", _drive_json(console, drive))
+            await _wait(console, LIVE_PERIOD_S)
+    except ConnectionError:
+        pass  # the page was closed: nothing more to say, nothing to log
     return response
 
 
@@ -449,6 +452,8 @@ async def traffic_stream(request: web.Request) -> web.StreamResponse:
                 break  # the console is stopping
             await _send_event(response, "traffic", traffic.to_json(record))
         return response
+    except ConnectionError:
+        return response  # the monitor was closed: it stops recording (below), nothing to log
     finally:
         traffic.leave(watcher)
 
