@@ -191,8 +191,8 @@ class Application:
             bus.add_port_listener(self.events.port_changed)
         self.writes = WriteTally(self.events, self._drive_of, self.tasks)
         self.features.append(self.writes)
-        # Without MQTT only the drives that ask for it are polled: polls cost line time, and a
-        # pure Modbus-TCP gateway shouldn't spend it unasked.
+        # Without MQTT or the console only the drives that ask for it are polled: polls cost
+        # line time, and a pure Modbus-TCP gateway shouldn't spend it unasked.
         polled = [d for d in config.drives if self._polled(d)]
         if polled:
             self._add_poller(polled)
@@ -203,6 +203,8 @@ class Application:
 
             # First to start, last to stop: /health answers while the others come and go.
             self.features.insert(0, MetricsFeature(self))
+        if config.console.enabled:
+            self._add_console(config)
 
     def _add_poller(self, drives: list[DriveConfig]) -> None:
         """Polls feed the cache, the fault log and (when configured) the MQTT bridge."""
@@ -250,11 +252,29 @@ class Application:
 
     def _polled(self, drive: DriveConfig) -> bool:
         mqtt = self.config.mqtt is not None and self.config.mqtt.enabled
-        return mqtt or drive.poll is not None or drive.cache_max_age_ms is not None
+        console = self.config.console.enabled
+        return mqtt or console or drive.poll is not None or drive.cache_max_age_ms is not None
 
     @property
     def cache(self) -> RegisterCache:
         return self.router.cache
+
+    def _add_console(self, config: GatewayConfig) -> None:
+        """The console reads the poller's state and sends through the router, with Modbus-TCP's
+        write policy; it starts after the poller and stops before it."""
+        from gateway.console.events import ConsoleEventsRecorded
+        from gateway.console.feature import ConsoleFeature  # aiohttp only when asked for
+
+        self.console = ConsoleFeature(
+            config,
+            self.buses,
+            self.router,
+            getattr(self, "poller", None),
+            read_only=config.modbus_tcp.read_only,
+            access=self.tcp.access,
+            events=ConsoleEventsRecorded(self.events),
+        )
+        self.features.append(self.console)
 
     async def _handle_tcp(self, unit_id: int, pdu: bytes, client: str) -> bytes | None:
         try:

@@ -27,6 +27,8 @@ COMMAND_MODULES = (
     "gateway.commands.decode_fault",
     "gateway.commands.params",
     "gateway.commands.healthcheck",
+    "gateway.commands.hash_password",
+    "gateway.commands.monitor",
 )
 
 EXIT_OK = 0

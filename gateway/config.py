@@ -437,6 +437,69 @@ class StorageConfig(Section):
         return str(Path(directory) / "events.db")
 
 
+class ConsoleUserConfig(Section):
+    name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.@-]+$")
+    password_hash: str
+    """`invt-gateway hash-password` makes it (salted scrypt); never the password itself."""
+    role: Literal["viewer", "operator"] = "viewer"
+    """viewer: sees everything; operator: also commands and writes (when commands_enabled)."""
+    token_hash: str | None = None
+    """The user's API token, hashed (`invt-gateway hash-password --new-token` makes one):
+    scripts and `invt-gateway monitor` send the token as `Authorization: Bearer TOKEN`."""
+
+    @field_validator("password_hash")
+    @classmethod
+    def _a_password_hash(cls, value: str) -> str:
+        from gateway.console.passwords import check_password_hash
+
+        check_password_hash(value)  # a password pasted here instead of its hash is refused
+        return value
+
+    @field_validator("token_hash")
+    @classmethod
+    def _a_token_hash(cls, value: str | None) -> str | None:
+        from gateway.console.passwords import check_token_hash
+
+        if value is not None:
+            check_token_hash(value)
+        return value
+
+
+class ConsoleConfig(Section):
+    enabled: bool = False
+    host: str = "127.0.0.1"
+    """Loopback by default: a console on the plant network is a decision, not an accident."""
+    port: int = Field(8080, ge=0, le=65535)
+    users: tuple[ConsoleUserConfig, ...] = ()
+    commands_enabled: bool = True
+    """False: the console only shows; every command and write from it is refused."""
+    anonymous_view: bool = False
+    """True: pages and the read API without a login (as a viewer); writes always need one."""
+    cert_file: str | None = None
+    key_file: str | None = None
+    """Both given: the console speaks HTTPS only."""
+
+    @field_validator("cert_file", "key_file")
+    @classmethod
+    def _readable(cls, value: str | None) -> str | None:
+        if value is not None and not os.access(value, os.R_OK):
+            reason = "no such file" if not os.path.exists(value) else "not readable"
+            raise ValueError(f"{value}: {reason}")
+        return value
+
+    @model_validator(mode="after")
+    def _checks(self) -> ConsoleConfig:
+        if (self.cert_file is None) != (self.key_file is None):
+            raise ValueError("cert_file and key_file go together: give both for HTTPS, or neither")
+        names = [user.name for user in self.users]
+        duplicates = sorted({name for name in names if names.count(name) > 1})
+        if duplicates:
+            raise ValueError(f"users: duplicate name {', '.join(duplicates)}")
+        if self.enabled and not self.users and not self.anonymous_view:
+            raise ValueError("enabled with no users and anonymous_view false: nobody could use it")
+        return self
+
+
 class LoggingConfig(Section):
     level: Literal["debug", "info", "warning", "error"] = "info"
     format: Literal["text", "json"] = "text"
@@ -451,6 +514,7 @@ class GatewayConfig(Section):
     drives: tuple[DriveConfig, ...] = ()
     mqtt: MqttConfig | None = None
     metrics: MetricsConfig = MetricsConfig()
+    console: ConsoleConfig = ConsoleConfig()
     logging: LoggingConfig = LoggingConfig()
     storage: StorageConfig = StorageConfig()
 

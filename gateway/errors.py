@@ -19,6 +19,8 @@
     │   └── PortError           the serial port is closed, vanished or can't be opened
     ├── CommandRefused          an MQTT command refused before it reached the bus: `reason` says why
     ├── FieldError              a field tool failed: what happened, and what to check on site
+    ├── MonitorError            `invt-gateway monitor` can't show the traffic: one line why
+    ├── OperationError          a console request refused or failed, with its HTTP `status`
     └── ModbusError             answered to the client as a Modbus exception (has `code`)
         ├── DriveException      the drive itself answered an exception (its code, byte-exact)
         ├── RequestRefused      this side refuses a request with `code` (the simulated drive)
@@ -220,3 +222,16 @@ class MalformedCertificate(MalformedFrame):
 class StoreError(GatewayError):
     """The event store's database could not be opened or used (the message names the file and
     why): the gateway goes on, keeping events in memory."""
+
+
+class MonitorError(GatewayError):
+    """Why `invt-gateway monitor` can't show the traffic, in one line."""
+
+
+class OperationError(GatewayError):
+    """A console request told to the caller with an HTTP status: 400 bad input, 403 refused,
+    409 disabled, 502 the drive or the line failed."""
+
+    def __init__(self, status: int, message: str) -> None:
+        super().__init__(message)
+        self.status = status

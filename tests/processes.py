@@ -34,13 +34,17 @@ def entry_point() -> str:
 
 
 def run_cli(
-    *args: str, timeout_s: float = 30.0, env: Mapping[str, str] | None = None
+    *args: str,
+    timeout_s: float = 30.0,
+    env: Mapping[str, str] | None = None,
+    input_text: str | None = None,
 ) -> subprocess.CompletedProcess[str]:
-    """Run `invt-gateway ARGS` to completion; its output as text."""
+    """Run `invt-gateway ARGS` to completion (`input_text` on its stdin); its output as text."""
     return subprocess.run(
         [entry_point(), *args],
         capture_output=True,
         text=True,
+        input=input_text,
         timeout=timeout_s,
         env=None if env is None else {**os.environ, **env},
         check=False,

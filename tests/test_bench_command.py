@@ -42,6 +42,9 @@ def test_bench_prints_checked_figures_as_json() -> None:
         "2w 8c same registers",
         "2w 8c one dead of 4",
         "2w 8c same regs, cache",
+        "2w 8c polled",
+        "2w 8c polled+console",
+        "2w 8c console+monitor",  # fails unless the monitor saw the traffic
     ]
     for row in report["cases"]:
         assert row["wrong"] == 0
@@ -57,9 +60,7 @@ def test_bench_prints_checked_figures_as_json() -> None:
     assert any("served by coalescing alone" in line for line in report["summary"])
     # Overall progress on stderr, plain lines when not on a terminal: one per case.
     steps = [line for line in result.stderr.splitlines() if line.startswith("bench: case")]
-    assert [step.split(" (")[0] for step in steps] == [
-        f"bench: case {n} of 4" for n in (1, 2, 3, 4)
-    ]
+    assert [step.split(" (")[0] for step in steps] == [f"bench: case {n} of 7" for n in range(1, 8)]
     assert all(re.search(r"% done, .* ends ~\d\d:\d\d:\d\d \(in ", step) for step in steps)
 
 

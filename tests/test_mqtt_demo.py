@@ -78,6 +78,7 @@ async def test_demo_starts_a_broker_when_none_runs(tmp_path: Path) -> None:
     base = unique_base_topic("demo")
     mqtt_port = free_port()
     config = yaml.safe_load(demo_config_text(None))
+    config["console"]["port"] = 0  # a free one: demos run side by side here
     config["mqtt"].update({"port": mqtt_port, "base_topic": base})
     config["gateway_id"] = f"demo-{base}"
     config_file = tmp_path / "demo.yaml"
@@ -172,6 +173,7 @@ async def test_watch_watches_the_running_demo_and_no_two_client_ids_collide(
     await broker.start()
     base = unique_base_topic("demo")
     config = yaml.safe_load(demo_config_text(None))  # gateway_id "demo" in both demos
+    config["console"]["port"] = 0  # a free one each: two demos run side by side
     config["mqtt"].update({"port": broker.port, "base_topic": base})
     config_file = tmp_path / "demo.yaml"
     config_file.write_text(yaml.safe_dump(config), encoding="utf-8")

@@ -109,6 +109,7 @@ def test_demo_on_a_taken_port_says_so_in_one_line_and_exits_1(
     tmp_path: Path, taken_port: int
 ) -> None:
     config = yaml.safe_load(demo_config_text(None))
+    config["console"]["port"] = 0  # a free one: demos run side by side here
     del config["mqtt"]  # this test is about the Modbus-TCP port: no broker touched
     config_file = tmp_path / "demo.yaml"
     config_file.write_text(yaml.safe_dump(config), encoding="utf-8")

@@ -137,7 +137,7 @@ async def test_reload_under_load_adds_removes_and_changes_a_rule(tmp_path: Path)
 
             # An invalid file changes nothing: named key, and everything keeps running.
             broken = config(
-                line1.path, line2.path, port, [*AFTER, {"name": "x", "bus": "line9", "address": 1}]
+                line1.path, line2.path, port, [*AFTER, {"name": "x", "bus": "line9", "address": 9}]
             )
             line = await asyncio.to_thread(
                 reload_with, gateway, yaml.safe_dump(broken), "reload refused"

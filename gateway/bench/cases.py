@@ -42,6 +42,13 @@ def matrix(baudrates: tuple[int, ...]) -> list[Case]:
     fastest = max(baudrates)
     cases.append(Case("2w 8c same regs, cache", fastest, 2, 8, same_registers=True, cache=True))
     cases.append(Case("2w 64c on 32 drives", fastest, 2, 64, drives=32))
+    # The console: what it costs with nobody watching the traffic, and with a monitor open.
+    # Its drives are polled (as with MQTT), so the baseline polls them the same way.
+    cases.append(Case("2w 8c polled", fastest, 2, 8, polled=True))
+    cases.append(Case("2w 8c polled+console", fastest, 2, 8, polled=True, console=True))
+    cases.append(
+        Case("2w 8c console+monitor", fastest, 2, 8, polled=True, console=True, monitor=True)
+    )
     return cases
 
 
@@ -58,6 +65,11 @@ class Case:
     burst_ms: float = 0.0
     glitch: bool = False
     echo: bool = False
+    polled: bool = False
+    """Every drive polled with its profile's groups, as the console and MQTT have them polled."""
+    console: bool = False
+    monitor: bool = False
+    """A traffic monitor open on the console for the whole case, reading every transaction."""
 
     @property
     def adapter_args(self) -> list[str]:
@@ -132,7 +144,13 @@ class CaseResult:
         return sum(self.load.answered_by_unit[u] for u in units) / self.elapsed_s
 
 
-def gateway_config(case: Case, line_path: str, port: int) -> dict[str, Any]:
+POLL_GROUPS = [  # the INVT profile's own, written out so a case without the console polls alike
+    {"name": "state", "start": 0x2100, "count": 3, "interval_ms": 500},
+    {"name": "running", "start": 0x3000, "count": 12, "interval_ms": 2000},
+]
+
+
+def gateway_config(case: Case, line_path: str, port: int, console_port: int = 0) -> dict[str, Any]:
     drives: list[dict[str, Any]] = [
         {"name": f"drive{a}", "bus": "line1", "address": a, "model": "gd350"}
         for a in range(1, case.drives + 1)
@@ -143,22 +161,36 @@ def gateway_config(case: Case, line_path: str, port: int) -> dict[str, Any]:
             drive["poll"] = [
                 {"name": "bench", "start": SET_POINT, "count": case.words, "interval_ms": 200}
             ]
-    return {
+    if case.polled:
+        for drive in drives:
+            drive["poll"] = POLL_GROUPS
+    config: dict[str, Any] = {
         "gateway_id": "bench",
         "modbus_tcp": {"host": "127.0.0.1", "port": port, "max_connections": 256},
         "buses": [{"name": "line1", "port": line_path, "baudrate": case.baudrate, "parity": "E"}],
         "drives": drives,
         "logging": {"level": "warning"},
     }
+    if case.console:
+        config["console"] = {
+            "enabled": True,
+            "host": "127.0.0.1",
+            "port": console_port,
+            "anonymous_view": True,
+        }
+    return config
 
 
 def run_case(case: Case, duration_s: float, warmup_s: float) -> CaseResult:
     dead = list(range(case.drives - case.dead + 1, case.drives + 1))
     addresses = list(range(1, case.drives + 1))
     with simulator(addresses, case.baudrate, dead, RESPONSE_DELAY_MS, case.adapter_args) as line:
-        port = free_port()
-        with gateway(gateway_config(case, line.path, port), port) as process:
-            return asyncio.run(_measure(case, line, process, dead, duration_s, warmup_s))
+        port, console_port = free_port(), free_port()
+        config = gateway_config(case, line.path, port, console_port)
+        with gateway(config, port) as process:
+            return asyncio.run(
+                _measure(case, line, process, dead, duration_s, warmup_s, console_port)
+            )
 
 
 async def _measure(
@@ -168,9 +200,15 @@ async def _measure(
     dead: list[int],
     duration_s: float,
     warmup_s: float,
+    console_port: int = 0,
 ) -> CaseResult:
     targets = await _prepare(case, process.port, dead)
     measuring, stop = asyncio.Event(), asyncio.Event()
+    watching = None
+    if case.monitor:
+        from gateway.bench.monitor import watch_traffic  # aiohttp only for this case
+
+        watching = asyncio.create_task(watch_traffic(console_port, stop))
     load = asyncio.create_task(
         run_clients(process.port, case.clients, targets, frozenset(dead), measuring, stop)
     )
@@ -186,6 +224,8 @@ async def _measure(
     cpu = process.cpu_s() - cpu_before
     stop.set()
     result = await load
+    if watching is not None:
+        await watching  # raises if the monitor never saw the traffic: the case would be void
     return CaseResult(
         case=case,
         elapsed_s=elapsed,

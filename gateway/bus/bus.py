@@ -139,6 +139,9 @@ RequestObserver = Callable[[RequestDone], None]
 PortListener = Callable[[str, str, bool, str], None]
 """Called on the event loop with (bus name, port, lost, reason) when the port is lost (or can't
 be opened at start) and when it is open again."""
+Tap = Callable[[str, Transaction, int, float, "Exchange | LineError"], None]
+"""Told of every attempt on the wire while set (the console's traffic monitor): bus name, the
+transaction, the attempt (0: first), when it started (monotonic) and what came of it."""
 
 
 class Bus:
@@ -167,6 +170,8 @@ class Bus:
         self._opened = asyncio.Event()
         self._idle = asyncio.Event()
         self._last_port_error = ""
+        self.tap: Tap | None = None
+        """None unless someone watches the traffic: then one attribute test per attempt."""
 
     def add_listener(self, listener: DriveListener) -> None:
         self._listeners.append(listener)
@@ -514,6 +519,8 @@ class Bus:
                 drive.timeouts += 1
                 dump_frame(self.name, "rx timeout", exc.received)
                 errors.append(exc)
+                if self.tap is not None:
+                    self.tap(self.name, transaction, attempt, started, exc)
                 continue
             except BadReply as exc:
                 self.stats.bad_replies[exc.kind] += 1
@@ -521,8 +528,12 @@ class Bus:
                 dump_frame(self.name, f"rx bad {exc.kind}", exc.frame)
                 log.debug("bus %s: %s", self.name, exc)
                 errors.append(exc)
+                if self.tap is not None:
+                    self.tap(self.name, transaction, attempt, started, exc)
                 continue
             except PortError as exc:
+                if self.tap is not None:
+                    self.tap(self.name, transaction, attempt, started, exc)
                 self._port_lost(exc)
                 return _fail, (transaction, GatewayTargetFailed(f"bus {self.name}: {exc}"))
             finally:
@@ -531,6 +542,8 @@ class Bus:
                 # The frame as it came: a reply that passed its CRC check rebuilds byte-exact.
                 dump_frame(self.name, "rx", build_frame(address, exchange.reply_pdu))
             self._record(exchange, drive)
+            if self.tap is not None:
+                self.tap(self.name, transaction, attempt, started, exchange)
             if broadcast:
                 self.stats.broadcasts += 1
             else:

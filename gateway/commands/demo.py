@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import secrets
 import shutil
 import sys
 import tempfile
@@ -24,6 +25,7 @@ from gateway.config import GatewayConfig, parse_config
 from gateway.errors import ConfigError
 from gateway.logs import setup_logging
 
+DEMO_OPERATOR = "operator"
 DEMO_MQTT_PORT = 1883
 """The embedded demo.yaml's broker port: `demo --watch` without options looks there."""
 
@@ -40,6 +42,11 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "--mqtt-port",
         type=int,
         help="the MQTT broker's port, used or started (default from the config: 1883)",
+    )
+    parser.add_argument(
+        "--console-port",
+        type=int,
+        help="the console's port (default from the config: 8080; 0 picks a free one)",
     )
     parser.add_argument(
         "--watch",
@@ -88,6 +95,10 @@ def handle(args: argparse.Namespace) -> int:
         config = config.model_copy(
             update={"mqtt": config.mqtt.model_copy(update={"port": args.mqtt_port})}
         )
+    if args.console_port is not None:
+        config = config.model_copy(
+            update={"console": config.console.model_copy(update={"port": args.console_port})}
+        )
     setup_logging(config.logging.level, config.logging.format)
     if args.watch:
         return asyncio.run(watch_demo(config))
@@ -103,7 +114,8 @@ def handle(args: argparse.Namespace) -> int:
             state = stack.enter_context(tempfile.TemporaryDirectory(prefix="invt-gateway-demo-"))
             storage = config.storage.model_copy(update={"path": f"{state}/events.db"})
             config = config.model_copy(update={"storage": storage})
-        return asyncio.run(serve_demo(config, args.config))
+        config, password = with_demo_operator(config)
+        return asyncio.run(serve_demo(config, args.config, password))
 
 
 async def watch_demo(config: GatewayConfig) -> int:
@@ -120,11 +132,30 @@ async def watch_demo(config: GatewayConfig) -> int:
     return EXIT_OK
 
 
-async def serve_demo(config: GatewayConfig, config_path: str | None = None) -> int:
+def with_demo_operator(config: GatewayConfig) -> tuple[GatewayConfig, str | None]:
+    """With the console on, a user "operator" with a fresh random password (printed in the
+    banner): operator actions always need a login, even in the demo."""
+    console = config.console
+    if not console.enabled or any(user.name == DEMO_OPERATOR for user in console.users):
+        return config, None
+    from gateway.config import ConsoleUserConfig
+    from gateway.console.passwords import hash_password
+
+    password = secrets.token_urlsafe(9)
+    operator = ConsoleUserConfig(
+        name=DEMO_OPERATOR, password_hash=hash_password(password), role="operator"
+    )
+    console = console.model_copy(update={"users": (*console.users, operator)})
+    return config.model_copy(update={"console": console}), password
+
+
+async def serve_demo(
+    config: GatewayConfig, config_path: str | None = None, password: str | None = None
+) -> int:
     """Serve the demo; with MQTT configured, against a broker even on a machine that has none."""
     mqtt = config.mqtt
     if mqtt is None or not mqtt.enabled:
-        return await serve(config, on_ready=lambda app: print_banner(app, config))
+        return await serve(config, on_ready=lambda app: print_banner(app, config, None, password))
     from gateway.mqtt.demo_broker import broker_for_demo
 
     broker = await broker_for_demo(mqtt)
@@ -139,7 +170,8 @@ async def serve_demo(config: GatewayConfig, config_path: str | None = None) -> i
     try:
         watch = watch_command(config_path, mqtt.port)
         return await serve(
-            config, on_ready=lambda app: print_banner(app, config, (broker.note, watch))
+            config,
+            on_ready=lambda app: print_banner(app, config, (broker.note, watch), password),
         )
     finally:
         if broker.embedded is not None:
@@ -185,7 +217,10 @@ def watch_command(config_path: str | None, mqtt_port: int) -> str:
 
 
 def print_banner(
-    app: Application, config: GatewayConfig, mqtt_note: tuple[str, str] | None = None
+    app: Application,
+    config: GatewayConfig,
+    mqtt_note: tuple[str, str] | None = None,
+    password: str | None = None,
 ) -> None:
     host = config.modbus_tcp.host
     port = app.tcp.port
@@ -211,6 +246,12 @@ def print_banner(
     ]
     if mqtt_note is not None and config.mqtt is not None:
         lines += mqtt_banner(config, *mqtt_note)
+    console = getattr(app, "console", None)
+    if console is not None:
+        lines.append(f"The console: open {console.url} in a browser (viewing needs no login).")
+        if password is not None:
+            lines.append(f"  To run, stop or write: log in as {DEMO_OPERATOR}, password {password}")
+        lines.append(f"  Traffic in a terminal: {me} monitor --url {console.url}")
     lines += [
         "Stop with Ctrl-C.",
         "",

@@ -1,0 +1,148 @@
+"""The console as one feature of the application: `start()` and `stop()`, its parts passed in.
+
+Everything it needs from the gateway comes through the constructor (the buses, the router, the
+Modbus-TCP server's policy, the poller, an event store), so re-wiring the application touches
+only the few lines that build it. It runs on the gateway's own event loop: aiohttp's server,
+the bus sampler and every stream are coroutines there, and nothing of it ever waits on a bus.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import ssl
+from collections.abc import Mapping
+
+from aiohttp import web
+
+from gateway.bus import Bus
+from gateway.config import GatewayConfig
+from gateway.console.auth import Users
+from gateway.console.events import EventStore, MemoryEventStore
+from gateway.console.live import LiveState
+from gateway.console.operations import DriveOperations, Policy
+from gateway.console.traffic import DriveLabel, TrafficMonitor
+from gateway.console.web import Console, build_app
+from gateway.listen import cannot_listen
+from gateway.poller import Poller
+from gateway.routing import Router
+from gateway.tasks import cancel_and_wait
+from gateway.tcp.access import AccessPolicy
+
+log = logging.getLogger(__name__)
+
+SAMPLE_PERIOD_S = 1.0
+SHUTDOWN_S = 0.2
+"""Open streams are told to end first; then aiohttp gets this long before it cuts them."""
+
+
+class ConsoleFeature:
+    def __init__(
+        self,
+        config: GatewayConfig,
+        buses: Mapping[str, Bus],
+        router: Router,
+        poller: Poller | None,
+        *,
+        read_only: bool,
+        access: AccessPolicy | None,
+        events: EventStore | None = None,
+    ) -> None:
+        self.config = config
+        self.settings = config.console
+        self.buses = buses
+        self.router = router
+        self.poller = poller
+        self.read_only = read_only
+        self.access = access
+        self.events: EventStore = events if events is not None else MemoryEventStore()
+        self.console: Console | None = None
+        self._runner: web.AppRunner | None = None
+        self._site: web.TCPSite | None = None
+        self._sampler: asyncio.Task[None] | None = None
+        self._live: LiveState | None = None
+
+    @property
+    def port(self) -> int:
+        assert self._runner is not None, "start() first"
+        return int(self._runner.addresses[0][1])
+
+    @property
+    def url(self) -> str:
+        scheme = "https" if self.settings.cert_file else "http"
+        return f"{scheme}://{self.settings.host}:{self.port}/"
+
+    async def start(self) -> None:
+        settings = self.settings
+        drives = self.config.drives
+        live = LiveState(self.buses, self.config.buses, drives, self.poller, self.events)
+        if self.poller is not None:
+            self.poller.add_listener(live)
+        for bus in self.buses.values():
+            bus.add_request_observer(live.request_done)
+        self._live = live
+        labels = {
+            (d.bus, d.address): DriveLabel(d.name, d.effective_unit_id, d.profile().is_invt)
+            for d in drives
+        }
+        policy = Policy(self.read_only, self.access, settings.commands_enabled)
+        operations = DriveOperations(
+            {d.name: d for d in drives}, self.router, policy, self.poller, self.events
+        )
+        self.console = Console(
+            users=Users(settings.users),
+            anonymous_view=settings.anonymous_view,
+            commands_enabled=settings.commands_enabled,
+            secure_cookies=settings.cert_file is not None,
+            live=live,
+            operations=operations,
+            traffic=TrafficMonitor(self.buses, labels),
+            events=self.events,
+        )
+        self._runner = web.AppRunner(
+            build_app(self.console), access_log=None, shutdown_timeout=SHUTDOWN_S
+        )
+        await self._runner.setup()
+        site = web.TCPSite(
+            self._runner,
+            settings.host,
+            settings.port,
+            ssl_context=self._ssl_context(),
+        )
+        try:
+            await site.start()
+        except OSError as exc:
+            await self._runner.cleanup()
+            raise cannot_listen(
+                "the console", settings.host, settings.port, "console.host/port", exc
+            ) from exc
+        self._site = site
+        live.sample_buses()
+        self._sampler = asyncio.create_task(self._sample(live), name="console:sampler")
+        log.info("console on %s", self.url)
+
+    async def stop(self) -> None:
+        if self.console is not None:
+            self.console.closing.set()  # every stream ends its loop
+            self.console.traffic.close()
+        if self._live is not None:
+            for bus in self.buses.values():
+                bus.remove_request_observer(self._live.request_done)
+        if self._sampler is not None:
+            await cancel_and_wait(self._sampler, 0.2)
+        if self._runner is not None:
+            await self._runner.cleanup()
+
+    def _ssl_context(self) -> ssl.SSLContext | None:
+        settings = self.settings
+        if settings.cert_file is None or settings.key_file is None:
+            return None
+        context = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
+        context.minimum_version = ssl.TLSVersion.TLSv1_2
+        context.load_cert_chain(settings.cert_file, settings.key_file)
+        return context
+
+    async def _sample(self, live: LiveState) -> None:
+        while True:
+            await asyncio.sleep(SAMPLE_PERIOD_S)
+            live.sample_buses()

@@ -1,0 +1,244 @@
+"""What the console shows live: each bus's figures and each drive's state, charts and events.
+
+Drive state is the poller's: the same decoded state the MQTT bridge publishes (no second poller).
+This listens to the poller for charts and events only; the overview reads the poller's state when
+it is asked. Bus figures come from the counters the bus keeps anyway (`BusStats`, `DriveStats`),
+sampled once a second into a short window: rates are differences over it, so nothing is added to
+the bus's work.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+from gateway.bus import Bus, BusState, RequestDone
+from gateway.config import BusConfig, DriveConfig
+from gateway.console.events import EventStore, GatewayEvent
+from gateway.modbus.functions import lookup
+from gateway.poller import Poller
+from gateway.poller.drive_state import DriveEvent, EventKind, iso_time
+from gateway.profile import exception_name
+from gateway.profile.telemetry import Telemetry
+
+HISTORY_S: Final = 15 * 60.0
+CHART_STEP_S: Final = 1.0
+"""One chart point a second at most: 900 points per drive for 15 minutes, whatever the polls."""
+RATE_WINDOW_S: Final = 5.0
+"""Transactions per second and utilisation: over the last few seconds, so a change shows soon."""
+MINUTE_S: Final = 60.0
+CHART_KEYS: Final = ("output_frequency_hz", "output_current_a", "bus_voltage_v")
+AUDITED_ELSEWHERE: Final = ("console:", "poll", "probe")
+"""The console audits its own writes in words; polls and probes never write."""
+
+
+@dataclass(frozen=True, slots=True)
+class BusSample:
+    at: float
+    transactions: int
+    timeouts: int
+    bad_replies: int
+    retries: int
+    line_s: float
+
+
+@dataclass(slots=True)
+class DriveHistory:
+    points: deque[tuple[float, float | None, float | None, float | None]] = field(
+        default_factory=lambda: deque(maxlen=int(HISTORY_S / CHART_STEP_S) + 1)
+    )
+    last_at: float = 0.0
+
+
+class LiveState:
+    """A poll listener (`gateway.poller.PollListener`) and the bus sampler, for the console."""
+
+    def __init__(
+        self,
+        buses: Mapping[str, Bus],
+        bus_configs: Sequence[BusConfig],
+        drives: Sequence[DriveConfig],
+        poller: Poller | None,
+        events: EventStore,
+    ) -> None:
+        self.buses = buses
+        self.bus_configs = {b.name: b for b in bus_configs}
+        self.drives = {d.name: d for d in drives}
+        self.poller = poller
+        self.events = events
+        self.history = {name: DriveHistory() for name in self.drives}
+        self._samples: dict[str, deque[BusSample]] = {
+            name: deque(maxlen=int(MINUTE_S) + 2) for name in buses
+        }
+        self._bus_states = {name: bus.state for name, bus in buses.items()}
+        self._by_address = {(d.bus, d.address): d.name for d in drives}
+
+    # -- poll listener ----------------------------------------------------------------------
+
+    def state_updated(self, drive: str, telemetry: Telemetry) -> None:
+        history = self.history.get(drive)
+        if history is None:
+            return
+        now = time.time()
+        if now - history.last_at < CHART_STEP_S:
+            return
+        history.last_at = now
+        hz, amps, volts = (_number(telemetry.get(key)) for key in CHART_KEYS)
+        history.points.append((now, hz, amps, volts))
+
+    def availability_changed(self, drive: str, online: bool) -> None:
+        pass  # told again as a drive event
+
+    def drive_event(self, event: DriveEvent) -> None:
+        config = self.drives.get(event.drive)
+        bus = config.bus if config else None
+        if event.kind in (EventKind.FAULT_RAISED, EventKind.FAULT_CLEARED):
+            data = event.data
+            text = f"{data.get('fault_name')}: {data.get('fault_description')}"
+        elif event.kind is EventKind.DRIVE_OFFLINE:
+            text = "offline: no answer"
+        else:
+            text = "online again"
+        self.events.record(GatewayEvent(str(event.kind), text, event.drive, bus, at=event.at))
+
+    # -- the audit of writes from Modbus-TCP and MQTT (a bus request observer) ---------------
+
+    def request_done(self, done: RequestDone) -> None:
+        """A request answered: a write from SCADA or MQTT becomes an audit line."""
+        if not lookup(done.function).writes or done.client.startswith(AUDITED_ELSEWHERE):
+            return
+        code = done.code
+        result = "ok" if code is None else f"exception {code:02X}H {exception_name(code)}"
+        target = "broadcast" if done.address == 0 else f"address {done.address}"
+        self.events.record(
+            GatewayEvent(
+                "write",
+                f"function {done.function:02X}H to {target}",
+                self._by_address.get((done.bus, done.address)),
+                done.bus,
+                who=done.client,
+                result=result,
+            )
+        )
+
+    # -- bus sampling (once a second, from the console's own task) --------------------------
+
+    def sample_buses(self) -> None:
+        now = time.monotonic()
+        for name, bus in self.buses.items():
+            stats = bus.stats
+            self._samples[name].append(
+                BusSample(
+                    now,
+                    stats.transactions,
+                    stats.timeouts,
+                    sum(stats.bad_replies.values()),
+                    stats.retries,
+                    sum(d.line_s for d in list(bus.drive_stats.values())),
+                )
+            )
+            self._bus_state_event(name, bus)
+
+    def _bus_state_event(self, name: str, bus: Bus) -> None:
+        before, now = self._bus_states[name], bus.state
+        if before == now:
+            return
+        self._bus_states[name] = now
+        if now is BusState.REOPENING:
+            self.events.record(
+                GatewayEvent("port_lost", f"port {bus.settings.line.port} lost", bus=name)
+            )
+        elif now is BusState.OPEN and before is BusState.REOPENING:
+            self.events.record(
+                GatewayEvent("port_back", f"port {bus.settings.line.port} open again", bus=name)
+            )
+
+    # -- what the pages show ----------------------------------------------------------------
+
+    def overview(self) -> dict[str, Any]:
+        return {
+            "time": iso_time(time.time()),
+            "buses": [self.bus_view(name) for name in self.buses],
+            "drives": [self.drive_view(name) for name in self.drives],
+        }
+
+    def bus_view(self, name: str) -> dict[str, Any]:
+        bus = self.buses[name]
+        config = self.bus_configs[name]
+        samples = self._samples[name]
+        recent = _window(samples, RATE_WINDOW_S)
+        minute = _window(samples, MINUTE_S)
+        return {
+            "name": name,
+            "state": str(bus.state),
+            "port": config.port,
+            "format": f"{config.baudrate} {config.bytesize}{config.parity}{config.stopbits}",
+            "utilisation": _rate(recent, "line_s"),
+            "transactions_per_s": _rate(recent, "transactions"),
+            "timeouts_per_min": _delta(minute, "timeouts"),
+            "bad_replies_per_min": _delta(minute, "bad_replies"),
+            "retries_per_min": _delta(minute, "retries"),
+            "queue_depth": bus.queue_depth,
+        }
+
+    def drive_view(self, name: str) -> dict[str, Any]:
+        config = self.drives[name]
+        telemetry = self.telemetry(name)
+        online = None if self.poller is None else self.poller.availability(name)
+        state = telemetry.get("state")
+        return {
+            "name": name,
+            "unit_id": config.effective_unit_id,
+            "bus": config.bus,
+            "address": config.address,
+            "model": config.model,
+            "online": online,
+            "state": None if state is None else str(state).replace("_", " "),
+            "fault_name": telemetry.get("fault_name"),
+            "fault_description": telemetry.get("fault_description"),
+            "output_frequency_hz": telemetry.get("output_frequency_hz"),
+            "output_current_a": telemetry.get("output_current_a"),
+            "last_answer": telemetry.get("last_seen"),
+        }
+
+    def telemetry(self, name: str) -> Telemetry:
+        if self.poller is None or name not in self.poller.drives:
+            return {}
+        return self.poller.telemetry(name)
+
+    def chart(self, name: str) -> dict[str, Any]:
+        """The last 15 minutes, as columns (what uPlot takes): time in epoch seconds."""
+        points = list(self.history[name].points)
+        columns: list[list[float | None]] = [[p[i] for p in points] for i in range(4)]
+        return {"keys": ["time", *CHART_KEYS], "columns": columns}
+
+
+def _number(value: object) -> float | None:
+    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
+
+
+def _window(samples: deque[BusSample], span_s: float) -> tuple[BusSample, BusSample] | None:
+    if len(samples) < 2:
+        return None
+    last = samples[-1]
+    first = next((s for s in samples if last.at - s.at <= span_s + 0.5), samples[0])
+    return (first, last) if first is not last else None
+
+
+def _rate(window: tuple[BusSample, BusSample] | None, key: str) -> float:
+    if window is None:
+        return 0.0
+    first, last = window
+    elapsed = last.at - first.at
+    change = float(getattr(last, key) - getattr(first, key))
+    return round(change / elapsed, 3) if elapsed > 0 else 0.0
+
+
+def _delta(window: tuple[BusSample, BusSample] | None, key: str) -> int:
+    if window is None:
+        return 0
+    first, last = window
+    return int(getattr(last, key) - getattr(first, key))

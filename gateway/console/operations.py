@@ -1,0 +1,259 @@
+"""What the console asks of a drive: reads for the parameter browser and the fault history, and
+the operator's commands and writes.
+
+Every request takes the path a Modbus-TCP request takes after its frame is parsed: the same
+`modbus_tcp.read_only` and `modbus_tcp.access` rules (the console user's role standing for a TLS
+client's role: the same names), then the router, which applies the drive's `ram_writes`, word
+limit and queue. A policy refusal is told as such (HTTP 403) rather than as a drive's exception.
+Each write is recorded as an audit event: who, what, when, and what came of it.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, Final
+
+from gateway.config import DriveConfig
+from gateway.console.auth import Identity
+from gateway.console.decode import describe
+from gateway.console.events import EventStore, GatewayEvent
+from gateway.errors import ModbusError, OperationError
+from gateway.modbus.functions import (
+    READ_HOLDING_REGISTERS,
+    WRITE_SINGLE_REGISTER,
+    changes_nothing,
+    is_exception,
+)
+from gateway.poller import Poller
+from gateway.profile import (
+    COMMUNICATION_REGISTERS,
+    CONTROL_COMMANDS,
+    describe_exception,
+    parse_parameter,
+    register_by_name,
+)
+from gateway.profile.parameters import FAULT_HISTORY, PARAMETERS, parameter_groups
+from gateway.profile.ram_writes import ram_write_address
+from gateway.routing import Router
+from gateway.tcp.access import AccessPolicy
+from gateway.tools.points import Point, resolve
+
+MAX_BLOCK: Final = 16
+"""INVT drives answer at most 16 words per read."""
+COMMAND_NAMES: Final = tuple(CONTROL_COMMANDS)
+REGISTER_BLOCKS: Final = ("2000H", "2100H", "3000H")
+PARAMETER_GROUPS: Final = tuple(f"P{group:02d}" for group in range(18))
+
+
+@dataclass(frozen=True, slots=True)
+class Policy:
+    """Modbus-TCP's write policy, as the console must obey it too."""
+
+    read_only: bool
+    access: AccessPolicy | None
+    commands_enabled: bool
+
+    def refusal(self, unit_id: int, pdu: bytes, role: str) -> str | None:
+        if not changes_nothing(pdu):
+            if not self.commands_enabled:
+                return "console.commands_enabled is false: the console only shows"
+            if self.read_only:
+                return "modbus_tcp.read_only is true: every write is refused"
+        if self.access is not None:
+            refusal = self.access.check(unit_id, pdu, role)
+            if refusal is not None:
+                rule = self.access.rules[refusal.rule].label
+                return f"refused by modbus_tcp.access rule {rule}"
+        return None
+
+
+class DriveOperations:
+    def __init__(
+        self,
+        drives: Mapping[str, DriveConfig],
+        router: Router,
+        policy: Policy,
+        poller: Poller | None,
+        events: EventStore,
+    ) -> None:
+        self.drives = drives
+        self.router = router
+        self.policy = policy
+        self.poller = poller
+        self.events = events
+
+    # -- reads ------------------------------------------------------------------------------
+
+    async def parameter_group(self, who: Identity, drive: str, group: str) -> list[dict[str, Any]]:
+        """The group's registers with names, units and scaled values from the profile."""
+        points = _group_points(group)
+        values = await self._read_points(who, drive, [p.address for p in points])
+        return [
+            {
+                "name": p.label,
+                "address": f"{p.address:04X}H",
+                "description": p.description,
+                "unit": p.unit,
+                "decimals": p.decimals,
+                "raw": values.get(p.address),
+                "value": None if values.get(p.address) is None else p.show(values[p.address]),
+                "writable": _writable(p),
+            }
+            for p in points
+        ]
+
+    async def fault_history(self, who: Identity, drive: str) -> list[dict[str, Any]]:
+        """P07.27 (the current fault) … P07.32, decoded with the drive's own fault table."""
+        config = self._drive(drive)
+        faults = config.profile().faults
+        start = parse_parameter(FAULT_HISTORY[0])
+        words = await self._read(who, config, start, len(FAULT_HISTORY))
+        return [
+            {
+                "parameter": name,
+                "code": code,
+                "name": "none" if code == 0 else faults.short_code(code),
+                "description": faults.describe(code),
+            }
+            for name, code in zip(FAULT_HISTORY, words, strict=True)
+        ]
+
+    # -- writes -----------------------------------------------------------------------------
+
+    async def command(self, who: Identity, drive: str, command: str) -> dict[str, Any]:
+        if command not in CONTROL_COMMANDS:
+            raise OperationError(
+                400, f"unknown command {command!r}: one of {', '.join(COMMAND_NAMES)}"
+            )
+        control = register_by_name("control_word")
+        return await self._write(who, drive, control.address, CONTROL_COMMANDS[command])
+
+    async def set_frequency(self, who: Identity, drive: str, hz: float) -> dict[str, Any]:
+        setpoint = register_by_name("frequency_setpoint")
+        try:
+            raw = setpoint.encode(hz)
+        except ValueError as exc:
+            raise OperationError(400, str(exc)) from None
+        return await self._write(who, drive, setpoint.address, raw)
+
+    async def write_parameter(
+        self, who: Identity, drive: str, name: str, value: str, ram: bool
+    ) -> dict[str, Any]:
+        try:
+            point = resolve(name)
+            raw = point.encode(value)
+        except ValueError as exc:
+            raise OperationError(400, str(exc)) from None
+        if not _writable(point):
+            raise OperationError(400, f"{point.label} is read-only")
+        address = point.address
+        if ram:
+            config = self._drive(drive)
+            if not config.profile().ram_writes_supported:
+                raise OperationError(400, f"{config.model} has no RAM-only parameter writes")
+            address = ram_write_address(address)
+        return await self._write(who, drive, address, raw)
+
+    # -- the path every request takes --------------------------------------------------------
+
+    async def _write(self, who: Identity, drive: str, address: int, raw: int) -> dict[str, Any]:
+        config = self._drive(drive)
+        if not config.profile().is_invt:
+            raise OperationError(400, f"{drive} is a generic Modbus device: no INVT commands")
+        pdu = struct.pack(">BHH", WRITE_SINGLE_REGISTER, address, raw)
+        what = describe(pdu, None, True).removeprefix("write ")
+        try:
+            reply = await self._send(who, config, pdu)
+        except OperationError as exc:
+            self._audit(who, drive, config, what, f"refused: {exc}")
+            raise
+        if is_exception(reply):
+            result = f"drive refused: {describe_exception(reply[1])}"
+            self._audit(who, drive, config, what, result)
+            raise OperationError(502, result)
+        self._audit(who, drive, config, what, "ok")
+        if self.poller is not None:
+            self.poller.poll_now(drive)  # its new state shows at once
+        return {"ok": True, "write": what}
+
+    async def _read_points(self, who: Identity, drive: str, addresses: list[int]) -> dict[int, int]:
+        config = self._drive(drive)
+        values: dict[int, int] = {}
+        for start, count in _blocks(addresses):
+            try:
+                words = await self._read(who, config, start, count)
+            except OperationError as exc:
+                if exc.status != 502:
+                    raise
+                continue  # the drive refused this block (not on this model): the rest may answer
+            values.update({start + i: word for i, word in enumerate(words)})
+        return values
+
+    async def _read(self, who: Identity, config: DriveConfig, start: int, count: int) -> list[int]:
+        pdu = struct.pack(">BHH", READ_HOLDING_REGISTERS, start, count)
+        reply = await self._send(who, config, pdu)
+        if is_exception(reply):
+            raise OperationError(502, f"drive refused: {describe_exception(reply[1])}")
+        return list(struct.unpack(f">{count}H", reply[2 : 2 + 2 * count]))
+
+    async def _send(self, who: Identity, config: DriveConfig, pdu: bytes) -> bytes:
+        unit_id = config.effective_unit_id
+        refusal = self.policy.refusal(unit_id, pdu, str(who.role))
+        if refusal is not None:
+            raise OperationError(403, refusal)
+        try:
+            reply = await self.router.execute(unit_id, pdu, client=who.client)
+            assert reply is None or isinstance(reply, bytes)
+        except ModbusError as exc:
+            raise OperationError(502, f"{describe_exception(exc.code)} ({exc})") from None
+        assert reply is not None  # only broadcasts have none
+        return reply
+
+    def _drive(self, name: str) -> DriveConfig:
+        config = self.drives.get(name)
+        if config is None:
+            raise OperationError(404, f"no drive named {name!r}")
+        return config
+
+    def _audit(
+        self, who: Identity, drive: str, config: DriveConfig, what: str, result: str
+    ) -> None:
+        self.events.record(
+            GatewayEvent("write", what, drive, config.bus, who=who.client, result=result)
+        )
+
+
+def _group_points(group: str) -> list[Point]:
+    if group in REGISTER_BLOCKS:
+        high = int(group[:2], 16)
+        return [
+            resolve(r.name)
+            for r in COMMUNICATION_REGISTERS
+            if r.address >> 8 == high and r.readable
+        ]
+    if group not in PARAMETER_GROUPS:
+        known = ", ".join((*PARAMETER_GROUPS, *REGISTER_BLOCKS))
+        raise OperationError(404, f"no group {group!r}: one of {known}")
+    known_parameters = parameter_groups(PARAMETERS).get(group, ())
+    return [resolve(p.name) for p in known_parameters]
+
+
+def _writable(point: Point) -> bool:
+    if point.label.startswith("P"):
+        spec = next((p for p in PARAMETERS if p.name == point.label), None)
+        return spec is not None and not spec.read_only
+    register = next((r for r in COMMUNICATION_REGISTERS if r.address == point.address), None)
+    return register is not None and register.writable
+
+
+def _blocks(addresses: list[int]) -> list[tuple[int, int]]:
+    """Contiguous runs of at most MAX_BLOCK words: as few transactions as the drive allows."""
+    blocks: list[tuple[int, int]] = []
+    for address in sorted(set(addresses)):
+        if blocks and address == blocks[-1][0] + blocks[-1][1] and blocks[-1][1] < MAX_BLOCK:
+            blocks[-1] = (blocks[-1][0], blocks[-1][1] + 1)
+        else:
+            blocks.append((address, 1))
+    return blocks

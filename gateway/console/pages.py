@@ -1,0 +1,186 @@
+"""The console's pages: small HTML shells that the gateway renders; `static/console.js` fills
+them from the JSON API and keeps them live over server-sent events.
+
+No inline script or style (the Content-Security-Policy forbids them): what a page's script
+needs to know travels in `data-` attributes of its body.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from html import escape
+
+from gateway.console.auth import Identity, Via
+
+
+def page(
+    title: str,
+    body: str,
+    *,
+    who: Identity | None,
+    buses: Sequence[str],
+    data: dict[str, str],
+    scripts: Sequence[str] = (),
+) -> str:
+    attributes = " ".join(f'data-{k}="{escape(v)}"' for k, v in data.items())
+    monitor_links = "".join(
+        f'<a href="/monitor/{escape(bus)}">Monitor {escape(bus)}</a>' for bus in buses
+    )
+    if who is None or who.via is Via.ANONYMOUS:
+        user = '<a id="login-link" href="/login">Log in</a>'
+        if who is not None:
+            user = f'<span class="who">viewing anonymously</span> {user}'
+    else:
+        user = (
+            f'<span class="who" id="who">{escape(who.name)} ({escape(str(who.role))})</span>'
+            ' <button id="logout" type="button" class="link">Log out</button>'
+        )
+    extra = "".join(f'<script src="/static/{escape(s)}"></script>' for s in scripts)
+    return f"""<!doctype html>
+<html lang="en">
+<head>
+<meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1">
+<title>{escape(title)} · invt-gateway</title>
+<link rel="stylesheet" href="/static/console.css">
+<link rel="stylesheet" href="/static/uPlot.min.css">
+{extra}
+<script src="/static/console.js" defer></script>
+</head>
+<body {attributes}>
+<header>
+  <a class="brand" href="/">invt-gateway</a>
+  <nav><a href="/">Overview</a>{monitor_links}</nav>
+  <div class="user">{user}</div>
+</header>
+<main>
+{body}
+</main>
+<div id="toast" role="status" hidden></div>
+</body>
+</html>
+"""
+
+
+OVERVIEW = """
+<h1>Overview <span id="live" class="live">connecting…</span></h1>
+<section>
+<h2>Buses</h2>
+<table id="buses" class="grid">
+<thead><tr><th>Bus</th><th>State</th><th>Port</th><th>Format</th><th>Utilisation</th>
+<th>Transactions/s</th><th>Timeouts/min</th><th>Bad replies/min</th><th>Retries/min</th>
+<th>Queue</th><th></th></tr></thead>
+<tbody></tbody>
+</table>
+</section>
+<section>
+<h2>Drives</h2>
+<table id="drives" class="grid">
+<thead><tr><th>Drive</th><th>Unit id</th><th>Bus / address</th><th>Model</th><th>Online</th>
+<th>State</th><th>Fault</th><th>Output frequency</th><th>Current</th><th>Last answer</th></tr>
+</thead>
+<tbody></tbody>
+</table>
+</section>
+<section>
+<h2>Events</h2>
+<table id="events" class="grid small">
+<thead><tr><th>Time</th><th>Event</th><th>Drive / bus</th><th>What</th><th>Who</th>
+<th>Result</th></tr></thead>
+<tbody></tbody>
+</table>
+</section>
+"""
+
+DRIVE = """
+<h1><span id="drive-name"></span> <span id="drive-badge" class="badge"></span>
+<span id="live" class="live">connecting…</span></h1>
+<p id="drive-info" class="muted"></p>
+<div class="columns">
+<section class="values">
+<h2>Live values</h2>
+<table id="values" class="kv"><tbody></tbody></table>
+</section>
+<section class="controls" id="controls">
+<h2>Commands</h2>
+<p id="controls-note" class="muted"></p>
+<div class="buttons">
+<button type="button" data-command="run_forward">Run forward</button>
+<button type="button" data-command="run_reverse">Run reverse</button>
+<button type="button" data-command="stop">Stop</button>
+<button type="button" data-command="coast_stop">Coast stop</button>
+<button type="button" data-command="fault_reset">Fault reset</button>
+</div>
+<form id="setpoint-form">
+<label>Set-point <input id="setpoint" type="number" step="0.01" min="0" max="600"> Hz</label>
+<button type="submit">Set</button>
+</form>
+</section>
+</div>
+<section>
+<h2>Last 15 minutes</h2>
+<div class="charts">
+<div class="chart" id="chart-frequency"></div>
+<div class="chart" id="chart-current"></div>
+<div class="chart" id="chart-voltage"></div>
+</div>
+</section>
+<section>
+<h2>Fault history</h2>
+<div class="columns">
+<table id="fault-history" class="grid small"><thead><tr><th>Parameter</th><th>Fault</th>
+<th>Meaning</th></tr></thead><tbody></tbody></table>
+<table id="drive-events" class="grid small"><thead><tr><th>Time</th><th>Event</th>
+<th>What</th><th>Who</th><th>Result</th></tr></thead><tbody></tbody></table>
+</div>
+</section>
+<section>
+<h2>Parameters</h2>
+<div id="groups" class="tabs"></div>
+<table id="parameters" class="grid small"><thead><tr><th>Parameter</th><th>Address</th>
+<th>Meaning</th><th>Value</th><th>Raw</th><th></th></tr></thead><tbody></tbody></table>
+</section>
+<dialog id="confirm">
+<form method="dialog">
+<p id="confirm-text"></p>
+<label id="confirm-ram-label"><input type="checkbox" id="confirm-ram"> RAM only (not kept
+through a power cycle; no EEPROM wear)</label>
+<label id="confirm-value-label">Value <input id="confirm-value" autocomplete="off"></label>
+<menu><button value="cancel" type="submit">Cancel</button>
+<button value="ok" id="confirm-ok" type="submit">Confirm</button></menu>
+</form>
+</dialog>
+"""
+
+MONITOR = """
+<h1>Traffic on <span id="bus-name"></span> <span id="live" class="live">connecting…</span></h1>
+<form id="filters" class="filters">
+<label>Drive <select id="f-drive"><option value="">all</option></select></label>
+<label>Function <select id="f-function"><option value="">all</option></select></label>
+<label>Outcome <select id="f-outcome"><option value="">all</option><option>ok</option>
+<option>exception</option><option>timeout</option><option>bad reply</option>
+<option>retry</option></select></label>
+<label><input type="checkbox" id="f-hex"> hex</label>
+<button type="button" id="pause">Pause</button>
+<button type="button" id="clear">Clear</button>
+<button type="button" id="download-text">Download text</button>
+<button type="button" id="download-csv">Download CSV</button>
+<span id="count" class="muted"></span>
+</form>
+<table id="traffic" class="grid small mono">
+<thead><tr><th>Time</th><th>Who asked</th><th>Unit / addr</th><th>Fn</th><th>Meaning</th>
+<th>Outcome</th><th>Latency</th></tr></thead>
+<tbody></tbody>
+</table>
+"""
+
+LOGIN = """
+<h1>Log in</h1>
+<form id="login-form" class="login">
+<label>Name <input id="login-name" name="name" autocomplete="username" required></label>
+<label>Password <input id="login-password" name="password" type="password"
+ autocomplete="current-password" required></label>
+<button type="submit" id="login-submit">Log in</button>
+<p id="login-error" class="error" role="alert"></p>
+</form>
+"""

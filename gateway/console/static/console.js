@@ -1,0 +1,489 @@
+// invt-gateway console: plain JavaScript, no build step. Each page's body says which page it is
+// (data-page); everything shown comes from the JSON API, live parts from server-sent events.
+"use strict";
+
+const body = document.body;
+const session = { csrf: null, mayWrite: false, user: null };
+
+function el(tag, attrs, ...children) {
+  const node = document.createElement(tag);
+  for (const [key, value] of Object.entries(attrs || {})) {
+    if (value === null || value === undefined || value === false) continue;
+    if (key === "class") node.className = value;
+    else if (key.startsWith("data-")) node.setAttribute(key, value);
+    else node[key] = value;
+  }
+  for (const child of children) {
+    if (child === null || child === undefined) continue;
+    node.append(child instanceof Node ? child : document.createTextNode(String(child)));
+  }
+  return node;
+}
+
+function fmt(value, decimals, unit) {
+  if (value === null || value === undefined) return "–";
+  const number = typeof value === "number" ? value.toFixed(decimals) : String(value);
+  return unit ? `${number} ${unit}` : number;
+}
+
+function timeOf(iso) {
+  if (!iso) return "–";
+  const date = new Date(iso);
+  return date.toLocaleTimeString([], { hour12: false }) + "." +
+    String(date.getMilliseconds()).padStart(3, "0");
+}
+
+function toast(text, kind) {
+  const box = document.getElementById("toast");
+  box.textContent = text;
+  box.className = kind || "";
+  box.hidden = false;
+  clearTimeout(toast.timer);
+  toast.timer = setTimeout(() => { box.hidden = true; }, 6000);
+}
+
+async function api(path, options) {
+  const init = Object.assign({ credentials: "same-origin", headers: {} }, options || {});
+  if (init.json !== undefined) {
+    init.method = init.method || "POST";
+    init.body = JSON.stringify(init.json);
+    init.headers["Content-Type"] = "application/json";
+    if (session.csrf) init.headers["X-CSRF-Token"] = session.csrf;
+  }
+  const response = await fetch(path, init);
+  let data = null;
+  try { data = await response.json(); } catch (e) { data = null; }
+  if (!response.ok) {
+    const message = (data && data.error) || `${response.status} ${response.statusText}`;
+    const error = new Error(message);
+    error.status = response.status;
+    throw error;
+  }
+  return data;
+}
+
+function stream(path, handlers) {
+  const live = document.getElementById("live");
+  const source = new EventSource(path);
+  source.onopen = () => { if (live) { live.textContent = "live"; live.className = "live on"; } };
+  source.onerror = () => { if (live) { live.textContent = "reconnecting…"; live.className = "live off"; } };
+  for (const [name, handler] of Object.entries(handlers)) {
+    source.addEventListener(name, (event) => handler(JSON.parse(event.data)));
+  }
+  return source;
+}
+
+async function loadSession() {
+  try {
+    const info = await api("/api/session");
+    session.csrf = info.csrf_token;
+    session.mayWrite = info.may_write;
+    session.user = info.user;
+    session.role = info.role;
+    session.commandsEnabled = info.commands_enabled;
+  } catch (e) { /* the login page has no session */ }
+  const logout = document.getElementById("logout");
+  if (logout) {
+    logout.addEventListener("click", async () => {
+      await api("/api/logout", { json: {} });
+      location.href = "/login";
+    });
+  }
+}
+
+// -- overview ------------------------------------------------------------------------------
+
+function stateClass(drive) {
+  if (drive.online === false) return "offline";
+  if (drive.fault_name && drive.fault_name !== "none") return "fault";
+  if (drive.state && drive.state.startsWith("running")) return "running";
+  return "stopped";
+}
+
+function busRow(bus) {
+  return el("tr", { "data-bus": bus.name },
+    el("td", {}, bus.name),
+    el("td", {}, el("span", { class: `badge ${bus.state}` }, bus.state)),
+    el("td", { class: "mono" }, bus.port),
+    el("td", {}, bus.format),
+    el("td", {}, fmt(bus.utilisation * 100, 1, "%")),
+    el("td", {}, fmt(bus.transactions_per_s, 1)),
+    el("td", { class: bus.timeouts_per_min ? "warn" : "" }, bus.timeouts_per_min),
+    el("td", { class: bus.bad_replies_per_min ? "warn" : "" }, bus.bad_replies_per_min),
+    el("td", {}, bus.retries_per_min),
+    el("td", {}, bus.queue_depth),
+    el("td", {}, el("a", { href: `/monitor/${encodeURIComponent(bus.name)}` }, "traffic")));
+}
+
+function driveRow(drive) {
+  const online = drive.online === null ? "–" : (drive.online ? "online" : "offline");
+  const fault = drive.fault_name && drive.fault_name !== "none"
+    ? `${drive.fault_name}: ${drive.fault_description}` : "none";
+  return el("tr", { "data-drive": drive.name, class: stateClass(drive) },
+    el("td", {}, el("a", { href: `/drives/${encodeURIComponent(drive.name)}` }, drive.name)),
+    el("td", {}, drive.unit_id),
+    el("td", {}, `${drive.bus} / ${drive.address}`),
+    el("td", {}, drive.model),
+    el("td", { class: "online" }, el("span", { class: `badge ${online}` }, online)),
+    el("td", { class: "state" }, drive.state || "–"),
+    el("td", { class: "fault" }, fault),
+    el("td", { class: "frequency num" }, fmt(drive.output_frequency_hz, 2, "Hz")),
+    el("td", { class: "current num" }, fmt(drive.output_current_a, 1, "A")),
+    el("td", {}, timeOf(drive.last_answer)));
+}
+
+function eventRow(event, withDrive) {
+  const cells = [el("td", {}, timeOf(event.time)), el("td", {}, event.kind.replace(/_/g, " "))];
+  if (withDrive) cells.push(el("td", {}, event.drive || event.bus || ""));
+  cells.push(el("td", {}, event.text), el("td", {}, event.who || ""),
+    el("td", { class: event.result && event.result !== "ok" ? "warn" : "" }, event.result || ""));
+  return el("tr", { class: `event ${event.kind}` }, ...cells);
+}
+
+function fill(tableId, rows, empty) {
+  const tbody = document.querySelector(`#${tableId} tbody`);
+  if (!rows.length && empty) {
+    const columns = document.querySelectorAll(`#${tableId} thead th`).length;
+    rows = [el("tr", {}, el("td", { colSpan: columns, class: "muted" }, empty))];
+  }
+  tbody.replaceChildren(...rows);
+}
+
+function overviewPage() {
+  const refreshEvents = async () => {
+    const data = await api("/api/events?limit=50");
+    fill("events", data.events.map((e) => eventRow(e, true)), "no events since the gateway started");
+  };
+  stream("/api/live", {
+    overview: (data) => {
+      fill("buses", data.buses.map(busRow));
+      fill("drives", data.drives.map(driveRow));
+    },
+  });
+  refreshEvents();
+  setInterval(refreshEvents, 2000);
+}
+
+// -- a drive's page --------------------------------------------------------------------------
+
+const VALUE_ROWS = [
+  ["state", "State", (v) => (v || "–").replace(/_/g, " ")],
+  ["fault_name", "Fault", (v, t) => (v && v !== "none" ? `${v}: ${t.fault_description}` : "none")],
+  ["output_frequency_hz", "Output frequency", (v) => fmt(v, 2, "Hz")],
+  ["set_frequency_hz", "Set frequency", (v) => fmt(v, 2, "Hz")],
+  ["output_current_a", "Output current", (v) => fmt(v, 1, "A")],
+  ["bus_voltage_v", "Bus voltage", (v) => fmt(v, 1, "V")],
+  ["output_voltage_v", "Output voltage", (v) => fmt(v, 0, "V")],
+  ["rotation_speed_rpm", "Rotation speed", (v) => fmt(v, 0, "rpm")],
+  ["output_power_pct", "Output power", (v) => fmt(v, 1, "%")],
+  ["output_torque_pct", "Output torque", (v) => fmt(v, 1, "%")],
+  ["command_source", "Command source", (v) => v || "–"],
+  ["ready", "Ready", (v) => (v === undefined ? "–" : (v ? "yes" : "no"))],
+  ["last_seen", "Last answer", (v) => timeOf(v)],
+];
+
+const CHARTS = [
+  ["chart-frequency", 1, "Output frequency", "Hz", "#2563eb"],
+  ["chart-current", 2, "Output current", "A", "#d97706"],
+  ["chart-voltage", 3, "Bus voltage", "V", "#059669"],
+];
+
+function makeCharts(columns) {
+  return CHARTS.map(([id, index, label, unit, color]) => {
+    const box = document.getElementById(id);
+    const width = Math.max(280, box.clientWidth || 360);
+    const options = {
+      title: `${label} (${unit})`, width, height: 180,
+      scales: { x: { time: true } },
+      series: [{}, { label, stroke: color, width: 2, spanGaps: false }],
+      axes: [{}, { size: 50 }],
+      legend: { show: false },
+    };
+    const plot = new uPlot(options, [columns[0], columns[index]], box);
+    return { plot, index };
+  });
+}
+
+function drivePage() {
+  const name = body.dataset.drive;
+  document.getElementById("drive-name").textContent = name;
+  let columns = [[], [], [], []];
+  let charts = null;
+  let lastPoint = 0;
+
+  api(`/api/drives/${encodeURIComponent(name)}/chart`).then((data) => {
+    columns = data.columns;
+    lastPoint = columns[0].length ? columns[0][columns[0].length - 1] : 0;
+    charts = makeCharts(columns);
+  });
+
+  const show = (drive) => {
+    const t = drive.telemetry || {};
+    const badge = document.getElementById("drive-badge");
+    const online = drive.online === null ? "unknown" : (drive.online ? "online" : "offline");
+    badge.textContent = online;
+    badge.className = `badge ${online}`;
+    document.getElementById("drive-info").textContent =
+      `unit id ${drive.unit_id} · ${drive.bus} address ${drive.address} · ${drive.model}`;
+    const rows = VALUE_ROWS.filter(([key]) => key in t || key === "state").map(([key, label, show]) =>
+      el("tr", { "data-key": key }, el("th", {}, label), el("td", {}, show(t[key], t))));
+    fill("values", rows);
+    const now = Date.now() / 1000;
+    if (charts && drive.online && now - lastPoint >= 1) {
+      lastPoint = now;
+      columns[0].push(now);
+      columns[1].push(t.output_frequency_hz ?? null);
+      columns[2].push(t.output_current_a ?? null);
+      columns[3].push(t.bus_voltage_v ?? null);
+      while (columns[0].length && now - columns[0][0] > 900) columns.forEach((c) => c.shift());
+      charts.forEach(({ plot, index }) => plot.setData([columns[0], columns[index]]));
+    }
+  };
+  stream(`/api/live?drive=${encodeURIComponent(name)}`, { drive: show });
+
+  setupControls(name);
+  loadFaults(name);
+  setInterval(() => loadFaults(name), 10000);
+  setupParameters(name);
+}
+
+async function loadFaults(name) {
+  try {
+    const data = await api(`/api/drives/${encodeURIComponent(name)}/faults?limit=30`);
+    fill("fault-history", data.fault_history.map((f) =>
+      el("tr", { class: f.code ? "fault" : "" }, el("td", {}, f.parameter),
+        el("td", {}, f.code ? `${f.code} ${f.name}` : "none"), el("td", {}, f.description))));
+    fill("drive-events", data.events.map((e) => eventRow(e, false)), "no events for this drive since the gateway started");
+  } catch (error) {
+    fill("fault-history", [el("tr", {}, el("td", { colSpan: 3, class: "muted" },
+      `fault history not readable: ${error.message}`))]);
+  }
+}
+
+function confirmDialog(text, options) {
+  const dialog = document.getElementById("confirm");
+  document.getElementById("confirm-text").textContent = text;
+  document.getElementById("confirm-ram-label").hidden = !options.ram;
+  document.getElementById("confirm-ram").checked = false;
+  const valueLabel = document.getElementById("confirm-value-label");
+  valueLabel.hidden = options.value === undefined;
+  document.getElementById("confirm-value").value = options.value ?? "";
+  return new Promise((resolve) => {
+    dialog.onclose = () => resolve(dialog.returnValue === "ok" ? {
+      ram: document.getElementById("confirm-ram").checked,
+      value: document.getElementById("confirm-value").value,
+    } : null);
+    dialog.returnValue = "";
+    dialog.showModal();
+  });
+}
+
+async function write(path, json, what) {
+  try {
+    const result = await api(path, { json });
+    toast(`${what}: done (${result.write})`, "ok");
+    return true;
+  } catch (error) {
+    toast(`${what}: ${error.message}`, "error");
+    return false;
+  }
+}
+
+function setupControls(name) {
+  const controls = document.getElementById("controls");
+  const note = document.getElementById("controls-note");
+  const enabled = session.mayWrite;
+  controls.querySelectorAll("button, input").forEach((node) => { node.disabled = !enabled; });
+  if (!session.commandsEnabled) note.textContent = "Commands are disabled (console.commands_enabled: false).";
+  else if (!enabled) note.textContent = "Log in as an operator to run, stop or write.";
+  else note.textContent = `As ${session.user} (operator): every command asks for a confirmation.`;
+  const base = `/api/drives/${encodeURIComponent(name)}`;
+  controls.querySelectorAll("button[data-command]").forEach((button) => {
+    button.addEventListener("click", async () => {
+      const command = button.dataset.command;
+      const label = button.textContent;
+      if (!(await confirmDialog(`${label} ${name}?`, {}))) return;
+      await write(`${base}/command`, { command }, `${label} ${name}`);
+    });
+  });
+  document.getElementById("setpoint-form").addEventListener("submit", async (event) => {
+    event.preventDefault();
+    const hz = parseFloat(document.getElementById("setpoint").value);
+    if (Number.isNaN(hz)) { toast("Set-point: type a frequency in Hz", "error"); return; }
+    if (!(await confirmDialog(`Set ${name}'s set-point to ${hz.toFixed(2)} Hz?`, {}))) return;
+    await write(`${base}/frequency`, { hz }, `Set-point ${hz.toFixed(2)} Hz`);
+  });
+}
+
+function setupParameters(name) {
+  const groups = body.dataset.groups.split(",");
+  const tabs = document.getElementById("groups");
+  const load = async (group) => {
+    tabs.querySelectorAll("button").forEach((b) => b.classList.toggle("active", b.dataset.group === group));
+    fill("parameters", [el("tr", {}, el("td", { colSpan: 6, class: "muted" }, `reading ${group}…`))]);
+    try {
+      const data = await api(`/api/drives/${encodeURIComponent(name)}/parameters?group=${group}`);
+      if (!data.parameters.length) {
+        fill("parameters", [el("tr", {}, el("td", { colSpan: 6, class: "muted" },
+          `the profile names no parameter of ${group}`))]);
+        return;
+      }
+      fill("parameters", data.parameters.map((p) => {
+        const edit = p.writable && session.mayWrite
+          ? el("button", { type: "button", class: "small", onclick: () => editParameter(name, p, () => load(group)) }, "Write…")
+          : null;
+        return el("tr", {}, el("td", {}, p.name), el("td", { class: "mono" }, p.address),
+          el("td", {}, p.description), el("td", { class: "num" }, p.value ?? "–"),
+          el("td", { class: "mono" }, p.raw === null ? "–" : p.raw), el("td", {}, edit));
+      }));
+    } catch (error) {
+      fill("parameters", [el("tr", {}, el("td", { colSpan: 6, class: "warn" }, error.message))]);
+    }
+  };
+  for (const group of groups) {
+    tabs.append(el("button", { type: "button", "data-group": group, onclick: () => load(group) }, group));
+  }
+  load(groups[0]);
+}
+
+async function editParameter(name, parameter, reload) {
+  const current = parameter.value ? String(parameter.value).split(" ")[0] : "";
+  const answer = await confirmDialog(
+    `Write ${parameter.name} (${parameter.description}) of ${name}${parameter.unit ? ` in ${parameter.unit}` : ""}:`,
+    { ram: parameter.name.startsWith("P"), value: current });
+  if (!answer) return;
+  const ok = await write(`/api/drives/${encodeURIComponent(name)}/parameter`,
+    { name: parameter.name, value: answer.value, ram: answer.ram },
+    `${parameter.name} = ${answer.value}${answer.ram ? " (RAM only)" : ""}`);
+  if (ok) reload();
+}
+
+// -- the traffic monitor ---------------------------------------------------------------------
+
+function monitorPage() {
+  const bus = body.dataset.bus;
+  document.getElementById("bus-name").textContent = bus;
+  const rows = [];
+  const MAX_ROWS = 2000;
+  let paused = false;
+  const held = [];
+  const tbody = document.querySelector("#traffic tbody");
+  const filters = {
+    drive: document.getElementById("f-drive"),
+    fn: document.getElementById("f-function"),
+    outcome: document.getElementById("f-outcome"),
+    hex: document.getElementById("f-hex"),
+  };
+  const seenDrives = new Set();
+  const seenFunctions = new Set();
+
+  const matches = (r) => {
+    if (filters.drive.value && String(r.drive ?? r.address) !== filters.drive.value) return false;
+    if (filters.fn.value && r.function !== filters.fn.value) return false;
+    const outcome = filters.outcome.value;
+    if (outcome === "retry" && !r.attempt) return false;
+    if (outcome === "bad reply" && !/bad reply|crc/.test(r.outcome)) return false;
+    if (outcome && outcome !== "retry" && outcome !== "bad reply" && !r.outcome.includes(outcome)) return false;
+    return true;
+  };
+  const outcomeClass = (r) => (r.outcome.endsWith("ok") || r.outcome.endsWith("broadcast") ? "ok" : "bad");
+  const rowOf = (r) => {
+    const meaning = el("td", { class: "meaning" }, r.meaning);
+    if (filters.hex.checked) {
+      meaning.append(el("div", { class: "hex" }, `→ ${r.request_hex}`),
+        el("div", { class: "hex" }, `← ${r.reply_hex || "(nothing)"}`));
+    }
+    return el("tr", { "data-seq": r.seq, class: outcomeClass(r) },
+      el("td", {}, timeOf(r.time)), el("td", {}, r.client),
+      el("td", {}, `${r.unit_id ?? "–"} / ${r.address}${r.drive ? ` ${r.drive}` : ""}`),
+      el("td", {}, r.function), meaning,
+      el("td", { class: "outcome" }, r.outcome), el("td", { class: "num" }, `${r.latency_ms} ms`));
+  };
+  const shown = () => rows.filter(matches);
+  const render = () => {
+    const visible = shown();
+    tbody.replaceChildren(...visible.slice(-500).reverse().map(rowOf));
+    document.getElementById("count").textContent =
+      `${visible.length} shown of ${rows.length}${paused ? ` · paused (${held.length} waiting)` : ""}`;
+  };
+  const addOption = (select, seen, value, label) => {
+    if (value === null || value === undefined || seen.has(value)) return;
+    seen.add(value);
+    select.append(el("option", { value }, label));
+  };
+  const take = (r) => {
+    rows.push(r);
+    if (rows.length > MAX_ROWS) rows.shift();
+    addOption(filters.drive, seenDrives, String(r.drive ?? r.address), r.drive ?? `address ${r.address}`);
+    addOption(filters.fn, seenFunctions, r.function, r.function);
+  };
+  let pending = false;
+  const schedule = () => {
+    if (pending) return;
+    pending = true;
+    requestAnimationFrame(() => { pending = false; render(); });
+  };
+  stream(`/api/buses/${encodeURIComponent(bus)}/traffic?recent=200`, {
+    traffic: (r) => {
+      if (paused) { held.push(r); } else { take(r); }
+      schedule();
+    },
+  });
+  Object.values(filters).forEach((f) => f.addEventListener("change", render));
+  document.getElementById("pause").addEventListener("click", (event) => {
+    paused = !paused;
+    event.target.textContent = paused ? "Resume" : "Pause";
+    if (!paused) held.splice(0).forEach(take);
+    render();
+  });
+  document.getElementById("clear").addEventListener("click", () => { rows.length = 0; render(); });
+  const download = (name, type, text) => {
+    const link = el("a", { href: URL.createObjectURL(new Blob([text], { type })), download: name });
+    document.body.append(link);
+    link.click();
+    link.remove();
+  };
+  const columns = ["time", "client", "unit_id", "address", "drive", "function", "meaning",
+    "outcome", "latency_ms", "request_hex", "reply_hex"];
+  document.getElementById("download-csv").addEventListener("click", () => {
+    const quote = (v) => `"${String(v ?? "").replace(/"/g, '""')}"`;
+    const lines = [columns.join(",")].concat(shown().map((r) => columns.map((c) => quote(r[c])).join(",")));
+    download(`traffic-${bus}.csv`, "text/csv", lines.join("\r\n") + "\r\n");
+  });
+  document.getElementById("download-text").addEventListener("click", () => {
+    const lines = shown().map((r) =>
+      `${r.time}  ${r.client.padEnd(22)} unit ${String(r.unit_id ?? "-").padStart(3)}  ${r.function}  ` +
+      `${r.meaning}  [${r.outcome}, ${r.latency_ms} ms]` +
+      (filters.hex.checked ? `\n    → ${r.request_hex}\n    ← ${r.reply_hex}` : ""));
+    download(`traffic-${bus}.txt`, "text/plain", lines.join("\n") + "\n");
+  });
+  render();
+}
+
+// -- login -----------------------------------------------------------------------------------
+
+function loginPage() {
+  const form = document.getElementById("login-form");
+  form.addEventListener("submit", async (event) => {
+    event.preventDefault();
+    const error = document.getElementById("login-error");
+    error.textContent = "";
+    try {
+      await api("/api/login", { json: {
+        name: document.getElementById("login-name").value,
+        password: document.getElementById("login-password").value,
+      } });
+      const next = new URLSearchParams(location.search).get("next");
+      location.href = next && next.startsWith("/") && !next.startsWith("//") ? next : "/";
+    } catch (e) {
+      error.textContent = e.message;
+    }
+  });
+}
+
+(async () => {
+  await loadSession();
+  const pages = { overview: overviewPage, drive: drivePage, monitor: monitorPage, login: loginPage };
+  const start = pages[body.dataset.page];
+  if (start) start();
+})();

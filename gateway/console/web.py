@@ -1,0 +1,513 @@
+"""The console's HTTP side on aiohttp: pages, the JSON API, the live streams, the static files.
+
+Every request passes `_guard` first: it finds who is asking (session cookie, API token, or
+anonymous when allowed), refuses what they may not do, checks the CSRF token of every write made
+with a session cookie, and adds the security headers. Handlers only answer.
+
+The JSON API (documented in the README's "Console" section) is what the pages use; the live
+parts are server-sent events (`text/event-stream`), which browsers reconnect by themselves.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import hmac
+import json
+import logging
+from collections.abc import Awaitable, Callable
+from importlib import resources
+from typing import Any, Final
+from urllib.parse import quote
+
+from aiohttp import web
+
+from gateway.console import pages
+from gateway.console.auth import (
+    ANONYMOUS,
+    SESSION_COOKIE,
+    Identity,
+    LoginLimiter,
+    Sessions,
+    Users,
+    Via,
+)
+from gateway.console.events import EventStore
+from gateway.console.live import LiveState
+from gateway.console.operations import (
+    PARAMETER_GROUPS,
+    REGISTER_BLOCKS,
+    DriveOperations,
+)
+from gateway.console.traffic import TrafficMonitor
+from gateway.errors import OperationError
+
+log = logging.getLogger(__name__)
+
+LIVE_PERIOD_S: Final = 0.5
+"""The overview and a drive's page are pushed this often: live within a second."""
+HEARTBEAT_S: Final = 15.0
+MAX_JSON: Final = 16 * 1024
+IDENTITY: Final = web.RequestKey("identity", Identity)
+_SECURITY_HEADERS: Final = {
+    # No inline script or style, nothing from elsewhere: a plant network is often offline, and
+    # an injected script has nowhere to come from.
+    "Content-Security-Policy": (
+        "default-src 'self'; img-src 'self' data:; style-src 'self'; script-src 'self'; "
+        "frame-ancestors 'none'; base-uri 'none'; form-action 'self'"
+    ),
+    "X-Content-Type-Options": "nosniff",
+    "X-Frame-Options": "DENY",
+    "Referrer-Policy": "no-referrer",
+}
+Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
+
+
+class Console:
+    """The parts the handlers use; the application passes them in (`ConsoleFeature`)."""
+
+    def __init__(
+        self,
+        *,
+        users: Users,
+        anonymous_view: bool,
+        commands_enabled: bool,
+        secure_cookies: bool,
+        live: LiveState,
+        operations: DriveOperations,
+        traffic: TrafficMonitor,
+        events: EventStore,
+    ) -> None:
+        self.users = users
+        self.anonymous_view = anonymous_view
+        self.commands_enabled = commands_enabled
+        self.secure_cookies = secure_cookies
+        self.live = live
+        self.operations = operations
+        self.traffic = traffic
+        self.events = events
+        self.sessions = Sessions()
+        self.limiter = LoginLimiter()
+        self.closing = asyncio.Event()
+
+    def identify(self, request: web.Request) -> Identity | None:
+        authorization = request.headers.get("Authorization", "")
+        if authorization.startswith("Bearer "):
+            return self.users.by_token(authorization.removeprefix("Bearer ").strip())
+        key = request.cookies.get(SESSION_COOKIE)
+        if key:
+            session = self.sessions.get(key)
+            # A user removed from the config (or given another role) is gone at once.
+            if session is not None and self.users.role_of(session.user) is session.role:
+                return Identity(session.user, session.role, Via.SESSION)
+        return ANONYMOUS if self.anonymous_view else None
+
+
+CONSOLE: Final = web.AppKey("console", Console)
+
+
+def build_app(console: Console) -> web.Application:
+    app = web.Application(middlewares=[_guard], client_max_size=MAX_JSON)
+    app[CONSOLE] = console
+    static = resources.files("gateway.console").joinpath("static")
+    routes = [
+        web.get("/", overview_page),
+        web.get("/drives/{name}", drive_page),
+        web.get("/monitor", monitor_page),
+        web.get("/monitor/{bus}", monitor_page),
+        web.get("/login", login_page),
+        web.post("/api/login", login),
+        web.post("/api/logout", logout),
+        web.get("/api/session", session_info),
+        web.get("/api/overview", overview),
+        web.get("/api/live", live_stream),
+        web.get("/api/events", events),
+        web.get("/api/drives/{name}", drive_detail),
+        web.get("/api/drives/{name}/chart", drive_chart),
+        web.get("/api/drives/{name}/faults", drive_faults),
+        web.get("/api/drives/{name}/parameters", drive_parameters),
+        web.post("/api/drives/{name}/command", drive_command),
+        web.post("/api/drives/{name}/frequency", drive_frequency),
+        web.post("/api/drives/{name}/parameter", drive_parameter),
+        web.get("/api/buses/{bus}/traffic", traffic_stream),
+        web.static("/static", str(static), append_version=False),
+    ]
+    app.add_routes(routes)
+    return app
+
+
+# -- the guard ------------------------------------------------------------------------------
+
+_OPEN_PATHS: Final = ("/login", "/api/login", "/static/")
+
+
+@web.middleware
+async def _guard(request: web.Request, handler: Handler) -> web.StreamResponse:
+    console = request.app[CONSOLE]
+    try:
+        response = await _guarded(console, request, handler)
+    except web.HTTPException as exc:
+        _secure(request, exc)
+        raise
+    _secure(request, response)
+    return response
+
+
+def _secure(request: web.Request, response: web.StreamResponse) -> None:
+    if response.prepared:  # a stream: its headers went out with them already
+        return
+    for name, value in _SECURITY_HEADERS.items():
+        response.headers.setdefault(name, value)
+    if not request.path.startswith("/static/"):
+        response.headers.setdefault("Cache-Control", "no-store")
+
+
+async def _guarded(console: Console, request: web.Request, handler: Handler) -> web.StreamResponse:
+    path = request.path
+    if request.method not in ("GET", "HEAD") and not _same_origin(request):
+        raise _error(403, "cross-site request refused")
+    if path.startswith(_OPEN_PATHS):
+        return await handler(request)
+    who = console.identify(request)
+    if who is None:
+        if path.startswith("/api/"):
+            raise _error(401, "log in, or send an API token (Authorization: Bearer TOKEN)")
+        raise web.HTTPFound(f"/login?next={quote(path)}")
+    if request.method not in ("GET", "HEAD") and path != "/api/logout":
+        if not who.may_write:
+            raise _error(403, f"{who.name} ({who.role}) may not make changes: operators only")
+        if who.via is Via.SESSION and not _csrf_ok(console, request):
+            raise _error(403, "missing or wrong CSRF token (X-CSRF-Token)")
+    request[IDENTITY] = who
+    return await handler(request)
+
+
+def _same_origin(request: web.Request) -> bool:
+    """A browser names the page a write comes from: it must be one of ours."""
+    origin = request.headers.get("Origin")
+    if origin is None:
+        return True  # not a browser (curl, scripts): the token or CSRF check decides
+    return origin.split("://", 1)[-1] == request.host
+
+
+def _csrf_ok(console: Console, request: web.Request) -> bool:
+    session = console.sessions.get(request.cookies.get(SESSION_COOKIE, ""))
+    sent = request.headers.get("X-CSRF-Token", "")
+    return session is not None and bool(sent) and hmac.compare_digest(sent, session.csrf_token)
+
+
+def _error(status: int, message: str) -> web.HTTPException:
+    body = json.dumps({"ok": False, "error": message})
+    return _status_class(status)(text=body, content_type="application/json")
+
+
+def _status_class(status: int) -> type[web.HTTPException]:
+    return {
+        400: web.HTTPBadRequest,
+        401: web.HTTPUnauthorized,
+        403: web.HTTPForbidden,
+        404: web.HTTPNotFound,
+        409: web.HTTPConflict,
+        429: web.HTTPTooManyRequests,
+        502: web.HTTPBadGateway,
+    }[status]
+
+
+# -- pages ----------------------------------------------------------------------------------
+
+
+def _html(request: web.Request, title: str, body: str, data: dict[str, str]) -> web.Response:
+    console = request.app[CONSOLE]
+    who = request.get(IDENTITY)
+    html = pages.page(
+        title,
+        body,
+        who=who,
+        buses=list(console.live.buses),
+        data={**data, "commands": "on" if console.commands_enabled else "off"},
+        scripts=["uPlot.iife.min.js"] if data.get("page") == "drive" else (),
+    )
+    return web.Response(text=html, content_type="text/html")
+
+
+async def overview_page(request: web.Request) -> web.StreamResponse:
+    return _html(request, "Overview", pages.OVERVIEW, {"page": "overview"})
+
+
+async def drive_page(request: web.Request) -> web.StreamResponse:
+    name = request.match_info["name"]
+    if name not in request.app[CONSOLE].live.drives:
+        raise web.HTTPNotFound(text=f"no drive named {name}")
+    data = {
+        "page": "drive",
+        "drive": name,
+        "groups": ",".join((*PARAMETER_GROUPS, *REGISTER_BLOCKS)),
+    }
+    return _html(request, name, pages.DRIVE, data)
+
+
+async def monitor_page(request: web.Request) -> web.StreamResponse:
+    buses = list(request.app[CONSOLE].live.buses)
+    bus = request.match_info.get("bus", buses[0])
+    if bus not in buses:
+        raise web.HTTPNotFound(text=f"no bus named {bus}")
+    return _html(request, f"Monitor {bus}", pages.MONITOR, {"page": "monitor", "bus": bus})
+
+
+async def login_page(request: web.Request) -> web.StreamResponse:
+    return _html(request, "Log in", pages.LOGIN, {"page": "login"})
+
+
+# -- login ----------------------------------------------------------------------------------
+
+
+async def login(request: web.Request) -> web.StreamResponse:
+    console = request.app[CONSOLE]
+    body = await _json_body(request)
+    name, password = str(body.get("name", "")), str(body.get("password", ""))
+    keys = (f"address:{request.remote}", f"user:{name}")
+    wait = console.limiter.retry_after(keys)
+    if wait > 0:
+        refused = _error(429, f"too many failed logins: try again in {wait:.0f} s")
+        refused.headers["Retry-After"] = str(max(1, round(wait)))
+        raise refused
+    # scrypt takes tens of milliseconds of CPU: in a thread, so the bus never waits for it.
+    role = await asyncio.to_thread(console.users.check_password, name, password)
+    if role is None:
+        console.limiter.failed(keys)
+        log.warning("console: failed login for %r from %s", name, request.remote)
+        raise _error(401, "wrong name or password")
+    console.limiter.succeeded(keys)
+    key, session = console.sessions.open(name, role)
+    log.info("console: %s logged in from %s", name, request.remote)
+    response = web.json_response(
+        {"ok": True, "user": name, "role": str(role), "csrf_token": session.csrf_token}
+    )
+    response.set_cookie(
+        SESSION_COOKIE,
+        key,
+        httponly=True,
+        samesite="Strict",
+        secure=console.secure_cookies,
+        path="/",
+    )
+    return response
+
+
+async def logout(request: web.Request) -> web.StreamResponse:
+    console = request.app[CONSOLE]
+    console.sessions.close(request.cookies.get(SESSION_COOKIE, ""))
+    response = web.json_response({"ok": True})
+    response.del_cookie(SESSION_COOKIE, path="/")
+    return response
+
+
+async def session_info(request: web.Request) -> web.StreamResponse:
+    console = request.app[CONSOLE]
+    who = request[IDENTITY]
+    csrf = None
+    if who.via is Via.SESSION:
+        session = console.sessions.get(request.cookies.get(SESSION_COOKIE, ""))
+        csrf = session.csrf_token if session else None
+    return web.json_response(
+        {
+            "user": who.name,
+            "role": str(who.role),
+            "via": str(who.via),
+            "csrf_token": csrf,
+            "may_write": who.may_write and console.commands_enabled,
+            "commands_enabled": console.commands_enabled,
+        }
+    )
+
+
+# -- reads ----------------------------------------------------------------------------------
+
+
+async def overview(request: web.Request) -> web.StreamResponse:
+    return web.json_response(request.app[CONSOLE].live.overview())
+
+
+async def events(request: web.Request) -> web.StreamResponse:
+    drive = request.query.get("drive")
+    found = request.app[CONSOLE].events.recent(drive=drive, limit=_limit(request))
+    return web.json_response({"events": [e.to_json() for e in found]})
+
+
+async def drive_detail(request: web.Request) -> web.StreamResponse:
+    return web.json_response(_drive_json(request.app[CONSOLE], _drive_name(request)))
+
+
+def _drive_json(console: Console, name: str) -> dict[str, Any]:
+    return {**console.live.drive_view(name), "telemetry": console.live.telemetry(name)}
+
+
+async def drive_chart(request: web.Request) -> web.StreamResponse:
+    return web.json_response(request.app[CONSOLE].live.chart(_drive_name(request)))
+
+
+async def drive_faults(request: web.Request) -> web.StreamResponse:
+    console = request.app[CONSOLE]
+    name = _drive_name(request)
+    history = await _operation(console.operations.fault_history(request[IDENTITY], name))
+    found = console.events.recent(drive=name, limit=_limit(request))
+    return web.json_response(
+        {"fault_history": history, "events": [e.to_json() for e in found if e.drive == name]}
+    )
+
+
+async def drive_parameters(request: web.Request) -> web.StreamResponse:
+    console = request.app[CONSOLE]
+    name = _drive_name(request)
+    group = request.query.get("group", "P00")
+    found = await _operation(console.operations.parameter_group(request[IDENTITY], name, group))
+    return web.json_response({"group": group, "parameters": found})
+
+
+# -- writes ---------------------------------------------------------------------------------
+
+
+async def drive_command(request: web.Request) -> web.StreamResponse:
+    console = request.app[CONSOLE]
+    body = await _json_body(request)
+    command = str(body.get("command", ""))
+    result = await _operation(
+        console.operations.command(request[IDENTITY], _drive_name(request), command)
+    )
+    return web.json_response(result)
+
+
+async def drive_frequency(request: web.Request) -> web.StreamResponse:
+    console = request.app[CONSOLE]
+    body = await _json_body(request)
+    hz = body.get("hz")
+    if not isinstance(hz, int | float) or isinstance(hz, bool):
+        raise _error(400, 'hz: a number of hertz, e.g. {"hz": 25.0}')
+    result = await _operation(
+        console.operations.set_frequency(request[IDENTITY], _drive_name(request), float(hz))
+    )
+    return web.json_response(result)
+
+
+async def drive_parameter(request: web.Request) -> web.StreamResponse:
+    console = request.app[CONSOLE]
+    body = await _json_body(request)
+    name, value, ram = body.get("name"), body.get("value"), body.get("ram", False)
+    if not isinstance(name, str) or not isinstance(value, str | int | float):
+        raise _error(400, 'name and value: e.g. {"name": "P00.11", "value": "10.0", "ram": true}')
+    if not isinstance(ram, bool):
+        raise _error(400, "ram: true or false")
+    result = await _operation(
+        console.operations.write_parameter(
+            request[IDENTITY], _drive_name(request), name, str(value), ram
+        )
+    )
+    return web.json_response(result)
+
+
+# -- live streams ---------------------------------------------------------------------------
+
+
+async def live_stream(request: web.Request) -> web.StreamResponse:
+    """`overview` events every half second; with `?drive=NAME`, that drive's `drive` too."""
+    console = request.app[CONSOLE]
+    drive = request.query.get("drive")
+    if drive is not None and drive not in console.live.drives:
+        raise _error(404, f"no drive named {drive!r}")
+    response = await _open_stream(request)
+    try:
+        while not console.closing.is_set():
+            await _send_event(response, "overview", console.live.overview())
+            if drive is not None:
+                await _send_event(response, "drive", _drive_json(console, drive))
+            await _wait(console, LIVE_PERIOD_S)
+    except ConnectionError:
+        pass  # the page was closed: nothing more to say, nothing to log
+    return response
+
+
+async def traffic_stream(request: web.Request) -> web.StreamResponse:
+    """Every transaction on the bus from now on (`?recent=N`: the last N first), as `traffic`
+    events; the bus records only while at least one such stream is open."""
+    console = request.app[CONSOLE]
+    bus = request.match_info["bus"]
+    if bus not in console.live.buses:
+        raise _error(404, f"no bus named {bus!r}")
+    traffic = console.traffic
+    watcher = traffic.watch(bus)
+    try:
+        response = await _open_stream(request)
+        recent = _limit(request, "recent", default=0)
+        if recent:
+            for kept in traffic.recent(bus)[-recent:]:
+                await _send_event(response, "traffic", traffic.to_json(kept))
+        await _send_event(response, "watching", {"bus": bus})
+        while not console.closing.is_set():
+            try:
+                record = await asyncio.wait_for(watcher.queue.get(), HEARTBEAT_S)
+            except TimeoutError:
+                await response.write(b": still here\n\n")
+                continue
+            if record is None:
+                break  # the console is stopping
+            await _send_event(response, "traffic", traffic.to_json(record))
+        return response
+    except ConnectionError:
+        return response  # the monitor was closed: it stops recording (below), nothing to log
+    finally:
+        traffic.leave(watcher)
+
+
+async def _open_stream(request: web.Request) -> web.StreamResponse:
+    response = web.StreamResponse(
+        headers={"Content-Type": "text/event-stream", "Cache-Control": "no-store"}
+    )
+    for name, value in _SECURITY_HEADERS.items():
+        response.headers[name] = value
+    await response.prepare(request)
+    return response
+
+
+async def _send_event(response: web.StreamResponse, event: str, data: Any) -> None:
+    await response.write(f"event: {event}\ndata: {json.dumps(data)}\n\n".encode())
+
+
+async def _wait(console: Console, seconds: float) -> None:
+    with contextlib.suppress(TimeoutError):
+        await asyncio.wait_for(console.closing.wait(), seconds)
+
+
+# -- helpers --------------------------------------------------------------------------------
+
+
+async def _json_body(request: web.Request) -> dict[str, Any]:
+    if request.content_type != "application/json":
+        raise _error(400, "send JSON (Content-Type: application/json)")
+    try:
+        body = await request.json()
+    except ValueError:
+        raise _error(400, "the body is not valid JSON") from None
+    if not isinstance(body, dict):
+        raise _error(400, "the body must be a JSON object")
+    return body
+
+
+async def _operation(work: Awaitable[Any]) -> Any:
+    try:
+        return await work
+    except OperationError as exc:
+        raise _error(exc.status, str(exc)) from None
+
+
+def _drive_name(request: web.Request) -> str:
+    name = request.match_info["name"]
+    if name not in request.app[CONSOLE].live.drives:
+        raise _error(404, f"no drive named {name!r}")
+    return name
+
+
+def _limit(request: web.Request, key: str = "limit", default: int = 200) -> int:
+    try:
+        return max(0, min(int(request.query.get(key, default)), 2000))
+    except ValueError:
+        raise _error(400, f"{key}: a whole number") from None

@@ -1,0 +1,387 @@
+"""The console's JSON API against the gateway on the simulated line: who may see and do what,
+writes under Modbus-TCP's policy, the live state, and the traffic monitor's stream."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import ssl
+import struct
+from collections.abc import AsyncIterator, Iterator
+from pathlib import Path
+from typing import Any
+
+import aiohttp
+import pytest
+
+from gateway.app import Application
+from gateway.console.auth import MAX_FAILURES
+from gateway.simulator import SimulatedLine
+from tests.console_support import (
+    OPERATOR_PASSWORD,
+    OPERATOR_TOKEN,
+    VIEWER_PASSWORD,
+    ConsoleClient,
+    console_client,
+    console_config,
+)
+from tests.support import TcpClient, read_pdu, running_gateway
+from tests.tls import make_certificates
+
+STATE_WORD_1 = 0x2100
+RUNNING_FORWARD = 1
+STOPPED = 3
+
+
+@pytest.fixture
+def line() -> Iterator[SimulatedLine]:
+    with SimulatedLine(addresses=[1, 2], baudrate=115200, parity="E", wire_time=True) as sim:
+        yield sim
+
+
+async def state_word(app: Application, unit_id: int) -> int:
+    """What the drive itself says, read by a Modbus-TCP client (not the console)."""
+    client = await TcpClient.connect(app.tcp.port)
+    try:
+        return (await client.read(unit_id, STATE_WORD_1))[0]
+    finally:
+        await client.close()
+
+
+async def until(check: Any, within_s: float = 5.0) -> None:
+    """Ask `check` (an async callable: what a page or script would ask) until it says yes; fail
+    after `within_s`. The gateway has no event to await for "the page shows it"."""
+    async with asyncio.timeout(within_s):
+        while True:
+            if await check():
+                return
+            await asyncio.sleep(0.05)
+
+
+async def test_nobody_sees_anything_without_a_login(line: SimulatedLine) -> None:
+    async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
+        async with web.session.get(f"{web.base}/api/overview") as response:
+            assert response.status == 401
+        async with web.session.get(f"{web.base}/", allow_redirects=False) as response:
+            assert response.status == 302
+            assert response.headers["Location"].startswith("/login")
+
+
+async def test_overview_lists_the_drives_with_their_polled_state(line: SimulatedLine) -> None:
+    async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
+        assert (await web.login("victor", VIEWER_PASSWORD)).status == 200
+
+        async def polled() -> bool:
+            drives = (await web.get_json("/api/overview"))["drives"]
+            return all(d["online"] for d in drives)
+
+        await until(polled)
+        overview = await web.get_json("/api/overview")
+        assert [d["name"] for d in overview["drives"]] == ["pump1", "fan2"]
+        pump = overview["drives"][0]
+        assert (pump["unit_id"], pump["address"], pump["model"]) == (1, 1, "gd350")
+        assert pump["state"] == "stopped"
+        assert pump["fault_name"] == "none"
+        assert pump["output_frequency_hz"] == 0.0
+        bus = overview["buses"][0]
+        assert (bus["name"], bus["state"], bus["format"]) == ("line1", "open", "115200 8E1")
+        assert bus["port"] == line.path
+
+
+async def test_a_wrong_password_is_refused_then_rate_limited(line: SimulatedLine) -> None:
+    async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
+        for _ in range(MAX_FAILURES):
+            response = await web.login("olga", "not-her-password")
+            assert response.status == 401
+            assert (await response.json())["error"] == "wrong name or password"
+        # The right password now waits too: a guesser can't tell it found it.
+        response = await web.login("olga", OPERATOR_PASSWORD)
+        assert response.status == 429
+        assert int(response.headers["Retry-After"]) > 0
+        assert "too many failed logins" in (await response.json())["error"]
+
+
+async def test_the_session_cookie_is_httponly_and_samesite_strict(line: SimulatedLine) -> None:
+    async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
+        response = await web.login("olga", OPERATOR_PASSWORD)
+        cookie = response.headers["Set-Cookie"]
+        assert "HttpOnly" in cookie
+        assert "SameSite=Strict" in cookie
+
+
+async def test_an_operator_starts_a_drive_and_it_runs(line: SimulatedLine) -> None:
+    async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
+        await web.login("olga", OPERATOR_PASSWORD)
+        status, body = await web.post("/api/drives/pump1/frequency", {"hz": 20.0})
+        assert (status, body["ok"]) == (200, True)
+        status, body = await web.post("/api/drives/pump1/command", {"command": "run_forward"})
+        assert status == 200, body
+        assert body["write"] == "2000H control word = 1 (run_forward)"
+
+        async def running() -> bool:
+            return await state_word(app, 1) == RUNNING_FORWARD
+
+        await until(running)
+        events = (await web.get_json("/api/events?drive=pump1"))["events"]
+        audit = [e for e in events if e["kind"] == "write"]
+        assert audit[0]["who"] == "console:olga"
+        assert audit[0]["result"] == "ok"
+        assert audit[0]["text"] == "2000H control word = 1 (run_forward)"
+
+
+async def test_a_write_without_the_csrf_token_is_refused(line: SimulatedLine) -> None:
+    async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
+        await web.login("olga", OPERATOR_PASSWORD)
+        status, body = await web.post(
+            "/api/drives/pump1/command", {"command": "run_forward"}, csrf=False
+        )
+        assert status == 403
+        assert "CSRF" in body["error"]
+        status, _ = await web.post(
+            "/api/drives/pump1/command", {"command": "run_forward"}, Origin="http://evil.example"
+        )
+        assert status == 403
+        assert await state_word(app, 1) == STOPPED
+
+
+async def test_a_viewers_write_is_refused_and_the_drive_unchanged(line: SimulatedLine) -> None:
+    async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
+        await web.login("victor", VIEWER_PASSWORD)
+        status, body = await web.post("/api/drives/pump1/command", {"command": "run_forward"})
+        assert status == 403
+        assert "operators only" in body["error"]
+        assert await state_word(app, 1) == STOPPED
+
+
+async def test_anonymous_viewers_see_but_never_write(line: SimulatedLine) -> None:
+    config = console_config(line.path, anonymous_view=True)
+    async with running_gateway(config) as app, console_client(app) as web:
+        assert (await web.get_json("/api/session"))["role"] == "viewer"
+        assert len((await web.get_json("/api/overview"))["drives"]) == 2
+        status, _ = await web.post("/api/drives/pump1/command", {"command": "run_forward"})
+        assert status == 403
+
+
+async def test_a_script_uses_its_api_token_without_cookie_or_csrf(line: SimulatedLine) -> None:
+    async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
+        bearer = {"Authorization": f"Bearer {OPERATOR_TOKEN}"}
+        status, body = await web.post(
+            "/api/drives/fan2/command", {"command": "run_forward"}, **bearer
+        )
+        assert status == 200, body
+
+        async def running() -> bool:
+            return await state_word(app, 2) == RUNNING_FORWARD
+
+        await until(running)
+        wrong = {"Authorization": "Bearer not-a-token"}
+        status, _ = await web.post("/api/drives/fan2/command", {"command": "stop"}, **wrong)
+        assert status == 401
+
+
+@pytest.mark.parametrize(
+    ("console", "reason"),
+    [
+        ({"commands_enabled": False}, "console.commands_enabled is false"),
+        ({"modbus_tcp": {"read_only": True}}, "modbus_tcp.read_only"),
+        (
+            {
+                "modbus_tcp": {
+                    "access": [{"name": "no-control", "registers": ["2000H"], "allow": False}]
+                }
+            },
+            "modbus_tcp.access rule no-control",
+        ),
+    ],
+)
+async def test_console_writes_obey_modbus_tcp_policy(
+    line: SimulatedLine, console: dict[str, Any], reason: str
+) -> None:
+    async with (
+        running_gateway(console_config(line.path, **console)) as app,
+        console_client(app) as web,
+    ):
+        await web.login("olga", OPERATOR_PASSWORD)
+        status, body = await web.post("/api/drives/pump1/command", {"command": "run_forward"})
+        assert status == 403
+        assert reason in body["error"]
+        assert await state_word(app, 1) == STOPPED
+
+
+async def test_a_parameter_write_to_ram_goes_to_the_ram_address(line: SimulatedLine) -> None:
+    async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
+        await web.login("olga", OPERATOR_PASSWORD)
+        status, body = await web.post(
+            "/api/drives/pump1/parameter", {"name": "P00.11", "value": "12.5", "ram": True}
+        )
+        assert status == 200, body
+        assert body["write"] == "P00.11 (RAM) = 12.5 s"
+        group = await web.get_json("/api/drives/pump1/parameters?group=P00")
+        accel = next(p for p in group["parameters"] if p["name"] == "P00.11")
+        assert (accel["raw"], accel["value"], accel["unit"]) == (125, "12.5 s", "s")
+        status, body = await web.post(
+            "/api/drives/pump1/parameter", {"name": "P07.27", "value": "1", "ram": False}
+        )
+        assert (status, body["error"]) == (400, "P07.27 is read-only")
+
+
+async def test_fault_history_is_decoded_with_the_drives_table(line: SimulatedLine) -> None:
+    line.set_fault_history(1, [35, 0, 0, 0, 0, 0])
+    async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
+        await web.login("victor", VIEWER_PASSWORD)
+        faults = await web.get_json("/api/drives/pump1/faults")
+        first = faults["fault_history"][0]
+        assert (first["parameter"], first["code"], first["name"]) == ("P07.27", 35, "STo")
+        assert faults["fault_history"][1]["name"] == "none"
+
+
+@pytest.fixture
+async def traffic(line: SimulatedLine) -> AsyncIterator[tuple[Application, ConsoleClient]]:
+    async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
+        await web.login("victor", VIEWER_PASSWORD)
+        yield app, web
+
+
+async def read_events(response: aiohttp.ClientResponse) -> AsyncIterator[tuple[str, Any]]:
+    event = ""
+    async for raw in response.content:
+        line = raw.decode().rstrip("\n")
+        if line.startswith("event: "):
+            event = line.removeprefix("event: ")
+        elif line.startswith("data: "):
+            yield event, json.loads(line.removeprefix("data: "))
+
+
+async def test_the_monitor_records_nothing_until_someone_watches(
+    traffic: tuple[Application, ConsoleClient],
+) -> None:
+    app, web = traffic
+    bus = app.buses["line1"]
+    client = await TcpClient.connect(app.tcp.port)
+    await client.request(1, read_pdu(STATE_WORD_1))
+    assert bus.tap is None
+    assert app.console.console.traffic.recorded == 0
+    async with web.session.get(f"{web.base}/api/buses/line1/traffic") as response:
+        events = read_events(response)
+        assert await anext(events) == ("watching", {"bus": "line1"})
+        assert bus.tap is not None
+        await client.request(1, read_pdu(STATE_WORD_1))
+        async with asyncio.timeout(1.0):
+            async for kind, record in events:
+                if kind == "traffic" and record["client"].startswith("tcp:"):
+                    break
+        assert record["meaning"] == "read 2100H state word 1 → 0003H stopped"
+        assert (record["unit_id"], record["drive"], record["outcome"]) == (1, "pump1", "ok")
+        assert record["request_hex"].startswith("01 03 21 00 00 01")
+    await client.close()
+
+    async def closed() -> bool:
+        return bus.tap is None
+
+    await until(closed)
+
+
+async def test_a_dead_drive_goes_offline_and_its_timeouts_show(
+    traffic: tuple[Application, ConsoleClient], line: SimulatedLine
+) -> None:
+    _, web = traffic
+    async with web.session.get(f"{web.base}/api/buses/line1/traffic") as response:
+        events = read_events(response)
+        await anext(events)
+        line.set_dead(2)
+        async with asyncio.timeout(5.0):
+            async for kind, record in events:
+                if (
+                    kind == "traffic"
+                    and record["drive"] == "fan2"
+                    and "timeout" in record["outcome"]
+                ):
+                    break
+        assert record["meaning"].startswith("read ")
+
+    async def offline() -> bool:
+        drives = (await web.get_json("/api/overview"))["drives"]
+        return next(d for d in drives if d["name"] == "fan2")["online"] is False
+
+    await until(offline)
+    events_seen = (await web.get_json("/api/events?drive=fan2"))["events"]
+    assert any(e["kind"] == "drive_offline" for e in events_seen)
+
+
+async def test_a_modbus_tcp_write_shows_on_the_overview(
+    traffic: tuple[Application, ConsoleClient],
+) -> None:
+    app, web = traffic
+    client = await TcpClient.connect(app.tcp.port)
+    await client.request(1, struct.pack(">BHHBHH", 0x10, 0x2000, 2, 4, 1, 3000))
+    await client.close()
+
+    async def shows_running() -> bool:
+        pump = (await web.get_json("/api/overview"))["drives"][0]
+        return pump["state"] == "running forward"
+
+    await until(shows_running, within_s=2.0)
+    audit = (await web.get_json("/api/events?drive=pump1"))["events"][0]
+    assert audit["kind"] == "write"
+    assert audit["text"] == "function 10H to address 1"
+    assert audit["who"].startswith("tcp:127.0.0.1:")
+    assert audit["result"] == "ok"
+
+
+async def test_open_streams_do_not_hold_up_the_shutdown(line: SimulatedLine) -> None:
+    """The service promises to stop within 2 s: a browser's open monitor and live page end."""
+    config = console_config(line.path, anonymous_view=True)
+    async with aiohttp.ClientSession() as session:
+        async with running_gateway(config) as app:
+            base = f"http://127.0.0.1:{app.console.port}"
+            traffic = await session.get(f"{base}/api/buses/line1/traffic")
+            live = await session.get(f"{base}/api/live")
+            assert (await traffic.content.readline()).startswith(b"event: watching")
+            assert (await live.content.readline()).startswith(b"event: overview")
+            stopping_from = asyncio.get_running_loop().time()
+        assert asyncio.get_running_loop().time() - stopping_from < 2.0
+        rest = await traffic.content.read()  # to the end of the stream: the gateway ended it
+        assert rest == b"" or rest.endswith(b"\n\n")  # after a whole event, never in one
+        traffic.release()
+        live.release()
+
+
+async def test_with_a_certificate_the_console_speaks_https_only(
+    line: SimulatedLine, tmp_path: Path
+) -> None:
+    certificates = make_certificates(tmp_path)
+    config = console_config(
+        line.path, cert_file=str(certificates.server_cert), key_file=str(certificates.server_key)
+    )
+    trusting = ssl.create_default_context(cafile=str(certificates.ca))
+    async with running_gateway(config) as app, aiohttp.ClientSession() as session:
+        port = app.console.port
+        assert app.console.url == f"https://127.0.0.1:{port}/"
+        login = {"name": "olga", "password": OPERATOR_PASSWORD}
+        async with session.post(
+            f"https://127.0.0.1:{port}/api/login", json=login, ssl=trusting
+        ) as response:
+            assert response.status == 200
+            assert "Secure" in response.headers["Set-Cookie"]
+        with pytest.raises(aiohttp.ClientError):
+            async with session.get(f"http://127.0.0.1:{port}/api/overview") as response:
+                await response.read()
+
+
+async def test_a_lost_port_and_its_return_are_events(
+    traffic: tuple[Application, ConsoleClient], line: SimulatedLine
+) -> None:
+    _, web = traffic
+
+    def kinds(events: list[dict[str, Any]]) -> list[str]:
+        return [e["kind"] for e in events if e["bus"] == "line1" and e["drive"] is None]
+
+    async def seen(kind: str) -> bool:
+        return kind in kinds((await web.get_json("/api/events"))["events"])
+
+    line.unplug()
+    await until(lambda: seen("port_lost"))
+    line.replug()
+    await until(lambda: seen("port_back"), within_s=15.0)
+    bus = (await web.get_json("/api/overview"))["buses"][0]
+    assert bus["state"] == "open"

@@ -1,0 +1,300 @@
+"""The console in a real browser: Debian's Chromium, driven by Selenium through chromium-driver,
+against the gateway on the simulated line. What a person sees and clicks, checked as they would.
+
+A screenshot of each page is saved under `test-artifacts/console/` (or $INVT_GATEWAY_ARTIFACTS).
+Selenium's calls block, so they run in a thread while the gateway serves on this event loop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import shutil
+from collections.abc import AsyncIterator, Callable, Iterator
+from pathlib import Path
+from typing import Any, TypeVar
+
+import pytest
+from selenium import webdriver
+from selenium.common.exceptions import StaleElementReferenceException
+from selenium.webdriver.chrome.service import Service
+from selenium.webdriver.common.by import By
+from selenium.webdriver.support.ui import Select, WebDriverWait
+
+from gateway.app import Application
+from gateway.simulator import SimulatedLine
+from tests.console_support import OPERATOR_PASSWORD, VIEWER_PASSWORD, console_config
+from tests.support import TcpClient, running_gateway
+
+T = TypeVar("T")
+CHROMIUM = shutil.which("chromium")
+CHROMEDRIVER = shutil.which("chromedriver")
+ARTIFACTS = Path(
+    os.environ.get(
+        "INVT_GATEWAY_ARTIFACTS", Path(__file__).resolve().parent.parent / "test-artifacts"
+    )
+)
+STATE_WORD_1 = 0x2100
+RUNNING_FORWARD = 1
+STOPPED = 3
+
+pytestmark = pytest.mark.skipif(
+    CHROMIUM is None or CHROMEDRIVER is None,
+    reason="Debian's chromium and chromium-driver are installed by .ci/test",
+)
+
+
+class Browser:
+    """A headless Chromium; every call in a thread so the gateway's loop keeps serving."""
+
+    def __init__(self, base: str) -> None:
+        options = webdriver.ChromeOptions()
+        options.binary_location = CHROMIUM or ""
+        for argument in (
+            "--headless=new",
+            "--no-sandbox",  # root in a container: Chromium's sandbox needs user namespaces
+            "--disable-gpu",
+            "--disable-dev-shm-usage",
+            "--window-size=1400,1000",
+            "--lang=en-GB",
+        ):
+            options.add_argument(argument)
+        self.driver = webdriver.Chrome(options=options, service=Service(CHROMEDRIVER or ""))
+        self.base = base
+
+    async def run(self, call: Callable[..., T], *args: Any) -> T:
+        def again_if_redrawn() -> T:
+            # The live pages redraw their tables every half second: an element found just
+            # before a redraw is gone when used. Find it again.
+            for _ in range(20):
+                try:
+                    return call(*args)
+                except StaleElementReferenceException:
+                    continue
+            return call(*args)
+
+        return await asyncio.to_thread(again_if_redrawn)
+
+    async def open(self, path: str) -> None:
+        await self.run(self.driver.get, f"{self.base}{path}")
+
+    async def wait(self, condition: Callable[[Any], Any], within_s: float = 5.0) -> Any:
+        waiter = WebDriverWait(self.driver, within_s, poll_frequency=0.05)
+        return await self.run(waiter.until, condition)
+
+    async def text(self, selector: str) -> str:
+        return str(await self.run(lambda: self.driver.find_element(By.CSS_SELECTOR, selector).text))
+
+    async def click(self, selector: str) -> None:
+        await self.run(lambda: self.driver.find_element(By.CSS_SELECTOR, selector).click())
+
+    async def type(self, selector: str, text: str) -> None:
+        def typing() -> None:
+            field = self.driver.find_element(By.CSS_SELECTOR, selector)
+            field.clear()
+            field.send_keys(text)
+
+        await self.run(typing)
+
+    async def login(self, name: str, password: str) -> None:
+        await self.open("/login")
+        await self.type("#login-name", name)
+        await self.type("#login-password", password)
+        await self.click("#login-submit")
+
+    async def screenshot(self, name: str) -> Path:
+        ARTIFACTS.joinpath("console").mkdir(parents=True, exist_ok=True)
+        path = ARTIFACTS / "console" / f"{name}.png"
+        await asyncio.sleep(0.3)  # a picture for a person: let the last update paint
+        assert await self.run(self.driver.save_screenshot, str(path))
+        return path
+
+    def close(self) -> None:
+        self.driver.quit()
+
+
+def showing(selector: str, text: str) -> Callable[[Any], bool]:
+    """True once an element matching `selector` holds `text`."""
+
+    def check(driver: Any) -> bool:
+        return any(text in e.text for e in driver.find_elements(By.CSS_SELECTOR, selector))
+
+    return check
+
+
+@pytest.fixture
+def line() -> Iterator[SimulatedLine]:
+    with SimulatedLine(addresses=[1, 2], baudrate=115200, parity="E", wire_time=True) as sim:
+        yield sim
+
+
+@pytest.fixture
+async def console(line: SimulatedLine) -> AsyncIterator[tuple[Application, Browser]]:
+    async with running_gateway(console_config(line.path, anonymous_view=True)) as app:
+        browser = await asyncio.to_thread(Browser, f"http://127.0.0.1:{app.console.port}")
+        try:
+            yield app, browser
+        finally:
+            await asyncio.to_thread(browser.close)
+
+
+async def state_word(app: Application, unit_id: int) -> int:
+    client = await TcpClient.connect(app.tcp.port)
+    try:
+        return (await client.read(unit_id, STATE_WORD_1))[0]
+    finally:
+        await client.close()
+
+
+async def test_overview_lists_drives_live_and_shows_a_modbus_tcp_write_within_2_s(
+    console: tuple[Application, Browser],
+) -> None:
+    app, browser = console
+    await browser.open("/")
+    await browser.wait(showing("#drives tr[data-drive=pump1] td.state", "stopped"))
+    await browser.wait(showing("#drives tr[data-drive=fan2] td.online", "online"))
+    assert "line1" in await browser.text("#buses tbody")
+    # Another SCADA client starts pump1 at 30 Hz: the page shows it without a reload.
+    client = await TcpClient.connect(app.tcp.port)
+    await client.request(1, bytes.fromhex("10 2000 0002 04 0001 0BB8"))
+    await client.close()
+    await browser.wait(showing("#drives tr[data-drive=pump1] td.state", "running forward"), 2.0)
+    await browser.wait(lambda d: "0.00" not in _cell(d, "pump1", "frequency"), 5.0)
+    await browser.screenshot("overview")
+
+
+def _cell(driver: Any, drive: str, cell: str) -> str:
+    selector = f"#drives tr[data-drive={drive}] td.{cell}"
+    return str(driver.find_element(By.CSS_SELECTOR, selector).text)
+
+
+async def test_an_operator_starts_a_drive_from_its_page_and_it_runs(
+    console: tuple[Application, Browser],
+) -> None:
+    app, browser = console
+    await browser.login("olga", OPERATOR_PASSWORD)
+    await browser.wait(showing("#who", "olga (operator)"))
+    await browser.open("/drives/pump1")
+    await browser.wait(showing("#values", "stopped"))
+    await browser.type("#setpoint", "25")
+    await browser.click("#setpoint-form button[type=submit]")
+    await browser.wait(showing("#confirm-text", "25.00 Hz"))
+    await browser.click("#confirm-ok")
+    await browser.wait(showing("#toast", "done"))
+    await browser.click("button[data-command=run_forward]")
+    await browser.wait(showing("#confirm-text", "Run forward pump1?"))
+    await browser.click("#confirm-ok")
+    await browser.wait(showing("#toast", "Run forward pump1: done"))
+    assert await state_word(app, 1) == RUNNING_FORWARD
+    await browser.wait(showing("#values tr[data-key=state]", "running forward"), 2.0)
+    await browser.wait(showing("#drive-events", "control word = 1 (run_forward)"), 12.0)
+    await browser.screenshot("drive")
+
+
+async def test_a_viewers_write_is_refused_403_and_the_drive_unchanged(
+    console: tuple[Application, Browser],
+) -> None:
+    app, browser = console
+    await browser.login("victor", VIEWER_PASSWORD)
+    await browser.wait(showing("#who", "victor (viewer)"))
+    await browser.open("/drives/pump1")
+    await browser.wait(showing("#controls-note", "Log in as an operator"))
+    # The buttons are disabled for a viewer; what the page's own code would send is refused.
+    status = await browser.run(
+        browser.driver.execute_async_script,
+        """const done = arguments[arguments.length - 1];
+        const session = await (await fetch('/api/session')).json();
+        const response = await fetch('/api/drives/pump1/command', {method: 'POST',
+          headers: {'Content-Type': 'application/json', 'X-CSRF-Token': session.csrf_token},
+          body: JSON.stringify({command: 'run_forward'})});
+        done(response.status);""",
+    )
+    assert status == 403
+    assert await state_word(app, 1) == STOPPED
+
+
+async def test_a_wrong_password_is_refused_then_rate_limited(
+    console: tuple[Application, Browser],
+) -> None:
+    _, browser = console
+    await browser.login("olga", "wrong-password")
+    await browser.wait(showing("#login-error", "wrong name or password"))
+    await browser.screenshot("login")
+    for _ in range(5):
+        await browser.click("#login-submit")
+        await asyncio.sleep(0.05)
+    await browser.wait(showing("#login-error", "too many failed logins"), 10.0)
+    await browser.type("#login-password", OPERATOR_PASSWORD)
+    await browser.click("#login-submit")
+    await browser.wait(showing("#login-error", "too many failed logins"))
+
+
+@pytest.mark.skipif(shutil.which("mbpoll") is None, reason="mbpoll is installed by .ci/test")
+async def test_the_monitor_shows_an_mbpoll_read_decoded_within_1_s(
+    console: tuple[Application, Browser],
+) -> None:
+    app, browser = console
+    await browser.open("/monitor/line1")
+    await browser.wait(showing("#live", "live"))
+    await browser.wait(showing("#traffic tbody", "poll"))  # the stream is on
+    process = await asyncio.create_subprocess_exec(
+        *("mbpoll", "-m", "tcp", "-p", str(app.tcp.port), "-0", "-1"),
+        *("-a", "1", "-r", "8448", "127.0.0.1"),
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.STDOUT,
+    )
+    out, _ = await asyncio.wait_for(process.communicate(), 20)
+    assert "[8448]: \t3" in out.decode()
+    # mbpoll has answered: within a second the page shows its read, in words.
+    row = "#traffic tbody tr"
+    await browser.wait(showing(row, "read 2100H state word 1 → 0003H stopped"), 1.0)
+    assert "tcp:127.0.0.1" in await browser.text("#traffic tbody")
+    await browser.click("#f-hex")
+    await browser.wait(showing("#traffic tbody .hex", "01 03 21 00 00 01"))
+    await browser.screenshot("monitor")
+
+
+async def test_a_dead_drive_turns_offline_and_its_timeouts_show_in_the_monitor(
+    console: tuple[Application, Browser], line: SimulatedLine
+) -> None:
+    _, browser = console
+    await browser.open("/monitor/line1")
+    await browser.wait(showing("#traffic tbody", "fan2"))
+    line.set_dead(2)
+    await browser.wait(showing("#traffic tbody tr.bad", "timeout"), 5.0)
+    assert "fan2" in await browser.text("#traffic tbody tr.bad")
+    await browser.screenshot("monitor-dead-drive")
+    await browser.open("/")
+    await browser.wait(showing("#drives tr[data-drive=fan2] td.online", "offline"), 5.0)
+    await browser.wait(showing("#events", "drive offline"), 5.0)
+    await browser.screenshot("overview-dead-drive")
+
+
+async def test_the_monitor_filters_pauses_and_downloads_what_it_shows(
+    console: tuple[Application, Browser], tmp_path: Path
+) -> None:
+    _, browser = console
+    await browser.run(
+        browser.driver.execute_cdp_cmd,
+        "Page.setDownloadBehavior",
+        {"behavior": "allow", "downloadPath": str(tmp_path)},
+    )
+    await browser.open("/monitor/line1")
+    await browser.wait(showing("#traffic tbody", "fan2"))
+    await browser.run(
+        lambda: Select(browser.driver.find_element(By.ID, "f-drive")).select_by_value("pump1")
+    )
+    await browser.wait(lambda d: "fan2" not in d.find_element(By.ID, "traffic").text)
+    await browser.click("#pause")
+    await browser.wait(showing("#count", "paused"))
+    rows = await browser.text("#traffic tbody")
+    # The line goes on (polls every half second): a paused page holds them back, and says so.
+    await browser.wait(lambda d: "paused (0 waiting)" not in d.find_element(By.ID, "count").text)
+    assert await browser.text("#traffic tbody") == rows
+    await browser.click("#download-csv")
+    csv_file = tmp_path / "traffic-line1.csv"
+    await browser.wait(lambda _: csv_file.exists() and csv_file.stat().st_size > 0)
+    lines = csv_file.read_text(encoding="utf-8").splitlines()
+    assert lines[0].startswith("time,client,unit_id,address,drive,function,meaning,outcome")
+    assert len(lines) > 1
+    assert all('"pump1"' in line for line in lines[1:])
