@@ -15,7 +15,10 @@ ENV PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_NO_CACHE_DIR=1
 WORKDIR /src
 COPY pyproject.toml README.md ./
 COPY gateway ./gateway
-RUN python -m venv /opt/invt-gateway \
+# The service and the field tools only: the instruments (simulator, bench, stress, the demo's
+# broker) stay out of the image; the CLI lists no command it doesn't have.
+RUN rm -rf /src/gateway/instruments \
+    && python -m venv /opt/invt-gateway \
     && /opt/invt-gateway/bin/pip install --no-cache-dir /src
 
 FROM python:3.11-slim-bookworm

@@ -13,23 +13,26 @@ from collections.abc import Callable, Sequence
 
 from gateway import __version__
 
-# Sub-command modules, in the order `--help` lists them.
-COMMAND_MODULES = (
-    "gateway.commands.run",
-    "gateway.commands.check_config",
-    "gateway.commands.demo",
-    "gateway.commands.simulate",
-    "gateway.commands.bench",
-    "gateway.commands.stress",
-    "gateway.commands.scan",
-    "gateway.commands.read",
-    "gateway.commands.write",
-    "gateway.commands.decode_fault",
-    "gateway.commands.params",
-    "gateway.commands.healthcheck",
-    "gateway.commands.hash_password",
-    "gateway.commands.monitor",
-)
+# Sub-commands and their modules, in the order `--help` lists them. The service and the field
+# tools a technician uses on real hardware, then the instruments (`gateway.instruments`), which
+# an installation may leave out (the Docker image does).
+COMMANDS = {
+    "run": "gateway.commands.run",
+    "check-config": "gateway.commands.check_config",
+    "demo": "gateway.instruments.commands.demo",
+    "simulate": "gateway.instruments.commands.simulate",
+    "bench": "gateway.instruments.commands.bench",
+    "stress": "gateway.instruments.commands.stress",
+    "scan": "gateway.commands.scan",
+    "read": "gateway.commands.read",
+    "write": "gateway.commands.write",
+    "decode-fault": "gateway.commands.decode_fault",
+    "params": "gateway.commands.params",
+    "healthcheck": "gateway.commands.healthcheck",
+    "hash-password": "gateway.commands.hash_password",
+    "monitor": "gateway.commands.monitor",
+}
+INSTRUMENTS = "gateway.instruments"
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -38,21 +41,33 @@ EXIT_CONFIG = 3
 """A configuration that does not validate: its own code, so the service manager shows why."""
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The parser for every sub-command, or for `only` that one: the CLI loads the module of
+    the command it runs and no other (`run` loads the service and nothing of the instruments)."""
     parser = argparse.ArgumentParser(
         prog="invt-gateway",
         description="Modbus-TCP and MQTT gateway for INVT drives on RS-485 (Modbus-RTU).",
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name in COMMAND_MODULES:
-        importlib.import_module(name).register(subparsers)
+    for name, module_name in COMMANDS.items():
+        if only is not None and name != only:
+            continue
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            if exc.name is not None and exc.name.startswith(INSTRUMENTS):
+                continue  # this installation carries no instruments (the Docker image)
+            raise
+        module.register(subparsers)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    arguments = list(sys.argv[1:] if argv is None else argv)
+    command = next((word for word in arguments if not word.startswith("-")), None)
+    parser = build_parser(command if command in COMMANDS else None)
+    args = parser.parse_args(arguments)
     handler: Callable[[argparse.Namespace], int] = args.handler
     try:
         return handler(args)

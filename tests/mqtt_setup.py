@@ -8,7 +8,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from gateway.config import GatewayConfig, MqttConfig
-from gateway.simulator import SimulatedLine
+from gateway.instruments.simulator import SimulatedLine
 from tests.mosquitto import BrokerAddress
 from tests.support import gateway_config
 

@@ -14,8 +14,10 @@ from dataclasses import dataclass
 from typing import Any
 
 from gateway.app import Application
-from gateway.bench.processes import free_port as free_port  # the tests' one way to a free port
 from gateway.config import GatewayConfig
+from gateway.instruments.bench.processes import (
+    free_port as free_port,  # the tests' one way to a free port
+)
 
 
 def gateway_config(port: str, drives: list[dict[str, Any]], **bus: Any) -> GatewayConfig:

@@ -16,7 +16,7 @@ import pytest
 
 from gateway.app import Application
 from gateway.console.auth import MAX_FAILURES
-from gateway.simulator import SimulatedLine
+from gateway.instruments.simulator import SimulatedLine
 from tests.console_support import (
     OPERATOR_PASSWORD,
     OPERATOR_TOKEN,

@@ -22,7 +22,7 @@ from selenium.webdriver.common.by import By
 from selenium.webdriver.support.ui import Select, WebDriverWait
 
 from gateway.app import Application
-from gateway.simulator import SimulatedLine
+from gateway.instruments.simulator import SimulatedLine
 from tests.console_support import OPERATOR_PASSWORD, VIEWER_PASSWORD, console_config
 from tests.support import TcpClient, running_gateway
 

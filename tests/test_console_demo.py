@@ -11,7 +11,7 @@ from pathlib import Path
 import aiohttp
 import yaml
 
-from gateway.commands.demo import demo_config_text
+from gateway.instruments.commands.demo import demo_config_text
 from tests.processes import entry_point
 from tests.support import free_port
 

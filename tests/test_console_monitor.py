@@ -9,7 +9,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from gateway.simulator import SimulatedLine
+from gateway.instruments.simulator import SimulatedLine
 from tests.console_support import OPERATOR_TOKEN, console_config
 from tests.processes import entry_point, run_cli
 from tests.support import TcpClient, read_pdu, running_gateway

@@ -13,9 +13,9 @@ import serial
 from gateway.bus.direction import DirectionControl, DirectionMode
 from gateway.bus.line import LineSettings, SerialLine
 from gateway.errors import PortError
+from gateway.instruments.simulator import SimulatedLine
 from gateway.modbus.rtu import build_frame
 from gateway.modbus.timing import CharacterFormat
-from gateway.simulator import SimulatedLine
 from tests.serial_doubles.protocol_rtsrecord import Serial
 from tests.support import TcpClient, gateway_config, read_pdu, running_gateway
 

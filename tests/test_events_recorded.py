@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from gateway.instruments.simulator import SimulatedLine
 from gateway.profile.invt import STATE_WORD_1
-from gateway.simulator import SimulatedLine
 from gateway.store import EventType
 from tests.support import TcpClient, gateway_config, read_pdu, running_gateway, write_pdu
 

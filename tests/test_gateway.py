@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from gateway.config import GatewayConfig
-from gateway.simulator import SimulatedLine
+from gateway.instruments.simulator import SimulatedLine
 from tests.protocol_frames import PROTOCOL_EXCHANGES
 from tests.support import TcpClient, gateway_config, read_pdu, running_gateway, write_pdu
 

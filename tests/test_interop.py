@@ -14,7 +14,7 @@ import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
 from gateway.app import Application
-from gateway.simulator import SimulatedLine
+from gateway.instruments.simulator import SimulatedLine
 from tests.support import TcpClient, gateway_config, pty_cable, running_gateway
 
 ROOT = Path(__file__).resolve().parent.parent

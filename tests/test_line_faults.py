@@ -2,10 +2,10 @@
 wrong address, late, missing), every value a client receives is the drive's true value, and the
 retries keep the errors the clients see below 0.1 %.
 
-The clients (`gateway.stress.checked_load`) write and read back parameter blocks only they
-write, so they know every true value and check every answer; at the end the drives themselves
-are compared with what the clients last wrote. A modest run here; `invt-gateway stress` runs the
-same for as long as asked.
+The clients (`gateway.instruments.stress.checked_load`) write and read back parameter blocks
+only they write, so they know every true value and check every answer; at the end the drives
+themselves are compared with what the clients last wrote. A modest run here; `invt-gateway
+stress` runs the same for as long as asked.
 """
 
 from __future__ import annotations
@@ -16,10 +16,10 @@ import time
 import pytest
 
 from gateway.config import GatewayConfig
+from gateway.instruments.simulator import SimulatedLine
+from gateway.instruments.simulator.line_faults import KINDS
+from gateway.instruments.stress.checked_load import STEADY, CheckedLoad
 from gateway.profile import format_parameter
-from gateway.simulator import SimulatedLine
-from gateway.simulator.line_faults import KINDS
-from gateway.stress.checked_load import STEADY, CheckedLoad
 from tests.support import running_gateway
 
 UNITS = [1, 2, 3, 4]

@@ -12,10 +12,10 @@ from typing import Any
 import pytest
 
 from gateway.app import Application
+from gateway.instruments.simulator import SimulatedLine
 from gateway.profile import parse_parameter
 from gateway.profile.invt import STATE_WORD_1
 from gateway.profile.states import RunState
-from gateway.simulator import SimulatedLine
 from tests.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
 from tests.mosquitto import mosquitto as mosquitto
 from tests.mqtt_setup import mqtt_config, simulated_line

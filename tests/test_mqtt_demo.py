@@ -17,8 +17,8 @@ from pathlib import Path
 import aiomqtt
 import yaml
 
-from gateway.commands.demo import demo_config_text
-from gateway.mqtt.embedded_broker import EmbeddedBroker
+from gateway.instruments.commands.demo import demo_config_text
+from gateway.instruments.embedded_broker import EmbeddedBroker
 from tests.mosquitto import Address, mqtt_probe, unique_base_topic
 from tests.processes import LineCollector, entry_point
 from tests.support import free_port

@@ -10,8 +10,8 @@ from datetime import UTC, datetime
 import pytest
 
 from gateway.config import DriveConfig
+from gateway.instruments.embedded_broker import topic_matches
 from gateway.mqtt.connection import Backoff
-from gateway.mqtt.embedded_broker import topic_matches
 from gateway.mqtt.lanes import Lanes
 from gateway.mqtt.outbox import Outbox
 from gateway.mqtt.requests import (

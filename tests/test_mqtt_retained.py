@@ -12,8 +12,8 @@ from __future__ import annotations
 import asyncio
 import time
 
+from gateway.instruments.embedded_broker import EmbeddedBroker
 from gateway.mqtt.connection import MQTT_3_1_1, MQTT_5
-from gateway.mqtt.embedded_broker import EmbeddedBroker
 from gateway.profile.states import RunState
 from tests.mosquitto import Address, Mosquitto, mqtt_probe, unique_base_topic
 from tests.mosquitto import mosquitto as mosquitto

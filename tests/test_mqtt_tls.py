@@ -16,8 +16,8 @@ import yaml
 
 from gateway.config import ENV_MQTT_PASSWORD, ENV_MQTT_USERNAME, parse_config
 from gateway.errors import ConfigError, TlsSettingsError
+from gateway.instruments.simulator import SimulatedLine
 from gateway.mqtt.connection import tls_context
-from gateway.simulator import SimulatedLine
 from tests.mosquitto import mqtt_probe, unique_base_topic
 from tests.mqtt_setup import simulated_line
 from tests.processes import gateway_process

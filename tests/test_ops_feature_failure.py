@@ -11,7 +11,7 @@ from pathlib import Path
 
 import yaml
 
-from gateway.simulator import SimulatedLine
+from gateway.instruments.simulator import SimulatedLine
 from tests.support import free_port
 
 EXIT_WITHIN_S = 15.0

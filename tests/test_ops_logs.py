@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from gateway.simulator import SimulatedLine
+from gateway.instruments.simulator import SimulatedLine
 from tests.mosquitto import Mosquitto, unique_base_topic
 from tests.mosquitto import mosquitto as mosquitto
 from tests.mqtt_setup import mqtt_config, simulated_line

@@ -15,8 +15,8 @@ from prometheus_client.parser import text_string_to_metric_families
 
 from gateway.app import Application
 from gateway.config import GatewayConfig
+from gateway.instruments.simulator import SimulatedLine
 from gateway.metrics import MetricsFeature
-from gateway.simulator import SimulatedLine
 from tests.support import TcpClient, free_port, read_pdu, running_gateway, write_pdu
 
 STATE_WORD_1 = 0x2100

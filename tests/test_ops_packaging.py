@@ -27,7 +27,7 @@ from typing import Any
 import pytest
 import yaml
 
-from gateway.simulator import SimulatedLine
+from gateway.instruments.simulator import SimulatedLine
 from tests.processes import LineCollector
 from tests.support import free_port
 
@@ -138,6 +138,15 @@ def build_context(directory: Path) -> Path:
             else:
                 target.mkdir(parents=True, exist_ok=True)
                 shutil.copy2(origin, target / origin.name if destination.endswith("/") else target)
+    # What the build stage removes before installing (the instruments), removed here too.
+    for keyword, arguments in build:
+        if keyword != "RUN":
+            continue
+        for part in arguments.split("&&"):
+            words = part.split()
+            if words[:2] == ["rm", "-rf"]:
+                for path in words[2:]:
+                    shutil.rmtree(source / Path(path).relative_to(workdir), ignore_errors=True)
     return source
 
 
@@ -218,6 +227,25 @@ def test_image_install_and_start_commands_work_in_a_fresh_virtualenv(tmp_path: P
     ).stdout
     assert where.startswith(str(venv)), where
     env = {"PATH": f"{venv / 'bin'}:/usr/bin:/bin", "HOME": str(tmp_path)}
+
+    # The image carries the service and the field tools, not the instruments.
+    listed = subprocess.run(
+        ["invt-gateway", "--help"], capture_output=True, text=True, env=env, timeout=60
+    )
+    assert listed.returncode == 0, listed.stderr
+    commands = listed.stdout
+    for tool in ("run", "check-config", "scan", "read", "write", "decode-fault", "healthcheck"):
+        assert f"    {tool} " in commands or f"    {tool}\n" in commands, tool
+    for instrument in ("simulate", "bench", "stress", "demo"):
+        assert f"    {instrument} " not in commands, instrument
+    missing = subprocess.run(
+        [str(python), "-c", "import gateway.instruments"],
+        capture_output=True,
+        env=env,
+        cwd=tmp_path,  # not this repository, whose gateway/ would be found first
+        check=False,
+    )
+    assert missing.returncode != 0
 
     etc = tmp_path / "etc"
     etc.mkdir()

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from gateway.simulator import SimulatedLine
+from gateway.instruments.simulator import SimulatedLine
 from tests.processes import gateway_process
 from tests.support import TcpClient, free_port
 

@@ -16,8 +16,8 @@ from typing import Any
 import pytest
 import yaml
 
-from gateway.commands.demo import demo_config_text
-from gateway.simulator import SimulatedLine
+from gateway.instruments.commands.demo import demo_config_text
+from gateway.instruments.simulator import SimulatedLine
 from tests.processes import run_cli
 
 EXIT_FAILURE = 1

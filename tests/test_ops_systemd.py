@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from gateway.simulator import SimulatedLine
+from gateway.instruments.simulator import SimulatedLine
 from tests.processes import entry_point, gateway_process
 from tests.support import free_port
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from gateway.simulator import SimulatedLine
+from gateway.instruments.simulator import SimulatedLine
 from tests.processes import SimulatorProcess, gateway_process, run_cli, simulator_process
 from tests.support import free_port
 

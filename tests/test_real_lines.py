@@ -19,9 +19,9 @@ import time
 import pytest
 
 from gateway.config import GatewayConfig
+from gateway.instruments.simulator import SimulatedLine
+from gateway.instruments.stress.checked_load import STEADY, CheckedLoad
 from gateway.profile import format_parameter
-from gateway.simulator import SimulatedLine
-from gateway.stress.checked_load import STEADY, CheckedLoad
 from tests.support import TcpClient, gateway_config, read_pdu, running_gateway, write_pdu
 
 RUNNING_VALUES = 0x3000

@@ -1,7 +1,7 @@
 """Hard faults under load, each timed until the gateway is back: the serial adapter unplugged and
 plugged in again, the broker killed and restarted, the gateway itself killed (SIGKILL) and
-started again. Throughout, checked clients (`gateway.stress.checked_load`) read and write, and
-no value they receive may be wrong; errors are allowed only while the outage lasts.
+started again. Throughout, checked clients (`gateway.instruments.stress.checked_load`) read and
+write, and no value they receive may be wrong; errors are allowed only while the outage lasts.
 
 Each test records its recovery time (shown under "figures" after the run).
 """
@@ -17,9 +17,9 @@ from typing import Any
 import pytest
 
 from gateway.config import GatewayConfig, MqttConfig
-from gateway.simulator import SimulatedLine
-from gateway.stress.checked_load import STEADY, CheckedLoad
-from gateway.stress.scenario import first_answer_after
+from gateway.instruments.simulator import SimulatedLine
+from gateway.instruments.stress.checked_load import STEADY, CheckedLoad
+from gateway.instruments.stress.scenario import first_answer_after
 from tests.mosquitto import Mosquitto, unique_base_topic
 from tests.mosquitto import mosquitto as mosquitto
 from tests.processes import GatewayProcess

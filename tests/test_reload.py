@@ -15,9 +15,9 @@ from typing import Any
 import yaml
 
 from gateway.config import GatewayConfig
+from gateway.instruments.simulator import SimulatedLine
 from gateway.profile.invt import STATE_WORD_1
 from gateway.reload import plan
-from gateway.simulator import SimulatedLine
 from tests.processes import GatewayProcess, gateway_process
 from tests.support import TcpClient, free_port, read_pdu, write_pdu
 

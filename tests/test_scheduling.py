@@ -16,8 +16,8 @@ import pytest
 from gateway.app import Application
 from gateway.bus import Priority
 from gateway.errors import GatewayTargetFailed
+from gateway.instruments.simulator import SimulatedLine
 from gateway.modbus.timing import CharacterFormat
-from gateway.simulator import SimulatedLine
 from tests.support import TcpClient, gateway_config, read_pdu, running_gateway, write_pdu
 
 DRIVES = [{"name": "pump1", "address": 1}, {"name": "fan2", "address": 2}]
@@ -259,7 +259,9 @@ async def test_a_drive_comes_back_and_polls_run_while_scada_reads_without_pause(
             },
         ]
         line.set_dead(2, True)
-        config = gateway_config(line.path, drives, timeout_ms=30, retries=0, offline_after=1)
+        # 100 ms: short enough to find fan2 dead quickly, long enough that a loaded machine
+        # running six busy clients never makes a healthy pump1 look dead.
+        config = gateway_config(line.path, drives, timeout_ms=100, retries=0, offline_after=1)
         async with running_gateway(config) as app:
             bus = app.buses["line1"]
             stop = asyncio.Event()

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from gateway.bench.processes import free_port, stop_process
-from gateway.simulator import SimulatedLine
+from gateway.instruments.bench.processes import free_port, stop_process
+from gateway.instruments.simulator import SimulatedLine
 from tests.support import TcpClient, gateway_config, running_gateway
 
 pytestmark = pytest.mark.skipif(shutil.which("socat") is None, reason="socat not installed")

@@ -16,9 +16,9 @@ import pytest
 import serial
 
 from gateway.config import parse_config
+from gateway.instruments.simulator import SimulatedLine
 from gateway.profile import describe_identification, get_profile
 from gateway.profile.telemetry import decode_telemetry
-from gateway.simulator import SimulatedLine
 from gateway.tools.scan import FoundDrive
 from tests.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
 from tests.mosquitto import mosquitto as mosquitto

@@ -6,10 +6,10 @@ import struct
 
 import pytest
 
+from gateway.instruments.simulator.drive import SimulatedDrive
+from gateway.instruments.simulator.framing import RequestAssembler
+from gateway.instruments.simulator.motor import Ramp
 from gateway.profile import parse_parameter, ram_address
-from gateway.simulator.drive import SimulatedDrive
-from gateway.simulator.framing import RequestAssembler
-from gateway.simulator.motor import Ramp
 
 STOPPED, RUNNING_FORWARD, RUNNING_REVERSE, FAULT = 3, 1, 2, 4
 

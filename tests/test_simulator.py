@@ -17,11 +17,11 @@ from pathlib import Path
 import pytest
 import serial
 
+from gateway.instruments.simulator import SimulatedLine
+from gateway.instruments.simulator.control import USAGE, run_control_command
 from gateway.modbus.crc import crc_ok
 from gateway.modbus.functions import NEED_MORE, rtu_reply_length
 from gateway.modbus.rtu import build_frame
-from gateway.simulator import SimulatedLine
-from gateway.simulator.control import USAGE, run_control_command
 from tests.protocol_frames import PROTOCOL_EXCHANGES
 
 READ_STATE_WORD_1 = "01 03 21 00 00 01 8E 36"

@@ -9,9 +9,9 @@ from collections import Counter
 
 import pytest
 
-from gateway.stress.checked_load import STEADY, LoadStats
-from gateway.stress.report import problems, table
-from gateway.stress.scenario import Recovery, StressResult, StressSettings
+from gateway.instruments.stress.checked_load import STEADY, LoadStats
+from gateway.instruments.stress.report import problems, table
+from gateway.instruments.stress.scenario import Recovery, StressResult, StressSettings
 from tests.processes import run_cli
 
 

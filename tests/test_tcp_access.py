@@ -19,7 +19,7 @@ import pytest
 
 from gateway.config import GatewayConfig, parse_config
 from gateway.errors import ConfigError
-from gateway.simulator import SimulatedLine
+from gateway.instruments.simulator import SimulatedLine
 from gateway.tcp.access import AccessPolicy, AccessRule, merge_spans, touched_spans
 from tests.processes import run_cli
 from tests.support import TcpClient, free_port, read_pdu, running_gateway, write_pdu

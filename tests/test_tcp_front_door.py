@@ -10,7 +10,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from gateway.simulator import SimulatedLine
+from gateway.instruments.simulator import SimulatedLine
 from tests.support import TcpClient, gateway_config, running_gateway
 
 STATE_WORD_1 = 0x2100

@@ -25,7 +25,7 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from gateway.simulator import SimulatedLine
+from gateway.instruments.simulator import SimulatedLine
 from tests.processes import GatewayProcess, gateway_process
 from tests.support import free_port, read_pdu
 

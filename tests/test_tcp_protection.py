@@ -18,7 +18,7 @@ from typing import Any
 import pytest
 
 from gateway.config import GatewayConfig
-from gateway.simulator import SimulatedLine
+from gateway.instruments.simulator import SimulatedLine
 from tests.support import TcpClient, read_pdu, running_gateway
 
 STATE_WORD_1 = 0x2100

@@ -21,8 +21,8 @@ import pytest
 from pymodbus.client import AsyncModbusTlsClient
 
 from gateway.config import GatewayConfig
+from gateway.instruments.simulator import SimulatedLine
 from gateway.profile.states import RunState
-from gateway.simulator import SimulatedLine
 from gateway.tcp.cert_roles import role_extension
 from tests.support import TcpClient, running_gateway
 from tests.tls import client_with_role, make_ca, make_signed

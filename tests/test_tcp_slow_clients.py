@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 
 from gateway.config import GatewayConfig
-from gateway.simulator import SimulatedLine
+from gateway.instruments.simulator import SimulatedLine
 from tests.support import TcpClient, running_gateway, write_pdu
 
 STATE_WORD_1 = 0x2100

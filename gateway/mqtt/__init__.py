@@ -14,7 +14,6 @@
 - `lanes`: received messages handled off the receive loop, in order per drive, bounded.
 - `stats`: the bridge's counters.
 - `bridge`: `MqttBridge`, the feature that puts the jobs above together.
-- `embedded_broker`: a tiny loopback broker so `invt-gateway demo` needs nothing installed.
 """
 
 from gateway.mqtt.bridge import MqttBridge

@@ -13,8 +13,8 @@ from gateway.app import bus_settings
 from gateway.bus import Bus
 from gateway.config import BusConfig
 from gateway.errors import DriveOffline, GatewayTargetFailed
+from gateway.instruments.simulator import SimulatedLine
 from gateway.routing import Route, Router
-from gateway.simulator import SimulatedLine
 from tests.support import read_pdu, write_pdu
 
 STATE = 0x2100

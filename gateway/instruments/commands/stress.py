@@ -66,8 +66,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 
 def handle(args: argparse.Namespace) -> int:
-    from gateway.stress.report import document, problems, table
-    from gateway.stress.scenario import StressSettings, run_stress
+    from gateway.instruments.stress.report import document, problems, table
+    from gateway.instruments.stress.scenario import StressSettings, run_stress
 
     settings = StressSettings(
         duration_s=args.duration,

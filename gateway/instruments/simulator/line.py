@@ -29,13 +29,13 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from types import TracebackType
 from typing import Any, Final
 
+from gateway.instruments.simulator.adapter import AdapterEffects
+from gateway.instruments.simulator.drive import SimulatedDrive
+from gateway.instruments.simulator.endpoint import Endpoint, point_link, remove_link
+from gateway.instruments.simulator.framing import ReceivedFrame, RequestAssembler
+from gateway.instruments.simulator.line_faults import LineFaults
 from gateway.modbus.rtu import BROADCAST_ADDRESS, build_frame
 from gateway.modbus.timing import CharacterFormat
-from gateway.simulator.adapter import AdapterEffects
-from gateway.simulator.drive import SimulatedDrive
-from gateway.simulator.endpoint import Endpoint, point_link, remove_link
-from gateway.simulator.framing import ReceivedFrame, RequestAssembler
-from gateway.simulator.line_faults import LineFaults
 from gateway.timer_slack import tighten_timer_slack
 
 log = logging.getLogger(__name__)

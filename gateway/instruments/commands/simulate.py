@@ -7,8 +7,8 @@
 
 The first line on stdout is the device path to point the gateway at. It serves until SIGTERM or
 SIGINT (exit 0). When stdin is not a terminal, it takes control commands there, one per line
-(`fault 1 35`, `dead 2`, `stats`, ...: see `gateway.simulator.control`), each answered by one
-line on stdout.
+(`fault 1 35`, `dead 2`, `stats`, ...: see `gateway.instruments.simulator.control`), each
+answered by one line on stdout.
 """
 
 from __future__ import annotations
@@ -23,10 +23,10 @@ from collections.abc import Iterator, Sequence
 from types import FrameType
 
 from gateway.cli import EXIT_FAILURE, EXIT_OK
+from gateway.instruments.simulator.control import run_control_command
+from gateway.instruments.simulator.line import SimulatedLine
+from gateway.instruments.simulator.line_faults import KINDS
 from gateway.profile.invt import PROFILES, get_profile
-from gateway.simulator.control import run_control_command
-from gateway.simulator.line import SimulatedLine
-from gateway.simulator.line_faults import KINDS
 
 PARITIES = ("N", "E", "O")
 INVT_MODELS = tuple(key for key, profile in PROFILES.items() if profile.is_invt)
@@ -340,7 +340,7 @@ def _history(text: str) -> tuple[int, list[int]]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """`python -m gateway.commands.simulate ...`: the same, without the rest of the CLI."""
+    """`python -m gateway.instruments.commands.simulate ...`: the same, without the CLI."""
     parser = argparse.ArgumentParser(prog="invt-gateway simulate", description=__doc__)
     add_arguments(parser)
     return handle(parser.parse_args(argv))

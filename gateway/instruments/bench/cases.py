@@ -8,15 +8,15 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from gateway.bench.load import LoadResult, Target, run_clients
-from gateway.bench.processes import (
+from gateway.instruments.bench.load import LoadResult, Target, run_clients
+from gateway.instruments.bench.processes import (
     GatewayProcess,
     SimulatorProcess,
     free_port,
     gateway,
     simulator,
 )
-from gateway.bench.wire import WireBudget, read_budget
+from gateway.instruments.bench.wire import WireBudget, read_budget
 
 RESPONSE_DELAY_MS = 5.0  # INVT P14.03's default
 SET_POINT = 0x2001  # 2001H..2002H: frequency set-point and PID reference, written per drive
@@ -206,7 +206,7 @@ async def _measure(
     measuring, stop = asyncio.Event(), asyncio.Event()
     watching = None
     if case.monitor:
-        from gateway.bench.monitor import watch_traffic  # aiohttp only for this case
+        from gateway.instruments.bench.monitor import watch_traffic  # aiohttp only for this case
 
         watching = asyncio.create_task(watch_traffic(console_port, stop))
     load = asyncio.create_task(

@@ -9,7 +9,7 @@
 - `control`: the text commands `invt-gateway simulate` reads on stdin.
 """
 
-from gateway.simulator.drive import SimulatedDrive
-from gateway.simulator.line import SimulatedLine
+from gateway.instruments.simulator.drive import SimulatedDrive
+from gateway.instruments.simulator.line import SimulatedLine
 
 __all__ = ["SimulatedDrive", "SimulatedLine"]

@@ -26,13 +26,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from gateway.bench.processes import SimulatorProcess, free_port
-from gateway.stress.checked_load import STEADY, CheckedLoad, LoadStats
-from gateway.stress.hostile import HostileClient, HostileStats
-from gateway.stress.processes import Broker, Gateway, mosquitto_path, start_simulator
+from gateway.instruments.bench.processes import SimulatorProcess, free_port
+from gateway.instruments.stress.checked_load import STEADY, CheckedLoad, LoadStats
+from gateway.instruments.stress.hostile import HostileClient, HostileStats
+from gateway.instruments.stress.processes import Broker, Gateway, mosquitto_path, start_simulator
 
 if TYPE_CHECKING:
-    from gateway.stress.broker_watch import OnlineWatch
+    from gateway.instruments.stress.broker_watch import OnlineWatch
 
 log = logging.getLogger(__name__)
 
@@ -143,7 +143,9 @@ async def _run(
         load_task = tasks.create_task(load.run(stop), name="stress:load")
         tasks.create_task(hostile.run(stop), name="stress:hostile")
         if broker is not None:
-            from gateway.stress.broker_watch import OnlineWatch  # aiomqtt only with a broker
+            from gateway.instruments.stress.broker_watch import (
+                OnlineWatch,  # aiomqtt only with a broker
+            )
 
             watch = OnlineWatch(broker.host, broker.port, _base_topic())
             watch_task = tasks.create_task(watch.run(), name="stress:watch")

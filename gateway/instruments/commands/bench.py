@@ -55,8 +55,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 
 def handle(args: argparse.Namespace) -> int:
-    from gateway.bench.cases import CaseResult, matrix, run_case
-    from gateway.bench.report import format_row, header, row, summary
+    from gateway.instruments.bench.cases import CaseResult, matrix, run_case
+    from gateway.instruments.bench.report import format_row, header, row, summary
 
     cases = matrix(tuple(args.baud or BAUDRATES))
     if args.case:

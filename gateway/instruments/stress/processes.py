@@ -12,7 +12,7 @@ from typing import Any
 
 import yaml
 
-from gateway.bench.processes import (
+from gateway.instruments.bench.processes import (
     SimulatorProcess,
     free_port,
     gateway_command,

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Any, Final
 
-from gateway.stress.scenario import RECOVERY_LIMIT_S, StressResult
+from gateway.instruments.stress.scenario import RECOVERY_LIMIT_S, StressResult
 
 MAX_ERROR_RATE: Final = 0.001
 MEMORY_GROWTH_SHARE: Final = 0.10

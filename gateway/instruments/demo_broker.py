@@ -20,7 +20,7 @@ from typing import Final, TextIO
 import aiomqtt
 
 from gateway.config import MqttConfig
-from gateway.mqtt.embedded_broker import EmbeddedBroker
+from gateway.instruments.embedded_broker import EmbeddedBroker
 
 log = logging.getLogger(__name__)
 

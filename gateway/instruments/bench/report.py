@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from gateway.bench.cases import CaseResult
+from gateway.instruments.bench.cases import CaseResult
 
 COLUMNS = (
     ("case", "{:<24}"),

@@ -25,6 +25,7 @@ from enum import Enum
 from typing import Final
 
 from gateway.errors import RequestRefused
+from gateway.instruments.simulator.motor import Ramp, RampPhase
 from gateway.modbus.functions import (
     DIAGNOSTICS,
     READ_HOLDING_REGISTERS,
@@ -45,7 +46,6 @@ from gateway.profile.states import (
     StateWord2,
     encode_state_word_2,
 )
-from gateway.simulator.motor import Ramp, RampPhase
 
 SIMULATOR_DEFAULTS: Final = {"P00.01": 2, "P00.06": 8}
 """Commissioned for remote control: run commands (P00.01 = 2) and frequency (P00.06 = 8) come

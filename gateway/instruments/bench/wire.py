@@ -49,6 +49,6 @@ def read_budget(
     fmt = CharacterFormat(baudrate, parity)
     reply = read_reply_bytes(words)
     # The simulated adapter cuts each reply in the middle and hands the rest over one burst
-    # period later (`gateway.simulator.adapter`), instead of as it leaves the wire.
+    # period later (`gateway.instruments.simulator.adapter`), instead of as it leaves the wire.
     held_back = burst_s - fmt.wire_time_s(reply - reply // 2) if burst_s else 0.0
     return WireBudget(fmt, READ_REQUEST_BYTES, reply, response_delay_s, max(held_back, 0.0))

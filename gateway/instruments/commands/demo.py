@@ -126,7 +126,7 @@ async def watch_demo(config: GatewayConfig) -> int:
     if config.mqtt is None or not config.mqtt.enabled:
         print("invt-gateway demo --watch: this configuration has no MQTT", file=sys.stderr)
         return EXIT_FAILURE
-    from gateway.mqtt.demo_broker import watch_messages
+    from gateway.instruments.demo_broker import watch_messages
 
     await watch_messages(config.mqtt, f"{config.mqtt.base_topic}/#", status=sys.stderr)
     return EXIT_OK
@@ -156,7 +156,7 @@ async def serve_demo(
     mqtt = config.mqtt
     if mqtt is None or not mqtt.enabled:
         return await serve(config, on_ready=lambda app: print_banner(app, config, None, password))
-    from gateway.mqtt.demo_broker import broker_for_demo
+    from gateway.instruments.demo_broker import broker_for_demo
 
     broker = await broker_for_demo(mqtt)
     mqtt = broker.config
@@ -185,7 +185,9 @@ def simulate_buses(
 ) -> GatewayConfig:
     """Start a simulated line for each bus and return the config pointing at them; `adapter`:
     `SimulatedLine.set_adapter`'s options, for every line."""
-    from gateway.simulator import SimulatedLine  # only the demo needs the simulator loaded
+    from gateway.instruments.simulator import (
+        SimulatedLine,  # only the demo needs the simulator loaded
+    )
 
     buses = []
     for bus in config.buses:

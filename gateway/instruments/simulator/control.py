@@ -22,7 +22,7 @@ import json
 from collections.abc import Callable
 from typing import Final
 
-from gateway.simulator.line import SimulatedLine
+from gateway.instruments.simulator.line import SimulatedLine
 
 USAGE: Final = (
     "commands: fault ADDR CODE, clear ADDR, dead ADDR, alive ADDR, delay ADDR MS, noise HEX, "
