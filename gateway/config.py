@@ -450,7 +450,7 @@ class ConsoleUserConfig(Section):
     @field_validator("password_hash")
     @classmethod
     def _a_password_hash(cls, value: str) -> str:
-        from gateway.console.passwords import check_password_hash
+        from gateway.passwords import check_password_hash
 
         check_password_hash(value)  # a password pasted here instead of its hash is refused
         return value
@@ -458,7 +458,7 @@ class ConsoleUserConfig(Section):
     @field_validator("token_hash")
     @classmethod
     def _a_token_hash(cls, value: str | None) -> str | None:
-        from gateway.console.passwords import check_token_hash
+        from gateway.passwords import check_token_hash
 
         if value is not None:
             check_token_hash(value)

@@ -12,7 +12,7 @@ import aiohttp
 
 from gateway.app import Application
 from gateway.config import GatewayConfig
-from gateway.console.passwords import hash_password, hash_token
+from gateway.passwords import hash_password, hash_token
 
 OPERATOR_PASSWORD = "operator-secret-1"
 VIEWER_PASSWORD = "viewer-secret-22"

@@ -6,8 +6,8 @@ import pytest
 import yaml
 
 from gateway.config import parse_config
-from gateway.console.passwords import token_matches, verify_password
 from gateway.errors import ConfigError
+from gateway.passwords import token_matches, verify_password
 from tests.processes import run_cli
 
 BASE = {"buses": [{"name": "line1", "port": "/dev/ttyUSB0"}]}
@@ -77,6 +77,6 @@ def test_new_token_prints_a_token_and_the_hash_the_config_takes() -> None:
 
 
 def _a_password_hash() -> str:
-    from gateway.console.passwords import hash_password
+    from gateway.passwords import hash_password
 
     return hash_password("a long enough password")

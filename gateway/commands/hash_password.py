@@ -13,7 +13,7 @@ import getpass
 import sys
 
 from gateway.cli import EXIT_FAILURE, EXIT_OK
-from gateway.console.passwords import hash_password, hash_token, new_token
+from gateway.passwords import hash_password, hash_token, new_token
 
 MIN_PASSWORD = 8
 

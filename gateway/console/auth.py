@@ -23,7 +23,7 @@ from enum import StrEnum
 from typing import Final
 
 from gateway.config import ConsoleUserConfig
-from gateway.console.passwords import token_matches, verify_password
+from gateway.passwords import token_matches, verify_password
 
 SESSION_COOKIE: Final = "invt_console_session"
 SESSION_IDLE_S: Final = 8 * 3600.0

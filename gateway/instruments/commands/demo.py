@@ -139,7 +139,7 @@ def with_demo_operator(config: GatewayConfig) -> tuple[GatewayConfig, str | None
     if not console.enabled or any(user.name == DEMO_OPERATOR for user in console.users):
         return config, None
     from gateway.config import ConsoleUserConfig
-    from gateway.console.passwords import hash_password
+    from gateway.passwords import hash_password
 
     password = secrets.token_urlsafe(9)
     operator = ConsoleUserConfig(
