@@ -75,6 +75,8 @@ class Session:
         self._client: aiomqtt.Client | None = None
         self._task: asyncio.Task[None] | None = None
         self.protocol = MQTT_5
+        self._settled = False
+        """A connection has succeeded with `protocol`: it is the broker's."""
         self._tls: ssl.SSLContext | None = None
         """MQTT 5 until the broker refuses it; then 3.1.1 for as long as the gateway runs."""
 
@@ -135,7 +137,7 @@ class Session:
                     await self._connected(client)
             except* aiomqtt.MqttError as group:
                 # Refused MQTT 5: again at once, in 3.1.1; the broker is there, it answered.
-                retry_at_once = self._refused_mqtt_5(group.exceptions[0])
+                retry_at_once = self._choose_protocol_after(group.exceptions[0])
                 if not retry_at_once:
                     failures += 1
                     self.stats.connect_failures += 1
@@ -158,25 +160,45 @@ class Session:
                 continue
             await asyncio.sleep(backoff.next_delay())
 
-    def _refused_mqtt_5(self, error: BaseException) -> bool:
-        """The broker refused MQTT 5 (an MQTT 3.1.1-only broker, such as RabbitMQ's plugin):
-        speak 3.1.1 from now on, and say once what that costs."""
-        if self.protocol != MQTT_5 or not isinstance(error, aiomqtt.MqttCodeError):
+    def _choose_protocol_after(self, error: BaseException) -> bool:
+        """After a failed attempt, before any succeeded: the protocol to try next. True: try it
+        at once (the broker answered, it refused MQTT 5).
+
+        MQTT 5 first, for retain-as-published. A broker that speaks only 3.1.1 either refuses it
+        in its CONNACK, or (RabbitMQ 3.10) can't parse the CONNECT and closes the connection
+        without a word: after a handshake that failed that way, the other protocol is tried.
+        A broker that isn't there at all (refused, unreachable) teaches nothing: the protocol
+        stays, so a Mosquitto that comes back later still gets MQTT 5.
+        """
+        if self._settled:
             return False
-        code = error.rc.value if isinstance(error.rc, ReasonCode) else error.rc
-        if code not in UNSUPPORTED_PROTOCOL:
-            return False
-        self.protocol = MQTT_3_1_1
-        log.warning(
-            "MQTT: the broker %s:%d refuses MQTT 5; speaking 3.1.1. A retained command it "
-            "delivers while the gateway is connected arrives without its retain flag there, so "
-            "it can't be told from a fresh one (retained ones found on subscribing still are).",
-            self.mqtt.host,
-            self.mqtt.port,
-        )
-        return True
+        if isinstance(error, aiomqtt.MqttCodeError):
+            code = error.rc.value if isinstance(error.rc, ReasonCode) else error.rc
+            if self.protocol == MQTT_5 and code in UNSUPPORTED_PROTOCOL:
+                self.protocol = MQTT_3_1_1
+                return True
+            return False  # a CONNACK came: the broker read our CONNECT (credentials, ...)
+        if "Errno" in str(error):
+            return False  # no broker there: nothing learnt about its protocol
+        self.protocol = MQTT_3_1_1 if self.protocol == MQTT_5 else MQTT_5
+        return False
+
+    def _settle(self) -> None:
+        """A connection is up: its protocol is the broker's, for as long as the gateway runs."""
+        if self._settled:
+            return
+        self._settled = True
+        if self.protocol == MQTT_3_1_1:
+            log.warning(
+                "MQTT: the broker %s:%d speaks MQTT 3.1.1 only. A retained command it delivers "
+                "while the gateway is connected arrives without its retain flag there, so it "
+                "can't be told from a fresh one (retained ones found on subscribing still are).",
+                self.mqtt.host,
+                self.mqtt.port,
+            )
 
     async def _connected(self, client: aiomqtt.Client) -> None:
+        self._settle()
         self.stats.connects += 1
         log.info(
             "MQTT: connected to %s:%d as %s", self.mqtt.host, self.mqtt.port, client_id(self.config)
