@@ -16,7 +16,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import Callable
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from gateway.bus import Bus, BusSettings, BusState
 from gateway.bus.direction import DirectionControl, DirectionMode
@@ -30,7 +30,7 @@ from gateway.config import (
     ModbusTcpConfig,
     Rs485Config,
 )
-from gateway.errors import GatewayError, GatewayPathUnavailable
+from gateway.errors import CannotListen, GatewayError, GatewayPathUnavailable
 from gateway.health import Phase
 from gateway.modbus.functions import is_exception
 from gateway.modbus.timing import CharacterFormat
@@ -45,6 +45,9 @@ from gateway.tasks import ServiceTasks, cancel_and_wait
 from gateway.tcp import ModbusTcpServer, TcpSettings
 from gateway.tcp.access import AccessRule, merge_spans
 from gateway.tcp.server import TlsListener
+
+if TYPE_CHECKING:
+    from gateway.metrics import MetricsFeature
 
 log = logging.getLogger(__name__)
 
@@ -205,7 +208,8 @@ class Application:
             from gateway.metrics import MetricsFeature  # prometheus-client only when asked for
 
             # First to start, last to stop: /health answers while the others come and go.
-            self.features.insert(0, MetricsFeature(self))
+            self.metrics = MetricsFeature(self)
+            self.features.insert(0, self.metrics)
         if config.console.enabled:
             self._add_console(config)
 
@@ -234,7 +238,7 @@ class Application:
         """Apply a new, valid configuration in place (see `gateway.reload`); what changed."""
         poller: Poller | None = getattr(self, "poller", None)
         plan = plan_reload(self.config, new, mqtt_running=hasattr(self, "mqtt"))
-        running = plan.running
+        running = self.config = plan.running
         if poller is None and any(self._polled(d) for d in plan.added):
             plan.restart_needed.append("polling (no drive was polled at start)")
         for name in plan.removed:
@@ -248,15 +252,32 @@ class Application:
         for drive in plan.added:
             if poller is not None and self._polled(drive):
                 poller.add_drive(drive)
-        await self._reopen(closed)
         self.tcp.update(tcp_settings(running.modbus_tcp))
         self.events.update_bounds(running.storage)
         logging.getLogger().setLevel(running.logging.level.upper())
-        self.config = running
+        await self._reopen(closed)
+        await self._reload_metrics(plan)
+        self.config = plan.running  # with what could not be applied kept at its running value
         data = {"changed": plan.changed, "restart_needed": plan.restart_needed}
         self.events.record(EventType.CONFIG_RELOADED, data)
         log.warning("config reloaded: %s", plan.summary)
         return plan
+
+    async def _reload_metrics(self, plan: ReloadPlan) -> None:
+        metrics: MetricsFeature | None = getattr(self, "metrics", None)
+        if metrics is None:
+            return
+        if plan.added or plan.removed:
+            metrics.drives_changed()
+        wanted = plan.running.metrics
+        if wanted == metrics.settings:
+            return
+        try:
+            await metrics.rebind(wanted)
+        except CannotListen as exc:
+            plan.changed.remove("metrics.host/port")
+            plan.restart_needed.append(f"metrics.host/port ({exc})")
+            plan.running = plan.running.model_copy(update={"metrics": metrics.settings})
 
     def _replace_buses(self, running: GatewayConfig, names: list[str]) -> dict[str, Bus]:
         """Close the buses `names` (their queued requests answered 0BH) and put new ones, with

@@ -10,6 +10,8 @@ What changes in place, SCADA's connections staying open and requests in flight f
                   added one answers at once) and the poller
     modbus_tcp    access rules, read_only, allowed_networks, the per-client and per-connection
                   limits, timeouts and broadcast_reply
+    metrics       host and port: the endpoint listens on the new address (on the old one still,
+                  and says so, when the new one can't be had); drives added are labelled by name
     storage       max_mb and max_age_days
     logging       level
 
@@ -17,7 +19,7 @@ What keeps its running value until a restart, named in the log and the `config_r
 ("restart needed for: ..."): the listeners (`modbus_tcp.host`, `port`, `plain`, `tls`),
 `gateway_id`, `storage.path`, the console (its listener and, in this version, its other keys),
 and in this version buses added or removed (with the drives that would move onto or off them),
-the `mqtt` and `metrics` sections and the MQTT side of drives added or removed (their topics,
+`metrics.enabled`, the `mqtt` section and the MQTT side of drives added or removed (their topics,
 discovery and commands).
 
 The planning (`plan`) is pure: it compares two configurations and says what to do; the
@@ -28,7 +30,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from gateway.config import BusConfig, DriveConfig, GatewayConfig, ModbusTcpConfig
+from gateway.config import BusConfig, DriveConfig, GatewayConfig, MetricsConfig, ModbusTcpConfig
 
 LISTENER_KEYS = ("host", "port", "plain", "tls")
 """`modbus_tcp` keys that belong to the listening sockets: a change needs a restart."""
@@ -69,9 +71,9 @@ def plan(old: GatewayConfig, new: GatewayConfig, mqtt_running: bool) -> ReloadPl
         changed.append("storage")
     if new.logging != old.logging:
         changed.append("logging")
-    for section in ("mqtt", "metrics"):
-        if getattr(old, section) != getattr(new, section):
-            restart.append(section)
+    if old.mqtt != new.mqtt:
+        restart.append("mqtt")
+    metrics = _metrics(old.metrics, new.metrics, changed, restart)
     restart += [
         f"console.{key}"
         for key in type(new.console).model_fields
@@ -92,7 +94,7 @@ def plan(old: GatewayConfig, new: GatewayConfig, mqtt_running: bool) -> ReloadPl
             "buses": _running_buses(old, new),
             "drives": drives,
             "mqtt": old.mqtt,
-            "metrics": old.metrics,
+            "metrics": metrics,
             "console": old.console,
         }
     )
@@ -119,6 +121,19 @@ def _running_buses(old: GatewayConfig, new: GatewayConfig) -> tuple[BusConfig, .
     """The buses there were, each with its new settings where the file still has it."""
     after = {b.name: b for b in new.buses}
     return tuple(after.get(b.name, b) for b in old.buses)
+
+
+def _metrics(
+    old: MetricsConfig, new: MetricsConfig, changed: list[str], restart: list[str]
+) -> MetricsConfig:
+    """The endpoint moves to a new host or port at once; turning it on or off waits."""
+    if old.enabled != new.enabled:
+        restart.append("metrics.enabled")
+        return old
+    if new != old and new.enabled:
+        changed.append("metrics.host/port")
+        return new
+    return old
 
 
 def _tcp(

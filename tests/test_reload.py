@@ -8,10 +8,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import signal
+import urllib.error
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
+import pytest
 import yaml
 
 from gateway.config import GatewayConfig
@@ -20,6 +22,7 @@ from gateway.reload import plan
 from gateway.simulator import SimulatedLine
 from tests.processes import GatewayProcess, gateway_process
 from tests.support import TcpClient, free_port, read_pdu, write_pdu
+from tests.test_ops_metrics import Scrape, http_get
 
 FREQUENCY_SETPOINT = 0x2001
 
@@ -194,6 +197,41 @@ async def test_a_bus_with_new_settings_is_reopened_alone_under_load(tmp_path: Pa
         assert gateway.process.poll() is None
 
 
+async def test_metrics_move_to_a_new_port_and_name_an_added_drive(tmp_path: Path) -> None:
+    port, before_port, after_port = free_port(), free_port(), free_port()
+    with (
+        SimulatedLine(addresses=[1, 2], baudrate=115200, parity="E") as line1,
+        SimulatedLine(addresses=[1, 2], baudrate=115200, parity="E") as line2,
+    ):
+        first = config(line1.path, line2.path, port, BEFORE)
+        first["metrics"] = {"enabled": True, "port": before_port}
+        with gateway_process(first, tmp_path) as gateway:
+            await asyncio.to_thread(gateway.wait_ready)
+            assert (await http_get(before_port, "/metrics"))[0] == 200
+            moved = config(line1.path, line2.path, port, AFTER)
+            moved["metrics"] = {"enabled": True, "port": after_port}
+            line = await asyncio.to_thread(
+                reload_with, gateway, yaml.safe_dump(moved), "config reloaded"
+            )
+            assert "metrics.host/port" in line
+            assert "drives added: mixer4" in line
+            assert "restart needed" not in line
+            client = await TcpClient.connect(port)
+            assert await client.request(4, read_pdu(STATE_WORD_1)) == bytes.fromhex("03 02 00 03")
+            await client.close()
+            status, _, text = await http_get(after_port, "/metrics")
+            assert status == 200
+            scrape = Scrape(text)
+            tcp_reads = scrape(
+                "requests_total", bus="line2", drive="mixer4", source="tcp", function="03"
+            )
+            assert tcp_reads == 1
+            assert scrape("drive_online", bus="line2", drive="mixer4") == 1
+            assert "address_2" not in text
+            with pytest.raises(urllib.error.URLError, match="refused"):  # the old one let go
+                await http_get(before_port, "/metrics")
+
+
 def test_what_a_reload_applies_and_what_waits_for_a_restart() -> None:
     old = GatewayConfig.model_validate(config("/dev/ttyA", "/dev/ttyB", 5020, BEFORE))
     changed_bus = config("/dev/ttyA", "/dev/ttyB", 5020, AFTER)
@@ -201,6 +239,7 @@ def test_what_a_reload_applies_and_what_waits_for_a_restart() -> None:
     changed_bus["gateway_id"] = "renamed"
     changed_bus["storage"] = {"path": "/elsewhere/events.db", "max_mb": 10}
     changed_bus["console"] = {"enabled": False, "port": 8099}
+    changed_bus["metrics"] = {"enabled": False, "port": 9999}  # off: nothing to move
     result = plan(old, GatewayConfig.model_validate(changed_bus), mqtt_running=False)
     assert result.restart_needed == ["gateway_id", "storage.path", "console.port"]
     assert result.changed == [
