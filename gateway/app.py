@@ -16,9 +16,9 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import Callable
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
-from gateway.bus import Bus, BusSettings
+from gateway.bus import Bus, BusSettings, BusState
 from gateway.bus.direction import DirectionControl, DirectionMode
 from gateway.bus.line import LineSettings
 from gateway.bus.line_share import LineShares
@@ -30,7 +30,7 @@ from gateway.config import (
     ModbusTcpConfig,
     Rs485Config,
 )
-from gateway.errors import GatewayError, GatewayPathUnavailable
+from gateway.errors import CannotListen, GatewayError, GatewayPathUnavailable
 from gateway.health import Phase
 from gateway.modbus.functions import is_exception
 from gateway.modbus.timing import CharacterFormat
@@ -45,6 +45,9 @@ from gateway.tasks import ServiceTasks, cancel_and_wait
 from gateway.tcp import ModbusTcpServer, TcpSettings
 from gateway.tcp.access import AccessRule, merge_spans
 from gateway.tcp.server import TlsListener
+
+if TYPE_CHECKING:
+    from gateway.metrics import MetricsFeature
 
 log = logging.getLogger(__name__)
 
@@ -177,6 +180,9 @@ class Application:
         self.tcp = ModbusTcpServer(tcp_settings(config.modbus_tcp), self._handle_tcp)
         self.features: list[Feature] = []
         self.tasks = ServiceTasks()
+        self._group: asyncio.TaskGroup | None = None
+        self._bus_tasks: dict[str, asyncio.Task[None]] = {}
+        """Each bus's `run`, by name: a reload that reopens a bus waits for its old one."""
         self.phase = Phase.STARTING
         mqtt = config.mqtt is not None and config.mqtt.enabled
         # Started before the features that record events, stopped after them: none is lost.
@@ -202,7 +208,8 @@ class Application:
             from gateway.metrics import MetricsFeature  # prometheus-client only when asked for
 
             # First to start, last to stop: /health answers while the others come and go.
-            self.features.insert(0, MetricsFeature(self))
+            self.metrics = MetricsFeature(self)
+            self.features.insert(0, self.metrics)
         if config.console.enabled:
             self._add_console(config)
 
@@ -227,28 +234,93 @@ class Application:
         self.poller.add_listener(self.mqtt)
         self.features.append(self.mqtt)
 
-    def reload(self, new: GatewayConfig) -> ReloadPlan:
+    async def reload(self, new: GatewayConfig) -> ReloadPlan:
         """Apply a new, valid configuration in place (see `gateway.reload`); what changed."""
         poller: Poller | None = getattr(self, "poller", None)
         plan = plan_reload(self.config, new, mqtt_running=hasattr(self, "mqtt"))
-        running = plan.running
+        running = self.config = plan.running
         if poller is None and any(self._polled(d) for d in plan.added):
             plan.restart_needed.append("polling (no drive was polled at start)")
         for name in plan.removed:
             if poller is not None:
                 poller.remove_drive(name)
-        self.router.replace_routes(drive_route(d, self.buses[d.bus]) for d in running.drives)
+        closed = self._replace_buses(running, plan.reopened)
+        routes = (drive_route(d, self.buses[d.bus]) for d in running.drives)
+        self.router.replace_routes(routes, self.buses.values())
+        if poller is not None and plan.reopened:
+            poller.reroute()
         for drive in plan.added:
             if poller is not None and self._polled(drive):
                 poller.add_drive(drive)
         self.tcp.update(tcp_settings(running.modbus_tcp))
         self.events.update_bounds(running.storage)
         logging.getLogger().setLevel(running.logging.level.upper())
-        self.config = running
+        await self._reopen(closed)
+        await self._reload_metrics(plan)
+        self.config = plan.running  # with what could not be applied kept at its running value
         data = {"changed": plan.changed, "restart_needed": plan.restart_needed}
         self.events.record(EventType.CONFIG_RELOADED, data)
         log.warning("config reloaded: %s", plan.summary)
         return plan
+
+    async def _reload_metrics(self, plan: ReloadPlan) -> None:
+        metrics: MetricsFeature | None = getattr(self, "metrics", None)
+        if metrics is None:
+            return
+        if plan.added or plan.removed:
+            metrics.drives_changed()
+        wanted = plan.running.metrics
+        if wanted == metrics.settings:
+            return
+        try:
+            await metrics.rebind(wanted)
+        except CannotListen as exc:
+            plan.changed.remove("metrics.host/port")
+            plan.restart_needed.append(f"metrics.host/port ({exc})")
+            plan.running = plan.running.model_copy(update={"metrics": metrics.settings})
+
+    def _replace_buses(self, running: GatewayConfig, names: list[str]) -> dict[str, Bus]:
+        """Close the buses `names` (their queued requests answered 0BH) and put new ones, with
+        the settings of `running`, in their place; the buses closed, by name.
+
+        The new buses are in `self.buses` (the one mapping the console and metrics read) and
+        take the old ones' listeners at once: requests routed to them wait in their queues
+        until `_reopen` runs them.
+        """
+        closed: dict[str, Bus] = {}
+        configs = {b.name: b for b in running.buses}
+        for name in names:
+            old = self.buses[name]
+            old.close("is reopened with new settings")
+            new = Bus(bus_settings(configs[name]))
+            new.take_listeners(old)
+            new.tap = old.tap  # a traffic monitor watching the line goes on watching it
+            self.buses[name] = new
+            closed[name] = old
+        return closed
+
+    async def _reopen(self, closed: dict[str, Bus]) -> None:
+        """Let each closed bus finish the transaction on its wire and close its port, then run
+        its successor, which opens the port with the new settings."""
+        old_tasks = [self._bus_tasks.pop(name) for name in closed]
+        if old_tasks:
+            await asyncio.wait(old_tasks, timeout=SHUTDOWN_BUDGET_S)
+        for task in old_tasks:
+            if not task.done():
+                await cancel_and_wait(task, SHUTDOWN_BUDGET_S)
+        for name in closed:
+            bus = self.buses[name]
+            if self.phase is not Phase.READY or self._group is None:
+                bus.close()  # shutting down meanwhile: nothing will serve it
+                continue
+            self._bus_tasks[name] = self._group.create_task(bus.run(), name=f"bus:{name}")
+        await asyncio.gather(*(self.buses[name].wait_open(2.0) for name in closed))
+        for name in closed:
+            bus = self.buses[name]
+            if bus.state is BusState.OPEN:
+                log.info("bus %s: reopened with new settings", name)
+            else:
+                log.warning("bus %s: port %s not open yet; retrying", name, bus.line.settings.port)
 
     def _polled(self, drive: DriveConfig) -> bool:
         mqtt = self.config.mqtt is not None and self.config.mqtt.enabled
@@ -294,9 +366,11 @@ class Application:
     async def run(self, stop: asyncio.Event, on_ready: Callable[[], None] | None = None) -> None:
         async with asyncio.TaskGroup() as tasks:
             self.tasks.bind(tasks)
-            bus_tasks = [
-                tasks.create_task(bus.run(), name=f"bus:{name}") for name, bus in self.buses.items()
-            ]
+            self._group = tasks
+            self._bus_tasks = {
+                name: tasks.create_task(bus.run(), name=f"bus:{name}")
+                for name, bus in self.buses.items()
+            }
             try:
                 await self._startup()
                 self.phase = Phase.READY
@@ -305,9 +379,10 @@ class Application:
                 await stop.wait()
             finally:
                 await self._shutdown()
-                for task in bus_tasks:
+                for task in self._bus_tasks.values():
                     task.cancel()
                 self.tasks.bind(None)
+                self._group = None
 
     async def _startup(self) -> None:
         # A port that isn't there yet must not keep SCADA from connecting: the bus keeps trying

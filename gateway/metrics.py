@@ -38,7 +38,8 @@ from prometheus_client.registry import Collector
 from gateway import __version__
 from gateway.bus import Bus, BusState, RequestDone
 from gateway.bus.line import SerialLine
-from gateway.config import GatewayConfig
+from gateway.config import GatewayConfig, MetricsConfig
+from gateway.errors import CannotListen
 from gateway.health import Phase, health_report
 from gateway.http_endpoint import HttpEndpoint, Response
 from gateway.modbus.request_checks import Reason
@@ -169,6 +170,10 @@ class RequestMetrics:
             self.errors.labels(done.bus, drive, source, exception_label(done.code)).inc()
         self.latency.labels(done.bus, drive, source).observe(done.duration_s)
 
+    def relabel(self, drives: Sequence[DriveLabels]) -> None:
+        """A reload changed the drives: requests to them counted under their names from now."""
+        self._names = {(d.bus, d.address): d.drive for d in drives}
+
     def drive_name(self, bus: str, address: int) -> str:
         if address == 0:
             return BROADCAST
@@ -180,6 +185,11 @@ class GatewayCollector(Collector):
 
     def __init__(self, service: Service, drives: Sequence[DriveLabels]) -> None:
         self.service = service
+        self.drives = drives
+        self._names = {(d.bus, d.address): d.drive for d in drives}
+
+    def relabel(self, drives: Sequence[DriveLabels]) -> None:
+        """A reload changed the drives: the next scrape shows the new ones by name."""
         self.drives = drives
         self._names = {(d.bus, d.address): d.drive for d in drives}
 
@@ -399,6 +409,8 @@ class MetricsFeature:
         self.settings = service.config.metrics
         self.endpoint: HttpEndpoint | None = None
         self._requests: RequestMetrics | None = None
+        self._collector: GatewayCollector | None = None
+        self._registry: CollectorRegistry | None = None
         self._started_at = time.monotonic()
 
     @property
@@ -410,13 +422,22 @@ class MetricsFeature:
         registry = CollectorRegistry(auto_describe=True)
         drives = drive_labels(self.service)
         self._requests = RequestMetrics(registry, drives)
-        registry.register(GatewayCollector(self.service, drives))
+        self._collector = GatewayCollector(self.service, drives)
+        registry.register(self._collector)
         ProcessCollector(registry=registry)
+        self._registry = registry
         for bus in self.service.buses.values():
             bus.add_request_observer(self._requests.observe)
-        self.endpoint = HttpEndpoint(
-            self.settings.host,
-            self.settings.port,
+        self.endpoint = self._endpoint(self.settings)
+        await self.endpoint.start()
+        log.info("metrics and health on http://%s:%d/", self.settings.host, self.endpoint.port)
+
+    def _endpoint(self, settings: MetricsConfig) -> HttpEndpoint:
+        registry = self._registry
+        assert registry is not None
+        return HttpEndpoint(
+            settings.host,
+            settings.port,
             {
                 "/metrics": lambda: Response(200, CONTENT_TYPE_LATEST, generate_latest(registry)),
                 "/health": self._health,
@@ -424,8 +445,38 @@ class MetricsFeature:
                 "/health/live": self._live,
             },
         )
-        await self.endpoint.start()
-        log.info("metrics and health on http://%s:%d/", self.settings.host, self.endpoint.port)
+
+    # -- a reload ------------------------------------------------------------------------------
+
+    def drives_changed(self) -> None:
+        """Drives added or removed: labelled by their names from the next request and scrape."""
+        drives = drive_labels(self.service)
+        if self._requests is not None and self._collector is not None:
+            self._requests.relabel(drives)
+            self._collector.relabel(drives)
+
+    async def rebind(self, settings: MetricsConfig) -> None:
+        """Listen on a new host and port; the counters go on. Raises CannotListen (and keeps
+        listening where it did) when the new address can't be had."""
+        old = self.endpoint
+        new = self._endpoint(settings)
+        try:
+            await new.start()
+        except CannotListen:
+            # The old socket may hold the port (the same port, another host): free it, try again.
+            if old is None:
+                raise
+            await old.stop()
+            try:
+                await new.start()
+            except CannotListen:
+                await old.start()
+                raise
+        else:
+            if old is not None:
+                await old.stop()
+        self.endpoint, self.settings = new, settings
+        log.info("metrics and health now on http://%s:%d/", settings.host, new.port)
 
     async def stop(self) -> None:
         if self._requests is not None:

@@ -2,18 +2,25 @@
 
 What changes in place, SCADA's connections staying open and requests in flight finishing:
 
-    drives        on buses that didn't change: the router's table (a removed drive's unit id
-                  answers 0AH from then on, an added one answers at once) and the poller
+    buses         a bus whose settings changed is reopened alone: closed (its queued requests
+                  answered 0BH, as at shutdown; the one on the wire finishes), opened again with
+                  the new settings, its drives routed to it; every other bus keeps its queue
+                  and its port
+    drives        the router's table (a removed drive's unit id answers 0AH from then on, an
+                  added one answers at once) and the poller
     modbus_tcp    access rules, read_only, allowed_networks, the per-client and per-connection
                   limits, timeouts and broadcast_reply
+    metrics       host and port: the endpoint listens on the new address (on the old one still,
+                  and says so, when the new one can't be had); drives added are labelled by name
     storage       max_mb and max_age_days
     logging       level
 
 What keeps its running value until a restart, named in the log and the `config_reloaded` event
 ("restart needed for: ..."): the listeners (`modbus_tcp.host`, `port`, `plain`, `tls`),
-`gateway_id`, `storage.path`, and in this version the buses' settings, the `mqtt` and `metrics`
-sections, and the MQTT side of drives added or removed (their topics, discovery and commands).
-A drive on a bus whose settings changed is left as it was, named too.
+`gateway_id`, `storage.path`, the console (its listener and, in this version, its other keys),
+and in this version buses added or removed (with the drives that would move onto or off them),
+`metrics.enabled`, the `mqtt` section and the MQTT side of drives added or removed (their topics,
+discovery and commands).
 
 The planning (`plan`) is pure: it compares two configurations and says what to do; the
 application (`Application.reload`) carries it out.
@@ -23,7 +30,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from gateway.config import DriveConfig, GatewayConfig, ModbusTcpConfig
+from gateway.config import BusConfig, DriveConfig, GatewayConfig, MetricsConfig, ModbusTcpConfig
 
 LISTENER_KEYS = ("host", "port", "plain", "tls")
 """`modbus_tcp` keys that belong to the listening sockets: a change needs a restart."""
@@ -39,6 +46,8 @@ class ReloadPlan:
     changed: list[str] = field(default_factory=list)
     """What is applied, as key paths and drive names."""
     restart_needed: list[str] = field(default_factory=list)
+    reopened: list[str] = field(default_factory=list)
+    """Buses whose settings changed: closed and opened again with the new ones."""
 
     @property
     def summary(self) -> str:
@@ -62,13 +71,18 @@ def plan(old: GatewayConfig, new: GatewayConfig, mqtt_running: bool) -> ReloadPl
         changed.append("storage")
     if new.logging != old.logging:
         changed.append("logging")
-    for section in ("mqtt", "metrics"):
-        if getattr(old, section) != getattr(new, section):
-            restart.append(section)
-    if old.buses != new.buses:
-        restart.append("buses")
+    if old.mqtt != new.mqtt:
+        restart.append("mqtt")
+    metrics = _metrics(old.metrics, new.metrics, changed, restart)
+    restart += [
+        f"console.{key}"
+        for key in type(new.console).model_fields
+        if getattr(old.console, key) != getattr(new.console, key)
+    ]
+    reopened = _buses(old, new, changed, restart)
+    # Buses added or removed wait for a restart, and so do the drives that would move onto or
+    # off them; on every other bus (reopened or not) drives change now.
     steady = {b.name for b in old.buses} & {b.name for b in new.buses}
-    steady = {name for name in steady if _bus(old, name) == _bus(new, name)}
     drives, added, removed = _drives(old, new, steady, changed, restart)
     if (added or removed) and mqtt_running:
         restart.append("MQTT topics of drives added or removed")
@@ -77,13 +91,49 @@ def plan(old: GatewayConfig, new: GatewayConfig, mqtt_running: bool) -> ReloadPl
             "gateway_id": old.gateway_id,
             "modbus_tcp": tcp,
             "storage": storage,
-            "buses": old.buses,
+            "buses": _running_buses(old, new),
             "drives": drives,
             "mqtt": old.mqtt,
-            "metrics": old.metrics,
+            "metrics": metrics,
+            "console": old.console,
         }
     )
-    return ReloadPlan(running, added, removed, changed, restart)
+    return ReloadPlan(running, added, removed, changed, restart, reopened)
+
+
+def _buses(
+    old: GatewayConfig, new: GatewayConfig, changed: list[str], restart: list[str]
+) -> list[str]:
+    """The buses to reopen (settings changed), by name; those added or removed wait."""
+    before = {b.name: b for b in old.buses}
+    after = {b.name: b for b in new.buses}
+    reopened = [name for name, bus in after.items() if name in before and before[name] != bus]
+    added = [name for name in after if name not in before]
+    removed = [name for name in before if name not in after]
+    if reopened:
+        changed.append(f"buses reopened: {', '.join(reopened)}")
+    restart += [f"bus {name} (added)" for name in added]
+    restart += [f"bus {name} (removed)" for name in removed]
+    return reopened
+
+
+def _running_buses(old: GatewayConfig, new: GatewayConfig) -> tuple[BusConfig, ...]:
+    """The buses there were, each with its new settings where the file still has it."""
+    after = {b.name: b for b in new.buses}
+    return tuple(after.get(b.name, b) for b in old.buses)
+
+
+def _metrics(
+    old: MetricsConfig, new: MetricsConfig, changed: list[str], restart: list[str]
+) -> MetricsConfig:
+    """The endpoint moves to a new host or port at once; turning it on or off waits."""
+    if old.enabled != new.enabled:
+        restart.append("metrics.enabled")
+        return old
+    if new != old and new.enabled:
+        changed.append("metrics.host/port")
+        return new
+    return old
 
 
 def _tcp(
@@ -107,7 +157,8 @@ def _drives(
     changed: list[str],
     restart: list[str],
 ) -> tuple[tuple[DriveConfig, ...], list[DriveConfig], list[str]]:
-    """The drives to run with: new ones on steady buses, the old ones elsewhere."""
+    """The drives to run with: new ones on steady buses (there before and after, reopened or
+    not), the old ones elsewhere."""
     before = {d.name: d for d in old.drives}
     after = {d.name: d for d in new.drives}
     running: dict[str, DriveConfig] = {}
@@ -119,7 +170,7 @@ def _drives(
             if was is not None:
                 running[name] = was
             if was != drive:
-                restart.append(f"drive {name} (its bus changed)")
+                restart.append(f"drive {name} (its bus is added or removed)")
             continue
         running[name] = drive
         if was is None:
@@ -134,7 +185,7 @@ def _drives(
             removed.append(name)
         else:
             running[name] = was
-            restart.append(f"drive {name} (its bus changed)")
+            restart.append(f"drive {name} (its bus is removed)")
     gone = [name for name in removed if name not in after]
     came = [d.name for d in added if d.name not in before]
     replaced = [d.name for d in added if d.name in before]
@@ -146,7 +197,3 @@ def _drives(
     order = [d.name for d in new.drives] + [n for n in before if n not in after]
     drives = tuple(running[name] for name in order if name in running)
     return drives, added, removed
-
-
-def _bus(config: GatewayConfig, name: str) -> object:
-    return next(b for b in config.buses if b.name == name)

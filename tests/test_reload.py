@@ -8,10 +8,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import signal
+import urllib.error
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
+import pytest
 import yaml
 
 from gateway.config import GatewayConfig
@@ -20,6 +22,7 @@ from gateway.profile.invt import STATE_WORD_1
 from gateway.reload import plan
 from tests.processes import GatewayProcess, gateway_process
 from tests.support import TcpClient, free_port, read_pdu, write_pdu
+from tests.test_ops_metrics import Scrape, http_get
 
 FREQUENCY_SETPOINT = 0x2001
 
@@ -52,8 +55,9 @@ NO_SETPOINT_WRITES_TO_PUMP1 = [
 class Load:
     """One connection reading the unaffected drives in turn, every 20 ms."""
 
-    def __init__(self, client: TcpClient) -> None:
+    def __init__(self, client: TcpClient, unit_ids: tuple[int, ...]) -> None:
         self.client = client
+        self.unit_ids = unit_ids
         self.ok = 0
         self.errors: list[str] = []
         self.lock = asyncio.Lock()  # the test's own requests share the connection
@@ -61,7 +65,7 @@ class Load:
 
     async def run(self) -> None:
         while True:
-            for unit_id in (1, 3):
+            for unit_id in self.unit_ids:
                 async with self.lock:
                     reply = await self.client.request(unit_id, read_pdu(STATE_WORD_1))
                 if reply == bytes.fromhex("03 02 00 03"):
@@ -84,9 +88,9 @@ class Load:
 
 
 @contextlib.asynccontextmanager
-async def load_on(port: int) -> AsyncIterator[Load]:
+async def load_on(port: int, unit_ids: tuple[int, ...] = (1, 3)) -> AsyncIterator[Load]:
     client = await TcpClient.connect(port)
-    load = Load(client)
+    load = Load(client, unit_ids)
     task = asyncio.create_task(load.run())
     try:
         yield load
@@ -161,23 +165,111 @@ async def test_reload_under_load_adds_removes_and_changes_a_rule(tmp_path: Path)
         assert gateway.process.poll() is None  # still running
 
 
+async def test_a_bus_with_new_settings_is_reopened_alone_under_load(tmp_path: Path) -> None:
+    port = free_port()
+    with (
+        SimulatedLine(addresses=[1, 2], baudrate=115200, parity="E") as line1,
+        SimulatedLine(addresses=[1, 2], baudrate=115200, parity="E") as line2,
+        gateway_process(config(line1.path, line2.path, port, AFTER), tmp_path) as gateway,
+    ):
+        await asyncio.to_thread(gateway.wait_ready)
+        async with load_on(port, unit_ids=(1,)) as load:  # pump1, on line1
+            await load.more(10)
+            assert await load.request(3, read_pdu(STATE_WORD_1)) == bytes.fromhex("03 02 00 03")
+            slower = config(line1.path, line2.path, port, AFTER)
+            slower["buses"][1]["baudrate"] = 57600  # the pty takes any baud rate
+            line = await asyncio.to_thread(
+                reload_with, gateway, yaml.safe_dump(slower), "config reloaded"
+            )
+            assert "buses reopened: line2" in line
+            assert "restart needed" not in line
+            gateway.log.wait_for_count("bus line2: reopened with new settings", 1)
+            await load.more(10)
+            # line2's drives answer on the reopened bus, a write too.
+            assert await load.request(3, read_pdu(STATE_WORD_1)) == bytes.fromhex("03 02 00 03")
+            assert await load.request(4, read_pdu(STATE_WORD_1)) == bytes.fromhex("03 02 00 03")
+            assert (await load.request(4, write_pdu(FREQUENCY_SETPOINT, 1000)))[0] == 0x06
+            await load.more(10)
+            assert not load.client.reader.at_eof()  # the one connection, open throughout
+        assert load.errors == []  # line1 was never interrupted
+        assert gateway.log.count(f"bus line1: {line1.path} open") == 1  # its port kept
+        assert gateway.log.count(f"bus line2: {line2.path} open") == 2
+        assert gateway.process.poll() is None
+
+
+async def test_metrics_move_to_a_new_port_and_name_an_added_drive(tmp_path: Path) -> None:
+    port, before_port, after_port = free_port(), free_port(), free_port()
+    with (
+        SimulatedLine(addresses=[1, 2], baudrate=115200, parity="E") as line1,
+        SimulatedLine(addresses=[1, 2], baudrate=115200, parity="E") as line2,
+    ):
+        first = config(line1.path, line2.path, port, BEFORE)
+        first["metrics"] = {"enabled": True, "port": before_port}
+        with gateway_process(first, tmp_path) as gateway:
+            await asyncio.to_thread(gateway.wait_ready)
+            assert (await http_get(before_port, "/metrics"))[0] == 200
+            moved = config(line1.path, line2.path, port, AFTER)
+            moved["metrics"] = {"enabled": True, "port": after_port}
+            line = await asyncio.to_thread(
+                reload_with, gateway, yaml.safe_dump(moved), "config reloaded"
+            )
+            assert "metrics.host/port" in line
+            assert "drives added: mixer4" in line
+            assert "restart needed" not in line
+            client = await TcpClient.connect(port)
+            assert await client.request(4, read_pdu(STATE_WORD_1)) == bytes.fromhex("03 02 00 03")
+            await client.close()
+            status, _, text = await http_get(after_port, "/metrics")
+            assert status == 200
+            scrape = Scrape(text)
+            tcp_reads = scrape(
+                "requests_total", bus="line2", drive="mixer4", source="tcp", function="03"
+            )
+            assert tcp_reads == 1
+            assert scrape("drive_online", bus="line2", drive="mixer4") == 1
+            assert "address_2" not in text
+            with pytest.raises(urllib.error.URLError, match="refused"):  # the old one let go
+                await http_get(before_port, "/metrics")
+
+
 def test_what_a_reload_applies_and_what_waits_for_a_restart() -> None:
     old = GatewayConfig.model_validate(config("/dev/ttyA", "/dev/ttyB", 5020, BEFORE))
     changed_bus = config("/dev/ttyA", "/dev/ttyB", 5020, AFTER)
     changed_bus["buses"][1]["baudrate"] = 9600
     changed_bus["gateway_id"] = "renamed"
     changed_bus["storage"] = {"path": "/elsewhere/events.db", "max_mb": 10}
+    changed_bus["console"] = {"enabled": False, "port": 8099}
+    changed_bus["metrics"] = {"enabled": False, "port": 9999}  # off: nothing to move
     result = plan(old, GatewayConfig.model_validate(changed_bus), mqtt_running=False)
-    assert "buses" in result.restart_needed
-    assert "gateway_id" in result.restart_needed
-    assert "storage.path" in result.restart_needed
-    assert "drive mixer4 (its bus changed)" in result.restart_needed
-    assert result.changed == ["storage", "drives removed: fan2"]  # fan2's line1 is unchanged
+    assert result.restart_needed == ["gateway_id", "storage.path", "console.port"]
+    assert result.changed == [
+        "storage",
+        "buses reopened: line2",
+        "drives added: mixer4",
+        "drives removed: fan2",
+    ]
+    assert result.reopened == ["line2"]
     running = result.running
     assert running.gateway_id == "reload"  # the running values stay
     assert running.storage.path is None
     assert running.storage.max_mb == 10
-    assert running.buses == old.buses
-    assert [d.name for d in running.drives] == ["pump1", "conv3"]
-    assert [d.name for d in result.added] == []
+    assert running.console.port == 8080
+    assert [b.baudrate for b in running.buses] == [115200, 9600]
+    assert [d.name for d in running.drives] == ["pump1", "conv3", "mixer4"]
+    assert [d.name for d in result.added] == ["mixer4"]
     assert result.removed == ["fan2"]
+
+
+def test_buses_added_or_removed_wait_for_a_restart_with_their_drives() -> None:
+    old = GatewayConfig.model_validate(config("/dev/ttyA", "/dev/ttyB", 5020, BEFORE))
+    new = config("/dev/ttyA", "/dev/ttyB", 5020, BEFORE)
+    new["buses"][1]["name"] = "line3"
+    new["drives"][2]["bus"] = "line3"
+    result = plan(old, GatewayConfig.model_validate(new), mqtt_running=False)
+    assert result.restart_needed == [
+        "bus line3 (added)",
+        "bus line2 (removed)",
+        "drive conv3 (its bus is added or removed)",
+    ]
+    assert [b.name for b in result.running.buses] == ["line1", "line2"]
+    assert result.running.drives == old.drives

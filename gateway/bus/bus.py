@@ -186,6 +186,13 @@ class Bus:
         if observer in self._request_observers:
             self._request_observers.remove(observer)
 
+    def take_listeners(self, old: Bus) -> None:
+        """A reload reopened `old`'s line as this bus: whoever listened to it listens here."""
+        self._listeners = list(old._listeners)
+        self._port_listeners = list(old._port_listeners)
+        self._request_observers = list(old._request_observers)
+        self.tap = old.tap
+
     @property
     def queue_depth(self) -> int:
         return len(self._queue)
@@ -308,13 +315,13 @@ class Bus:
             return False
         return True
 
-    def close(self) -> None:
+    def close(self, reason: str = "is shutting down") -> None:
         """Refuse new requests and answer queued ones with 0x0B; the one on the wire finishes."""
         self.state = BusState.CLOSED
         self._closing = True
         queued = self._queue.take_all()
         self._wake()
-        error = BusClosed(f"bus {self.name} is shutting down")
+        error = BusClosed(f"bus {self.name} {reason}")
         for transaction in queued:
             _fail(transaction, error)
 

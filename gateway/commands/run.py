@@ -142,7 +142,7 @@ async def reload_on_hangup(
                 log.error("reload refused, the running configuration stays: %s: %s", path, problem)
         else:
             if app.phase is Phase.READY:
-                app.reload(config)
+                await app.reload(config)
             else:
                 log.warning("reload skipped: the gateway is %s", app.phase.value)
         notifier.notify("READY=1", "STATUS=ready")

@@ -171,7 +171,9 @@ class Commands:
         check_age(payload, self.config.command_max_age_s, time.time())
 
     async def _execute(self, drive: CommandDrive, pdu: bytes) -> bytes:
-        reply = await self.router.request(drive.route, pdu, client=MQTT_CLIENT)
+        # The router's route of the moment: a reload may have reopened the drive's bus.
+        route = self.router.route_for_drive(drive.name)
+        reply = await self.router.request(route, pdu, client=MQTT_CLIENT)
         if is_exception(reply):
             code = reply[1] if len(reply) > 1 else 0
             raise DriveException(pdu[0], code, describe_exception(code))

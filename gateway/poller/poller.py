@@ -147,6 +147,11 @@ class Poller:
         if task is not None:
             task.cancel()
 
+    def reroute(self) -> None:
+        """A reload reopened buses: each drive's route again from the router (its new bus)."""
+        for name, drive in self.drives.items():
+            drive.route = self.router.route_for_drive(name)
+
     async def _run(self) -> None:
         async with asyncio.TaskGroup() as tasks:
             for name, drive in self.drives.items():

@@ -69,10 +69,12 @@ class Router:
         self._by_bus_address = {(r.bus.name, r.address): r for r in self._routes.values()}
         self.buses = tuple(buses)
 
-    def replace_routes(self, routes: Iterable[Route]) -> None:
+    def replace_routes(self, routes: Iterable[Route], buses: Iterable[Bus]) -> None:
         """A reload: the next request sees the new table (a removed drive's unit id answers 0AH,
-        an added one answers at once); requests on their way keep the route they resolved."""
+        an added one answers at once, one on a reopened bus goes to the new bus) and broadcasts
+        the new buses; requests on their way keep the route they resolved."""
         before = set(self._by_drive)
+        self.buses = tuple(buses)
         self._routes = {route.unit_id: route for route in routes}
         self._by_drive = {route.drive: route for route in self._routes.values()}
         self._by_bus_address = {(r.bus.name, r.address): r for r in self._routes.values()}
