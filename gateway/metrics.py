@@ -32,7 +32,13 @@ from prometheus_client import (
     ProcessCollector,
     generate_latest,
 )
-from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, InfoMetricFamily
+from prometheus_client.core import (
+    CounterMetricFamily,
+    GaugeMetricFamily,
+    HistogramMetricFamily,
+    InfoMetricFamily,
+)
+from prometheus_client.metrics_core import Metric
 from prometheus_client.registry import Collector
 
 from gateway import __version__
@@ -193,7 +199,7 @@ class GatewayCollector(Collector):
         self.drives = drives
         self._names = {(d.bus, d.address): d.drive for d in drives}
 
-    def collect(self) -> Iterable[CounterMetricFamily | GaugeMetricFamily | InfoMetricFamily]:
+    def collect(self) -> Iterable[Metric]:
         yield from self._gateway()
         yield from self._buses()
         yield from self._drives()
@@ -213,7 +219,7 @@ class GatewayCollector(Collector):
         ready.add_metric([], 1.0 if self.service.phase is Phase.READY else 0.0)
         yield ready
 
-    def _buses(self) -> Iterable[CounterMetricFamily | GaugeMetricFamily]:
+    def _buses(self) -> Iterable[Metric]:
         buses = self.service.buses
         state = GaugeMetricFamily(
             f"{PREFIX}_bus_state", "1 for the bus's current state", labels=["bus", "state"]
@@ -240,8 +246,15 @@ class GatewayCollector(Collector):
             "Bytes nobody asked for: late replies, echoes, noise",
             labels=["bus"],
         )
+        excess = HistogramMetricFamily(
+            f"{PREFIX}_bus_excess_gap_seconds",
+            "Silence beyond the inter-frame gap (t3.5) between a reply and the next request that "
+            "was already waiting: the gateway's own share of each back-to-back transaction",
+            labels=["bus"],
+        )
         line = _LineFamilies()
         for name, bus in buses.items():
+            excess.add_metric([name], bus.gap_excess.cumulative(), bus.gap_excess.sum_s)
             line.add(name, bus.line)
             for value in BusState:
                 state.add_metric([name, str(value)], 1.0 if bus.state is value else 0.0)
@@ -258,6 +271,7 @@ class GatewayCollector(Collector):
         yield busy
         yield exchange
         yield discarded
+        yield excess
         yield from line.families()
 
     def _drives(self) -> Iterable[CounterMetricFamily | GaugeMetricFamily | InfoMetricFamily]:

@@ -223,3 +223,41 @@ async def test_clients_can_not_choose_label_values(line: SimulatedLine) -> None:
     drives = {dict(labels).get("drive") for (_, labels) in m.samples}
     assert "broadcast" not in drives
     assert m("broadcast_requests_total", bus="line1", source="tcp", function="06") == 1
+
+
+async def test_excess_gap_counts_back_to_back_transactions_and_never_goes_below_t35(
+    line: SimulatedLine,
+) -> None:
+    """`bus_excess_gap_seconds`: the silence the gateway adds beyond t3.5 when a request was
+    already waiting as the reply ended. A lone client's own round trip is not counted."""
+    metrics_port = free_port()
+    async with running_gateway(metrics_config(line.path, metrics_port)) as app:
+        alone = await TcpClient.connect(app.tcp.port)
+        for _ in range(5):
+            assert await alone.read(1, STATE_WORD_1) == [3]
+        m = Scrape((await http_get(metrics_port, "/metrics"))[2])
+        bus = {"bus": "line1"}
+        assert m("bus_excess_gap_seconds_count", **bus) == 0  # nobody waited behind a reply
+
+        clients = [await TcpClient.connect(app.tcp.port) for _ in range(4)]
+
+        async def reads(client: TcpClient, unit: int, words: int) -> None:
+            for _ in range(15):  # each client its own read: none joins another's transaction
+                assert (await client.request(unit, read_pdu(STATE_WORD_1, words)))[0] == 3
+
+        await asyncio.gather(*(reads(c, 1 + i % 2, 1 + i // 2) for i, c in enumerate(clients)))
+        m = Scrape((await http_get(metrics_port, "/metrics"))[2])
+        counted = m("bus_excess_gap_seconds_count", **bus)
+        transactions = m("bus_transactions_total", **bus)
+        # Four clients keep the queue full: most of their 60 reads follow a reply back to back.
+        assert 30 <= counted < transactions
+        assert m("bus_excess_gap_seconds_bucket", **bus, le="+Inf") == counted
+        # The first bucket (le 0) holds gaps shorter than t3.5: there must be none.
+        assert m("bus_excess_gap_seconds_bucket", **bus, le="0.0") == 0
+        assert m("bus_excess_gap_seconds_sum", **bus) > 0
+        # The drives' side agrees: no request came less than t3.5 after the previous frame.
+        stats = line.stats
+        assert stats["gap_violations"] == 0
+        assert stats["min_gap_s"] >= line.t35_s
+        for client in (alone, *clients):
+            await client.close()

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any
 
+from gateway.bus.gap_excess import GapExcess
 from gateway.bus.health import HealthTracker
 from gateway.bus.line import Exchange, LineSettings, Sending, SerialLine
 from gateway.bus.line_share import LineShares
@@ -152,6 +153,10 @@ class Bus:
         self.state = BusState.OPENING
         self.stats = BusStats()
         self.drive_stats: dict[int, DriveStats] = {}
+        self.gap_excess = GapExcess()
+        """The silence beyond the inter-frame gap before each back-to-back request: our share."""
+        self._reply_heard_at = 0.0
+        """When the last transaction's reply ended, if a request was waiting then; else 0.0."""
         self.health = HealthTracker(
             settings.offline_after, settings.probe_initial_s, settings.probe_max_s
         )
@@ -385,6 +390,9 @@ class Bus:
         """
         # Every pass, not only when idle: a busy line must still find out a drive is back.
         self._queue_due_probes()
+        # A request waited as the last reply ended: the silence before it, beyond the gap, is
+        # the gateway's own (not a client's think time, nor a broadcast's turnaround).
+        back_to_back, self._reply_heard_at = self._reply_heard_at != 0.0, 0.0
         while not self._closing:
             try:
                 sending = await self.line.send_after_gap(self._pick)
@@ -404,7 +412,10 @@ class Bus:
             if sending is not None:
                 transaction, self._picked = self._picked, None
                 assert transaction is not None  # a frame went out, so `_pick` chose one
+                if back_to_back:
+                    self.gap_excess.observe(sending.gap_s - self.settings.line.gap_s)
                 return transaction, sending
+            back_to_back = False  # the line went idle: what follows waited for work
             if self._closing:
                 return None
             if len(self._queue):
@@ -496,6 +507,7 @@ class Bus:
         address = transaction.address
         frame = first.frame
         broadcast = address == BROADCAST_ADDRESS
+        self._reply_heard_at = 0.0
         # A probe brings its own retries; a drive that just failed gets none.
         retries = transaction.retries
         if not transaction.probe and self.health.is_suspect(address):
@@ -567,6 +579,8 @@ class Bus:
 
     def _record(self, exchange: Exchange, drive: DriveStats) -> None:
         self.stats.busy_s += exchange.busy_s
+        if exchange.reply_heard_at and len(self._queue):
+            self._reply_heard_at = exchange.reply_heard_at
         if self.stats.min_gap_s is None or exchange.gap_s < self.stats.min_gap_s:
             self.stats.min_gap_s = exchange.gap_s
         pdu = exchange.reply_pdu

@@ -117,6 +117,9 @@ class Exchange:
     """Silence kept before the request (measured, not assumed)."""
     busy_s: float
     """Time the line was busy with this exchange: request, drive's delay, reply."""
+    reply_heard_at: float = 0.0
+    """When the reply's last byte arrived (`time.monotonic()`); 0.0 when not known (a broadcast,
+    a URL port without arrival times)."""
 
 
 PTY_SLAVE_MAJORS = range(136, 144)
@@ -333,7 +336,8 @@ class SerialLine:
         finally:
             if self._fd is None:  # no arrival times without a descriptor: now is the safe bet
                 self._quiet_since = max(self._quiet_since, time.monotonic())
-        return Exchange(pdu, sending.gap_s, self._quiet_since - started)
+        heard_at = self._quiet_since if self._fd is not None else 0.0
+        return Exchange(pdu, sending.gap_s, self._quiet_since - started, heard_at)
 
     def _send_now(self, pick: Callable[[], bytes | None]) -> Sending | None:
         frame = pick()

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import struct
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
-from gateway.instruments.bench.load import LoadResult, Target, run_clients
+from gateway.bus.gap_excess import quantile
+from gateway.instruments.bench.load import LoadResult, Target, flood, run_clients
 from gateway.instruments.bench.processes import (
     GatewayProcess,
     SimulatorProcess,
@@ -16,9 +18,16 @@ from gateway.instruments.bench.processes import (
     gateway,
     simulator,
 )
+from gateway.instruments.bench.scrape import excess_gap_buckets
 from gateway.instruments.bench.wire import WireBudget, read_budget
+from gateway.modbus.timing import CharacterFormat
 
 RESPONSE_DELAY_MS = 5.0  # INVT P14.03's default
+FAST_TURNAROUND_S = 0.001
+"""A fast drive (P14.03 = 0) answers about 1 ms after the t3.5 that ends the request."""
+LINE_COUNTS = (4, 8, 16)  # the multi-line cases, at the fastest baud rate
+FLOOD_WINDOW = 8
+"""Requests the flooding client keeps in flight (below max_queued_writes_per_client's 16)."""
 SET_POINT = 0x2001  # 2001H..2002H: frequency set-point and PID reference, written per drive
 RUNNING_VALUES = 0x3000  # 3000H..: running values; static while the drives stand still
 ADAPTER_BAUD = 19200  # where the real-adapter cases run: the factory setting of P14.01
@@ -31,6 +40,9 @@ def matrix(baudrates: tuple[int, ...]) -> list[Case]:
         for words in (2, 16):
             for clients in (1, 8, 32):
                 cases.append(Case(f"{words}w {clients}c", baud, words, clients))
+        # Fast drives: the gateway's own share is no longer hidden in a 5 ms response delay.
+        cases.append(Case("2w 8c fast drives", baud, 2, 8, fast=True))
+        cases.append(Case("16w 8c fast drives", baud, 16, 8, fast=True))
         cases.append(Case("2w 8c same registers", baud, 2, 8, same_registers=True))
         cases.append(Case("2w 8c one dead of 4", baud, 2, 8, dead=1))
         if baud == ADAPTER_BAUD:
@@ -52,6 +64,23 @@ def matrix(baudrates: tuple[int, ...]) -> list[Case]:
     return cases
 
 
+def extra_cases(baudrates: tuple[int, ...]) -> list[Case]:
+    """Cases run only when `--case` names them: several lines in one process, and floods."""
+    fastest = max(baudrates)
+    cases = []
+    for lines in LINE_COUNTS:
+        for fast in (False, True):
+            speed = "fast drives" if fast else "5 ms drives"
+            name = f"{lines} lines, 4 drives, 8c each, {speed}"
+            cases.append(Case(name, fastest, 2, 8, lines=lines, fast=fast))
+    # Readers on a line flooded by one client's pipelined writes, or broadcasts: what is left
+    # for them (against "2w 8c" unloaded) is the fair share at work.
+    cases.append(Case("flood: 8 readers alone", fastest, 2, 8))
+    cases.append(Case("flood: 8 readers + pipelined writes", fastest, 2, 8, flood="writes"))
+    cases.append(Case("flood: 8 readers + pipelined broadcasts", fastest, 2, 8, flood="broadcasts"))
+    return cases
+
+
 @dataclass(frozen=True, slots=True)
 class Case:
     name: str
@@ -70,6 +99,22 @@ class Case:
     console: bool = False
     monitor: bool = False
     """A traffic monitor open on the console for the whole case, reading every transaction."""
+    fast: bool = False
+    """Drives answering 1 ms after the request's t3.5 (P14.03 = 0) instead of after 5 ms."""
+    lines: int = 1
+    """Buses in the one gateway process, each with `drives` drives and `clients` clients."""
+    flood: str = ""
+    """"writes" or "broadcasts": one more client keeps `FLOOD_WINDOW` of them in flight."""
+
+    @property
+    def response_delay_s(self) -> float:
+        if self.fast:
+            return CharacterFormat(self.baudrate, "E").t35_s + FAST_TURNAROUND_S
+        return RESPONSE_DELAY_MS / 1000
+
+    def units(self, line: int) -> list[int]:
+        """The unit ids of the drives on `line` (0-based): unique across the gateway."""
+        return [line * self.drives + a for a in range(1, self.drives + 1)]
 
     @property
     def adapter_args(self) -> list[str]:
@@ -85,7 +130,7 @@ class Case:
     @property
     def budget(self) -> WireBudget:
         return read_budget(
-            self.baudrate, self.words, RESPONSE_DELAY_MS / 1000, burst_s=self.burst_ms / 1000
+            self.baudrate, self.words, self.response_delay_s, burst_s=self.burst_ms / 1000
         )
 
 
@@ -95,17 +140,43 @@ class CaseResult:
     elapsed_s: float
     load: LoadResult
     bus_transactions: int
+    """On all lines together."""
     gap_violations: int
     cpu_s: float
     peak_rss_mb: float
+    excess_gap: list[tuple[float, int]] = field(default_factory=list)
+    """The gateway's `bus_excess_gap_seconds` buckets over the measured time, all lines."""
+    line_transactions: list[int] = field(default_factory=list)
+    """Per line."""
+    unloaded_p99_ms: float = float("nan")
+    """Flood cases: the readers' p99 in the same case without the flood."""
+
+    def excess_gap_us(self, quantile_: float) -> float:
+        return 1e6 * quantile(self.excess_gap, quantile_)
+
+    @property
+    def overhead_us(self) -> float:
+        """Measured time per transaction on a line beyond the wire's: everything not physics."""
+        per_line = self.bus_transactions / max(self.case.lines, 1)
+        if not per_line:
+            return float("nan")
+        return 1e6 * (self.elapsed_s / per_line - self.case.budget.transaction_s)
+
+    @property
+    def line_shares(self) -> list[float]:
+        """Each line's transactions over its wire maximum."""
+        wire = self.case.budget.transaction_s
+        return [n * wire / self.elapsed_s for n in self.line_transactions]
 
     @property
     def client_per_s(self) -> float:
-        return self.load.answered / self.elapsed_s
+        """Per line (the mean over the lines)."""
+        return self.load.answered / self.elapsed_s / max(self.case.lines, 1)
 
     @property
     def bus_per_s(self) -> float:
-        return self.bus_transactions / self.elapsed_s
+        """Per line (the mean over the lines)."""
+        return self.bus_transactions / self.elapsed_s / max(self.case.lines, 1)
 
     @property
     def wire_max_per_s(self) -> float:
@@ -113,7 +184,9 @@ class CaseResult:
 
     @property
     def utilisation(self) -> float:
-        return self.bus_transactions * self.case.budget.transaction_s / self.elapsed_s
+        """Of one line (the mean over the lines)."""
+        lines = max(self.case.lines, 1)
+        return self.bus_transactions * self.case.budget.transaction_s / self.elapsed_s / lines
 
     @property
     def cpu_per_transaction_us(self) -> float:
@@ -150,10 +223,23 @@ POLL_GROUPS = [  # the INVT profile's own, written out so a case without the con
 ]
 
 
-def gateway_config(case: Case, line_path: str, port: int, console_port: int = 0) -> dict[str, Any]:
+def gateway_config(
+    case: Case,
+    line_paths: list[str],
+    port: int,
+    console_port: int = 0,
+    metrics_port: int = 0,
+) -> dict[str, Any]:
     drives: list[dict[str, Any]] = [
-        {"name": f"drive{a}", "bus": "line1", "address": a, "model": "gd350"}
-        for a in range(1, case.drives + 1)
+        {
+            "name": f"drive{unit}",
+            "bus": f"line{line + 1}",
+            "address": address,
+            "unit_id": unit,
+            "model": "gd350",
+        }
+        for line in range(len(line_paths))
+        for address, unit in enumerate(case.units(line), 1)
     ]
     if case.cache:
         for drive in drives:
@@ -167,10 +253,15 @@ def gateway_config(case: Case, line_path: str, port: int, console_port: int = 0)
     config: dict[str, Any] = {
         "gateway_id": "bench",
         "modbus_tcp": {"host": "127.0.0.1", "port": port, "max_connections": 256},
-        "buses": [{"name": "line1", "port": line_path, "baudrate": case.baudrate, "parity": "E"}],
+        "buses": [
+            {"name": f"line{n}", "port": path, "baudrate": case.baudrate, "parity": "E"}
+            for n, path in enumerate(line_paths, 1)
+        ],
         "drives": drives,
         "logging": {"level": "warning"},
     }
+    if metrics_port:
+        config["metrics"] = {"enabled": True, "host": "127.0.0.1", "port": metrics_port}
     if case.console:
         config["console"] = {
             "enabled": True,
@@ -183,61 +274,87 @@ def gateway_config(case: Case, line_path: str, port: int, console_port: int = 0)
 
 def run_case(case: Case, duration_s: float, warmup_s: float) -> CaseResult:
     dead = list(range(case.drives - case.dead + 1, case.drives + 1))
-    addresses = list(range(1, case.drives + 1))
-    with simulator(addresses, case.baudrate, dead, RESPONSE_DELAY_MS, case.adapter_args) as line:
-        port, console_port = free_port(), free_port()
-        config = gateway_config(case, line.path, port, console_port)
+    addresses = list(range(1, case.drives + 1))  # on each line; unit ids differ per line
+    delay_ms = 1000 * case.response_delay_s
+    with contextlib.ExitStack() as stack:
+        lines = [
+            stack.enter_context(
+                simulator(addresses, case.baudrate, dead, delay_ms, case.adapter_args)
+            )
+            for n in range(case.lines)
+        ]
+        port, console_port, metrics_port = free_port(), free_port(), free_port()
+        config = gateway_config(
+            case, [line.path for line in lines], port, console_port, metrics_port
+        )
         with gateway(config, port) as process:
             return asyncio.run(
-                _measure(case, line, process, dead, duration_s, warmup_s, console_port)
+                _measure(
+                    case, lines, process, dead, duration_s, warmup_s, console_port, metrics_port
+                )
             )
 
 
 async def _measure(
     case: Case,
-    line: SimulatorProcess,
+    lines: list[SimulatorProcess],
     process: GatewayProcess,
     dead: list[int],
     duration_s: float,
     warmup_s: float,
     console_port: int = 0,
+    metrics_port: int = 0,
 ) -> CaseResult:
-    targets = await _prepare(case, process.port, dead)
+    targets = [await _prepare(case, process.port, dead, line) for line in range(case.lines)]
     measuring, stop = asyncio.Event(), asyncio.Event()
     watching = None
     if case.monitor:
         from gateway.instruments.bench.monitor import watch_traffic  # aiohttp only for this case
 
         watching = asyncio.create_task(watch_traffic(console_port, stop))
-    load = asyncio.create_task(
-        run_clients(process.port, case.clients, targets, frozenset(dead), measuring, stop)
-    )
+    loads = [
+        asyncio.create_task(
+            run_clients(process.port, case.clients, each, frozenset(dead), measuring, stop)
+        )
+        for each in targets
+    ]
+    if case.flood:
+        flooding = asyncio.create_task(flood(process.port, case.flood, FLOOD_WINDOW, stop))
     await asyncio.sleep(warmup_s)
-    before = line.stats()
+    gaps_before = await excess_gap_buckets(metrics_port)
+    before = [line.stats() for line in lines]
     cpu_before = process.cpu_s()
     started = time.perf_counter()
     measuring.set()
     await asyncio.sleep(duration_s)
     measuring.clear()
     elapsed = time.perf_counter() - started
-    after = line.stats()
+    after = [line.stats() for line in lines]
     cpu = process.cpu_s() - cpu_before
+    gaps_after = await excess_gap_buckets(metrics_port)
     stop.set()
-    result = await load
+    result = LoadResult.merged([await load for load in loads])
+    if case.flood:
+        await flooding
     if watching is not None:
         await watching  # raises if the monitor never saw the traffic: the case would be void
+    per_line = [a["replies"] - b["replies"] for a, b in zip(after, before, strict=True)]
     return CaseResult(
         case=case,
         elapsed_s=elapsed,
         load=result,
-        bus_transactions=after["replies"] - before["replies"],
-        gap_violations=after["gap_violations"] - before["gap_violations"],
+        bus_transactions=sum(per_line),
+        gap_violations=sum(
+            a["gap_violations"] - b["gap_violations"] for a, b in zip(after, before, strict=True)
+        ),
         cpu_s=cpu,
         peak_rss_mb=process.peak_rss_mb(),
+        excess_gap=[(le, n - gaps_before.get(le, 0)) for le, n in sorted(gaps_after.items())],
+        line_transactions=per_line,
     )
 
 
-async def _prepare(case: Case, port: int, dead: list[int]) -> list[Target]:
+async def _prepare(case: Case, port: int, dead: list[int], line: int = 0) -> list[Target]:
     """Give each drive its own set-points, then learn the right answer to every target."""
     reader, writer = await asyncio.open_connection("127.0.0.1", port)
     tid = 0
@@ -251,14 +368,16 @@ async def _prepare(case: Case, port: int, dead: list[int]) -> list[Target]:
 
     start = SET_POINT if case.words <= 2 else RUNNING_VALUES
     targets = []
-    units = [1] if case.same_registers else list(range(1, case.drives + 1))
+    on_line = case.units(line)
+    units = on_line[:1] if case.same_registers else on_line
     for unit in units:
+        address = unit - line * case.drives
         pdu = struct.pack(">BHH", 3, start, case.words)
-        if unit in dead:
+        if address in dead:
             targets.append(Target(unit, pdu, b""))
             continue
         set_points = struct.pack(">BHHB", 0x10, SET_POINT, 2, 4) + struct.pack(
-            ">HH", 1000 + 100 * unit, 10 * unit
+            ">HH", 1000 + 100 * address, 10 * address
         )
         reply = await request(unit, set_points)
         if reply[0] != 0x10:

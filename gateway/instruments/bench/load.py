@@ -30,6 +30,19 @@ class LoadResult:
     latencies_s: list[float] = field(default_factory=list)
     answered_by_unit: Counter[int] = field(default_factory=Counter)
 
+    @classmethod
+    def merged(cls, results: list[LoadResult]) -> LoadResult:
+        """The clients of several lines as one load."""
+        total = cls()
+        for each in results:
+            total.answered += each.answered
+            total.errors += each.errors
+            total.wrong += each.wrong
+            total.dead_answers += each.dead_answers
+            total.latencies_s += each.latencies_s
+            total.answered_by_unit.update(each.answered_by_unit)
+        return total
+
 
 async def run_clients(
     port: int,
@@ -90,3 +103,36 @@ async def _client(
         writer.close()
         with contextlib.suppress(Exception):
             await writer.wait_closed()
+
+
+STOP_COMMAND = struct.pack(">BHH", 6, 0x2000, 5)
+"""INVT's control word 2000H = 5, stop: what a broadcast flood sends (the drives stand still)."""
+
+
+def flood_request(kind: str) -> tuple[int, bytes]:
+    """(unit id, PDU) a flooding client repeats: drive 1's own set-point written again (the
+    readers' values stay right), or a broadcast stop."""
+    if kind == "broadcasts":
+        return 0, STOP_COMMAND
+    return 1, struct.pack(">BHH", 6, 0x2001, 1100)  # what the bench set drive 1's to
+
+
+async def flood(port: int, kind: str, window: int, stop: asyncio.Event) -> int:
+    """One client keeping `window` requests in flight until `stop`; the answers it got."""
+    unit, pdu = flood_request(kind)
+    reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    answered = 0
+    frame = struct.pack(">HHHB", 0, 0, len(pdu) + 1, unit) + pdu
+    try:
+        for _ in range(window):
+            writer.write(frame)
+        while not stop.is_set():
+            header = await reader.readexactly(7)
+            await reader.readexactly(struct.unpack(">H", header[4:6])[0] - 1)
+            answered += 1
+            writer.write(frame)  # one answered, one more in flight
+    finally:
+        writer.close()
+        with contextlib.suppress(Exception):
+            await writer.wait_closed()
+    return answered
