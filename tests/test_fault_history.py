@@ -84,3 +84,28 @@ async def test_five_faults_with_snapshots_read_back_after_a_restart(mosquitto: M
     assert unknown["status"] == "error"
     assert unknown["error"] == "unknown_drive"
     assert bad["error"] == "invalid_request"
+
+
+async def test_a_fault_that_cleared_while_the_gateway_was_down_is_closed(
+    mosquitto: Mosquitto,
+) -> None:
+    base = unique_base_topic()
+    events = f"{base}/bridge/event"
+    with simulated_line() as line:
+        config = mqtt_config(line.path, mosquitto, base, homeassistant_discovery=False)
+        async with mqtt_probe(mosquitto, f"{base}/#") as probe, running_gateway(config):
+            await probe.wait_for(f"{base}/pump1/availability", lambda a: a["state"] == "online")
+            line.inject_fault(1, 11)
+            await probe.wait_for(events, lambda e: e["type"] == "fault_raised")
+        line.clear_fault(1)  # reset on the keypad while the gateway was down
+        async with mqtt_probe(mosquitto, f"{base}/#") as probe, running_gateway(config) as app:
+            await probe.wait_for(f"{base}/pump1", lambda s: s.get("fault_code") == 0)
+            await app.mqtt.connected.wait()
+            for _ in range(50):  # the history is written by the store's thread, a moment later
+                answer = await request(probe, base, "fault_history", {"drive": "pump1"})
+                (fault,) = answer["data"]["faults"]
+                if fault["cleared"] is not None:
+                    break
+    assert fault["code"] == 11
+    assert fault["cleared"] is not None
+    assert fault["duration_s"] > 0

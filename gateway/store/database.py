@@ -143,6 +143,15 @@ class EventDatabase:
                 self._fault_history(event)
         return Appended(stored, self._hold_size())
 
+    def close_open_faults(self, drive: str, at: float) -> int:
+        """The drive shows no fault: a fault still open in its history cleared while the gateway
+        wasn't looking (it was down); closed at `at`, the first time it was seen clear."""
+        with _transaction(self.db):
+            cursor = self.db.execute(
+                "UPDATE faults SET cleared = ? WHERE drive = ? AND cleared IS NULL", (at, drive)
+            )
+        return cursor.rowcount
+
     def mark_delivered(self, ids: Iterable[int]) -> None:
         with _transaction(self.db):
             self.db.executemany("UPDATE events SET delivered = 1 WHERE id = ?", ((i,) for i in ids))

@@ -66,6 +66,8 @@ class EventStore:
     ) -> None:
         self.config = config
         self.path = config.resolved_path()
+        self._seen_since_start: set[str] = set()
+        self._faults_to_close: list[tuple[str, float]] = []
         self.tasks = tasks
         self.stats = StoreStats()
         self._db = EventDatabase(
@@ -120,7 +122,14 @@ class EventStore:
     # -- PollListener: the poller's events ------------------------------------------------------
 
     def state_updated(self, drive: str, telemetry: Telemetry) -> None:
-        pass
+        if drive in self._seen_since_start:
+            return
+        self._seen_since_start.add(drive)
+        if telemetry.get("fault_code") == 0:
+            # The first state since start shows no fault: one left open in the history cleared
+            # while the gateway was down (no fault_cleared event was seen for it).
+            self._faults_to_close.append((drive, time.time()))
+            self._queued.set()
 
     def availability_changed(self, drive: str, online: bool) -> None:
         pass  # drive_online / drive_offline come as events
@@ -243,6 +252,7 @@ class EventStore:
             if time.monotonic() >= next_expiry:
                 next_expiry = time.monotonic() + EXPIRE_EVERY_S
                 await self._expire()
+            await self._close_faults()
             if not self._waiting:
                 continue
             batch = list(self._waiting)
@@ -269,6 +279,19 @@ class EventStore:
             self._stored.set()
             async with self._written:
                 self._written.notify_all()
+
+    async def _close_faults(self) -> None:
+        while self._faults_to_close:
+            drive, at = self._faults_to_close.pop(0)
+            try:
+                closed = await self._call(self._db.close_open_faults, drive, at)
+            except Exception as exc:  # sqlite3.Error, OSError: the history stays as it was
+                log.warning("store %s: fault history of %s not updated: %s", self.path, drive, exc)
+                continue
+            if closed:
+                log.info(
+                    "%s: %d fault(s) cleared while the gateway was down, closed now", drive, closed
+                )
 
     async def _expire(self) -> None:
         try:
