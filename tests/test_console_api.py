@@ -385,3 +385,33 @@ async def test_a_lost_port_and_its_return_are_events(
     await until(lambda: seen("port_back"), within_s=15.0)
     bus = (await web.get_json("/api/overview"))["buses"][0]
     assert bus["state"] == "open"
+
+
+async def test_faults_and_events_come_from_the_store_across_a_restart(line: SimulatedLine) -> None:
+    # The gateway's store (storage.path under this test's STATE_DIRECTORY) outlives a restart:
+    # what the console shows of a drive's faults and events comes from it, not from memory.
+    async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
+        assert (await web.login("victor", VIEWER_PASSWORD)).status == 200
+
+        async def raised() -> bool:
+            events = (await web.get_json("/api/events?drive=pump1"))["events"]
+            return any(e["kind"] == "fault_raised" for e in events)
+
+        line.inject_fault(1, 11)
+        await until(raised)
+        line.clear_fault(1)
+
+        async def cleared() -> bool:
+            faults = (await web.get_json("/api/drives/pump1/faults"))["recorded_faults"]
+            return bool(faults) and faults[0]["cleared"] is not None
+
+        await until(cleared)
+    async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
+        assert (await web.login("victor", VIEWER_PASSWORD)).status == 200
+        answer = await web.get_json("/api/drives/pump1/faults")
+        (fault,) = answer["recorded_faults"]
+        assert (fault["code"], fault["name"]) == (11, "OL1")
+        assert fault["duration_s"] > 0
+        kinds = [e["kind"] for e in answer["events"]]
+        assert "fault_raised" in kinds
+        assert "fault_cleared" in kinds

@@ -8,12 +8,14 @@ in-memory ring (`MemoryEventStore`, bounded, lost at restart); a store that surv
 
 from __future__ import annotations
 
+import json
 import time
 from collections import deque
 from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
 
 from gateway.poller.drive_state import iso_time
+from gateway.store.records import FaultRecord, StoredEvent
 
 MEMORY_EVENTS = 2000
 
@@ -44,6 +46,13 @@ class EventStore(Protocol):
     def recent(self, drive: str | None = None, limit: int = 200) -> list[GatewayEvent]:
         """The newest first; only `drive`'s (and the line-wide ones of no drive) when given."""
 
+    async def history(self, drive: str | None = None, limit: int = 200) -> list[GatewayEvent]:
+        """As `recent`, from wherever the events are kept longest (across restarts, if kept)."""
+
+    async def recorded_faults(self, drive: str, limit: int) -> list[dict[str, Any]]:
+        """The faults recorded for `drive` (raised, cleared, duration, snapshot), newest first;
+        empty where nothing keeps them."""
+
 
 class MemoryEventStore:
     def __init__(self, size: int = MEMORY_EVENTS) -> None:
@@ -61,18 +70,31 @@ class MemoryEventStore:
                     break
         return found
 
+    async def history(self, drive: str | None = None, limit: int = 200) -> list[GatewayEvent]:
+        return self.recent(drive, limit)
+
+    async def recorded_faults(self, drive: str, limit: int) -> list[dict[str, Any]]:
+        return []
+
 
 class Recorder(Protocol):
     """The gateway's persistent event store (`gateway.store.EventStore`), as far as used here."""
 
     def record(self, type: str, data: dict[str, Any], *, drive: str | None = None) -> None: ...
 
+    async def recent_events(self, limit: int, drive: str | None = None) -> list[StoredEvent]: ...
+
+    async def fault_history(self, drive: str, limit: int) -> list[FaultRecord]: ...
+
 
 class ConsoleEventsRecorded(MemoryEventStore):
-    """The console's ring of events, with each write made from the console also recorded in the
-    gateway's own store as a `command` event: published on `<base>/bridge/event` and kept across
-    restarts with the MQTT commands', the audit a plant keeps. (The rest the store records itself,
-    from the poller and the buses.)"""
+    """The console's events from the gateway's own store (`gateway.store`), which keeps them
+    across restarts: faults, drives offline and online, ports, MQTT and console commands,
+    Modbus-TCP writes by client and minute, reloads; and the faults with their snapshots.
+
+    Each write made from the console is recorded there as a `command` event (published on
+    `<base>/bridge/event` with the MQTT commands': the audit a plant keeps). The ring the class
+    keeps besides is for the live pages' cheap synchronous reads."""
 
     def __init__(self, store: Recorder, size: int = MEMORY_EVENTS) -> None:
         super().__init__(size)
@@ -89,3 +111,51 @@ class ConsoleEventsRecorded(MemoryEventStore):
                 "result": event.result,
             }
             self._store.record("command", data, drive=event.drive)
+
+    async def history(self, drive: str | None = None, limit: int = 200) -> list[GatewayEvent]:
+        stored = [console_event(event) for event in await self._store.recent_events(limit, drive)]
+        # Modbus-TCP writes reach the store summed up per client, unit and minute; the audit
+        # line of each one, as it happened, is the ring's (since this start).
+        each_write = [e for e in self.recent(drive, limit) if (e.who or "").startswith("tcp:")]
+        merged = sorted([*stored, *each_write], key=lambda event: event.at, reverse=True)
+        return merged[:limit]
+
+    async def recorded_faults(self, drive: str, limit: int) -> list[dict[str, Any]]:
+        return [fault.as_json() for fault in await self._store.fault_history(drive, limit)]
+
+
+def console_event(event: StoredEvent) -> GatewayEvent:
+    """A stored event as the console's pages show it: a kind and a line of words."""
+    data = event.data
+    kind, text = event.type, ""
+    if kind in ("fault_raised", "fault_cleared"):
+        text = str(data.get("fault_description") or data.get("fault_name") or "")
+    elif kind in ("drive_offline", "drive_online"):
+        text = "no answer: offline" if kind == "drive_offline" else "answering again"
+    elif kind == "port_lost":
+        text = f"port {data.get('port')} lost: {data.get('reason', '')}"
+    elif kind == "port_back":
+        text = f"port {data.get('port')} open again"
+    elif kind == "command":
+        what = data.get("what") or ", ".join(
+            f"{key} {value}"
+            for key, value in data.items()
+            if key not in ("drive", "source", "who", "result", "transaction", "time")
+        )
+        kind, text = "write", str(what)
+    elif kind == "modbus_writes":
+        kind, text = "write", f"Modbus-TCP writes: {json.dumps(data, sort_keys=True)}"
+    else:
+        text = json.dumps(data, sort_keys=True)
+    drive = data.get("drive")
+    who = data.get("who") or data.get("source") or data.get("client")
+    result = data.get("result")
+    return GatewayEvent(
+        kind,
+        text,
+        drive if isinstance(drive, str) else None,
+        data.get("bus") if isinstance(data.get("bus"), str) else None,
+        str(who) if who is not None else None,
+        str(result) if result is not None else None,
+        at=event.time,
+    )

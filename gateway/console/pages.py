@@ -133,6 +133,10 @@ DRIVE = """
 <table id="drive-events" class="grid small"><thead><tr><th>Time</th><th>Event</th>
 <th>What</th><th>Who</th><th>Result</th></tr></thead><tbody></tbody></table>
 </div>
+<h3>Recorded by the gateway</h3>
+<table id="recorded-faults" class="grid small"><thead><tr><th>Raised</th><th>Cleared</th>
+<th>Duration</th><th>Fault</th><th>Hz</th><th>A</th><th>Bus V</th></tr></thead>
+<tbody></tbody></table>
 </section>
 <section>
 <h2>Parameters</h2>

@@ -330,7 +330,7 @@ async def overview(request: web.Request) -> web.StreamResponse:
 
 async def events(request: web.Request) -> web.StreamResponse:
     drive = request.query.get("drive")
-    found = request.app[CONSOLE].events.recent(drive=drive, limit=_limit(request))
+    found = await request.app[CONSOLE].events.history(drive=drive, limit=_limit(request))
     return web.json_response({"events": [e.to_json() for e in found]})
 
 
@@ -350,9 +350,14 @@ async def drive_faults(request: web.Request) -> web.StreamResponse:
     console = request.app[CONSOLE]
     name = _drive_name(request)
     history = await _operation(console.operations.fault_history(request[IDENTITY], name))
-    found = console.events.recent(drive=name, limit=_limit(request))
+    found = await console.events.history(drive=name, limit=_limit(request))
+    recorded = await console.events.recorded_faults(name, _limit(request))
     return web.json_response(
-        {"fault_history": history, "events": [e.to_json() for e in found if e.drive == name]}
+        {
+            "fault_history": history,
+            "recorded_faults": recorded,
+            "events": [e.to_json() for e in found if e.drive == name],
+        }
     )
 
 

@@ -253,7 +253,15 @@ async function loadFaults(name) {
     fill("fault-history", data.fault_history.map((f) =>
       el("tr", { class: f.code ? "fault" : "" }, el("td", {}, f.parameter),
         el("td", {}, f.code ? `${f.code} ${f.name}` : "none"), el("td", {}, f.description))));
-    fill("drive-events", data.events.map((e) => eventRow(e, false)), "no events for this drive since the gateway started");
+    fill("drive-events", data.events.map((e) => eventRow(e, false)), "no events recorded for this drive");
+    fill("recorded-faults", (data.recorded_faults || []).map((f) => {
+      const s = f.snapshot || {};
+      return el("tr", { class: f.cleared ? "" : "fault" },
+        el("td", {}, f.raised), el("td", {}, f.cleared || "still raised"),
+        el("td", {}, f.duration_s === null ? "-" : `${f.duration_s} s`),
+        el("td", {}, `${f.code} ${f.name}`), el("td", {}, String(s.output_frequency_hz ?? "-")),
+        el("td", {}, String(s.output_current_a ?? "-")), el("td", {}, String(s.bus_voltage_v ?? "-")));
+    }), "no fault recorded for this drive");
   } catch (error) {
     fill("fault-history", [el("tr", {}, el("td", { colSpan: 3, class: "muted" },
       `fault history not readable: ${error.message}`))]);
