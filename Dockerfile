@@ -37,8 +37,9 @@ ENV PATH=/opt/invt-gateway/bin:$PATH \
 # By number, so an orchestrator can tell it isn't root; no group given, so the user's
 # supplementary groups (dialout) still apply.
 USER 10001
-# Modbus-TCP (modbus_tcp.port) and metrics/health (metrics.port).
-EXPOSE 5020 9102
+# Modbus-TCP (modbus_tcp.port), metrics/health (metrics.port) and the console (console.port:
+# off by default, and on loopback unless console.host says 0.0.0.0).
+EXPOSE 5020 9102 8080
 # The configuration, and the store (events waiting for the broker, fault history: storage.path
 # defaults to /var/lib/invt-gateway/events.db): a named volume keeps it across new images.
 VOLUME ["/etc/invt-gateway", "/var/lib/invt-gateway"]

@@ -102,7 +102,11 @@ def test_image_runs_as_non_root_and_signals_reach_the_gateway() -> None:
     assert exec_form(runtime["VOLUME"]) == ["/etc/invt-gateway", "/var/lib/invt-gateway"]
     example = yaml.safe_load(EXAMPLE.read_text(encoding="utf-8"))
     ports = {int(port) for port in runtime["EXPOSE"].split()}
-    assert ports == {example["modbus_tcp"]["port"], example["metrics"]["port"]}
+    assert ports == {
+        example["modbus_tcp"]["port"],
+        example["metrics"]["port"],
+        example["console"]["port"],
+    }
 
 
 def test_dockerignore_keeps_what_the_build_copies() -> None:
