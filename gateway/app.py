@@ -257,11 +257,28 @@ class Application:
         logging.getLogger().setLevel(running.logging.level.upper())
         await self._reopen(closed)
         await self._reload_metrics(plan)
+        await self._reload_mqtt(plan)
         self.config = plan.running  # with what could not be applied kept at its running value
         data = {"changed": plan.changed, "restart_needed": plan.restart_needed}
         self.events.record(EventType.CONFIG_RELOADED, data)
         log.warning("config reloaded: %s", plan.summary)
         return plan
+
+    async def _reload_mqtt(self, plan: ReloadPlan) -> None:
+        """The bridge, started again with the running configuration: new settings, the drives
+        it serves now (a removed one's topics are no longer subscribed, an added one's are)."""
+        old = getattr(self, "mqtt", None)
+        if old is None or not plan.restart_bridge:
+            return
+        from gateway.mqtt import MqttBridge
+
+        await old.stop()
+        self.poller.remove_listener(old)
+        new = MqttBridge(plan.running, self.router, self.poller, self.tasks, self.events)
+        self.poller.add_listener(new)
+        self.features[self.features.index(old)] = new
+        self.mqtt = new
+        await new.start()
 
     async def _reload_metrics(self, plan: ReloadPlan) -> None:
         metrics: MetricsFeature | None = getattr(self, "metrics", None)

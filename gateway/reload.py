@@ -19,8 +19,12 @@ What keeps its running value until a restart, named in the log and the `config_r
 ("restart needed for: ..."): the listeners (`modbus_tcp.host`, `port`, `plain`, `tls`),
 `gateway_id`, `storage.path`, the console (its listener and, in this version, its other keys),
 and in this version buses added or removed (with the drives that would move onto or off them),
-`metrics.enabled`, the `mqtt` section and the MQTT side of drives added or removed (their topics,
-discovery and commands).
+`metrics.enabled` and `mqtt.enabled`.
+
+    mqtt          any other key of the section, or drives added or removed: the bridge is
+                  started again with the new settings (it says offline and online again; a
+                  command being carried out over MQTT is cut off); a removed drive's topics are
+                  no longer served, an added one's are, and its Home Assistant entities follow
 
 The planning (`plan`) is pure: it compares two configurations and says what to do; the
 application (`Application.reload`) carries it out.
@@ -48,6 +52,9 @@ class ReloadPlan:
     restart_needed: list[str] = field(default_factory=list)
     reopened: list[str] = field(default_factory=list)
     """Buses whose settings changed: closed and opened again with the new ones."""
+    restart_bridge: bool = False
+    """The MQTT bridge is started again with the running configuration (its settings, or the
+    drives it serves, changed)."""
 
     @property
     def summary(self) -> str:
@@ -71,8 +78,15 @@ def plan(old: GatewayConfig, new: GatewayConfig, mqtt_running: bool) -> ReloadPl
         changed.append("storage")
     if new.logging != old.logging:
         changed.append("logging")
-    if old.mqtt != new.mqtt:
-        restart.append("mqtt")
+    mqtt = old.mqtt
+    was_on = old.mqtt is not None and old.mqtt.enabled
+    is_on = new.mqtt is not None and new.mqtt.enabled
+    if was_on != is_on:
+        restart.append("mqtt.enabled")  # the store's forwarding is set at start
+    elif old.mqtt != new.mqtt:
+        mqtt = new.mqtt
+        if is_on:
+            changed.append("mqtt")
     metrics = _metrics(old.metrics, new.metrics, changed, restart)
     restart += [
         f"console.{key}"
@@ -84,8 +98,9 @@ def plan(old: GatewayConfig, new: GatewayConfig, mqtt_running: bool) -> ReloadPl
     # off them; on every other bus (reopened or not) drives change now.
     steady = {b.name for b in old.buses} & {b.name for b in new.buses}
     drives, added, removed = _drives(old, new, steady, changed, restart)
+    restart_bridge = mqtt_running and ("mqtt" in changed or bool(added or removed))
     if (added or removed) and mqtt_running:
-        restart.append("MQTT topics of drives added or removed")
+        changed.append("MQTT topics of drives added or removed")
     running = new.model_copy(
         update={
             "gateway_id": old.gateway_id,
@@ -93,12 +108,12 @@ def plan(old: GatewayConfig, new: GatewayConfig, mqtt_running: bool) -> ReloadPl
             "storage": storage,
             "buses": _running_buses(old, new),
             "drives": drives,
-            "mqtt": old.mqtt,
+            "mqtt": mqtt,
             "metrics": metrics,
             "console": old.console,
         }
     )
-    return ReloadPlan(running, added, removed, changed, restart, reopened)
+    return ReloadPlan(running, added, removed, changed, restart, reopened, restart_bridge)
 
 
 def _buses(

@@ -155,3 +155,38 @@ async def test_mqtt_is_in_the_metrics(mosquitto: Mosquitto) -> None:
     }
     refused = {status: count for status, count in statuses.items() if status not in ("ok", "busy")}
     assert sum(refused.values()) == 1, statuses  # "warp": no such command
+
+
+async def test_a_reload_restarts_the_bridge_with_new_mqtt_settings_and_drives(
+    mosquitto: Mosquitto,
+) -> None:
+    """Live reload of the `mqtt` section and of drives: the bridge starts again with them."""
+    base, new_base = unique_base_topic(), unique_base_topic()
+    with simulated_line((1, 2)) as line:
+        pump = {"name": "pump1", "address": 1, "model": "gd350"}
+        fan = {"name": "fan2", "address": 2, "model": "gd20"}
+        config = mqtt_config(line.path, mosquitto, base, drives=[pump, fan])
+        async with mqtt_probe(mosquitto, "#") as probe, running_gateway(config) as app:
+            await probe.wait_for(f"{base}/fan2/availability", lambda a: a["state"] == "online")
+            # fan2 renamed to blower2: one removed, one added; and a new base topic.
+            blower = {**fan, "name": "blower2"}
+            new = mqtt_config(line.path, mosquitto, new_base, drives=[pump, blower])
+            plan = await app.reload(new)
+            assert "mqtt" in plan.changed
+            assert "MQTT topics of drives added or removed" in plan.changed
+            assert "mqtt" not in " ".join(plan.restart_needed)
+            mark = len(probe.messages)
+            state = await probe.wait_for(f"{new_base}/blower2", lambda s: "state" in s, after=mark)
+            assert state.json()["state"] == "stopped"
+            answer = await probe.request(
+                f"{new_base}/blower2/set", {"command": "stop"}, f"{new_base}/blower2/set/response"
+            )
+            assert answer["status"] == "ok"
+            refused = await probe.request(
+                f"{new_base}/bridge/request/read_parameter",
+                {"drive": "fan2", "parameter": "P00.11"},
+                f"{new_base}/bridge/response/read_parameter",
+            )
+            assert refused["error"] == "unknown_drive"
+            # The old tree says offline: nobody serves it any more.
+            await probe.wait_for(f"{base}/bridge/state", lambda s: s["state"] == "offline")

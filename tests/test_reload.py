@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import copy
 import signal
 import urllib.error
 from collections.abc import AsyncIterator
@@ -262,7 +263,7 @@ def test_what_a_reload_applies_and_what_waits_for_a_restart() -> None:
 
 def test_buses_added_or_removed_wait_for_a_restart_with_their_drives() -> None:
     old = GatewayConfig.model_validate(config("/dev/ttyA", "/dev/ttyB", 5020, BEFORE))
-    new = config("/dev/ttyA", "/dev/ttyB", 5020, BEFORE)
+    new = copy.deepcopy(config("/dev/ttyA", "/dev/ttyB", 5020, BEFORE))  # BEFORE stays as it is
     new["buses"][1]["name"] = "line3"
     new["drives"][2]["bus"] = "line3"
     result = plan(old, GatewayConfig.model_validate(new), mqtt_running=False)
@@ -273,3 +274,20 @@ def test_buses_added_or_removed_wait_for_a_restart_with_their_drives() -> None:
     ]
     assert [b.name for b in result.running.buses] == ["line1", "line2"]
     assert result.running.drives == old.drives
+
+
+def test_mqtt_settings_apply_and_turning_mqtt_on_waits_for_a_restart() -> None:
+    old = GatewayConfig.model_validate(
+        {**config("/dev/ttyA", "/dev/ttyB", 5020, BEFORE), "mqtt": {"host": "127.0.0.1"}}
+    )
+    moved = {**config("/dev/ttyA", "/dev/ttyB", 5020, BEFORE), "mqtt": {"host": "10.0.0.9"}}
+    result = plan(old, GatewayConfig.model_validate(moved), mqtt_running=True)
+    assert result.changed == ["mqtt"]
+    assert result.restart_bridge
+    assert result.running.mqtt is not None
+    assert result.running.mqtt.host == "10.0.0.9"
+    off = {**moved, "mqtt": {"host": "10.0.0.9", "enabled": False}}
+    result = plan(old, GatewayConfig.model_validate(off), mqtt_running=True)
+    assert result.restart_needed == ["mqtt.enabled"]
+    assert not result.restart_bridge
+    assert result.running.mqtt == old.mqtt

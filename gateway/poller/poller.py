@@ -106,6 +106,10 @@ class Poller:
     def add_listener(self, listener: PollListener) -> None:
         self._listeners.append(listener)
 
+    def remove_listener(self, listener: PollListener) -> None:
+        if listener in self._listeners:
+            self._listeners.remove(listener)
+
     # -- lifecycle ---------------------------------------------------------------------------
 
     async def start(self) -> None:
