@@ -40,6 +40,14 @@ CONFIG_VERSIONS = (1,)
 """The file format versions this gateway reads (`version:` in the file; without it, 1)."""
 
 
+def readable_file(value: str | None) -> str | None:
+    """A file the configuration names must be there and readable: said at load, with the key."""
+    if value is not None and not os.access(value, os.R_OK):
+        reason = "no such file" if not os.path.exists(value) else "not readable"
+        raise ValueError(f"{value}: {reason}")
+    return value
+
+
 class Section(BaseModel):
     # An unknown key is almost always a typo that would silently do nothing: refuse it.
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -391,10 +399,7 @@ class MqttConfig(Section):
     @classmethod
     def _readable(cls, value: str | None) -> str | None:
         # Found now rather than at the first connection attempt, retried in the background.
-        if value is not None and not os.access(value, os.R_OK):
-            reason = "no such file" if not os.path.exists(value) else "not readable"
-            raise ValueError(f"{value}: {reason}")
-        return value
+        return readable_file(value)
 
     @model_validator(mode="after")
     def _tls_files(self) -> MqttConfig:
@@ -482,10 +487,7 @@ class ConsoleConfig(Section):
     @field_validator("cert_file", "key_file")
     @classmethod
     def _readable(cls, value: str | None) -> str | None:
-        if value is not None and not os.access(value, os.R_OK):
-            reason = "no such file" if not os.path.exists(value) else "not readable"
-            raise ValueError(f"{value}: {reason}")
-        return value
+        return readable_file(value)
 
     @model_validator(mode="after")
     def _checks(self) -> ConsoleConfig:

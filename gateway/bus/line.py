@@ -547,17 +547,25 @@ class SerialLine:
                 if self._arrivals is not None:
                     self._arrivals.append((len(self._received), self._quiet_since))
                 return True
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
+            if not await self._woken_before(deadline):
                 return False
-            assert self._loop is not None
-            waiter = self._waiter = self._loop.create_future()
-            try:
-                await woken_or_timeout(waiter, remaining)
-            finally:
-                if self._waiter is waiter:
-                    self._waiter = None
-            self._require_port()
+        return True
+
+    async def _woken_before(self, deadline: float) -> bool:
+        """Wait until the reader callback has news (bytes, or the port failed) or `deadline`
+        passes (False at once if it has). Response and character timeouts need no
+        sub-millisecond precision: call_later does."""
+        remaining = deadline - time.monotonic()
+        if remaining <= 0:
+            return False
+        assert self._loop is not None
+        waiter = self._waiter = self._loop.create_future()
+        try:
+            await woken_or_timeout(waiter, remaining)
+        finally:
+            if self._waiter is waiter:
+                self._waiter = None
+        self._require_port()
         return True
 
     async def _read_echo(self, frame: bytes, sent: float) -> None:
@@ -635,19 +643,8 @@ class SerialLine:
         self._require_port()
         if self._fd is None:
             return await self._read_some_url(max_bytes, deadline)
-        if not self._received:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                return b""
-            assert self._loop is not None
-            waiter = self._waiter = self._loop.create_future()
-            # Response and character timeouts need no sub-millisecond precision: call_later.
-            try:
-                await woken_or_timeout(waiter, remaining)
-            finally:
-                if self._waiter is waiter:
-                    self._waiter = None
-            self._require_port()
+        if not self._received and not await self._woken_before(deadline):
+            return b""
         data = bytes(self._received[:max_bytes])
         del self._received[:max_bytes]
         return data
