@@ -48,6 +48,7 @@ from gateway.config import GatewayConfig, MetricsConfig
 from gateway.errors import CannotListen
 from gateway.health import Phase, health_report
 from gateway.http_endpoint import HttpEndpoint, Response
+from gateway.modbus.functions import FUNCTIONS
 from gateway.modbus.request_checks import Reason
 
 if TYPE_CHECKING:
@@ -115,17 +116,13 @@ def request_source(client: str) -> str:
     return head if head in SOURCES else "other"
 
 
-KNOWN_FUNCTIONS = frozenset(
-    {0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07, 0x08, 0x0B, 0x0C, 0x0F, 0x10, 0x11, 0x14, 0x15}
-    | {0x16, 0x17, 0x18, 0x2B}
-)
-"""The Modbus spec's public function codes: the only ones a label names. A client choosing
-random codes must not grow the metrics by a series per code."""
 OTHER = "other"
 
 
 def function_label(function: int) -> str:
-    return f"{function:02X}" if function in KNOWN_FUNCTIONS else OTHER
+    """The codes of the function-code registry by name, any other `other`: a client choosing
+    random codes must not grow the metrics by a series per code."""
+    return f"{function:02X}" if function in FUNCTIONS else OTHER
 
 
 def exception_label(code: int) -> str:

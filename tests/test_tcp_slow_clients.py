@@ -11,36 +11,21 @@ import asyncio
 import contextlib
 import struct
 import time
-from collections.abc import AsyncIterator, Iterator
-from typing import Any
+from collections.abc import AsyncIterator
 
 import pytest
 
-from gateway.config import GatewayConfig
 from gateway.instruments.simulator import SimulatedLine
 from tests.support import TcpClient, running_gateway, write_pdu
+from tests.test_tcp_protection import line as line
+from tests.test_tcp_protection import protected_config
 
 STATE_WORD_1 = 0x2100
 STOPPED = 3
 
 
-def config(line_path: str, **tcp: Any) -> GatewayConfig:
-    return GatewayConfig.model_validate(
-        {
-            "modbus_tcp": {"host": "127.0.0.1", "port": 0, **tcp},
-            "buses": [{"name": "line1", "port": line_path, "baudrate": 115200}],
-            "drives": [
-                {"name": "pump1", "bus": "line1", "address": 1},
-                {"name": "fan2", "bus": "line1", "address": 2},
-            ],
-        }
-    )
-
-
-@pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    with SimulatedLine(addresses=[1, 2], baudrate=115200, parity="E", wire_time=True) as sim:
-        yield sim
+# The same gateway and line as the other protection tests.
+config = protected_config
 
 
 async def open_from(host: str, port: int) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:

@@ -424,13 +424,14 @@ class Connection(asyncio.Protocol):
             if buffer:
                 self._frame_started = self._last_data  # the next frame began in the last chunk
             self.server.stats.requests += 1
-            if not changes_nothing(pdu):
+            write = not changes_nothing(pdu)
+            if write:
                 if self._writes_waiting >= settings.max_queued_writes_per_client:
                     self._refuse_write(header.transaction_id, header.unit_id, pdu)
                     continue
                 self._writes_waiting += 1
             answer = self._loop.create_task(
-                self._answer(header.transaction_id, header.unit_id, pdu)
+                self._answer(header.transaction_id, header.unit_id, pdu, write)
             )
             self.answers.add(answer)
             if lookup(pdu[0]).coalescable:  # a pure read
@@ -480,8 +481,8 @@ class Connection(asyncio.Protocol):
             self._transport.resume_reading()
             self._take_frames()
 
-    async def _answer(self, transaction_id: int, unit_id: int, pdu: bytes) -> None:
-        write = not changes_nothing(pdu)
+    async def _answer(self, transaction_id: int, unit_id: int, pdu: bytes, write: bool) -> None:
+        """Answer one request; `write`: it counts among the client's queued writes."""
         try:
             reply = await self.server.reply(unit_id, pdu, self.client, self.role)
             transport = self._transport
