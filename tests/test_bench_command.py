@@ -138,3 +138,23 @@ def test_bench_and_stress_help_show_the_defaults() -> None:
     ).stdout
     for default in ("(default 60)", "(default 0.05)", "default 8)", "(default 115200)"):
         assert default in " ".join(stress.split()), stress
+
+
+def test_bench_measures_the_gateways_cpu_per_transaction_with_no_wire_delay() -> None:
+    """Bytes take no time and drives answer at once: only the t3.5 gap and our own work remain."""
+    arguments = ["--baud", "115200", "--duration", "1", "--warmup", "0.3", "--json"]
+    result = subprocess.run(
+        [sys.executable, "-m", "gateway", "bench", *arguments, "--case", "no wire delay"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 0, result.stderr
+    (row,) = json.loads(result.stdout)["cases"]
+    assert row["errors"] == row["wrong"] == row["t3.5 viol"] == 0
+    # The line's limit is the gap alone: t3.5 at 115200 baud is fixed at 1.75 ms.
+    assert abs(row["wire max/s"] - 1 / 0.00175) < 0.1
+    assert 0 < row["bus tx/s"] < row["wire max/s"]
+    assert row["CPU us/tx"] > 0
+    (line,) = json.loads(result.stdout)["summary"]
+    assert "us per bus transaction (target <= 300 us)" in line

@@ -52,6 +52,8 @@ def matrix(baudrates: tuple[int, ...]) -> list[Case]:
             cases.append(Case("2w 8c glitch FFH", baud, 2, 8, glitch=True))
             cases.append(Case("2w 8c echo, echo: false", baud, 2, 8, echo=True))
     fastest = max(baudrates)
+    # No wire delay: the gateway's CPU per transaction, with nothing on the line to hide it.
+    cases.append(Case("no wire delay", fastest, 2, 1, no_wire=True))
     cases.append(Case("2w 8c same regs, cache", fastest, 2, 8, same_registers=True, cache=True))
     cases.append(Case("2w 64c on 32 drives", fastest, 2, 64, drives=32))
     # The console: what it costs with nobody watching the traffic, and with a monitor open.
@@ -105,9 +107,14 @@ class Case:
     """Buses in the one gateway process, each with `drives` drives and `clients` clients."""
     flood: str = ""
     """"writes" or "broadcasts": one more client keeps `FLOOD_WINDOW` of them in flight."""
+    no_wire: bool = False
+    """Bytes take no time on the virtual line and the drives answer at once: what is left per
+    transaction is the gap the gateway keeps, and its own work."""
 
     @property
     def response_delay_s(self) -> float:
+        if self.no_wire:
+            return 0.0
         if self.fast:
             return CharacterFormat(self.baudrate, "E").t35_s + FAST_TURNAROUND_S
         return RESPONSE_DELAY_MS / 1000
@@ -123,6 +130,10 @@ class Case:
         args += ["--glitch", "FF"] if self.glitch else []
         return args + (["--echo"] if self.echo else [])
 
+    @property
+    def simulator_args(self) -> list[str]:
+        return self.adapter_args + (["--no-wire-time"] if self.no_wire else [])
+
     def baseline(self) -> Case:
         """The same load with every drive alive."""
         return Case(f"{self.words}w {self.clients}c", self.baudrate, self.words, self.clients)
@@ -130,7 +141,11 @@ class Case:
     @property
     def budget(self) -> WireBudget:
         return read_budget(
-            self.baudrate, self.words, self.response_delay_s, burst_s=self.burst_ms / 1000
+            self.baudrate,
+            self.words,
+            self.response_delay_s,
+            burst_s=self.burst_ms / 1000,
+            wire=not self.no_wire,
         )
 
 
@@ -279,7 +294,7 @@ def run_case(case: Case, duration_s: float, warmup_s: float) -> CaseResult:
     with contextlib.ExitStack() as stack:
         lines = [
             stack.enter_context(
-                simulator(addresses, case.baudrate, dead, delay_ms, case.adapter_args)
+                simulator(addresses, case.baudrate, dead, delay_ms, case.simulator_args)
             )
             for n in range(case.lines)
         ]

@@ -18,6 +18,8 @@ from typing import Any
 import yaml
 
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
+PROFILE_VARIABLE = "INVT_BENCH_PROFILE"
+"""Set to a file's path: the gateway runs under cProfile and writes its statistics there."""
 
 
 def gateway_command() -> list[str]:
@@ -91,8 +93,12 @@ def gateway(config: dict[str, Any], port: int) -> Iterator[GatewayProcess]:
     with tempfile.TemporaryDirectory(prefix="invt-bench-") as folder:
         path = Path(folder) / "config.yaml"
         path.write_text(yaml.safe_dump(config))
+        command = gateway_command()
+        if profile := os.environ.get(PROFILE_VARIABLE):
+            # The gateway under cProfile, its statistics written at its (graceful) exit.
+            command = [sys.executable, "-m", "cProfile", "-o", profile, "-m", "gateway"]
         process = subprocess.Popen(
-            [*gateway_command(), "run", "--config", str(path)],
+            [*command, "run", "--config", str(path)],
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
         )

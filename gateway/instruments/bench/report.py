@@ -105,6 +105,13 @@ def summary(results: list[CaseResult]) -> list[str]:
                 f"({result.cpu_per_transaction_us:.0f} us per transaction); {gaps}; "
                 f"peak RSS {result.peak_rss_mb:.1f} MB"
             )
+        elif case.no_wire:
+            lines.append(
+                f"{case.baudrate} baud, {case.name}: gateway CPU "
+                f"{result.cpu_per_transaction_us:.0f} us per bus transaction (target <= 300 us), "
+                f"{result.bus_per_s:.0f} transactions/s ({share:.1%} of what the t3.5 gap alone "
+                f"allows), {result.gap_violations} t3.5 violations"
+            )
         elif case.fast:
             lines.append(
                 f"{case.baudrate} baud, {case.name}: bus at {share:.1%} of the wire maximum "

@@ -30,10 +30,15 @@ class WireBudget:
     adapter_delay_s: float = 0.0
     """What the master's adapter adds to every transaction: with replies handed over in bursts,
     the wait for the part of each reply held back until the next burst."""
+    wire: bool = True
+    """False: bytes take no time and the drive answers at once (a pty without wire-time
+    emulation); only the gap the gateway keeps before each request is left."""
 
     @property
     def transaction_s(self) -> float:
         fmt = self.char_format
+        if not self.wire:
+            return fmt.t35_s
         delay = max(self.response_delay_s, fmt.t35_s)
         wire = fmt.t35_s + fmt.wire_time_s(self.request_bytes + self.reply_bytes) + delay
         return wire + self.adapter_delay_s
@@ -44,11 +49,18 @@ class WireBudget:
 
 
 def read_budget(
-    baudrate: int, words: int, response_delay_s: float, parity: str = "E", burst_s: float = 0.0
+    baudrate: int,
+    words: int,
+    response_delay_s: float,
+    parity: str = "E",
+    burst_s: float = 0.0,
+    wire: bool = True,
 ) -> WireBudget:
     fmt = CharacterFormat(baudrate, parity)
     reply = read_reply_bytes(words)
     # The simulated adapter cuts each reply in the middle and hands the rest over one burst
     # period later (`gateway.instruments.simulator.adapter`), instead of as it leaves the wire.
     held_back = burst_s - fmt.wire_time_s(reply - reply // 2) if burst_s else 0.0
-    return WireBudget(fmt, READ_REQUEST_BYTES, reply, response_delay_s, max(held_back, 0.0))
+    return WireBudget(
+        fmt, READ_REQUEST_BYTES, reply, response_delay_s, max(held_back, 0.0), wire=wire
+    )
