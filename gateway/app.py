@@ -22,6 +22,7 @@ from gateway.bus import Bus, BusSettings, BusState
 from gateway.bus.direction import DirectionControl, DirectionMode
 from gateway.bus.line import LineSettings
 from gateway.bus.line_share import LineShares
+from gateway.bus.queue import Waiter
 from gateway.config import (
     AccessRuleConfig,
     BusConfig,
@@ -177,7 +178,9 @@ class Application:
         )
         for bus in self.buses.values():
             bus.add_listener(self.router.on_drive_health)
-        self.tcp = ModbusTcpServer(tcp_settings(config.modbus_tcp), self._handle_tcp)
+        self.tcp = ModbusTcpServer(
+            tcp_settings(config.modbus_tcp), self._handle_tcp, self._submit_tcp
+        )
         self.features: list[Feature] = []
         self.tasks = ServiceTasks()
         self._group: asyncio.TaskGroup | None = None
@@ -373,6 +376,10 @@ class Application:
             raise
         self.writes.count(client, unit_id, pdu, refused=reply is not None and is_exception(reply))
         return reply
+
+    def _submit_tcp(self, unit_id: int, pdu: bytes, client: str, waiter: Waiter) -> bool:
+        # Reads only (the router says False to anything else): no write to tally here.
+        return self.router.submit(unit_id, pdu, client=client, waiter=waiter)
 
     def _drive_of(self, unit_id: int) -> str | None:
         try:

@@ -22,7 +22,7 @@ import time
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from http import HTTPStatus
-from typing import TYPE_CHECKING, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 from prometheus_client import (
     CONTENT_TYPE_LATEST,
@@ -135,6 +135,9 @@ class RequestMetrics:
 
     def __init__(self, registry: CollectorRegistry, drives: Sequence[DriveLabels]) -> None:
         self._names = {(d.bus, d.address): d.drive for d in drives}
+        self._series: dict[tuple[str, int, str, int], tuple[Any, Any]] = {}
+        """Per (bus, address, source, function): the children a request of that kind counts in.
+        Bounded: a closed set of sources, 256 function codes, the configured drives' addresses."""
         self.requests = Counter(
             f"{PREFIX}_requests",
             "Requests to a drive by who asked (tcp, poll, mqtt, probe) and function code",
@@ -162,20 +165,39 @@ class RequestMetrics:
         )
 
     def observe(self, done: RequestDone) -> None:
+        # Once per request on every bus: the label sets' children are looked up once and kept
+        # (prometheus_client's `labels()` takes a lock and builds a key per call).
+        key = (done.bus, done.address, request_source(done.client), done.function)
+        series = self._series.get(key)
+        if series is None:
+            series = self._series[key] = self._children(done)
+        requests, latency = series
+        requests.inc()
+        if latency is None:
+            return
+        if done.code is not None:
+            drive = self.drive_name(done.bus, done.address)
+            source = request_source(done.client)
+            self.errors.labels(done.bus, drive, source, exception_label(done.code)).inc()
+        latency.observe(done.duration_s)
+
+    def _children(self, done: RequestDone) -> tuple[Any, Any]:
+        """The series one kind of request counts in: (requests, latency); latency None for a
+        broadcast, which counts in its own series (it is no drive's request)."""
         source = request_source(done.client)
         function = function_label(done.function)
-        if done.address == 0:  # their own series: a broadcast is no drive's request
-            self.broadcasts.labels(done.bus, source, function).inc()
-            return
+        if done.address == 0:
+            return self.broadcasts.labels(done.bus, source, function), None
         drive = self.drive_name(done.bus, done.address)
-        self.requests.labels(done.bus, drive, source, function).inc()
-        if done.code is not None:
-            self.errors.labels(done.bus, drive, source, exception_label(done.code)).inc()
-        self.latency.labels(done.bus, drive, source).observe(done.duration_s)
+        return (
+            self.requests.labels(done.bus, drive, source, function),
+            self.latency.labels(done.bus, drive, source),
+        )
 
     def relabel(self, drives: Sequence[DriveLabels]) -> None:
         """A reload changed the drives: requests to them counted under their names from now."""
         self._names = {(d.bus, d.address): d.drive for d in drives}
+        self._series.clear()
 
     def drive_name(self, bus: str, address: int) -> str:
         if address == 0:

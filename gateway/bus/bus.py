@@ -29,7 +29,7 @@ from gateway.bus.gap_excess import GapExcess
 from gateway.bus.health import HealthTracker
 from gateway.bus.line import Exchange, LineSettings, Sending, SerialLine
 from gateway.bus.line_share import LineShares
-from gateway.bus.queue import Priority, RequestQueue, Transaction
+from gateway.bus.queue import Priority, RequestQueue, Transaction, Waiter
 from gateway.bus.wakeup import woken_or_timeout
 from gateway.errors import (
     BadReply,
@@ -224,17 +224,45 @@ class Bus:
         A drive's exception comes back as its exception PDU, byte-exact. Raises
         GatewayTargetFailed (0x0B) or GatewayPathUnavailable (0x0A, queue full).
         """
-        if not self._request_observers:
-            return await self._request(address, pdu, priority, client, timeout_s, retries)
-        started = time.monotonic()
+        waiter: asyncio.Future[bytes | None] = asyncio.get_running_loop().create_future()
+        self.submit(
+            address,
+            pdu,
+            waiter,
+            priority=priority,
+            client=client,
+            timeout_s=timeout_s,
+            retries=retries,
+        )
+        return await waiter
+
+    def submit(
+        self,
+        address: int,
+        pdu: bytes,
+        waiter: Waiter,
+        *,
+        priority: Priority,
+        client: str,
+        timeout_s: float | None = None,
+        retries: int | None = None,
+    ) -> None:
+        """Queue `pdu` for the drive at `address`; `waiter` gets the reply PDU (None for a
+        broadcast) or the error, as `request` would return or raise it.
+
+        Synchronous: a caller that answers from `waiter` itself (the Modbus-TCP server's reads)
+        costs no task and no pass of the event loop between its request and the queue. A
+        refusal before queueing (closed, offline, queue full) is raised here, not given to
+        `waiter`.
+        """
+        if self._request_observers:
+            waiter = _Observed(self, waiter, address, pdu, client, time.monotonic())
         try:
-            reply = await self._request(address, pdu, priority, client, timeout_s, retries)
+            self._queue_request(address, pdu, waiter, priority, client, timeout_s, retries)
         except ModbusError as exc:
-            self._report(address, pdu, client, started, exc.code)
+            if isinstance(waiter, _Observed):
+                waiter.report(exc.code)
             raise
-        code = reply[1] if reply is not None and is_exception(reply) and len(reply) > 1 else None
-        self._report(address, pdu, client, started, code)
-        return reply
 
     def _report(
         self, address: int, pdu: bytes, client: str, started: float, code: int | None
@@ -248,15 +276,16 @@ class Bus:
             except Exception:
                 log.exception("bus %s: request observer failed", self.name)
 
-    async def _request(
+    def _queue_request(
         self,
         address: int,
         pdu: bytes,
+        waiter: Waiter,
         priority: Priority,
         client: str,
         timeout_s: float | None,
         retries: int | None,
-    ) -> bytes | None:
+    ) -> None:
         self.stats.requests += 1
         if self.state is BusState.CLOSED:
             raise BusClosed(f"bus {self.name} is shutting down")
@@ -265,7 +294,6 @@ class Bus:
         if address != BROADCAST_ADDRESS and self.health.is_offline(address):
             self.stats.offline_rejected += 1
             raise DriveOffline(f"drive {address} on {self.name} is offline")
-        waiter: asyncio.Future[bytes | None] = asyncio.get_running_loop().create_future()
         transaction = Transaction(
             address=address,
             pdu=pdu,
@@ -286,7 +314,6 @@ class Bus:
             transaction.frame = build_frame(address, pdu)
         else:
             self.stats.coalesced += 1
-        return await waiter
 
     # -- lifecycle (event loop) ----------------------------------------------------------------
 
@@ -665,6 +692,40 @@ class Bus:
                 listener(self.name, address, online)
             except Exception:
                 log.exception("bus %s: drive listener failed", self.name)
+
+
+class _Observed:
+    """A waiter whose outcome the bus's request observers (metrics, the console) are told of,
+    with the time from `submit` to the answer."""
+
+    __slots__ = ("_address", "_bus", "_client", "_pdu", "_started", "_waiter")
+
+    def __init__(
+        self, bus: Bus, waiter: Waiter, address: int, pdu: bytes, client: str, started: float
+    ) -> None:
+        self._bus = bus
+        self._waiter = waiter
+        self._address = address
+        self._pdu = pdu
+        self._client = client
+        self._started = started
+
+    def done(self) -> bool:
+        return self._waiter.done()
+
+    def set_result(self, result: bytes | None, /) -> None:
+        code = (
+            result[1] if result is not None and is_exception(result) and len(result) > 1 else None
+        )
+        self.report(code)
+        self._waiter.set_result(result)
+
+    def set_exception(self, exception: BaseException, /) -> None:
+        self.report(exception.code if isinstance(exception, ModbusError) else None)
+        self._waiter.set_exception(exception)
+
+    def report(self, code: int | None) -> None:
+        self._bus._report(self._address, self._pdu, self._client, self._started, code)
 
 
 def _resolve(transaction: Transaction, reply: bytes | None) -> None:

@@ -17,10 +17,10 @@ answers both. Reads only: writing twice is not the same as writing once.
 
 from __future__ import annotations
 
-import asyncio
 from collections import deque
 from dataclasses import dataclass, field
 from enum import IntEnum
+from typing import Protocol
 
 from gateway.bus.line_share import LineShares, LineUse, ShareMeter
 from gateway.errors import QueueFull
@@ -29,6 +29,17 @@ BROADCAST = 0
 """Address 0: every drive, no reply."""
 POLL_SHARE = 4
 """While reads and polls both wait, one transaction in this many goes to a poll."""
+
+
+class Waiter(Protocol):
+    """Who waits for a transaction's reply: an asyncio future, or an answer that goes out the
+    moment the reply is there (`gateway.tcp.server`'s fast path) without a task to wake."""
+
+    def done(self) -> bool: ...
+
+    def set_result(self, result: bytes | None, /) -> None: ...
+
+    def set_exception(self, exception: BaseException, /) -> None: ...
 
 
 class Priority(IntEnum):
@@ -48,7 +59,7 @@ class Transaction:
     timeout_s: float
     retries: int
     coalescable: bool = False
-    waiters: list[asyncio.Future[bytes | None]] = field(default_factory=list)
+    waiters: list[Waiter] = field(default_factory=list)
     probe: bool = False
     """A bus's own check of an offline drive: nobody waits for it, it is always wanted."""
     frame: bytes = b""

@@ -1,8 +1,9 @@
 """Routing: a Modbus unit id (or a drive's name) to a drive, its bus and its address on that bus.
 
 The router is the one way to a drive, for every part that asks: the TCP server (`execute`, by
-unit id), the MQTT commands (`request`, by the `Route` they resolved once) and the poller
-(`poll`). It owns the poll cache, and is the only part that touches it:
+unit id, or `submit` for a read that is one transaction), the MQTT commands (`request`, by the
+`Route` they resolved once) and the poller (`poll`). It owns the poll cache, and is the only
+part that touches it:
 
     read-through   a 03H read of a drive with `cache_max_age_s` is answered from the cache when
                    every word asked for is fresh enough; otherwise it goes to the drive
@@ -26,6 +27,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 from gateway.bus import Bus, Priority
+from gateway.bus.queue import Waiter
 from gateway.errors import GatewayPathUnavailable
 from gateway.modbus.functions import (
     MAX_READ_REGISTERS,
@@ -121,6 +123,33 @@ class Router:
             if cached is not None:
                 return cached
         return await self._forward(route, pdu, client, priority or Priority.READ)
+
+    def submit(self, unit_id: int, pdu: bytes, *, client: str, waiter: Waiter) -> bool:
+        """`execute` without a task, for a read that is one bus transaction: the reply (from
+        the cache, or the drive's) goes to `waiter`. False when the request needs `execute`
+        (a write, a broadcast, a read the drive's word limit splits); a refusal before the bus
+        (no such unit id, drive offline, queue full) is raised."""
+        if unit_id == BROADCAST_ADDRESS or lookup(pdu[0]).writes:
+            return False
+        route = self.route(unit_id)
+        if route.max_words is not None and split_request(pdu, route.max_words) is not None:
+            return False
+        if route.cache_max_age_s is not None:
+            cached = self._from_cache(route, pdu)
+            if cached is not None:
+                waiter.set_result(cached)
+                return True
+        # A read is never rewritten to a RAM address (`_to_ram` takes 06H/10H only).
+        route.bus.submit(
+            route.address,
+            pdu,
+            waiter,
+            priority=Priority.READ,
+            client=client,
+            timeout_s=route.timeout_s,
+            retries=route.retries,
+        )
+        return True
 
     async def poll(self, route: Route, start: int, count: int) -> bytes:
         """Read `count` words from `start` of the drive, never from the cache, at poll priority;

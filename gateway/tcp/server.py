@@ -33,6 +33,7 @@ from collections import Counter
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
 
+from gateway.bus.queue import Waiter
 from gateway.errors import ExceptionCode, MalformedFrame, ModbusError
 from gateway.listen import cannot_listen
 from gateway.logs import repeated
@@ -45,6 +46,10 @@ log = logging.getLogger(__name__)
 
 RequestHandler = Callable[[int, bytes, str], Awaitable[bytes | None]]
 """(unit id, request PDU, client) -> reply PDU, or None when nothing answers (a broadcast)."""
+RequestSubmitter = Callable[[int, bytes, str, Waiter], bool]
+"""(unit id, request PDU, client, waiter) -> True when the request was started without a task
+and `waiter` will get its reply (or error); False: it needs the handler. Raises a ModbusError
+when it is refused before reaching a bus."""
 
 # Once part of a frame has arrived, the rest follows at once; a client that stops halfway is
 # broken, and waiting for it the whole idle timeout would hold a connection slot.
@@ -124,10 +129,16 @@ class TcpStats:
 
 
 class ModbusTcpServer:
-    def __init__(self, settings: TcpSettings, handler: RequestHandler) -> None:
+    def __init__(
+        self, settings: TcpSettings, handler: RequestHandler, submit: RequestSubmitter | None = None
+    ) -> None:
         self.settings = settings
         self.stats = TcpStats()
         self.handler = handler
+        self.submit = submit
+        """The fast path for reads that are one transaction; None: every request takes a task."""
+        self._drained: asyncio.Future[None] | None = None
+        """Set while `stop` waits for the answers of the fast path to go out."""
         self._server: asyncio.Server | None = None
         self._tls_server: asyncio.Server | None = None
         self._connections: set[Connection] = set()
@@ -196,9 +207,16 @@ class ModbusTcpServer:
     async def stop(self, grace_s: float = 0.5) -> None:
         """Stop accepting, give answers in flight `grace_s` to go out, then close connections."""
         self.stop_accepting()
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + grace_s
         answers = {task for c in self._connections for task in c.answers}
         if answers:
             await asyncio.wait(answers, timeout=grace_s)
+        if any(c.settling for c in self._connections):
+            self._drained = loop.create_future()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._drained, max(deadline - loop.time(), 0.0))
+            self._drained = None
         for connection in list(self._connections):
             connection.close()
         if self._server is not None:
@@ -276,6 +294,13 @@ class ModbusTcpServer:
         self, unit_id: int, pdu: bytes, client: str, role: str | None = None
     ) -> bytes | None:
         """The reply PDU for one request; every error becomes an exception PDU here, only here."""
+        refusal = self.refusal(unit_id, pdu, client, role)
+        if refusal is not None:
+            return refusal
+        return await self.forward(unit_id, pdu, client)
+
+    def refusal(self, unit_id: int, pdu: bytes, client: str, role: str | None) -> bytes | None:
+        """The exception PDU for a request refused at the front door; None: it may pass."""
         function = pdu[0]
         malformed = check_request(pdu)
         if malformed is not None:
@@ -305,18 +330,35 @@ class ModbusTcpServer:
                     refusal.code,
                 )
                 return exception_pdu(function, refusal.code)
+        return None
+
+    async def forward(self, unit_id: int, pdu: bytes, client: str) -> bytes | None:
+        """The handler's reply to a request the front door let pass."""
         try:
             reply = await self.handler(unit_id, pdu, client)
-        except ModbusError as exc:
-            self.stats.exceptions += 1
-            log.debug("%s unit %d: %s", client, unit_id, exc)
-            return exception_pdu(function, exc.code)
-        except Exception:  # a bug must cost one answer, not the connection: log it loudly
-            log.exception("%s unit %d: unexpected error", client, unit_id)
-            return exception_pdu(function, ExceptionCode.SERVER_DEVICE_FAILURE)
+        except Exception as exc:
+            return self.error_reply(unit_id, pdu[0], client, exc)
         if reply is None:  # a broadcast: no drive answers it
             return pdu if self.settings.broadcast_reply else None
         return reply
+
+    def error_reply(self, unit_id: int, function: int, client: str, exc: BaseException) -> bytes:
+        """The exception PDU a failed request is answered with."""
+        if isinstance(exc, ModbusError):
+            self.stats.exceptions += 1
+            log.debug("%s unit %d: %s", client, unit_id, exc)
+            return exception_pdu(function, exc.code)
+        # A bug must cost one answer, not the connection: log it loudly.
+        log.error("%s unit %d: unexpected error", client, unit_id, exc_info=exc)
+        return exception_pdu(function, ExceptionCode.SERVER_DEVICE_FAILURE)
+
+    def _settled(self) -> None:
+        """A fast-path answer went out (or its connection went): `stop` may be waiting."""
+        drained = self._drained
+        if drained is None or drained.done():
+            return
+        if not any(c.settling for c in self._connections):
+            drained.set_result(None)
 
 
 class Connection(asyncio.Protocol):
@@ -328,6 +370,8 @@ class Connection(asyncio.Protocol):
         self.host = "?"
         self.answers: set[asyncio.Task[None]] = set()
         self._reads: set[asyncio.Task[None]] = set()
+        self._fast: set[_Answer] = set()
+        """Reads on the fast path (no task): waiting for the bus, answered by it."""
         """Answers to pure reads: nobody will receive them once the client has gone."""
         self._transport: asyncio.Transport | None = None
         self._buffer = bytearray()
@@ -373,6 +417,9 @@ class Connection(asyncio.Protocol):
         # the client sent them, and a half-done split write is worse than a finished one.
         for read in self._reads:
             read.cancel()
+        # A fast-path read is no longer wanted once its connection is gone (`_Answer.done`).
+        self._fast.clear()
+        self.server._settled()
 
     def close(self) -> None:
         if self._transport is not None:
@@ -386,13 +433,23 @@ class Connection(asyncio.Protocol):
     def closing(self) -> bool:
         return self._transport is None or self._transport.is_closing()
 
+    @property
+    def in_flight(self) -> int:
+        """Requests taken and not yet answered."""
+        return len(self.answers) + len(self._fast)
+
+    @property
+    def settling(self) -> bool:
+        """Fast-path answers are still on their way."""
+        return bool(self._fast)
+
     def data_received(self, data: bytes) -> None:
         now = self._last_data = self._loop.time()
         if not self._buffer:
             self._frame_started = now
         self._buffer += data
         self._take_frames()
-        if self._buffer and not self.answers:
+        if self._buffer and not self.in_flight:
             # A frame has begun and stays incomplete: its own deadline may be the nearest now.
             limit = min(PARTIAL_FRAME_TIMEOUT_S, self.server.settings.idle_timeout_s)
             if self._frame_started + limit < self._idle_due:
@@ -430,15 +487,66 @@ class Connection(asyncio.Protocol):
                     self._refuse_write(header.transaction_id, header.unit_id, pdu)
                     continue
                 self._writes_waiting += 1
-            answer = self._loop.create_task(
-                self._answer(header.transaction_id, header.unit_id, pdu, write)
+            elif self.server.submit is not None:
+                checked = self._answer_fast(header.transaction_id, header.unit_id, pdu)
+                if checked is None:
+                    continue  # answered, or on its way without a task
+                self._start_task(header.transaction_id, header.unit_id, pdu, write, checked)
+                continue
+            self._start_task(header.transaction_id, header.unit_id, pdu, write, False)
+
+    def _start_task(
+        self, transaction_id: int, unit_id: int, pdu: bytes, write: bool, checked: bool
+    ) -> None:
+        answer = self._loop.create_task(self._answer(transaction_id, unit_id, pdu, write, checked))
+        self.answers.add(answer)
+        if lookup(pdu[0]).coalescable:  # a pure read
+            self._reads.add(answer)
+        self._limit_in_flight()
+
+    def _limit_in_flight(self) -> None:
+        if self.in_flight >= self.server.settings.max_requests_per_connection:
+            # Back-pressure: stop reading this client until an answer has gone out.
+            self._pause()
+
+    def _answer_fast(self, transaction_id: int, unit_id: int, pdu: bytes) -> bool | None:
+        """A read without a task: checked at the front door and handed to the bus in this pass
+        of the event loop, answered by the bus itself. None when that is done; else whether the
+        front door has checked it (True) before it goes the handler's way in a task."""
+        server = self.server
+        assert server.submit is not None
+        refusal = server.refusal(unit_id, pdu, self.client, self.role)
+        if refusal is not None:
+            self._send(transaction_id, unit_id, refusal)
+            return None
+        answer = _Answer(self, transaction_id, unit_id, pdu[0])
+        try:
+            if not server.submit(unit_id, pdu, self.client, answer):
+                return True
+        except Exception as exc:  # refused before the bus: answered at once
+            self._send(
+                transaction_id, unit_id, server.error_reply(unit_id, pdu[0], self.client, exc)
             )
-            self.answers.add(answer)
-            if lookup(pdu[0]).coalescable:  # a pure read
-                self._reads.add(answer)
-            if len(self.answers) >= settings.max_requests_per_connection:
-                # Back-pressure: stop reading this client until an answer has gone out.
-                self._pause()
+            return None
+        if not answer.settled:  # not answered from the cache at once: the bus has it
+            self._fast.add(answer)
+            self._limit_in_flight()
+        return None
+
+    def _send(self, transaction_id: int, unit_id: int, reply: bytes) -> None:
+        transport = self._transport
+        if transport is not None and not transport.is_closing():
+            # One write per frame: answers finishing in any order never interleave.
+            transport.write(build_adu(transaction_id, unit_id, reply))
+
+    def _answered_fast(self, answer: _Answer, reply: bytes) -> None:
+        """The bus has the reply (or the error) of a fast-path read."""
+        self._send(answer.transaction_id, answer.unit_id, reply)
+        if answer in self._fast:
+            self._fast.discard(answer)
+            self._maybe_resume()
+            if not self._fast:
+                self.server._settled()
 
     def _refuse_write(self, transaction_id: int, unit_id: int, pdu: bytes) -> None:
         """0AH at once: this client has too many writes waiting for the line already."""
@@ -474,22 +582,25 @@ class Connection(asyncio.Protocol):
     def _maybe_resume(self) -> None:
         if not self._paused or self._write_blocked:
             return
-        if len(self.answers) >= self.server.settings.max_requests_per_connection:
+        if self.in_flight >= self.server.settings.max_requests_per_connection:
             return
         self._paused = False
         if self._transport is not None and not self._transport.is_closing():
             self._transport.resume_reading()
             self._take_frames()
 
-    async def _answer(self, transaction_id: int, unit_id: int, pdu: bytes, write: bool) -> None:
-        """Answer one request; `write`: it counts among the client's queued writes."""
+    async def _answer(
+        self, transaction_id: int, unit_id: int, pdu: bytes, write: bool, checked: bool
+    ) -> None:
+        """Answer one request; `write`: it counts among the client's queued writes; `checked`:
+        the front door has let it pass already."""
         try:
-            reply = await self.server.reply(unit_id, pdu, self.client, self.role)
-            transport = self._transport
-            if reply is None or transport is None or transport.is_closing():
-                return
-            # One write per frame: answers finishing in any order never interleave.
-            transport.write(build_adu(transaction_id, unit_id, reply))
+            if checked:
+                reply = await self.server.forward(unit_id, pdu, self.client)
+            else:
+                reply = await self.server.reply(unit_id, pdu, self.client, self.role)
+            if reply is not None:
+                self._send(transaction_id, unit_id, reply)
         finally:
             # Here rather than in a done callback, which would cost the loop one more pass.
             if write:
@@ -498,7 +609,7 @@ class Connection(asyncio.Protocol):
 
     def _arm_idle_timer(self) -> None:
         due = min(self._deadlines().values())
-        if self.answers:
+        if self.in_flight:
             # Its answers are still on their way: look again in a second at the earliest,
             # rather than spin on a deadline that has passed.
             due = max(due, self._loop.time() + 1.0)
@@ -515,7 +626,7 @@ class Connection(asyncio.Protocol):
         settings = self.server.settings
         idle = settings.idle_timeout_s
         deadlines = {f"idle for {idle:g} s": self._last_data + idle}
-        if self.answers:
+        if self.in_flight:
             return deadlines  # waiting for the line is not the client's idling
         if self._buffer:
             # From the frame's first byte: a byte now and then must not keep it alive.
@@ -532,7 +643,7 @@ class Connection(asyncio.Protocol):
         if self._transport is None or self._transport.is_closing():
             return
         now = self._loop.time()
-        if not self.answers:
+        if not self.in_flight:
             for reason, due in self._deadlines().items():
                 if now < due:
                     continue
@@ -547,3 +658,34 @@ class Connection(asyncio.Protocol):
                 self._transport.abort()
                 return
         self._arm_idle_timer()
+
+
+class _Answer:
+    """A read's answer on the fast path: the bus's waiter that writes the answer frame the
+    moment the reply is there, in the bus's own pass of the event loop (no task to wake)."""
+
+    __slots__ = ("_connection", "function", "settled", "transaction_id", "unit_id")
+
+    def __init__(self, connection: Connection, transaction_id: int, unit_id: int, function: int):
+        self._connection = connection
+        self.transaction_id = transaction_id
+        self.unit_id = unit_id
+        self.function = function
+        self.settled = False
+
+    def done(self) -> bool:
+        # A client that has gone wants nothing: its read takes no bus time (`Transaction.wanted`).
+        return self.settled or self._connection.closing
+
+    def set_result(self, result: bytes | None, /) -> None:
+        self.settled = True
+        assert result is not None  # the fast path carries no broadcast
+        self._connection._answered_fast(self, result)
+
+    def set_exception(self, exception: BaseException, /) -> None:
+        self.settled = True
+        connection = self._connection
+        reply = connection.server.error_reply(
+            self.unit_id, self.function, connection.client, exception
+        )
+        connection._answered_fast(self, reply)
