@@ -7,7 +7,7 @@ import asyncio
 import json
 import ssl
 import struct
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
@@ -31,12 +31,6 @@ from tests.tls import make_certificates
 STATE_WORD_1 = 0x2100
 RUNNING_FORWARD = 1
 STOPPED = 3
-
-
-@pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    with SimulatedLine(addresses=[1, 2], baudrate=115200, parity="E", wire_time=True) as sim:
-        yield sim
 
 
 async def state_word(app: Application, unit_id: int) -> int:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import asyncio
 import os
 import shutil
-from collections.abc import AsyncIterator, Callable, Iterator
+from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -120,12 +120,6 @@ def showing(selector: str, text: str) -> Callable[[Any], bool]:
         return any(text in e.text for e in driver.find_elements(By.CSS_SELECTOR, selector))
 
     return check
-
-
-@pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    with SimulatedLine(addresses=[1, 2], baudrate=115200, parity="E", wire_time=True) as sim:
-        yield sim
 
 
 @pytest.fixture

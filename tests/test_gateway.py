@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import asyncio
 import struct
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -14,15 +13,11 @@ from gateway.instruments.simulator import SimulatedLine
 from tests.protocol_frames import PROTOCOL_EXCHANGES
 from tests.support import TcpClient, gateway_config, read_pdu, running_gateway, write_pdu
 
+pytestmark = pytest.mark.line(addresses=[1, 2, 3])
+
 STATE_WORD_1 = 0x2100
 IDENTIFICATION = 0x2103
 STOPPED = 3
-
-
-@pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    with SimulatedLine(addresses=[1, 2, 3], baudrate=115200, parity="E", wire_time=True) as sim:
-        yield sim
 
 
 DRIVES = [
@@ -220,13 +215,6 @@ async def test_the_port_vanishing_and_coming_back(line_link: tuple[SimulatedLine
         assert app.buses["line1"].stats.reopens >= 1
         assert changes[-1] == (1, True)  # found again by its probe
         await client.close()
-
-
-@pytest.fixture
-def line_link(tmp_path: Path) -> Iterator[tuple[SimulatedLine, Path]]:
-    link = tmp_path / "usb-FTDI-line1"
-    with SimulatedLine(addresses=[1, 2, 3], baudrate=115200, link=str(link)) as sim:
-        yield sim, link
 
 
 async def test_malformed_header_closes_only_that_connection(line: SimulatedLine) -> None:

@@ -75,12 +75,6 @@ async def test_gateway_as_master_of_pymodbus_rtu_server(pymodbus_slave: str) -> 
 
 
 @pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    with SimulatedLine(addresses=[1, 2], baudrate=115200) as sim:
-        yield sim
-
-
-@pytest.fixture
 async def gateway(line: SimulatedLine) -> AsyncIterator[Application]:
     drives = [{"name": "pump1", "address": 1}, {"name": "fan2", "address": 2}]
     async with running_gateway(gateway_config(line.path, drives, timeout_ms=50)) as app:

@@ -19,10 +19,12 @@ from gateway.errors import ConfigError, TlsSettingsError
 from gateway.instruments.simulator import SimulatedLine
 from gateway.mqtt.connection import tls_context
 from tests.mosquitto import mqtt_probe, unique_base_topic
-from tests.mqtt_setup import simulated_line
+from tests.mqtt_setup import MQTT_LINE
 from tests.processes import gateway_process
 from tests.support import TcpClient, free_port, running_gateway
 from tests.tls import PASSWORD, USERNAME, Certificates, TlsMosquitto, make_certificates
+
+pytestmark = pytest.mark.line(**MQTT_LINE)
 
 STATE_WORD_1 = 0x2100
 STOPPED = 3
@@ -43,12 +45,6 @@ def broker(tmp_path: Path, certificates: Certificates) -> Iterator[TlsMosquitto]
         yield broker
     finally:
         broker.stop()
-
-
-@pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    with simulated_line() as sim:
-        yield sim
 
 
 def config_text(

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import asyncio
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +25,8 @@ from tests.processes import GatewayProcess
 from tests.support import free_port, running_gateway
 
 UNITS = [1, 2]
+# Parity N: the port is reopened, and a pty refuses re-configuration with a parity.
+pytestmark = pytest.mark.line(addresses=UNITS, parity="N", link="ttyRS485")
 CLIENTS = 4
 LIMIT_S = 5.0
 
@@ -38,13 +39,6 @@ def line_config(link: str, port: int = 0) -> dict[str, Any]:
         "buses": [{"name": "line1", "port": link, "baudrate": 115200, "parity": "N"}],
         "drives": [{"name": f"drive{u}", "bus": "line1", "address": u} for u in UNITS],
     }
-
-
-@pytest.fixture
-def line(tmp_path: Path) -> Iterator[SimulatedLine]:
-    link = str(tmp_path / "ttyRS485")
-    with SimulatedLine(addresses=UNITS, baudrate=115200, parity="N", link=link) as sim:
-        yield sim
 
 
 async def steady_for(load: CheckedLoad, seconds: float) -> None:

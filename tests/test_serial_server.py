@@ -9,7 +9,6 @@ import asyncio
 import shutil
 import subprocess
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -18,7 +17,10 @@ from gateway.instruments.bench.processes import free_port, stop_process
 from gateway.instruments.simulator import SimulatedLine
 from tests.support import TcpClient, gateway_config, running_gateway
 
-pytestmark = pytest.mark.skipif(shutil.which("socat") is None, reason="socat not installed")
+pytestmark = [
+    pytest.mark.skipif(shutil.which("socat") is None, reason="socat not installed"),
+    pytest.mark.line(baudrate=19200, parity="N"),
+]
 
 
 def device_server(line_path: str, port: int) -> subprocess.Popen[bytes]:
@@ -46,12 +48,6 @@ def listening(port: int) -> bool:
         row.split()[1].endswith(f":{port:04X}") and row.split()[3] == "0A"  # 0A: LISTEN
         for row in rows
     )
-
-
-@pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    with SimulatedLine(addresses=[1, 2], baudrate=19200, parity="N", wire_time=True) as sim:
-        yield sim
 
 
 async def read_until_answered(client: TcpClient, unit: int, seconds: float) -> list[int]:

@@ -24,6 +24,8 @@ from gateway.modbus.functions import NEED_MORE, rtu_reply_length
 from gateway.modbus.rtu import build_frame
 from tests.protocol_frames import PROTOCOL_EXCHANGES
 
+pytestmark = pytest.mark.line(addresses=[1, 2, 3], wire_time=False, response_delay_ms=0)
+
 READ_STATE_WORD_1 = "01 03 21 00 00 01 8E 36"
 STOPPED_REPLY = "01 03 02 00 03 F8 45"
 
@@ -60,15 +62,6 @@ def silent(port: serial.Serial, wait_s: float = 0.15) -> bool:
 
 def open_port(line: SimulatedLine, baudrate: int = 115200) -> serial.Serial:
     return serial.Serial(line.path, baudrate, parity="E", timeout=1)
-
-
-@pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    """Three GD350s without wire time: answers as fast as the pty goes."""
-    with SimulatedLine(
-        addresses=[1, 2, 3], baudrate=115200, wire_time=False, response_delay_ms=0
-    ) as simulated:
-        yield simulated
 
 
 @pytest.fixture

@@ -6,20 +6,15 @@ code the registry doesn't know still goes to the drive as it is."""
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Iterator
 
 import pytest
 
 from gateway.instruments.simulator import SimulatedLine
 from tests.support import TcpClient, gateway_config, running_gateway
 
+pytestmark = pytest.mark.line(addresses=[1])
+
 STATE_WORD_1 = 0x2100
-
-
-@pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    with SimulatedLine(addresses=[1], baudrate=115200, parity="E", wire_time=True) as sim:
-        yield sim
 
 
 @pytest.mark.parametrize(

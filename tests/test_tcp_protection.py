@@ -12,7 +12,6 @@ import contextlib
 import socket
 import struct
 import time
-from collections.abc import Iterator
 from typing import Any
 
 import pytest
@@ -38,12 +37,6 @@ def protected_config(line_path: str, **tcp: Any) -> GatewayConfig:
             ],
         }
     )
-
-
-@pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    with SimulatedLine(addresses=[1, 2], baudrate=115200, parity="E", wire_time=True) as sim:
-        yield sim
 
 
 async def timed_reads(port: int, until: asyncio.Event, unit_id: int = 2) -> list[float]:

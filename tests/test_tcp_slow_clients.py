@@ -17,7 +17,6 @@ import pytest
 
 from gateway.instruments.simulator import SimulatedLine
 from tests.support import TcpClient, running_gateway, write_pdu
-from tests.test_tcp_protection import line as line
 from tests.test_tcp_protection import protected_config
 
 STATE_WORD_1 = 0x2100
