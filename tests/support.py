@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import inspect
 import os
+import re
 import select
 import struct
 import threading
@@ -22,14 +24,32 @@ from gateway.instruments.bench.processes import (
 )
 
 
-async def eventually(check: Callable[[], object], within_s: float = 5.0, what: str = "") -> None:
-    """Wait until `check()` is true, looking every few milliseconds: for a state the code under
-    test exposes no event for (a counter, a flag, a file). Fails after `within_s`."""
+async def eventually(
+    check: Callable[[], object], within_s: float = 5.0, what: str = "", every_s: float = 0.005
+) -> None:
+    """Wait until `check()` (or what it returns, awaited) is true, asking every `every_s`: for a
+    state the code under test exposes no event for (a counter, a flag, a drive's state word read
+    over Modbus). Fails after `within_s`."""
     deadline = time.monotonic() + within_s
-    while not check():
+    while True:
+        result = check()
+        if inspect.isawaitable(result):
+            result = await result
+        if result:
+            return
         if time.monotonic() > deadline:
             raise AssertionError(f"not reached within {within_s} s: {what or check}")
-        await asyncio.sleep(0.005)
+        await asyncio.sleep(every_s)
+
+
+def scan_rows(output: str) -> dict[int, list[str]]:
+    """`invt-gateway scan`'s table, by address: the cells, split on the table's column gaps."""
+    rows = {}
+    for line in output.splitlines():
+        cells = re.split(r"\s{2,}", line.strip())
+        if cells and cells[0].isdigit():
+            rows[int(cells[0])] = cells[1:]
+    return rows
 
 
 def gateway_config(port: str, drives: list[dict[str, Any]], **bus: Any) -> GatewayConfig:

@@ -23,7 +23,7 @@ from selenium.webdriver.support.ui import Select, WebDriverWait
 
 from gateway.app import Application
 from gateway.instruments.simulator import SimulatedLine
-from tests.console_support import OPERATOR_PASSWORD, VIEWER_PASSWORD, console_config
+from tests.console_support import OPERATOR_PASSWORD, VIEWER_PASSWORD, console_config, state_word
 from tests.support import TcpClient, running_gateway
 
 T = TypeVar("T")
@@ -132,14 +132,6 @@ async def console(line: SimulatedLine) -> AsyncIterator[tuple[Application, Brows
             await asyncio.to_thread(browser.close)
 
 
-async def state_word(app: Application, unit_id: int) -> int:
-    client = await TcpClient.connect(app.tcp.port)
-    try:
-        return (await client.read(unit_id, STATE_WORD_1))[0]
-    finally:
-        await client.close()
-
-
 async def test_overview_lists_drives_live_and_shows_a_modbus_tcp_write_within_2_s(
     console: tuple[Application, Browser],
 ) -> None:
@@ -216,7 +208,7 @@ async def test_a_wrong_password_is_refused_then_rate_limited(
     await browser.screenshot("login")
     for _ in range(5):
         await browser.click("#login-submit")
-        await asyncio.sleep(0.05)
+        await asyncio.sleep(0.05)  # a person clicking again and again, not synchronisation
     await browser.wait(showing("#login-error", "too many failed logins"), 10.0)
     await browser.type("#login-password", OPERATOR_PASSWORD)
     await browser.click("#login-submit")
