@@ -1,16 +1,61 @@
-"""Figures the tests measured (recovery times, faults survived), shown after the run.
+"""What every test shares: its own state directory, the simulated line most tests run on, and
+the figures the tests measured (recovery times, faults survived), shown after the run.
 
-A test records one with `record_property("figure:<what>", text)`; they also land in a JUnit XML
-report (`--junitxml`) as properties, so CI can keep them.
+A test records a figure with `record_property("figure:<what>", text)`; they also land in a JUnit
+XML report (`--junitxml`) as properties, so CI can keep them.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
 import pytest
 
 from gateway.config import ENV_STATE_DIRECTORY
+from gateway.instruments.simulator import SimulatedLine
 
 FIGURE = "figure:"
+
+LINE = {"addresses": (1, 2), "baudrate": 115200, "parity": "E", "wire_time": True}
+"""The simulated line a test gets unless it says otherwise: two GD350s at 115200 8E1, the wire's
+time emulated. A module says otherwise with `pytestmark = pytest.mark.line(addresses=[1, 2, 3])`,
+a test with the same decorator; any `SimulatedLine` argument may be given, and `link="<name>"`
+puts a symlink of that name in the test's tmp_path in front of the pty."""
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(
+        "markers", "line(**options): the simulated line's SimulatedLine arguments for this test"
+    )
+
+
+def line_options(request: pytest.FixtureRequest, tmp_path: Path) -> dict[str, Any]:
+    options: dict[str, Any] = dict(LINE)
+    for marker in reversed(list(request.node.iter_markers("line"))):  # the test's own marker wins
+        options.update(marker.kwargs)
+    if options.get("link") is not None:
+        options["link"] = str(tmp_path / options["link"])
+    return options
+
+
+@pytest.fixture
+def line(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[SimulatedLine]:
+    """Simulated drives on a real pty, serving while the test runs."""
+    with SimulatedLine(**line_options(request, tmp_path)) as simulated:
+        yield simulated
+
+
+@pytest.fixture
+def line_link(
+    request: pytest.FixtureRequest, tmp_path: Path
+) -> Iterator[tuple[SimulatedLine, Path]]:
+    """The line behind a stable name (as udev gives a USB adapter), and that name: for the tests
+    that unplug and replug it."""
+    options = {**line_options(request, tmp_path), "link": str(tmp_path / "usb-FTDI-line1")}
+    with SimulatedLine(**options) as simulated:
+        yield simulated, Path(options["link"])
 
 
 def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:

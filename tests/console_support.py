@@ -13,6 +13,8 @@ import aiohttp
 from gateway.app import Application
 from gateway.config import GatewayConfig
 from gateway.passwords import hash_password, hash_token
+from gateway.profile.invt import STATE_WORD_1
+from tests.support import TcpClient
 
 OPERATOR_PASSWORD = "operator-secret-1"
 VIEWER_PASSWORD = "viewer-secret-22"
@@ -98,3 +100,12 @@ async def console_client(app: Application) -> AsyncIterator[ConsoleClient]:
     jar = aiohttp.CookieJar(unsafe=True)
     async with aiohttp.ClientSession(cookie_jar=jar) as session:
         yield ConsoleClient(session, f"http://127.0.0.1:{app.console.port}")
+
+
+async def state_word(app: Application, unit_id: int) -> int:
+    """What the drive itself says (state word 1), read by a Modbus-TCP client, not the console."""
+    client = await TcpClient.connect(app.tcp.port)
+    try:
+        return (await client.read(unit_id, STATE_WORD_1))[0]
+    finally:
+        await client.close()

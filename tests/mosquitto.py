@@ -77,7 +77,7 @@ class Mosquitto:
                 socket.create_connection((self.host, self.port), 0.2),
             ):
                 return
-            time.sleep(0.02)
+            time.sleep(0.02)  # polled with a deadline: another process's port
         raise RuntimeError(f"mosquitto did not listen on {self.port}: {self.log()}")
 
     def stop(self, graceful: bool = False) -> None:

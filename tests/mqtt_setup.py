@@ -45,19 +45,20 @@ def mqtt_config(
     return config.model_copy(update={"mqtt": settings, "gateway_id": gateway_id})
 
 
+MQTT_LINE: dict[str, Any] = {
+    "addresses": (1, 2),
+    "models": {1: "gd350", 2: "gd20"},
+    "baudrate": 115200,
+    "parity": "E",
+    "wire_time": True,
+    "response_delay_ms": 1.0,
+}
+"""The drives of `DRIVES` on a simulated line (`pytest.mark.line(**MQTT_LINE)` for the `line`
+fixture)."""
+
+
 @contextlib.contextmanager
 def simulated_line(addresses: tuple[int, ...] = (1, 2)) -> Iterator[SimulatedLine]:
-    models = {1: "gd350", 2: "gd20"}
-    line = SimulatedLine(
-        addresses=addresses,
-        models={a: models.get(a, "gd350") for a in addresses},
-        baudrate=115200,
-        parity="E",
-        wire_time=True,
-        response_delay_ms=1.0,
-    )
-    line.start()
-    try:
+    """The MQTT tests' line (other drives are GD350s), for a test that starts more than one."""
+    with SimulatedLine(**{**MQTT_LINE, "addresses": addresses}) as line:
         yield line
-    finally:
-        line.stop()

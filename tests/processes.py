@@ -174,7 +174,7 @@ class SimulatorProcess:
         while not self.output.lines:
             if self.process.poll() is not None or time.monotonic() > deadline:
                 raise AssertionError(f"simulator did not start: {self.errors.text}")
-            time.sleep(0.01)
+            time.sleep(0.01)  # polled with a deadline: another process's first line
         self.path = self.output.lines[0]
 
     def stop(self) -> None:

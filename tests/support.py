@@ -4,20 +4,52 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import inspect
 import os
+import re
 import select
 import struct
 import threading
+import time
 import tty
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
-from gateway.app import Application
-from gateway.config import GatewayConfig
+from gateway.app import Application, bus_settings
+from gateway.bus import Bus
+from gateway.config import BusConfig, GatewayConfig
 from gateway.instruments.bench.processes import (
     free_port as free_port,  # the tests' one way to a free port
 )
+
+
+async def eventually(
+    check: Callable[[], object], within_s: float = 5.0, what: str = "", every_s: float = 0.005
+) -> None:
+    """Wait until `check()` (or what it returns, awaited) is true, asking every `every_s`: for a
+    state the code under test exposes no event for (a counter, a flag, a drive's state word read
+    over Modbus). Fails after `within_s`."""
+    deadline = time.monotonic() + within_s
+    while True:
+        result = check()
+        if inspect.isawaitable(result):
+            result = await result
+        if result:
+            return
+        if time.monotonic() > deadline:
+            raise AssertionError(f"not reached within {within_s} s: {what or check}")
+        await asyncio.sleep(every_s)
+
+
+def scan_rows(output: str) -> dict[int, list[str]]:
+    """`invt-gateway scan`'s table, by address: the cells, split on the table's column gaps."""
+    rows = {}
+    for line in output.splitlines():
+        cells = re.split(r"\s{2,}", line.strip())
+        if cells and cells[0].isdigit():
+            rows[int(cells[0])] = cells[1:]
+    return rows
 
 
 def gateway_config(port: str, drives: list[dict[str, Any]], **bus: Any) -> GatewayConfig:
@@ -63,6 +95,21 @@ async def running_application(app: Application) -> AsyncIterator[Application]:
     finally:
         stop.set()
         await asyncio.wait_for(task, 5)
+
+
+@contextlib.asynccontextmanager
+async def running_bus(port: str, **bus: Any) -> AsyncIterator[Bus]:
+    """One bus on `port` (a simulated line's path), serving in this event loop, without the rest
+    of the gateway: for the tests of the bus and of what sits right on it (routing)."""
+    config = BusConfig.model_validate({"name": "line1", "port": port, "baudrate": 115200, **bus})
+    bus_ = Bus(bus_settings(config))
+    running = asyncio.create_task(bus_.run())
+    try:
+        assert await bus_.wait_open(5.0), f"{port} did not open"
+        yield bus_
+    finally:
+        bus_.close()
+        await asyncio.wait_for(running, 5)
 
 
 @dataclass
@@ -122,6 +169,12 @@ def read_pdu(register: int, count: int = 1) -> bytes:
 
 def write_pdu(register: int, value: int) -> bytes:
     return struct.pack(">BHH", 6, register, value)
+
+
+def write_many(register: int, *values: int) -> bytes:
+    """10H: `values` written from `register` on."""
+    count = len(values)
+    return struct.pack(f">BHHB{count}H", 0x10, register, count, 2 * count, *values)
 
 
 @contextlib.contextmanager

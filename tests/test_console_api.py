@@ -7,7 +7,7 @@ import asyncio
 import json
 import ssl
 import struct
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
@@ -24,38 +24,14 @@ from tests.console_support import (
     ConsoleClient,
     console_client,
     console_config,
+    state_word,
 )
-from tests.support import TcpClient, read_pdu, running_gateway
+from tests.support import TcpClient, eventually, read_pdu, running_gateway
 from tests.tls import make_certificates
 
 STATE_WORD_1 = 0x2100
 RUNNING_FORWARD = 1
 STOPPED = 3
-
-
-@pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    with SimulatedLine(addresses=[1, 2], baudrate=115200, parity="E", wire_time=True) as sim:
-        yield sim
-
-
-async def state_word(app: Application, unit_id: int) -> int:
-    """What the drive itself says, read by a Modbus-TCP client (not the console)."""
-    client = await TcpClient.connect(app.tcp.port)
-    try:
-        return (await client.read(unit_id, STATE_WORD_1))[0]
-    finally:
-        await client.close()
-
-
-async def until(check: Any, within_s: float = 5.0) -> None:
-    """Ask `check` (an async callable: what a page or script would ask) until it says yes; fail
-    after `within_s`. The gateway has no event to await for "the page shows it"."""
-    async with asyncio.timeout(within_s):
-        while True:
-            if await check():
-                return
-            await asyncio.sleep(0.05)
 
 
 async def test_nobody_sees_anything_without_a_login(line: SimulatedLine) -> None:
@@ -75,7 +51,7 @@ async def test_overview_lists_the_drives_with_their_polled_state(line: Simulated
             drives = (await web.get_json("/api/overview"))["drives"]
             return all(d["online"] for d in drives)
 
-        await until(polled)
+        await eventually(polled)
         overview = await web.get_json("/api/overview")
         assert [d["name"] for d in overview["drives"]] == ["pump1", "fan2"]
         pump = overview["drives"][0]
@@ -121,7 +97,7 @@ async def test_an_operator_starts_a_drive_and_it_runs(line: SimulatedLine) -> No
         async def running() -> bool:
             return await state_word(app, 1) == RUNNING_FORWARD
 
-        await until(running)
+        await eventually(running)
         events = (await web.get_json("/api/events?drive=pump1"))["events"]
         audit = [e for e in events if e["kind"] == "write"]
         assert audit[0]["who"] == "console:olga"
@@ -173,7 +149,7 @@ async def test_a_script_uses_its_api_token_without_cookie_or_csrf(line: Simulate
         async def running() -> bool:
             return await state_word(app, 2) == RUNNING_FORWARD
 
-        await until(running)
+        await eventually(running)
         wrong = {"Authorization": "Bearer not-a-token"}
         status, _ = await web.post("/api/drives/fan2/command", {"command": "stop"}, **wrong)
         assert status == 401
@@ -278,7 +254,7 @@ async def test_the_monitor_records_nothing_until_someone_watches(
     async def closed() -> bool:
         return bus.tap is None
 
-    await until(closed)
+    await eventually(closed)
 
 
 async def test_a_dead_drive_goes_offline_and_its_timeouts_show(
@@ -303,7 +279,7 @@ async def test_a_dead_drive_goes_offline_and_its_timeouts_show(
         drives = (await web.get_json("/api/overview"))["drives"]
         return next(d for d in drives if d["name"] == "fan2")["online"] is False
 
-    await until(offline)
+    await eventually(offline)
     events_seen = (await web.get_json("/api/events?drive=fan2"))["events"]
     assert any(e["kind"] == "drive_offline" for e in events_seen)
 
@@ -320,7 +296,7 @@ async def test_a_modbus_tcp_write_shows_on_the_overview(
         pump = (await web.get_json("/api/overview"))["drives"][0]
         return pump["state"] == "running forward"
 
-    await until(shows_running, within_s=2.0)
+    await eventually(shows_running, within_s=2.0)
     audit = (await web.get_json("/api/events?drive=pump1"))["events"][0]
     assert audit["kind"] == "write"
     assert audit["text"] == "function 10H to address 1"
@@ -380,9 +356,9 @@ async def test_a_lost_port_and_its_return_are_events(
         return kind in kinds((await web.get_json("/api/events"))["events"])
 
     line.unplug()
-    await until(lambda: seen("port_lost"))
+    await eventually(lambda: seen("port_lost"))
     line.replug()
-    await until(lambda: seen("port_back"), within_s=15.0)
+    await eventually(lambda: seen("port_back"), within_s=15.0)
     bus = (await web.get_json("/api/overview"))["buses"][0]
     assert bus["state"] == "open"
 
@@ -398,14 +374,14 @@ async def test_faults_and_events_come_from_the_store_across_a_restart(line: Simu
             return any(e["kind"] == "fault_raised" for e in events)
 
         line.inject_fault(1, 11)
-        await until(raised)
+        await eventually(raised)
         line.clear_fault(1)
 
         async def cleared() -> bool:
             faults = (await web.get_json("/api/drives/pump1/faults"))["recorded_faults"]
             return bool(faults) and faults[0]["cleared"] is not None
 
-        await until(cleared)
+        await eventually(cleared)
     async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
         assert (await web.login("victor", VIEWER_PASSWORD)).status == 200
         answer = await web.get_json("/api/drives/pump1/faults")

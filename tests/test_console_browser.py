@@ -10,7 +10,7 @@ from __future__ import annotations
 import asyncio
 import os
 import shutil
-from collections.abc import AsyncIterator, Callable, Iterator
+from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -23,7 +23,7 @@ from selenium.webdriver.support.ui import Select, WebDriverWait
 
 from gateway.app import Application
 from gateway.instruments.simulator import SimulatedLine
-from tests.console_support import OPERATOR_PASSWORD, VIEWER_PASSWORD, console_config
+from tests.console_support import OPERATOR_PASSWORD, VIEWER_PASSWORD, console_config, state_word
 from tests.support import TcpClient, running_gateway
 
 T = TypeVar("T")
@@ -123,12 +123,6 @@ def showing(selector: str, text: str) -> Callable[[Any], bool]:
 
 
 @pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    with SimulatedLine(addresses=[1, 2], baudrate=115200, parity="E", wire_time=True) as sim:
-        yield sim
-
-
-@pytest.fixture
 async def console(line: SimulatedLine) -> AsyncIterator[tuple[Application, Browser]]:
     async with running_gateway(console_config(line.path, anonymous_view=True)) as app:
         browser = await asyncio.to_thread(Browser, f"http://127.0.0.1:{app.console.port}")
@@ -136,14 +130,6 @@ async def console(line: SimulatedLine) -> AsyncIterator[tuple[Application, Brows
             yield app, browser
         finally:
             await asyncio.to_thread(browser.close)
-
-
-async def state_word(app: Application, unit_id: int) -> int:
-    client = await TcpClient.connect(app.tcp.port)
-    try:
-        return (await client.read(unit_id, STATE_WORD_1))[0]
-    finally:
-        await client.close()
 
 
 async def test_overview_lists_drives_live_and_shows_a_modbus_tcp_write_within_2_s(
@@ -222,7 +208,7 @@ async def test_a_wrong_password_is_refused_then_rate_limited(
     await browser.screenshot("login")
     for _ in range(5):
         await browser.click("#login-submit")
-        await asyncio.sleep(0.05)
+        await asyncio.sleep(0.05)  # a person clicking again and again, not synchronisation
     await browser.wait(showing("#login-error", "too many failed logins"), 10.0)
     await browser.type("#login-password", OPERATOR_PASSWORD)
     await browser.click("#login-submit")

@@ -5,20 +5,11 @@ from __future__ import annotations
 
 import asyncio
 import os
-from collections.abc import Iterator
-
-import pytest
 
 from gateway.instruments.simulator import SimulatedLine
 from tests.console_support import OPERATOR_TOKEN, console_config
 from tests.processes import entry_point, run_cli
 from tests.support import TcpClient, read_pdu, running_gateway
-
-
-@pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    with SimulatedLine(addresses=[1, 2], baudrate=115200, parity="E", wire_time=True) as sim:
-        yield sim
 
 
 async def test_monitor_prints_a_scada_read_in_words(line: SimulatedLine) -> None:

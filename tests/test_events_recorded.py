@@ -5,10 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import struct
-from collections.abc import Iterator
 from pathlib import Path
-
-import pytest
 
 from gateway.instruments.simulator import SimulatedLine
 from gateway.profile.invt import STATE_WORD_1
@@ -17,13 +14,6 @@ from tests.support import TcpClient, gateway_config, read_pdu, running_gateway, 
 
 DRIVES = [{"name": "pump1", "address": 1}, {"name": "fan2", "address": 2}]
 FREQUENCY_SETPOINT = 0x2001
-
-
-@pytest.fixture
-def line_link(tmp_path: Path) -> Iterator[tuple[SimulatedLine, Path]]:
-    link = tmp_path / "usb-FTDI-line1"
-    with SimulatedLine(addresses=[1, 2], baudrate=115200, link=str(link)) as sim:
-        yield sim, link
 
 
 async def test_scada_writes_are_one_event_per_client_unit_and_minute(

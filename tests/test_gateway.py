@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import asyncio
 import struct
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -12,17 +11,20 @@ import pytest
 from gateway.config import GatewayConfig
 from gateway.instruments.simulator import SimulatedLine
 from tests.protocol_frames import PROTOCOL_EXCHANGES
-from tests.support import TcpClient, gateway_config, read_pdu, running_gateway, write_pdu
+from tests.support import (
+    TcpClient,
+    eventually,
+    gateway_config,
+    read_pdu,
+    running_gateway,
+    write_pdu,
+)
+
+pytestmark = pytest.mark.line(addresses=[1, 2, 3])
 
 STATE_WORD_1 = 0x2100
 IDENTIFICATION = 0x2103
 STOPPED = 3
-
-
-@pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    with SimulatedLine(addresses=[1, 2, 3], baudrate=115200, parity="E", wire_time=True) as sim:
-        yield sim
 
 
 DRIVES = [
@@ -50,8 +52,11 @@ async def test_read_write_and_multiple_write_change_the_drive(line: SimulatedLin
         reply = await client.request(1, bytes.fromhex("10 20 00 00 02 04 00 01 03 E8"))
         assert reply == bytes.fromhex("10 20 00 00 02")
         assert await client.read(1, 0x2001) == [1000]
-        await asyncio.sleep(0.2)
-        assert await client.read(1, STATE_WORD_1) == [1]  # running forward
+
+        async def running_forward() -> bool:
+            return await client.read(1, STATE_WORD_1) == [1]
+
+        await eventually(running_forward, within_s=2.0, every_s=0.02)
         # Stop (control word 5) via 06H.
         assert await client.request(1, write_pdu(0x2000, 5)) == write_pdu(0x2000, 5)
         # The other drives were never touched.
@@ -135,12 +140,11 @@ async def test_dead_drive_gets_0x0b_then_costs_no_bus_time(line: SimulatedLine) 
         assert await client.read(1, STATE_WORD_1) == [STOPPED]
         # Back to life: the probe finds it and requests pass again.
         line.set_dead(2, False)
-        for _ in range(60):
-            reply = await client.request(2, read_pdu(STATE_WORD_1))
-            if reply[0] == 3:
-                break
-            await asyncio.sleep(0.1)
-        assert reply == bytes.fromhex("03 02 00 03")
+
+        async def answered() -> bool:
+            return await client.request(2, read_pdu(STATE_WORD_1)) == bytes.fromhex("03 02 00 03")
+
+        await eventually(answered, within_s=6.0, every_s=0.1)
         await client.close()
 
 
@@ -208,25 +212,17 @@ async def test_the_port_vanishing_and_coming_back(line_link: tuple[SimulatedLine
         )
         line.unplug()
         assert await client.request(1, read_pdu(STATE_WORD_1)) == bytes.fromhex("83 0B")
-        await asyncio.sleep(0.3)
-        assert (1, False) in changes  # the drive it had talked to is reported unreachable
+        # The drive it had talked to is reported unreachable.
+        await eventually(lambda: (1, False) in changes, within_s=2.0)
         line.replug()  # a new pty, the same by-id style link
-        for _ in range(100):
-            reply = await client.request(1, read_pdu(STATE_WORD_1))
-            if reply[0] == 3:
-                break
-            await asyncio.sleep(0.1)
-        assert reply == bytes.fromhex("03 02 00 03")
+
+        async def answered() -> bool:
+            return await client.request(1, read_pdu(STATE_WORD_1)) == bytes.fromhex("03 02 00 03")
+
+        await eventually(answered, within_s=10.0, every_s=0.1)
         assert app.buses["line1"].stats.reopens >= 1
         assert changes[-1] == (1, True)  # found again by its probe
         await client.close()
-
-
-@pytest.fixture
-def line_link(tmp_path: Path) -> Iterator[tuple[SimulatedLine, Path]]:
-    link = tmp_path / "usb-FTDI-line1"
-    with SimulatedLine(addresses=[1, 2, 3], baudrate=115200, link=str(link)) as sim:
-        yield sim, link
 
 
 async def test_malformed_header_closes_only_that_connection(line: SimulatedLine) -> None:
@@ -280,10 +276,7 @@ async def test_two_buses_in_one_service_run_independently() -> None:
             # A dead drive holds line a for its own 1.5 s timeout (no retries) ...
             line_a.set_dead(2, True)
             dead = asyncio.create_task(client.request(2, read_pdu(STATE_WORD_1)))
-            for _ in range(1000):  # until the request is on line a, unanswered
-                if line_a.stats["ignored"]:
-                    break
-                await asyncio.sleep(0.005)
+            await eventually(lambda: line_a.stats["ignored"], what="the request on line a")
             # ... while line b answers in the meantime.
             other = await TcpClient.connect(app.tcp.port)
             assert await other.read(11, STATE_WORD_1) == [STOPPED]

@@ -15,7 +15,7 @@ from pymodbus.client import AsyncModbusTcpClient
 
 from gateway.app import Application
 from gateway.instruments.simulator import SimulatedLine
-from tests.support import TcpClient, gateway_config, pty_cable, running_gateway
+from tests.support import TcpClient, eventually, gateway_config, pty_cable, running_gateway
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -75,12 +75,6 @@ async def test_gateway_as_master_of_pymodbus_rtu_server(pymodbus_slave: str) -> 
 
 
 @pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    with SimulatedLine(addresses=[1, 2], baudrate=115200) as sim:
-        yield sim
-
-
-@pytest.fixture
 async def gateway(line: SimulatedLine) -> AsyncIterator[Application]:
     drives = [{"name": "pump1", "address": 1}, {"name": "fan2", "address": 2}]
     async with running_gateway(gateway_config(line.path, drives, timeout_ms=50)) as app:
@@ -98,9 +92,12 @@ async def test_pymodbus_client_as_scada(gateway: Application, line: SimulatedLin
         assert not result.isError()
         result = await client.read_holding_registers(0x2001, count=1, device_id=2)
         assert result.registers == [2500]
-        await asyncio.sleep(0.1)
-        result = await client.read_holding_registers(0x2100, count=1, device_id=2)
-        assert result.registers == [1]  # running forward
+
+        async def running_forward() -> bool:
+            result = await client.read_holding_registers(0x2100, count=1, device_id=2)
+            return bool(result.registers == [1])
+
+        await eventually(running_forward, within_s=2.0, every_s=0.02)
         # INVT's exception 04H for P00.01 = 3 reaches pymodbus intact.
         result = await client.write_register(0x0001, 3, device_id=1)
         assert result.isError()

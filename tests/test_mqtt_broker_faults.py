@@ -20,7 +20,7 @@ from gateway.profile.states import RunState
 from tests.mosquitto import BrokerProxy, Mosquitto, mqtt_probe, unique_base_topic
 from tests.mosquitto import mosquitto as mosquitto
 from tests.mqtt_setup import DRIVES, mqtt_config, simulated_line
-from tests.support import TcpClient, free_port, running_gateway
+from tests.support import TcpClient, eventually, free_port, running_gateway
 
 
 async def read_for(tcp: TcpClient, seconds: float) -> list[float]:
@@ -67,7 +67,7 @@ async def test_broker_killed_and_restarted(mosquitto: Mosquitto) -> None:
             try:
                 with_broker = await read_for(tcp, 1.0)
                 mosquitto.stop()
-                await asyncio.sleep(0.2)
+                await eventually(lambda: not app.mqtt.connected.is_set(), what="broker lost")
                 line.inject_fault(2, 13)  # while the broker is away: the event must wait
                 without_broker = await read_for(tcp, 2.0)
             finally:
@@ -176,7 +176,7 @@ async def test_two_gateways_on_one_broker(mosquitto: Mosquitto) -> None:
             )
             assert response["status"] == "ok"
             await probe.wait_for(f"{north_base}/pump1", lambda s: s["state"] == "running_forward")
-            await asyncio.sleep(0.5)
+            await asyncio.sleep(0.5)  # asserting an absence: south's polls would have shown it
             with north_line.lock, south_line.lock:
                 now = time.monotonic()
                 assert north_line.drives[1].state(now) is RunState.RUNNING_FORWARD
@@ -199,10 +199,7 @@ async def test_same_base_topic_is_reported(
         other = mqtt_config(other_line.path, mosquitto, base, gateway_id="other")
         with caplog.at_level(logging.ERROR, logger="gateway.mqtt.kinds"):
             async with running_gateway(one) as one_app, running_gateway(other):
-                for _ in range(100):
-                    if one_app.mqtt.stats.conflicts:
-                        break
-                    await asyncio.sleep(0.05)
+                await eventually(lambda: one_app.mqtt.stats.conflicts, within_s=5.0)
         assert "also publishes under" in caplog.text
 
 

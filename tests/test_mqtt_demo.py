@@ -121,7 +121,7 @@ async def wait_listening(host: str, port: int, within_s: float = 10.0) -> None:
             _, writer = await asyncio.open_connection(host, port)
         except OSError:
             assert time.monotonic() < deadline, f"nothing listens on {port}"
-            await asyncio.sleep(0.05)
+            await asyncio.sleep(0.05)  # polled with a deadline: another process's port
             continue
         writer.close()
         await writer.wait_closed()
@@ -226,5 +226,5 @@ async def sessions(broker: EmbeddedBroker, count: int, within_s: float = 15.0) -
     deadline = time.monotonic() + within_s
     while len(held()) < count:
         assert time.monotonic() < deadline, f"sessions: {sorted(broker.sessions)}"
-        await asyncio.sleep(0.05)
+        await asyncio.sleep(0.05)  # polled with a deadline: the broker's sessions, no event
     return held()

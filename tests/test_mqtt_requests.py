@@ -209,11 +209,11 @@ async def test_lanes_keep_order_within_a_lane_and_run_lanes_side_by_side() -> No
     assert not lanes.submit("pump1", job("pump1 one too many"))  # two already wait
     assert lanes.submit("fan2", job("fan2 stop"))
     for _ in range(10):
-        await asyncio.sleep(0)
+        await asyncio.sleep(0)  # turns of the event loop, not time: the lanes' tasks step
     assert done == ["fan2 stop"]  # not behind pump1's
     release.set()
     for _ in range(10):
-        await asyncio.sleep(0)
+        await asyncio.sleep(0)  # turns of the event loop, not time
     assert done == ["fan2 stop", "pump1 get", "pump1 stop", "pump1 run"]
     assert lanes.running == 0
     assert lanes.submit("pump1", job("pump1 later"))  # a new worker for a lane gone idle

@@ -48,7 +48,7 @@ async def test_a_retained_command_published_while_connected_is_refused_and_clear
                 assert line.drives[1].state(time.monotonic()) is RunState.STOPPED
         # Nothing is left retained on the broker: a new subscriber gets no command.
         async with mqtt_probe(mosquitto, topic) as late:
-            await asyncio.sleep(0.5)
+            await asyncio.sleep(0.5)  # asserting an absence: time for anything retained to arrive
             assert [m for m in late.messages if m.payload] == []
 
 
@@ -122,7 +122,7 @@ async def test_entities_no_longer_offered_are_removed_from_home_assistant(
                 some = next(iter(offered))
                 await probe.wait_for(some, lambda p: p == "", timeout_s=10)
         async with mqtt_probe(mosquitto, f"{prefix}/#") as late:
-            await asyncio.sleep(0.5)
+            await asyncio.sleep(0.5)  # asserting an absence: time for anything retained to arrive
             left = {m.topic for m in late.messages if m.payload}
         assert left == {other}
 

@@ -19,10 +19,12 @@ from gateway.errors import ConfigError, TlsSettingsError
 from gateway.instruments.simulator import SimulatedLine
 from gateway.mqtt.connection import tls_context
 from tests.mosquitto import mqtt_probe, unique_base_topic
-from tests.mqtt_setup import simulated_line
+from tests.mqtt_setup import MQTT_LINE
 from tests.processes import gateway_process
-from tests.support import TcpClient, free_port, running_gateway
+from tests.support import TcpClient, eventually, free_port, running_gateway
 from tests.tls import PASSWORD, USERNAME, Certificates, TlsMosquitto, make_certificates
+
+pytestmark = pytest.mark.line(**MQTT_LINE)
 
 STATE_WORD_1 = 0x2100
 STOPPED = 3
@@ -43,12 +45,6 @@ def broker(tmp_path: Path, certificates: Certificates) -> Iterator[TlsMosquitto]
         yield broker
     finally:
         broker.stop()
-
-
-@pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    with simulated_line() as sim:
-        yield sim
 
 
 def config_text(
@@ -140,7 +136,7 @@ async def test_a_gateway_without_its_credentials_is_turned_away(
         try:
             for _ in range(20):  # Modbus-TCP serves on, whatever MQTT does
                 assert await tcp.read(1, STATE_WORD_1) == [STOPPED]
-                await asyncio.sleep(0.05)
+                await asyncio.sleep(0.05)  # SCADA's pace: a second of reads while MQTT fails
         finally:
             await tcp.close()
         assert not app.mqtt.connected.is_set()
@@ -222,11 +218,8 @@ async def test_a_bad_tls_file_is_reported_once_and_retried_until_it_is_right(
 
     with caplog.at_level(logging.DEBUG, logger="gateway.mqtt"):
         async with running_gateway(config) as app:
-            for _ in range(200):
-                if len(about_the_ca()) >= 3:
-                    break
-                await asyncio.sleep(0.05)
-            assert len(about_the_ca()) >= 3  # said, then tried again, and again
+            # Said, then tried again, and again.
+            await eventually(lambda: len(about_the_ca()) >= 3, within_s=10.0)
             assert not app.mqtt.connected.is_set()
             ca.write_bytes(certificates.ca.read_bytes())
             await asyncio.wait_for(app.mqtt.connected.wait(), 10)

@@ -20,13 +20,9 @@ from tests.mqtt_setup import mqtt_config, simulated_line
 from tests.processes import gateway_process
 from tests.support import TcpClient, free_port, gateway_config, read_pdu, running_gateway
 
+pytestmark = pytest.mark.line(addresses=[1])
+
 STATE_WORD_1 = 0x2100
-
-
-@pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    with SimulatedLine(addresses=[1], baudrate=115200, parity="E", wire_time=True) as sim:
-        yield sim
 
 
 DRIVES = [{"name": "pump1", "address": 1}, {"name": "ghost", "address": 9}]

@@ -7,10 +7,8 @@ import asyncio
 import json
 import urllib.error
 import urllib.request
-from collections.abc import Iterator
 from typing import Any
 
-import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
 from gateway.app import Application
@@ -21,12 +19,6 @@ from tests.support import TcpClient, free_port, read_pdu, running_gateway, write
 
 STATE_WORD_1 = 0x2100
 TIMEOUT_S = 0.1
-
-
-@pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    with SimulatedLine(addresses=[1, 2], baudrate=115200, parity="E", wire_time=True) as sim:
-        yield sim
 
 
 def metrics_config(port: str, metrics_port: int) -> GatewayConfig:

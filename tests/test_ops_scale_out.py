@@ -76,7 +76,7 @@ async def test_two_gateways_share_one_broker(mosquitto: Mosquitto, tmp_path: Pat
                         assert state.json() == ONLINE
 
                 # Home Assistant sees two devices, with no id claimed twice.
-                await asyncio.sleep(0.3)
+                await asyncio.sleep(0.3)  # asserting an absence: time for a duplicate to arrive
                 ids = discovery_ids(probe, prefix)
                 ids_a = {i for i, topic in ids.items() if topic.startswith(f"{base_a}/")}
                 ids_b = {i for i, topic in ids.items() if topic.startswith(f"{base_b}/")}
@@ -88,7 +88,7 @@ async def test_two_gateways_share_one_broker(mosquitto: Mosquitto, tmp_path: Pat
                 mark = len(probe.messages)
                 first.signal(signal.SIGKILL)
                 await probe.wait_for(f"{base_a}/bridge/state", lambda s: s == OFFLINE, after=mark)
-                await asyncio.sleep(0.3)
+                await asyncio.sleep(0.3)  # asserting an absence: no last will for B
                 assert not [
                     m
                     for m in probe.messages[mark:]

@@ -18,7 +18,7 @@ import pytest
 
 from gateway.instruments.simulator import SimulatedLine
 from tests.processes import gateway_process
-from tests.support import TcpClient, free_port
+from tests.support import TcpClient, eventually, free_port
 
 QUEUED = 6
 WORDS = 16
@@ -47,10 +47,8 @@ async def test_signal_answers_queued_requests_0x0b_and_exits_0_within_2_s(
             # Different blocks, so no two reads are coalesced: one on the wire, the rest queued.
             on_wire = client.send(1, read_block(0x3000))
             queued = [client.send(1, read_block(0x3000 + n)) for n in range(1, QUEUED + 1)]
-            for _ in range(500):  # until the first read is on the wire (it takes ~0.4 s)
-                if line.stats["requests"]:
-                    break
-                await asyncio.sleep(0.01)
+            # Until the first read is on the wire (it takes ~0.4 s).
+            await eventually(lambda: line.stats["requests"], what="the first read on the wire")
 
             signalled = time.monotonic()
             gateway.signal(signum)

@@ -20,6 +20,8 @@ from gateway.instruments.commands.demo import demo_config_text
 from gateway.instruments.simulator import SimulatedLine
 from tests.processes import run_cli
 
+pytestmark = pytest.mark.line(addresses=[1], baudrate=19200)
+
 EXIT_FAILURE = 1
 
 
@@ -30,12 +32,6 @@ def taken_port() -> Iterator[int]:
         other.bind(("127.0.0.1", 0))
         other.listen()
         yield other.getsockname()[1]
-
-
-@pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    with SimulatedLine(addresses=[1]) as simulated:
-        yield simulated
 
 
 def write_config(directory: Path, line: SimulatedLine, **sections: Any) -> str:

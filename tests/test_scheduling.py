@@ -18,7 +18,14 @@ from gateway.bus import Priority
 from gateway.errors import GatewayTargetFailed
 from gateway.instruments.simulator import SimulatedLine
 from gateway.modbus.timing import CharacterFormat
-from tests.support import TcpClient, gateway_config, read_pdu, running_gateway, write_pdu
+from tests.support import (
+    TcpClient,
+    eventually,
+    gateway_config,
+    read_pdu,
+    running_gateway,
+    write_pdu,
+)
 
 DRIVES = [{"name": "pump1", "address": 1}, {"name": "fan2", "address": 2}]
 
@@ -36,10 +43,7 @@ async def occupy_line(app: Application, line: SimulatedLine) -> asyncio.Task[byt
     line.set_reply_delay(2, 150)
     seen = line.stats["requests"]
     busy = asyncio.create_task(app.router.execute(2, read_pdu(0x3000, 16), client="occupier"))
-    for _ in range(500):  # until the drive has the request
-        if line.stats["requests"] > seen:
-            break
-        await asyncio.sleep(0.001)
+    await eventually(lambda: line.stats["requests"] > seen, what="the drive has the request")
     return busy
 
 
@@ -79,7 +83,7 @@ async def test_the_next_request_is_chosen_when_the_gap_ends_not_when_it_begins(
         busy = await occupy_line(app, slow_line)
         read = asyncio.create_task(send("read", read_pdu(0x2101)))  # queued before the gap
         await busy  # the gap starts now
-        await asyncio.sleep(0.02)
+        await asyncio.sleep(0.02)  # the thing under test: a write that arrives inside the gap
         write = asyncio.create_task(send("write", write_pdu(0x0005, 321)))
         await asyncio.gather(read, write)
         assert finished == ["write", "read"]
@@ -96,7 +100,7 @@ async def test_bytes_arriving_during_the_gap_start_it_again(slow_line: Simulated
         line = app.buses["line1"].line
         await app.router.execute(1, read_pdu(0x2100), client="first")  # the gap starts now
         queued = asyncio.create_task(app.router.execute(1, read_pdu(0x2100), client="next"))
-        await asyncio.sleep(0.15)
+        await asyncio.sleep(0.15)  # the thing under test: noise in the middle of the 300 ms gap
         slow_line.write_raw(b"\x00\xff")
         noise_sent = time.monotonic()
         assert await queued == bytes.fromhex("03 02 00 03")
@@ -221,7 +225,7 @@ async def test_reads_inside_a_polled_range_come_from_the_cache_never_stale() -> 
         config = gateway_config(line.path, drives, timeout_ms=50, retries=0, offline_after=1)
         async with running_gateway(config) as app:
             client = await TcpClient.connect(app.tcp.port)
-            await asyncio.sleep(0.3)  # a few polls
+            await eventually(lambda: app.poller.polls >= 3, what="a few polls")
             before = line.stats["requests"]
             for _ in range(20):
                 state_word_1, _, fault = await client.read(1, 0x2100, 3)
@@ -234,17 +238,26 @@ async def test_reads_inside_a_polled_range_come_from_the_cache_never_stale() -> 
             # The drive trips by itself (no write through the gateway): the polls keep going
             # past the cache, so within the cache's age SCADA sees the fault.
             line.inject_fault(1, 35)
-            await asyncio.sleep(0.5)
-            state_word_1, _, fault = await client.read(1, 0x2100, 3)
-            assert (state_word_1, fault) == (4, 35)
+
+            async def shows_the_fault() -> bool:
+                state_word_1, _, fault = await client.read(1, 0x2100, 3)
+                return (state_word_1, fault) == (4, 35)
+
+            # Cache 300 ms + a poll 100 ms, with room for a loaded machine.
+            await eventually(shows_the_fault, within_s=1.0, every_s=0.02)
             # A write through the gateway: the next read can't return what it overwrote.
             await client.request(1, write_pdu(0x2000, 7))  # fault reset
             assert (await client.read(1, 0x2100, 3))[0] == 3
             # The drive goes silent: once the cache is older than 300 ms, no value comes from it.
-            await asyncio.sleep(0.15)
+            # A poll refills the cache after the write: the drive goes silent with a value cached.
+            polls = app.poller.polls
+            await eventually(lambda: app.poller.polls > polls, what="a poll after the write")
             line.set_dead(1, True)
-            await asyncio.sleep(0.5)
-            assert await client.request(1, read_pdu(0x2100, 3)) == bytes.fromhex("83 0B")
+
+            async def refused() -> bool:
+                return await client.request(1, read_pdu(0x2100, 3)) == bytes.fromhex("83 0B")
+
+            await eventually(refused, within_s=1.0, every_s=0.05)
             await client.close()
 
 
@@ -277,20 +290,16 @@ async def test_a_drive_comes_back_and_polls_run_while_scada_reads_without_pause(
 
             clients = [await TcpClient.connect(app.tcp.port) for _ in range(6)]
             load = [asyncio.create_task(scada(c, 0x3000 + i)) for i, c in enumerate(clients)]
-            for _ in range(200):  # the poller finds fan2 dead and the bus isolates it
-                if bus.health.is_offline(2):
-                    break
-                await asyncio.sleep(0.02)
-            assert bus.health.is_offline(2)
+            # The poller finds fan2 dead and the bus isolates it.
+            await eventually(lambda: bus.health.is_offline(2), within_s=4.0)
             line.set_dead(2, False)
             # Under the same load, a probe must find it and polls must read it again.
             polls_before = app.poller.polls
-            for _ in range(400):
-                if not bus.health.is_offline(2) and app.poller.polls > polls_before + 3:
-                    break
-                await asyncio.sleep(0.02)
-            assert not bus.health.is_offline(2)
-            assert app.poller.polls > polls_before + 3
+            await eventually(
+                lambda: not bus.health.is_offline(2) and app.poller.polls > polls_before + 3,
+                within_s=8.0,
+                what="fan2 probed back and polled again",
+            )
             assert not any(task.done() for task in load)  # SCADA was served all along
             stop.set()
             await asyncio.gather(*load)
@@ -307,14 +316,11 @@ async def test_reads_of_a_client_that_left_cost_no_bus_time(slow_line: Simulated
         for register in range(0x3000, 0x300C):  # twelve distinct reads, queued
             leaving.send(1, read_pdu(register))
         leaving.send(1, write_pdu(0x0005, 4321))
-        await asyncio.sleep(0.05)
+        bus = app.buses["line1"]
+        await eventually(lambda: bus.queue_depth >= 13, what="its thirteen requests queued")
         await leaving.close()  # gone before any answer
         await busy
-        bus = app.buses["line1"]
-        for _ in range(200):  # until whatever stayed queued has gone out
-            if not bus.queue_depth and not bus.busy:
-                break
-            await asyncio.sleep(0.02)
+        await eventually(lambda: not bus.queue_depth and not bus.busy, what="the queue served")
         # The write it sent was carried out; its twelve reads were not (one may have been on
         # the wire already).
         assert slow_line.stats["requests"] - before <= 2
@@ -339,7 +345,7 @@ async def test_a_drive_that_only_garbles_its_probes_backs_off_like_a_silent_one(
             line.set_line_faults(1.0, ["crc"])
             line.set_dead(1, False)
             before = line.stats["requests"]
-            await asyncio.sleep(1.6)
+            await asyncio.sleep(1.6)  # the thing under test: probes counted over a fixed window
             probes = line.stats["requests"] - before
             # Doubling from 0.1 s: at most 0.1 + 0.2 + 0.4 + 0.8 s apart, 4 or 5 probes;
             # at the first interval it would be about 16.

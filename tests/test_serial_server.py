@@ -9,16 +9,18 @@ import asyncio
 import shutil
 import subprocess
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from gateway.instruments.bench.processes import free_port, stop_process
 from gateway.instruments.simulator import SimulatedLine
-from tests.support import TcpClient, gateway_config, running_gateway
+from tests.support import TcpClient, eventually, gateway_config, running_gateway
 
-pytestmark = pytest.mark.skipif(shutil.which("socat") is None, reason="socat not installed")
+pytestmark = [
+    pytest.mark.skipif(shutil.which("socat") is None, reason="socat not installed"),
+    pytest.mark.line(baudrate=19200, parity="N"),
+]
 
 
 def device_server(line_path: str, port: int) -> subprocess.Popen[bytes]:
@@ -36,7 +38,7 @@ def device_server(line_path: str, port: int) -> subprocess.Popen[bytes]:
         if process.poll() is not None or time.monotonic() > deadline:
             stop_process(process)
             raise RuntimeError(f"socat is not listening on port {port}")
-        time.sleep(0.01)
+        time.sleep(0.01)  # polled with a deadline: another process's socket
     return process
 
 
@@ -48,12 +50,6 @@ def listening(port: int) -> bool:
     )
 
 
-@pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    with SimulatedLine(addresses=[1, 2], baudrate=19200, parity="N", wire_time=True) as sim:
-        yield sim
-
-
 async def read_until_answered(client: TcpClient, unit: int, seconds: float) -> list[int]:
     deadline = asyncio.get_running_loop().time() + seconds
     while True:
@@ -62,7 +58,7 @@ async def read_until_answered(client: TcpClient, unit: int, seconds: float) -> l
             return [int.from_bytes(reply[2:4], "big")]
         assert reply == bytes.fromhex("83 0B")  # meanwhile: gateway target failed, nothing else
         assert asyncio.get_running_loop().time() < deadline, "not back in time"
-        await asyncio.sleep(0.1)
+        await asyncio.sleep(0.1)  # polled with a deadline: 0BH until the reopen backoff retries
 
 
 async def test_drives_behind_a_serial_device_server(line: SimulatedLine) -> None:
@@ -79,11 +75,8 @@ async def test_drives_behind_a_serial_device_server(line: SimulatedLine) -> None
 
             # The converter loses power (in a thread: the gateway runs on this test's loop).
             await asyncio.to_thread(stop_process, server)
-            for _ in range(500):  # until the gateway has seen the connection end
-                if not app.buses["line1"].line.is_open:
-                    break
-                await asyncio.sleep(0.01)
-            assert not app.buses["line1"].line.is_open
+            line_ = app.buses["line1"].line
+            await eventually(lambda: not line_.is_open, what="the connection's end seen")
             assert await client.request(1, bytes.fromhex("03 21 00 00 01")) == bytes.fromhex(
                 "83 0B"
             )

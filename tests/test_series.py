@@ -6,7 +6,6 @@ the config and on the command line; a fault code one series lists and another do
 
 from __future__ import annotations
 
-import re
 import subprocess
 import sys
 import time
@@ -25,7 +24,7 @@ from tests.mosquitto import mosquitto as mosquitto
 from tests.mqtt_setup import FAST_POLL, mqtt_config
 from tests.processes import run_cli, simulator_process
 from tests.protocol_frames import PROTOCOL_EXCHANGES
-from tests.support import running_gateway
+from tests.support import running_gateway, scan_rows
 from tests.test_simulator import exchange
 
 FIVE_SERIES = ("gd30", "ipe300", "gd350a", "gd300l", "gd350ul")
@@ -186,7 +185,7 @@ def test_each_simulated_series_answers_its_own_identification() -> None:
             request = bytes.fromhex(f"{address:02X} 03 21 03 00 01")
             reply = exchange(port, request + crc(request))
             answers[address] = int.from_bytes(reply[3:5], "big")
-            time.sleep(0.003)
+            time.sleep(0.003)  # t3.5 before the next request, as a master must
     assert answers == {1: 0x01F0, 2: 0x01F1, 3: 0x01A2, 4: 0x010A, 5: 0x01A1}
 
 
@@ -207,7 +206,7 @@ def test_a_goodrive30_takes_the_motors_its_2009h_row_lists() -> None:
         select_motor_3 = bytes.fromhex("01 06 20 09 00 02")
         request = select_motor_3 + crc(select_motor_3)
         assert exchange(port, request) == request
-        time.sleep(0.003)
+        time.sleep(0.003)  # t3.5 before the next request, as a master must
         read_back = bytes.fromhex("01 03 20 09 00 01")
         assert exchange(port, read_back + crc(read_back))[3:5] == b"\x00\x02"
 
@@ -243,15 +242,6 @@ def test_a_gd300l_reports_ready_with_bit_0_clear() -> None:
 
 
 # ---------------------------------------------------------------- scan
-
-
-def scan_rows(output: str) -> dict[int, list[str]]:
-    rows = {}
-    for line in output.splitlines():
-        cells = re.split(r"\s{2,}", line.strip())
-        if cells and cells[0].isdigit():
-            rows[int(cells[0])] = cells[1:]
-    return rows
 
 
 def test_scan_names_each_series_as_far_as_its_code_tells() -> None:

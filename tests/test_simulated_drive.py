@@ -10,21 +10,11 @@ from gateway.instruments.simulator.drive import SimulatedDrive
 from gateway.instruments.simulator.framing import RequestAssembler
 from gateway.instruments.simulator.motor import Ramp
 from gateway.profile import parse_parameter, ram_address
+from tests.support import read_pdu as read
+from tests.support import write_many
+from tests.support import write_pdu as write
 
 STOPPED, RUNNING_FORWARD, RUNNING_REVERSE, FAULT = 3, 1, 2, 4
-
-
-def read(start: int, count: int = 1) -> bytes:
-    return struct.pack(">BHH", 0x03, start, count)
-
-
-def write(address: int, value: int) -> bytes:
-    return struct.pack(">BHH", 0x06, address, value)
-
-
-def write_many(start: int, *values: int) -> bytes:
-    count = len(values)
-    return struct.pack(f">BHHB{count}H", 0x10, start, count, 2 * count, *values)
 
 
 def words(reply: bytes) -> list[int]:

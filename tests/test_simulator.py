@@ -24,6 +24,8 @@ from gateway.modbus.functions import NEED_MORE, rtu_reply_length
 from gateway.modbus.rtu import build_frame
 from tests.protocol_frames import PROTOCOL_EXCHANGES
 
+pytestmark = pytest.mark.line(addresses=[1, 2, 3], wire_time=False, response_delay_ms=0)
+
 READ_STATE_WORD_1 = "01 03 21 00 00 01 8E 36"
 STOPPED_REPLY = "01 03 02 00 03 F8 45"
 
@@ -54,21 +56,12 @@ def silent(port: serial.Serial, wait_s: float = 0.15) -> bool:
     It waits and looks rather than changing `port.timeout`: on some kernels a pty refuses any
     termios change once parity is asked for (see `reopen`), and pyserial applies a timeout
     change through termios."""
-    time.sleep(wait_s)
+    time.sleep(wait_s)  # asserting an absence: nothing may arrive in this window
     return port.in_waiting == 0
 
 
 def open_port(line: SimulatedLine, baudrate: int = 115200) -> serial.Serial:
     return serial.Serial(line.path, baudrate, parity="E", timeout=1)
-
-
-@pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    """Three GD350s without wire time: answers as fast as the pty goes."""
-    with SimulatedLine(
-        addresses=[1, 2, 3], baudrate=115200, wire_time=False, response_delay_ms=0
-    ) as simulated:
-        yield simulated
 
 
 @pytest.fixture
@@ -104,12 +97,12 @@ def test_run_ramp_and_stop(line: SimulatedLine, port: serial.Serial) -> None:
     exchange(port, frame(1, "10 00 0B 00 02 04 00 02 00 02"))  # P00.11 = P00.12 = 0.2 s
     assert exchange(port, frame(1, "10 20 00 00 02 04 00 01 09 C4")) == frame(1, "10 20 00 00 02")
     assert exchange(port, frame(1, "03 21 00 00 01")) == frame(1, "03 02 00 01")  # forward
-    time.sleep(0.3)  # 25.00 Hz is reached in 0.1 s
+    time.sleep(0.3)  # the simulated motor's ramp: 25.00 Hz is reached in 0.1 s
     running = exchange(port, frame(1, "03 30 00 00 06"))
     assert running[3:7] == bytes.fromhex("09 C4 09 C4")  # running and set frequency 25.00 Hz
     assert running[9:11] == (190).to_bytes(2, "big")  # output voltage: 380 V x 25/50
     exchange(port, frame(1, "06 20 00 00 05"))  # stop
-    time.sleep(0.3)
+    time.sleep(0.3)  # the simulated motor's ramp down (0.1 s) is the thing under test
     assert exchange(port, frame(1, "03 21 00 00 01")) == frame(1, "03 02 00 03")
     assert exchange(port, frame(1, "03 30 00 00 01")) == frame(1, "03 02 00 00")
 
@@ -165,7 +158,7 @@ def test_garbage_then_silence_then_a_request_is_answered(
     line: SimulatedLine, port: serial.Serial
 ) -> None:
     port.write(b"\x01\x03\x55\xaa\x00")  # looks like the start of a read, isn't one
-    time.sleep(0.02)
+    time.sleep(0.02)  # the thing under test: silence after the garbage, far longer than t3.5
     assert exchange(port, bytes.fromhex(READ_STATE_WORD_1)) == bytes.fromhex(STOPPED_REPLY)
     assert line.stats["crc_errors"] == 1
 
@@ -222,7 +215,7 @@ def test_p14_03_written_over_modbus_delays_the_replies(port: serial.Serial) -> N
 def test_spoilt_replies(line: SimulatedLine, port: serial.Serial, kind: str) -> None:
     line.set_line_faults(rate=1.0, kinds={kind}, seed=1)
     port.write(bytes.fromhex(READ_STATE_WORD_1))
-    time.sleep(0.1)
+    time.sleep(0.1)  # a spoilt reply has no length to wait for: all that came in 0.1 s
     received = port.read(port.in_waiting)
     good = bytes.fromhex(STOPPED_REPLY)
     if kind == "crc":
@@ -288,7 +281,7 @@ def test_wire_time_at_9600_baud() -> None:
             started = time.monotonic()
             assert exchange(port, bytes.fromhex(READ_STATE_WORD_1)) == bytes.fromhex(STOPPED_REPLY)
             durations.append(time.monotonic() - started)
-            time.sleep(0.01)
+            time.sleep(0.01)  # more than t3.5 before the next request, as a master must
         assert min(durations) >= 15 * 11 / 9600 + 0.005
         assert max(durations) < 0.1
 
@@ -313,11 +306,11 @@ def test_gap_violations_are_counted() -> None:
         exchange(port, bytes.fromhex(READ_STATE_WORD_1))  # at once after the reply: too soon
         assert line.stats["gap_violations"] == 1
         assert line.stats["min_gap_s"] < t35
-        time.sleep(2 * t35)
+        time.sleep(2 * t35)  # the thing under test: a master that keeps the gap
         exchange(port, bytes.fromhex(READ_STATE_WORD_1))
         assert line.stats["gap_violations"] == 1
         # Two requests in one write: the second starts before the first has left the wire.
-        time.sleep(2 * t35)
+        time.sleep(2 * t35)  # a clean start for the next case
         port.write(frame(1, "03 21 00 00 01") * 2)
         read_reply(port, 8)
         read_reply(port, 8)
@@ -377,7 +370,7 @@ def test_the_gateway_closing_its_port_does_not_hang_up_the_line(line: SimulatedL
 def test_stop_is_prompt_and_leaves_no_thread() -> None:
     line = SimulatedLine([1], baudrate=115200)
     line.start()
-    time.sleep(0.05)
+    time.sleep(0.05)  # the line serving a while, as it is when a test stops it
     started = time.monotonic()
     line.stop()
     assert time.monotonic() - started < 0.5

@@ -12,14 +12,13 @@ import contextlib
 import socket
 import struct
 import time
-from collections.abc import Iterator
 from typing import Any
 
 import pytest
 
 from gateway.config import GatewayConfig
 from gateway.instruments.simulator import SimulatedLine
-from tests.support import TcpClient, read_pdu, running_gateway
+from tests.support import TcpClient, eventually, read_pdu, running_gateway
 
 STATE_WORD_1 = 0x2100
 STOPPED = 3
@@ -38,12 +37,6 @@ def protected_config(line_path: str, **tcp: Any) -> GatewayConfig:
             ],
         }
     )
-
-
-@pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    with SimulatedLine(addresses=[1, 2], baudrate=115200, parity="E", wire_time=True) as sim:
-        yield sim
 
 
 async def timed_reads(port: int, until: asyncio.Event, unit_id: int = 2) -> list[float]:
@@ -123,11 +116,11 @@ async def test_a_client_that_never_reads_is_not_read_either(
                     stalled_since = stalled_since or time.monotonic()
                     if time.monotonic() - stalled_since > 0.3:
                         break  # the gateway stopped taking its requests
-                await asyncio.sleep(0.001)
+                await asyncio.sleep(0.001)  # the hog's own pace
             else:
                 pytest.fail("the gateway kept reading a client that never reads its answers")
             requests_when_stalled = app.tcp.stats.requests
-            await asyncio.sleep(0.3)
+            await asyncio.sleep(0.3)  # asserting an absence: a window the hog would be read in
             assert app.tcp.stats.requests - requests_when_stalled < 50  # only the other client's
             # What the gateway holds for the hog: its write buffer, near the 64 KiB high-water.
             buffered = sum(
@@ -137,9 +130,11 @@ async def test_a_client_that_never_reads_is_not_read_either(
             )
             assert buffered < 128 * 1024
             # Silent (the gateway isn't reading it) for idle_timeout_s: closed, its slot freed.
-            await asyncio.sleep(1.5)
-            assert app.tcp.stats.idle_closed >= 1
-            assert len(app.tcp.stats.active) == 1
+            await eventually(
+                lambda: app.tcp.stats.idle_closed >= 1 and len(app.tcp.stats.active) == 1,
+                within_s=3.0,
+                what="the hog closed after idle_timeout_s",
+            )
         finally:
             done.set()
             latencies = await reader
@@ -195,7 +190,7 @@ async def test_one_connection_too_many_is_refused_while_the_others_work(
                 assert await client.read(1, STATE_WORD_1) == [STOPPED]
             # A slot that frees up is taken by the next client.
             await clients.pop().close()
-            await asyncio.sleep(0.1)
+            await eventually(lambda: len(app.tcp.stats.active) == len(clients), what="slot free")
             clients.append(await TcpClient.connect(app.tcp.port))
             assert await clients[-1].read(2, STATE_WORD_1) == [STOPPED]
             assert app.tcp.stats.refused == 1

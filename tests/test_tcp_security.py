@@ -13,7 +13,6 @@ import socket
 import ssl
 import struct
 import time
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +25,8 @@ from gateway.profile.states import RunState
 from gateway.tcp.cert_roles import role_extension
 from tests.support import TcpClient, running_gateway
 from tests.tls import client_with_role, make_ca, make_signed
+
+pytestmark = pytest.mark.line(addresses=[1])
 
 ACCELERATION_TIME = 0x000B  # P00.11
 
@@ -58,12 +59,6 @@ def pki(tmp_path_factory: pytest.TempPathFactory) -> Pki:
         mapped=client_with_role(directory, "hmi-2", ca, None),
         stranger=client_with_role(directory, "stranger", rogue, "operator"),
     )
-
-
-@pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    with SimulatedLine(addresses=[1], baudrate=115200, parity="E", wire_time=True) as sim:
-        yield sim
 
 
 def secure_config(line_path: str, pki: Pki) -> GatewayConfig:

@@ -16,8 +16,7 @@ from collections.abc import AsyncIterator
 import pytest
 
 from gateway.instruments.simulator import SimulatedLine
-from tests.support import TcpClient, running_gateway, write_pdu
-from tests.test_tcp_protection import line as line
+from tests.support import TcpClient, eventually, running_gateway, write_pdu
 from tests.test_tcp_protection import protected_config
 
 STATE_WORD_1 = 0x2100
@@ -46,7 +45,7 @@ async def slow_senders(port: int, count: int, stop: asyncio.Event) -> AsyncItera
             try:
                 reader, writer = await open_from(host, port)
             except OSError:
-                await asyncio.sleep(0.05)
+                await asyncio.sleep(0.05)  # a slow client's own pace before it tries again
                 continue
             frame = struct.pack(">HHHB", 1, 0, 6, 1) + struct.pack(">BHH", 3, STATE_WORD_1, 1)
             try:
@@ -110,7 +109,7 @@ async def test_a_connection_that_sends_nothing_is_closed_after_first_request_tim
         # A client that was served is not held to it.
         client = await TcpClient.connect(app.tcp.port)
         assert await client.read(1, STATE_WORD_1) == [STOPPED]
-        await asyncio.sleep(1.5)
+        await asyncio.sleep(1.5)  # the thing under test: idle past the first-request timeout
         assert await client.read(1, STATE_WORD_1) == [STOPPED]
         await client.close()
         assert app.tcp.stats.slow_closed == 1
@@ -141,16 +140,13 @@ async def test_slow_senders_holding_every_slot_do_not_keep_a_good_client_out(
         assert await served.read(1, STATE_WORD_1) == [STOPPED]
         stop = asyncio.Event()
         async with slow_senders(app.tcp.port, 12, stop) as reconnections:
-            for _ in range(200):  # until every slot is taken
-                if len(app.tcp.stats.active) >= 8:
-                    break
-                await asyncio.sleep(0.05)
+            await eventually(lambda: len(app.tcp.stats.active) >= 8, 10.0, "every slot taken")
             # A well-behaved client arriving now connects and is served, again and again.
             for attempt in range(5):
                 client = await TcpClient.connect(app.tcp.port)
                 assert await client.read(2, STATE_WORD_1) == [STOPPED], attempt
                 await client.close()
-                await asyncio.sleep(0.2)
+                await asyncio.sleep(0.2)  # the client's think time: the slow senders come back
             # The client served first was never the one evicted.
             assert await served.read(1, STATE_WORD_1) == [STOPPED]
             assert app.tcp.stats.evicted >= 5

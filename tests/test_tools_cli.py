@@ -8,7 +8,6 @@ serial port has no such limit; the tools open the line once per run, so a test r
 
 from __future__ import annotations
 
-import re
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -17,7 +16,7 @@ import pytest
 
 from gateway.instruments.simulator import SimulatedLine
 from tests.processes import SimulatorProcess, gateway_process, run_cli, simulator_process
-from tests.support import free_port
+from tests.support import free_port, scan_rows
 
 SIMULATED = {1: "GD350", 7: "GD350", 200: "GD350"}
 LINE = ("--baud", "115200", "--parity", "N")
@@ -30,16 +29,6 @@ def simulator() -> Iterator[SimulatorProcess]:
         *addresses, *LINE, "--model", "gd350", "--fault", "7=35", "--response-delay-ms", "2"
     ) as sim:
         yield sim
-
-
-def scan_rows(output: str) -> dict[int, list[str]]:
-    """The table's rows by address: the cells, split on the table's column gaps."""
-    rows = {}
-    for line in output.splitlines():
-        cells = re.split(r"\s{2,}", line.strip())
-        if cells and cells[0].isdigit():
-            rows[int(cells[0])] = cells[1:]
-    return rows
 
 
 def test_scan_finds_exactly_the_simulated_drives_quickly(simulator: SimulatorProcess) -> None:

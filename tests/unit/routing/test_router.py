@@ -5,17 +5,17 @@ from __future__ import annotations
 
 import asyncio
 import struct
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import AsyncIterator
 
 import pytest
 
-from gateway.app import bus_settings
 from gateway.bus import Bus
-from gateway.config import BusConfig
 from gateway.errors import DriveOffline, GatewayTargetFailed
 from gateway.instruments.simulator import SimulatedLine
 from gateway.routing import Route, Router
-from tests.support import read_pdu, write_pdu
+from tests.support import read_pdu, running_bus, write_pdu
+
+pytestmark = pytest.mark.line(addresses=[1])
 
 STATE = 0x2100
 """State word 1, state word 2, fault code: what a drive's poll reads first."""
@@ -23,23 +23,9 @@ ACCEL_TIME = 0x0005
 
 
 @pytest.fixture
-def line() -> Iterator[SimulatedLine]:
-    with SimulatedLine(addresses=[1], baudrate=115200) as line:
-        yield line
-
-
-@pytest.fixture
 async def bus(line: SimulatedLine) -> AsyncIterator[Bus]:
-    config = BusConfig.model_validate(
-        {"name": "line1", "port": line.path, "timeout_ms": 50, "retries": 0, "offline_after": 1}
-    )
-    bus = Bus(bus_settings(config))
-    running = asyncio.create_task(bus.run())
-    assert await bus.wait_open(5.0)
-    yield bus
-    bus.close()
-    running.cancel()
-    await asyncio.gather(running, return_exceptions=True)
+    async with running_bus(line.path, timeout_ms=50, retries=0, offline_after=1) as bus:
+        yield bus
 
 
 def routed(bus: Bus, cache_max_age_s: float | None = 60.0) -> tuple[Router, Route]:

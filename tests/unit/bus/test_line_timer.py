@@ -43,6 +43,6 @@ async def test_closing_the_timer_releases_a_waiting_gap() -> None:
     loop = asyncio.get_running_loop()
     timer = LineTimer(loop)
     waiting = loop.create_task(timer.sleep_until(time.monotonic() + 60))
-    await asyncio.sleep(0.01)
+    await asyncio.sleep(0.01)  # the gap is under way (the timer exposes no "waiting" event)
     timer.close()
     await asyncio.wait_for(waiting, 1.0)

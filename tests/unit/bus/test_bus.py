@@ -1,0 +1,112 @@
+"""The bus on its own, over a real pty with simulated drives: the manual's frames answered
+byte-exact, the gap kept between back-to-back requests, a silent drive retried then isolated,
+broadcasts unanswered, identical reads sharing one transaction, and a closing bus answering what
+it still held."""
+
+from __future__ import annotations
+
+import asyncio
+
+import pytest
+
+from gateway.bus import Bus
+from gateway.bus.queue import Priority
+from gateway.errors import BusClosed, DriveOffline, GatewayTargetFailed
+from gateway.instruments.simulator import SimulatedLine
+from gateway.modbus.timing import FAST_T35_S
+from tests.support import eventually, read_pdu, running_bus, write_pdu
+
+STATE_WORD_1 = 0x2100
+FREQUENCY_SETPOINT = 0x2001
+STOPPED = 3
+SILENT = 9
+"""An address nobody answers on."""
+
+pytestmark = pytest.mark.line(addresses=[1, 2])
+
+
+async def read(bus: Bus, address: int, register: int, count: int = 1) -> bytes | None:
+    return await bus.request(address, read_pdu(register, count), priority=Priority.READ, client="t")
+
+
+async def test_the_manuals_read_of_state_word_1_is_answered_byte_exact(line: SimulatedLine) -> None:
+    # PROTOCOL.md: 01 03 21 00 00 01 8E 36 reads state word 1; 3 is "stopped".
+    async with running_bus(line.path) as bus:
+        assert await read(bus, 1, STATE_WORD_1) == bytes.fromhex("03 02 00 03")
+        assert bus.stats.transactions == 1
+        assert bus.drive_stats[1].transactions == 1
+
+
+async def test_back_to_back_requests_keep_the_inter_frame_gap(line: SimulatedLine) -> None:
+    async with running_bus(line.path) as bus:
+        replies = await asyncio.gather(*(read(bus, 1 + n % 2, STATE_WORD_1) for n in range(20)))
+        assert set(replies) == {bytes.fromhex("03 02 00 03")}
+        assert bus.stats.min_gap_s is not None
+        assert bus.stats.min_gap_s >= FAST_T35_S  # 115200 baud: 1.75 ms, never shorter
+        # Requests that were already waiting when a reply ended: our own time between them.
+        assert bus.gap_excess.count > 0
+        assert bus.gap_excess.counts[0] == 0  # no gap shorter than t3.5
+
+
+async def test_a_silent_drive_is_retried_then_isolated_without_the_line(
+    line: SimulatedLine,
+) -> None:
+    heard: list[tuple[int, bool]] = []
+    async with running_bus(line.path, timeout_ms=50, retries=1, offline_after=2) as bus:
+        bus.add_listener(lambda _bus, address, online: heard.append((address, online)))
+        for _ in range(2):
+            with pytest.raises(GatewayTargetFailed):
+                await read(bus, SILENT, STATE_WORD_1)
+        # The first request is tried twice; a drive that just failed gets no retries, so the
+        # second costs the line one timeout only.
+        assert (bus.stats.timeouts, bus.stats.retries) == (3, 1)
+        assert bus.health.is_offline(SILENT)
+        assert heard == [(SILENT, False)]
+        sent = line.stats["requests"]
+        with pytest.raises(DriveOffline):
+            await read(bus, SILENT, STATE_WORD_1)
+        assert line.stats["requests"] == sent  # refused at once, no line time spent
+        assert bus.stats.offline_rejected == 1
+        assert await read(bus, 1, STATE_WORD_1) == bytes.fromhex("03 02 00 03")  # others unhurt
+
+
+async def test_a_broadcast_is_not_answered_yet_every_drive_obeys(line: SimulatedLine) -> None:
+    async with running_bus(line.path) as bus:
+        reply = await bus.request(
+            0, write_pdu(FREQUENCY_SETPOINT, 2500), priority=Priority.WRITE, client="t"
+        )
+        assert reply is None
+        assert bus.stats.broadcasts == 1
+        for address in (1, 2):
+            assert await read(bus, address, FREQUENCY_SETPOINT) == bytes.fromhex("03 02 09 C4")
+
+
+async def test_identical_reads_waiting_together_share_one_transaction(
+    line: SimulatedLine,
+) -> None:
+    line.set_reply_delay(2, 100)  # drive 2 holds the line while the reads queue up
+    async with running_bus(line.path) as bus:
+        busy = asyncio.create_task(read(bus, 2, STATE_WORD_1))
+        await eventually(lambda: bus.busy, what="the slow request on the wire")
+        readers = [asyncio.create_task(read(bus, 1, 0x3000, 6)) for _ in range(5)]
+        replies = await asyncio.gather(*readers)
+        await busy
+        assert len(set(replies)) == 1
+        assert bus.stats.coalesced == 4
+        assert bus.stats.transactions == 2
+
+
+async def test_closing_answers_the_queued_requests_with_bus_closed(line: SimulatedLine) -> None:
+    line.set_reply_delay(1, 100)
+    async with running_bus(line.path) as bus:
+        on_the_wire = asyncio.create_task(read(bus, 1, STATE_WORD_1))
+        await eventually(lambda: bus.busy, what="the first request on the wire")
+        queued = asyncio.create_task(read(bus, 2, STATE_WORD_1))
+        await eventually(lambda: bus.queue_depth == 1, what="the second request queued")
+        bus.close()
+        with pytest.raises(BusClosed):
+            await queued
+        # The transaction on the wire is not cut off: the drive's answer still arrives.
+        assert await on_the_wire == bytes.fromhex("03 02 00 03")
+        with pytest.raises(BusClosed):
+            await read(bus, 1, STATE_WORD_1)
