@@ -162,11 +162,10 @@ class Bus:
         )
         self._queue = RequestQueue(settings.queue_size, settings.shares)
         self._work: asyncio.Future[None] | None = None
-        self._picked: Transaction | None = None
-        """The transaction `_pick` chose at the end of the gap, until `_start_next` takes it."""
         """Set while the bus waits for work; a new request (or a lost port) resolves it."""
-        self._closing = False
-        self._busy = False
+        self._carrying: Transaction | None = None
+        """The transaction taken from the queue (`_pick`, at the gap's end) until it is answered:
+        on the wire, or about to be. Whoever holds the bus must answer it, whatever happens."""
         self._loop: asyncio.AbstractEventLoop | None = None
         self.line.on_port_error = self._wake
         self._listeners: list[DriveListener] = []
@@ -204,8 +203,13 @@ class Bus:
 
     @property
     def busy(self) -> bool:
-        """A transaction is on the wire."""
-        return self._busy
+        """A transaction is on the wire. Not a `BusState`: the state is what the line is (a
+        metric and the console show it), not a flicker per transaction."""
+        return self._carrying is not None
+
+    @property
+    def closing(self) -> bool:
+        return self.state is BusState.CLOSED
 
     # -- what callers use (event loop) ---------------------------------------------------------
 
@@ -350,7 +354,6 @@ class Bus:
     def close(self, reason: str = "is shutting down") -> None:
         """Refuse new requests and answer queued ones with 0x0B; the one on the wire finishes."""
         self.state = BusState.CLOSED
-        self._closing = True
         queued = self._queue.take_all()
         self._wake()
         error = BusClosed(f"bus {self.name} {reason}")
@@ -359,7 +362,7 @@ class Bus:
 
     async def wait_idle(self, timeout_s: float) -> None:
         """Wait (at most `timeout_s`) for the transaction on the wire to finish."""
-        if not self._busy:
+        if not self.busy:
             return
         self._idle.clear()
         with contextlib.suppress(TimeoutError):
@@ -368,9 +371,8 @@ class Bus:
     # -- the bus's coroutine -------------------------------------------------------------------
 
     async def _serve(self) -> None:
-        transaction: Transaction | None = None
         try:
-            while not self._closing:
+            while not self.closing:
                 if not self.line.is_open:
                     await self._open_with_backoff()
                     continue
@@ -388,22 +390,19 @@ class Bus:
                 now = time.monotonic()
                 held = max(now, self.line.busy_until) - sending.started
                 self._queue.charge(transaction, held, now)
-                transaction = None
                 self._done(*outcome)
         except BaseException:
             # Cancelled or died holding a transaction taken from the queue (on the wire, or
             # chosen at the gap's end): answer it, nobody else will.
-            for taken in (transaction, self._picked):
-                if taken is not None:
-                    self._done(_fail, (taken, BusClosed(f"bus {self.name} stopped")))
-            self._picked = None
+            if self._carrying is not None:
+                self._done(_fail, (self._carrying, BusClosed(f"bus {self.name} stopped")))
             raise
         finally:
             self.line.close()
 
     def _done(self, callback: Callable[..., None], args: tuple[Any, ...]) -> None:
         """A transaction taken from the queue is over: tell its waiters, and `wait_idle`."""
-        self._busy = False
+        self._carrying = None
         callback(*args)
         self._idle.set()
 
@@ -420,30 +419,30 @@ class Bus:
         # A request waited as the last reply ended: the silence before it, beyond the gap, is
         # the gateway's own (not a client's think time, nor a broadcast's turnaround).
         back_to_back, self._reply_heard_at = self._reply_heard_at != 0.0, 0.0
-        while not self._closing:
+        while not self.closing:
             try:
                 sending = await self.line.send_after_gap(self._pick)
             except PortError as exc:
-                picked, self._picked = self._picked, None
+                picked = self._carrying
                 if picked is not None:  # taken from the queue, but the port failed under it
                     self._done(_fail, (picked, GatewayTargetFailed(f"bus {self.name}: {exc}")))
                 self._port_lost(exc)
                 return None
             except Exception as exc:  # a bug in choosing or framing costs that one request
-                picked, self._picked = self._picked, None
+                picked = self._carrying
                 if picked is None:
                     raise  # nothing was taken: trying again would spin; let the bus fail
                 log.exception("bus %s: unexpected error starting a transaction", self.name)
                 self._done(_fail, (picked, GatewayTargetFailed(f"bus {self.name}: {exc}")))
                 continue
             if sending is not None:
-                transaction, self._picked = self._picked, None
+                transaction = self._carrying
                 assert transaction is not None  # a frame went out, so `_pick` chose one
                 if back_to_back:
                     self.gap_excess.observe(sending.gap_s - self.settings.line.gap_s)
                 return transaction, sending
             back_to_back = False  # the line went idle: what follows waited for work
-            if self._closing:
+            if self.closing:
                 return None
             if len(self._queue):
                 # Queued after the gap's end found nothing, before this coroutine resumed: its
@@ -459,7 +458,7 @@ class Bus:
 
     def _pick(self) -> bytes | None:
         """Take the best transaction queued now and return its frame; None if there is none."""
-        if self._closing:
+        if self.closing:
             return None
         now = time.monotonic()
         while (transaction := self._queue.get_nowait(now)) is not None:
@@ -474,8 +473,7 @@ class Bus:
                 self.stats.offline_rejected += 1
                 _fail(transaction, DriveOffline(f"drive {address} on {self.name} is offline"))
                 continue
-            self._picked = transaction  # before anything can fail: it must be answered
-            self._busy = True
+            self._carrying = transaction  # before anything can fail: it must be answered
             return transaction.frame or build_frame(address, transaction.pdu)
         return None
 
@@ -497,7 +495,7 @@ class Bus:
     async def _open_with_backoff(self) -> None:
         delay = self.settings.reopen_initial_s
         failures = 0
-        while not self._closing:
+        while not self.closing:
             try:
                 self.line.open()
             except PortError as exc:
@@ -505,7 +503,7 @@ class Bus:
                 self._last_port_error = str(exc)
                 if self.state is BusState.OPENING:
                     self._notify_port(True, str(exc))  # missing from the start: lost too
-                if not self._closing:
+                if not self.closing:
                     self.state = BusState.REOPENING
                 # Say it loudly once, then quietly: a missing adapter shouldn't flood the journal.
                 level = logging.WARNING if failures == 1 else logging.DEBUG
@@ -513,7 +511,7 @@ class Bus:
                 # Only shutdown cuts the wait short: requests arriving meanwhile are refused
                 # (0BH) or queued, and must not turn the backoff into a retry per request.
                 until = time.monotonic() + delay * random.uniform(0.8, 1.2)
-                while not self._closing and (left := until - time.monotonic()) > 0:
+                while not self.closing and (left := until - time.monotonic()) > 0:
                     await self._wait_for_work(left)
                 delay = min(delay * 2, self.settings.reopen_max_s)
                 continue
@@ -521,7 +519,7 @@ class Bus:
                 self.stats.reopens += 1
                 self.health.line_back(time.monotonic())
                 self._notify_port(False, "")
-            if self._closing:
+            if self.closing:
                 return
             self.state = BusState.OPEN
             log.info("bus %s: %s open", self.name, self.settings.line.port)
@@ -633,7 +631,7 @@ class Bus:
     def _port_lost(self, exc: PortError) -> None:
         self.stats.port_errors += 1
         self._last_port_error = str(exc)
-        if not self._closing:
+        if not self.closing:
             self.state = BusState.REOPENING
         log.error("bus %s: port lost (%s); reopening with backoff", self.name, exc)
         self._notify_port(True, str(exc))
