@@ -18,6 +18,7 @@ from gateway.config import GatewayConfig
 from gateway.instruments.bench.processes import (
     free_port as free_port,  # the tests' one way to a free port
 )
+from gateway.settings import runtime_settings
 
 
 def gateway_config(port: str, drives: list[dict[str, Any]], **bus: Any) -> GatewayConfig:
@@ -43,7 +44,7 @@ def gateway_config(port: str, drives: list[dict[str, Any]], **bus: Any) -> Gatew
 @contextlib.asynccontextmanager
 async def running_gateway(config: GatewayConfig) -> AsyncIterator[Application]:
     """The whole application in this event loop, listening on a real TCP port."""
-    async with running_application(Application(config)) as app:
+    async with running_application(Application(runtime_settings(config))) as app:
         yield app
 
 

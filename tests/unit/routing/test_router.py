@@ -9,12 +9,12 @@ from collections.abc import AsyncIterator, Iterator
 
 import pytest
 
-from gateway.app import bus_settings
 from gateway.bus import Bus
 from gateway.config import BusConfig
 from gateway.errors import DriveOffline, GatewayTargetFailed
 from gateway.instruments.simulator import SimulatedLine
 from gateway.routing import Route, Router
+from gateway.settings import bus_settings
 from tests.support import read_pdu, write_pdu
 
 STATE = 0x2100
