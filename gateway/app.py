@@ -18,42 +18,32 @@ import logging
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Protocol
 
-from gateway.bus import Bus, BusSettings, BusState
-from gateway.bus.direction import DirectionControl, DirectionMode
-from gateway.bus.line import LineSettings
-from gateway.bus.line_share import LineShares
+from gateway.bus import Bus, BusState
 from gateway.bus.queue import Waiter
-from gateway.config import (
-    AccessRuleConfig,
-    BusConfig,
-    DriveConfig,
-    GatewayConfig,
-    ModbusTcpConfig,
-    Rs485Config,
-)
 from gateway.errors import CannotListen, GatewayError, GatewayPathUnavailable
 from gateway.health import Phase
 from gateway.modbus.functions import is_exception
-from gateway.modbus.timing import CharacterFormat
 from gateway.poller import Poller
-from gateway.profile.ram_writes import ram_write_address
 from gateway.reload import ReloadPlan
 from gateway.reload import plan as plan_reload
-from gateway.routing import RegisterCache, Route, Router
+from gateway.routing import RegisterCache, Router
+from gateway.settings import (
+    ConsoleSettings,
+    DriveSettings,
+    GatewaySettings,
+    MqttSettings,
+    drive_route,
+)
 from gateway.store import EventStore, EventType
 from gateway.store.modbus_writes import WriteTally
 from gateway.tasks import ServiceTasks, cancel_and_wait
-from gateway.tcp import ModbusTcpServer, TcpSettings
-from gateway.tcp.access import AccessRule, merge_spans
-from gateway.tcp.server import TlsListener
+from gateway.tcp import ModbusTcpServer
 
 if TYPE_CHECKING:
     from gateway.metrics import MetricsFeature
 
 log = logging.getLogger(__name__)
 
-EVENTS_WAITING = 1000
-"""Events waiting in memory for the store's disk (without MQTT, whose queue_size says it)."""
 SHUTDOWN_BUDGET_S = 1.5
 FEATURE_STOP_S = 0.5
 """Time for the transaction on the wire and the answers in flight, inside the 2 s promise."""
@@ -67,156 +57,44 @@ class Feature(Protocol):
     async def stop(self) -> None: ...
 
 
-def bus_settings(config: BusConfig) -> BusSettings:
-    char_format = CharacterFormat(config.baudrate, config.parity, config.stopbits, config.bytesize)
-    gap_s = char_format.t35_s if config.gap_ms is None else config.gap_ms / 1000
-    return BusSettings(
-        name=config.name,
-        line=LineSettings(
-            port=config.port,
-            char_format=char_format,
-            gap_s=gap_s,
-            char_timeout_s=config.char_timeout_ms / 1000,
-            drain_s=config.drain_ms / 1000,
-            turnaround_s=config.turnaround_ms / 1000,
-            echo=config.echo,
-            direction=direction_control(config.rs485),
-            name=config.name,
-        ),
-        timeout_s=config.timeout_ms / 1000,
-        retries=config.retries,
-        queue_size=config.queue_size,
-        offline_after=config.offline_after,
-        probe_max_s=config.probe_max_s,
-        shares=LineShares(config.write_share, config.broadcast_share),
-    )
-
-
-def direction_control(config: Rs485Config | None) -> DirectionControl | None:
-    if config is None:
-        return None
-    return DirectionControl(
-        mode=DirectionMode(config.mode),
-        rts_level_for_tx=config.rts_level_for_tx == "high",
-        delay_before_tx_s=config.delay_before_tx_ms / 1000,
-        delay_after_tx_s=config.delay_after_tx_ms / 1000,
-    )
-
-
-def drive_route(drive: DriveConfig, bus: Bus) -> Route:
-    profile = drive.profile()
-    split = profile.is_invt if drive.split is None else drive.split
-    return Route(
-        unit_id=drive.effective_unit_id,
-        drive=drive.name,
-        bus=bus,
-        address=drive.address,
-        timeout_s=None if drive.timeout_ms is None else drive.timeout_ms / 1000,
-        retries=drive.retries,
-        max_words=profile.max_words if split else None,
-        ram_address=ram_write_address
-        if drive.ram_writes and profile.ram_writes_supported
-        else None,
-        cache_max_age_s=None if drive.cache_max_age_ms is None else drive.cache_max_age_ms / 1000,
-    )
-
-
-def access_rule(config: AccessRuleConfig, index: int) -> AccessRule:
-    spans = None
-    if config.registers is not None:
-        spans = merge_spans(span for entry in config.registers for span in entry.spans)
-    return AccessRule(
-        allow=config.allow,
-        unit_ids=None if config.unit_ids is None else frozenset(config.unit_ids),
-        functions=None if config.functions is None else frozenset(config.functions),
-        spans=spans,
-        label=config.name or f"access[{index}]",
-        roles=None if config.roles is None else frozenset(config.roles),
-    )
-
-
-def tls_listener(config: ModbusTcpConfig) -> TlsListener | None:
-    tls = config.tls
-    if not tls.enabled:
-        return None
-    # The config refuses tls.enabled without the three files.
-    return TlsListener(
-        host=tls.host or config.host,
-        port=tls.port,
-        cert_file=tls.cert_file or "",
-        key_file=tls.key_file or "",
-        ca_file=tls.ca_file or "",
-        role_map=dict(tls.role_map),
-    )
-
-
-def tcp_settings(tcp: ModbusTcpConfig) -> TcpSettings:
-    return TcpSettings(
-        host=tcp.host,
-        port=tcp.port,
-        max_connections=tcp.max_connections,
-        idle_timeout_s=tcp.idle_timeout_s,
-        max_requests_per_connection=tcp.max_requests_per_connection,
-        broadcast_reply=tcp.broadcast_reply,
-        allowed_networks=tcp.allowed_networks,
-        read_only=tcp.read_only,
-        access=tuple(access_rule(r, i) for i, r in enumerate(tcp.access)),
-        first_request_timeout_s=tcp.first_request_timeout_s,
-        plain=tcp.plain,
-        tls=tls_listener(tcp),
-        max_connections_per_client=tcp.max_connections_per_client,
-        max_queued_writes_per_client=tcp.max_queued_writes_per_client,
-    )
-
-
 class Application:
-    def __init__(self, config: GatewayConfig) -> None:
-        self.config = config
-        self.buses = {b.name: Bus(bus_settings(b)) for b in config.buses}
+    def __init__(self, settings: GatewaySettings) -> None:
+        self.settings = settings
+        self.buses = {b.name: Bus(b) for b in settings.buses}
         self.router = Router(
-            (drive_route(d, self.buses[d.bus]) for d in config.drives), self.buses.values()
+            (drive_route(d, self.buses[d.bus]) for d in settings.drives), self.buses.values()
         )
         for bus in self.buses.values():
             bus.add_listener(self.router.on_drive_health)
-        self.tcp = ModbusTcpServer(
-            tcp_settings(config.modbus_tcp), self._handle_tcp, self._submit_tcp
-        )
+        self.tcp = ModbusTcpServer(settings.tcp, self._handle_tcp, self._submit_tcp)
         self.features: list[Feature] = []
         self.tasks = ServiceTasks()
         self._group: asyncio.TaskGroup | None = None
         self._bus_tasks: dict[str, asyncio.Task[None]] = {}
         """Each bus's `run`, by name: a reload that reopens a bus waits for its old one."""
         self.phase = Phase.STARTING
-        mqtt = config.mqtt is not None and config.mqtt.enabled
         # Started before the features that record events, stopped after them: none is lost.
-        self.events = EventStore(
-            config.storage,
-            self.tasks,
-            forwarding=mqtt,
-            max_waiting=config.mqtt.queue_size if config.mqtt is not None else EVENTS_WAITING,
-        )
+        self.events = EventStore(settings.store, self.tasks)
         self.features.append(self.events)
         for bus in self.buses.values():
             bus.add_port_listener(self.events.port_changed)
         self.writes = WriteTally(self.events, self._drive_of, self.tasks)
         self.features.append(self.writes)
-        # Without MQTT or the console only the drives that ask for it are polled: polls cost
-        # line time, and a pure Modbus-TCP gateway shouldn't spend it unasked.
-        polled = [d for d in config.drives if self._polled(d)]
+        polled = [d for d in settings.drives if settings.polled(d)]
         if polled:
             self._add_poller(polled)
-        if mqtt:
-            self._add_mqtt(config)
-        if config.metrics.enabled:
+        if settings.mqtt is not None:
+            self._add_mqtt(settings.mqtt)
+        if settings.metrics is not None:
             from gateway.metrics import MetricsFeature  # prometheus-client only when asked for
 
             # First to start, last to stop: /health answers while the others come and go.
-            self.metrics = MetricsFeature(self)
+            self.metrics = MetricsFeature(self, settings.metrics)
             self.features.insert(0, self.metrics)
-        if config.console.enabled:
-            self._add_console(config)
+        if settings.console is not None:
+            self._add_console(settings.console)
 
-    def _add_poller(self, drives: list[DriveConfig]) -> None:
+    def _add_poller(self, drives: list[DriveSettings]) -> None:
         """Polls feed the cache, the fault log and (when configured) the MQTT bridge."""
         from gateway.event_log import DriveEventLog
 
@@ -227,22 +105,22 @@ class Application:
         self.poller.add_listener(self.events)
         self.features.append(self.poller)
 
-    def _add_mqtt(self, config: GatewayConfig) -> None:
+    def _add_mqtt(self, mqtt: MqttSettings) -> None:
         """The bridge stops before the poller that feeds it (features stop in reverse)."""
         from gateway.mqtt import MqttBridge  # aiomqtt only loaded when MQTT is configured
 
-        self.mqtt = MqttBridge(config, self.router, self.poller, self.tasks, self.events)
-        assert config.mqtt is not None
-        self.poller.read_max_frequency = config.mqtt.homeassistant_discovery
+        drives = self.settings.drives
+        self.mqtt = MqttBridge(mqtt, drives, self.router, self.poller, self.tasks, self.events)
+        self.poller.read_max_frequency = mqtt.homeassistant_discovery
         self.poller.add_listener(self.mqtt)
         self.features.append(self.mqtt)
 
-    async def reload(self, new: GatewayConfig) -> ReloadPlan:
+    async def reload(self, new: GatewaySettings) -> ReloadPlan:
         """Apply a new, valid configuration in place (see `gateway.reload`); what changed."""
         poller: Poller | None = getattr(self, "poller", None)
-        plan = plan_reload(self.config, new, mqtt_running=hasattr(self, "mqtt"))
-        running = self.config = plan.running
-        if poller is None and any(self._polled(d) for d in plan.added):
+        plan = plan_reload(self.settings.source, new.source, mqtt_running=hasattr(self, "mqtt"))
+        running = self.settings = plan.settings
+        if poller is None and any(running.polled(d) for d in plan.added):
             plan.restart_needed.append("polling (no drive was polled at start)")
         for name in plan.removed:
             if poller is not None:
@@ -253,15 +131,15 @@ class Application:
         if poller is not None and plan.reopened:
             poller.reroute()
         for drive in plan.added:
-            if poller is not None and self._polled(drive):
+            if poller is not None and running.polled(drive):
                 poller.add_drive(drive)
-        self.tcp.update(tcp_settings(running.modbus_tcp))
-        self.events.update_bounds(running.storage)
-        logging.getLogger().setLevel(running.logging.level.upper())
+        self.tcp.update(running.tcp)
+        self.events.update_bounds(running.store)
+        logging.getLogger().setLevel(running.log_level)
         await self._reopen(closed)
         await self._reload_metrics(plan)
         await self._reload_mqtt(plan)
-        self.config = plan.running  # with what could not be applied kept at its running value
+        self.settings = plan.settings  # with what could not be applied kept at its running value
         data = {"changed": plan.changed, "restart_needed": plan.restart_needed}
         self.events.record(EventType.CONFIG_RELOADED, data)
         log.warning("config reloaded: %s", plan.summary)
@@ -271,13 +149,16 @@ class Application:
         """The bridge, started again with the running configuration: new settings, the drives
         it serves now (a removed one's topics are no longer subscribed, an added one's are)."""
         old = getattr(self, "mqtt", None)
-        if old is None or not plan.restart_bridge:
+        running = plan.settings
+        if old is None or not plan.restart_bridge or running.mqtt is None:
             return
         from gateway.mqtt import MqttBridge
 
         await old.stop()
         self.poller.remove_listener(old)
-        new = MqttBridge(plan.running, self.router, self.poller, self.tasks, self.events)
+        new = MqttBridge(
+            running.mqtt, running.drives, self.router, self.poller, self.tasks, self.events
+        )
         self.poller.add_listener(new)
         self.features[self.features.index(old)] = new
         self.mqtt = new
@@ -289,17 +170,15 @@ class Application:
             return
         if plan.added or plan.removed:
             metrics.drives_changed()
-        wanted = plan.running.metrics
-        if wanted == metrics.settings:
+        wanted = plan.settings.metrics
+        if wanted is None or wanted == metrics.settings:
             return
         try:
             await metrics.rebind(wanted)
         except CannotListen as exc:
-            plan.changed.remove("metrics.host/port")
-            plan.restart_needed.append(f"metrics.host/port ({exc})")
-            plan.running = plan.running.model_copy(update={"metrics": metrics.settings})
+            plan.metrics_not_moved(str(exc))
 
-    def _replace_buses(self, running: GatewayConfig, names: list[str]) -> dict[str, Bus]:
+    def _replace_buses(self, running: GatewaySettings, names: list[str]) -> dict[str, Bus]:
         """Close the buses `names` (their queued requests answered 0BH) and put new ones, with
         the settings of `running`, in their place; the buses closed, by name.
 
@@ -308,11 +187,11 @@ class Application:
         until `_reopen` runs them.
         """
         closed: dict[str, Bus] = {}
-        configs = {b.name: b for b in running.buses}
+        settings = {b.name: b for b in running.buses}
         for name in names:
             old = self.buses[name]
             old.close("is reopened with new settings")
-            new = Bus(bus_settings(configs[name]))
+            new = Bus(settings[name])
             new.take_listeners(old)
             new.tap = old.tap  # a traffic monitor watching the line goes on watching it
             self.buses[name] = new
@@ -342,27 +221,24 @@ class Application:
             else:
                 log.warning("bus %s: port %s not open yet; retrying", name, bus.line.settings.port)
 
-    def _polled(self, drive: DriveConfig) -> bool:
-        mqtt = self.config.mqtt is not None and self.config.mqtt.enabled
-        console = self.config.console.enabled
-        return mqtt or console or drive.poll is not None or drive.cache_max_age_ms is not None
-
     @property
     def cache(self) -> RegisterCache:
         return self.router.cache
 
-    def _add_console(self, config: GatewayConfig) -> None:
+    def _add_console(self, console: ConsoleSettings) -> None:
         """The console reads the poller's state and sends through the router, with Modbus-TCP's
         write policy; it starts after the poller and stops before it."""
         from gateway.console.events import ConsoleEventsRecorded
         from gateway.console.feature import ConsoleFeature  # aiohttp only when asked for
 
         self.console = ConsoleFeature(
-            config,
+            console,
+            self.settings.buses,
+            self.settings.drives,
             self.buses,
             self.router,
             getattr(self, "poller", None),
-            read_only=config.modbus_tcp.read_only,
+            read_only=self.settings.tcp.read_only,
             access=self.tcp.access,
             events=ConsoleEventsRecorded(self.events),
         )

@@ -44,7 +44,6 @@ from prometheus_client.registry import Collector
 from gateway import __version__
 from gateway.bus import Bus, BusState, RequestDone
 from gateway.bus.line import SerialLine
-from gateway.config import GatewayConfig, MetricsConfig
 from gateway.errors import CannotListen
 from gateway.health import Phase, health_report
 from gateway.http_endpoint import HttpEndpoint, Response
@@ -54,6 +53,7 @@ from gateway.modbus.request_checks import Reason
 if TYPE_CHECKING:
     from gateway.mqtt import MqttBridge
 from gateway.routing import Router
+from gateway.settings import GatewaySettings, MetricsSettings
 from gateway.store import EventStore
 from gateway.tcp.access import AccessPolicy
 from gateway.tcp.server import ModbusTcpServer, TcpStats
@@ -75,7 +75,7 @@ class Service(Protocol):
     """What metrics and health read from the application."""
 
     @property
-    def config(self) -> GatewayConfig: ...
+    def settings(self) -> GatewaySettings: ...
 
     @property
     def buses(self) -> Mapping[str, Bus]: ...
@@ -103,7 +103,7 @@ class DriveLabels:
 
 
 def drive_labels(service: Service) -> list[DriveLabels]:
-    models = {drive.name: drive.model for drive in service.config.drives}
+    models = {drive.name: drive.model for drive in service.settings.drives}
     return [
         DriveLabels(route.drive, route.bus.name, route.address, route.unit_id, models[route.drive])
         for route in service.router.routes
@@ -232,7 +232,9 @@ class GatewayCollector(Collector):
 
     def _gateway(self) -> Iterable[GaugeMetricFamily | InfoMetricFamily]:
         info = InfoMetricFamily(f"{PREFIX}_build", "Version and id of this gateway")
-        info.add_metric([], {"version": __version__, "gateway_id": self.service.config.gateway_id})
+        info.add_metric(
+            [], {"version": __version__, "gateway_id": self.service.settings.gateway_id}
+        )
         yield info
         ready = GaugeMetricFamily(f"{PREFIX}_ready", "1 once started, 0 while starting/stopping")
         ready.add_metric([], 1.0 if self.service.phase is Phase.READY else 0.0)
@@ -437,9 +439,9 @@ _TCP_COUNTERS = {
 class MetricsFeature:
     """Serves /metrics and /health while the gateway runs; a feature of the application."""
 
-    def __init__(self, service: Service) -> None:
+    def __init__(self, service: Service, settings: MetricsSettings) -> None:
         self.service = service
-        self.settings = service.config.metrics
+        self.settings = settings
         self.endpoint: HttpEndpoint | None = None
         self._requests: RequestMetrics | None = None
         self._collector: GatewayCollector | None = None
@@ -465,7 +467,7 @@ class MetricsFeature:
         await self.endpoint.start()
         log.info("metrics and health on http://%s:%d/", self.settings.host, self.endpoint.port)
 
-    def _endpoint(self, settings: MetricsConfig) -> HttpEndpoint:
+    def _endpoint(self, settings: MetricsSettings) -> HttpEndpoint:
         registry = self._registry
         assert registry is not None
         return HttpEndpoint(
@@ -488,7 +490,7 @@ class MetricsFeature:
             self._requests.relabel(drives)
             self._collector.relabel(drives)
 
-    async def rebind(self, settings: MetricsConfig) -> None:
+    async def rebind(self, settings: MetricsSettings) -> None:
         """Listen on a new host and port; the counters go on. Raises CannotListen (and keeps
         listening where it did) when the new address can't be had."""
         old = self.endpoint
@@ -524,7 +526,7 @@ class MetricsFeature:
         report = health_report(
             service.phase, service.buses, drives, len(service.tcp.stats.active), self._started_at
         )
-        return {"gateway_id": service.config.gateway_id, "version": __version__, **report}
+        return {"gateway_id": service.settings.gateway_id, "version": __version__, **report}
 
     def _health(self) -> Response:
         report = self._report()

@@ -26,15 +26,18 @@ and in this version buses added or removed (with the drives that would move onto
                   command being carried out over MQTT is cut off); a removed drive's topics are
                   no longer served, an added one's are, and its Home Assistant entities follow
 
-The planning (`plan`) is pure: it compares two configurations and says what to do; the
-application (`Application.reload`) carries it out.
+The planning (`plan`) is pure: it compares two configurations (the user's keys, which the log
+names) and says what to do, with the runtime settings of the configuration that runs afterwards;
+the application (`Application.reload`) carries it out.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from gateway.config import BusConfig, DriveConfig, GatewayConfig, MetricsConfig, ModbusTcpConfig
+from gateway.settings import DriveSettings, GatewaySettings, runtime_settings
+from gateway.settings.local import metrics_settings
 
 LISTENER_KEYS = ("host", "port", "plain", "tls")
 """`modbus_tcp` keys that belong to the listening sockets: a change needs a restart."""
@@ -42,10 +45,13 @@ LISTENER_KEYS = ("host", "port", "plain", "tls")
 
 @dataclass(slots=True)
 class ReloadPlan:
+    previous: GatewayConfig
     running: GatewayConfig
     """The configuration the gateway runs with afterwards: the new one, with every key that
     needs a restart kept at its running value."""
-    added: list[DriveConfig] = field(default_factory=list)
+    settings: GatewaySettings
+    """`running`, as runtime settings."""
+    added: list[DriveSettings] = field(default_factory=list)
     removed: list[str] = field(default_factory=list)
     changed: list[str] = field(default_factory=list)
     """What is applied, as key paths and drive names."""
@@ -55,6 +61,14 @@ class ReloadPlan:
     restart_bridge: bool = False
     """The MQTT bridge is started again with the running configuration (its settings, or the
     drives it serves, changed)."""
+
+    def metrics_not_moved(self, reason: str) -> None:
+        """The metrics endpoint could not move to its new address: it stays where it was."""
+        self.changed.remove("metrics.host/port")
+        self.restart_needed.append(f"metrics.host/port ({reason})")
+        self.running = self.running.model_copy(update={"metrics": self.previous.metrics})
+        kept = metrics_settings(self.previous.metrics)
+        self.settings = replace(self.settings, source=self.running, metrics=kept)
 
     @property
     def summary(self) -> str:
@@ -113,7 +127,18 @@ def plan(old: GatewayConfig, new: GatewayConfig, mqtt_running: bool) -> ReloadPl
             "console": old.console,
         }
     )
-    return ReloadPlan(running, added, removed, changed, restart, reopened, restart_bridge)
+    settings = runtime_settings(running)
+    return ReloadPlan(
+        old,
+        running,
+        settings,
+        [settings.drive(d.name) for d in added],
+        removed,
+        changed,
+        restart,
+        reopened,
+        restart_bridge,
+    )
 
 
 def _buses(

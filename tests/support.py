@@ -16,12 +16,13 @@ from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
-from gateway.app import Application, bus_settings
+from gateway.app import Application
 from gateway.bus import Bus
 from gateway.config import BusConfig, GatewayConfig
 from gateway.instruments.bench.processes import (
     free_port as free_port,  # the tests' one way to a free port
 )
+from gateway.settings import bus_settings, runtime_settings
 
 
 async def eventually(
@@ -75,7 +76,7 @@ def gateway_config(port: str, drives: list[dict[str, Any]], **bus: Any) -> Gatew
 @contextlib.asynccontextmanager
 async def running_gateway(config: GatewayConfig) -> AsyncIterator[Application]:
     """The whole application in this event loop, listening on a real TCP port."""
-    async with running_application(Application(config)) as app:
+    async with running_application(Application(runtime_settings(config))) as app:
         yield app
 
 

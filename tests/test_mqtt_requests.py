@@ -26,6 +26,7 @@ from gateway.mqtt.requests import (
 from gateway.poller import PollBlock, poll_schedules
 from gateway.profile import get_profile, is_ram_address
 from gateway.profile.ram_writes import ram_write_address
+from gateway.settings import drive_settings
 
 GD350 = get_profile("gd350")
 
@@ -266,11 +267,11 @@ def test_poll_groups_are_cut_into_16_word_blocks() -> None:
             "poll": [{"name": "all", "start": 0x3000, "count": 22, "interval_ms": 1000}],
         }
     )
-    (schedule,) = poll_schedules(drive, GD350)
+    (schedule,) = poll_schedules(drive_settings(drive))
     assert schedule.blocks == (PollBlock(0x3000, 16), PollBlock(0x3010, 6))
     assert schedule.interval_s == 1.0
     default = DriveConfig.model_validate({"name": "fan", "bus": "line1", "address": 2})
-    groups = {s.group: s for s in poll_schedules(default, get_profile("gd20"))}
+    groups = {s.group: s for s in poll_schedules(drive_settings(default))}
     assert groups["state"].blocks == (PollBlock(0x2100, 3),)
     assert groups["state"].interval_s == 0.5
     assert groups["running"].blocks == (PollBlock(0x3000, 12),)

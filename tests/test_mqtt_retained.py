@@ -15,6 +15,7 @@ import time
 from gateway.instruments.embedded_broker import EmbeddedBroker
 from gateway.mqtt.connection import MQTT_3_1_1, MQTT_5
 from gateway.profile.states import RunState
+from gateway.settings import runtime_settings
 from tests.mosquitto import Address, Mosquitto, mqtt_probe, unique_base_topic
 from tests.mosquitto import mosquitto as mosquitto
 from tests.mqtt_setup import mqtt_config, simulated_line
@@ -171,7 +172,7 @@ async def test_a_reload_restarts_the_bridge_with_new_mqtt_settings_and_drives(
             # fan2 renamed to blower2: one removed, one added; and a new base topic.
             blower = {**fan, "name": "blower2"}
             new = mqtt_config(line.path, mosquitto, new_base, drives=[pump, blower])
-            plan = await app.reload(new)
+            plan = await app.reload(runtime_settings(new))
             assert "mqtt" in plan.changed
             assert "MQTT topics of drives added or removed" in plan.changed
             assert "mqtt" not in " ".join(plan.restart_needed)

@@ -18,6 +18,7 @@ from gateway.config import ENV_MQTT_PASSWORD, ENV_MQTT_USERNAME, parse_config
 from gateway.errors import ConfigError, TlsSettingsError
 from gateway.instruments.simulator import SimulatedLine
 from gateway.mqtt.connection import tls_context
+from gateway.settings import mqtt_settings
 from tests.mosquitto import mqtt_probe, unique_base_topic
 from tests.mqtt_setup import MQTT_LINE
 from tests.processes import gateway_process
@@ -182,9 +183,10 @@ def test_an_encrypted_private_key_is_named_and_never_prompted_for(
     config = parse_config(
         yaml.safe_dump({"buses": [{"name": "l", "port": "/dev/null"}], "mqtt": mqtt})
     )
-    assert config.mqtt is not None
+    mqtt = mqtt_settings(config)
+    assert mqtt is not None
     with pytest.raises(TlsSettingsError) as raised:
-        tls_context(config.mqtt)
+        tls_context(mqtt)
     assert raised.value.key == "mqtt.cert_file/mqtt.key_file"
     assert "encrypted" in raised.value.reason
     assert str(encrypted) in str(raised.value)

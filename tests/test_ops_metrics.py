@@ -15,6 +15,7 @@ from gateway.app import Application
 from gateway.config import GatewayConfig
 from gateway.instruments.simulator import SimulatedLine
 from gateway.metrics import MetricsFeature
+from gateway.settings import runtime_settings
 from tests.support import TcpClient, free_port, read_pdu, running_gateway, write_pdu
 
 STATE_WORD_1 = 0x2100
@@ -179,8 +180,9 @@ async def test_health_is_json_and_tells_ready_from_degraded(line: SimulatedLine)
 
 async def test_health_is_503_until_the_gateway_is_started(line: SimulatedLine) -> None:
     metrics_port = free_port()
-    app = Application(metrics_config(line.path, metrics_port))
-    feature = MetricsFeature(app)
+    app = Application(runtime_settings(metrics_config(line.path, metrics_port)))
+    assert app.settings.metrics is not None
+    feature = MetricsFeature(app, app.settings.metrics)
     await feature.start()
     try:
         status, _, body = await http_get(metrics_port, "/health")

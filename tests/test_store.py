@@ -15,6 +15,7 @@ import pytest
 
 from gateway.config import StorageConfig
 from gateway.poller.drive_state import DriveEvent, EventKind, iso_time
+from gateway.settings import StoreSettings
 from gateway.store import EventStore
 from gateway.tasks import ServiceTasks
 
@@ -26,7 +27,10 @@ async def running_store(
     tasks = ServiceTasks()
     async with asyncio.TaskGroup() as group:
         tasks.bind(group)
-        store = EventStore(config, tasks, forwarding, max_waiting=100_000)
+        settings = StoreSettings(
+            config.resolved_path(), config.max_mb, config.max_age_days, forwarding, 100_000
+        )
+        store = EventStore(settings, tasks)
         await store.start()
         try:
             yield store

@@ -15,6 +15,7 @@ from gateway.config import GatewayConfig, load_config
 from gateway.errors import BusFailed, CannotListen, ConfigError, FeatureFailed
 from gateway.health import Phase
 from gateway.logs import setup_logging
+from gateway.settings import runtime_settings
 from gateway.systemd import Notifier, keep_watchdog, watchdog_interval_s
 
 log = logging.getLogger(__name__)
@@ -58,7 +59,7 @@ async def serve(
     reads `config_path` again and applies it in place (`Application.reload`); a file that
     doesn't validate changes nothing and is logged with each key path and reason.
     """
-    app = Application(config)
+    app = Application(runtime_settings(config))
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     notifier = Notifier.from_environment()
@@ -142,7 +143,7 @@ async def reload_on_hangup(
                 log.error("reload refused, the running configuration stays: %s: %s", path, problem)
         else:
             if app.phase is Phase.READY:
-                await app.reload(config)
+                await app.reload(runtime_settings(config))
             else:
                 log.warning("reload skipped: the gateway is %s", app.phase.value)
         notifier.notify("READY=1", "STATUS=ready")

@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Final
 
-from gateway.config import ConsoleUserConfig
 from gateway.passwords import token_matches, verify_password
+from gateway.settings import ConsoleUser
 
 SESSION_COOKIE: Final = "invt_console_session"
 SESSION_IDLE_S: Final = 8 * 3600.0
@@ -73,7 +73,7 @@ class Session:
 
 
 class Users:
-    def __init__(self, users: Iterable[ConsoleUserConfig]) -> None:
+    def __init__(self, users: Iterable[ConsoleUser]) -> None:
         self._users = {user.name: user for user in users}
 
     def check_password(self, name: str, password: str) -> Role | None:

@@ -11,12 +11,11 @@ from __future__ import annotations
 import asyncio
 import logging
 import ssl
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 from aiohttp import web
 
-from gateway.bus import Bus
-from gateway.config import GatewayConfig
+from gateway.bus import Bus, BusSettings
 from gateway.console.auth import Users
 from gateway.console.events import EventStore, MemoryEventStore
 from gateway.console.live import LiveState
@@ -26,6 +25,7 @@ from gateway.console.web import Console, build_app
 from gateway.listen import cannot_listen
 from gateway.poller import Poller
 from gateway.routing import Router
+from gateway.settings import ConsoleSettings, DriveSettings
 from gateway.tasks import cancel_and_wait
 from gateway.tcp.access import AccessPolicy
 
@@ -39,7 +39,9 @@ SHUTDOWN_S = 0.2
 class ConsoleFeature:
     def __init__(
         self,
-        config: GatewayConfig,
+        settings: ConsoleSettings,
+        lines: Sequence[BusSettings],
+        drives: Sequence[DriveSettings],
         buses: Mapping[str, Bus],
         router: Router,
         poller: Poller | None,
@@ -48,8 +50,9 @@ class ConsoleFeature:
         access: AccessPolicy | None,
         events: EventStore | None = None,
     ) -> None:
-        self.config = config
-        self.settings = config.console
+        self.settings = settings
+        self.lines = lines
+        self.drives = drives
         self.buses = buses
         self.router = router
         self.poller = poller
@@ -74,16 +77,15 @@ class ConsoleFeature:
 
     async def start(self) -> None:
         settings = self.settings
-        drives = self.config.drives
-        live = LiveState(self.buses, self.config.buses, drives, self.poller, self.events)
+        drives = self.drives
+        live = LiveState(self.buses, self.lines, drives, self.poller, self.events)
         if self.poller is not None:
             self.poller.add_listener(live)
         for bus in self.buses.values():
             bus.add_request_observer(live.request_done)
         self._live = live
         labels = {
-            (d.bus, d.address): DriveLabel(d.name, d.effective_unit_id, d.profile().is_invt)
-            for d in drives
+            (d.bus, d.address): DriveLabel(d.name, d.unit_id, d.profile.is_invt) for d in drives
         }
         policy = Policy(self.read_only, self.access, settings.commands_enabled)
         operations = DriveOperations(

@@ -15,14 +15,14 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
 
-from gateway.bus import Bus, BusState, RequestDone
-from gateway.config import BusConfig, DriveConfig
+from gateway.bus import Bus, BusSettings, BusState, RequestDone
 from gateway.console.events import EventStore, GatewayEvent
 from gateway.modbus.functions import lookup
 from gateway.poller import Poller
 from gateway.poller.drive_state import DriveEvent, EventKind, iso_time
 from gateway.profile import exception_name
 from gateway.profile.telemetry import Telemetry
+from gateway.settings import DriveSettings
 
 HISTORY_S: Final = 15 * 60.0
 CHART_STEP_S: Final = 1.0
@@ -59,13 +59,13 @@ class LiveState:
     def __init__(
         self,
         buses: Mapping[str, Bus],
-        bus_configs: Sequence[BusConfig],
-        drives: Sequence[DriveConfig],
+        lines: Sequence[BusSettings],
+        drives: Sequence[DriveSettings],
         poller: Poller | None,
         events: EventStore,
     ) -> None:
         self.buses = buses
-        self.bus_configs = {b.name: b for b in bus_configs}
+        self.lines = {b.name: b.line for b in lines}
         self.drives = {d.name: d for d in drives}
         self.poller = poller
         self.events = events
@@ -93,8 +93,8 @@ class LiveState:
         pass  # told again as a drive event
 
     def drive_event(self, event: DriveEvent) -> None:
-        config = self.drives.get(event.drive)
-        bus = config.bus if config else None
+        drive = self.drives.get(event.drive)
+        bus = drive.bus if drive else None
         if event.kind in (EventKind.FAULT_RAISED, EventKind.FAULT_CLEARED):
             data = event.data
             text = f"{data.get('fault_name')}: {data.get('fault_description')}"
@@ -167,15 +167,16 @@ class LiveState:
 
     def bus_view(self, name: str) -> dict[str, Any]:
         bus = self.buses[name]
-        config = self.bus_configs[name]
+        line = self.lines[name]
+        chars = line.char_format
         samples = self._samples[name]
         recent = _window(samples, RATE_WINDOW_S)
         minute = _window(samples, MINUTE_S)
         return {
             "name": name,
             "state": str(bus.state),
-            "port": config.port,
-            "format": f"{config.baudrate} {config.bytesize}{config.parity}{config.stopbits}",
+            "port": line.port,
+            "format": f"{chars.baudrate} {chars.bytesize}{chars.parity}{chars.stopbits}",
             "utilisation": _rate(recent, "line_s"),
             "transactions_per_s": _rate(recent, "transactions"),
             "timeouts_per_min": _delta(minute, "timeouts"),
@@ -185,16 +186,16 @@ class LiveState:
         }
 
     def drive_view(self, name: str) -> dict[str, Any]:
-        config = self.drives[name]
+        drive = self.drives[name]
         telemetry = self.telemetry(name)
         online = None if self.poller is None else self.poller.availability(name)
         state = telemetry.get("state")
         return {
             "name": name,
-            "unit_id": config.effective_unit_id,
-            "bus": config.bus,
-            "address": config.address,
-            "model": config.model,
+            "unit_id": drive.unit_id,
+            "bus": drive.bus,
+            "address": drive.address,
+            "model": drive.model,
             "online": online,
             "state": None if state is None else str(state).replace("_", " "),
             "fault_name": telemetry.get("fault_name"),

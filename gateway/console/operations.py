@@ -15,7 +15,6 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Final
 
-from gateway.config import DriveConfig
 from gateway.console.auth import Identity
 from gateway.console.decode import describe
 from gateway.console.events import EventStore, GatewayEvent
@@ -37,6 +36,7 @@ from gateway.profile import (
 from gateway.profile.parameters import FAULT_HISTORY, PARAMETERS, parameter_groups
 from gateway.profile.ram_writes import ram_write_address
 from gateway.routing import Router
+from gateway.settings import DriveSettings
 from gateway.tcp.access import AccessPolicy
 from gateway.tools.points import Point, resolve
 
@@ -72,7 +72,7 @@ class Policy:
 class DriveOperations:
     def __init__(
         self,
-        drives: Mapping[str, DriveConfig],
+        drives: Mapping[str, DriveSettings],
         router: Router,
         policy: Policy,
         poller: Poller | None,
@@ -106,10 +106,10 @@ class DriveOperations:
 
     async def fault_history(self, who: Identity, drive: str) -> list[dict[str, Any]]:
         """P07.27 (the current fault) … P07.32, decoded with the drive's own fault table."""
-        config = self._drive(drive)
-        faults = config.profile().faults
+        settings = self._drive(drive)
+        faults = settings.profile.faults
         start = parse_parameter(FAULT_HISTORY[0])
-        words = await self._read(who, config, start, len(FAULT_HISTORY))
+        words = await self._read(who, settings, start, len(FAULT_HISTORY))
         return [
             {
                 "parameter": name,
@@ -150,40 +150,40 @@ class DriveOperations:
             raise OperationError(400, f"{point.label} is read-only")
         address = point.address
         if ram:
-            config = self._drive(drive)
-            if not config.profile().ram_writes_supported:
-                raise OperationError(400, f"{config.model} has no RAM-only parameter writes")
+            settings = self._drive(drive)
+            if not settings.profile.ram_writes_supported:
+                raise OperationError(400, f"{settings.model} has no RAM-only parameter writes")
             address = ram_write_address(address)
         return await self._write(who, drive, address, raw)
 
     # -- the path every request takes --------------------------------------------------------
 
     async def _write(self, who: Identity, drive: str, address: int, raw: int) -> dict[str, Any]:
-        config = self._drive(drive)
-        if not config.profile().is_invt:
+        settings = self._drive(drive)
+        if not settings.profile.is_invt:
             raise OperationError(400, f"{drive} is a generic Modbus device: no INVT commands")
         pdu = struct.pack(">BHH", WRITE_SINGLE_REGISTER, address, raw)
         what = describe(pdu, None, True).removeprefix("write ")
         try:
-            reply = await self._send(who, config, pdu)
+            reply = await self._send(who, settings, pdu)
         except OperationError as exc:
-            self._audit(who, drive, config, what, f"refused: {exc}")
+            self._audit(who, drive, settings, what, f"refused: {exc}")
             raise
         if is_exception(reply):
             result = f"drive refused: {describe_exception(reply[1])}"
-            self._audit(who, drive, config, what, result)
+            self._audit(who, drive, settings, what, result)
             raise OperationError(502, result)
-        self._audit(who, drive, config, what, "ok")
+        self._audit(who, drive, settings, what, "ok")
         if self.poller is not None:
             self.poller.poll_now(drive)  # its new state shows at once
         return {"ok": True, "write": what}
 
     async def _read_points(self, who: Identity, drive: str, addresses: list[int]) -> dict[int, int]:
-        config = self._drive(drive)
+        settings = self._drive(drive)
         values: dict[int, int] = {}
         for start, count in _blocks(addresses):
             try:
-                words = await self._read(who, config, start, count)
+                words = await self._read(who, settings, start, count)
             except OperationError as exc:
                 if exc.status != 502:
                     raise
@@ -191,15 +191,17 @@ class DriveOperations:
             values.update({start + i: word for i, word in enumerate(words)})
         return values
 
-    async def _read(self, who: Identity, config: DriveConfig, start: int, count: int) -> list[int]:
+    async def _read(
+        self, who: Identity, settings: DriveSettings, start: int, count: int
+    ) -> list[int]:
         pdu = struct.pack(">BHH", READ_HOLDING_REGISTERS, start, count)
-        reply = await self._send(who, config, pdu)
+        reply = await self._send(who, settings, pdu)
         if is_exception(reply):
             raise OperationError(502, f"drive refused: {describe_exception(reply[1])}")
         return list(struct.unpack(f">{count}H", reply[2 : 2 + 2 * count]))
 
-    async def _send(self, who: Identity, config: DriveConfig, pdu: bytes) -> bytes:
-        unit_id = config.effective_unit_id
+    async def _send(self, who: Identity, settings: DriveSettings, pdu: bytes) -> bytes:
+        unit_id = settings.unit_id
         refusal = self.policy.refusal(unit_id, pdu, str(who.role))
         if refusal is not None:
             raise OperationError(403, refusal)
@@ -211,17 +213,17 @@ class DriveOperations:
         assert reply is not None  # only broadcasts have none
         return reply
 
-    def _drive(self, name: str) -> DriveConfig:
-        config = self.drives.get(name)
-        if config is None:
+    def _drive(self, name: str) -> DriveSettings:
+        settings = self.drives.get(name)
+        if settings is None:
             raise OperationError(404, f"no drive named {name!r}")
-        return config
+        return settings
 
     def _audit(
-        self, who: Identity, drive: str, config: DriveConfig, what: str, result: str
+        self, who: Identity, drive: str, settings: DriveSettings, what: str, result: str
     ) -> None:
         self.events.record(
-            GatewayEvent("write", what, drive, config.bus, who=who.client, result=result)
+            GatewayEvent("write", what, drive, settings.bus, who=who.client, result=result)
         )
 
 

@@ -18,11 +18,10 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Awaitable
+from collections.abc import Awaitable, Sequence
 
 import aiomqtt
 
-from gateway.config import GatewayConfig, MqttConfig
 from gateway.mqtt.commands import CommandDrive, Commands
 from gateway.mqtt.discovery_cleanup import own_discovery_topics, remove_stale_entities
 from gateway.mqtt.dispatcher import Dispatcher
@@ -37,6 +36,7 @@ from gateway.poller import DriveEvent, Poller
 from gateway.profile import get_profile
 from gateway.profile.telemetry import Telemetry
 from gateway.routing import Router
+from gateway.settings import DriveSettings, MqttSettings
 from gateway.store import EventStore
 from gateway.tasks import ServiceTasks
 
@@ -51,22 +51,23 @@ MAX_WAITING_PER_LANE = 16
 class MqttBridge:
     def __init__(
         self,
-        config: GatewayConfig,
+        mqtt: MqttSettings,
+        served: Sequence[DriveSettings],
         router: Router,
         poller: Poller,
         tasks: ServiceTasks,
         events: EventStore,
     ) -> None:
-        assert config.mqtt is not None
-        mqtt: MqttConfig = config.mqtt
         self.stats = BridgeStats()
         self.topics = Topics(mqtt.base_topic)
         self.outbox = Outbox()
         self.lanes = Lanes(MAX_WAITING_PER_LANE, tasks)
-        self.publisher = Publisher(config, self.topics, self.outbox, poller, self.stats, events)
+        self.publisher = Publisher(
+            mqtt, served, self.topics, self.outbox, poller, self.stats, events
+        )
         drives = {
             d.name: CommandDrive(d.name, router.route_for_drive(d.name), get_profile(d.model))
-            for d in config.drives
+            for d in served
         }
         self.commands = Commands(mqtt, router, poller, drives, events)
         self.context = context = Context(
@@ -76,7 +77,7 @@ class MqttBridge:
             poller,
             self.lanes,
             self.stats,
-            config.gateway_id,
+            mqtt.gateway_id,
             mqtt.discovery_prefix,
             events,
         )
@@ -84,8 +85,8 @@ class MqttBridge:
         self.dispatcher = Dispatcher(
             kinds, self.lanes, self.publisher.answer, self.stats, self.publisher.clear_retained
         )
-        self.session = Session(config, self.topics, self.stats, tasks, self._connected, self._lost)
-        self.config = config
+        self.session = Session(mqtt, self.topics, self.stats, tasks, self._connected, self._lost)
+        self.settings = mqtt
         self.tasks = tasks
         self._discovery_cleaned = False
 
@@ -135,8 +136,7 @@ class MqttBridge:
 
     async def _clean_discovery(self) -> None:
         """Once per start: entities published before and no longer offered are removed."""
-        assert self.config.mqtt is not None
-        pattern = own_discovery_topics(self.config.mqtt.discovery_prefix, self.config.gateway_id)
+        pattern = own_discovery_topics(self.settings.discovery_prefix, self.settings.gateway_id)
         try:
             await remove_stale_entities(
                 self.session.side_client("cleanup"), pattern, self.publisher.discovery_topics()

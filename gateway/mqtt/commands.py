@@ -21,7 +21,6 @@ from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Final
 
-from gateway.config import MqttConfig
 from gateway.errors import (
     CommandRefused,
     DriveException,
@@ -47,6 +46,7 @@ from gateway.mqtt.requests import (
 from gateway.poller import Poller
 from gateway.profile import DriveProfile, describe_exception, exception_name
 from gateway.routing import MAX_READ_WORDS, Route, Router
+from gateway.settings import MqttSettings
 from gateway.store import EventStore, EventType
 
 log = logging.getLogger(__name__)
@@ -75,13 +75,13 @@ class CommandDrive:
 class Commands:
     def __init__(
         self,
-        config: MqttConfig,
+        settings: MqttSettings,
         router: Router,
         poller: Poller,
         drives: Mapping[str, CommandDrive],
         events: EventStore,
     ) -> None:
-        self.config = config
+        self.settings = settings
         self.router = router
         self.poller = poller
         self.drives = drives
@@ -101,7 +101,7 @@ class Commands:
             payload = parse_object(message.payload)
             transaction = transaction_of(payload)
             self._check_allowed(payload, message.retained, writes)
-            check_waited(message.received_at, self.config.command_max_age_s, time.monotonic())
+            check_waited(message.received_at, self.settings.command_max_age_s, time.monotonic())
             data = await run(payload)
         except CommandRefused as exc:
             self.refused += 1
@@ -123,7 +123,7 @@ class Commands:
             log.warning("ignored a retained message on %s/get", drive)
             return False
         try:
-            check_waited(message.received_at, self.config.command_max_age_s, time.monotonic())
+            check_waited(message.received_at, self.settings.command_max_age_s, time.monotonic())
         except CommandRefused as exc:
             log.info("MQTT %s/get ignored: %s", drive, exc)
             return False
@@ -164,11 +164,11 @@ class Commands:
             raise CommandRefused(
                 "retained", "a retained command is never executed: publish without retain"
             )
-        if writes and not self.config.commands_enabled:
+        if writes and not self.settings.commands_enabled:
             raise CommandRefused(
                 "commands_disabled", "this gateway is monitoring only (commands_enabled: false)"
             )
-        check_age(payload, self.config.command_max_age_s, time.time())
+        check_age(payload, self.settings.command_max_age_s, time.time())
 
     async def _execute(self, drive: CommandDrive, pdu: bytes) -> bytes:
         # The router's route of the moment: a reload may have reopened the drive's bus.

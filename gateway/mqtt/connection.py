@@ -21,9 +21,9 @@ import ssl
 import aiomqtt
 from paho.mqtt.client import MQTT_CLEAN_START_FIRST_ONLY
 
-from gateway.config import GatewayConfig, MqttConfig
 from gateway.errors import TlsSettingsError
 from gateway.mqtt.topics import Topics
+from gateway.settings import MqttSettings
 
 ONLINE = json.dumps({"state": "online"}, separators=(",", ":"))
 OFFLINE = json.dumps({"state": "offline"}, separators=(",", ":"))
@@ -31,13 +31,7 @@ CONNECT_TIMEOUT_S = 5.0
 """Connecting, subscribing, and waiting for a QoS 1 acknowledgement."""
 
 
-def client_id(config: GatewayConfig) -> str:
-    """Unique per gateway: two with the same id would throw each other off the broker."""
-    assert config.mqtt is not None
-    return config.mqtt.client_id or f"invt-gateway-{config.gateway_id}"
-
-
-def tls_context(mqtt: MqttConfig) -> ssl.SSLContext | None:
+def tls_context(mqtt: MqttSettings) -> ssl.SSLContext | None:
     """The client's TLS context, or None without TLS. Raises TlsSettingsError."""
     if not mqtt.tls:
         return None
@@ -77,7 +71,7 @@ MQTT_3_1_1 = aiomqtt.ProtocolVersion.V311
 
 
 def make_client(
-    config: GatewayConfig,
+    mqtt: MqttSettings,
     topics: Topics,
     tls: ssl.SSLContext | None,
     protocol: aiomqtt.ProtocolVersion = MQTT_3_1_1,
@@ -89,15 +83,13 @@ def make_client(
     MQTT 5 where the broker speaks it: only there does a subscription keep the retain flag of a
     message delivered live (retain-as-published), so a retained command can always be refused.
     """
-    mqtt = config.mqtt
-    assert mqtt is not None
     five = protocol == MQTT_5
     return aiomqtt.Client(
         mqtt.host,
         mqtt.port,
         username=mqtt.username,
         password=mqtt.password,
-        identifier=identifier or client_id(config),
+        identifier=identifier or mqtt.client_id,
         # The broker says "offline" for us if we vanish (power cut, kill -9, cable). A side
         # connection (`will=False`) must not: the gateway is still there.
         will=aiomqtt.Will(topics.bridge_state, OFFLINE, qos=1, retain=True) if will else None,

@@ -12,13 +12,13 @@ each other's entities.
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Final
 
 from gateway import __version__
-from gateway.config import GatewayConfig
 from gateway.mqtt.topics import Topics
+from gateway.settings import DriveSettings, MqttSettings
 
 MAX_SETPOINT_HZ: Final = 630.0
 """The highest P00.03 (max. output frequency) of any Goodrive: no set-point entity goes above."""
@@ -55,8 +55,8 @@ BUTTONS: Final = (
 
 
 def discovery_messages(
-    config: GatewayConfig,
-    prefix: str,
+    mqtt: MqttSettings,
+    drives: Sequence[DriveSettings],
     topics: Topics,
     max_frequency_hz: Mapping[str, float] | None = None,
 ) -> list[tuple[str, str]]:
@@ -65,7 +65,8 @@ def discovery_messages(
     The set-point's maximum is the drive's own P00.03 where `max_frequency_hz` has it (read at
     start), else its profile's factory P00.03."""
     read = max_frequency_hz or {}
-    gateway_id = config.gateway_id
+    prefix = mqtt.discovery_prefix
+    gateway_id = mqtt.gateway_id
     node = f"invt_{gateway_id}"
     origin = {"name": "invt-gateway", "sw_version": __version__}
     messages = [
@@ -87,9 +88,9 @@ def discovery_messages(
             ),
         )
     ]
-    commands = config.mqtt is not None and config.mqtt.commands_enabled
-    for drive in config.drives:
-        profile = drive.profile()
+    commands = mqtt.commands_enabled
+    for drive in drives:
+        profile = drive.profile
         if not profile.is_invt:
             continue  # nothing decoded to show
         common = {

@@ -17,11 +17,11 @@ import contextlib
 import json
 import logging
 import time
+from collections.abc import Sequence
 
 import aiomqtt
 
 from gateway import __version__
-from gateway.config import GatewayConfig, MqttConfig
 from gateway.mqtt.connection import OFFLINE, ONLINE
 from gateway.mqtt.discovery import discovery_messages
 from gateway.mqtt.outbox import Outbox, Pending
@@ -30,6 +30,7 @@ from gateway.mqtt.stats import BridgeStats
 from gateway.mqtt.topics import Topics
 from gateway.poller import Poller
 from gateway.profile.telemetry import Telemetry
+from gateway.settings import DriveSettings, MqttSettings
 from gateway.store import EventStore, EventType
 
 log = logging.getLogger(__name__)
@@ -44,16 +45,16 @@ EVENT_BATCH = 100
 class Publisher:
     def __init__(
         self,
-        config: GatewayConfig,
+        mqtt: MqttSettings,
+        drives: Sequence[DriveSettings],
         topics: Topics,
         outbox: Outbox,
         poller: Poller,
         stats: BridgeStats,
         events: EventStore,
     ) -> None:
-        assert config.mqtt is not None
-        self.config = config
-        self.mqtt: MqttConfig = config.mqtt
+        self.mqtt = mqtt
+        self.drives = drives
         self.topics = topics
         self.outbox = outbox
         self.poller = poller
@@ -87,14 +88,11 @@ class Publisher:
         """The discovery configs this gateway offers now (none with discovery off)."""
         if not self.mqtt.homeassistant_discovery:
             return set()
-        return {
-            topic
-            for topic, _ in discovery_messages(self.config, self.mqtt.discovery_prefix, self.topics)
-        }
+        return {topic for topic, _ in discovery_messages(self.mqtt, self.drives, self.topics)}
 
     async def discovery(self, client: aiomqtt.Client) -> None:
         messages = discovery_messages(
-            self.config, self.mqtt.discovery_prefix, self.topics, self.poller.max_frequency_hz
+            self.mqtt, self.drives, self.topics, self.poller.max_frequency_hz
         )
         for topic, payload in messages:
             await self.publish(client, topic, payload, retain=True)
@@ -189,7 +187,7 @@ class Publisher:
     def _info(self) -> str:
         return dump(
             {
-                "gateway_id": self.config.gateway_id,
+                "gateway_id": self.mqtt.gateway_id,
                 "version": __version__,
                 "commands_enabled": self.mqtt.commands_enabled,
                 "drives": [
@@ -198,9 +196,9 @@ class Publisher:
                         "model": d.model,
                         "bus": d.bus,
                         "address": d.address,
-                        "unit_id": d.effective_unit_id,
+                        "unit_id": d.unit_id,
                     }
-                    for d in self.config.drives
+                    for d in self.drives
                 ],
             }
         )

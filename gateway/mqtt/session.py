@@ -25,7 +25,6 @@ import aiomqtt
 from paho.mqtt.reasoncodes import ReasonCode
 from paho.mqtt.subscribeoptions import SubscribeOptions
 
-from gateway.config import GatewayConfig, MqttConfig
 from gateway.errors import TlsSettingsError
 from gateway.mqtt.connection import (
     MQTT_3_1_1,
@@ -33,12 +32,12 @@ from gateway.mqtt.connection import (
     OFFLINE,
     ONLINE,
     Backoff,
-    client_id,
     make_client,
     tls_context,
 )
 from gateway.mqtt.stats import BridgeStats
 from gateway.mqtt.topics import Topics
+from gateway.settings import MqttSettings
 from gateway.tasks import ServiceTasks, cancel_and_wait
 
 log = logging.getLogger(__name__)
@@ -55,16 +54,14 @@ OnConnect = Callable[[aiomqtt.Client], Awaitable[None]]
 class Session:
     def __init__(
         self,
-        config: GatewayConfig,
+        mqtt: MqttSettings,
         topics: Topics,
         stats: BridgeStats,
         tasks: ServiceTasks,
         on_connect: OnConnect,
         on_lost: Callable[[], None],
     ) -> None:
-        assert config.mqtt is not None
-        self.config = config
-        self.mqtt: MqttConfig = config.mqtt
+        self.mqtt = mqtt
         self.topics = topics
         self.stats = stats
         self.tasks = tasks
@@ -104,9 +101,9 @@ class Session:
     def side_client(self, purpose: str) -> aiomqtt.Client:
         """A second, short connection with the session's broker, TLS and protocol: its own
         client id (`<id>-<purpose>`), no last will. Call once the session has connected."""
-        identifier = f"{client_id(self.config)}-{purpose}"
+        identifier = f"{self.mqtt.client_id}-{purpose}"
         return make_client(
-            self.config, self.topics, self._tls, self.protocol, identifier=identifier, will=False
+            self.mqtt, self.topics, self._tls, self.protocol, identifier=identifier, will=False
         )
 
     async def subscribe(self, client: aiomqtt.Client, topics: Iterable[str]) -> None:
@@ -127,7 +124,7 @@ class Session:
             try:
                 # Inside the try: whatever building a client raises is one more failed attempt,
                 # never the end of the loop.
-                client = make_client(self.config, self.topics, tls, self.protocol)
+                client = make_client(self.mqtt, self.topics, tls, self.protocol)
                 async with client:
                     self._client = client
                     if failures:
@@ -201,7 +198,7 @@ class Session:
         self._settle()
         self.stats.connects += 1
         log.info(
-            "MQTT: connected to %s:%d as %s", self.mqtt.host, self.mqtt.port, client_id(self.config)
+            "MQTT: connected to %s:%d as %s", self.mqtt.host, self.mqtt.port, self.mqtt.client_id
         )
         await client.publish(self.topics.bridge_state, ONLINE, qos=QOS, retain=True)
         self.stats.published += 1

@@ -13,11 +13,11 @@ import logging
 from collections.abc import Iterable
 from typing import Final
 
-from gateway.config import DriveConfig
 from gateway.errors import GatewayError
 from gateway.modbus.functions import is_exception
 from gateway.profile.parameters import parameter, unscale_parameter
 from gateway.routing import Router
+from gateway.settings import DriveSettings
 
 log = logging.getLogger(__name__)
 
@@ -26,10 +26,10 @@ READ_BUDGET_S: Final = 1.0
 
 
 async def read_max_frequencies(
-    router: Router, drives: Iterable[DriveConfig], budget_s: float = READ_BUDGET_S
+    router: Router, drives: Iterable[DriveSettings], budget_s: float = READ_BUDGET_S
 ) -> dict[str, float]:
     """Drive name → P00.03 in Hz, for the INVT drives that answered within `budget_s`."""
-    invt = [drive for drive in drives if drive.profile().is_invt]
+    invt = [drive for drive in drives if drive.profile.is_invt]
     tasks = {
         drive.name: asyncio.create_task(_read(router, drive), name=f"p00.03:{drive.name}")
         for drive in invt
@@ -50,7 +50,7 @@ async def read_max_frequencies(
     return found
 
 
-async def _read(router: Router, drive: DriveConfig) -> float | None:
+async def _read(router: Router, drive: DriveSettings) -> float | None:
     try:
         route = router.route_for_drive(drive.name)
         reply = await router.poll(route, parameter(MAX_FREQUENCY).address, 1)

@@ -10,8 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from gateway.config import DriveConfig
-from gateway.profile import DriveProfile
+from gateway.settings import DriveSettings
 
 
 @dataclass(frozen=True, slots=True)
@@ -29,14 +28,11 @@ class PollSchedule:
     blocks: tuple[PollBlock, ...]
 
 
-def poll_schedules(drive: DriveConfig, profile: DriveProfile) -> tuple[PollSchedule, ...]:
-    if drive.poll is not None:
-        groups = [(g.name, g.start, g.count, g.interval_ms / 1000) for g in drive.poll]
-    else:
-        groups = [(g.name, g.start, g.count, g.interval_s) for g in profile.poll_groups]
+def poll_schedules(drive: DriveSettings) -> tuple[PollSchedule, ...]:
+    max_words = drive.profile.max_words
     return tuple(
-        PollSchedule(name, interval_s, blocks(start, count, profile.max_words))
-        for name, start, count, interval_s in groups
+        PollSchedule(g.name, g.interval_s, blocks(g.start, g.count, max_words))
+        for g in drive.poll_groups
     )
 
 

@@ -26,7 +26,6 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Final, Protocol
 
-from gateway.config import DriveConfig
 from gateway.errors import BusClosed, DriveOffline, GatewayPathUnavailable, GatewayTargetFailed
 from gateway.modbus.functions import is_exception
 from gateway.poller.drive_state import DriveEvent, DriveState
@@ -34,6 +33,7 @@ from gateway.poller.plan import PollBlock, PollSchedule, poll_schedules
 from gateway.profile import exception_name, format_register
 from gateway.profile.telemetry import Telemetry
 from gateway.routing import Route, Router
+from gateway.settings import DriveSettings
 from gateway.tasks import ServiceTasks, cancel_and_wait
 
 log = logging.getLogger(__name__)
@@ -60,7 +60,7 @@ class _GroupTimer:
 
 @dataclass(slots=True)
 class PolledDrive:
-    config: DriveConfig
+    settings: DriveSettings
     route: Route
     state: DriveState
     timers: list[_GroupTimer]
@@ -76,13 +76,15 @@ class PolledDrive:
 
 
 class Poller:
-    def __init__(self, drives: Iterable[DriveConfig], router: Router, tasks: ServiceTasks) -> None:
+    def __init__(
+        self, drives: Iterable[DriveSettings], router: Router, tasks: ServiceTasks
+    ) -> None:
         self.router = router
         self.tasks = tasks
         self.drives: dict[str, PolledDrive] = {}
         self._by_bus_address: dict[tuple[str, int], str] = {}
-        for config in drives:
-            self._polled(config)
+        for settings in drives:
+            self._polled(settings)
         self._listeners: list[PollListener] = []
         self._task: asyncio.Task[None] | None = None
         self._added: dict[str, asyncio.Task[None]] = {}
@@ -94,13 +96,13 @@ class Poller:
         self.max_frequency_hz: dict[str, float] = {}
         """Drive name → its P00.03, for the drives that answered at start."""
 
-    def _polled(self, config: DriveConfig) -> PolledDrive:
-        profile = config.profile()
-        timers = [_GroupTimer(s) for s in poll_schedules(config, profile)]
-        route = self.router.route_for_drive(config.name)
-        drive = PolledDrive(config, route, DriveState(config.name, profile), timers)
-        self.drives[config.name] = drive
-        self._by_bus_address[(config.bus, config.address)] = config.name
+    def _polled(self, settings: DriveSettings) -> PolledDrive:
+        timers = [_GroupTimer(s) for s in poll_schedules(settings)]
+        route = self.router.route_for_drive(settings.name)
+        state = DriveState(settings.name, settings.profile)
+        drive = PolledDrive(settings, route, state, timers)
+        self.drives[settings.name] = drive
+        self._by_bus_address[(settings.bus, settings.address)] = settings.name
         return drive
 
     def add_listener(self, listener: PollListener) -> None:
@@ -116,8 +118,8 @@ class Poller:
         if self.read_max_frequency:
             from gateway.poller.max_frequency import read_max_frequencies
 
-            configs = [drive.config for drive in self.drives.values()]
-            self.max_frequency_hz = await read_max_frequencies(self.router, configs)
+            drives = [drive.settings for drive in self.drives.values()]
+            self.max_frequency_hz = await read_max_frequencies(self.router, drives)
         self._task = self.tasks.start("poller", self._run())
 
     async def stop(self) -> None:
@@ -132,11 +134,11 @@ class Poller:
 
     # -- a reload ----------------------------------------------------------------------------
 
-    def add_drive(self, config: DriveConfig) -> None:
+    def add_drive(self, settings: DriveSettings) -> None:
         """Poll a drive a reload added (its route is in the router already)."""
-        drive = self._polled(config)
+        drive = self._polled(settings)
         if drive.timers:
-            name = config.name
+            name = settings.name
             self._added[name] = self.tasks.start(f"poller:{name}", self._poll_forever(drive))
 
     def remove_drive(self, name: str) -> None:
@@ -144,7 +146,7 @@ class Poller:
         drive = self.drives.pop(name, None)
         if drive is None:
             return
-        self._by_bus_address.pop((drive.config.bus, drive.config.address), None)
+        self._by_bus_address.pop((drive.settings.bus, drive.settings.address), None)
         drive.removed = True
         drive.wake.set()
         task = self._added.pop(name, None)
@@ -205,7 +207,7 @@ class Poller:
                         await self._poll_group(drive, timer.schedule)
                     except Exception:
                         # A bug must not end this drive's polling for good: say it loudly, go on.
-                        name = drive.config.name
+                        name = drive.settings.name
                         log.exception("poll of %s (%s) failed", name, timer.schedule.group)
                     timer.next_at = self._next_poll_at(drive, timer, now)
             delay = min(t.next_at for t in drive.timers) - time.monotonic()
@@ -241,7 +243,7 @@ class Poller:
 
     async def _poll_block(self, drive: PolledDrive, block: PollBlock) -> bool:
         """Read one block; False when the drive gave no answer (skip the rest of the group)."""
-        config = drive.config
+        name = drive.settings.name
         self.polls += 1
         drive.polls += 1
         try:
@@ -252,12 +254,12 @@ class Poller:
             self._poll_failed(drive, offline_on_bus=True)
             return False
         except GatewayTargetFailed as exc:
-            log.debug("poll of %s at %s: %s", config.name, format_register(block.start), exc)
+            log.debug("poll of %s at %s: %s", name, format_register(block.start), exc)
             self._poll_failed(drive, offline_on_bus=False)
             return False
         except GatewayPathUnavailable as exc:
             # Queue full: the bus is busy with more urgent work; the next interval tries again.
-            log.debug("poll of %s skipped: %s", config.name, exc)
+            log.debug("poll of %s skipped: %s", name, exc)
             return True
         if is_exception(reply):
             self._drive_refused(drive, block, reply[1] if len(reply) > 1 else 0)
@@ -276,7 +278,7 @@ class Poller:
         self._tell_events(events)
         telemetry = drive.state.telemetry()
         for listener in self._listeners:
-            listener.state_updated(drive.config.name, telemetry)
+            listener.state_updated(drive.settings.name, telemetry)
 
     def _poll_failed(self, drive: PolledDrive, *, offline_on_bus: bool) -> None:
         self.poll_failures += 1
@@ -291,7 +293,7 @@ class Poller:
     def _set_online(self, drive: PolledDrive, online: bool) -> None:
         events = drive.state.set_online(online)
         if events:
-            log.warning("drive %s is %s", drive.config.name, "online" if online else "offline")
+            log.warning("drive %s is %s", drive.settings.name, "online" if online else "offline")
             self._tell_availability(drive)
             self._tell_events(events)
 
@@ -302,7 +304,7 @@ class Poller:
             drive.reported_exceptions.add(key)
             log.warning(
                 "drive %s refuses the poll of %d words at %s: exception %02XH %s",
-                drive.config.name,
+                drive.settings.name,
                 block.count,
                 format_register(block.start),
                 code,
@@ -314,7 +316,7 @@ class Poller:
         if online is None:
             return
         for listener in self._listeners:
-            listener.availability_changed(drive.config.name, online)
+            listener.availability_changed(drive.settings.name, online)
 
     def _tell_events(self, events: list[DriveEvent]) -> None:
         for event in events:

@@ -23,13 +23,13 @@ import time
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Final, TypeVar
 
-from gateway.config import StorageConfig
 from gateway.errors import StoreError
 from gateway.poller.drive_state import DriveEvent, EventKind, iso_time
 from gateway.profile.telemetry import Telemetry
+from gateway.settings import StoreSettings
 from gateway.store.database import MEMORY, EventDatabase
 from gateway.store.records import EventType, FaultRecord, Json, NewEvent, StoredEvent
 from gateway.tasks import ServiceTasks, cancel_and_wait
@@ -61,20 +61,21 @@ class StoreStats:
 
 
 class EventStore:
-    def __init__(
-        self, config: StorageConfig, tasks: ServiceTasks, forwarding: bool, max_waiting: int
-    ) -> None:
-        self.config = config
-        self.path = config.resolved_path()
+    def __init__(self, settings: StoreSettings, tasks: ServiceTasks) -> None:
+        self.settings = settings
+        self.path = settings.path
         self._seen_since_start: set[str] = set()
         self._faults_to_close: list[tuple[str, float]] = []
         self.tasks = tasks
         self.stats = StoreStats()
         self._db = EventDatabase(
-            self.path, int(config.max_mb * 1024 * 1024), config.max_age_days * 86400, forwarding
+            self.path,
+            int(settings.max_mb * 1024 * 1024),
+            settings.max_age_days * 86400,
+            settings.forwarding,
         )
         self._waiting: deque[NewEvent] = deque()
-        self._max_waiting = max_waiting
+        self._max_waiting = settings.max_waiting
         self._queued = asyncio.Event()
         self._stored = asyncio.Event()
         self._written = asyncio.Condition()
@@ -86,11 +87,14 @@ class EventStore:
         self._drops_logged_at = 0.0
         self._drops_unlogged = 0
 
-    def update_bounds(self, config: StorageConfig) -> None:
-        """A reload: max_mb and max_age_days from now on (the path stays until a restart)."""
-        self.config = config.model_copy(update={"path": self.config.path})
-        self._db.max_bytes = int(config.max_mb * 1024 * 1024)
-        self._db.max_age_s = config.max_age_days * 86400
+    def update_bounds(self, settings: StoreSettings) -> None:
+        """A reload: max_mb and max_age_days from now on (the path, forwarding and the memory
+        queue stay until a restart)."""
+        self.settings = replace(
+            self.settings, max_mb=settings.max_mb, max_age_days=settings.max_age_days
+        )
+        self._db.max_bytes = int(settings.max_mb * 1024 * 1024)
+        self._db.max_age_s = settings.max_age_days * 86400
 
     @property
     def persistent(self) -> bool:
@@ -164,7 +168,7 @@ class EventStore:
             await self._call(self._db.open)
         self.stats.undelivered = await self._call(self._db.undelivered_count)
         dropped = await self._call(self._db.expire, time.time())
-        self._dropped(dropped, f"older than storage.max_age_days ({self.config.max_age_days:g})")
+        self._dropped(dropped, f"older than storage.max_age_days ({self.settings.max_age_days:g})")
         if self.stats.undelivered:
             log.info("store %s: %d events wait for the broker", self.path, self.stats.undelivered)
         self._writer = self.tasks.start("store:writer", self._write_forever())
@@ -275,7 +279,7 @@ class EventStore:
             self.stats.stored += len(batch)
             if self._db.forwarding:
                 self.stats.undelivered += len(batch)
-            self._dropped(appended.dropped, f"storage.max_mb ({self.config.max_mb:g}) reached")
+            self._dropped(appended.dropped, f"storage.max_mb ({self.settings.max_mb:g}) reached")
             self._stored.set()
             async with self._written:
                 self._written.notify_all()
@@ -299,7 +303,7 @@ class EventStore:
         except Exception as exc:
             log.error("store %s: cannot remove old events: %s", self.path, exc)
             return
-        self._dropped(dropped, f"older than storage.max_age_days ({self.config.max_age_days:g})")
+        self._dropped(dropped, f"older than storage.max_age_days ({self.settings.max_age_days:g})")
 
     def _dropped(self, count: int, why: str, stored: bool = True) -> None:
         if not count:

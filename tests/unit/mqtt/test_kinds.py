@@ -10,6 +10,7 @@ from gateway.app import Application
 from gateway.mqtt.dispatcher import CommandKind
 from gateway.mqtt.kinds import BRIDGE_REQUESTS, BridgeRequest
 from gateway.mqtt.requests import Json, RegisterRead
+from gateway.settings import runtime_settings
 from tests.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
 from tests.mosquitto import mosquitto as mosquitto
 from tests.mqtt_setup import mqtt_config, simulated_line
@@ -42,7 +43,7 @@ async def test_a_new_bridge_request_is_subscribed_checked_and_answered(
     request_topic = f"{base}/bridge/request/read_state_word"
     response_topic = f"{base}/bridge/response/read_state_word"
     with simulated_line() as line:
-        app = Application(mqtt_config(line.path, mosquitto, base))
+        app = Application(runtime_settings(mqtt_config(line.path, mosquitto, base)))
         bridge = app.mqtt
         kinds: dict[str, CommandKind] = dict(bridge.dispatcher.kinds)
         kinds[bridge.topics.bridge_request(ReadStateWord.operation)] = ReadStateWord(bridge.context)
