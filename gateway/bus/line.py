@@ -455,6 +455,8 @@ class SerialLine:
         give_up = response_deadline + wire_time(MAX_FRAME) + char_timeout
         while True:
             seen = len(self._received)
+            if not seen and await self._more_bytes(0, min(response_deadline, give_up)):
+                continue  # the usual start: nothing to search until the first bytes come
             echoes = self.echo_detected or self._arrived_by(len(frame), echo_by)
             search = search_reply(self._received, frame, adapter_echoes=echoes)
             found = search.found
