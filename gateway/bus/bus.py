@@ -421,7 +421,7 @@ class Bus:
         back_to_back, self._reply_heard_at = self._reply_heard_at != 0.0, 0.0
         while not self.closing:
             try:
-                sending = await self.line.send_after_gap(self._pick)
+                sending = await self.line.send_after_gap(self._pick, self._reply_within)
             except PortError as exc:
                 picked = self._carrying
                 if picked is not None:  # taken from the queue, but the port failed under it
@@ -476,6 +476,14 @@ class Bus:
             self._carrying = transaction  # before anything can fail: it must be answered
             return transaction.frame or build_frame(address, transaction.pdu)
         return None
+
+    def _reply_within(self) -> float | None:
+        """For the transaction `_pick` just sent: how long its drive has to answer (None: a
+        broadcast, which has no reply)."""
+        carrying = self._carrying
+        if carrying is None or carrying.address == BROADCAST_ADDRESS:
+            return None
+        return carrying.timeout_s
 
     async def _wait_for_work(self, timeout_s: float) -> None:
         assert self._loop is not None

@@ -164,6 +164,8 @@ class SerialLine:
         self._error: PortError | None = None
         self._waiter: asyncio.Future[None] | None = None
         self._poll: select.poll | None = None
+        self._holding: asyncio.TimerHandle | None = None
+        """While `send_after_gap`'s caller is held until the reply's first bytes (or this)."""
 
     @property
     def is_open(self) -> bool:
@@ -267,13 +269,22 @@ class SerialLine:
         assert sending is not None  # the pick always has a frame
         return await self.finish(sending, expect_reply=expect_reply, timeout_s=timeout_s)
 
-    async def send_after_gap(self, pick: Callable[[], bytes | None]) -> Sending | None:
+    async def send_after_gap(
+        self,
+        pick: Callable[[], bytes | None],
+        reply_within: Callable[[], float | None] | None = None,
+    ) -> Sending | None:
         """At the end of the inter-frame gap, ask `pick` for a frame and start writing it.
 
         `pick` runs in the very wake-up that ends the gap (inside the gap timer's callback), so
         the gap is not stretched by another pass of the event loop: it chooses the request at
         the last possible moment and the frame goes out at once. None from `pick`: nothing to
         send now (returned as None). Bytes arriving during the gap restart it.
+
+        `reply_within`, asked right after `pick`: how long the drive has to answer the frame
+        just picked (None: no reply, or none to wait for here). The caller then resumes when
+        the reply's first bytes come (or that time passes) instead of as the frame goes out:
+        nothing is left to do between the two, and it saves the loop a pass per transaction.
         """
         gap = self.settings.gap_s
         while True:
@@ -283,29 +294,78 @@ class SerialLine:
                 return self._send_now(pick)
             picked: list[Sending | Exception | None] = []
             assert self._timer is not None  # _discard_pending raised if the port is closed
-            await self._timer.sleep_until(due, partial(self._send_at_gap_end, pick, picked))
+            action = partial(self._send_at_gap_end, pick, reply_within, picked)
+            try:
+                await self._timer.sleep_until(due, action)
+            finally:
+                self._stop_holding()
             if picked:
                 if isinstance(picked[0], Exception):
                     raise picked[0]  # in the caller's coroutine, not lost in a loop callback
                 return picked[0]
 
     def _send_at_gap_end(
-        self, pick: Callable[[], bytes | None], picked: list[Sending | Exception | None]
-    ) -> None:
-        """The gap timer's action: send now, if the line is still quiet and usable."""
+        self,
+        pick: Callable[[], bytes | None],
+        reply_within: Callable[[], float | None] | None,
+        picked: list[Sending | Exception | None],
+    ) -> bool:
+        """The gap timer's action: send now, if the line is still quiet and usable. True: the
+        caller stays held until the reply's first bytes (`LineTimer.sleep_until`)."""
         if self._port is None or self._error is not None or self._received:
-            return  # closed, failed or not quiet after all: `send_after_gap` looks again
+            return False  # closed, failed or not quiet after all: `send_after_gap` looks again
         if self._fd is None:
-            return  # a URL port: only `_discard_pending_url` can tell if bytes came meanwhile
+            return False  # a URL port: only `_discard_pending_url` can tell if bytes came
         if self._bytes_waiting():
             self._quiet_since = time.monotonic()
-            return
+            return False
         if self._quiet_since + self.settings.gap_s > time.monotonic():
-            return
+            return False
         try:
-            picked.append(self._send_now(pick))
+            sending = self._send_now(pick)
         except Exception as exc:
             picked.append(exc)
+            return False
+        picked.append(sending)
+        if sending is None or reply_within is None or not self._waits_for_reply_only(sending):
+            return False
+        within_s = reply_within()
+        if within_s is None:
+            return False
+        return self._hold_until_reply(sending, within_s)
+
+    def _waits_for_reply_only(self, sending: Sending) -> bool:
+        """Is all that `finish` would do for this attempt to wait for the reply? (The frame
+        is out whole, no RTS to switch back, no echo to read first.)"""
+        control = self.settings.direction
+        return (
+            sending.written == len(sending.frame)
+            and not self.settings.echo
+            and (control is None or control.mode is not DirectionMode.RTS)
+        )
+
+    def _hold_until_reply(self, sending: Sending, within_s: float) -> bool:
+        assert self._timer is not None
+        assert self._loop is not None
+        waiting = self._timer.waiting
+        if waiting is None or self._waiter is not None:
+            return False
+        # The reader callback wakes whoever waits in `_waiter`: the held caller, at the
+        # reply's first bytes; the deadline too, so a silent drive still times out on time.
+        self._waiter = waiting
+        sent = sending.started + self.settings.char_format.wire_time_s(len(sending.frame))
+        self._holding = self._loop.call_at(
+            self._loop.time() + max(sent + within_s - time.monotonic(), 0.0), self._wake
+        )
+        return True
+
+    def _stop_holding(self) -> None:
+        holding, self._holding = self._holding, None
+        if holding is None:
+            return
+        holding.cancel()
+        if self._waiter is not None and self._waiter.done():
+            self._waiter = None
 
     async def finish(self, sending: Sending, *, expect_reply: bool, timeout_s: float) -> Exchange:
         """The rest of an attempt begun by `send_after_gap`: the frame's tail, echo, reply."""

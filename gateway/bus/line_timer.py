@@ -58,7 +58,7 @@ class LineTimer:
     def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
         self._loop = loop
         self._waiter: asyncio.Future[None] | None = None
-        self._at_deadline: Callable[[], None] | None = None
+        self._at_deadline: Callable[[], bool] | None = None
         self._spec = _Itimerspec()
         self._fd = -1
         self._libc = _libc()
@@ -71,19 +71,26 @@ class LineTimer:
                 log.debug("timerfd_create failed (errno %d); gaps kept to 1 ms", ctypes.get_errno())
 
     @property
+    def waiting(self) -> asyncio.Future[None] | None:
+        """What `sleep_until` awaits now (for an `at_deadline` that takes the wait over)."""
+        return self._waiter
+
+    @property
     def exact(self) -> bool:
         """True when wake-ups come at the deadline (timerfd), not at the next millisecond."""
         return self._fd >= 0
 
     async def sleep_until(
-        self, deadline: float, at_deadline: Callable[[], None] | None = None
+        self, deadline: float, at_deadline: Callable[[], bool] | None = None
     ) -> None:
         """Return at `deadline` (a `time.monotonic()` value) or right after it.
 
         `at_deadline` runs inside the timer's own callback, in the wake-up that ends the wait,
         before the waiting coroutine resumes (which costs the loop one more pass): the line
         writes its next frame there. It doesn't run when the deadline has already passed (the
-        caller acts at once then) or when the timer is closed.
+        caller acts at once then) or when the timer is closed. When it returns True it has
+        taken the wait over (`waiting`): the coroutine resumes once its taker settles it (the
+        line: when the reply's first bytes come), not at once.
         """
         if deadline <= time.monotonic():
             return
@@ -136,8 +143,9 @@ class LineTimer:
         if waiter is None or waiter.done():
             return
         self._at_deadline = None
+        taken = False
         try:
-            if action is not None:
-                action()
+            taken = action is not None and action()
         finally:
-            settle(waiter)  # whatever the action did, the waiting coroutine goes on
+            if not taken:
+                settle(waiter)  # whatever else the action did, the waiting coroutine goes on

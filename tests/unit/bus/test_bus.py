@@ -110,3 +110,18 @@ async def test_closing_answers_the_queued_requests_with_bus_closed(line: Simulat
         assert await on_the_wire == bytes.fromhex("03 02 00 03")
         with pytest.raises(BusClosed):
             await read(bus, 1, STATE_WORD_1)
+
+
+async def test_a_silent_drive_times_out_at_the_requests_own_timeout(line: SimulatedLine) -> None:
+    """The bus's default is a second; a route's (or a probe's) shorter timeout is what counts.
+    A drive that is silent keeps the line for that long and no longer."""
+    async with running_bus(line.path, timeout_ms=1000, retries=0, offline_after=5) as bus:
+        loop = asyncio.get_running_loop()
+        started = loop.time()
+        with pytest.raises(GatewayTargetFailed):
+            await bus.request(
+                SILENT, read_pdu(STATE_WORD_1), priority=Priority.READ, client="t", timeout_s=0.05
+            )
+        assert loop.time() - started < 0.5  # 50 ms and the gap, far from the bus's 1 s
+        # And the line is free at once for the next request, answered as usual.
+        assert await read(bus, 1, STATE_WORD_1) == bytes.fromhex("03 02 00 03")
