@@ -124,6 +124,8 @@ class MqttBridge:
     async def _connected(self, client: aiomqtt.Client) -> None:
         await self.publisher.info(client)
         await self.session.subscribe(client, self.dispatcher.topics)
+        # Online only now: a client that sends a request on seeing it must find us listening.
+        await self.session.say_online(client)
         await self.publisher.catch_up(client)
         self.session.connected.set()
         if not self._discovery_cleaned:

@@ -4,8 +4,9 @@
              down must never delay the gateway: Modbus-TCP serves without it)
     tls      the TLS context is built once, before the first attempt; a bad file is logged once,
              naming its key, and tried again with backoff (the loop never ends over it)
-    connect  publish online, then hand the client to `on_connect` (the bridge's session: what to
-             publish, what to subscribe, the tasks that run while connected)
+    connect  hand the client to `on_connect` (the bridge's session: what to publish, what to
+             subscribe, the tasks that run while connected), which says online (`say_online`)
+             once it is subscribed
     lost     any error ends the session; `on_lost`; wait (jittered, capped backoff), connect again
     stop     publish offline, end the loop
 
@@ -200,9 +201,13 @@ class Session:
         log.info(
             "MQTT: connected to %s:%d as %s", self.mqtt.host, self.mqtt.port, self.mqtt.client_id
         )
+        await self._on_connect(client)
+
+    async def say_online(self, client: aiomqtt.Client) -> None:
+        """Retained "online" on `bridge/state`: for `on_connect` to send once it listens to the
+        request topics, so a client that acts on "online" is heard."""
         await client.publish(self.topics.bridge_state, ONLINE, qos=QOS, retain=True)
         self.stats.published += 1
-        await self._on_connect(client)
 
     async def _tls_context(self, backoff: Backoff) -> ssl.SSLContext | None:
         """Built once for every attempt; until the files are usable, tried again with backoff."""

@@ -49,9 +49,8 @@ async def test_a_new_bridge_request_is_subscribed_checked_and_answered(
         kinds[bridge.topics.bridge_request(ReadStateWord.operation)] = ReadStateWord(bridge.context)
         bridge.dispatcher.kinds = kinds
         async with mqtt_probe(mosquitto, f"{base}/#") as probe, running_application(app):
-            # Not bridge/state: "online" goes out before the subscriptions are made; a drive's
-            # availability comes after them.
-            await probe.wait_for(f"{base}/pump1/availability", lambda a: a["state"] == "online")
+            # A client may act the moment it sees "online": the gateway listens by then.
+            await probe.wait_for(f"{base}/bridge/state", lambda a: a["state"] == "online")
             answer: Any = await probe.request(request_topic, {"drive": "pump1"}, response_topic)
             assert answer["status"] == "ok"
             assert answer["data"] == {"drive": "pump1", "state_word_1": STOPPED}
