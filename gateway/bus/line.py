@@ -377,8 +377,10 @@ class SerialLine:
             if sending.written < len(frame):
                 await self._write(frame[sending.written :])
             sent = started + self.settings.char_format.wire_time_s(len(frame))
-        # Our own frame holds the line until its last character has left.
-        self._quiet_since = max(self._quiet_since, sent)
+        # Our own frame holds the line until its last character has left; bytes heard since it
+        # went out (the caller was held until the reply began) tell the line's last sound.
+        if not self._received:
+            self._quiet_since = max(self._quiet_since, sent)
         if self.settings.echo:
             await self._read_echo(frame, sent)
         if not expect_reply:
