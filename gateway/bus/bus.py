@@ -259,14 +259,53 @@ class Bus:
         refusal before queueing (closed, offline, queue full) is raised here, not given to
         `waiter`.
         """
+        observed = None
         if self._request_observers:
-            waiter = _Observed(self, waiter, address, pdu, client, time.monotonic())
+            waiter = observed = _Observed(self, waiter, address, pdu, client, time.monotonic())
         try:
-            self._queue_request(address, pdu, waiter, priority, client, timeout_s, retries)
+            self._admit(address)
+            self._put(
+                Transaction(
+                    address=address,
+                    pdu=pdu,
+                    priority=priority,
+                    client=client,
+                    timeout_s=self.settings.timeout_s if timeout_s is None else timeout_s,
+                    retries=self.settings.retries if retries is None else retries,
+                    coalescable=address != BROADCAST_ADDRESS
+                    and bool(pdu)
+                    and lookup(pdu[0]).coalescable,
+                    waiters=[waiter],
+                )
+            )
         except ModbusError as exc:
-            if isinstance(waiter, _Observed):
-                waiter.report(exc.code)
+            if observed is not None:
+                observed.report(exc.code)
             raise
+
+    def _admit(self, address: int) -> None:
+        """Raise the refusal a request to `address` gets before it is queued, if any."""
+        self.stats.requests += 1
+        if self.state is BusState.CLOSED:
+            raise BusClosed(f"bus {self.name} is shutting down")
+        if self.state is BusState.REOPENING:
+            raise GatewayTargetFailed(f"bus {self.name}: {self._last_port_error}")
+        if address != BROADCAST_ADDRESS and self.health.is_offline(address):
+            self.stats.offline_rejected += 1
+            raise DriveOffline(f"drive {address} on {self.name} is offline")
+
+    def _put(self, transaction: Transaction) -> None:
+        try:
+            carrier = self._queue.put(transaction)
+        except GatewayError:
+            self.stats.queue_full += 1
+            raise
+        self._wake()
+        if carrier is transaction:
+            # Framed now, while the line may be busy: no CRC work in the gap.
+            transaction.frame = build_frame(transaction.address, transaction.pdu)
+        else:
+            self.stats.coalesced += 1
 
     def _report(
         self, address: int, pdu: bytes, client: str, started: float, code: int | None
@@ -279,45 +318,6 @@ class Bus:
                 observer(done)
             except Exception:
                 log.exception("bus %s: request observer failed", self.name)
-
-    def _queue_request(
-        self,
-        address: int,
-        pdu: bytes,
-        waiter: Waiter,
-        priority: Priority,
-        client: str,
-        timeout_s: float | None,
-        retries: int | None,
-    ) -> None:
-        self.stats.requests += 1
-        if self.state is BusState.CLOSED:
-            raise BusClosed(f"bus {self.name} is shutting down")
-        if self.state is BusState.REOPENING:
-            raise GatewayTargetFailed(f"bus {self.name}: {self._last_port_error}")
-        if address != BROADCAST_ADDRESS and self.health.is_offline(address):
-            self.stats.offline_rejected += 1
-            raise DriveOffline(f"drive {address} on {self.name} is offline")
-        transaction = Transaction(
-            address=address,
-            pdu=pdu,
-            priority=priority,
-            client=client,
-            timeout_s=self.settings.timeout_s if timeout_s is None else timeout_s,
-            retries=self.settings.retries if retries is None else retries,
-            coalescable=address != BROADCAST_ADDRESS and bool(pdu) and lookup(pdu[0]).coalescable,
-            waiters=[waiter],
-        )
-        try:
-            carrier = self._queue.put(transaction)
-        except GatewayError:
-            self.stats.queue_full += 1
-            raise
-        self._wake()
-        if carrier is transaction:
-            transaction.frame = build_frame(address, pdu)
-        else:
-            self.stats.coalesced += 1
 
     # -- lifecycle (event loop) ----------------------------------------------------------------
 
