@@ -138,6 +138,8 @@ class RequestMetrics:
         self._series: dict[tuple[str, int, str, int], tuple[Any, Any]] = {}
         """Per (bus, address, source, function): the children a request of that kind counts in.
         Bounded: a closed set of sources, 256 function codes, the configured drives' addresses."""
+        self._errors: dict[tuple[str, int, str, int], Any] = {}
+        """The same per (bus, address, source, exception code), for requests answered so."""
         self.requests = Counter(
             f"{PREFIX}_requests",
             "Requests to a drive by who asked (tcp, poll, mqtt, probe) and function code",
@@ -167,7 +169,8 @@ class RequestMetrics:
     def observe(self, done: RequestDone) -> None:
         # Once per request on every bus: the label sets' children are looked up once and kept
         # (prometheus_client's `labels()` takes a lock and builds a key per call).
-        key = (done.bus, done.address, request_source(done.client), done.function)
+        source = request_source(done.client)
+        key = (done.bus, done.address, source, done.function)
         series = self._series.get(key)
         if series is None:
             series = self._series[key] = self._children(done)
@@ -175,10 +178,15 @@ class RequestMetrics:
         requests.inc()
         if latency is None:
             return
-        if done.code is not None:
-            drive = self.drive_name(done.bus, done.address)
-            source = request_source(done.client)
-            self.errors.labels(done.bus, drive, source, exception_label(done.code)).inc()
+        if done.code is not None:  # a dead drive's every request: as cheap as the others
+            error_key = (done.bus, done.address, source, done.code)
+            errors = self._errors.get(error_key)
+            if errors is None:
+                drive = self.drive_name(done.bus, done.address)
+                errors = self._errors[error_key] = self.errors.labels(
+                    done.bus, drive, source, exception_label(done.code)
+                )
+            errors.inc()
         latency.observe(done.duration_s)
 
     def _children(self, done: RequestDone) -> tuple[Any, Any]:
@@ -198,6 +206,7 @@ class RequestMetrics:
         """A reload changed the drives: requests to them counted under their names from now."""
         self._names = {(d.bus, d.address): d.drive for d in drives}
         self._series.clear()
+        self._errors.clear()
 
     def drive_name(self, bus: str, address: int) -> str:
         if address == 0:
