@@ -24,8 +24,6 @@ from gateway.errors import CannotListen, GatewayError, GatewayPathUnavailable
 from gateway.health import Phase
 from gateway.modbus.functions import is_exception
 from gateway.poller import Poller
-from gateway.reload import ReloadPlan
-from gateway.reload import plan as plan_reload
 from gateway.routing import RegisterCache, Router
 from gateway.settings import (
     ConsoleSettings,
@@ -34,6 +32,8 @@ from gateway.settings import (
     MqttSettings,
     drive_route,
 )
+from gateway.settings.reload import ReloadPlan
+from gateway.settings.reload import plan as plan_reload
 from gateway.store import EventStore, EventType
 from gateway.store.modbus_writes import WriteTally
 from gateway.tasks import ServiceTasks, cancel_and_wait
@@ -116,7 +116,7 @@ class Application:
         self.features.append(self.mqtt)
 
     async def reload(self, new: GatewaySettings) -> ReloadPlan:
-        """Apply a new, valid configuration in place (see `gateway.reload`); what changed."""
+        """Apply a new, valid configuration in place (`gateway.settings.reload`); what changed."""
         poller: Poller | None = getattr(self, "poller", None)
         plan = plan_reload(self.settings.source, new.source, mqtt_running=hasattr(self, "mqtt"))
         running = self.settings = plan.settings

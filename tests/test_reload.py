@@ -20,7 +20,7 @@ import yaml
 from gateway.config import GatewayConfig
 from gateway.instruments.simulator import SimulatedLine
 from gateway.profile.invt import STATE_WORD_1
-from gateway.reload import plan
+from gateway.settings.reload import plan
 from tests.processes import GatewayProcess, gateway_process
 from tests.support import TcpClient, free_port, read_pdu, write_pdu
 from tests.test_ops_metrics import Scrape, http_get

@@ -12,8 +12,7 @@ import gateway
 PACKAGE = Path(gateway.__file__).parent
 ALLOWED = (
     "config.py",  # the models themselves
-    "settings/",  # the one place they become runtime settings
-    "reload.py",  # compares the running file with the new one, key by key, in the user's words
+    "settings/",  # the one place they become runtime settings (and a reload compares them)
     "commands/",  # the commands that load a file (run, check-config)
     "instruments/commands/",  # ... and the instruments' (demo)
     "instruments/demo_broker.py",  # the demo's MQTT section pointed at the broker it starts
