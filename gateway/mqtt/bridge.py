@@ -33,7 +33,6 @@ from gateway.mqtt.session import Session
 from gateway.mqtt.stats import BridgeStats
 from gateway.mqtt.topics import Topics
 from gateway.poller import DriveEvent, Poller
-from gateway.profile import get_profile
 from gateway.profile.telemetry import Telemetry
 from gateway.routing import Router
 from gateway.settings import DriveSettings, MqttSettings
@@ -66,7 +65,8 @@ class MqttBridge:
             mqtt, served, self.topics, self.outbox, poller, self.stats, events
         )
         drives = {
-            d.name: CommandDrive(d.name, router.route_for_drive(d.name), get_profile(d.model))
+            # The drive's corrected profile (faults, identification, ready bit), as the poller's.
+            d.name: CommandDrive(d.name, router.route_for_drive(d.name), d.profile)
             for d in served
         }
         self.commands = Commands(mqtt, router, poller, drives, events)

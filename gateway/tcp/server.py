@@ -344,8 +344,8 @@ class ModbusTcpServer:
 
     def error_reply(self, unit_id: int, function: int, client: str, exc: BaseException) -> bytes:
         """The exception PDU a failed request is answered with."""
+        self.stats.exceptions += 1
         if isinstance(exc, ModbusError):
-            self.stats.exceptions += 1
             log.debug("%s unit %d: %s", client, unit_id, exc)
             return exception_pdu(function, exc.code)
         # A bug must cost one answer, not the connection: log it loudly.

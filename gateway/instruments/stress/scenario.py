@@ -151,7 +151,7 @@ async def _run(
             watch_task = tasks.create_task(watch.run(), name="stress:watch")
         try:
             events: list[tuple[str, Callable[[], Awaitable[Recovery]]]] = [
-                ("gateway SIGKILL", lambda: _kill_gateway(gateway, load)),
+                ("gateway SIGKILL", lambda: _kill_gateway(gateway, load, hostile)),
                 ("serial port", lambda: _unplug(simulator, load, settings.outage_s)),
             ]
             if broker is not None and watch is not None:
@@ -182,8 +182,9 @@ async def _run(
     result.faults_by_kind = dict(sorted(stats["faults_by_kind"].items()))
 
 
-async def _kill_gateway(gateway: Gateway, load: CheckedLoad) -> Recovery:
+async def _kill_gateway(gateway: Gateway, load: CheckedLoad, hostile: HostileClient) -> Recovery:
     load.phase = "gateway SIGKILL"
+    hostile.kills += 1  # its connection open now is closed by the kill, not by the gateway
     killed_at = time.monotonic()
     await asyncio.to_thread(gateway.kill)
     gateway.start()
