@@ -1,12 +1,14 @@
 """Modbus-TCP server on an asyncio Protocol.
 
-Each connection parses MBAP frames out of what arrives and answers every request in its own task,
-so a client may pipeline several requests (up to `max_requests_per_connection`; beyond that the
-gateway stops reading that socket) and gets each answer with its own transaction id as soon as it
-is ready, in any order. Several frames in one TCP segment are all answered. A malformed header
-closes that connection only: after a bad length nothing on the stream can be trusted to start a
-frame. A Protocol rather than streams: no task or timer per read, which is most of the CPU a
-request costs here.
+Each connection parses MBAP frames out of what arrives and answers every request as soon as it is
+ready, with its own transaction id, in any order, so a client may pipeline several (up to
+`max_requests_per_connection`; beyond that the gateway stops reading that socket). A read that is
+one bus transaction takes the fast path: checked at the front door and handed to its bus in the
+same pass of the event loop, its answer written by the bus the moment the reply is there
+(`_Answer`, a waiter, no task). Writes, broadcasts and reads the router splits each take a task.
+Several frames in one TCP segment are all answered. A malformed header closes that connection
+only: after a bad length nothing on the stream can be trusted to start a frame. A Protocol rather
+than streams: no task or timer per read, which is most of the CPU a request costs here.
 
 What one client can cost the others is bounded: `max_requests_per_connection` requests in flight
 (then its socket is not read), `max_queued_writes_per_client` writes among them (beyond, 0AH), a
@@ -17,8 +19,8 @@ byte (however slowly the rest trickles in), a new connection must complete a req
 `max_connections_per_client` slots, and `max_connections` caps the rest. When every slot is
 taken, a newcomer gets the slot of the oldest connection that has never completed a request: slow
 senders can't keep well-behaved clients out, and a client that has been served is never the one
-evicted. Access rules (`gateway.tcp.access`) are checked in `reply()`, where every refusal becomes
-its exception.
+evicted. Access rules (`gateway.tcp.access`) are checked in `refusal()`, which both paths pass
+through; every error becomes its exception PDU in `refusal()` or `error_reply()`.
 """
 
 from __future__ import annotations
