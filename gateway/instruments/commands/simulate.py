@@ -250,14 +250,20 @@ def serve_until_signal(line: SimulatedLine, signalled: int) -> None:
 def _signal_pipe() -> Iterator[int]:
     """A descriptor that becomes readable on SIGTERM or SIGINT (select can wait for it)."""
     read_fd, write_fd = os.pipe()
+    os.set_blocking(write_fd, False)
 
     def on_signal(number: int, frame: FrameType | None) -> None:
-        os.write(write_fd, b"\0")
+        pass  # the wake-up descriptor has been written already
 
+    # The kernel may deliver the signal to the line's thread, not the main one: then the main
+    # thread's select is not interrupted and a Python-level handler would never run. Python's
+    # C-level handler writes to the wake-up descriptor in whichever thread the signal lands.
     previous = {number: signal.signal(number, on_signal) for number in _STOP_SIGNALS}
+    previous_wakeup = signal.set_wakeup_fd(write_fd)
     try:
         yield read_fd
     finally:
+        signal.set_wakeup_fd(previous_wakeup)
         for number, handler in previous.items():
             signal.signal(number, handler)
         os.close(read_fd)
