@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import json
 import os
 import select
@@ -484,6 +486,41 @@ def test_control_commands_in_process(tmp_path: Path) -> None:
         assert run_control_command(line, "").startswith("error empty command")
         with line.lock:
             assert line.drives[1].fault_code == 0
+
+
+def _signal_thread(pid: int, tid: int, number: int) -> None:
+    """Send `number` to one thread of another process (glibc's tgkill; Python has no wrapper)."""
+    libc = ctypes.CDLL(ctypes.util.find_library("c"), use_errno=True)
+    if libc.tgkill(pid, tid, number) != 0:
+        raise OSError(ctypes.get_errno(), "tgkill failed")
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="threads by /proc and tgkill")
+def test_simulate_stops_on_a_signal_the_kernel_gave_to_the_line_thread(tmp_path: Path) -> None:
+    """A process's signal may land on any of its threads. When it landed on the simulated
+    line's thread, the main thread's select was never interrupted and `simulate` never exited."""
+    link = tmp_path / "ttyINVT0"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "gateway", "simulate", "--pty", "--link", str(link)],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    try:
+        assert process.stdout is not None
+        assert process.stdout.readline().strip() == str(link)
+        others = [int(t) for t in os.listdir(f"/proc/{process.pid}/task") if int(t) != process.pid]
+        assert others, "the simulated line runs in a thread of its own"
+        _signal_thread(process.pid, others[0], signal.SIGTERM)
+        assert process.wait(timeout=5) == 0
+        assert not link.exists()
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+        if process.stdout is not None:
+            process.stdout.close()
 
 
 def test_simulate_command_stops_cleanly_on_sigint_right_after_start(tmp_path: Path) -> None:
