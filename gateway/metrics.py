@@ -173,7 +173,7 @@ class RequestMetrics:
         key = (done.bus, done.address, source, done.function)
         series = self._series.get(key)
         if series is None:
-            series = self._series[key] = self._children(done)
+            series = self._series[key] = self._children(done, source)
         requests, latency = series
         requests.inc()
         if latency is None:
@@ -189,10 +189,9 @@ class RequestMetrics:
             errors.inc()
         latency.observe(done.duration_s)
 
-    def _children(self, done: RequestDone) -> tuple[Any, Any]:
+    def _children(self, done: RequestDone, source: str) -> tuple[Any, Any]:
         """The series one kind of request counts in: (requests, latency); latency None for a
         broadcast, which counts in its own series (it is no drive's request)."""
-        source = request_source(done.client)
         function = function_label(done.function)
         if done.address == 0:
             return self.broadcasts.labels(done.bus, source, function), None

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import ctypes.util
 import json
@@ -495,53 +496,46 @@ def _signal_thread(pid: int, tid: int, number: int) -> None:
         raise OSError(ctypes.get_errno(), "tgkill failed")
 
 
+@contextlib.contextmanager
+def simulate_started(link: Path) -> Iterator[subprocess.Popen[str]]:
+    """`invt-gateway simulate --pty --link link`, once it has printed its port; killed if the
+    test leaves it running."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "gateway", "simulate", "--pty", "--link", str(link)],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    try:
+        assert process.stdout is not None
+        assert process.stdout.readline().strip() == str(link)
+        yield process
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+        if process.stdout is not None:
+            process.stdout.close()
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="threads by /proc and tgkill")
 def test_simulate_stops_on_a_signal_the_kernel_gave_to_the_line_thread(tmp_path: Path) -> None:
     """A process's signal may land on any of its threads. When it landed on the simulated
     line's thread, the main thread's select was never interrupted and `simulate` never exited."""
     link = tmp_path / "ttyINVT0"
-    process = subprocess.Popen(
-        [sys.executable, "-m", "gateway", "simulate", "--pty", "--link", str(link)],
-        stdin=subprocess.DEVNULL,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-    )
-    try:
-        assert process.stdout is not None
-        assert process.stdout.readline().strip() == str(link)
+    with simulate_started(link) as process:
         others = [int(t) for t in os.listdir(f"/proc/{process.pid}/task") if int(t) != process.pid]
         assert others, "the simulated line runs in a thread of its own"
         _signal_thread(process.pid, others[0], signal.SIGTERM)
         assert process.wait(timeout=5) == 0
         assert not link.exists()
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.wait()
-        if process.stdout is not None:
-            process.stdout.close()
 
 
 def test_simulate_command_stops_cleanly_on_sigint_right_after_start(tmp_path: Path) -> None:
     link = tmp_path / "ttyINVT0"
-    process = subprocess.Popen(
-        [sys.executable, "-m", "gateway", "simulate", "--pty", "--link", str(link)],
-        stdin=subprocess.DEVNULL,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-    )
-    try:
-        assert process.stdout is not None
-        assert process.stdout.readline().strip() == str(link)
+    with simulate_started(link) as process:
         assert link.is_symlink()
         process.send_signal(signal.SIGINT)
         assert process.wait(timeout=5) == 0
         assert not link.exists()  # the link is removed on the way out
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.wait()
-        if process.stdout is not None:
-            process.stdout.close()

@@ -140,15 +140,7 @@ class Router:
                 waiter.set_result(cached)
                 return True
         # A read is never rewritten to a RAM address (`_to_ram` takes 06H/10H only).
-        route.bus.submit(
-            route.address,
-            pdu,
-            waiter,
-            priority=Priority.READ,
-            client=client,
-            timeout_s=route.timeout_s,
-            retries=route.retries,
-        )
+        self._submit(route, pdu, waiter, client, Priority.READ)
         return True
 
     async def poll(self, route: Route, start: int, count: int) -> bytes:
@@ -206,16 +198,25 @@ class Router:
         return struct.pack(f">BB{count}H", pdu[0], 2 * count, *values)
 
     async def _send(self, route: Route, pdu: bytes, client: str, priority: Priority) -> bytes:
-        reply = await route.bus.request(
+        reply: asyncio.Future[bytes | None] = asyncio.get_running_loop().create_future()
+        self._submit(route, pdu, reply, client, priority)
+        answer = await reply
+        assert answer is not None  # only broadcasts have no reply
+        return answer
+
+    def _submit(
+        self, route: Route, pdu: bytes, waiter: Waiter, client: str, priority: Priority
+    ) -> None:
+        """`pdu` onto the route's bus, with the drive's own timeout and retries."""
+        route.bus.submit(
             route.address,
             pdu,
+            waiter,
             priority=priority,
             client=client,
             timeout_s=route.timeout_s,
             retries=route.retries,
         )
-        assert reply is not None  # only broadcasts have no reply
-        return reply
 
     async def _broadcast(self, pdu: bytes, client: str) -> None:
         if not lookup(pdu[0]).broadcastable:

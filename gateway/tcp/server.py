@@ -372,9 +372,9 @@ class Connection(asyncio.Protocol):
         self.host = "?"
         self.answers: set[asyncio.Task[None]] = set()
         self._reads: set[asyncio.Task[None]] = set()
+        """Answers to pure reads: nobody will receive them once the client has gone."""
         self._fast: set[_Answer] = set()
         """Reads on the fast path (no task): waiting for the bus, answered by it."""
-        """Answers to pure reads: nobody will receive them once the client has gone."""
         self._transport: asyncio.Transport | None = None
         self._buffer = bytearray()
         self._paused = False
@@ -484,18 +484,17 @@ class Connection(asyncio.Protocol):
                 self._frame_started = self._last_data  # the next frame began in the last chunk
             self.server.stats.requests += 1
             write = not changes_nothing(pdu)
+            checked = False
             if write:
                 if self._writes_waiting >= settings.max_queued_writes_per_client:
                     self._refuse_write(header.transaction_id, header.unit_id, pdu)
                     continue
                 self._writes_waiting += 1
             elif self.server.submit is not None:
-                checked = self._answer_fast(header.transaction_id, header.unit_id, pdu)
-                if checked is None:
+                if self._answer_fast(header.transaction_id, header.unit_id, pdu):
                     continue  # answered, or on its way without a task
-                self._start_task(header.transaction_id, header.unit_id, pdu, write, checked)
-                continue
-            self._start_task(header.transaction_id, header.unit_id, pdu, write, False)
+                checked = True  # the front door has let it pass: the handler's way, in a task
+            self._start_task(header.transaction_id, header.unit_id, pdu, write, checked)
 
     def _start_task(
         self, transaction_id: int, unit_id: int, pdu: bytes, write: bool, checked: bool
@@ -511,29 +510,29 @@ class Connection(asyncio.Protocol):
             # Back-pressure: stop reading this client until an answer has gone out.
             self._pause()
 
-    def _answer_fast(self, transaction_id: int, unit_id: int, pdu: bytes) -> bool | None:
+    def _answer_fast(self, transaction_id: int, unit_id: int, pdu: bytes) -> bool:
         """A read without a task: checked at the front door and handed to the bus in this pass
-        of the event loop, answered by the bus itself. None when that is done; else whether the
-        front door has checked it (True) before it goes the handler's way in a task."""
+        of the event loop, answered by the bus itself. False: the front door let it pass, but
+        it needs the handler (the router says so)."""
         server = self.server
         assert server.submit is not None
         refusal = server.refusal(unit_id, pdu, self.client, self.role)
         if refusal is not None:
             self._send(transaction_id, unit_id, refusal)
-            return None
+            return True
         answer = _Answer(self, transaction_id, unit_id, pdu[0])
         try:
             if not server.submit(unit_id, pdu, self.client, answer):
-                return True
+                return False
         except Exception as exc:  # refused before the bus: answered at once
             self._send(
                 transaction_id, unit_id, server.error_reply(unit_id, pdu[0], self.client, exc)
             )
-            return None
+            return True
         if not answer.settled:  # not answered from the cache at once: the bus has it
             self._fast.add(answer)
             self._limit_in_flight()
-        return None
+        return True
 
     def _send(self, transaction_id: int, unit_id: int, reply: bytes) -> None:
         transport = self._transport
