@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import os
 import shutil
 import socket
 import subprocess
@@ -39,14 +40,20 @@ class Mosquitto:
         self.directory = directory
         self.config_file = directory / f"mosquitto-{self.port}.conf"
         self.log_file = directory / f"mosquitto-{self.port}.log"
+        self.persistence_file = directory / f"mosquitto-{self.port}.db" if persistent else None
         persistence = (
             f"persistence true\npersistence_location {directory}/\n"
             f"persistence_file mosquitto-{self.port}.db\n"
             if persistent
             else "persistence false\n"
         )
+        # Started as root, Mosquitto would become user "mosquitto", who can't write a test's
+        # private temporary directory: no log, and no persistence (a "persistent" broker lost
+        # the dashboard's session at every restart, and the store-and-forward test flaked on
+        # it). As anyone else it stays who it is.
+        user = "user root\n" if os.geteuid() == 0 else ""
         self.config_file.write_text(
-            f"listener {self.port} {self.host}\n"
+            f"{user}listener {self.port} {self.host}\n"
             "allow_anonymous true\n"
             f"{persistence}"
             "log_type error\nlog_type warning\nlog_type notice\n"
@@ -90,6 +97,9 @@ class Mosquitto:
             else:
                 process.kill()
             process.wait(5)
+            if graceful and self.persistence_file is not None:
+                # What the persistent tests stand on: else they would race the gateway instead.
+                assert self.persistence_file.exists(), f"no sessions saved: {self.log()}"
         if process is not None and process.stderr is not None:
             process.stderr.close()
 
