@@ -281,6 +281,7 @@ class Application:
                 await self._shutdown()
                 for task in self._bus_tasks.values():
                     task.cancel()
+                await self.tasks.stop_left_over(SHUTDOWN_BUDGET_S)
                 self.tasks.bind(None)
                 self._group = None
 

@@ -6,7 +6,7 @@ import asyncio
 import contextlib
 import logging
 import time
-from collections.abc import Coroutine
+from collections.abc import Coroutine, Mapping
 from typing import Any
 
 from gateway.errors import FeatureFailed
@@ -23,19 +23,51 @@ async def cancel_and_wait(task: asyncio.Task[None], budget_s: float) -> bool:
     that arrives as its inner future completes (CPython gh-86296, fixed in 3.12), and libraries
     we await (aiomqtt's publish and subscribe) use it. So cancel again until the task is done.
     """
-    deadline = time.monotonic() + budget_s
-    while not task.done():
-        task.cancel()
-        remaining = deadline - time.monotonic()
-        if remaining <= 0:
-            log.error("task %s did not stop within %.1f s", task.get_name(), budget_s)
-            return False
-        await asyncio.wait({task}, timeout=min(RETRY_S, remaining))
+    if not await _cancel_until_done([task], budget_s):
+        return False
     with contextlib.suppress(asyncio.CancelledError):
         exception = task.exception()
         if exception is not None:
             log.error("task %s ended with %r", task.get_name(), exception)
     return True
+
+
+async def _cancel_until_done(tasks: list[asyncio.Task[None]], budget_s: float) -> bool:
+    deadline = time.monotonic() + budget_s
+    while alive := [task for task in tasks if not task.done()]:
+        remaining = deadline - time.monotonic()
+        if remaining <= 0:
+            names = ", ".join(task.get_name() for task in alive)
+            log.error("task %s did not stop within %.1f s", names, budget_s)
+            return False
+        for task in alive:
+            task.cancel()
+        await asyncio.wait(alive, timeout=min(RETRY_S, remaining))
+    return True
+
+
+async def side_by_side(work: Mapping[str, Coroutine[Any, Any, None]], budget_s: float) -> None:
+    """Run `work` (coroutines by task name) concurrently until each has returned, one has failed, or
+    the caller is cancelled; then cancel the others with `cancel_and_wait` and re-raise.
+
+    Why not a TaskGroup: Python 3.11's cancels its children once. A child whose cancellation
+    aiomqtt's `wait_for` swallowed (see `cancel_and_wait`) went on publishing, the group waited
+    for it, and so did the service's stop: for ever. Here each child is cancelled until it ends,
+    for at most `budget_s`; a caller cancelled again meanwhile leaves at once (the shield), the
+    children's cancelling goes on without it.
+    """
+    tasks = [asyncio.create_task(coro, name=name) for name, coro in work.items()]
+    try:
+        await asyncio.wait(tasks, return_when=asyncio.FIRST_EXCEPTION)
+    finally:
+        await asyncio.shield(_cancel_until_done(tasks, budget_s))
+    failures = [
+        failure
+        for task in tasks
+        if not task.cancelled() and (failure := task.exception()) is not None
+    ]
+    if failures:
+        raise BaseExceptionGroup("side by side", failures)
 
 
 class ServiceTasks:
@@ -47,6 +79,7 @@ class ServiceTasks:
 
     def __init__(self) -> None:
         self._group: asyncio.TaskGroup | None = None
+        self._running: set[asyncio.Task[None]] = set()
 
     def bind(self, group: asyncio.TaskGroup | None) -> None:
         self._group = group
@@ -55,7 +88,16 @@ class ServiceTasks:
         if self._group is None:
             work.close()
             raise RuntimeError(f"{name}: the service is not running")
-        return self._group.create_task(_failing_loudly(name, work), name=name)
+        task = self._group.create_task(_failing_loudly(name, work), name=name)
+        self._running.add(task)
+        task.add_done_callback(self._running.discard)
+        return task
+
+    async def stop_left_over(self, budget_s: float) -> bool:
+        """The last sweep of a stop: work a feature's own stop left running (its cancellation
+        swallowed once too often) is cancelled until it ends, for at most `budget_s`. Without
+        it the TaskGroup, and so the service's exit, would wait for that work for ever."""
+        return await _cancel_until_done(list(self._running), budget_s)
 
 
 async def _failing_loudly(name: str, work: Coroutine[Any, Any, None]) -> None:

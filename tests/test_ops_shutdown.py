@@ -18,7 +18,14 @@ import pytest
 
 from gateway.instruments.simulator import SimulatedLine
 from tests.processes import gateway_process
-from tests.support import TcpClient, eventually, free_port
+from tests.support import (
+    Swallower,
+    TcpClient,
+    eventually,
+    free_port,
+    gateway_config,
+    running_gateway,
+)
 
 QUEUED = 6
 WORDS = 16
@@ -70,3 +77,18 @@ async def test_signal_answers_queued_requests_0x0b_and_exits_0_within_2_s(
         # Answered at once, before the transaction on the wire has finished.
         assert after < wire_done, "queued requests are answered at once, not after the wire"
     assert f"{signum.name} received: shutting down" in gateway.log.text
+
+
+async def test_work_that_swallows_its_cancellations_does_not_hold_up_the_stop(
+    line: SimulatedLine,
+) -> None:
+    """As the MQTT publisher did on Python 3.11 when a cancellation landed on aiomqtt's
+    `wait_for` as its PUBACK came: the service stopped its feature, the work went on, and the
+    service waited for it for ever. Now a last sweep ends it, and the service stops."""
+    stubborn = Swallower(times=8)  # past the 0.5 s a feature's own stop is given
+    async with running_gateway(gateway_config(line.path, [{"name": "pump1", "address": 1}])) as app:
+        app.tasks.start("stubborn", stubborn.run())
+        started = time.monotonic()
+    # running_gateway's exit asserts the gateway stopped within 5 s
+    assert stubborn.ended
+    assert time.monotonic() - started < EXIT_WITHIN_S

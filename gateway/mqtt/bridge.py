@@ -37,7 +37,7 @@ from gateway.profile.telemetry import Telemetry
 from gateway.routing import Router
 from gateway.settings import DriveSettings, MqttSettings
 from gateway.store import EventStore
-from gateway.tasks import ServiceTasks
+from gateway.tasks import ServiceTasks, side_by_side
 
 log = logging.getLogger(__name__)
 
@@ -131,10 +131,14 @@ class MqttBridge:
         if not self._discovery_cleaned:
             self._discovery_cleaned = True
             self.tasks.start("mqtt:discovery-cleanup", self._clean_discovery())
-        async with asyncio.TaskGroup() as tasks:
-            tasks.create_task(self.publisher.run(client), name="mqtt:publish")
-            tasks.create_task(self.publisher.forward_events(client), name="mqtt:events")
-            tasks.create_task(self.dispatcher.run(client), name="mqtt:receive")
+        await side_by_side(
+            {
+                "mqtt:publish": self.publisher.run(client),
+                "mqtt:events": self.publisher.forward_events(client),
+                "mqtt:receive": self.dispatcher.run(client),
+            },
+            STOP_TASK_BUDGET_S,
+        )
 
     async def _clean_discovery(self) -> None:
         """Once per start: entities published before and no longer offered are removed."""

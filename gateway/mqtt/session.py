@@ -76,9 +76,11 @@ class Session:
         self._settled = False
         """A connection has succeeded with `protocol`: it is the broker's."""
         self._tls: ssl.SSLContext | None = None
-        """MQTT 5 until the broker refuses it; then 3.1.1 for as long as the gateway runs."""
+        self._stopping = False
+        """Set by `stop`: the loop ends at its next turn, whatever swallowed the cancellation."""
 
     async def start(self) -> None:
+        self._stopping = False  # a reload stops the bridge and starts it again
         self._task = self.tasks.start("mqtt:bridge", self._run())
 
     async def say_offline(self) -> None:
@@ -95,6 +97,11 @@ class Session:
                 )
 
     async def stop(self, budget_s: float) -> None:
+        # Cancelling alone is not enough: when the connection breaks as the cancellation arrives,
+        # the TaskGroup of `on_connect` (Python 3.11) raises its children's MqttError instead of
+        # CancelledError, the loop takes it for a lost connection and connects again, and the
+        # task outlives every cancel (the application then waited for it forever).
+        self._stopping = True
         if self._task is not None:
             await cancel_and_wait(self._task, budget_s)
             self._task = None
@@ -121,7 +128,7 @@ class Session:
         tls = self._tls = await self._tls_context(backoff)
         failures = 0
         retry_at_once = False
-        while True:
+        while not self._stopping:
             try:
                 # Inside the try: whatever building a client raises is one more failed attempt,
                 # never the end of the loop.
@@ -153,6 +160,8 @@ class Session:
                 self._client = None
                 self.connected.clear()
                 self._on_lost()
+            if self._stopping:
+                return
             if retry_at_once:
                 retry_at_once = False
                 continue
