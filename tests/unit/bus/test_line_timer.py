@@ -1,4 +1,5 @@
-"""The gap timer: a gap is never cut short, and a timer being closed releases whoever waits."""
+"""The gap timer: a gap is never cut short, a timer being closed releases whoever waits, and a
+gap that ended while the loop was busy is acted on by the busy work itself (`fire_due`)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import time
 
 import pytest
 
-from gateway.bus.line_timer import LineTimer
+from gateway.bus.line_timer import LineTimer, fire_due
 
 
 async def test_sleep_until_never_returns_before_the_deadline() -> None:
@@ -46,3 +47,51 @@ async def test_closing_the_timer_releases_a_waiting_gap() -> None:
     await asyncio.sleep(0.01)  # the gap is under way (the timer exposes no "waiting" event)
     timer.close()
     await asyncio.wait_for(waiting, 1.0)
+
+
+async def test_a_gap_that_ends_during_a_long_callback_is_acted_on_from_inside_it() -> None:
+    """What the bus and the line call while a pass of the loop is busy (32 clients' requests,
+    replies on 15 other lines): the line's next frame goes out a callback late, not a pass."""
+    loop = asyncio.get_running_loop()
+    timer = LineTimer(loop)
+    acted: list[str] = []
+
+    def busy_callback() -> None:
+        fire_due(loop)
+        acted.append("before the deadline: nothing")
+        time.sleep(0.004)  # a busy pass; the gap ends meanwhile
+        fire_due(loop)
+        acted.append("busy callback ends")
+
+    def at_deadline() -> bool:
+        acted.append("gap action")
+        return False
+
+    deadline = time.monotonic() + 0.002
+    sleeping = loop.create_task(timer.sleep_until(deadline, at_deadline))
+    await asyncio.sleep(0)  # the sleep is armed
+    loop.call_soon(busy_callback)
+    try:
+        await asyncio.wait_for(sleeping, 1.0)
+        await asyncio.sleep(0.01)  # the timer's own wake-up, disarmed, must not act again
+        assert acted == ["before the deadline: nothing", "gap action", "busy callback ends"]
+        assert time.monotonic() >= deadline
+    finally:
+        timer.close()
+
+
+async def test_an_action_that_took_the_wait_over_is_not_released_by_a_later_fire_due() -> None:
+    """The line holds its caller until the reply's first bytes: neither the timer's own wake-up
+    nor another `fire_due` may release it before then."""
+    loop = asyncio.get_running_loop()
+    timer = LineTimer(loop)
+    sleeping = loop.create_task(timer.sleep_until(time.monotonic() + 0.001, lambda: True))
+    await asyncio.sleep(0.01)
+    fire_due(loop)
+    await asyncio.sleep(0.01)
+    assert not sleeping.done()  # still held: its taker has not settled it
+    waiting = timer.waiting
+    assert waiting is not None
+    waiting.set_result(None)  # the reply's first bytes
+    await asyncio.wait_for(sleeping, 1.0)
+    timer.close()
