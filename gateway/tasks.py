@@ -14,6 +14,8 @@ from gateway.errors import FeatureFailed
 log = logging.getLogger(__name__)
 
 RETRY_S = 0.1
+GRACE_S = 0.5
+"""At most this long after the first cancellation before cancelling again."""
 
 
 async def cancel_and_wait(task: asyncio.Task[None], budget_s: float) -> bool:
@@ -33,16 +35,25 @@ async def cancel_and_wait(task: asyncio.Task[None], budget_s: float) -> bool:
 
 
 async def _cancel_until_done(tasks: list[asyncio.Task[None]], budget_s: float) -> bool:
+    """Cancel `tasks` once and give them half the budget to end (clean-up code runs then: an
+    MQTT client's disconnect, interrupted by a second cancellation, would leave its socket
+    behind); then cancel what is left again and again, for what swallowed the first."""
     deadline = time.monotonic() + budget_s
+    regrace = time.monotonic() + min(budget_s / 2, GRACE_S)
+    for task in tasks:
+        task.cancel()
     while alive := [task for task in tasks if not task.done()]:
-        remaining = deadline - time.monotonic()
+        now = time.monotonic()
+        remaining = deadline - now
         if remaining <= 0:
             names = ", ".join(task.get_name() for task in alive)
             log.error("task %s did not stop within %.1f s", names, budget_s)
             return False
-        for task in alive:
-            task.cancel()
-        await asyncio.wait(alive, timeout=min(RETRY_S, remaining))
+        if now >= regrace:
+            for task in alive:
+                task.cancel()
+        wait_s = RETRY_S if now >= regrace else regrace - now
+        await asyncio.wait(alive, timeout=min(wait_s, remaining))
     return True
 
 

@@ -29,7 +29,6 @@ from gateway.bus.gap_excess import GapExcess
 from gateway.bus.health import HealthTracker
 from gateway.bus.line import Exchange, LineSettings, Sending, SerialLine
 from gateway.bus.line_share import LineShares
-from gateway.bus.line_timer import fire_due
 from gateway.bus.queue import Priority, RequestQueue, Transaction, Waiter
 from gateway.bus.wakeup import woken_or_timeout
 from gateway.errors import (
@@ -283,8 +282,7 @@ class Bus:
             if observed is not None:
                 observed.report(exc.code)
             raise
-        if self._loop is not None:
-            fire_due(self._loop)  # a gap that ended while this loop pass ran: act on it now
+        self.line.fire_due()  # a gap that ended while this loop pass ran: act on it now
 
     def _admit(self, address: int) -> None:
         """Raise the refusal a request to `address` gets before it is queued, if any."""

@@ -52,7 +52,7 @@ import serial
 
 from gateway.bus.direction import DirectionControl, DirectionMode, apply_kernel_mode, set_rts
 from gateway.bus.hardware_hints import burst_hint, echo_hint
-from gateway.bus.line_timer import LineTimer, fire_due
+from gateway.bus.line_timer import LineTimer
 from gateway.bus.wakeup import settle, woken_or_timeout
 from gateway.errors import BadReply, PortError, ReplyTimeout
 from gateway.modbus.reply_search import MIN_REPLY, Found, ReplySearch, search_reply
@@ -687,8 +687,12 @@ class SerialLine:
         if self._arrivals is not None:
             self._arrivals.append((len(self._received), now))
         self._wake()
-        if self._loop is not None:
-            fire_due(self._loop)  # another line's gap that ended while this pass ran
+        self.fire_due()  # another line's gap that ended while this pass ran
+
+    def fire_due(self) -> None:
+        """Act now on any gap of this loop's lines that has ended (`line_timer.fire_due`)."""
+        if self._timer is not None:
+            self._timer.fire_due()
 
     def _fail(self, error: PortError) -> None:
         """The port is gone: stop watching it (a dead descriptor is readable forever)."""

@@ -68,8 +68,11 @@ def fire_due(loop: asyncio.AbstractEventLoop) -> None:
     """Act now on every gap of `loop` that has ended, rather than when its own wake-up's turn
     comes in the loop's pass (see the module's docstring). Cheap when none has: a clock read."""
     armed = _ARMED.get(loop)
-    if not armed:
-        return
+    if armed:
+        _fire_due_in(armed)
+
+
+def _fire_due_in(armed: set[LineTimer]) -> None:
     now = time.monotonic()
     for timer in [timer for timer in armed if timer._deadline <= now]:
         timer._fire_early()
@@ -100,6 +103,11 @@ class LineTimer:
     def waiting(self) -> asyncio.Future[None] | None:
         """What `sleep_until` awaits now (for an `at_deadline` that takes the wait over)."""
         return self._waiter
+
+    def fire_due(self) -> None:
+        """`fire_due` for this timer's loop, without looking the loop up."""
+        if self._armed:
+            _fire_due_in(self._armed)
 
     @property
     def exact(self) -> bool:
