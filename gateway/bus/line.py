@@ -690,7 +690,7 @@ class SerialLine:
         self.fire_due()  # another line's gap that ended while this pass ran
 
     def fire_due(self) -> None:
-        """Act now on any gap of this loop's lines that has ended (`line_timer.fire_due`)."""
+        """Act now on any gap of this loop's lines that has ended (`LineTimer.fire_due`)."""
         if self._timer is not None:
             self._timer.fire_due()
 

@@ -11,8 +11,9 @@ the gap is still kept, only less tightly.
 
 A busy loop makes any wake-up late: the timer's callback waits behind every other callback of
 its pass (a request from each of 32 clients, replies on 15 other lines). So the work that fills
-those passes calls `fire_due` (the bus after queueing a request, the line after taking bytes in):
-a gap that has ended meanwhile is acted on there, a callback's length late at most, not a pass's.
+those passes calls `LineTimer.fire_due` (the bus after queueing a request, the line after taking
+bytes in): a gap that has ended meanwhile is acted on there, a callback's length late at most,
+not a pass's.
 """
 
 from __future__ import annotations
@@ -61,21 +62,7 @@ def _libc() -> ctypes.CDLL | None:
 _ARMED: weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, set[LineTimer]] = (
     weakref.WeakKeyDictionary()
 )
-"""The timers waiting for a deadline, per event loop: what `fire_due` looks through."""
-
-
-def fire_due(loop: asyncio.AbstractEventLoop) -> None:
-    """Act now on every gap of `loop` that has ended, rather than when its own wake-up's turn
-    comes in the loop's pass (see the module's docstring). Cheap when none has: a clock read."""
-    armed = _ARMED.get(loop)
-    if armed:
-        _fire_due_in(armed)
-
-
-def _fire_due_in(armed: set[LineTimer]) -> None:
-    now = time.monotonic()
-    for timer in [timer for timer in armed if timer._deadline <= now]:
-        timer._fire_early()
+"""The timers waiting for a deadline, per event loop: what `LineTimer.fire_due` looks through."""
 
 
 class LineTimer:
@@ -105,9 +92,15 @@ class LineTimer:
         return self._waiter
 
     def fire_due(self) -> None:
-        """`fire_due` for this timer's loop, without looking the loop up."""
-        if self._armed:
-            _fire_due_in(self._armed)
+        """Act now on every gap of this timer's loop (its own or another line's) that has ended,
+        rather than when that timer's wake-up gets its turn in the loop's pass (see the module's
+        docstring). Cheap when none has: a clock read."""
+        armed = self._armed
+        if not armed:
+            return
+        now = time.monotonic()
+        for timer in [timer for timer in armed if timer._deadline <= now]:
+            timer._fire_early()
 
     @property
     def exact(self) -> bool:

@@ -73,6 +73,7 @@ class Session:
         self._client: aiomqtt.Client | None = None
         self._task: asyncio.Task[None] | None = None
         self.protocol = MQTT_5
+        """MQTT 5 until the broker refuses it; then 3.1.1 for as long as the gateway runs."""
         self._settled = False
         """A connection has succeeded with `protocol`: it is the broker's."""
         self._tls: ssl.SSLContext | None = None
@@ -98,9 +99,8 @@ class Session:
 
     async def stop(self, budget_s: float) -> None:
         # Cancelling alone is not enough: when the connection breaks as the cancellation arrives,
-        # the TaskGroup of `on_connect` (Python 3.11) raises its children's MqttError instead of
-        # CancelledError, the loop takes it for a lost connection and connects again, and the
-        # task outlives every cancel (the application then waited for it forever).
+        # `on_connect` can end with its tasks' MqttError instead of CancelledError; the loop would
+        # take it for a lost connection and connect again, and outlive the cancel.
         self._stopping = True
         if self._task is not None:
             await cancel_and_wait(self._task, budget_s)
