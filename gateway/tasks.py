@@ -16,6 +16,8 @@ log = logging.getLogger(__name__)
 RETRY_S = 0.1
 GRACE_S = 0.5
 """At most this long after the first cancellation before cancelling again."""
+FINISH_S = 0.3
+"""At a stop's last sweep: how long left-over work is given to end by itself, uncancelled."""
 
 
 async def cancel_and_wait(task: asyncio.Task[None], budget_s: float) -> bool:
@@ -23,7 +25,8 @@ async def cancel_and_wait(task: asyncio.Task[None], budget_s: float) -> bool:
 
     One cancel is not always enough on Python 3.11: `asyncio.wait_for` swallows a cancellation
     that arrives as its inner future completes (CPython gh-86296, fixed in 3.12), and libraries
-    we await (aiomqtt's publish and subscribe) use it. So cancel again until the task is done.
+    we await (aiomqtt's publish and subscribe) use it. So cancel again until the task is done
+    (after a grace for its clean-up: `_cancel_until_done`).
     """
     if not await _cancel_until_done([task], budget_s):
         return False
@@ -38,8 +41,9 @@ async def _cancel_until_done(tasks: list[asyncio.Task[None]], budget_s: float) -
     """Cancel `tasks` once and give them half the budget to end (clean-up code runs then: an
     MQTT client's disconnect, interrupted by a second cancellation, would leave its socket
     behind); then cancel what is left again and again, for what swallowed the first."""
-    deadline = time.monotonic() + budget_s
-    regrace = time.monotonic() + min(budget_s / 2, GRACE_S)
+    started = time.monotonic()
+    deadline = started + budget_s
+    again_at = started + min(budget_s / 2, GRACE_S)
     for task in tasks:
         task.cancel()
     while alive := [task for task in tasks if not task.done()]:
@@ -49,23 +53,24 @@ async def _cancel_until_done(tasks: list[asyncio.Task[None]], budget_s: float) -
             names = ", ".join(task.get_name() for task in alive)
             log.error("task %s did not stop within %.1f s", names, budget_s)
             return False
-        if now >= regrace:
+        if now >= again_at:
             for task in alive:
                 task.cancel()
-        wait_s = RETRY_S if now >= regrace else regrace - now
+        wait_s = RETRY_S if now >= again_at else again_at - now
         await asyncio.wait(alive, timeout=min(wait_s, remaining))
     return True
 
 
 async def side_by_side(work: Mapping[str, Coroutine[Any, Any, None]], budget_s: float) -> None:
     """Run `work` (coroutines by task name) concurrently until each has returned, one has failed, or
-    the caller is cancelled; then cancel the others with `cancel_and_wait` and re-raise.
+    the caller is cancelled; then cancel the others (`_cancel_until_done`) and re-raise.
 
     Why not a TaskGroup: Python 3.11's cancels its children once. A child whose cancellation
     aiomqtt's `wait_for` swallowed (see `cancel_and_wait`) went on publishing, the group waited
-    for it, and so did the service's stop: for ever. Here each child is cancelled until it ends,
-    for at most `budget_s`; a caller cancelled again meanwhile leaves at once (the shield), the
-    children's cancelling goes on without it.
+    for it, and so did the service's stop: for ever. Here a child still running after a grace
+    for its clean-up is cancelled again until it ends, for at most `budget_s`; a caller
+    cancelled again meanwhile leaves at once (the shield), the children's cancelling goes on
+    without it.
     """
     tasks = [asyncio.create_task(coro, name=name) for name, coro in work.items()]
     try:
@@ -105,10 +110,16 @@ class ServiceTasks:
         return task
 
     async def stop_left_over(self, budget_s: float) -> bool:
-        """The last sweep of a stop: work a feature's own stop left running (its cancellation
-        swallowed once too often) is cancelled until it ends, for at most `budget_s`. Without
-        it the TaskGroup, and so the service's exit, would wait for that work for ever."""
-        return await _cancel_until_done(list(self._running), budget_s)
+        """The last sweep of a stop: work no feature stops (the Home Assistant clean-up) first
+        gets `FINISH_S` to end by itself, as the TaskGroup let it before; then what is left, and
+        work a feature's stop left running (its cancellation swallowed once too often), is
+        cancelled until it ends, for at most `budget_s`. Without the sweep the TaskGroup, and so
+        the service's exit, would wait for such work for ever."""
+        running = list(self._running)
+        if running:
+            await asyncio.wait(running, timeout=FINISH_S)
+        left = [task for task in running if not task.done()]
+        return await _cancel_until_done(left, budget_s)
 
 
 async def _failing_loudly(name: str, work: Coroutine[Any, Any, None]) -> None:

@@ -96,3 +96,22 @@ async def test_the_last_sweep_of_a_stop_ends_work_that_outlived_its_features_sto
         tasks.bind(None)
     assert stubborn.ended
     assert stubborn.swallowed == 5
+
+
+async def test_the_last_sweep_lets_work_that_is_about_to_end_finish_uncancelled() -> None:
+    """As the TaskGroup did: the Home Assistant clean-up, stopped halfway through its clears,
+    left entities behind."""
+    tasks = ServiceTasks()
+    finished: list[str] = []
+
+    async def last_clears() -> None:
+        await asyncio.sleep(0.05)
+        finished.append("all cleared")
+
+    async with asyncio.TaskGroup() as group:
+        tasks.bind(group)
+        clean_up = tasks.start("clean-up", last_clears())
+        assert await tasks.stop_left_over(budget_s=1.5)
+        tasks.bind(None)
+    assert finished == ["all cleared"]
+    assert not clean_up.cancelled()
