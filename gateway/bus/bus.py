@@ -157,6 +157,8 @@ class Bus:
         """The silence beyond the inter-frame gap before each back-to-back request: our share."""
         self._reply_heard_at = 0.0
         """When the last transaction's reply ended, if a request was waiting then; else 0.0."""
+        self._back_to_back = False
+        """The transaction carried now waited as the last reply ended (`_reply_heard_at`)."""
         self.health = HealthTracker(
             settings.offline_after, settings.probe_initial_s, settings.probe_max_s
         )
@@ -388,10 +390,7 @@ class Bus:
                     log.exception("bus %s: unexpected error in a transaction", self.name)
                     error = GatewayTargetFailed(f"bus {self.name}: {exc}")
                     outcome = (_fail, (transaction, error))
-                now = time.monotonic()
-                held = max(now, self.line.busy_until) - sending.started
-                self._queue.charge(transaction, held, now)
-                self._done(*outcome)
+                self._finish(transaction, sending, outcome)
         except BaseException:
             # Cancelled or died holding a transaction taken from the queue (on the wire, or
             # chosen at the gap's end): answer it, nobody else will.
@@ -400,6 +399,13 @@ class Bus:
             raise
         finally:
             self.line.close()
+
+    def _finish(self, transaction: Transaction, sending: Sending, outcome: Outcome) -> None:
+        """Charge the line's time to the transaction's kind of work, and tell its waiters."""
+        now = time.monotonic()
+        held = max(now, self.line.busy_until) - sending.started
+        self._queue.charge(transaction, held, now)
+        self._done(*outcome)
 
     def _done(self, callback: Callable[..., None], args: tuple[Any, ...]) -> None:
         """A transaction taken from the queue is over: tell its waiters, and `wait_idle`."""
@@ -417,12 +423,11 @@ class Bus:
         """
         # Every pass, not only when idle: a busy line must still find out a drive is back.
         self._queue_due_probes()
-        # A request waited as the last reply ended: the silence before it, beyond the gap, is
-        # the gateway's own (not a client's think time, nor a broadcast's turnaround).
-        back_to_back, self._reply_heard_at = self._reply_heard_at != 0.0, 0.0
         while not self.closing:
             try:
-                sending = await self.line.send_after_gap(self._pick, self._reply_within)
+                sending = await self.line.send_after_gap(
+                    self._pick, self._reply_within, self._replied
+                )
             except PortError as exc:
                 picked = self._carrying
                 if picked is not None:  # taken from the queue, but the port failed under it
@@ -439,10 +444,7 @@ class Bus:
             if sending is not None:
                 transaction = self._carrying
                 assert transaction is not None  # a frame went out, so `_pick` chose one
-                if back_to_back:
-                    self.gap_excess.observe(sending.gap_s - self.settings.line.gap_s)
                 return transaction, sending
-            back_to_back = False  # the line went idle: what follows waited for work
             if self.closing:
                 return None
             if len(self._queue):
@@ -459,6 +461,10 @@ class Bus:
 
     def _pick(self) -> bytes | None:
         """Take the best transaction queued now and return its frame; None if there is none."""
+        # A request waited as the last reply ended: the silence before it, beyond the gap, is
+        # the gateway's own (not a client's think time, nor a broadcast's turnaround). Found
+        # nothing: the line goes idle, and what comes next waited for work.
+        reply_heard_at, self._reply_heard_at = self._reply_heard_at, 0.0
         if self.closing:
             return None
         now = time.monotonic()
@@ -475,6 +481,7 @@ class Bus:
                 _fail(transaction, DriveOffline(f"drive {address} on {self.name} is offline"))
                 continue
             self._carrying = transaction  # before anything can fail: it must be answered
+            self._back_to_back = reply_heard_at != 0.0
             return transaction.frame or build_frame(address, transaction.pdu)
         return None
 
@@ -541,14 +548,12 @@ class Bus:
         address = transaction.address
         frame = first.frame
         broadcast = address == BROADCAST_ADDRESS
-        self._reply_heard_at = 0.0
+        self._observe_gap(first)
         # A probe brings its own retries; a drive that just failed gets none.
         retries = transaction.retries
         if not transaction.probe and self.health.is_suspect(address):
             retries = 0
-        drive = self.drive_stats.get(address)
-        if drive is None:
-            drive = self.drive_stats[address] = DriveStats()
+        drive = self._drive(address)
         errors: list[LineError] = []
         for attempt in range(retries + 1):
             if attempt:
@@ -591,17 +596,7 @@ class Bus:
                 return _fail, (transaction, GatewayTargetFailed(f"bus {self.name}: {exc}"))
             finally:
                 drive.line_s += time.monotonic() - started
-            if exchange.reply_pdu is not None and frame_dump_enabled():
-                # The frame as it came: a reply that passed its CRC check rebuilds byte-exact.
-                dump_frame(self.name, "rx", build_frame(address, exchange.reply_pdu))
-            self._record(exchange, drive)
-            if self.tap is not None:
-                self.tap(self.name, transaction, attempt, started, exchange)
-            if broadcast:
-                self.stats.broadcasts += 1
-            else:
-                self._answered(address)
-            return _resolve, (transaction, exchange.reply_pdu)
+            return self._attempt_answered(transaction, attempt, started, exchange, drive)
         self.stats.failed += 1
         drive.failed += 1
         # A probe that got nothing usable counts as a failure whatever went wrong, so its drive
@@ -610,6 +605,62 @@ class Bus:
             self._failed(address)
         error = GatewayTargetFailed(f"drive {address} on {self.name}: {errors[-1]}")
         return _fail, (transaction, error)
+
+    def _replied(self, sending: Sending, exchange: Exchange) -> None:
+        """The line's reader callback has the whole and valid reply to the frame `_pick` chose:
+        the transaction ends there, as `_execute` would end it, without the bus's coroutine
+        (one pass of the event loop less per transaction). A timeout, a bad, partial or late
+        reply, retries: those go the coroutine's way (`_execute`)."""
+        transaction = self._carrying
+        assert transaction is not None  # the line holds a reply to what `_pick` chose
+        outcome: Outcome
+        try:
+            self._observe_gap(sending)
+            drive = self._drive(transaction.address)
+            self.stats.transactions += 1
+            drive.transactions += 1
+            dump_frame(self.name, "tx", sending.frame)
+            drive.line_s += time.monotonic() - sending.started
+            outcome = self._attempt_answered(transaction, 0, sending.started, exchange, drive)
+        except Exception as exc:  # a bug costs this one request, never the line
+            log.exception("bus %s: unexpected error in a transaction", self.name)
+            outcome = (_fail, (transaction, GatewayTargetFailed(f"bus {self.name}: {exc}")))
+        self._finish(transaction, sending, outcome)
+        # What `_start_next` does before each gap: a busy line must still find a drive is back.
+        self._queue_due_probes()
+
+    def _observe_gap(self, sending: Sending) -> None:
+        if self._back_to_back:
+            self.gap_excess.observe(sending.gap_s - self.settings.line.gap_s)
+
+    def _drive(self, address: int) -> DriveStats:
+        drive = self.drive_stats.get(address)
+        if drive is None:
+            drive = self.drive_stats[address] = DriveStats()
+        return drive
+
+    def _attempt_answered(
+        self,
+        transaction: Transaction,
+        attempt: int,
+        started: float,
+        exchange: Exchange,
+        drive: DriveStats,
+    ) -> Outcome:
+        """An attempt got its reply (or a broadcast went out): count it, tell the health
+        tracker and the traffic monitor; the waiters get the reply."""
+        address = transaction.address
+        if exchange.reply_pdu is not None and frame_dump_enabled():
+            # The frame as it came: a reply that passed its CRC check rebuilds byte-exact.
+            dump_frame(self.name, "rx", build_frame(address, exchange.reply_pdu))
+        self._record(exchange, drive)
+        if self.tap is not None:
+            self.tap(self.name, transaction, attempt, started, exchange)
+        if address == BROADCAST_ADDRESS:
+            self.stats.broadcasts += 1
+        else:
+            self._answered(address)
+        return _resolve, (transaction, exchange.reply_pdu)
 
     def _record(self, exchange: Exchange, drive: DriveStats) -> None:
         self.stats.busy_s += exchange.busy_s

@@ -122,6 +122,31 @@ class Exchange:
     a URL port without arrival times)."""
 
 
+Replied = Callable[[Sending, Exchange], None]
+"""Told, in the port's reader callback, of an attempt whose whole and valid reply is there."""
+
+
+@dataclass(slots=True)
+class _Round:
+    """One `send_after_gap` call: how it picks and sends, and what came of it for its caller."""
+
+    pick: Callable[[], bytes | None]
+    reply_within: Callable[[], float | None] | None
+    replied: Replied | None
+    outcome: list[Sending | Exception | None]
+    """Empty until a frame went out (its Sending), nothing was picked (None) or that failed."""
+
+
+@dataclass(frozen=True, slots=True)
+class _Held:
+    """A caller held until its reply (`_hold_until_reply`): the attempt the reply is for."""
+
+    sending: Sending
+    round: _Round
+    echo_by: float
+    """A copy of the request complete before this is the adapter's echo (`_echo_deadline`)."""
+
+
 PTY_SLAVE_MAJORS = range(136, 144)
 """Linux's device numbers for pseudo-terminal slaves (/dev/pts/N)."""
 
@@ -166,6 +191,8 @@ class SerialLine:
         self._poll: select.poll | None = None
         self._holding: asyncio.TimerHandle | None = None
         """While `send_after_gap`'s caller is held until the reply's first bytes (or this)."""
+        self._held: _Held | None = None
+        """What the held caller sent, for the reader callback to finish the attempt itself."""
 
     @property
     def is_open(self) -> bool:
@@ -245,6 +272,7 @@ class SerialLine:
         return self.echoes > 0
 
     def close(self) -> None:
+        self._held = None
         port, self._port = self._port, None
         fd, self._fd = self._fd, None
         self._poll = None
@@ -273,6 +301,7 @@ class SerialLine:
         self,
         pick: Callable[[], bytes | None],
         reply_within: Callable[[], float | None] | None = None,
+        replied: Replied | None = None,
     ) -> Sending | None:
         """At the end of the inter-frame gap, ask `pick` for a frame and start writing it.
 
@@ -285,31 +314,33 @@ class SerialLine:
         just picked (None: no reply, or none to wait for here). The caller then resumes when
         the reply's first bytes come (or that time passes) instead of as the frame goes out:
         nothing is left to do between the two, and it saves the loop a pass per transaction.
+
+        `replied`, with `reply_within`: when the reply is all there and valid as it comes in,
+        the port's reader callback finishes the attempt itself and tells `replied`, keeps the
+        gap and sends the next frame `pick` gives, the caller held all along: a busy line
+        costs the loop no pass for the caller's coroutine. What the caller gets in the end is
+        the attempt its own reading must finish (`finish`: a reply that is late, partial, bad
+        or ended by a silence), or None once `pick` has nothing.
         """
         gap = self.settings.gap_s
+        this = _Round(pick, reply_within, replied, [])
         while True:
             self._discard_pending()
             due = self._quiet_since + gap
             if due <= time.monotonic():
                 return self._send_now(pick)
-            picked: list[Sending | Exception | None] = []
             assert self._timer is not None  # _discard_pending raised if the port is closed
-            action = partial(self._send_at_gap_end, pick, reply_within, picked)
             try:
-                await self._timer.sleep_until(due, action)
+                await self._timer.sleep_until(due, partial(self._send_at_gap_end, this))
             finally:
                 self._stop_holding()
-            if picked:
-                if isinstance(picked[0], Exception):
-                    raise picked[0]  # in the caller's coroutine, not lost in a loop callback
-                return picked[0]
+            if this.outcome:
+                outcome = this.outcome[0]
+                if isinstance(outcome, Exception):
+                    raise outcome  # in the caller's coroutine, not lost in a loop callback
+                return outcome
 
-    def _send_at_gap_end(
-        self,
-        pick: Callable[[], bytes | None],
-        reply_within: Callable[[], float | None] | None,
-        picked: list[Sending | Exception | None],
-    ) -> bool:
+    def _send_at_gap_end(self, this: _Round) -> bool:
         """The gap timer's action: send now, if the line is still quiet and usable. True: the
         caller stays held until the reply's first bytes (`LineTimer.sleep_until`)."""
         if self._port is None or self._error is not None or self._received:
@@ -322,17 +353,17 @@ class SerialLine:
         if self._quiet_since + self.settings.gap_s > time.monotonic():
             return False
         try:
-            sending = self._send_now(pick)
+            sending = self._send_now(this.pick)
         except Exception as exc:
-            picked.append(exc)
+            this.outcome.append(exc)
             return False
-        picked.append(sending)
-        if sending is None or reply_within is None or not self._waits_for_reply_only(sending):
+        this.outcome.append(sending)
+        if sending is None or this.reply_within is None or not self._waits_for_reply_only(sending):
             return False
-        within_s = reply_within()
+        within_s = this.reply_within()
         if within_s is None:
             return False
-        return self._hold_until_reply(sending, within_s)
+        return self._hold_until_reply(sending, within_s, this)
 
     def _waits_for_reply_only(self, sending: Sending) -> bool:
         """Is all that `finish` would do for this attempt to wait for the reply? (The frame
@@ -344,7 +375,7 @@ class SerialLine:
             and (control is None or control.mode is not DirectionMode.RTS)
         )
 
-    def _hold_until_reply(self, sending: Sending, within_s: float) -> bool:
+    def _hold_until_reply(self, sending: Sending, within_s: float, this: _Round) -> bool:
         assert self._timer is not None
         assert self._loop is not None
         waiting = self._timer.waiting
@@ -357,15 +388,86 @@ class SerialLine:
         self._holding = self._loop.call_at(
             self._loop.time() + max(sent + within_s - time.monotonic(), 0.0), self._wake
         )
+        if this.replied is not None:
+            self._held = _Held(sending, this, self._echo_deadline(sending.frame, sent))
+            self._arrivals = [(len(self._received), sent)]
         return True
 
     def _stop_holding(self) -> None:
+        self._held = None
         holding, self._holding = self._holding, None
         if holding is None:
             return
+        self._arrivals = None  # the caller's own reading starts its record afresh
         holding.cancel()
         if self._waiter is not None and self._waiter.done():
             self._waiter = None
+
+    def _answer_held(self, held: _Held) -> bool:
+        """The reader callback, while a caller is held until its reply: finish the attempt here
+        if the reply is all there and valid. True: dealt with, the caller stays held (also
+        while the reply is still coming); False: wake the caller, whose own reading decides
+        (`_search_reply`: a corrupt reply, one ended by a silence; it searches the same bytes).
+        """
+        frame = held.sending.frame
+        search = search_reply(
+            self._received,
+            frame,
+            adapter_echoes=self.echo_detected or self._arrived_by(len(frame), held.echo_by),
+        )
+        found = search.found
+        if found is Found.PARTIAL or found is Found.NOTHING:
+            # Still coming (adapters deliver in bursts), or so far only a glitch: the hold's
+            # deadline, the response timeout, wakes the caller if it never completes.
+            return True
+        if found is not Found.COMPLETE:
+            return False
+        try:
+            pdu = check_reply(frame, bytes(self._received[search.start : search.end]))
+        except BadReply:
+            return False  # the caller finds it too, counts it and drains the line
+        self._take_reply(search, search.end)
+        self._end_hold()
+        sending, this = held.sending, held.round
+        this.outcome.clear()
+        exchange = Exchange(
+            pdu, sending.gap_s, self._quiet_since - sending.started, self._quiet_since
+        )
+        try:
+            assert this.replied is not None
+            this.replied(sending, exchange)
+            self._keep_gap(this)
+        except Exception as exc:  # in the caller's coroutine, not lost in the reader callback
+            this.outcome[:] = [exc]
+            self._release_caller()
+        return True
+
+    def _end_hold(self) -> None:
+        """The held attempt is over: its caller stays held, now only by the gap timer."""
+        self._held = None
+        self._arrivals = None
+        holding, self._holding = self._holding, None
+        if holding is not None:
+            holding.cancel()
+        self._waiter = None
+
+    def _keep_gap(self, this: _Round) -> None:
+        """What `send_after_gap`'s loop does next, done here for a caller that stays held:
+        keep the gap after the reply just taken and send the next frame at its end."""
+        self._discard_pending()
+        due = self._quiet_since + self.settings.gap_s
+        assert self._timer is not None
+        action = partial(self._send_at_gap_end, this)
+        if due > time.monotonic():
+            if self._timer.rearm(due, action):
+                return
+        elif action():
+            return
+        self._release_caller()  # the caller's loop takes it from here (`outcome` says what)
+
+    def _release_caller(self) -> None:
+        if self._timer is not None and self._timer.waiting is not None:
+            settle(self._timer.waiting)
 
     async def finish(self, sending: Sending, *, expect_reply: bool, timeout_s: float) -> Exchange:
         """The rest of an attempt begun by `send_after_gap`: the frame's tail, echo, reply."""
@@ -503,12 +605,17 @@ class SerialLine:
         # crossed it: a copy of the request complete sooner is the adapter's echo (05H, 06H and
         # 08H replies are copies too; time tells them apart where the bytes can't). Not on a pty:
         # a virtual line has no wire, and a peer behind it may answer at once.
-        fmt = self.settings.char_format
-        echo_by = sent + fmt.wire_time_s(len(frame)) if not self._virtual else 0.0
+        echo_by = self._echo_deadline(frame, sent)
         try:
             return await self._search_reply(frame, response_deadline, echo_by)
         finally:
             self._arrivals = None
+
+    def _echo_deadline(self, frame: bytes, sent: float) -> float:
+        """A copy of `frame` complete before this moment is the adapter's echo, not a reply."""
+        if self._virtual:
+            return 0.0
+        return sent + self.settings.char_format.wire_time_s(len(frame))
 
     async def _search_reply(self, frame: bytes, response_deadline: float, echo_by: float) -> bytes:
         char_timeout = self.settings.char_timeout_s
@@ -686,7 +793,10 @@ class SerialLine:
                 self._arrivals.clear()  # offsets moved; the silence measure starts again
         if self._arrivals is not None:
             self._arrivals.append((len(self._received), now))
-        self._wake()
+        held = self._held
+        if held is None or not self._answer_held(held):
+            self._held = None  # the caller's own reading takes it from here
+            self._wake()
         self.fire_due()  # another line's gap that ended while this pass ran
 
     def fire_due(self) -> None:

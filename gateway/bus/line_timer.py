@@ -142,6 +142,19 @@ class LineTimer:
                 self._deadline = math.inf
                 self._armed.discard(self)
 
+    def rearm(self, deadline: float, at_deadline: Callable[[], bool]) -> bool:
+        """Give a wait that its `at_deadline` took over (returned True) another deadline and
+        action, the waiting coroutine held still: the line sends frame after frame so, from
+        its callbacks, while the bus's coroutine sleeps. False when it can't (no exact timer,
+        or the wait is over): whoever took the wait over settles `waiting` then.
+        """
+        waiter = self._waiter
+        if waiter is None or waiter.done() or self._fd < 0 or not self._arm(deadline):
+            return False
+        self._at_deadline, self._deadline = at_deadline, deadline
+        self._armed.add(self)
+        return True
+
     def close(self) -> None:
         self._armed.discard(self)
         fd, self._fd = self._fd, -1

@@ -97,3 +97,33 @@ async def test_an_action_that_took_the_wait_over_is_not_released_by_a_later_fire
     waiting.set_result(None)  # the reply's first bytes
     await asyncio.wait_for(sleeping, 1.0)
     timer.close()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="timerfd is Linux's")
+async def test_a_wait_taken_over_can_be_rearmed_without_waking_its_coroutine() -> None:
+    """The line sends frame after frame from its callbacks: each gap is a new deadline on the
+    same held wait, acted on never before it, and the coroutine wakes only when an action
+    lets it go."""
+    loop = asyncio.get_running_loop()
+    timer = LineTimer(loop)
+    acted: list[tuple[str, float]] = []
+    deadlines: list[float] = []
+
+    def first_gap() -> bool:
+        acted.append(("first", time.monotonic()))
+        deadlines.append(time.monotonic() + 0.003)
+        assert timer.rearm(deadlines[-1], second_gap)  # the wait stays taken over
+        return True
+
+    def second_gap() -> bool:
+        acted.append(("second", time.monotonic()))
+        return False  # nothing more to send: the coroutine goes on
+
+    deadlines.append(time.monotonic() + 0.002)
+    try:
+        await asyncio.wait_for(timer.sleep_until(deadlines[0], first_gap), 1.0)
+        assert [name for name, _ in acted] == ["first", "second"]
+        assert all(at >= deadline for (_, at), deadline in zip(acted, deadlines, strict=True))
+        assert not timer.rearm(time.monotonic() + 0.001, second_gap)  # the wait is over
+    finally:
+        timer.close()
