@@ -47,6 +47,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
+from typing import NamedTuple
 
 import serial
 
@@ -91,8 +92,9 @@ class LineSettings:
         return f"bus {self.name} ({self.port})" if self.name else self.port
 
 
-@dataclass(frozen=True, slots=True)
-class Sending:
+# Immutable, and built per transaction: a NamedTuple costs a fraction of a frozen dataclass,
+# whose __init__ goes through object.__setattr__ for every field.
+class Sending(NamedTuple):
     """An attempt whose frame has started to go out."""
 
     frame: bytes
@@ -107,8 +109,8 @@ class Sending:
     driver was switched on at `started`)."""
 
 
-@dataclass(frozen=True, slots=True)
-class Exchange:
+# A NamedTuple for the reason given at `Sending`.
+class Exchange(NamedTuple):
     """What one attempt did on the wire."""
 
     reply_pdu: bytes | None
@@ -137,8 +139,8 @@ class _Round:
     """Empty until a frame went out (its Sending), nothing was picked (None) or that failed."""
 
 
-@dataclass(frozen=True, slots=True)
-class _Held:
+# A NamedTuple for the reason given at `Sending`.
+class _Held(NamedTuple):
     """A caller held until its reply (`_hold_until_reply`): the attempt the reply is for."""
 
     sending: Sending

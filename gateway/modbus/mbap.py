@@ -9,7 +9,7 @@ byte  6    unit id          which drive, routed by the gateway
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass
+from typing import NamedTuple
 
 from gateway.errors import MalformedFrame
 
@@ -19,8 +19,9 @@ MAX_LENGTH = 254
 _HEADER = struct.Struct(">HHHB")
 
 
-@dataclass(frozen=True, slots=True)
-class MbapHeader:
+# Immutable, and built per transaction: a NamedTuple costs a fraction of a frozen dataclass,
+# whose __init__ goes through object.__setattr__ for every field.
+class MbapHeader(NamedTuple):
     transaction_id: int
     protocol_id: int
     length: int
