@@ -19,16 +19,14 @@ from __future__ import annotations
 import json
 import logging
 import time
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from http import HTTPStatus
-from typing import TYPE_CHECKING, Any, Protocol, TypeVar
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
 from prometheus_client import (
     CONTENT_TYPE_LATEST,
     CollectorRegistry,
-    Counter,
-    Histogram,
     ProcessCollector,
     generate_latest,
 )
@@ -42,6 +40,7 @@ from prometheus_client.metrics_core import Metric
 from prometheus_client.registry import Collector
 
 from gateway import __version__
+from gateway.buckets import Buckets
 from gateway.bus import Bus, BusState, RequestDone
 from gateway.bus.line import SerialLine
 from gateway.errors import CannotListen
@@ -130,52 +129,58 @@ def exception_label(code: int) -> str:
     return f"{code:02X}" if 0x01 <= code <= 0x0B else OTHER
 
 
-class RequestMetrics:
-    """Per request, as the bus reports it: how many, from whom, which function, how fast."""
+class _Count:
+    """One series' count and when it began (Prometheus's `_created`)."""
 
-    def __init__(self, registry: CollectorRegistry, drives: Sequence[DriveLabels]) -> None:
+    __slots__ = ("created", "value")
+
+    def __init__(self) -> None:
+        self.value = 0
+        self.created = time.time()
+
+
+class _Latency(Buckets):
+    __slots__ = ("created",)
+
+    def __init__(self) -> None:
+        super().__init__(LATENCY_BUCKETS)
+        self.created = time.time()
+
+
+class RequestMetrics(Collector):
+    """Per request, as the bus reports it: how many, from whom, which function, how fast.
+
+    Counted in plain numbers by the bus's request observer and turned into Prometheus families
+    only when scraped (both on the event loop, so no lock): prometheus_client's counters and
+    histograms take a lock per increment and per observation, which cost 9 % of a transaction's
+    CPU with no wire delay (callgrind: 378,713 -> 343,687 instructions without metrics).
+    The families and their samples are what prometheus_client's Counter and Histogram export,
+    `_created` included.
+    """
+
+    def __init__(self, drives: Sequence[DriveLabels]) -> None:
         self._names = {(d.bus, d.address): d.drive for d in drives}
-        self._series: dict[tuple[str, int, str, int], tuple[Any, Any]] = {}
-        """Per (bus, address, source, function): the children a request of that kind counts in.
-        Bounded: a closed set of sources, 256 function codes, the configured drives' addresses."""
-        self._errors: dict[tuple[str, int, str, int], Any] = {}
+        self._series: dict[tuple[str, int, str, int], tuple[_Count, _Latency | None]] = {}
+        """Per (bus, address, source, function): what a request of that kind counts in.
+        Bounded: a closed set of sources, 256 function codes, the configured drives' addresses.
+        Cleared by a reload; the counts themselves stay under their labels."""
+        self._errors: dict[tuple[str, int, str, int], _Count] = {}
         """The same per (bus, address, source, exception code), for requests answered so."""
-        self.requests = Counter(
-            f"{PREFIX}_requests",
-            "Requests to a drive by who asked (tcp, poll, mqtt, probe) and function code",
-            ["bus", "drive", "source", "function"],
-            registry=registry,
-        )
-        self.errors = Counter(
-            f"{PREFIX}_request_exceptions",
-            "Requests answered with an exception code: the drive's own, or 0A/0B from the gateway",
-            ["bus", "drive", "source", "code"],
-            registry=registry,
-        )
-        self.broadcasts = Counter(
-            f"{PREFIX}_broadcast_requests",
-            "Broadcasts (unit id 0) by who asked and function code: every drive, no reply",
-            ["bus", "source", "function"],
-            registry=registry,
-        )
-        self.latency = Histogram(
-            f"{PREFIX}_request_duration_seconds",
-            "Time from a request reaching the bus to its answer: queue, retries, wire",
-            ["bus", "drive", "source"],
-            buckets=LATENCY_BUCKETS,
-            registry=registry,
-        )
+        self._requests: dict[tuple[str, ...], _Count] = {}
+        """By label values (bus, drive, source, function): what is exported."""
+        self._broadcasts: dict[tuple[str, ...], _Count] = {}
+        self._exceptions: dict[tuple[str, ...], _Count] = {}
+        self._latency: dict[tuple[str, ...], _Latency] = {}
 
     def observe(self, done: RequestDone) -> None:
-        # Once per request on every bus: the label sets' children are looked up once and kept
-        # (prometheus_client's `labels()` takes a lock and builds a key per call).
+        # Once per request on every bus: a dict lookup and a few additions.
         source = request_source(done.client)
         key = (done.bus, done.address, source, done.function)
         series = self._series.get(key)
         if series is None:
-            series = self._series[key] = self._children(done, source)
+            series = self._series[key] = self._new_series(done, source)
         requests, latency = series
-        requests.inc()
+        requests.value += 1
         if latency is None:
             return
         if done.code is not None:  # a dead drive's every request: as cheap as the others
@@ -183,22 +188,21 @@ class RequestMetrics:
             errors = self._errors.get(error_key)
             if errors is None:
                 drive = self.drive_name(done.bus, done.address)
-                errors = self._errors[error_key] = self.errors.labels(
-                    done.bus, drive, source, exception_label(done.code)
-                )
-            errors.inc()
+                labels = (done.bus, drive, source, exception_label(done.code))
+                errors = self._errors[error_key] = _series(self._exceptions, labels, _Count)
+            errors.value += 1
         latency.observe(done.duration_s)
 
-    def _children(self, done: RequestDone, source: str) -> tuple[Any, Any]:
-        """The series one kind of request counts in: (requests, latency); latency None for a
-        broadcast, which counts in its own series (it is no drive's request)."""
+    def _new_series(self, done: RequestDone, source: str) -> tuple[_Count, _Latency | None]:
+        """What one kind of request counts in: (requests, latency); latency None for a
+        broadcast, which counts in its own family (it is no drive's request)."""
         function = function_label(done.function)
         if done.address == 0:
-            return self.broadcasts.labels(done.bus, source, function), None
+            return _series(self._broadcasts, (done.bus, source, function), _Count), None
         drive = self.drive_name(done.bus, done.address)
         return (
-            self.requests.labels(done.bus, drive, source, function),
-            self.latency.labels(done.bus, drive, source),
+            _series(self._requests, (done.bus, drive, source, function), _Count),
+            _series(self._latency, (done.bus, drive, source), _Latency),
         )
 
     def relabel(self, drives: Sequence[DriveLabels]) -> None:
@@ -211,6 +215,58 @@ class RequestMetrics:
         if address == 0:
             return BROADCAST
         return self._names.get((bus, address), f"address_{address}")
+
+    def collect(self) -> Iterable[Metric]:
+        yield _counter_family(
+            f"{PREFIX}_requests",
+            "Requests to a drive by who asked (tcp, poll, mqtt, probe) and function code",
+            ["bus", "drive", "source", "function"],
+            self._requests,
+        )
+        yield _counter_family(
+            f"{PREFIX}_request_exceptions",
+            "Requests answered with an exception code: the drive's own, or 0A/0B from the gateway",
+            ["bus", "drive", "source", "code"],
+            self._exceptions,
+        )
+        yield _counter_family(
+            f"{PREFIX}_broadcast_requests",
+            "Broadcasts (unit id 0) by who asked and function code: every drive, no reply",
+            ["bus", "source", "function"],
+            self._broadcasts,
+        )
+        name = f"{PREFIX}_request_duration_seconds"
+        doc = "Time from a request reaching the bus to its answer: queue, retries, wire"
+        labels = ["bus", "drive", "source"]
+        latency = HistogramMetricFamily(name, doc, labels=labels)
+        created = GaugeMetricFamily(f"{name}_created", doc, labels=labels)
+        for values, histogram in self._latency.items():
+            latency.add_metric(values, histogram.cumulative(), histogram.sum_s)
+            created.add_metric(values, histogram.created)
+        yield latency
+        yield created
+
+
+S = TypeVar("S", _Count, _Latency)
+
+
+def _series(
+    families: dict[tuple[str, ...], S], labels: tuple[str, ...], make: Callable[[], S]
+) -> S:
+    """The series of `labels`, begun now if new (several keys may share one: "other")."""
+    series = families.get(labels)
+    if series is None:
+        series = families[labels] = make()
+    return series
+
+
+def _counter_family(
+    name: str, doc: str, labels: list[str], counts: Mapping[tuple[str, ...], _Count]
+) -> CounterMetricFamily:
+    family = CounterMetricFamily(name, doc, labels=labels)
+    for values, count in counts.items():
+        family.add_metric(values, count.value, created=count.created)
+    return family
 
 
 class GatewayCollector(Collector):
@@ -464,7 +520,8 @@ class MetricsFeature:
     async def start(self) -> None:
         registry = CollectorRegistry(auto_describe=True)
         drives = drive_labels(self.service)
-        self._requests = RequestMetrics(registry, drives)
+        self._requests = RequestMetrics(drives)
+        registry.register(self._requests)
         self._collector = GatewayCollector(self.service, drives)
         registry.register(self._collector)
         ProcessCollector(registry=registry)

@@ -12,7 +12,7 @@ turned into a Prometheus histogram only when scraped.
 
 from __future__ import annotations
 
-from bisect import bisect_left
+from gateway.buckets import Buckets
 
 BOUNDS_S = (
     0.0,
@@ -35,31 +35,13 @@ BOUNDS_S = (
 (a gateway that does that corrupts frames: it must stay empty)."""
 
 
-class GapExcess:
+class GapExcess(Buckets):
     """A fixed-bucket histogram of excess gaps, written by the bus, read at scrape time."""
 
-    __slots__ = ("counts", "sum_s")
+    __slots__ = ()
 
     def __init__(self) -> None:
-        self.counts = [0] * (len(BOUNDS_S) + 1)
-        """Per bucket, not cumulative; the last one is +Inf."""
-        self.sum_s = 0.0
-
-    def observe(self, excess_s: float) -> None:
-        self.counts[bisect_left(BOUNDS_S, excess_s)] += 1
-        self.sum_s += excess_s
-
-    @property
-    def count(self) -> int:
-        return sum(self.counts)
-
-    def cumulative(self) -> list[tuple[str, int]]:
-        """Prometheus's buckets: (`le`, observations at or below it), +Inf last."""
-        buckets, total = [], 0
-        for bound, count in zip((*BOUNDS_S, float("inf")), self.counts, strict=True):
-            total += count
-            buckets.append(("+Inf" if bound == float("inf") else repr(bound), total))
-        return buckets
+        super().__init__(BOUNDS_S)
 
 
 def quantile(buckets: list[tuple[float, int]], q: float) -> float:
