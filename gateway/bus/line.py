@@ -425,7 +425,8 @@ class SerialLine:
         if found is not Found.COMPLETE:
             return False
         try:
-            pdu = check_reply(frame, bytes(self._received[search.start : search.end]))
+            reply = bytes(self._received[search.start : search.end])
+            pdu = check_reply(frame, reply, crc_checked=True)
         except BadReply:
             return False  # the caller finds it too, counts it and drains the line
         self._take_reply(search, search.end)
@@ -456,12 +457,19 @@ class SerialLine:
     def _keep_gap(self, this: _Round) -> None:
         """What `send_after_gap`'s loop does next, done here for a caller that stays held:
         keep the gap after the reply just taken and send the next frame at its end."""
-        self._discard_pending()
+        if self._received:  # what came after the reply: nobody asked for it
+            self.discarded_bytes += len(self._received)
+            self._received.clear()
+        # Not `_discard_pending`: the port was read this very callback, and bytes that come
+        # during the gap are seen at its end (`_send_at_gap_end`), which starts it again.
+        timer = self._timer
+        if self._port is None or self._error is not None or timer is None:
+            self._release_caller()  # its own loop finds out what became of the port
+            return
         due = self._quiet_since + self.settings.gap_s
-        assert self._timer is not None
         action = partial(self._send_at_gap_end, this)
         if due > time.monotonic():
-            if self._timer.rearm(due, action):
+            if timer.rearm(due, action):
                 return
         elif action():
             return

@@ -16,15 +16,16 @@ def build_frame(address: int, pdu: bytes) -> bytes:
     return body + crc_bytes(body)
 
 
-def check_reply(request: bytes, reply: bytes) -> bytes:
+def check_reply(request: bytes, reply: bytes, *, crc_checked: bool = False) -> bytes:
     """Validate `reply` as the answer to the RTU `request`; return its PDU.
 
     Raises BadReply with kind `crc`, `truncated`, `address` or `function`, in that order: a frame
-    whose CRC is wrong says nothing reliable about its address.
+    whose CRC is wrong says nothing reliable about its address. `crc_checked`: the reply search
+    has just checked this very frame's CRC (`Found.COMPLETE`), so it is not computed again.
     """
     if len(reply) < 4:
         raise BadReply("truncated", f"reply of {len(reply)} bytes is too short", reply)
-    if crc16(reply[:-2]) != int.from_bytes(reply[-2:], "little"):
+    if not crc_checked and crc16(reply[:-2]) != int.from_bytes(reply[-2:], "little"):
         raise BadReply("crc", f"bad CRC in reply {reply.hex(' ')}", reply)
     if reply[0] != request[0]:
         raise BadReply(
