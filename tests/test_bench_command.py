@@ -10,8 +10,14 @@ import math
 import os
 import pty
 import re
+import shutil
+import socket
+import struct
 import subprocess
 import sys
+import threading
+
+import pytest
 
 
 def test_bench_prints_checked_figures_as_json() -> None:
@@ -158,3 +164,70 @@ def test_bench_measures_the_gateways_cpu_per_transaction_with_no_wire_delay() ->
     assert row["CPU us/tx"] > 0
     (line,) = json.loads(result.stdout)["summary"]
     assert "us per bus transaction (target <= 300 us)" in line
+
+
+@pytest.mark.skipif(shutil.which("valgrind") is None, reason="valgrind is installed by .ci/test")
+@pytest.mark.timeout(300)  # two Python start-ups under callgrind: ~50 s here, more under load
+def test_bench_counts_the_gateways_instructions_per_transaction() -> None:
+    """Two gateways under callgrind, 10 and 30 checked reads: the difference over 20 reads."""
+    arguments = ["--instructions", "--transactions", "10", "30"]
+    result = subprocess.run(
+        [sys.executable, "-m", "gateway", "bench", *arguments],
+        capture_output=True,
+        text=True,
+        timeout=280,
+    )
+    assert result.returncode == 0, result.stderr
+    header, row, *rest = result.stdout.splitlines()
+    assert header.split() == ["case", "baud", "transactions", "instructions/tx"]
+    match = re.fullmatch(r"no wire delay\s+1200\s+20\s+([\d,]+)", row)
+    assert match, result.stdout
+    # ~400,000 for this code; a 20-read difference is noisier than the default 300's, and the
+    # count moves with the code: only its order of magnitude is any machine's business.
+    assert 100_000 < int(match[1].replace(",", "")) < 2_000_000
+    assert "counted by callgrind; kernel time not included" in rest[-1]
+
+
+def test_bench_counting_instructions_without_valgrind_says_what_to_install() -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "gateway", "bench", "--instructions"],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PATH": "/nonexistent"},
+        timeout=60,
+    )
+    assert result.returncode == 1
+    assert result.stdout == ""
+    (line,) = result.stderr.splitlines()
+    assert "needs valgrind" in line
+    assert "Debian's `valgrind`" in line
+
+
+@pytest.mark.parametrize(
+    ("pdu", "complaint"),
+    [
+        (bytes.fromhex("83 02"), "wrong reply"),  # an exception
+        (bytes.fromhex("04 04 00 00 00 00"), "wrong reply"),  # another function's answer
+        (bytes.fromhex("03 02 00 00"), "reply of 4 bytes, 6 expected"),
+    ],
+)
+def test_counting_instructions_fails_on_a_wrong_reply(pdu: bytes, complaint: str) -> None:
+    """Every reply is checked: a count over transactions that went wrong is void."""
+    from gateway.instruments.bench.instructions import InstructionCountError, read_sequentially
+
+    right = bytes.fromhex("03 04 00 00 00 00")
+    with socket.create_server(("127.0.0.1", 0)) as server:
+
+        def answer() -> None:  # the second request gets `pdu`, with its own MBAP header
+            connection, _ = server.accept()
+            with connection:
+                for reply in (right, pdu):
+                    request = connection.recv(12)
+                    header = request[:4] + struct.pack(">HB", len(reply) + 1, request[6])
+                    connection.sendall(header + reply)
+
+        thread = threading.Thread(target=answer)
+        thread.start()
+        with pytest.raises(InstructionCountError, match=f"transaction 2 of 3: {complaint}"):
+            read_sequentially(server.getsockname()[1], 3)
+        thread.join()

@@ -5,4 +5,5 @@
 - `load`: Modbus-TCP clients that check every value they receive.
 - `cases`: the matrix of cases and running one.
 - `report`: the table.
+- `instructions`: `--instructions`, the gateway's instructions per transaction (callgrind).
 """

@@ -89,7 +89,18 @@ class GatewayProcess:
 
 
 @contextlib.contextmanager
-def gateway(config: dict[str, Any], port: int) -> Iterator[GatewayProcess]:
+def gateway(
+    config: dict[str, Any],
+    port: int,
+    prefix: Sequence[str] = (),
+    start_timeout_s: float = 15.0,
+    stop_timeout_s: float = 5.0,
+) -> Iterator[GatewayProcess]:
+    """The gateway with `config`, listening on `port`; stopped (SIGTERM) when the block ends.
+
+    `prefix` runs it under another program (e.g. valgrind), which may need longer to start
+    and, at exit, to write what it gathered: hence the timeouts.
+    """
     with tempfile.TemporaryDirectory(prefix="invt-bench-") as folder:
         path = Path(folder) / "config.yaml"
         path.write_text(yaml.safe_dump(config))
@@ -98,15 +109,15 @@ def gateway(config: dict[str, Any], port: int) -> Iterator[GatewayProcess]:
             # The gateway under cProfile, its statistics written at its (graceful) exit.
             command = [sys.executable, "-m", "cProfile", "-o", profile, "-m", "gateway"]
         process = subprocess.Popen(
-            [*command, "run", "--config", str(path)],
+            [*prefix, *command, "run", "--config", str(path)],
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
         )
         try:
-            wait_listening(port, process)
+            wait_listening(port, process, start_timeout_s)
             yield GatewayProcess(process, port)
         finally:
-            stop_process(process)
+            stop_process(process, stop_timeout_s)
 
 
 def free_port() -> int:
@@ -127,12 +138,12 @@ def wait_listening(port: int, process: subprocess.Popen[Any], timeout_s: float =
     raise RuntimeError(f"nothing listens on port {port} after {timeout_s:.0f} s")
 
 
-def stop_process(process: subprocess.Popen[Any]) -> None:
-    """SIGTERM, then SIGKILL after 5 s; its pipes drained and closed either way."""
+def stop_process(process: subprocess.Popen[Any], timeout_s: float = 5.0) -> None:
+    """SIGTERM, then SIGKILL after `timeout_s`; its pipes drained and closed either way."""
     if process.poll() is None:
         process.terminate()
         try:
-            process.communicate(timeout=5)
+            process.communicate(timeout=timeout_s)
         except subprocess.TimeoutExpired:
             process.kill()
             process.communicate()

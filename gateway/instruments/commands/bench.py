@@ -4,15 +4,23 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
 
-from gateway.cli import EXIT_OK
+from gateway.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from gateway.progress import Progress
 
 BAUDRATES = (9600, 19200, 115200)
 CASE_START_S = 1.0
 """About what starting and stopping a case's processes takes here, for the first estimate of
 the end (later ones go by the pace of the cases done)."""
+TRANSACTIONS = (100, 400)
+"""`--instructions`: 300 transactions apart, enough for start-up's own variation (a few hundred
+thousand instructions in 1.7 billion) to be lost in the difference."""
+VALGRIND_START_S = 30.0
+"""About what one gateway's start-up and stop under callgrind take here, for the estimate."""
+VALGRIND_TRANSACTION_S = 0.04
+"""About a transaction under callgrind: the 32 ms gap at 1200 baud and the work after it."""
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -58,10 +66,31 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.add_argument(
         "--json", action="store_true", help="one JSON document instead of the table"
     )
+    parser.add_argument(
+        "--instructions",
+        action="store_true",
+        help="instead of the cases: count the user-space instructions the gateway process "
+        "executes per bus transaction (one client, sequential 2-word reads, 1200 baud, no wire "
+        "delay), with valgrind's callgrind (needs valgrind; about a minute a run). "
+        "Repeatable to ~0.5 %% whatever else the machine does, unlike CPU time: for comparing "
+        "two versions of the code, not a cost in time (no kernel work, no waits). --runs "
+        "repeats it; --baud, --case, --duration and --warmup don't apply",
+    )
+    parser.add_argument(
+        "--transactions",
+        type=int,
+        nargs=2,
+        default=list(TRANSACTIONS),
+        metavar=("LOW", "HIGH"),
+        help="with --instructions: the reads of its short and its long run; start-up and "
+        f"shutdown cancel out of the difference (default {TRANSACTIONS[0]} {TRANSACTIONS[1]})",
+    )
     parser.set_defaults(handler=handle)
 
 
 def handle(args: argparse.Namespace) -> int:
+    if args.instructions:
+        return count_instructions(args)
     from gateway.instruments.bench.cases import CaseResult, extra_cases, matrix, run_case
     from gateway.instruments.bench.report import format_row, header, row, summary
 
@@ -92,5 +121,42 @@ def handle(args: argparse.Namespace) -> int:
     else:
         print()
         for line in summary(results):
+            print(line)
+    return EXIT_OK
+
+
+def count_instructions(args: argparse.Namespace) -> int:
+    from gateway.instruments.bench import instructions
+
+    low, high = args.transactions
+    if args.baud or args.case:
+        print("invt-gateway bench: --instructions has its own case and baud rate", file=sys.stderr)
+        return EXIT_USAGE
+    if not 0 <= low < high or args.runs < 1:
+        print("invt-gateway bench: needs 0 <= LOW < HIGH and --runs >= 1", file=sys.stderr)
+        return EXIT_USAGE
+    valgrind = shutil.which("valgrind")
+    if valgrind is None:
+        print(instructions.MISSING, file=sys.stderr)
+        return EXIT_FAILURE
+    pinning = instructions.fixed_addresses()
+    if not pinning:
+        print(instructions.UNPINNED, file=sys.stderr)
+    plan = 2 * VALGRIND_START_S + (low + high) * VALGRIND_TRANSACTION_S
+    counts = []
+    with Progress("bench", plan * args.runs, sys.stderr) as progress:
+        for number in range(args.runs):
+            progress.step(f"run {number + 1} of {args.runs} ({low} and {high} reads, callgrind)")
+            try:
+                counts.append(instructions.measure(valgrind, low, high, pinning))
+            except RuntimeError as error:  # a wrong reply, no count, a process that didn't start
+                progress.print(f"invt-gateway bench --instructions: {error}", sys.stderr)
+                return EXIT_FAILURE
+            progress.advance(plan)
+    if args.json:
+        json.dump(instructions.as_json(counts), sys.stdout, indent=2)
+        print()
+    else:
+        for line in instructions.report(counts):
             print(line)
     return EXIT_OK
