@@ -16,6 +16,7 @@ import struct
 import subprocess
 import sys
 import threading
+from pathlib import Path
 
 import pytest
 
@@ -169,8 +170,11 @@ def test_bench_measures_the_gateways_cpu_per_transaction_with_no_wire_delay() ->
 @pytest.mark.skipif(shutil.which("valgrind") is None, reason="valgrind is installed by .ci/test")
 @pytest.mark.timeout(300)  # two Python start-ups under callgrind: ~50 s here, more under load
 def test_bench_counts_the_gateways_instructions_per_transaction() -> None:
-    """Two gateways under callgrind, 10 and 30 checked reads: the difference over 20 reads."""
-    arguments = ["--instructions", "--transactions", "10", "30"]
+    """Two gateways under callgrind, 10 and 30 checked reads: the difference over 20 reads.
+    The gateway is taken from a checkout named with --gateway-from (this one), as an A/B with
+    an older version would be."""
+    checkout = Path(__file__).resolve().parents[1]
+    arguments = ["--instructions", "--transactions", "10", "30", "--gateway-from", str(checkout)]
     result = subprocess.run(
         [sys.executable, "-m", "gateway", "bench", *arguments],
         capture_output=True,
@@ -186,6 +190,27 @@ def test_bench_counts_the_gateways_instructions_per_transaction() -> None:
     # count moves with the code: only its order of magnitude is any machine's business.
     assert 100_000 < int(match[1].replace(",", "")) < 2_000_000
     assert "counted by callgrind; kernel time not included" in rest[-1]
+
+
+def test_bench_refuses_to_count_a_gateway_from_a_folder_that_is_no_checkout(
+    tmp_path: Path,
+) -> None:
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "gateway",
+            "bench",
+            "--instructions",
+            "--gateway-from",
+            str(tmp_path),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode == 2
+    assert f"{tmp_path} is no checkout of invt-gateway" in result.stderr
 
 
 def test_bench_counting_instructions_without_valgrind_says_what_to_install() -> None:

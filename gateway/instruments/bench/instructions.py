@@ -78,8 +78,13 @@ class Count:
         return (self.high_instructions - self.low_instructions) / self.transactions
 
 
-def measure(valgrind: str, low: int, high: int, pinning: Sequence[str] = ()) -> Count:
-    return Count(low, high, run(valgrind, low, pinning), run(valgrind, high, pinning))
+def measure(
+    valgrind: str, low: int, high: int, pinning: Sequence[str] = (), source: str | None = None
+) -> Count:
+    """`source`: another checkout's top folder, whose gateway is run instead of this one."""
+    return Count(
+        low, high, run(valgrind, low, pinning, source), run(valgrind, high, pinning, source)
+    )
 
 
 def fixed_addresses() -> list[str]:
@@ -96,9 +101,11 @@ def fixed_addresses() -> list[str]:
     return [] if refused else command
 
 
-def run(valgrind: str, transactions: int, pinning: Sequence[str] = ()) -> int:
+def run(
+    valgrind: str, transactions: int, pinning: Sequence[str] = (), source: str | None = None
+) -> int:
     """The gateway's instructions, start to exit, having carried `transactions` reads;
-    `pinning` from `fixed_addresses()`."""
+    `pinning` from `fixed_addresses()`; `source` as for `measure`."""
     addresses = list(range(1, CASE.drives + 1))
     with (
         tempfile.TemporaryDirectory(prefix="invt-callgrind-") as folder,
@@ -109,8 +116,13 @@ def run(valgrind: str, transactions: int, pinning: Sequence[str] = ()) -> int:
         config = gateway_config(CASE, [line.path], port, metrics_port=free_port())
         # String hashes fixed: dicts and sets laid out alike in every run.
         prefix = [*pinning, "env", "PYTHONHASHSEED=0"]
+        if source is not None:  # `python -m` imports from its working folder first
+            prefix.append(f"PYTHONPATH={Path(source).resolve()}")
         prefix += [valgrind, "--tool=callgrind", f"--callgrind-out-file={out}"]
-        with gateway(config, port, prefix, START_TIMEOUT_S, STOP_TIMEOUT_S) as process:
+        folder_of_code = None if source is None else str(Path(source).resolve())
+        with gateway(
+            config, port, prefix, START_TIMEOUT_S, STOP_TIMEOUT_S, cwd=folder_of_code
+        ) as process:
             read_sequentially(port, transactions)
         return instructions(out, process.process.returncode)
 

@@ -95,11 +95,13 @@ def gateway(
     prefix: Sequence[str] = (),
     start_timeout_s: float = 15.0,
     stop_timeout_s: float = 5.0,
+    cwd: str | None = None,
 ) -> Iterator[GatewayProcess]:
     """The gateway with `config`, listening on `port`; stopped (SIGTERM) when the block ends.
 
     `prefix` runs it under another program (e.g. valgrind), which may need longer to start
-    and, at exit, to write what it gathered: hence the timeouts.
+    and, at exit, to write what it gathered: hence the timeouts. `cwd`: the folder it runs
+    in, whose `gateway` package `python -m` imports first (another checkout's, to compare).
     """
     with tempfile.TemporaryDirectory(prefix="invt-bench-") as folder:
         path = Path(folder) / "config.yaml"
@@ -110,6 +112,7 @@ def gateway(
             command = [sys.executable, "-m", "cProfile", "-o", profile, "-m", "gateway"]
         process = subprocess.Popen(
             [*prefix, *command, "run", "--config", str(path)],
+            cwd=cwd,
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
         )

@@ -6,6 +6,7 @@ import argparse
 import json
 import shutil
 import sys
+from pathlib import Path
 
 from gateway.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from gateway.progress import Progress
@@ -85,6 +86,13 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         help="with --instructions: the reads of its short and its long run; start-up and "
         f"shutdown cancel out of the difference (default {TRANSACTIONS[0]} {TRANSACTIONS[1]})",
     )
+    parser.add_argument(
+        "--gateway-from",
+        metavar="FOLDER",
+        help="with --instructions: run the gateway of another checkout of the source (its top "
+        "folder), measured by this bench with this simulator, so that two versions compare "
+        "alike, even one from before --instructions existed",
+    )
     parser.set_defaults(handler=handle)
 
 
@@ -132,6 +140,10 @@ def count_instructions(args: argparse.Namespace) -> int:
     if args.baud or args.case:
         print("invt-gateway bench: --instructions has its own case and baud rate", file=sys.stderr)
         return EXIT_USAGE
+    source = args.gateway_from
+    if source is not None and not (Path(source) / "gateway" / "__main__.py").is_file():
+        print(f"invt-gateway bench: {source} is no checkout of invt-gateway", file=sys.stderr)
+        return EXIT_USAGE
     if not 0 <= low < high or args.runs < 1:
         print("invt-gateway bench: needs 0 <= LOW < HIGH and --runs >= 1", file=sys.stderr)
         return EXIT_USAGE
@@ -148,7 +160,7 @@ def count_instructions(args: argparse.Namespace) -> int:
         for number in range(args.runs):
             progress.step(f"run {number + 1} of {args.runs} ({low} and {high} reads, callgrind)")
             try:
-                counts.append(instructions.measure(valgrind, low, high, pinning))
+                counts.append(instructions.measure(valgrind, low, high, pinning, source))
             except RuntimeError as error:  # a wrong reply, no count, a process that didn't start
                 progress.print(f"invt-gateway bench --instructions: {error}", sys.stderr)
                 return EXIT_FAILURE
