@@ -149,6 +149,12 @@ class _Held(NamedTuple):
     """A copy of the request complete before this is the adapter's echo (`_echo_deadline`)."""
 
 
+def _reply_overdue() -> bool:
+    """The held caller's response timeout, kept by the gap timer: False wakes the caller, whose
+    own reading then finds the reply missing or incomplete."""
+    return False
+
+
 PTY_SLAVE_MAJORS = range(136, 144)
 """Linux's device numbers for pseudo-terminal slaves (/dev/pts/N)."""
 
@@ -191,8 +197,10 @@ class SerialLine:
         self._error: PortError | None = None
         self._waiter: asyncio.Future[None] | None = None
         self._poll: select.poll | None = None
-        self._holding: asyncio.TimerHandle | None = None
-        """While `send_after_gap`'s caller is held until the reply's first bytes (or this)."""
+        self._holding = False
+        """`send_after_gap`'s caller is held until the reply's first bytes, or the response
+        timeout, which the gap timer keeps (`_overdue` where there is no timerfd)."""
+        self._overdue: asyncio.TimerHandle | None = None
         self._held: _Held | None = None
         """What the held caller sent, for the reader callback to finish the attempt itself."""
 
@@ -387,9 +395,13 @@ class SerialLine:
         # reply's first bytes; the deadline too, so a silent drive still times out on time.
         self._waiter = waiting
         sent = sending.started + self.settings.char_format.wire_time_s(len(sending.frame))
-        self._holding = self._loop.call_at(
-            self._loop.time() + max(sent + within_s - time.monotonic(), 0.0), self._wake
-        )
+        self._holding = True
+        # The gap timer is free until the next gap: it keeps the response timeout, at the cost
+        # of the timerfd write the next gap makes anyway, and asyncio's timer heap is spared.
+        if not self._timer.rearm(sent + within_s, _reply_overdue):
+            self._overdue = self._loop.call_at(
+                self._loop.time() + max(sent + within_s - time.monotonic(), 0.0), self._wake
+            )
         if this.replied is not None:
             self._held = _Held(sending, this, self._echo_deadline(sending.frame, sent))
             self._arrivals = [(len(self._received), sent)]
@@ -397,11 +409,11 @@ class SerialLine:
 
     def _stop_holding(self) -> None:
         self._held = None
-        holding, self._holding = self._holding, None
-        if holding is None:
+        if not self._holding:
             return
+        self._holding = False
         self._arrivals = None  # the caller's own reading starts its record afresh
-        holding.cancel()
+        self._cancel_overdue()
         if self._waiter is not None and self._waiter.done():
             self._waiter = None
 
@@ -449,10 +461,14 @@ class SerialLine:
         """The held attempt is over: its caller stays held, now only by the gap timer."""
         self._held = None
         self._arrivals = None
-        holding, self._holding = self._holding, None
-        if holding is not None:
-            holding.cancel()
+        self._holding = False
+        self._cancel_overdue()  # the timerfd's response timeout gives way to the next gap
         self._waiter = None
+
+    def _cancel_overdue(self) -> None:
+        overdue, self._overdue = self._overdue, None
+        if overdue is not None:
+            overdue.cancel()
 
     def _keep_gap(self, this: _Round) -> None:
         """What `send_after_gap`'s loop does next, done here for a caller that stays held:

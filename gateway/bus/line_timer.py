@@ -19,6 +19,7 @@ not a pass's.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import ctypes
 import ctypes.util
 import logging
@@ -76,6 +77,8 @@ class LineTimer:
         self._deadline = math.inf
         """Of the pending sleep, until its deadline has been acted on; inf otherwise."""
         self._armed = _ARMED.setdefault(loop, set())
+        self._arms = 0
+        """timerfd_settime calls so far: `_expired` tells by it whether its action re-armed."""
         self._fd = -1
         self._libc = _libc()
         if self._libc is not None:
@@ -174,6 +177,7 @@ class LineTimer:
         done = self._libc.timerfd_settime(
             self._fd, TFD_TIMER_ABSTIME, ctypes.byref(self._spec), None
         )
+        self._arms += 1
         return int(done) == 0
 
     def _fire_early(self) -> None:
@@ -183,14 +187,19 @@ class LineTimer:
             assert self._libc is not None
             self._spec.it_value.tv_sec = self._spec.it_value.tv_nsec = 0  # all zero: disarm
             self._libc.timerfd_settime(self._fd, 0, ctypes.byref(self._spec), None)
+            self._arms += 1
         self._deadline_reached()
 
     def _expired(self) -> None:
-        try:
-            os.read(self._fd, 8)  # the expiry count; reading it re-arms readiness
-        except BlockingIOError:
-            return  # a deadline re-armed after this wake-up was queued: not due yet
-        self._deadline_reached()
+        arms = self._arms
+        if self._deadline <= time.monotonic():  # else: re-armed for later, or nothing pending
+            self._deadline_reached()
+        if self._arms == arms:
+            # Nobody armed the timer again (which clears its expiry): read the expiry count, or
+            # the loop would find it readable on every pass. The line's next deadline usually
+            # follows at once (a held caller's response timeout): one system call less then.
+            with contextlib.suppress(BlockingIOError):
+                os.read(self._fd, 8)
 
     def _deadline_reached(self) -> None:
         waiter, action = self._waiter, self._at_deadline
