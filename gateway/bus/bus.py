@@ -713,7 +713,7 @@ class Bus:
 
         A probe has no waiter: the health tracker reads its outcome.
         """
-        if self.state is not BusState.OPEN:
+        if not self.health.any_offline or self.state is not BusState.OPEN:
             return
         now = time.monotonic()
         for address in self.health.due_probes(now):

@@ -36,9 +36,15 @@ class HealthTracker:
         self.probe_max_s = probe_max_s
         self._drives: dict[int, DriveHealth] = {}
         self._rng = rng or random.Random()
+        self._offline = 0
+        """How many drives are offline: none, and no probe can be due (asked per transaction)."""
 
     def _get(self, address: int) -> DriveHealth:
         return self._drives.setdefault(address, DriveHealth())
+
+    @property
+    def any_offline(self) -> bool:
+        return self._offline > 0
 
     def is_offline(self, address: int) -> bool:
         health = self._drives.get(address)
@@ -56,6 +62,8 @@ class HealthTracker:
         """The drive answered (any valid frame, exceptions too). True if it was offline."""
         health = self._get(address)
         was_offline = health.offline
+        if was_offline:
+            self._offline -= 1
         health.consecutive_failures = 0
         health.offline = False
         health.probe_delay_s = 0.0
@@ -72,6 +80,7 @@ class HealthTracker:
             return False
         if health.consecutive_failures >= self.offline_after:
             health.offline = True
+            self._offline += 1
             health.probe_delay_s = 0.0
             self._schedule_probe(health, now)
             return True
@@ -86,6 +95,7 @@ class HealthTracker:
         if health.offline:
             return False
         health.offline = True
+        self._offline += 1
         health.lost_with_line = True
         health.consecutive_failures = max(health.consecutive_failures, 1)
         health.probe_delay_s = 0.0

@@ -54,3 +54,22 @@ def test_a_drive_still_silent_on_the_reopened_port_is_treated_as_dead() -> None:
     assert not health.lost_with_line(1)
     health.record_answer(1)
     assert not health.is_offline(1)
+
+
+def test_the_bus_can_tell_at_a_glance_whether_any_drive_is_offline() -> None:
+    """Asked once per transaction (is a probe worth looking for?): it must follow every way in
+    and out of offline, or a dead drive would never be probed again."""
+    health = tracker()
+    assert not health.any_offline
+    for _ in range(3):
+        health.record_failure(7, now=100.0)
+    health.record_failure(7, now=200.0)  # offline already: still one drive offline
+    assert health.any_offline
+    for address in (1, 7):
+        health.force_offline(address, now=300.0)  # the port went: 1 goes too, 7 already was
+    health.record_answer(7)
+    assert health.any_offline  # 1 is still offline
+    health.record_answer(1)
+    health.record_answer(1)  # answering again changes nothing
+    assert not health.any_offline
+    assert health.due_probes(1e9) == []
