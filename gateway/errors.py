@@ -20,6 +20,7 @@
     ├── CommandRefused          an MQTT command refused before it reached the bus: `reason` says why
     ├── FieldError              a field tool failed: what happened, and what to check on site
     ├── MonitorError            `invt-gateway monitor` can't show the traffic: one line why
+    ├── InstructionCountError   `bench --instructions`: the run is void (wrong reply, no count)
     ├── OperationError          a console request refused or failed, with its HTTP `status`
     └── ModbusError             answered to the client as a Modbus exception (has `code`)
         ├── DriveException      the drive itself answered an exception (its code, byte-exact)
@@ -226,6 +227,11 @@ class StoreError(GatewayError):
 
 class MonitorError(GatewayError):
     """Why `invt-gateway monitor` can't show the traffic, in one line."""
+
+
+class InstructionCountError(GatewayError):
+    """`invt-gateway bench --instructions`: the run is void (a wrong reply, or callgrind wrote no
+    count)."""
 
 
 class OperationError(GatewayError):

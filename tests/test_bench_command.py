@@ -238,7 +238,8 @@ def test_bench_counting_instructions_without_valgrind_says_what_to_install() -> 
 )
 def test_counting_instructions_fails_on_a_wrong_reply(pdu: bytes, complaint: str) -> None:
     """Every reply is checked: a count over transactions that went wrong is void."""
-    from gateway.instruments.bench.instructions import InstructionCountError, read_sequentially
+    from gateway.errors import InstructionCountError
+    from gateway.instruments.bench.instructions import read_sequentially
 
     right = bytes.fromhex("03 04 00 00 00 00")
     with socket.create_server(("127.0.0.1", 0)) as server:

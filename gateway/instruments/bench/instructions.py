@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from gateway.errors import InstructionCountError
 from gateway.instruments.bench.cases import SET_POINT, Case, gateway_config
 from gateway.instruments.bench.processes import free_port, gateway, simulator
 
@@ -54,10 +55,6 @@ UNPINNED = (
 READ = struct.pack(">BHH", 3, SET_POINT, CASE.words)
 REPLY_LENGTH = 2 + 2 * CASE.words
 """Function, byte count and the registers."""
-
-
-class InstructionCountError(RuntimeError):
-    """The run is void: a wrong reply, or callgrind wrote no count."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -134,6 +134,7 @@ def handle(args: argparse.Namespace) -> int:
 
 
 def count_instructions(args: argparse.Namespace) -> int:
+    from gateway.errors import InstructionCountError
     from gateway.instruments.bench import instructions
 
     low, high = args.transactions
@@ -161,7 +162,8 @@ def count_instructions(args: argparse.Namespace) -> int:
             progress.step(f"run {number + 1} of {args.runs} ({low} and {high} reads, callgrind)")
             try:
                 counts.append(instructions.measure(valgrind, low, high, pinning, source))
-            except RuntimeError as error:  # a wrong reply, no count, a process that didn't start
+            # A wrong reply or no count (InstructionCountError); a process that didn't start.
+            except (InstructionCountError, RuntimeError) as error:
                 progress.print(f"invt-gateway bench --instructions: {error}", sys.stderr)
                 return EXIT_FAILURE
             progress.advance(plan)
