@@ -30,6 +30,7 @@ from prometheus_client import (
     ProcessCollector,
     generate_latest,
 )
+from prometheus_client import metrics as prometheus_client_metrics
 from prometheus_client.core import (
     CounterMetricFamily,
     GaugeMetricFamily,
@@ -244,7 +245,8 @@ class RequestMetrics(Collector):
             latency.add_metric(values, histogram.cumulative(), histogram.sum_s)
             created.add_metric(values, histogram.created)
         yield latency
-        yield created
+        if created.samples and _created_series():  # as prometheus_client's Histogram does
+            yield created
 
 
 S = TypeVar("S", _Count, _Latency)
@@ -264,9 +266,16 @@ def _counter_family(
     name: str, doc: str, labels: list[str], counts: Mapping[tuple[str, ...], _Count]
 ) -> CounterMetricFamily:
     family = CounterMetricFamily(name, doc, labels=labels)
+    with_created = _created_series()
     for values, count in counts.items():
-        family.add_metric(values, count.value, created=count.created)
+        family.add_metric(values, count.value, created=count.created if with_created else None)
     return family
+
+
+def _created_series() -> bool:
+    """Whether prometheus_client exports `_created` samples (PROMETHEUS_DISABLE_CREATED_SERIES,
+    or `disable_created_metrics()`): the same for these families as for its own."""
+    return bool(getattr(prometheus_client_metrics, "_use_created", True))
 
 
 class GatewayCollector(Collector):

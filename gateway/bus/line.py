@@ -352,7 +352,7 @@ class SerialLine:
 
     def _send_at_gap_end(self, this: _Round) -> bool:
         """The gap timer's action: send now, if the line is still quiet and usable. True: the
-        caller stays held until the reply's first bytes (`LineTimer.sleep_until`)."""
+        caller stays held (`LineTimer.sleep_until`) while the reply comes (`_answer_held`)."""
         if self._port is None or self._error is not None or self._received:
             return False  # closed, failed or not quiet after all: `send_after_gap` looks again
         if self._fd is None:
@@ -391,8 +391,9 @@ class SerialLine:
         waiting = self._timer.waiting
         if waiting is None or self._waiter is not None:
             return False
-        # The reader callback wakes whoever waits in `_waiter`: the held caller, at the
-        # reply's first bytes; the deadline too, so a silent drive still times out on time.
+        # The reader callback wakes whoever waits in `_waiter` (the held caller) when its reply
+        # needs the caller's own reading; the response timeout does too, so a silent drive
+        # still times out on time.
         self._waiter = waiting
         sent = sending.started + self.settings.char_format.wire_time_s(len(sending.frame))
         self._holding = True
@@ -402,9 +403,9 @@ class SerialLine:
             self._overdue = self._loop.call_at(
                 self._loop.time() + max(sent + within_s - time.monotonic(), 0.0), self._wake
             )
+        self._arrivals = [(len(self._received), sent)]  # what came, when: for echoes and bursts
         if this.replied is not None:
             self._held = _Held(sending, this, self._echo_deadline(sending.frame, sent))
-            self._arrivals = [(len(self._received), sent)]
         return True
 
     def _stop_holding(self) -> None:
@@ -412,7 +413,8 @@ class SerialLine:
         if not self._holding:
             return
         self._holding = False
-        self._arrivals = None  # the caller's own reading starts its record afresh
+        # `_arrivals` stays: the caller's own reading goes on with the record the hold began (an
+        # echo seen then is known for one by its time; a reply's silences are all measured).
         self._cancel_overdue()
         if self._waiter is not None and self._waiter.done():
             self._waiter = None
@@ -421,7 +423,8 @@ class SerialLine:
         """The reader callback, while a caller is held until its reply: finish the attempt here
         if the reply is all there and valid. True: dealt with, the caller stays held (also
         while the reply is still coming); False: wake the caller, whose own reading decides
-        (`_search_reply`: a corrupt reply, one ended by a silence; it searches the same bytes).
+        (`_search_reply`: a corrupt reply, one ended by a silence), going on with the record
+        of arrivals the hold began.
         """
         frame = held.sending.frame
         search = search_reply(
@@ -602,6 +605,7 @@ class SerialLine:
     def _discard_pending(self) -> None:
         """Throw away bytes nobody asked for (noise, a reply later than every drain)."""
         self._require_port()
+        self._arrivals = None  # a new attempt starts its own record
         if self._fd is None:
             self._discard_pending_url()
             return
@@ -626,7 +630,8 @@ class SerialLine:
         Bytes before the reply that can't start it (a glitch, the adapter's echo) are skipped;
         bytes after it stay for `_discard_pending`. `check_reply` judges what is returned.
         """
-        self._arrivals = [(len(self._received), self._quiet_since)]
+        if self._arrivals is None:  # else: kept since the caller was held (`_hold_until_reply`)
+            self._arrivals = [(len(self._received), self._quiet_since)]
         # A reply can't be complete before the request has left the wire and the reply has
         # crossed it: a copy of the request complete sooner is the adapter's echo (05H, 06H and
         # 08H replies are copies too; time tells them apart where the bytes can't). Not on a pty:

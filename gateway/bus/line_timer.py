@@ -39,6 +39,7 @@ CLOCK_MONOTONIC = 1
 TFD_NONBLOCK = os.O_NONBLOCK
 TFD_CLOEXEC = os.O_CLOEXEC
 TFD_TIMER_ABSTIME = 1
+EXPIRY_SLACK_S = 1e-6
 
 
 class _Timespec(ctypes.Structure):
@@ -119,8 +120,9 @@ class LineTimer:
         before the waiting coroutine resumes (which costs the loop one more pass): the line
         writes its next frame there. It doesn't run when the deadline has already passed (the
         caller acts at once then) or when the timer is closed. When it returns True it has
-        taken the wait over (`waiting`): the coroutine resumes once its taker settles it (the
-        line: when the reply's first bytes come), not at once.
+        taken the wait over (`waiting`): the coroutine resumes once its taker settles it, not at
+        once (the line: when its reply needs the caller's own reading; it may `rearm` the wait
+        for the next gap meanwhile).
         """
         if deadline <= time.monotonic():
             return
@@ -192,12 +194,16 @@ class LineTimer:
 
     def _expired(self) -> None:
         arms = self._arms
-        if self._deadline <= time.monotonic():  # else: re-armed for later, or nothing pending
+        # Else re-armed for later after this wake-up was queued, or nothing pending. The slack
+        # is for rounding between the nanoseconds armed and the float `time.monotonic()` reads
+        # back; acting a microsecond early is safe: the line's own check keeps the gap.
+        if self._deadline <= time.monotonic() + EXPIRY_SLACK_S:
             self._deadline_reached()
-        if self._arms == arms:
-            # Nobody armed the timer again (which clears its expiry): read the expiry count, or
-            # the loop would find it readable on every pass. The line's next deadline usually
-            # follows at once (a held caller's response timeout): one system call less then.
+        if self._arms == arms and self._fd >= 0:
+            # Nobody armed the timer again (which clears its expiry), nor closed it: read the
+            # expiry count, or the loop would find it readable on every pass. The line's next
+            # deadline usually follows at once (a held caller's response timeout): one system
+            # call less then.
             with contextlib.suppress(BlockingIOError):
                 os.read(self._fd, 8)
 

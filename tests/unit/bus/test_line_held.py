@@ -6,28 +6,32 @@ valid goes back to the caller's own reading. Over a real pty with simulated driv
 from __future__ import annotations
 
 import asyncio
+import os
+import tty
 from collections import deque
 
 import pytest
 
+from gateway.bus import line as line_module
 from gateway.bus.line import Exchange, Sending, SerialLine
 from gateway.config import BusConfig
-from gateway.errors import ReplyTimeout
+from gateway.errors import BadReply, ReplyTimeout
 from gateway.instruments.simulator import SimulatedLine
 from gateway.modbus.rtu import build_frame
 from gateway.modbus.timing import FAST_T35_S
 from gateway.settings import bus_settings
-from tests.support import read_pdu
+from tests.support import read_pdu, write_pdu
 
 STATE_WORD_1 = 0x2100
+FREQUENCY_SETPOINT = 0x2001
 STOPPED_REPLY = bytes.fromhex("03 02 00 03")
 SILENT = 9
 
 pytestmark = pytest.mark.line(addresses=[1, 2])
 
 
-def open_line(path: str) -> SerialLine:
-    config = BusConfig.model_validate({"name": "line1", "port": path, "baudrate": 115200})
+def open_line(path: str, baudrate: int = 115200) -> SerialLine:
+    config = BusConfig.model_validate({"name": "line1", "port": path, "baudrate": baudrate})
     line = SerialLine(bus_settings(config).line)
     line.open()
     return line
@@ -85,3 +89,67 @@ async def test_a_reply_that_never_comes_goes_back_to_the_callers_own_reading(
             await serial.finish(waiting, expect_reply=True, timeout_s=0.05)
     finally:
         serial.close()
+
+
+async def test_a_failure_in_the_callers_hook_reaches_the_caller(line: SimulatedLine) -> None:
+    frames = deque(build_frame(1, read_pdu(STATE_WORD_1)) for _ in range(3))
+
+    def replied(_sending: Sending, _exchange: Exchange) -> None:
+        raise RuntimeError("a bug in the bus")
+
+    serial = open_line(line.path)
+    try:
+        with pytest.raises(RuntimeError, match="a bug in the bus"):
+            await asyncio.wait_for(
+                serial.send_after_gap(
+                    lambda: frames.popleft() if frames else None, lambda: 0.5, replied
+                ),
+                5.0,
+            )
+    finally:
+        serial.close()
+    assert len(frames) == 2  # nothing more was sent after the failure
+
+
+async def test_an_echo_seen_while_held_is_still_known_for_one_when_the_reply_stops_short(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """An adapter that echoes though `echo: false` says it doesn't, and a 06H reply cut short:
+    the echo (a copy of the request, which a 06H reply is too) came back sooner than the request
+    could cross the wire, so it is the echo, and the attempt fails as truncated. It must never
+    pass for the drive's acknowledgement, whichever reading (the callback's or the caller's)
+    ends the attempt."""
+    # Judged as a wire, not a pty: the echo is told from the reply by its timing.
+    monkeypatch.setattr(line_module, "is_pseudo_terminal", lambda _port: False)
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    loop = asyncio.get_running_loop()
+    request = build_frame(1, write_pdu(FREQUENCY_SETPOINT, 2500))
+    heard = bytearray()
+
+    def adapter_and_drive() -> None:
+        heard.extend(os.read(master, 256))
+        if len(heard) == len(request):
+            os.write(master, bytes(heard))  # the adapter's echo, at once
+            # The drive's reply starts after its response delay, and stops after 5 bytes.
+            loop.call_later(0.03, os.write, master, request[:5])
+
+    loop.add_reader(master, adapter_and_drive)
+    serial = open_line(os.ttyname(slave), baudrate=9600)
+    try:
+        frames = deque([request])
+        waiting = await asyncio.wait_for(
+            serial.send_after_gap(
+                lambda: frames.popleft() if frames else None, lambda: 0.1, lambda *_: None
+            ),
+            5.0,
+        )
+        assert waiting is not None  # not carried by the callback: the reply never completed
+        with pytest.raises(BadReply) as failed:
+            await serial.finish(waiting, expect_reply=True, timeout_s=0.1)
+        assert failed.value.kind == "truncated"
+    finally:
+        serial.close()
+        loop.remove_reader(master)
+        os.close(master)
+        os.close(slave)

@@ -127,3 +127,23 @@ async def test_a_wait_taken_over_can_be_rearmed_without_waking_its_coroutine() -
         assert not timer.rearm(time.monotonic() + 0.001, second_gap)  # the wait is over
     finally:
         timer.close()
+
+
+async def test_an_action_that_closes_the_timer_leaves_nothing_behind() -> None:
+    """A port that fails as the gap ends closes the line, and its timer, from inside the timer's
+    own wake-up: the closed timer must not be read afterwards (an error in the loop's log)."""
+    loop = asyncio.get_running_loop()
+    errors: list[dict[str, object]] = []
+    loop.set_exception_handler(lambda _loop, context: errors.append(context))
+    timer = LineTimer(loop)
+
+    def port_fails() -> bool:
+        timer.close()
+        return False
+
+    try:
+        await asyncio.wait_for(timer.sleep_until(time.monotonic() + 0.002, port_fails), 1.0)
+        await asyncio.sleep(0.01)
+        assert errors == []
+    finally:
+        loop.set_exception_handler(None)
