@@ -10,6 +10,7 @@ import asyncio
 import pytest
 
 from gateway.bus import Bus
+from gateway.bus.line import Exchange
 from gateway.bus.queue import Priority
 from gateway.errors import BusClosed, DriveOffline, GatewayTargetFailed
 from gateway.instruments.simulator import SimulatedLine
@@ -19,6 +20,8 @@ from tests.support import eventually, read_pdu, running_bus, write_pdu
 STATE_WORD_1 = 0x2100
 FREQUENCY_SETPOINT = 0x2001
 STOPPED = 3
+STOPPED_REPLY = bytes.fromhex("03 02 00 03")
+RUNNING_VALUES = 0x3000
 SILENT = 9
 """An address nobody answers on."""
 
@@ -125,3 +128,37 @@ async def test_a_silent_drive_times_out_at_the_requests_own_timeout(line: Simula
         assert loop.time() - started < 0.5  # 50 ms and the gap, far from the bus's 1 s
         # And the line is free at once for the next request, answered as usual.
         assert await read(bus, 1, STATE_WORD_1) == bytes.fromhex("03 02 00 03")
+
+
+async def test_transactions_ended_in_the_reader_callback_are_counted_as_any_other(
+    line: SimulatedLine,
+) -> None:
+    """Back-to-back reads end in the port's reader callback, a silent drive's in the bus's own
+    reading: both are counted, timed and shown to the traffic monitor alike, and only requests
+    that waited as a reply ended count in the gateway's own share (the excess gap)."""
+    seen: list[tuple[int, int, bool]] = []
+    async with running_bus(line.path, timeout_ms=50, retries=0, offline_after=5) as bus:
+        bus.tap = lambda _bus, transaction, attempt, _started, outcome: seen.append(
+            (transaction.address, attempt, isinstance(outcome, Exchange))
+        )
+        assert await read(bus, 1, STATE_WORD_1) == STOPPED_REPLY  # alone: waited for nobody
+        # Running values 3000H on, 1-5 words: no two alike, so none share a transaction.
+        counts = [1 + n // 2 for n in range(10)]
+        replies = await asyncio.gather(
+            *(read(bus, 1 + n % 2, RUNNING_VALUES, count) for n, count in enumerate(counts))
+        )
+        assert [reply[:2] if reply else None for reply in replies] == [
+            bytes([3, 2 * count]) for count in counts
+        ]
+        with pytest.raises(GatewayTargetFailed):
+            await read(bus, SILENT, STATE_WORD_1)
+        assert bus.stats.transactions == 12
+        assert (bus.drive_stats[1].transactions, bus.drive_stats[2].transactions) == (6, 5)
+        assert bus.stats.timeouts == bus.drive_stats[SILENT].timeouts == 1
+        assert all(bus.drive_stats[address].line_s > 0 for address in (1, 2, SILENT))
+        assert bus.stats.busy_s > 0
+        # The 10 gathered reads: the first waited for nobody, each of the 9 after it for the
+        # reply before it; the lone read and the silent drive's request waited for nobody.
+        assert bus.gap_excess.count == 9
+        assert bus.gap_excess.counts[0] == 0  # never a gap shorter than t3.5
+    assert seen == [(1, 0, True)] + [(1 + n % 2, 0, True) for n in range(10)] + [(SILENT, 0, False)]
