@@ -719,8 +719,8 @@ class SerialLine:
     def _note_silences(self, start: int, end: int) -> None:
         """The longest silence inside the reply at `start:end`, from the arrival times."""
         arrivals = self._arrivals
-        if not arrivals or len(arrivals) < 2:
-            return
+        if not arrivals or len(arrivals) < 2 or (len(arrivals) == 2 and arrivals[0][0] <= start):
+            return  # the reply came in one read after the mark: no silence inside it
         wire_time = self.settings.char_format.wire_time_s
         longest = 0.0
         for (before, before_at), (after, after_at) in itertools.pairwise(arrivals):
