@@ -326,10 +326,11 @@ def rtu_reply_length(header: bytes | bytearray, request_length: int) -> int:
     return lookup(function).reply_length(header, request_length)
 
 
-def split_request(pdu: bytes, max_words: int) -> list[bytes] | None:
-    """The parts of a well-formed request over `max_words` words, or None: send it as it is."""
+def split_request(pdu: bytes, max_words: int, *, checked: bool = False) -> list[bytes] | None:
+    """The parts of a well-formed request over `max_words` words, or None: send it as it is.
+    `checked`: `check_request` has passed it already (the front door), no need to again."""
     split = lookup(pdu[0]).split
-    if split is None or check_request(pdu) is not None:
+    if split is None or (not checked and check_request(pdu) is not None):
         return None
     return split.parts(pdu, max_words)
 

@@ -128,11 +128,13 @@ class Router:
         """`execute` without a task, for a read that is one bus transaction: the reply (from
         the cache, or the drive's) goes to `waiter`. False when the request needs `execute`
         (a write, a broadcast, a read the drive's word limit splits); a refusal before the bus
-        (no such unit id, drive offline, queue full) is raised."""
+        (no such unit id, drive offline, queue full) is raised. `pdu` has passed the front
+        door's `check_request` (the Modbus-TCP server's fast path is the caller)."""
         if unit_id == BROADCAST_ADDRESS or lookup(pdu[0]).writes:
             return False
         route = self.route(unit_id)
-        if route.max_words is not None and split_request(pdu, route.max_words) is not None:
+        max_words = route.max_words
+        if max_words is not None and split_request(pdu, max_words, checked=True) is not None:
             return False
         if route.cache_max_age_s is not None:
             cached = self._from_cache(route, pdu)
