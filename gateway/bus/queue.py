@@ -72,7 +72,13 @@ class Transaction:
     @property
     def wanted(self) -> bool:
         """False once every waiter has gone (client disconnected): no bus time for it then."""
-        return self.probe or any(not waiter.done() for waiter in self.waiters)
+        if self.probe:
+            return True
+        # A loop, not any(): no generator frame per transaction.
+        for waiter in self.waiters:  # noqa: SIM110
+            if not waiter.done():
+                return True
+        return False
 
 
 class RequestQueue:
@@ -99,8 +105,9 @@ class RequestQueue:
 
         Returns the transaction that will carry the request. Raises QueueFull.
         """
-        if transaction.coalescable:
-            queued = self._coalescing.get(transaction.key)
+        key = transaction.key if transaction.coalescable else None
+        if key is not None:
+            queued = self._coalescing.get(key)
             if queued is not None:
                 queued.waiters.extend(transaction.waiters)
                 self.coalesced += 1
@@ -109,8 +116,8 @@ class RequestQueue:
             raise QueueFull(f"bus queue full ({self.maxsize} requests waiting)")
         clients = self._clients_of(transaction)
         clients.setdefault(transaction.client, deque()).append(transaction)
-        if transaction.coalescable:
-            self._coalescing[transaction.key] = transaction
+        if key is not None:
+            self._coalescing[key] = transaction
         self._size += 1
         return transaction
 
@@ -135,8 +142,10 @@ class RequestQueue:
         if waiting:
             clients[client] = waiting  # back of the round robin
         self._size -= 1
-        if self._coalescing.get(transaction.key) is transaction:
-            del self._coalescing[transaction.key]
+        if transaction.coalescable:
+            key = transaction.key
+            if self._coalescing.get(key) is transaction:
+                del self._coalescing[key]
         return transaction
 
     def _clients_of(self, transaction: Transaction) -> dict[str, deque[Transaction]]:
