@@ -560,9 +560,7 @@ class Bus:
             if attempt:
                 self.stats.retries += 1
                 drive.retries += 1
-            self.stats.transactions += 1
-            drive.transactions += 1
-            dump_frame(self.name, "tx", frame)
+            self._count_attempt(drive, frame)
             started = first.started if attempt == 0 else time.monotonic()
             try:
                 if attempt == 0:
@@ -618,9 +616,7 @@ class Bus:
         try:
             self._observe_gap(sending)
             drive = self._drive(transaction.address)
-            self.stats.transactions += 1
-            drive.transactions += 1
-            dump_frame(self.name, "tx", sending.frame)
+            self._count_attempt(drive, sending.frame)
             drive.line_s += time.monotonic() - sending.started
             outcome = self._attempt_answered(transaction, 0, sending.started, exchange, drive)
         except Exception as exc:  # a bug costs this one request, never the line
@@ -633,6 +629,12 @@ class Bus:
     def _observe_gap(self, sending: Sending) -> None:
         if self._back_to_back:
             self.gap_excess.observe(sending.gap_s - self.settings.line.gap_s)
+
+    def _count_attempt(self, drive: DriveStats, frame: bytes) -> None:
+        """One attempt on the wire, whichever way it ends (`_execute` or `_replied`)."""
+        self.stats.transactions += 1
+        drive.transactions += 1
+        dump_frame(self.name, "tx", frame)
 
     def _drive(self, address: int) -> DriveStats:
         drive = self.drive_stats.get(address)

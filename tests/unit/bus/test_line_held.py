@@ -9,6 +9,7 @@ import asyncio
 import os
 import tty
 from collections import deque
+from collections.abc import Callable
 
 import pytest
 
@@ -37,6 +38,11 @@ def open_line(path: str, baudrate: int = 115200) -> SerialLine:
     return line
 
 
+def picking(frames: deque[bytes]) -> Callable[[], bytes | None]:
+    """The bus's `_pick` for these tests: the next frame, until there is none."""
+    return lambda: frames.popleft() if frames else None
+
+
 async def test_the_caller_stays_held_while_the_reader_callback_carries_each_transaction(
     line: SimulatedLine,
 ) -> None:
@@ -47,7 +53,7 @@ async def test_the_caller_stays_held_while_the_reader_callback_carries_each_tran
         # Every frame but the first is picked in a callback, after the reply before it.
         ended = await asyncio.wait_for(
             serial.send_after_gap(
-                lambda: frames.popleft() if frames else None,
+                picking(frames),
                 lambda: 0.5,
                 lambda sending, exchange: replied.append((sending, exchange)),
             ),
@@ -76,7 +82,7 @@ async def test_a_reply_that_never_comes_goes_back_to_the_callers_own_reading(
     try:
         waiting = await asyncio.wait_for(
             serial.send_after_gap(
-                lambda: frames.popleft() if frames else None,
+                picking(frames),
                 lambda: 0.05,
                 lambda _, exchange: replied.append(exchange.reply_pdu),
             ),
@@ -101,9 +107,7 @@ async def test_a_failure_in_the_callers_hook_reaches_the_caller(line: SimulatedL
     try:
         with pytest.raises(RuntimeError, match="a bug in the bus"):
             await asyncio.wait_for(
-                serial.send_after_gap(
-                    lambda: frames.popleft() if frames else None, lambda: 0.5, replied
-                ),
+                serial.send_after_gap(picking(frames), lambda: 0.5, replied),
                 5.0,
             )
     finally:
@@ -139,9 +143,7 @@ async def test_an_echo_seen_while_held_is_still_known_for_one_when_the_reply_sto
     try:
         frames = deque([request])
         waiting = await asyncio.wait_for(
-            serial.send_after_gap(
-                lambda: frames.popleft() if frames else None, lambda: 0.1, lambda *_: None
-            ),
+            serial.send_after_gap(picking(frames), lambda: 0.1, lambda *_: None),
             5.0,
         )
         assert waiting is not None  # not carried by the callback: the reply never completed
