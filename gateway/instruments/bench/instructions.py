@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import platform
 import shutil
-import socket
 import struct
 import subprocess
 import tempfile
@@ -24,9 +23,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from gateway.errors import InstructionCountError
+from gateway.errors import InstructionCountError, LineError
 from gateway.instruments.bench.cases import SET_POINT, Case, gateway_config
 from gateway.instruments.bench.processes import free_port, gateway, simulator
+from gateway.tools.masters import TcpMaster
 
 BAUDRATE = 1200
 """Under callgrind the gateway runs ~50x slower: some 15-20 ms of work per transaction. The
@@ -125,45 +125,33 @@ def run(
 
 
 def read_sequentially(port: int, transactions: int) -> None:
-    """`transactions` reads from one client, each sent once the one before is answered."""
+    """`transactions` reads from one client, each sent once the one before is answered, each
+    reply checked: the read's answer, of the right length, no exception."""
     number = 0
     try:
-        with socket.create_connection(("127.0.0.1", port), REPLY_TIMEOUT_S) as client:
+        client = TcpMaster("127.0.0.1", port, REPLY_TIMEOUT_S)
+        try:
             for number in range(transactions):
-                _read(client, number, transactions)
-    except OSError as error:  # refused, reset, or no reply within REPLY_TIMEOUT_S
+                _check(client.request(UNIT, READ), number, transactions)
+        finally:
+            client.close()
+    except LineError as error:  # refused, reset, no reply in time, another request's answer
         raise InstructionCountError(
             f"transaction {number + 1} of {transactions}: {error}"
         ) from error
 
 
-def _read(client: socket.socket, number: int, transactions: int) -> None:
-    """One read, its reply checked: the read's answer, of the right length, no exception."""
-    tid = number & 0xFFFF
-    client.sendall(struct.pack(">HHHB", tid, 0, len(READ) + 1, UNIT) + READ)
-    header = _receive(client, 7)
-    got_tid, protocol, length, unit = struct.unpack(">HHHB", header)
-    pdu = _receive(client, length - 1) if length > 1 else b""
-    if (got_tid, protocol, unit) != (tid, 0, UNIT) or not pdu or pdu[0] != READ[0]:
+def _check(pdu: bytes, number: int, transactions: int) -> None:
+    if not pdu or pdu[0] != READ[0]:
         raise InstructionCountError(
             f"transaction {number + 1} of {transactions}: wrong reply "
-            f"{(header + pdu).hex(' ')} (an exception, or not the read's answer)"
+            f"{pdu.hex(' ')} (an exception, or not the read's answer)"
         )
     if len(pdu) != REPLY_LENGTH or pdu[1] != REPLY_LENGTH - 2:
         raise InstructionCountError(
             f"transaction {number + 1} of {transactions}: reply of {len(pdu)} bytes, "
-            f"{REPLY_LENGTH} expected: {(header + pdu).hex(' ')}"
+            f"{REPLY_LENGTH} expected: {pdu.hex(' ')}"
         )
-
-
-def _receive(client: socket.socket, size: int) -> bytes:
-    data = b""
-    while len(data) < size:
-        chunk = client.recv(size - len(data))
-        if not chunk:
-            raise ConnectionError("the gateway closed the connection")
-        data += chunk
-    return data
 
 
 def instructions(out: Path, returncode: int | None) -> int:
