@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import logging
+import platform
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -45,6 +46,7 @@ from gateway.buckets import Buckets
 from gateway.bus import Bus, BusState, RequestDone
 from gateway.bus.line import SerialLine
 from gateway.errors import CannotListen
+from gateway.event_loop import running_loop_name
 from gateway.health import Phase, health_report
 from gateway.http_endpoint import HttpEndpoint, Response
 from gateway.modbus.functions import FUNCTIONS
@@ -305,9 +307,13 @@ class GatewayCollector(Collector):
 
     def _gateway(self) -> Iterable[GaugeMetricFamily | InfoMetricFamily]:
         info = InfoMetricFamily(f"{PREFIX}_build", "Version and id of this gateway")
-        info.add_metric(
-            [], {"version": __version__, "gateway_id": self.service.settings.gateway_id}
-        )
+        labels = {
+            "version": __version__,
+            "gateway_id": self.service.settings.gateway_id,
+            "event_loop": running_loop_name(),
+            "python": platform.python_version(),
+        }
+        info.add_metric([], labels)
         yield info
         ready = GaugeMetricFamily(f"{PREFIX}_ready", "1 once started, 0 while starting/stopping")
         ready.add_metric([], 1.0 if self.service.phase is Phase.READY else 0.0)

@@ -7,7 +7,8 @@ XML report (`--junitxml`) as properties, so CI can keep them.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import asyncio
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +24,37 @@ LINE = {"addresses": (1, 2), "baudrate": 115200, "parity": "E", "wire_time": Tru
 time emulated. A module says otherwise with `pytestmark = pytest.mark.line(addresses=[1, 2, 3])`,
 a test with the same decorator; any `SimulatedLine` argument may be given, and `link="<name>"`
 puts a symlink of that name in the test's tmp_path in front of the pty."""
+
+
+BOTH_LOOPS = (
+    "tests/unit/bus/",
+    "tests/test_real_lines.py",
+    "tests/test_line_faults.py",
+    "tests/test_scheduling.py",
+    "tests/test_gateway.py",
+    "tests/test_tcp_front_door.py",
+    "tests/test_tcp_protection.py",
+    "tests/test_tcp_slow_clients.py",
+)
+"""The line, the bus and the TCP server, tested in-process on both event loops: uvloop, which
+the service runs on where it is installed, and asyncio's own, which it falls back to."""
+
+
+def pytest_asyncio_loop_factories(
+    config: pytest.Config, item: pytest.Item
+) -> Mapping[str, Callable[[], asyncio.AbstractEventLoop]]:
+    """The loops an async test runs on: the service's (uvloop where installed), and for the
+    parts in BOTH_LOOPS asyncio's own as well."""
+    factories: dict[str, Callable[[], asyncio.AbstractEventLoop]] = {}
+    try:
+        import uvloop
+    except ImportError:
+        uvloop = None
+    if uvloop is None or item.nodeid.startswith(BOTH_LOOPS):
+        factories["asyncio"] = asyncio.new_event_loop
+    if uvloop is not None:
+        factories["uvloop"] = uvloop.new_event_loop
+    return factories
 
 
 def pytest_configure(config: pytest.Config) -> None:

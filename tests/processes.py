@@ -105,12 +105,17 @@ class GatewayProcess:
     """`invt-gateway run --config FILE` with its log collected from stderr."""
 
     def __init__(
-        self, config: dict[str, Any], directory: Path, env: Mapping[str, str] | None = None
+        self,
+        config: dict[str, Any],
+        directory: Path,
+        env: Mapping[str, str] | None = None,
+        command: Sequence[str] = (),
     ) -> None:
+        """`command`: what runs instead of the `invt-gateway` script (its arguments follow)."""
         self.config_file = directory / f"gateway-{config.get('gateway_id', 'test')}.yaml"
         self.config_file.write_text(yaml.safe_dump(config), encoding="utf-8")
         self.process = subprocess.Popen(
-            [entry_point(), "run", "--config", str(self.config_file)],
+            [*(command or [entry_point()]), "run", "--config", str(self.config_file)],
             stdin=subprocess.DEVNULL,
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,
@@ -146,9 +151,12 @@ class GatewayProcess:
 
 @contextlib.contextmanager
 def gateway_process(
-    config: dict[str, Any], directory: Path, env: Mapping[str, str] | None = None
+    config: dict[str, Any],
+    directory: Path,
+    env: Mapping[str, str] | None = None,
+    command: Sequence[str] = (),
 ) -> Iterator[GatewayProcess]:
-    gateway = GatewayProcess(config, directory, env)
+    gateway = GatewayProcess(config, directory, env, command)
     try:
         yield gateway
     finally:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import platform
 import urllib.error
 import urllib.request
 from typing import Any
@@ -141,7 +142,18 @@ async def test_metrics_count_real_traffic_per_drive_source_and_code(line: Simula
         assert m("tcp_clients") == 1
         assert m("tcp_requests_total") == 8
         assert m("ready") == 1
-        assert m("build_info", gateway_id="cabinet-test", version="0.1.0") == 1
+        # The loop is the one this test runs on (in-process): uvloop where it is installed.
+        loop = (
+            "uvloop"
+            if type(asyncio.get_running_loop()).__module__.startswith("uvloop")
+            else "asyncio"
+        )
+        build = {
+            "gateway_id": "cabinet-test",
+            "version": "0.1.0",
+            "python": platform.python_version(),
+        }
+        assert m("build_info", **build, event_loop=loop) == 1
         assert m("process_resident_memory_bytes") > 0
         await client.close()
 

@@ -14,6 +14,8 @@ from gateway.app import Application
 from gateway.cli import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
 from gateway.config import GatewayConfig, load_config
 from gateway.errors import BusFailed, CannotListen, ConfigError, FeatureFailed
+from gateway.event_loop import EventLoopChoice, choose_event_loop
+from gateway.event_loop import run as run_on_loop
 from gateway.health import Phase
 from gateway.logs import setup_logging
 from gateway.settings import runtime_settings
@@ -36,8 +38,21 @@ def handle(args: argparse.Namespace) -> int:
     config = load_or_report(args.config)
     if config is None:
         return EXIT_CONFIG
+    loop = event_loop_or_report()
+    if loop is None:
+        return EXIT_CONFIG
     setup_logging(config.logging.level, config.logging.format)
-    return asyncio.run(serve(config, config_path=args.config))
+    log.info("event loop: %s", loop.describe())
+    return run_on_loop(serve(config, config_path=args.config), loop)
+
+
+def event_loop_or_report() -> EventLoopChoice | None:
+    """The loop `INVT_GATEWAY_EVENT_LOOP` asks for; None (and why, on stderr) if it can't be."""
+    try:
+        return choose_event_loop()
+    except ConfigError as exc:
+        print(f"invt-gateway: {exc}", file=sys.stderr)
+        return None
 
 
 def settle_startup_objects() -> None:

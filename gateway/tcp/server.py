@@ -34,6 +34,7 @@ import ssl
 from collections import Counter
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
+from typing import cast
 
 from gateway.bus.queue import Waiter
 from gateway.errors import ExceptionCode, MalformedFrame, ModbusError
@@ -392,8 +393,9 @@ class Connection(asyncio.Protocol):
         """A TLS client's role, from its certificate; None on the plain listener."""
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        assert isinstance(transport, asyncio.Transport)
-        self._transport = transport
+        # A stream transport: asyncio's, or uvloop's (which doesn't derive from asyncio's
+        # classes, so no isinstance check here).
+        self._transport = cast(asyncio.Transport, transport)
         peer = transport.get_extra_info("peername") or ("?", 0)
         self.host = str(peer[0])
         self.client = f"tcp:{peer[0]}:{peer[1]}"

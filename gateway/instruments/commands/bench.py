@@ -9,6 +9,8 @@ import sys
 from pathlib import Path
 
 from gateway.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
+from gateway.errors import ConfigError
+from gateway.event_loop import choose_event_loop
 from gateway.progress import Progress
 
 BAUDRATES = (9600, 19200, 115200)
@@ -107,6 +109,9 @@ def handle(args: argparse.Namespace) -> int:
     if args.case:
         cases = [c for c in cases + extra_cases(baudrates) if args.case in c.name]
     results: list[CaseResult] = []
+    loop = gateway_event_loop()
+    if loop is None:
+        return EXIT_USAGE
     if not args.json:
         print(header(), flush=True)
     # Isolating a dead drive takes a few timeouts: measure the steady state after it.
@@ -123,14 +128,27 @@ def handle(args: argparse.Namespace) -> int:
                 progress.print(format_row(row(result)), sys.stdout)
     if args.json:
         json.dump(
-            {"cases": [row(r) for r in results], "summary": summary(results)}, sys.stdout, indent=2
+            {"event_loop": loop, "cases": [row(r) for r in results], "summary": summary(results)},
+            sys.stdout,
+            indent=2,
         )
         print()
     else:
         print()
+        print(f"the gateway ran on {loop}")
         for line in summary(results):
             print(line)
     return EXIT_OK
+
+
+def gateway_event_loop() -> str | None:
+    """The event loop the gateway processes will run on: they inherit this environment, so
+    they choose as this does. None (and why, on stderr) if the choice is refused."""
+    try:
+        return choose_event_loop().describe()
+    except ConfigError as exc:
+        print(f"invt-gateway bench: {exc}", file=sys.stderr)
+        return None
 
 
 def count_instructions(args: argparse.Namespace) -> int:
@@ -152,6 +170,9 @@ def count_instructions(args: argparse.Namespace) -> int:
     if valgrind is None:
         print(instructions.MISSING, file=sys.stderr)
         return EXIT_FAILURE
+    loop = gateway_event_loop()
+    if loop is None:
+        return EXIT_USAGE
     pinning = instructions.fixed_addresses()
     if not pinning:
         print(instructions.UNPINNED, file=sys.stderr)
@@ -171,6 +192,8 @@ def count_instructions(args: argparse.Namespace) -> int:
         json.dump(instructions.as_json(counts), sys.stdout, indent=2)
         print()
     else:
+        if source is None:
+            print(f"the gateway ran on {loop}")
         for line in instructions.report(counts):
             print(line)
     return EXIT_OK

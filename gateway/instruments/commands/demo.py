@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import logging
 import secrets
 import shutil
 import sys
@@ -20,14 +21,17 @@ from typing import Any
 
 from gateway.app import Application
 from gateway.cli import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
-from gateway.commands.run import serve
+from gateway.commands.run import event_loop_or_report, serve
 from gateway.config import GatewayConfig, parse_config
 from gateway.errors import ConfigError
+from gateway.event_loop import run as run_on_loop
 from gateway.logs import setup_logging
 
 DEMO_OPERATOR = "operator"
 DEMO_MQTT_PORT = 1883
 """The embedded demo.yaml's broker port: `demo --watch` without options looks there."""
+
+log = logging.getLogger(__name__)
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -99,6 +103,9 @@ def handle(args: argparse.Namespace) -> int:
         config = config.model_copy(
             update={"console": config.console.model_copy(update={"port": args.console_port})}
         )
+    loop = event_loop_or_report()
+    if loop is None:
+        return EXIT_CONFIG
     setup_logging(config.logging.level, config.logging.format)
     if args.watch:
         return asyncio.run(watch_demo(config))
@@ -115,7 +122,8 @@ def handle(args: argparse.Namespace) -> int:
             storage = config.storage.model_copy(update={"path": f"{state}/events.db"})
             config = config.model_copy(update={"storage": storage})
         config, password = with_demo_operator(config)
-        return asyncio.run(serve_demo(config, args.config, password))
+        log.info("event loop: %s", loop.describe())
+        return run_on_loop(serve_demo(config, args.config, password), loop)
 
 
 async def watch_demo(config: GatewayConfig) -> int:
