@@ -17,9 +17,13 @@ COPY pyproject.toml README.md ./
 COPY gateway ./gateway
 # The service and the field tools only: the instruments (simulator, bench, stress, the demo's
 # broker) stay out of the image; the CLI lists no command it doesn't have.
+# uvloop (the event loop in C) comes as a wheel for amd64 and arm64; on arm/v7 pip would need a
+# compiler for it, so there the gateway runs on asyncio's own loop (its log's first line says so).
 RUN rm -rf /src/gateway/instruments \
     && python -m venv /opt/invt-gateway \
-    && /opt/invt-gateway/bin/pip install --no-cache-dir /src
+    && /opt/invt-gateway/bin/pip install --no-cache-dir /src \
+    && { /opt/invt-gateway/bin/pip install --no-cache-dir --only-binary uvloop '/src[uvloop]' \
+         || echo "no uvloop wheel for $(uname -m): asyncio's own event loop"; }
 
 FROM python:3.11-slim-bookworm
 # A system user without a home or shell; dialout lets it open serial devices passed in with

@@ -78,6 +78,12 @@ setup_venv() {
     fi
   fi
   echo "invt-gateway: installing the package${extras:+ with its $extras extras} into .venv (pip)" >&2
-  .venv/bin/python -m pip install -q --disable-pip-version-check -e ".${extras:+[$extras]}"
+  # uvloop (the event loop in C) where it comes as a wheel; elsewhere (32-bit ARM) pip would
+  # need a compiler for it: the gateway runs on asyncio's own loop there, just as well.
+  if ! .venv/bin/python -m pip install -q --disable-pip-version-check --only-binary uvloop \
+      -e ".[${extras:+$extras,}uvloop]" 2>/dev/null; then
+    echo "invt-gateway: no uvloop wheel for this machine: the gateway will run on asyncio's own loop" >&2
+    .venv/bin/python -m pip install -q --disable-pip-version-check -e ".${extras:+[$extras]}"
+  fi
   echo "$hash $extras" > "$stamp"
 }

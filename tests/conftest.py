@@ -8,6 +8,7 @@ XML report (`--junitxml`) as properties, so CI can keep them.
 from __future__ import annotations
 
 import asyncio
+import os
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
@@ -15,6 +16,7 @@ from typing import Any
 import pytest
 
 from gateway.config import ENV_STATE_DIRECTORY
+from gateway.event_loop import ENV_EVENT_LOOP
 from gateway.instruments.simulator import SimulatedLine
 
 FIGURE = "figure:"
@@ -28,31 +30,39 @@ puts a symlink of that name in the test's tmp_path in front of the pty."""
 
 BOTH_LOOPS = (
     "tests/unit/bus/",
+    "tests/unit/tcp/",
     "tests/test_real_lines.py",
     "tests/test_line_faults.py",
+    "tests/test_direction_control.py",
+    "tests/test_recovery.py",
+    "tests/test_serial_server.py",
     "tests/test_scheduling.py",
     "tests/test_gateway.py",
     "tests/test_tcp_front_door.py",
     "tests/test_tcp_protection.py",
+    "tests/test_tcp_security.py",
     "tests/test_tcp_slow_clients.py",
 )
-"""The line, the bus and the TCP server, tested in-process on both event loops: uvloop, which
-the service runs on where it is installed, and asyncio's own, which it falls back to."""
+"""The line, the bus, the TCP server (TLS included) and the port's recovery, tested in-process on
+both event loops: uvloop, which the service runs on where it is installed, and asyncio's own,
+which it falls back to (a 32-bit ARM box, `INVT_GATEWAY_EVENT_LOOP=asyncio`)."""
 
 
 def pytest_asyncio_loop_factories(
     config: pytest.Config, item: pytest.Item
 ) -> Mapping[str, Callable[[], asyncio.AbstractEventLoop]]:
     """The loops an async test runs on: the service's (uvloop where installed), and for the
-    parts in BOTH_LOOPS asyncio's own as well."""
-    factories: dict[str, Callable[[], asyncio.AbstractEventLoop]] = {}
+    parts in BOTH_LOOPS asyncio's own as well. `INVT_GATEWAY_EVENT_LOOP=asyncio` runs every test
+    on asyncio's loop alone, as it does the gateway processes the tests start."""
+    only_asyncio = os.environ.get(ENV_EVENT_LOOP, "").strip().lower() == "asyncio"
     try:
         import uvloop
     except ImportError:
         uvloop = None
-    if uvloop is None or item.nodeid.startswith(BOTH_LOOPS):
+    factories: dict[str, Callable[[], asyncio.AbstractEventLoop]] = {}
+    if uvloop is None or only_asyncio or item.nodeid.startswith(BOTH_LOOPS):
         factories["asyncio"] = asyncio.new_event_loop
-    if uvloop is not None:
+    if uvloop is not None and not only_asyncio:
         factories["uvloop"] = uvloop.new_event_loop
     return factories
 

@@ -257,3 +257,31 @@ def test_counting_instructions_fails_on_a_wrong_reply(pdu: bytes, complaint: str
         with pytest.raises(InstructionCountError, match=f"transaction 2 of 3: {complaint}"):
             read_sequentially(server.getsockname()[1], 3)
         thread.join()
+
+
+def test_the_bench_runs_the_gateway_at_its_systemd_unit_s_priority() -> None:
+    """What the bench measures is the service as its unit runs it: at `Nice=-10` (the unit's
+    setting, checked against the bench's own), where this user may raise a priority."""
+    from gateway.instruments.bench.cases import gateway_config
+    from gateway.instruments.bench.instructions import CASE
+    from gateway.instruments.bench.processes import (
+        GATEWAY_NICENESS,
+        free_port,
+        gateway,
+        niceness_prefix,
+        simulator,
+    )
+
+    unit = (Path(__file__).parents[1] / "config" / "invt-gateway.service").read_text()
+    assert f"\nNice={GATEWAY_NICENESS}\n" in unit
+    port = free_port()
+    with (
+        simulator([1], 115200, [], 0.0) as line,
+        gateway(gateway_config(CASE, [line.path], port), port) as process,
+    ):
+        stat = Path(f"/proc/{process.process.pid}/stat").read_text()
+        niceness = int(stat.rsplit(")", 1)[1].split()[16])  # field 19 of proc(5)
+    expected = GATEWAY_NICENESS if niceness_prefix() else os.getpriority(os.PRIO_PROCESS, 0)
+    assert niceness == expected
+    # As root (this machine, CI) the bench may and does.
+    assert os.geteuid() != 0 or niceness == GATEWAY_NICENESS

@@ -80,6 +80,8 @@ class LineTimer:
         self._armed = _ARMED.setdefault(loop, set())
         self._arms = 0
         """timerfd_settime calls so far: `_expired` tells by it whether its action re-armed."""
+        self._fallback: asyncio.TimerHandle | None = None
+        """The loop's timer for the pending sleep where there is no timerfd."""
         self._fd = -1
         self._libc = _libc()
         if self._libc is not None:
@@ -139,13 +141,13 @@ class LineTimer:
             if self._fd >= 0 and self._arm(deadline):
                 await waiter
                 return
-            handle = self._loop.call_at(
-                self._loop.time() + (deadline - time.monotonic()), self._deadline_reached
-            )
+            self._fallback = self._loop.call_later(deadline - time.monotonic(), self._fallback_due)
             try:
                 await waiter
             finally:
-                handle.cancel()
+                if self._fallback is not None:
+                    self._fallback.cancel()
+                    self._fallback = None
         finally:
             if self._waiter is waiter:  # not a newer sleep's, if this one ended late
                 self._waiter = self._at_deadline = None
@@ -211,6 +213,18 @@ class LineTimer:
             # call less then.
             with contextlib.suppress(BlockingIOError):
                 os.read(self._fd, 8)
+
+    def _fallback_due(self) -> None:
+        """The loop's timer, where there is no timerfd: asyncio's rounds up to the next
+        millisecond, uvloop's to the nearest (under half a millisecond: the next pass), so it
+        may come early; then it waits out the rest. An RTS set-up or hold delay must not end
+        early, nor a gap whose end nothing else checks."""
+        self._fallback = None
+        remaining = self._deadline - time.monotonic()
+        if remaining > 0 and self._deadline != math.inf:
+            self._fallback = self._loop.call_later(remaining, self._fallback_due)
+            return
+        self._deadline_reached()
 
     def _deadline_reached(self) -> None:
         waiter, action = self._waiter, self._at_deadline

@@ -102,6 +102,7 @@ def handle(args: argparse.Namespace) -> int:
     if args.instructions:
         return count_instructions(args)
     from gateway.instruments.bench.cases import CaseResult, extra_cases, matrix, run_case
+    from gateway.instruments.bench.processes import gateway_niceness
     from gateway.instruments.bench.report import format_row, header, row, summary
 
     baudrates = tuple(args.baud or BAUDRATES)
@@ -128,14 +129,19 @@ def handle(args: argparse.Namespace) -> int:
                 progress.print(format_row(row(result)), sys.stdout)
     if args.json:
         json.dump(
-            {"event_loop": loop, "cases": [row(r) for r in results], "summary": summary(results)},
+            {
+                "event_loop": loop,
+                "priority": gateway_niceness(),
+                "cases": [row(r) for r in results],
+                "summary": summary(results),
+            },
             sys.stdout,
             indent=2,
         )
         print()
     else:
         print()
-        print(f"the gateway ran on {loop}")
+        print(f"the gateway ran on {loop}, {gateway_niceness()}")
         for line in summary(results):
             print(line)
     return EXIT_OK
