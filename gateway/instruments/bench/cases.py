@@ -17,6 +17,7 @@ from gateway.instruments.bench.processes import (
     free_port,
     gateway,
     simulator,
+    wait_listening,
 )
 from gateway.instruments.bench.scrape import excess_gap_buckets
 from gateway.instruments.bench.wire import WireBudget, read_budget
@@ -303,6 +304,11 @@ def run_case(case: Case, duration_s: float, warmup_s: float) -> CaseResult:
             case, [line.path for line in lines], port, console_port, metrics_port
         )
         with gateway(config, port) as process:
+            # The Modbus-TCP port listens first; the console and metrics start after it (a
+            # loaded machine showed the gap): the case begins once all it uses listen.
+            for feature in ("metrics", "console"):
+                if feature in config:
+                    wait_listening(config[feature]["port"], process.process)
             return asyncio.run(
                 _measure(
                     case, lines, process, dead, duration_s, warmup_s, console_port, metrics_port
