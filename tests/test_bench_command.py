@@ -61,20 +61,27 @@ def test_bench_prints_checked_figures_as_json() -> None:
         assert row["bus tx/s"] > 0
         assert row["client tx/s"] > 0
         assert row["peak RSS MB"] > 0
-        # Coalescing answers several clients per transaction: never more CPU per answer.
-        assert row["CPU us/ans"] <= row["CPU us/tx"]
+        if "same reg" in row["case"]:
+            # Coalescing answers several clients per transaction: less CPU per answer.
+            assert row["CPU us/ans"] < row["CPU us/tx"]
         assert 0 <= row["CPU"] < 2  # the gateway's share of the machine's two cores
-        # The gateway's own share, from its /metrics: never a gap shorter than t3.5. A short
-        # run whose clients fell into step (all eight waiting on one coalesced transaction)
-        # may have no back-to-back transaction to measure: no figure (NaN) then, never < 0.
+        # The gateway's own share, from its /metrics: never a gap shorter than t3.5, and
+        # measured in every case whose clients keep the line busy (the cache's case has only
+        # the polls' transactions on the line: it may have none that waited for it).
         p50, p99 = row["gap+ p50 us"], row["gap+ p99 us"]
-        assert (math.isnan(p50) and math.isnan(p99)) or 0 <= p50 <= p99
+        if "cache" in row["case"]:
+            assert (math.isnan(p50) and math.isnan(p99)) or 0 <= p50 <= p99
+        else:
+            assert 0 <= p50 <= p99, row["case"]
+        if "same reg" not in row["case"]:
+            # Each client asks its own read: none joins another's transaction, so the clients
+            # contend for the line and get what it carries, not a multiple of it.
+            assert row["client tx/s"] <= 1.1 * row["bus tx/s"], row["case"]
         assert 0 < row["worst line"] == row["bus util"]  # one line: it is the worst
         # 115200 8E1, 8 + 9 bytes, t3.5 1.75 ms, the drive's 5 ms (or 1 ms after its own t3.5).
         delay = 0.00175 + 0.001 if "fast" in row["case"] else 0.005
         assert abs(row["wire max/s"] - 1 / (17 * 11 / 115200 + 0.00175 + delay)) < 0.1
     assert any("served by coalescing alone" in line for line in report["summary"])
-    assert any(not math.isnan(row["gap+ p50 us"]) for row in report["cases"])
     # Overall progress on stderr, plain lines when not on a terminal: one per case.
     steps = [line for line in result.stderr.splitlines() if line.startswith("bench: case")]
     assert [step.split(" (")[0] for step in steps] == [f"bench: case {n} of 8" for n in range(1, 9)]

@@ -157,9 +157,11 @@ class Bus:
         self.gap_excess = GapExcess()
         """The silence beyond the inter-frame gap before each back-to-back request: our share."""
         self._reply_heard_at = 0.0
-        """When the last transaction's reply ended, if a request was waiting then; else 0.0."""
+        """When the last transaction's reply ended; 0.0 when it had none (a broadcast, a
+        timeout) or a transaction has been picked since."""
         self._back_to_back = False
-        """The transaction carried now waited as the last reply ended (`_reply_heard_at`)."""
+        """The transaction carried now was queued before the gap after the last reply ended: it
+        waited for the line, so the silence beyond t3.5 before it is the gateway's own."""
         self.health = HealthTracker(
             settings.offline_after, settings.probe_initial_s, settings.probe_max_s
         )
@@ -299,6 +301,7 @@ class Bus:
             raise DriveOffline(f"drive {address} on {self.name} is offline")
 
     def _put(self, transaction: Transaction) -> None:
+        transaction.queued_at = time.monotonic()
         try:
             carrier = self._queue.put(transaction)
         except GatewayError:
@@ -462,10 +465,13 @@ class Bus:
 
     def _pick(self) -> bytes | None:
         """Take the best transaction queued now and return its frame; None if there is none."""
-        # A request waited as the last reply ended: the silence before it, beyond the gap, is
-        # the gateway's own (not a client's think time, nor a broadcast's turnaround). Found
-        # nothing: the line goes idle, and what comes next waited for work.
-        reply_heard_at, self._reply_heard_at = self._reply_heard_at, 0.0
+        # A request queued before the gap after the last reply ended waited for the line: the
+        # silence before it, beyond the gap, is the gateway's own. One queued later, the line
+        # waited for it (a client's think time); after a broadcast or a timeout there is no
+        # reply to count from. Clients that are answered together and ask again together
+        # (their reads shared a transaction) queue during the gap, not before the reply ended:
+        # they count too, or a line of such clients would never show the gateway's share.
+        reply_heard_at = self._reply_heard_at
         if self.closing:
             return None
         now = time.monotonic()
@@ -482,7 +488,11 @@ class Bus:
                 _fail(transaction, DriveOffline(f"drive {address} on {self.name} is offline"))
                 continue
             self._carrying = transaction  # before anything can fail: it must be answered
-            self._back_to_back = reply_heard_at != 0.0
+            self._reply_heard_at = 0.0
+            self._back_to_back = (
+                reply_heard_at != 0.0
+                and transaction.queued_at <= reply_heard_at + self.settings.line.gap_s
+            )
             return transaction.frame or build_frame(address, transaction.pdu)
         return None
 
@@ -667,8 +677,7 @@ class Bus:
 
     def _record(self, exchange: Exchange, drive: DriveStats) -> None:
         self.stats.busy_s += exchange.busy_s
-        if exchange.reply_heard_at and len(self._queue):
-            self._reply_heard_at = exchange.reply_heard_at
+        self._reply_heard_at = exchange.reply_heard_at
         if self.stats.min_gap_s is None or exchange.gap_s < self.stats.min_gap_s:
             self.stats.min_gap_s = exchange.gap_s
         pdu = exchange.reply_pdu
@@ -732,6 +741,7 @@ class Bus:
                 # queue after a reopen must not fill with copies, each costing its timeouts.
                 coalescable=True,
                 frame=build_frame(address, PROBE_PDU),
+                queued_at=time.monotonic(),
             )
             try:
                 self._queue.put(probe)

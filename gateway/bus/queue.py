@@ -64,6 +64,8 @@ class Transaction:
     """A bus's own check of an offline drive: nobody waits for it, it is always wanted."""
     frame: bytes = b""
     """The RTU frame, built when queued: CRC work done while the line is busy, not in the gap."""
+    queued_at: float = 0.0
+    """When it was queued (`time.monotonic()`): did it wait for the gap, or the gap for it?"""
 
     @property
     def key(self) -> tuple[int, bytes, Priority]:

@@ -31,6 +31,9 @@ FLOOD_WINDOW = 8
 """Requests the flooding client keeps in flight (below max_queued_writes_per_client's 16)."""
 SET_POINT = 0x2001  # 2001H..2002H: frequency set-point and PID reference, written per drive
 RUNNING_VALUES = 0x3000  # 3000H..: running values; static while the drives stand still
+READS_PER_DRIVE = 8
+"""Different reads the clients of one drive make (a start address each: 2001H-2008H for 2
+words, 3000H-3007H for 16): no two clients ask the same, so none joins another's transaction."""
 ADAPTER_BAUD = 19200  # where the real-adapter cases run: the factory setting of P14.01
 
 
@@ -326,18 +329,20 @@ async def _measure(
     console_port: int = 0,
     metrics_port: int = 0,
 ) -> CaseResult:
-    targets = [await _prepare(case, process.port, dead, line) for line in range(case.lines)]
+    reads = [await _prepare(case, process.port, dead, line) for line in range(case.lines)]
     measuring, stop = asyncio.Event(), asyncio.Event()
     watching = None
     if case.monitor:
         from gateway.instruments.bench.monitor import watch_traffic  # aiohttp only for this case
 
         watching = asyncio.create_task(watch_traffic(console_port, stop))
+    # A client told its drive is offline asks again after one transaction's time on the wire.
+    pause = case.budget.transaction_s
     loads = [
         asyncio.create_task(
-            run_clients(process.port, case.clients, each, frozenset(dead), measuring, stop)
+            run_clients(process.port, each, frozenset(dead), measuring, stop, pause)
         )
-        for each in targets
+        for each in reads
     ]
     if case.flood:
         flooding = asyncio.create_task(flood(process.port, case.flood, FLOOD_WINDOW, stop))
@@ -375,8 +380,17 @@ async def _measure(
     )
 
 
-async def _prepare(case: Case, port: int, dead: list[int], line: int = 0) -> list[Target]:
-    """Give each drive its own set-points, then learn the right answer to every target."""
+async def _prepare(case: Case, port: int, dead: list[int], line: int = 0) -> list[list[Target]]:
+    """Give each drive its own set-points, then learn the right answer to every read: what
+    each of the line's clients asks, in turn (a list per client).
+
+    Each client asks one drive one read of its own, so every request is a transaction of its
+    own and the clients contend for the line. Clients whose reads were alike would share a
+    transaction, be answered together, ask again together and, a few transactions on, all be
+    in step: one transaction per round for all of them and nothing waiting between rounds (the
+    line would measure the coalescing, not the contention). `same_registers`: every client
+    asks drive 1 the same read, which is the coalescing case.
+    """
     reader, writer = await asyncio.open_connection("127.0.0.1", port)
     tid = 0
 
@@ -388,25 +402,31 @@ async def _prepare(case: Case, port: int, dead: list[int], line: int = 0) -> lis
         return await reader.readexactly(length - 1)
 
     start = SET_POINT if case.words <= 2 else RUNNING_VALUES
-    targets = []
     on_line = case.units(line)
     units = on_line[:1] if case.same_registers else on_line
+    slots = 1 if case.same_registers else -(-case.clients // len(units))
+    if slots > READS_PER_DRIVE:
+        raise ValueError(f"{case.name}: more than {READS_PER_DRIVE} clients per drive")
+    targets: dict[tuple[int, int], Target] = {}
     for unit in units:
         address = unit - line * case.drives
-        pdu = struct.pack(">BHH", 3, start, case.words)
-        if address in dead:
-            targets.append(Target(unit, pdu, b""))
-            continue
-        set_points = struct.pack(">BHHB", 0x10, SET_POINT, 2, 4) + struct.pack(
-            ">HH", 1000 + 100 * address, 10 * address
-        )
-        reply = await request(unit, set_points)
-        if reply[0] != 0x10:
-            raise RuntimeError(f"drive {unit} refused its set-points: {reply.hex(' ')}")
-        expected = await request(unit, pdu)
-        if expected[0] != 3:
-            raise RuntimeError(f"drive {unit} refused the benchmark read: {expected.hex(' ')}")
-        targets.append(Target(unit, pdu, expected))
+        if address not in dead:
+            set_points = struct.pack(">BHHB", 0x10, SET_POINT, 2, 4) + struct.pack(
+                ">HH", 1000 + 100 * address, 10 * address
+            )
+            reply = await request(unit, set_points)
+            if reply[0] != 0x10:
+                raise RuntimeError(f"drive {unit} refused its set-points: {reply.hex(' ')}")
+        for slot in range(slots):
+            pdu = struct.pack(">BHH", 3, start + slot, case.words)
+            if address in dead:
+                targets[unit, slot] = Target(unit, pdu, b"")
+                continue
+            expected = await request(unit, pdu)
+            if expected[0] != 3:
+                raise RuntimeError(f"drive {unit} refused the benchmark read: {expected.hex(' ')}")
+            targets[unit, slot] = Target(unit, pdu, expected)
     writer.close()
     await writer.wait_closed()
-    return targets
+    # Client n: the n-th drive (in turn), the read numbered by how many went round before it.
+    return [[targets[units[n % len(units)], n // len(units) % slots]] for n in range(case.clients)]

@@ -46,32 +46,37 @@ class LoadResult:
 
 async def run_clients(
     port: int,
-    clients: int,
-    targets: list[Target],
+    reads: list[list[Target]],
     dead_units: frozenset[int],
     measuring: asyncio.Event,
     stop: asyncio.Event,
+    dead_pause_s: float = 0.0,
 ) -> LoadResult:
-    """Run `clients` connections until `stop`; only replies while `measuring` is set count."""
+    """One connection per list in `reads`, each repeating its own targets in turn until
+    `stop`; only replies while `measuring` is set count. A client answered 0BH (its drive is
+    offline) waits `dead_pause_s` before asking again, as a poller would, instead of spinning."""
     result = LoadResult()
     await asyncio.gather(
-        *(_client(port, i, targets, dead_units, measuring, stop, result) for i in range(clients))
+        *(
+            _client(port, targets, dead_units, measuring, stop, result, dead_pause_s)
+            for targets in reads
+        )
     )
     return result
 
 
 async def _client(
     port: int,
-    index: int,
     targets: list[Target],
     dead_units: frozenset[int],
     measuring: asyncio.Event,
     stop: asyncio.Event,
     result: LoadResult,
+    dead_pause_s: float,
 ) -> None:
     reader, writer = await asyncio.open_connection("127.0.0.1", port)
     tid = 0
-    position = index  # clients start on different drives
+    position = 0
     try:
         while not stop.is_set():
             target = targets[position % len(targets)]
@@ -84,6 +89,8 @@ async def _client(
             reply_tid, _, length, unit = struct.unpack(">HHHB", reply_header)
             pdu = await reader.readexactly(length - 1)
             latency = time.perf_counter() - started
+            if dead_pause_s and target.unit_id in dead_units:
+                await asyncio.sleep(dead_pause_s)
             if not measuring.is_set():
                 continue
             if reply_tid != tid or unit != target.unit_id:

@@ -135,13 +135,15 @@ async def test_transactions_ended_in_the_reader_callback_are_counted_as_any_othe
 ) -> None:
     """Back-to-back reads end in the port's reader callback, a silent drive's in the bus's own
     reading: both are counted, timed and shown to the traffic monitor alike, and only requests
-    that waited as a reply ended count in the gateway's own share (the excess gap)."""
+    that waited for the line count in the gateway's own share (the excess gap)."""
     seen: list[tuple[int, int, bool]] = []
+    after_the_gap = 10 * FAST_T35_S  # a request that comes later found the line idle
     async with running_bus(line.path, timeout_ms=50, retries=0, offline_after=5) as bus:
         bus.tap = lambda _bus, transaction, attempt, _started, outcome: seen.append(
             (transaction.address, attempt, isinstance(outcome, Exchange))
         )
         assert await read(bus, 1, STATE_WORD_1) == STOPPED_REPLY  # alone: waited for nobody
+        await asyncio.sleep(after_the_gap)
         # Running values 3000H on, 1-5 words: no two alike, so none share a transaction.
         counts = [1 + n // 2 for n in range(10)]
         replies = await asyncio.gather(
@@ -150,6 +152,7 @@ async def test_transactions_ended_in_the_reader_callback_are_counted_as_any_othe
         assert [reply[:2] if reply else None for reply in replies] == [
             bytes([3, 2 * count]) for count in counts
         ]
+        await asyncio.sleep(after_the_gap)
         with pytest.raises(GatewayTargetFailed):
             await read(bus, SILENT, STATE_WORD_1)
         assert bus.stats.transactions == 12
@@ -157,8 +160,29 @@ async def test_transactions_ended_in_the_reader_callback_are_counted_as_any_othe
         assert bus.stats.timeouts == bus.drive_stats[SILENT].timeouts == 1
         assert all(bus.drive_stats[address].line_s > 0 for address in (1, 2, SILENT))
         assert bus.stats.busy_s > 0
-        # The 10 gathered reads: the first waited for nobody, each of the 9 after it for the
-        # reply before it; the lone read and the silent drive's request waited for nobody.
+        # The 10 gathered reads: the first came after the gap and waited for nobody, each of
+        # the 9 after it for the reply before it; the lone read and the silent drive's request
+        # waited for nobody.
         assert bus.gap_excess.count == 9
         assert bus.gap_excess.counts[0] == 0  # never a gap shorter than t3.5
     assert seen == [(1, 0, True)] + [(1 + n % 2, 0, True) for n in range(10)] + [(SILENT, 0, False)]
+
+
+@pytest.mark.line(baudrate=1200)
+async def test_a_request_queued_during_the_gap_counts_in_the_gateways_share(
+    line: SimulatedLine,
+) -> None:
+    """Clients answered together by a shared transaction ask again together, after the reply
+    ended but before the gap that follows it has: they waited for the line, so the silence
+    beyond t3.5 before them is the gateway's own and counts. A request after the gap found the
+    line idle (a client's own pause) and does not."""
+    async with running_bus(line.path, baudrate=1200) as bus:
+        gap_s = bus.settings.line.gap_s  # 32 ms at 1200 baud: a coroutine asks again well within
+        assert await read(bus, 1, STATE_WORD_1) == STOPPED_REPLY
+        assert bus.gap_excess.count == 0  # the first request: no reply before it
+        assert await read(bus, 1, STATE_WORD_1) == STOPPED_REPLY  # asked again at once
+        assert bus.gap_excess.count == 1
+        await asyncio.sleep(3 * gap_s)
+        assert await read(bus, 2, STATE_WORD_1) == STOPPED_REPLY  # after the gap: line idle
+        assert bus.gap_excess.count == 1
+        assert bus.gap_excess.counts[0] == 0  # never a gap shorter than t3.5
