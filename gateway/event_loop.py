@@ -3,8 +3,8 @@
 Most of what a bus transaction costs the gateway is the event loop's own work: three passes of it
 per transaction (a client's request, the drive's reply, the end of the gap), the system calls and
 the handles behind each. uvloop does that work in C: `bench --instructions` counts 19 % fewer
-instructions per transaction on it (327,488 -> 264,211 on 2026-11-23), and with 4 lines of fast
-drives the gateway needs a quarter less of a core.
+instructions per transaction on it (327,268 -> 263,916 on 2026-11-23, counted in turn), and
+with 4 lines of fast drives the gateway needs a quarter less of a core.
 
 The line's timing doesn't depend on the loop: uvloop's timers have millisecond resolution, but the
 gap before each request and the response timeout are kept by the line's own timerfd, and every

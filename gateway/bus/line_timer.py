@@ -30,7 +30,7 @@ import time
 import weakref
 from collections.abc import Callable
 
-from gateway.bus.wakeup import settle
+from gateway.bus.wakeup import NeverEarly, settle
 
 log = logging.getLogger(__name__)
 
@@ -80,7 +80,7 @@ class LineTimer:
         self._armed = _ARMED.setdefault(loop, set())
         self._arms = 0
         """timerfd_settime calls so far: `_expired` tells by it whether its action re-armed."""
-        self._fallback: asyncio.TimerHandle | None = None
+        self._fallback: NeverEarly | None = None
         """The loop's timer for the pending sleep where there is no timerfd."""
         self._fd = -1
         self._libc = _libc()
@@ -141,7 +141,9 @@ class LineTimer:
             if self._fd >= 0 and self._arm(deadline):
                 await waiter
                 return
-            self._fallback = self._loop.call_later(deadline - time.monotonic(), self._fallback_due)
+            # asyncio's loop timer rounds up to the next millisecond, uvloop's to the nearest:
+            # it may come early, and an RTS delay or a gap nothing else checks must not end so.
+            self._fallback = NeverEarly(self._loop, deadline, self._deadline_reached)
             try:
                 await waiter
             finally:
@@ -213,18 +215,6 @@ class LineTimer:
             # call less then.
             with contextlib.suppress(BlockingIOError):
                 os.read(self._fd, 8)
-
-    def _fallback_due(self) -> None:
-        """The loop's timer, where there is no timerfd: asyncio's rounds up to the next
-        millisecond, uvloop's to the nearest (under half a millisecond: the next pass), so it
-        may come early; then it waits out the rest. An RTS set-up or hold delay must not end
-        early, nor a gap whose end nothing else checks."""
-        self._fallback = None
-        remaining = self._deadline - time.monotonic()
-        if remaining > 0 and self._deadline != math.inf:
-            self._fallback = self._loop.call_later(remaining, self._fallback_due)
-            return
-        self._deadline_reached()
 
     def _deadline_reached(self) -> None:
         waiter, action = self._waiter, self._at_deadline
