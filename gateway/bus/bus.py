@@ -703,6 +703,7 @@ class Bus:
     def _port_lost(self, exc: PortError) -> None:
         self.stats.port_errors += 1
         self._last_port_error = str(exc)
+        self._reply_heard_at = 0.0  # the reopened line's first gap follows no reply
         if not self.closing:
             self.state = BusState.REOPENING
         log.error("bus %s: port lost (%s); reopening with backoff", self.name, exc)

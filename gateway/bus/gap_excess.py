@@ -1,5 +1,6 @@
 """Our own share of each transaction: how much longer than the inter-frame gap the line stayed
-silent between a reply and the next request, when that request was already waiting.
+silent between a reply and the next request, when that request was queued before that gap ended
+(it waited for the line; one queued later found the line idle, and the silence was a client's).
 
 On a line that is never idle, a transaction is the drive's time (request, response delay, reply)
 plus the gap that ends the previous one (t3.5) plus whatever the gateway adds on top: the wake-up

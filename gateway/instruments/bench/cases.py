@@ -29,11 +29,23 @@ FAST_TURNAROUND_S = 0.001
 LINE_COUNTS = (4, 8, 16)  # the multi-line cases, at the fastest baud rate
 FLOOD_WINDOW = 8
 """Requests the flooding client keeps in flight (below max_queued_writes_per_client's 16)."""
-SET_POINT = 0x2001  # 2001H..2002H: frequency set-point and PID reference, written per drive
+SET_POINT = 0x2001  # 2001H..2008H: set-points and limits, written per drive (set_point_values)
 RUNNING_VALUES = 0x3000  # 3000H..: running values; static while the drives stand still
 READS_PER_DRIVE = 8
 """Different reads the clients of one drive make (a start address each: 2001H-2008H for 2
 words, 3000H-3007H for 16): no two clients ask the same, so none joins another's transaction."""
+
+
+def set_point_values(address: int) -> tuple[int, ...]:
+    """What the bench writes to 2001H-2008H of the drive at `address`: a value of its own in
+    each register every read covers (3008H, 3009H and 3015H mirror 2002H-2004H), within each
+    register's limits, so a reply from another drive or of another read is caught as wrong.
+    Frequency set-point, PID reference and feedback, torque set-point, the two frequency
+    limits (below P00.03's 50 Hz), the two torque limits."""
+    a = address
+    return (1000 + 100 * a, 10 * a, 20 * a, 30 * a, 4000 + a, 4000 + 2 * a, 1500 + a, 1500 + 2 * a)
+
+
 ADAPTER_BAUD = 19200  # where the real-adapter cases run: the factory setting of P14.01
 
 
@@ -411,8 +423,8 @@ async def _prepare(case: Case, port: int, dead: list[int], line: int = 0) -> lis
     for unit in units:
         address = unit - line * case.drives
         if address not in dead:
-            set_points = struct.pack(">BHHB", 0x10, SET_POINT, 2, 4) + struct.pack(
-                ">HH", 1000 + 100 * address, 10 * address
+            set_points = struct.pack(">BHHB", 0x10, SET_POINT, 8, 16) + struct.pack(
+                ">8H", *set_point_values(address)
             )
             reply = await request(unit, set_points)
             if reply[0] != 0x10:

@@ -120,11 +120,13 @@ def summary(results: list[CaseResult]) -> list[str]:
         elif case.dead:
             alive = by_case.get(case.baseline())
             if alive is not None:
-                units = result.healthy_units
-                kept = result.per_s_of(units) / max(alive.per_s_of(units), 1e-9)
+                # Each client asks one drive: with one dead, the healthy drives' clients may
+                # have the whole line. What it answered them, against what it answered all
+                # clients with every drive alive, is what the dead drive costs the line.
+                kept = result.per_s_of(result.healthy_units) / max(alive.client_per_s, 1e-9)
                 lines.append(
-                    f"{case.baudrate} baud, {case.name}: the healthy drives keep {kept:.0%} of "
-                    "their throughput with all four alive (target >= 80 %)"
+                    f"{case.baudrate} baud, {case.name}: the healthy drives get {kept:.0%} of "
+                    "what the line answered with all four alive (target >= 80 %)"
                 )
         elif case.same_registers:
             ratio = result.client_per_s / result.wire_max_per_s

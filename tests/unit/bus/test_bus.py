@@ -137,8 +137,8 @@ async def test_transactions_ended_in_the_reader_callback_are_counted_as_any_othe
     reading: both are counted, timed and shown to the traffic monitor alike, and only requests
     that waited for the line count in the gateway's own share (the excess gap)."""
     seen: list[tuple[int, int, bool]] = []
-    after_the_gap = 10 * FAST_T35_S  # a request that comes later found the line idle
     async with running_bus(line.path, timeout_ms=50, retries=0, offline_after=5) as bus:
+        after_the_gap = 10 * bus.settings.line.gap_s  # a request then finds the line idle
         bus.tap = lambda _bus, transaction, attempt, _started, outcome: seen.append(
             (transaction.address, attempt, isinstance(outcome, Exchange))
         )
@@ -186,3 +186,33 @@ async def test_a_request_queued_during_the_gap_counts_in_the_gateways_share(
         assert await read(bus, 2, STATE_WORD_1) == STOPPED_REPLY  # after the gap: line idle
         assert bus.gap_excess.count == 1
         assert bus.gap_excess.counts[0] == 0  # never a gap shorter than t3.5
+
+
+@pytest.mark.line(baudrate=1200)
+async def test_after_a_timeout_or_a_broadcast_the_next_gap_is_not_the_gateways_share(
+    line: SimulatedLine,
+) -> None:
+    """A request that waited behind a silent drive's timeout, or behind a broadcast's
+    turnaround, follows no reply: the silence before it is the drive's or the protocol's, not
+    the gateway's, and stays out of the histogram even though the request was waiting."""
+    async with running_bus(line.path, baudrate=1200, timeout_ms=100, retries=0) as bus:
+        assert await read(bus, 1, STATE_WORD_1) == STOPPED_REPLY
+        after_silence = asyncio.gather(
+            read(bus, SILENT, STATE_WORD_1), read(bus, 1, STATE_WORD_1), return_exceptions=True
+        )
+        timed_out, answered = await after_silence
+        assert isinstance(timed_out, GatewayTargetFailed)
+        assert answered == STOPPED_REPLY
+        counted = bus.gap_excess.count  # the silent drive's request followed the first reply
+        assert counted == 1
+        broadcast = bus.request(
+            0, write_pdu(FREQUENCY_SETPOINT, 1000), priority=Priority.WRITE, client="t"
+        )
+        assert await asyncio.gather(broadcast, read(bus, 2, STATE_WORD_1)) == [
+            None,
+            STOPPED_REPLY,
+        ]
+        # The broadcast waited for the gap after a reply (counted); the read behind it waited
+        # out the broadcast's turnaround (not counted).
+        assert bus.gap_excess.count == counted + 1
+        assert bus.gap_excess.counts[0] == 0
