@@ -258,7 +258,7 @@ async def test_excess_gap_counts_back_to_back_transactions_and_never_goes_below_
         counted = m("bus_excess_gap_seconds_count", **bus)
         transactions = m("bus_transactions_total", **bus)
         # Four clients keep the queue full: most of their 60 reads follow a reply back to back
-        # (the probes and the lone client's reads before them did not wait).
+        # (the lone client's reads before them did not wait).
         assert 30 <= counted <= transactions - 5
         assert m("bus_excess_gap_seconds_bucket", **bus, le="+Inf") == counted
         # The first bucket (le 0) holds gaps shorter than t3.5: there must be none.

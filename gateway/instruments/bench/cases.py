@@ -392,9 +392,9 @@ async def _measure(
     )
 
 
-async def _prepare(case: Case, port: int, dead: list[int], line: int = 0) -> list[list[Target]]:
-    """Give each drive its own set-points, then learn the right answer to every read: what
-    each of the line's clients asks, in turn (a list per client).
+async def _prepare(case: Case, port: int, dead: list[int], line: int = 0) -> list[Target]:
+    """Give each drive its own set-points, then learn the right answer to every read: the one
+    each of the line's clients asks, client by client.
 
     Each client asks one drive one read of its own, so every request is a transaction of its
     own and the clients contend for the line. Clients whose reads were alike would share a
@@ -440,5 +440,6 @@ async def _prepare(case: Case, port: int, dead: list[int], line: int = 0) -> lis
             targets[unit, slot] = Target(unit, pdu, expected)
     writer.close()
     await writer.wait_closed()
-    # Client n: the n-th drive (in turn), the read numbered by how many went round before it.
-    return [[targets[units[n % len(units)], n // len(units) % slots]] for n in range(case.clients)]
+    # Client n: the n-th drive (in turn), the read numbered by how many went round before it
+    # (`same_registers`: one drive, one read, for every client).
+    return [targets[units[n % len(units)], n // len(units) % slots] for n in range(case.clients)]

@@ -46,20 +46,20 @@ class LoadResult:
 
 async def run_clients(
     port: int,
-    reads: list[list[Target]],
+    reads: list[Target],
     dead_units: frozenset[int],
     measuring: asyncio.Event,
     stop: asyncio.Event,
     dead_pause_s: float = 0.0,
 ) -> LoadResult:
-    """One connection per list in `reads`, each repeating its own targets in turn until
-    `stop`; only replies while `measuring` is set count. A client answered 0BH (its drive is
-    offline) waits `dead_pause_s` before asking again, as a poller would, instead of spinning."""
+    """One connection per target in `reads`, each asking its read again and again until
+    `stop`; only replies while `measuring` is set count. A client of a dead drive (answered
+    0BH) waits `dead_pause_s` before asking again, as a poller would, instead of spinning."""
     result = LoadResult()
     await asyncio.gather(
         *(
-            _client(port, targets, dead_units, measuring, stop, result, dead_pause_s)
-            for targets in reads
+            _client(port, target, dead_units, measuring, stop, result, dead_pause_s)
+            for target in reads
         )
     )
     return result
@@ -67,7 +67,7 @@ async def run_clients(
 
 async def _client(
     port: int,
-    targets: list[Target],
+    target: Target,
     dead_units: frozenset[int],
     measuring: asyncio.Event,
     stop: asyncio.Event,
@@ -76,11 +76,8 @@ async def _client(
 ) -> None:
     reader, writer = await asyncio.open_connection("127.0.0.1", port)
     tid = 0
-    position = 0
     try:
         while not stop.is_set():
-            target = targets[position % len(targets)]
-            position += 1
             tid = (tid + 1) & 0xFFFF
             header = struct.pack(">HHHB", tid, 0, len(target.pdu) + 1, target.unit_id)
             started = time.perf_counter()
