@@ -348,9 +348,9 @@ class GatewayCollector(Collector):
         )
         excess = HistogramMetricFamily(
             f"{PREFIX}_bus_excess_gap_seconds",
-            "Silence beyond the inter-frame gap (t3.5) between a reply and the next request, when "
-            "that request was queued before the gap ended: the gateway's own share of each "
-            "back-to-back transaction",
+            "Silence beyond the inter-frame gap (t3.5) between a reply and the next request, or "
+            "since that request was queued if later, for a request the gap's end found waiting: "
+            "the gateway's own share of each back-to-back transaction",
             labels=["bus"],
         )
         line = _LineFamilies()

@@ -158,10 +158,10 @@ class Bus:
         """The silence beyond the inter-frame gap before each back-to-back request: our share."""
         self._reply_heard_at = 0.0
         """When the last transaction's reply ended; 0.0 when it had none (a broadcast, a
-        timeout) or a transaction has been picked since."""
+        timeout) or the gap's end has picked (or found nothing) since."""
         self._back_to_back = False
-        """The transaction carried now was queued before the gap after the last reply ended: it
-        waited for the line, so the silence beyond t3.5 before it is the gateway's own."""
+        """The transaction carried now was found waiting by the gap's end after a reply: the
+        silence beyond t3.5 before it is the gateway's own."""
         self.health = HealthTracker(
             settings.offline_after, settings.probe_initial_s, settings.probe_max_s
         )
@@ -465,13 +465,15 @@ class Bus:
 
     def _pick(self) -> bytes | None:
         """Take the best transaction queued now and return its frame; None if there is none."""
-        # A request queued before the gap after the last reply ended waited for the line: the
-        # silence before it, beyond the gap, is the gateway's own. One queued later, the line
-        # waited for it (a client's think time); after a broadcast or a timeout there is no
-        # reply to count from. Clients that are answered together and ask again together
-        # (their reads shared a transaction) queue during the gap, not before the reply ended:
-        # they count too, or a line of such clients would never show the gateway's share.
+        # The first pick after a reply is the gap's end: what it finds waited for the line, and
+        # the silence before it, beyond the gap, is the gateway's own (`_observe_gap`). That
+        # includes a request queued during the gap (clients answered together ask again
+        # together) and one queued after the gap had ended but before the gateway woke for it
+        # (it waited for the gateway: leaving it out would hide the late wake-ups). When that
+        # pick finds nothing, the line goes idle and the next request waited for nobody (a
+        # client's think time). After a broadcast or a timeout there is no reply to count from.
         reply_heard_at = self._reply_heard_at
+        self._reply_heard_at = 0.0
         if self.closing:
             return None
         now = time.monotonic()
@@ -488,11 +490,7 @@ class Bus:
                 _fail(transaction, DriveOffline(f"drive {address} on {self.name} is offline"))
                 continue
             self._carrying = transaction  # before anything can fail: it must be answered
-            self._reply_heard_at = 0.0
-            self._back_to_back = (
-                reply_heard_at != 0.0
-                and transaction.queued_at <= reply_heard_at + self.settings.line.gap_s
-            )
+            self._back_to_back = reply_heard_at != 0.0
             return transaction.frame or build_frame(address, transaction.pdu)
         return None
 
@@ -637,8 +635,14 @@ class Bus:
         self._queue_due_probes()
 
     def _observe_gap(self, sending: Sending) -> None:
+        """The silence the gateway added before `sending`, for a transaction the gap's end
+        found waiting: beyond the gap, or since the request was queued if that came later (the
+        line was idle until then for want of a request, not of the gateway)."""
         if self._back_to_back:
-            self.gap_excess.observe(sending.gap_s - self.settings.line.gap_s)
+            transaction = self._carrying
+            assert transaction is not None  # `sending` is its frame
+            beyond_gap = sending.gap_s - self.settings.line.gap_s
+            self.gap_excess.observe(min(beyond_gap, sending.started - transaction.queued_at))
 
     def _count_attempt(self, drive: DriveStats, frame: bytes) -> None:
         """One attempt on the wire, whichever way it ends (`_execute` or `_replied`)."""

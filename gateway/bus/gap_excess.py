@@ -1,6 +1,8 @@
 """Our own share of each transaction: how much longer than the inter-frame gap the line stayed
-silent between a reply and the next request, when that request was queued before that gap ended
-(it waited for the line; one queued later found the line idle, and the silence was a client's).
+silent between a reply and the next request, for a request the gap's end found waiting (the first
+choice after a reply). One queued after the gap had ended but before the gateway woke for it counts
+from its queueing: until then the line waited for a request, after it for the gateway. When the
+gap's end finds nothing, the line goes idle, and the silence before the next request is a client's.
 
 On a line that is never idle, a transaction is the drive's time (request, response delay, reply)
 plus the gap that ends the previous one (t3.5) plus whatever the gateway adds on top: the wake-up

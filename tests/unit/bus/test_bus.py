@@ -6,6 +6,7 @@ it still held."""
 from __future__ import annotations
 
 import asyncio
+import time
 
 import pytest
 
@@ -186,6 +187,33 @@ async def test_a_request_queued_during_the_gap_counts_in_the_gateways_share(
         assert await read(bus, 2, STATE_WORD_1) == STOPPED_REPLY  # after the gap: line idle
         assert bus.gap_excess.count == 1
         assert bus.gap_excess.counts[0] == 0  # never a gap shorter than t3.5
+
+
+@pytest.mark.line(baudrate=1200)
+async def test_a_request_the_late_gateway_finds_waiting_counts_from_its_queueing(
+    line: SimulatedLine,
+) -> None:
+    """The gateway stalls through the gap after a reply (the loop held up, as by a slow
+    wake-up) and a request is queued after the gap has ended but before the gateway gets to
+    it: it waited for the gateway, so it counts (leaving it out would hide the late wake-ups),
+    and only from its queueing (before it, the line waited for a request)."""
+    async with running_bus(line.path, baudrate=1200) as bus:
+        gap_s = bus.settings.line.gap_s  # 32 ms at 1200 baud
+        assert await read(bus, 1, STATE_WORD_1) == STOPPED_REPLY
+        assert bus.gap_excess.count == 0  # the first request: no reply before it
+        loop = asyncio.get_running_loop()
+        late: asyncio.Future[bytes | None] = loop.create_future()
+
+        def stall_then_ask() -> None:
+            time.sleep(2 * gap_s)  # the whole gap and as long again: the gateway asleep
+            bus.submit(1, read_pdu(STATE_WORD_1, 1), late, priority=Priority.READ, client="t")
+
+        loop.call_soon(stall_then_ask)
+        assert await late == STOPPED_REPLY
+        assert bus.gap_excess.count == 1
+        assert bus.gap_excess.counts[0] == 0  # never a gap shorter than t3.5
+        # Counted from its queueing, not from the gap's end a gap's length before.
+        assert bus.gap_excess.sum_s < gap_s / 2
 
 
 @pytest.mark.line(baudrate=1200)
