@@ -637,14 +637,27 @@ class _LineFamilies:
             "Longest silence seen inside a reply (an adapter delivering in bursts shows here)",
             labels=["bus"],
         )
+        self.lead = GaugeMetricFamily(
+            f"{PREFIX}_line_gap_lead_seconds",
+            "How long before the inter-frame gap ends the line wakes to choose the next request "
+            "(learnt from its wake-ups: about their median lateness)",
+            labels=["bus"],
+        )
+        self.spin = CounterMetricFamily(
+            f"{PREFIX}_line_gap_spin_seconds",
+            "CPU time spent waiting out the gap's last microseconds after an early wake-up",
+            labels=["bus"],
+        )
 
     def add(self, bus: str, line: SerialLine) -> None:
         self.garbage.add_metric([bus], line.garbage_bytes)
         self.echoes.add_metric([bus], line.echoes)
         self.silence.add_metric([bus], line.longest_reply_silence_s)
+        self.lead.add_metric([bus], line.gap_lead.lead_s)
+        self.spin.add_metric([bus], line.gap_lead.spun_s)
 
     def families(self) -> Iterable[CounterMetricFamily | GaugeMetricFamily]:
-        return (self.garbage, self.echoes, self.silence)
+        return (self.garbage, self.echoes, self.silence, self.lead, self.spin)
 
 
 def _mqtt_families(bridge: MqttBridge) -> Iterable[CounterMetricFamily | GaugeMetricFamily]:

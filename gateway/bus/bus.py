@@ -421,9 +421,10 @@ class Bus:
         """Keep the inter-frame gap, then send the best transaction there is at its end.
 
         The choice is made in the wake-up that ends the gap (`SerialLine.send_after_gap` calls
-        `_pick` there): a write that arrives during the gap still goes first, identical reads
-        that arrive during it join the one transaction, and the frame leaves without another
-        pass of the event loop. With nothing queued, the bus waits for work.
+        `_pick` there, a learnt lead of tens of microseconds before the gap's end): a write that
+        arrives during the gap still goes first, identical reads that arrive during it join the
+        one transaction, and the frame leaves without another pass of the event loop. With
+        nothing queued, the bus waits for work.
         """
         # Every pass, not only when idle: a busy line must still find out a drive is back.
         self._queue_due_probes()

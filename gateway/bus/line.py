@@ -52,6 +52,7 @@ from typing import NamedTuple
 import serial
 
 from gateway.bus.direction import DirectionControl, DirectionMode, apply_kernel_mode, set_rts
+from gateway.bus.gap_lead import GapLead, spin_until
 from gateway.bus.hardware_hints import burst_hint, echo_hint
 from gateway.bus.line_timer import LineTimer
 from gateway.bus.wakeup import settle, woken_or_timeout
@@ -137,6 +138,14 @@ class _Round:
     replied: Replied | None
     outcome: list[Sending | Exception | None]
     """Empty until a frame went out (its Sending), nothing was picked (None) or that failed."""
+    picked: bytes | None = None
+    """A frame chosen before the gap's end that could not go out then (bytes came in the last
+    microseconds of the gap, which starts again): it goes at the next gap's end."""
+
+    def take_pick(self) -> bytes | None:
+        """The frame to send now: the one chosen earlier, if any, else `pick`'s."""
+        picked, self.picked = self.picked, None
+        return picked if picked is not None else self.pick()
 
 
 # A NamedTuple for the reason given at `Sending`.
@@ -203,6 +212,8 @@ class SerialLine:
         self._overdue: asyncio.TimerHandle | None = None
         self._held: _Held | None = None
         """What the held caller sent, for the reader callback to finish the attempt itself."""
+        self.gap_lead = GapLead(settings.gap_s)
+        """How long before the gap's end the timer wakes the line (`gateway.bus.gap_lead`)."""
 
     @property
     def is_open(self) -> bool:
@@ -315,10 +326,12 @@ class SerialLine:
     ) -> Sending | None:
         """At the end of the inter-frame gap, ask `pick` for a frame and start writing it.
 
-        `pick` runs in the very wake-up that ends the gap (inside the gap timer's callback), so
-        the gap is not stretched by another pass of the event loop: it chooses the request at
-        the last possible moment and the frame goes out at once. None from `pick`: nothing to
-        send now (returned as None). Bytes arriving during the gap restart it.
+        `pick` runs in the wake-up that ends the gap (inside the gap timer's callback), so the
+        gap is not stretched by another pass of the event loop; that wake-up comes a learnt
+        lead before the gap's end (`gateway.bus.gap_lead`, tens of microseconds), and the rest
+        of the gap is waited out on the clock, so the frame goes out as the gap ends. None from
+        `pick`: nothing to send now (returned as None). Bytes arriving during the gap restart
+        it; a frame already chosen then goes at the new gap's end.
 
         `reply_within`, asked right after `pick`: how long the drive has to answer the frame
         just picked (None: no reply, or none to wait for here). The caller then resumes when
@@ -337,11 +350,16 @@ class SerialLine:
         while True:
             self._discard_pending()
             due = self._quiet_since + gap
-            if due <= time.monotonic():
-                return self._send_now(pick)
+            now = time.monotonic()
+            if due <= now:
+                return self._send_now(this.take_pick)
             assert self._timer is not None  # _discard_pending raised if the port is closed
+            wake_at = self._wake_at(due)
+            if wake_at <= now:  # within the lead already: wait out the rest, then look again
+                spin_until(due)
+                continue
             try:
-                await self._timer.sleep_until(due, partial(self._send_at_gap_end, this))
+                await self._timer.sleep_until(wake_at, partial(self._send_at_gap_end, this))
             finally:
                 self._stop_holding()
             if this.outcome:
@@ -350,9 +368,21 @@ class SerialLine:
                     raise outcome  # in the caller's coroutine, not lost in a loop callback
                 return outcome
 
-    def _send_at_gap_end(self, this: _Round) -> bool:
-        """The gap timer's action: send now, if the line is still quiet and usable. True: the
-        caller stays held (`LineTimer.sleep_until`) while the reply comes (`_answer_held`)."""
+    def _wake_at(self, gap_end: float) -> float:
+        """When the timer should wake the line for a gap ending at `gap_end`: early by the
+        learnt lead where wake-ups are exact (timerfd), at the end itself otherwise."""
+        assert self._timer is not None
+        return self.gap_lead.wake_at(gap_end) if self._timer.exact else gap_end
+
+    def _send_at_gap_end(self, this: _Round, timed: bool = True) -> bool:
+        """The gap timer's action: send as the gap ends, if the line is still quiet and usable.
+        True: the caller stays held (`LineTimer.sleep_until`) while the reply comes
+        (`_answer_held`).
+
+        `timed`: called by the timer's wake-up (or `fire_due`), a lead before the gap's end
+        (`gateway.bus.gap_lead`): the next frame is chosen now and the rest of the gap is
+        waited out on the clock, and how early or late that was teaches the lead.
+        """
         if self._port is None or self._error is not None or self._received:
             return False  # closed, failed or not quiet after all: `send_after_gap` looks again
         if self._fd is None:
@@ -360,10 +390,31 @@ class SerialLine:
         if self._bytes_waiting():
             self._quiet_since = time.monotonic()
             return False
-        if self._quiet_since + self.settings.gap_s > time.monotonic():
+        gap_end = self._quiet_since + self.settings.gap_s
+        now = time.monotonic()
+        if self._wake_at(gap_end) > now:
+            return False  # woken too early after all (a clock step): look again
+        early = gap_end > now  # the line was seen quiet before the gap ended: look once more
+        try:
+            frame = this.take_pick()
+        except Exception as exc:
+            this.outcome.append(exc)
+            return False
+        if frame is None:
+            this.outcome.append(None)
+            return False
+        if timed:
+            self.gap_lead.ready(gap_end)
+        elif early:
+            spin_until(gap_end)
+        if early and self._bytes_waiting():
+            # Bytes came while the frame was chosen and the gap waited out: the line was not
+            # quiet, so the gap starts again, and the frame goes at its end.
+            self._quiet_since = time.monotonic()
+            this.picked = frame
             return False
         try:
-            sending = self._send_now(this.pick)
+            sending = self._send_frame(frame)
         except Exception as exc:
             this.outcome.append(exc)
             return False
@@ -486,11 +537,11 @@ class SerialLine:
             self._release_caller()  # its own loop finds out what became of the port
             return
         due = self._quiet_since + self.settings.gap_s
-        action = partial(self._send_at_gap_end, this)
-        if due > time.monotonic():
-            if timer.rearm(due, action):
+        wake_at = self._wake_at(due)
+        if wake_at > time.monotonic():
+            if timer.rearm(wake_at, partial(self._send_at_gap_end, this)):
                 return
-        elif action():
+        elif self._send_at_gap_end(this, timed=False):
             return
         self._release_caller()  # the caller's loop takes it from here (`outcome` says what)
 
@@ -534,8 +585,9 @@ class SerialLine:
 
     def _send_now(self, pick: Callable[[], bytes | None]) -> Sending | None:
         frame = pick()
-        if frame is None:
-            return None
+        return None if frame is None else self._send_frame(frame)
+
+    def _send_frame(self, frame: bytes) -> Sending:
         started = time.monotonic()
         gap = started - self._quiet_since
         control = self.settings.direction

@@ -1,0 +1,138 @@
+"""Waking before the inter-frame gap ends (`gateway.bus.gap_lead`): the lead is learnt from the
+wake-ups, the frame never leaves before the gap has ended, and bytes that come while it is
+chosen start the gap again with the chosen frame kept. Over real ptys."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import time
+import tty
+
+import pytest
+
+from gateway.bus.gap_lead import MAX_LEAD_S, STEP_BACK_S, STEP_S, GapLead
+from gateway.bus.line import Sending, SerialLine
+from gateway.bus.queue import Priority
+from gateway.config import BusConfig
+from gateway.instruments.simulator import SimulatedLine
+from gateway.modbus.rtu import build_frame
+from gateway.settings import bus_settings
+from tests.support import read_pdu, running_bus
+
+STATE_WORD_1 = 0x2100
+
+
+def test_the_lead_grows_while_wake_ups_are_late_and_never_past_its_bound() -> None:
+    lead = GapLead(gap_s=0.032)  # 1200 baud: the bound is MAX_LEAD_S, not a quarter of the gap
+    for _ in range(3):
+        lead.ready(time.monotonic() - 1e-3)  # the frame was ready after the gap had ended
+    assert lead.lead_s == pytest.approx(3 * STEP_S)
+    for _ in range(1000):
+        lead.ready(time.monotonic() - 1e-3)
+    assert lead.lead_s == pytest.approx(MAX_LEAD_S)
+    assert lead.spun_s == 0.0  # late: nothing to wait out
+
+
+def test_an_early_wake_up_waits_out_the_gap_and_shortens_the_lead() -> None:
+    lead = GapLead(gap_s=0.0004)  # a short gap: the lead is bound to a quarter of it
+    for _ in range(1000):
+        lead.ready(time.monotonic() - 1e-3)
+    assert lead.lead_s == pytest.approx(0.0001)
+    gap_end = time.monotonic() + 300e-6
+    lead.ready(gap_end)
+    assert time.monotonic() >= gap_end  # never a frame before the gap's end
+    assert lead.spun_s > 0
+    assert lead.lead_s == pytest.approx(0.0001 - STEP_BACK_S)
+
+
+@pytest.mark.line(addresses=[1, 2], baudrate=19200, response_delay_ms=0.0)
+async def test_back_to_back_transactions_learn_a_lead_and_keep_t35(line: SimulatedLine) -> None:
+    """Fast drives, requests always waiting: the line learns to wake before the gap ends, and
+    the drives never see a request sooner than t3.5 after the frame before it."""
+    async with running_bus(line.path, baudrate=19200) as bus:
+
+        async def client(n: int) -> None:  # a read of its own: none shares a transaction
+            for _ in range(60):
+                reply = await bus.request(
+                    1 + n % 2, read_pdu(0x3000 + n, 2), priority=Priority.READ, client=f"c{n}"
+                )
+                assert reply is not None
+                assert reply[:2] == bytes([3, 4])
+
+        await asyncio.gather(*(client(n) for n in range(4)))
+        assert bus.stats.transactions == 240
+        assert bus.line.gap_lead.lead_s > 0  # the timer's wake-ups came late: it wakes earlier
+        assert bus.line.gap_lead.spun_s > 0  # and some came early, the rest waited out
+        assert bus.gap_excess.counts[0] == 0  # never a gap shorter than t3.5, our side
+    assert line.stats["gap_violations"] == 0  # nor the drives'
+    assert line.stats["min_gap_s"] >= line.t35_s
+
+
+async def test_bytes_while_the_frame_is_chosen_start_the_gap_again_with_that_frame() -> None:
+    """A byte arrives after the line was last seen quiet, while the next frame is being chosen
+    a lead before the gap's end: the frame must not go out t3.5 after the earlier silence, but
+    t3.5 after that byte, and it is the frame already chosen (nothing chosen twice, nothing
+    lost)."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    os.set_blocking(master, False)
+    config = BusConfig.model_validate(
+        {"name": "line1", "port": os.ttyname(slave), "baudrate": 1200}
+    )
+    gap_s = bus_settings(config).line.gap_s  # 32 ms at 1200 baud
+    frame = build_frame(1, read_pdu(STATE_WORD_1))
+    checked = 0
+    try:
+        for _ in range(50):  # until wake-ups came early enough to choose before the gap's end
+            serial = SerialLine(bus_settings(config).line)
+            serial.open()  # the line is quiet from here: the first gap ends a gap later
+            serial.gap_lead.lead_s = MAX_LEAD_S
+            glitch = Glitch(master, frame, serial.busy_until + gap_s)
+            try:
+                sending = await asyncio.wait_for(serial.send_after_gap(glitch.pick), 5.0)
+            finally:
+                serial.close()
+            assert await read_exactly(master, len(frame)) == frame  # once, whole
+            if glitch.written_at is None:
+                continue  # woken after the gap's end: nothing to show, try again
+            assert isinstance(sending, Sending)
+            assert glitch.picks == 1  # the frame chosen before the byte is the one that went
+            assert sending.frame == frame
+            assert sending.started - glitch.written_at >= gap_s  # a whole gap after the byte
+            checked += 1
+            if checked == 3:
+                break
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert checked >= 1
+
+
+class Glitch:
+    """The bus's `_pick` for one frame, and a transceiver's glitch byte on the line as it is
+    called, if that is before the gap's end."""
+
+    def __init__(self, master: int, frame: bytes, gap_end: float) -> None:
+        self.master, self.frame, self.gap_end = master, frame, gap_end
+        self.picks = 0
+        self.written_at: float | None = None
+
+    def pick(self) -> bytes:
+        self.picks += 1
+        if self.picks == 1 and time.monotonic() < self.gap_end:
+            os.write(self.master, b"\xff")
+            self.written_at = time.monotonic()
+        return self.frame
+
+
+async def read_exactly(fd: int, count: int) -> bytes:
+    """What the other end of the pty got (the frame), within two seconds."""
+    got = bytearray()
+    deadline = time.monotonic() + 2.0
+    while len(got) < count and time.monotonic() < deadline:
+        try:
+            got.extend(os.read(fd, 256))
+        except BlockingIOError:
+            await asyncio.sleep(0.005)
+    return bytes(got)
