@@ -640,7 +640,7 @@ class _LineFamilies:
         self.lead = GaugeMetricFamily(
             f"{PREFIX}_line_gap_lead_seconds",
             "How long before the inter-frame gap ends the line wakes to choose the next request "
-            "(learnt from its wake-ups: about their median lateness)",
+            "(learnt from its wake-ups: about their lower quartile of lateness)",
             labels=["bus"],
         )
         self.spin = CounterMetricFamily(

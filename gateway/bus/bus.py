@@ -6,10 +6,12 @@ the event loop: the port's descriptor is watched by the loop and the inter-frame
 exact timer, so no thread, lock or hand-over between threads is needed, and a transaction costs
 the process no more wake-ups than the line itself makes.
 
-The bus takes the next transaction at the last possible moment: in the wake-up that ends the
-inter-frame gap after the previous one, where its frame is written too. A write that arrives
-during the gap still goes first, and identical reads that arrive during it join the one
-transaction. Buses are independent of each other: each has its own queue, coroutine and port.
+The bus takes the next transaction as late as it can: in the wake-up that ends the inter-frame
+gap after the previous one, where its frame is written too (that wake-up comes a learnt lead of
+tens of microseconds before the gap's end, `gateway.bus.gap_lead`). A write that arrives during
+the gap, before that wake-up, still goes first, and identical reads that arrive during it join
+the one transaction; one that arrives in the last microseconds waits one transaction more.
+Buses are independent of each other: each has its own queue, coroutine and port.
 """
 
 from __future__ import annotations
@@ -422,9 +424,9 @@ class Bus:
 
         The choice is made in the wake-up that ends the gap (`SerialLine.send_after_gap` calls
         `_pick` there, a learnt lead of tens of microseconds before the gap's end): a write that
-        arrives during the gap still goes first, identical reads that arrive during it join the
-        one transaction, and the frame leaves without another pass of the event loop. With
-        nothing queued, the bus waits for work.
+        arrives during the gap, before then, still goes first, identical reads that arrive
+        during it join the one transaction, and the frame leaves without another pass of the
+        event loop. With nothing queued, the bus waits for work.
         """
         # Every pass, not only when idle: a busy line must still find out a drive is back.
         self._queue_due_probes()

@@ -51,19 +51,18 @@ class GapLead:
         return gap_end - self.lead_s
 
     def ready(self, gap_end: float) -> None:
-        """The next frame is chosen and built, in a wake-up the timer made: learn from how
-        early or late that was, and wait out the rest of the gap."""
-        now = time.monotonic()
-        if now >= gap_end:
+        """The next frame is chosen and built, in a wake-up the timer made a lead early: learn
+        from how early or late that was, and wait out the rest of the gap."""
+        if time.monotonic() >= gap_end:
             self.lead_s = min(self.lead_s + STEP_S, self._max_s)
             return
         self.lead_s = max(self.lead_s - STEP_BACK_S, 0.0)
-        spin_until(gap_end)
-        self.spun_s += time.monotonic() - now
+        self.wait_out(gap_end)
 
-
-def spin_until(moment: float) -> None:
-    """Return at `moment` (a `time.monotonic()` value), not before: for waits far shorter than
-    any wake-up the kernel could give."""
-    while time.monotonic() < moment:
-        pass
+    def wait_out(self, gap_end: float) -> None:
+        """Return at `gap_end` (a `time.monotonic()` value), not before, spinning on the clock:
+        for waits far shorter than any wake-up the kernel could give. Counted in `spun_s`."""
+        now = started = time.monotonic()
+        while now < gap_end:
+            now = time.monotonic()
+        self.spun_s += now - started

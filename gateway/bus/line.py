@@ -3,9 +3,11 @@
 The port's descriptor is watched by the loop all the time: every byte is taken in as it arrives,
 with its arrival time, so the line knows when it last went quiet even between transactions (a late
 reply, noise). Reads are served from that buffer; the inter-frame gap is kept with an exact timer
-(`gateway.bus.line_timer`), not with asyncio's millisecond timeouts. Nothing here blocks the loop,
-and no thread is involved: a transaction costs the loop a wake-up when the reply arrives and one
-when the gap ends, which is all the CPU it needs.
+(`gateway.bus.line_timer`), not with asyncio's millisecond timeouts. Nothing here blocks the loop
+but the last microseconds of a gap, waited out on the clock after a wake-up that came a learnt
+lead early (`gateway.bus.gap_lead`; tens of microseconds, never more than 200), and no thread is
+involved: a transaction costs the loop a wake-up when the reply arrives and one when the gap
+ends, which is all the CPU it needs.
 
 Timeouts, and which is which:
 - `timeout_s` (response timeout): from the end of the request on the wire to the first byte of the
@@ -52,7 +54,7 @@ from typing import NamedTuple
 import serial
 
 from gateway.bus.direction import DirectionControl, DirectionMode, apply_kernel_mode, set_rts
-from gateway.bus.gap_lead import GapLead, spin_until
+from gateway.bus.gap_lead import GapLead
 from gateway.bus.hardware_hints import burst_hint, echo_hint
 from gateway.bus.line_timer import LineTimer
 from gateway.bus.wakeup import settle, woken_or_timeout
@@ -140,7 +142,9 @@ class _Round:
     """Empty until a frame went out (its Sending), nothing was picked (None) or that failed."""
     picked: bytes | None = None
     """A frame chosen before the gap's end that could not go out then (bytes came in the last
-    microseconds of the gap, which starts again): it goes at the next gap's end."""
+    microseconds of the gap, which starts again): it goes at the next gap's end, as a frame
+    already on its way would, its transaction out of the queue meanwhile (a write queued then
+    waits behind it; closing the bus answers it as the transaction being carried)."""
 
     def take_pick(self) -> bytes | None:
         """The frame to send now: the one chosen earlier, if any, else `pick`'s."""
@@ -356,7 +360,7 @@ class SerialLine:
             assert self._timer is not None  # _discard_pending raised if the port is closed
             wake_at = self._wake_at(due)
             if wake_at <= now:  # within the lead already: wait out the rest, then look again
-                spin_until(due)
+                self.gap_lead.wait_out(due)
                 continue
             try:
                 await self._timer.sleep_until(wake_at, partial(self._send_at_gap_end, this))
@@ -393,7 +397,7 @@ class SerialLine:
         gap_end = self._quiet_since + self.settings.gap_s
         now = time.monotonic()
         if self._wake_at(gap_end) > now:
-            return False  # woken too early after all (a clock step): look again
+            return False  # woken before the lead (the timer's rounding slack): look again
         early = gap_end > now  # the line was seen quiet before the gap ended: look once more
         try:
             frame = this.take_pick()
@@ -403,10 +407,11 @@ class SerialLine:
         if frame is None:
             this.outcome.append(None)
             return False
-        if timed:
+        timer = self._timer
+        if timed and timer is not None and timer.exact:  # else no lead: woken at the gap's end
             self.gap_lead.ready(gap_end)
         elif early:
-            spin_until(gap_end)
+            self.gap_lead.wait_out(gap_end)
         if early and self._bytes_waiting():
             # Bytes came while the frame was chosen and the gap waited out: the line was not
             # quiet, so the gap starts again, and the frame goes at its end.
