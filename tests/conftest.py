@@ -55,15 +55,18 @@ def pytest_asyncio_loop_factories(
     parts in BOTH_LOOPS asyncio's own as well. `INVT_GATEWAY_EVENT_LOOP=asyncio` runs every test
     on asyncio's loop alone, as it does the gateway processes the tests start."""
     only_asyncio = os.environ.get(ENV_EVENT_LOOP, "").strip().lower() == "asyncio"
+    uvloop_factory: Callable[[], asyncio.AbstractEventLoop] | None
     try:
         import uvloop
     except ImportError:
-        uvloop = None
+        uvloop_factory = None
+    else:
+        uvloop_factory = uvloop.new_event_loop
     factories: dict[str, Callable[[], asyncio.AbstractEventLoop]] = {}
-    if uvloop is None or only_asyncio or item.nodeid.startswith(BOTH_LOOPS):
+    if uvloop_factory is None or only_asyncio or item.nodeid.startswith(BOTH_LOOPS):
         factories["asyncio"] = asyncio.new_event_loop
-    if uvloop is not None and not only_asyncio:
-        factories["uvloop"] = uvloop.new_event_loop
+    if uvloop_factory is not None and not only_asyncio:
+        factories["uvloop"] = uvloop_factory
     return factories
 
 

@@ -16,7 +16,7 @@ import socket
 import subprocess
 import time
 import uuid
-from collections.abc import AsyncIterator, Callable, Iterator
+from collections.abc import AsyncIterator, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -147,6 +147,14 @@ class Address:
     port: int
 
 
+class Match(Protocol):
+    """A test of a message's JSON payload (its text if it isn't JSON). A Protocol, not a
+    `Callable[[Any], bool]`: mypy infers no type for a lambda with more parameters than such a
+    Callable, and tests in a loop bind the loop's variable as a default (`lambda m, n=n: ...`)."""
+
+    def __call__(self, value: Any, /) -> bool: ...
+
+
 @dataclass(frozen=True)
 class Received:
     topic: str
@@ -178,7 +186,7 @@ class MqttProbe:
     async def wait_for(
         self,
         topic: str,
-        match: Callable[[Any], bool] = lambda _: True,
+        match: Match = lambda _: True,
         timeout_s: float = 10.0,
         after: int = 0,
     ) -> Received:
@@ -224,7 +232,7 @@ class MqttProbe:
         return response.json()
 
 
-def _matches(received: Received, match: Callable[[Any], bool]) -> bool:
+def _matches(received: Received, match: Match) -> bool:
     try:
         value = received.json()
     except ValueError:

@@ -14,7 +14,7 @@ import time
 import tty
 from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeAlias
 
 from gateway.app import Application
 from gateway.bus import Bus
@@ -23,6 +23,10 @@ from gateway.instruments.bench.processes import (
     free_port as free_port,  # the tests' one way to a free port
 )
 from gateway.settings import bus_settings, runtime_settings
+
+RecordProperty: TypeAlias = Callable[[str, object], None]
+"""The type of pytest's `record_property` fixture (pytest exports no name for it): records a
+key and value as a property of the test in the JUnit XML report."""
 
 
 async def eventually(

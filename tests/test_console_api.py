@@ -140,9 +140,9 @@ async def test_anonymous_viewers_see_but_never_write(line: SimulatedLine) -> Non
 
 async def test_a_script_uses_its_api_token_without_cookie_or_csrf(line: SimulatedLine) -> None:
     async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
-        bearer = {"Authorization": f"Bearer {OPERATOR_TOKEN}"}
+        bearer = f"Bearer {OPERATOR_TOKEN}"
         status, body = await web.post(
-            "/api/drives/fan2/command", {"command": "run_forward"}, **bearer
+            "/api/drives/fan2/command", {"command": "run_forward"}, Authorization=bearer
         )
         assert status == 200, body
 
@@ -150,8 +150,10 @@ async def test_a_script_uses_its_api_token_without_cookie_or_csrf(line: Simulate
             return await state_word(app, 2) == RUNNING_FORWARD
 
         await eventually(running)
-        wrong = {"Authorization": "Bearer not-a-token"}
-        status, _ = await web.post("/api/drives/fan2/command", {"command": "stop"}, **wrong)
+        wrong = "Bearer not-a-token"
+        status, _ = await web.post(
+            "/api/drives/fan2/command", {"command": "stop"}, Authorization=wrong
+        )
         assert status == 401
 
 
@@ -236,6 +238,7 @@ async def test_the_monitor_records_nothing_until_someone_watches(
     client = await TcpClient.connect(app.tcp.port)
     await client.request(1, read_pdu(STATE_WORD_1))
     assert bus.tap is None
+    assert app.console.console is not None  # the console has started
     assert app.console.console.traffic.recorded == 0
     async with web.session.get(f"{web.base}/api/buses/line1/traffic") as response:
         events = read_events(response)
@@ -294,7 +297,7 @@ async def test_a_modbus_tcp_write_shows_on_the_overview(
 
     async def shows_running() -> bool:
         pump = (await web.get_json("/api/overview"))["drives"][0]
-        return pump["state"] == "running forward"
+        return bool(pump["state"] == "running forward")
 
     await eventually(shows_running, within_s=2.0)
     audit = (await web.get_json("/api/events?drive=pump1"))["events"][0]

@@ -13,14 +13,12 @@ from __future__ import annotations
 import asyncio
 import time
 
-import pytest
-
 from gateway.config import GatewayConfig
 from gateway.instruments.simulator import SimulatedLine
 from gateway.instruments.simulator.line_faults import KINDS
 from gateway.instruments.stress.checked_load import STEADY, CheckedLoad
 from gateway.profile import format_parameter
-from tests.support import running_gateway
+from tests.support import RecordProperty, running_gateway
 
 UNITS = [1, 2, 3, 4]
 REQUESTS = 2000
@@ -54,7 +52,7 @@ def faulty_line_config(line_path: str) -> GatewayConfig:
 
 
 async def test_under_5_percent_line_faults_every_value_is_right(
-    record_property: pytest.RecordProperty,
+    record_property: RecordProperty,
 ) -> None:
     # Without wire time (the pty's own speed): faults and retries are the point here, and the
     # run takes half as long. The stress command runs with wire time.

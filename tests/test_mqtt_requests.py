@@ -10,12 +10,12 @@ from datetime import UTC, datetime
 import pytest
 
 from gateway.config import DriveConfig
+from gateway.errors import CommandRefused
 from gateway.instruments.embedded_broker import topic_matches
 from gateway.mqtt.connection import Backoff
 from gateway.mqtt.lanes import Lanes
 from gateway.mqtt.outbox import Outbox
 from gateway.mqtt.requests import (
-    CommandRefused,
     check_age,
     check_waited,
     parse_object,

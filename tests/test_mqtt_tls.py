@@ -183,10 +183,10 @@ def test_an_encrypted_private_key_is_named_and_never_prompted_for(
     config = parse_config(
         yaml.safe_dump({"buses": [{"name": "l", "port": "/dev/null"}], "mqtt": mqtt})
     )
-    mqtt = mqtt_settings(config)
-    assert mqtt is not None
+    settings = mqtt_settings(config)
+    assert settings is not None
     with pytest.raises(TlsSettingsError) as raised:
-        tls_context(mqtt)
+        tls_context(settings)
     assert raised.value.key == "mqtt.cert_file/mqtt.key_file"
     assert "encrypted" in raised.value.reason
     assert str(encrypted) in str(raised.value)

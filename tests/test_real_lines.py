@@ -22,7 +22,14 @@ from gateway.config import GatewayConfig
 from gateway.instruments.simulator import SimulatedLine
 from gateway.instruments.stress.checked_load import STEADY, CheckedLoad
 from gateway.profile import format_parameter
-from tests.support import TcpClient, gateway_config, read_pdu, running_gateway, write_pdu
+from tests.support import (
+    RecordProperty,
+    TcpClient,
+    gateway_config,
+    read_pdu,
+    running_gateway,
+    write_pdu,
+)
 
 RUNNING_VALUES = 0x3000
 STATE_WORD_1 = 0x2100
@@ -140,7 +147,7 @@ async def test_echo_true_still_reads_the_echo_back() -> None:
 
 @pytest.mark.timeout(180)
 async def test_bursts_glitches_and_5_percent_line_faults_every_value_right(
-    record_property: pytest.RecordProperty, caplog: pytest.LogCaptureFixture
+    record_property: RecordProperty, caplog: pytest.LogCaptureFixture
 ) -> None:
     caplog.set_level(logging.ERROR)  # the retries' warnings are expected here
     units = [1, 2, 3, 4]

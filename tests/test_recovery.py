@@ -22,7 +22,7 @@ from gateway.instruments.stress.scenario import first_answer_after
 from tests.mosquitto import Mosquitto, unique_base_topic
 from tests.mosquitto import mosquitto as mosquitto
 from tests.processes import GatewayProcess
-from tests.support import eventually, free_port, running_gateway
+from tests.support import RecordProperty, eventually, free_port, running_gateway
 
 UNITS = [1, 2]
 # Parity N: the port is reopened, and a pty refuses re-configuration with a parity.
@@ -48,7 +48,7 @@ async def steady_for(load: CheckedLoad, seconds: float) -> None:
 
 
 async def test_serial_port_unplugged_and_plugged_back_in(
-    line: SimulatedLine, record_property: pytest.RecordProperty
+    line: SimulatedLine, record_property: RecordProperty
 ) -> None:
     config = GatewayConfig.model_validate(line_config(line.path))
     async with running_gateway(config) as app:
@@ -80,7 +80,7 @@ async def test_serial_port_unplugged_and_plugged_back_in(
 
 
 async def test_broker_killed_and_restarted_costs_modbus_nothing(
-    line: SimulatedLine, mosquitto: Mosquitto, record_property: pytest.RecordProperty
+    line: SimulatedLine, mosquitto: Mosquitto, record_property: RecordProperty
 ) -> None:
     config = GatewayConfig.model_validate(line_config(line.path)).model_copy(
         update={
@@ -120,7 +120,7 @@ async def test_broker_killed_and_restarted_costs_modbus_nothing(
 
 
 async def test_gateway_killed_and_started_again(
-    line: SimulatedLine, tmp_path: Path, record_property: pytest.RecordProperty
+    line: SimulatedLine, tmp_path: Path, record_property: RecordProperty
 ) -> None:
     port = free_port()
     config = line_config(line.path, port)

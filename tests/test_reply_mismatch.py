@@ -56,7 +56,7 @@ def one_register_too_few(pdu: bytes) -> bytes:
     """A read reply with the values of one register less than asked for; a write echo with
     another value."""
     if pdu[0] == 0x03:
-        count = struct.unpack(">H", pdu[3:5])[0] - 1
+        count: int = struct.unpack(">H", pdu[3:5])[0] - 1
         return bytes((0x03, 2 * count)) + b"\x00\x07" * count
     return pdu[:3] + struct.pack(">H", (struct.unpack(">H", pdu[3:5])[0] + 1) & 0xFFFF)
 

@@ -15,6 +15,7 @@ import pytest
 
 from gateway.config import StorageConfig
 from gateway.poller.drive_state import DriveEvent, EventKind, iso_time
+from gateway.profile.telemetry import Telemetry
 from gateway.settings import StoreSettings
 from gateway.store import EventStore
 from gateway.tasks import ServiceTasks
@@ -40,8 +41,12 @@ async def running_store(
 
 def fault(drive: str, code: int, at: float, raised: bool = True) -> DriveEvent:
     kind = EventKind.FAULT_RAISED if raised else EventKind.FAULT_CLEARED
-    data = {"fault_code": code, "fault_name": f"F{code}", "fault_description": f"F{code}: test"}
-    snapshot = {"output_frequency_hz": 12.5, "bus_voltage_v": 540.0, "fault_code": code}
+    data: Telemetry = {
+        "fault_code": code,
+        "fault_name": f"F{code}",
+        "fault_description": f"F{code}: test",
+    }
+    snapshot: Telemetry = {"output_frequency_hz": 12.5, "bus_voltage_v": 540.0, "fault_code": code}
     return DriveEvent(kind, drive, data, at, snapshot if raised else {})
 
 

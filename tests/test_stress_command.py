@@ -7,16 +7,15 @@ import json
 import re
 from collections import Counter
 
-import pytest
-
 from gateway.instruments.stress.checked_load import STEADY, LoadStats
 from gateway.instruments.stress.report import problems, table
 from gateway.instruments.stress.scenario import Recovery, StressResult, StressSettings
 from tests.processes import run_cli
+from tests.support import RecordProperty
 
 
 def test_a_short_stress_run_passes_and_reports_every_figure(
-    record_property: pytest.RecordProperty,
+    record_property: RecordProperty,
 ) -> None:
     # Seed 2: its spoilt replies never hit all three attempts of one request in a short run,
     # so the verdict doesn't hang on one unlucky error among a few hundred requests.

@@ -162,7 +162,9 @@ def test_rules_spelled_as_people_write_them() -> None:
         ((0x0000, 0x000F), (0x8000, 0x800F)),  # parameters: the RAM-only twins too
         ((0x3000, 0x3000),),
     ]
-    assert catch_all.unit_ids is catch_all.functions is catch_all.registers is None
+    assert catch_all.unit_ids is None
+    assert catch_all.functions is None
+    assert catch_all.registers is None
 
 
 @pytest.mark.parametrize(

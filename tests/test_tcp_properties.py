@@ -27,7 +27,7 @@ from hypothesis import strategies as st
 
 from gateway.instruments.simulator import SimulatedLine
 from tests.processes import GatewayProcess, gateway_process
-from tests.support import free_port, read_pdu
+from tests.support import RecordProperty, free_port, read_pdu
 
 STATE_WORD_1 = 0x2100
 STOPPED = 3
@@ -47,7 +47,7 @@ class Frame:
 def oracle(stream: bytes) -> tuple[list[Frame], bool]:
     """The complete frames a Modbus-TCP server must take from `stream`, and whether it must
     close the connection (a header with protocol id ≠ 0, or length outside 2..254)."""
-    frames = []
+    frames: list[Frame] = []
     position = 0
     while len(stream) - position >= 7:
         tid, protocol, length, unit = struct.unpack_from(">HHHB", stream, position)
@@ -227,7 +227,7 @@ def test_hostile_streams_get_only_their_own_answers_and_nobody_else_notices(
     assert checker.problems == []
 
 
-def test_the_checker_kept_reading(checker: Checker, record_property: pytest.RecordProperty) -> None:
+def test_the_checker_kept_reading(checker: Checker, record_property: RecordProperty) -> None:
     """Runs after the property test (same module): the other client was served throughout."""
     assert checker.reads > 0
     assert checker.problems == []

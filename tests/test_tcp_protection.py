@@ -18,7 +18,7 @@ import pytest
 
 from gateway.config import GatewayConfig
 from gateway.instruments.simulator import SimulatedLine
-from tests.support import TcpClient, eventually, read_pdu, running_gateway
+from tests.support import RecordProperty, TcpClient, eventually, read_pdu, running_gateway
 
 STATE_WORD_1 = 0x2100
 STOPPED = 3
@@ -60,7 +60,7 @@ def flood_requests(count: int) -> list[tuple[int, bytes]]:
 
 
 async def test_a_flood_of_pipelined_requests_does_not_starve_another_client(
-    line: SimulatedLine, record_property: pytest.RecordProperty
+    line: SimulatedLine, record_property: RecordProperty
 ) -> None:
     async with running_gateway(protected_config(line.path)) as app:
         flooder = await TcpClient.connect(app.tcp.port)
@@ -93,7 +93,7 @@ async def test_a_flood_of_pipelined_requests_does_not_starve_another_client(
 
 
 async def test_a_client_that_never_reads_is_not_read_either(
-    line: SimulatedLine, record_property: pytest.RecordProperty
+    line: SimulatedLine, record_property: RecordProperty
 ) -> None:
     async with running_gateway(protected_config(line.path, idle_timeout_s=1.0)) as app:
         hog = socket.socket()
@@ -148,7 +148,7 @@ async def test_a_client_that_never_reads_is_not_read_either(
 
 
 async def test_a_client_stuck_halfway_through_a_frame_is_closed(
-    line: SimulatedLine, record_property: pytest.RecordProperty
+    line: SimulatedLine, record_property: RecordProperty
 ) -> None:
     async with running_gateway(protected_config(line.path, idle_timeout_s=1.0)) as app:
         stuck_reader, stuck = await asyncio.open_connection("127.0.0.1", app.tcp.port)

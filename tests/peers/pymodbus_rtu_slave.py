@@ -19,13 +19,18 @@ from pymodbus.datastore import (
 from pymodbus.server import StartAsyncSerialServer
 
 
+def block(values: list[int]) -> ModbusSequentialDataBlock:
+    """Values from the address 0 on the wire: pymodbus's data blocks start at 1 for it."""
+    # pymodbus's ModbusSequentialDataBlock.__init__ has no annotations (py.typed all the same).
+    return ModbusSequentialDataBlock(1, values)  # type: ignore[no-untyped-call]
+
+
 def device(unit: int) -> ModbusDeviceContext:
-    # pymodbus's data blocks start at 1 for the address 0 on the wire.
     return ModbusDeviceContext(
-        co=ModbusSequentialDataBlock(1, [n % 2 for n in range(100)]),
-        di=ModbusSequentialDataBlock(1, [0] * 100),
-        hr=ModbusSequentialDataBlock(1, [1000 + 10 * unit + n for n in range(100)]),
-        ir=ModbusSequentialDataBlock(1, [5000 + n for n in range(100)]),
+        co=block([n % 2 for n in range(100)]),
+        di=block([0] * 100),
+        hr=block([1000 + 10 * unit + n for n in range(100)]),
+        ir=block([5000 + n for n in range(100)]),
     )
 
 

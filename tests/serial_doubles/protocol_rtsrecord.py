@@ -24,26 +24,30 @@ class Event:
     """The RTS level for "rts", the bytes for "write"."""
 
 
-class Serial(serial.Serial):  # type: ignore[misc]
+class Serial(serial.Serial):
     recorded: ClassVar[dict[str, list[Event]]] = {}
     """Events by pty path, for the test to read."""
 
-    @serial.Serial.port.setter  # type: ignore[misc]
+    # The ignores below are for pyserial's internals: types-pyserial stubs `port` as a property
+    # (which mypy gives no `.setter` or `__set__` when reached through the class) and leave out
+    # the private `_reconfigure_port` and `_rts_state` this double overrides and reads.
+    @serial.Serial.port.setter  # type: ignore[attr-defined,untyped-decorator]
     def port(self, value: str | None) -> None:
         if value is not None and "://" in value:
             value = value.split("://", 1)[1]
-        serial.Serial.port.__set__(self, value)
+        serial.Serial.port.__set__(self, value)  # type: ignore[attr-defined]
 
     def _reconfigure_port(self, force_update: bool = False) -> None:
         self._parity = serial.PARITY_NONE  # a pty refuses PARENB the second time
-        super()._reconfigure_port(force_update)
+        super()._reconfigure_port(force_update)  # type: ignore[misc]
 
     def _update_rts_state(self) -> None:
-        self._events().append(Event(time.monotonic(), "rts", bool(self._rts_state)))
+        rts = bool(self._rts_state)  # type: ignore[attr-defined]
+        self._events().append(Event(time.monotonic(), "rts", rts))
 
     def write(self, data: Any) -> int | None:
         self._events().append(Event(time.monotonic(), "write", bytes(data)))
-        return super().write(data)  # type: ignore[no-any-return]
+        return super().write(data)
 
     def flush(self) -> None:
         super().flush()

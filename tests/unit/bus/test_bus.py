@@ -236,7 +236,7 @@ async def test_after_a_timeout_or_a_broadcast_the_next_gap_is_not_the_gateways_s
         broadcast = bus.request(
             0, write_pdu(FREQUENCY_SETPOINT, 1000), priority=Priority.WRITE, client="t"
         )
-        assert await asyncio.gather(broadcast, read(bus, 2, STATE_WORD_1)) == [
+        assert list(await asyncio.gather(broadcast, read(bus, 2, STATE_WORD_1))) == [
             None,
             STOPPED_REPLY,
         ]

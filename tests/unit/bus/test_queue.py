@@ -82,7 +82,9 @@ async def test_full_queue_refuses_with_gateway_path_unavailable() -> None:
 
 async def test_a_request_whose_callers_left_is_not_wanted() -> None:
     gone = txn("a")
-    gone.waiters[0].cancel()  # the client disconnected while it waited
+    waiter = gone.waiters[0]
+    assert isinstance(waiter, asyncio.Future)  # txn() waits with a future
+    waiter.cancel()  # the client disconnected while it waited
     assert not gone.wanted
     assert txn("b").wanted
     probe = Transaction(
