@@ -618,46 +618,61 @@ class MetricsFeature:
         return Response(HTTPStatus.OK, "application/json", json.dumps(self._report()).encode())
 
 
+_LINE_METRICS: tuple[
+    tuple[str, type[CounterMetricFamily | GaugeMetricFamily], str, Callable[[SerialLine], float]],
+    ...,
+] = (
+    (
+        "line_garbage_bytes",
+        CounterMetricFamily,
+        "Bytes skipped before replies that could not start them (transceiver glitches, noise)",
+        lambda line: line.garbage_bytes,
+    ),
+    (
+        "line_echoes",
+        CounterMetricFamily,
+        "Requests the adapter handed back though the bus has echo: false (set echo: true)",
+        lambda line: line.echoes,
+    ),
+    (
+        "line_reply_silence_max_seconds",
+        GaugeMetricFamily,
+        "Longest silence seen inside a reply (an adapter delivering in bursts shows here)",
+        lambda line: line.longest_reply_silence_s,
+    ),
+    (
+        "line_gap_lead_seconds",
+        GaugeMetricFamily,
+        "How long before the inter-frame gap ends the line wakes to choose the next request "
+        "(learnt from its wake-ups: about their lower quartile of lateness)",
+        lambda line: line.gap_lead.lead_s,
+    ),
+    (
+        "line_gap_spin_seconds",
+        CounterMetricFamily,
+        "CPU time spent waiting out the gap's last microseconds after an early wake-up",
+        lambda line: line.gap_lead.spun_s,
+    ),
+)
+"""Per line: what its hardware does to replies (glitches, echoes, bursts) and what keeping its
+gap costs (`gateway.bus.line`): name, kind, help, and how to read it off the line."""
+
+
 class _LineFamilies:
-    """What a line's hardware does to replies: glitches, echoes, bursts (`gateway.bus.line`)."""
+    """The `_LINE_METRICS` families, one sample per bus."""
 
     def __init__(self) -> None:
-        self.garbage = CounterMetricFamily(
-            f"{PREFIX}_line_garbage_bytes",
-            "Bytes skipped before replies that could not start them (transceiver glitches, noise)",
-            labels=["bus"],
-        )
-        self.echoes = CounterMetricFamily(
-            f"{PREFIX}_line_echoes",
-            "Requests the adapter handed back though the bus has echo: false (set echo: true)",
-            labels=["bus"],
-        )
-        self.silence = GaugeMetricFamily(
-            f"{PREFIX}_line_reply_silence_max_seconds",
-            "Longest silence seen inside a reply (an adapter delivering in bursts shows here)",
-            labels=["bus"],
-        )
-        self.lead = GaugeMetricFamily(
-            f"{PREFIX}_line_gap_lead_seconds",
-            "How long before the inter-frame gap ends the line wakes to choose the next request "
-            "(learnt from its wake-ups: about their lower quartile of lateness)",
-            labels=["bus"],
-        )
-        self.spin = CounterMetricFamily(
-            f"{PREFIX}_line_gap_spin_seconds",
-            "CPU time spent waiting out the gap's last microseconds after an early wake-up",
-            labels=["bus"],
-        )
+        self._families = [
+            (kind(f"{PREFIX}_{name}", doc, labels=["bus"]), read)
+            for name, kind, doc, read in _LINE_METRICS
+        ]
 
     def add(self, bus: str, line: SerialLine) -> None:
-        self.garbage.add_metric([bus], line.garbage_bytes)
-        self.echoes.add_metric([bus], line.echoes)
-        self.silence.add_metric([bus], line.longest_reply_silence_s)
-        self.lead.add_metric([bus], line.gap_lead.lead_s)
-        self.spin.add_metric([bus], line.gap_lead.spun_s)
+        for family, read in self._families:
+            family.add_metric([bus], read(line))
 
     def families(self) -> Iterable[CounterMetricFamily | GaugeMetricFamily]:
-        return (self.garbage, self.echoes, self.silence, self.lead, self.spin)
+        return [family for family, _ in self._families]
 
 
 def _mqtt_families(bridge: MqttBridge) -> Iterable[CounterMetricFamily | GaugeMetricFamily]:

@@ -264,6 +264,11 @@ async def test_excess_gap_counts_back_to_back_transactions_and_never_goes_below_
         # The first bucket (le 0) holds gaps shorter than t3.5: there must be none.
         assert m("bus_excess_gap_seconds_bucket", **bus, le="0.0") == 0
         assert m("bus_excess_gap_seconds_sum", **bus) > 0
+        # The line learnt to wake before each gap's end (its wake-ups came late), and what
+        # waiting out the rest on the clock cost is counted, a fraction of the line's time.
+        assert m("line_gap_lead_seconds", **bus) > 0
+        spun = m("line_gap_spin_seconds_total", **bus)
+        assert 0 <= spun < m("bus_busy_seconds_total", **bus) / 10
         # The drives' side agrees: no request came less than t3.5 after the previous frame.
         stats = line.stats
         assert stats["gap_violations"] == 0
