@@ -645,7 +645,8 @@ class Bus:
             transaction = self._carrying
             assert transaction is not None  # `sending` is its frame
             beyond_gap = sending.gap_s - self.settings.line.gap_s
-            self.gap_excess.observe(min(beyond_gap, sending.started - transaction.queued_at))
+            since_queued = sending.started - transaction.queued_at
+            self.gap_excess.observe(beyond_gap if beyond_gap < since_queued else since_queued)
 
     def _count_attempt(self, drive: DriveStats, frame: bytes) -> None:
         """One attempt on the wire, whichever way it ends (`_execute` or `_replied`)."""

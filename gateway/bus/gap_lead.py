@@ -53,10 +53,14 @@ class GapLead:
     def ready(self, gap_end: float) -> None:
         """The next frame is chosen and built, in a wake-up the timer made a lead early: learn
         from how early or late that was, and wait out the rest of the gap."""
+        # Once per transaction: plain comparisons rather than min() and max() calls.
+        lead = self.lead_s
         if time.monotonic() >= gap_end:
-            self.lead_s = min(self.lead_s + STEP_S, self._max_s)
+            lead += STEP_S
+            self.lead_s = lead if lead < self._max_s else self._max_s
             return
-        self.lead_s = max(self.lead_s - STEP_BACK_S, 0.0)
+        lead -= STEP_BACK_S
+        self.lead_s = lead if lead > 0.0 else 0.0
         self.wait_out(gap_end)
 
     def wait_out(self, gap_end: float) -> None:

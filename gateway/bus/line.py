@@ -218,6 +218,9 @@ class SerialLine:
         """What the held caller sent, for the reader callback to finish the attempt itself."""
         self.gap_lead = GapLead(settings.gap_s)
         """How long before the gap's end the timer wakes the line (`gateway.bus.gap_lead`)."""
+        self._learns_lead = False
+        """The timer's wake-ups are exact (timerfd): the lead is learnt from them. Without a
+        timerfd the loop's timer never fires early, and the lead stays 0."""
 
     @property
     def is_open(self) -> bool:
@@ -269,6 +272,7 @@ class SerialLine:
         self._received.clear()
         self._error = None
         self._timer = LineTimer(loop)
+        self._learns_lead = self._timer.exact
         if fd is not None:
             loop.add_reader(fd, self._receive)
             self._poll = select.poll()
@@ -374,9 +378,8 @@ class SerialLine:
 
     def _wake_at(self, gap_end: float) -> float:
         """When the timer should wake the line for a gap ending at `gap_end`: early by the
-        learnt lead where wake-ups are exact (timerfd), at the end itself otherwise."""
-        assert self._timer is not None
-        return self.gap_lead.wake_at(gap_end) if self._timer.exact else gap_end
+        learnt lead (which stays 0 where the timer has no timerfd: nothing is learnt there)."""
+        return gap_end - self.gap_lead.lead_s
 
     def _send_at_gap_end(self, this: _Round, timed: bool = True) -> bool:
         """The gap timer's action: send as the gap ends, if the line is still quiet and usable.
@@ -396,7 +399,8 @@ class SerialLine:
             return False
         gap_end = self._quiet_since + self.settings.gap_s
         now = time.monotonic()
-        if self._wake_at(gap_end) > now:
+        lead = self.gap_lead
+        if gap_end - lead.lead_s > now:
             return False  # woken before the lead (the timer's rounding slack): look again
         early = gap_end > now  # the line was seen quiet before the gap ended: look once more
         try:
@@ -407,11 +411,10 @@ class SerialLine:
         if frame is None:
             this.outcome.append(None)
             return False
-        timer = self._timer
-        if timed and timer is not None and timer.exact:  # else no lead: woken at the gap's end
-            self.gap_lead.ready(gap_end)
+        if timed and self._learns_lead:
+            lead.ready(gap_end)
         elif early:
-            self.gap_lead.wait_out(gap_end)
+            lead.wait_out(gap_end)
         if early and self._bytes_waiting():
             # Bytes came while the frame was chosen and the gap waited out: the line was not
             # quiet, so the gap starts again, and the frame goes at its end.
