@@ -47,9 +47,6 @@ class GapLead:
         """Time spent waiting out the gap on the clock, in all: its CPU cost, for the tests
         and for anyone wondering."""
 
-    def wake_at(self, gap_end: float) -> float:
-        return gap_end - self.lead_s
-
     def ready(self, gap_end: float) -> None:
         """The next frame is chosen and built, in a wake-up the timer made a lead early: learn
         from how early or late that was, and wait out the rest of the gap."""
