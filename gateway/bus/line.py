@@ -360,7 +360,8 @@ class SerialLine:
             due = self._quiet_since + gap
             now = time.monotonic()
             if due <= now:
-                return self._send_now(this.take_pick)
+                frame = this.take_pick()
+                return None if frame is None else self._send_frame(frame)
             assert self._timer is not None  # _discard_pending raised if the port is closed
             wake_at = self._wake_at(due)
             if wake_at <= now:  # within the lead already: wait out the rest, then look again
@@ -590,10 +591,6 @@ class SerialLine:
                 self._quiet_since = max(self._quiet_since, time.monotonic())
         heard_at = self._quiet_since if self._fd is not None else 0.0
         return Exchange(pdu, sending.gap_s, self._quiet_since - started, heard_at)
-
-    def _send_now(self, pick: Callable[[], bytes | None]) -> Sending | None:
-        frame = pick()
-        return None if frame is None else self._send_frame(frame)
 
     def _send_frame(self, frame: bytes) -> Sending:
         started = time.monotonic()
