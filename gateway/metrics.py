@@ -644,7 +644,8 @@ _LINE_METRICS: tuple[
         "line_gap_lead_seconds",
         GaugeMetricFamily,
         "How long before the inter-frame gap ends the line wakes to choose the next request "
-        "(learnt from its wake-ups: about their lower quartile of lateness)",
+        "(learnt from its wake-ups: about their 95th percentile of lateness while the event "
+        "loop's lines spin within their budget, their lower quartile past it)",
         lambda line: line.gap_lead.lead_s,
     ),
     (

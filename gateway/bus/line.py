@@ -5,7 +5,7 @@ with its arrival time, so the line knows when it last went quiet even between tr
 reply, noise). Reads are served from that buffer; the inter-frame gap is kept with an exact timer
 (`gateway.bus.line_timer`), not with asyncio's millisecond timeouts. Nothing here blocks the loop
 but the last microseconds of a gap, waited out on the clock after a wake-up that came a learnt
-lead early (`gateway.bus.gap_lead`; tens of microseconds, never more than 200), and no thread is
+lead early (`gateway.bus.gap_lead`; tens of microseconds, never more than 400), and no thread is
 involved: a transaction costs the loop a wake-up when the reply arrives and one when the gap
 ends, which is all the CPU it needs.
 
@@ -54,7 +54,7 @@ from typing import NamedTuple
 import serial
 
 from gateway.bus.direction import DirectionControl, DirectionMode, apply_kernel_mode, set_rts
-from gateway.bus.gap_lead import GapLead
+from gateway.bus.gap_lead import GapLead, loop_spin_budget
 from gateway.bus.hardware_hints import burst_hint, echo_hint
 from gateway.bus.line_timer import LineTimer
 from gateway.bus.wakeup import settle, woken_or_timeout
@@ -273,6 +273,7 @@ class SerialLine:
         self._error = None
         self._timer = LineTimer(loop)
         self._learns_lead = self._timer.exact
+        self.gap_lead.budget = loop_spin_budget(loop)
         if fd is not None:
             loop.add_reader(fd, self._receive)
             self._poll = select.poll()

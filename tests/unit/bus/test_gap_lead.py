@@ -1,6 +1,7 @@
 """Waking before the inter-frame gap ends (`gateway.bus.gap_lead`): the lead is learnt from the
-wake-ups, the frame never leaves before the gap has ended, and bytes that come while it is
-chosen start the gap again with the chosen frame kept. Over real ptys."""
+wake-ups, the frame never leaves before the gap has ended, bytes that come while it is chosen
+start the gap again with the chosen frame kept, and the lines of one event loop share one spin
+budget that decides where their leads settle. Over real ptys."""
 
 from __future__ import annotations
 
@@ -12,7 +13,15 @@ import tty
 
 import pytest
 
-from gateway.bus.gap_lead import MAX_LEAD_S, STEP_BACK_S, STEP_S, GapLead
+from gateway.bus.gap_lead import (
+    BUDGET_WINDOW_S,
+    MAX_LEAD_S,
+    STEP_BACK_S,
+    STEP_BACK_WITHIN_BUDGET_S,
+    STEP_S,
+    GapLead,
+    SpinBudget,
+)
 from gateway.bus.line import Sending, SerialLine
 from gateway.bus.queue import Priority
 from gateway.config import BusConfig
@@ -40,11 +49,63 @@ def test_an_early_wake_up_waits_out_the_gap_and_shortens_the_lead() -> None:
     for _ in range(1000):
         lead.ready(time.monotonic() - 1e-3)
     assert lead.lead_s == pytest.approx(0.0001)
-    gap_end = time.monotonic() + 0.005  # early even if this test is held up a few milliseconds
+    gap_end = time.monotonic() + 0.001  # early even if this test is held up a moment
     lead.ready(gap_end)
     assert time.monotonic() >= gap_end  # never a frame before the gap's end
     assert lead.spun_s > 0
-    assert lead.lead_s == pytest.approx(0.0001 - STEP_BACK_S)
+    assert lead.budget.spun_s == lead.spun_s  # counted against the loop's budget too
+    # Nothing spun before it, so within the budget: the small step, towards the 95th percentile
+    assert lead.lead_s == pytest.approx(0.0001 - STEP_BACK_WITHIN_BUDGET_S)
+
+
+def test_past_the_loop_s_spin_budget_the_lead_steps_back_three_times_its_step() -> None:
+    """A loop whose lines spun more than its budget in the last window: their leads settle
+    where a quarter of the wake-ups come early (the big step back); once a window passes
+    within the budget, they take the small step again."""
+    budget = SpinBudget()
+    lead = GapLead(gap_s=0.0016, budget=budget)  # 115200 baud: t3.5 is 1.75 ms, near this
+    lead.lead_s = 300e-6
+    lead.ready(time.monotonic() + 0.05)  # early by 50 ms: a tenth of the window spun
+    assert lead.lead_s == pytest.approx(300e-6 - STEP_BACK_WITHIN_BUDGET_S)
+    time.sleep(max(budget.window_ends - time.monotonic(), 0.0))
+    before = lead.lead_s
+    lead.ready(time.monotonic() + 0.0005)  # the window is over: it spun far past the budget
+    assert not budget.within
+    assert lead.lead_s == pytest.approx(before - STEP_BACK_S)
+    time.sleep(BUDGET_WINDOW_S)  # a window with nothing but that half millisecond spun
+    before = lead.lead_s
+    lead.ready(time.monotonic() + 0.0005)
+    assert budget.within
+    assert lead.lead_s == pytest.approx(before - STEP_BACK_WITHIN_BUDGET_S)
+
+
+async def test_the_lines_of_one_event_loop_share_one_spin_budget() -> None:
+    """Every line on the loop spins into the same budget: sixteen lines spinning as much as
+    one line may would hold up each other's frames sixteen times as long."""
+    ends = [os.openpty() for _ in range(2)]
+    lines = []
+    try:
+        for _, slave in ends:
+            tty.setraw(slave)
+            config = BusConfig.model_validate(
+                {"name": f"line{slave}", "port": os.ttyname(slave), "baudrate": 115200}
+            )
+            line = SerialLine(bus_settings(config).line)
+            line.open()
+            lines.append(line)
+        first, second = lines
+        assert first.gap_lead.budget is second.gap_lead.budget
+        first.gap_lead.wait_out(time.monotonic() + 0.002)
+        second.gap_lead.wait_out(time.monotonic() + 0.003)
+        shared = first.gap_lead.budget.spun_s
+        assert shared == pytest.approx(first.gap_lead.spun_s + second.gap_lead.spun_s)
+        assert shared > 0.004  # the two waits, less the moment before each began to spin
+    finally:
+        for line in lines:
+            line.close()
+        for master, slave in ends:
+            os.close(master)
+            os.close(slave)
 
 
 @pytest.mark.line(addresses=[1, 2], baudrate=19200, response_delay_ms=0.0)
