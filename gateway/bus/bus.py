@@ -8,9 +8,10 @@ the process no more wake-ups than the line itself makes.
 
 The bus takes the next transaction as late as it can: in the wake-up that ends the inter-frame
 gap after the previous one, where its frame is written too (that wake-up comes a learnt lead of
-tens of microseconds before the gap's end, `gateway.bus.gap_lead`). A write that arrives during
-the gap, before that wake-up, still goes first, and identical reads that arrive during it join
-the one transaction; one that arrives in the last microseconds waits one transaction more.
+up to a few hundred microseconds before the gap's end, `gateway.bus.gap_lead`). A write that
+arrives during the gap, before that wake-up, still goes first, and identical reads that arrive
+during it join the one transaction; one that arrives in that last lead waits one transaction
+more.
 Buses are independent of each other: each has its own queue, coroutine and port.
 """
 
@@ -423,10 +424,10 @@ class Bus:
         """Keep the inter-frame gap, then send the best transaction there is at its end.
 
         The choice is made in the wake-up that ends the gap (`SerialLine.send_after_gap` calls
-        `_pick` there, a learnt lead of tens of microseconds before the gap's end): a write that
-        arrives during the gap, before then, still goes first, identical reads that arrive
-        during it join the one transaction, and the frame leaves without another pass of the
-        event loop. With nothing queued, the bus waits for work.
+        `_pick` there, a learnt lead of up to a few hundred microseconds before the gap's end):
+        a write that arrives during the gap, before then, still goes first, identical reads that
+        arrive during it join the one transaction, and the frame leaves without another pass of
+        the event loop. With nothing queued, the bus waits for work.
         """
         # Every pass, not only when idle: a busy line must still find out a drive is back.
         self._queue_due_probes()

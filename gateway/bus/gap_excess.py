@@ -3,8 +3,8 @@ silent between a reply and the next request, for a request the gap's end found w
 choice after a reply). One queued after the gap had ended but before the gateway woke for it counts
 from its queueing: until then the line waited for a request, after it for the gateway. When the
 gap's end finds nothing, the line goes idle, and the silence before the next request is a client's
-(that look comes a lead of tens of microseconds before the gap ends, `gateway.bus.gap_lead`: a
-request queued in those microseconds is taken for a client's pause too).
+(that look comes a lead of up to a few hundred microseconds before the gap ends,
+`gateway.bus.gap_lead`: a request queued in that lead is taken for a client's pause too).
 
 On a line that is never idle, a transaction is the drive's time (request, response delay, reply)
 plus the gap that ends the previous one (t3.5) plus whatever the gateway adds on top: the wake-up

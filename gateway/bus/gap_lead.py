@@ -5,7 +5,8 @@ machine, more again in a virtual one), and choosing and framing the next request
 with the timer armed for the gap's very end, every frame would leave that much late, and that is
 the gateway's own share of each transaction (`invt_gateway_bus_excess_gap_seconds`). So the line
 arms its timer `lead_s` before the gap ends, chooses the next request in that wake-up, and waits
-out what is left of the gap on the clock: a spin of a few microseconds, never a frame early.
+out what is left of the gap on the clock: a spin of microseconds to a few hundred, never a
+frame early.
 
 The lead is learnt from every timed wake-up: a small step longer when the request was ready only
 after the gap had ended, a step shorter when it was ready before. The length of that step back
@@ -24,7 +25,10 @@ sets where the lead settles, and so how often the line spins and how many frames
   more would hold up the loop's other lines as long (with 16 lines on one loop, a lead at the
   95th percentile for every line cost the worst line 19 points of its share).
 
-The budget is looked at every half second, so the leads move between the two as the load does.
+The budget is looked at in the first timed wake-up half a second or more after the last look,
+so the leads move between the two as the load does. A line whose spin at the 95th percentile
+would be above the budget (one line at 115200 baud with requests back to back) sees its lead
+saw-tooth between the two from window to window, spinning about the budget on average.
 The slower the line, the longer the process sleeps and the later it wakes: each line learns its
 own lead.
 """
@@ -36,8 +40,10 @@ import time
 import weakref
 
 MAX_LEAD_S = 400e-6
-"""Never more: a wake-up later than this is the machine's trouble, which no lead mends, and
-a longer spin would hold up the loop's other work (other lines, clients) as long. A slow line's
+"""Never more (nor more than a quarter of the gap): a wake-up later than this is the machine's
+trouble, which no lead mends, and a longer spin would hold up the loop's other work (other
+lines, clients, and whoever's callback `LineTimer.fire_due` acts in) as long. A write queued in
+the last lead of a gap waits one transaction more (`gateway.bus.bus`). A slow line's
 wake-ups spread widest: at 9600 baud with 8 clients their 95th percentile was about 200 us."""
 STEP_S = 3e-6
 """The lead's step longer after a late wake-up: from nothing to the 100-200 us a slow line's
@@ -50,12 +56,12 @@ STEP_BACK_WITHIN_BUDGET_S = STEP_S / 19
 """Its step shorter after an early one within the budget: a nineteenth, so that it settles where
 95 % of the wake-ups are early."""
 LOOP_SPIN_BUDGET = 0.005
-"""Of the event loop's time, spent waiting out gaps on the clock by all its lines together: a
-hundredth of a core buys the gap's tail (see the module's docstring) and leaves the rest of the
+"""Of the event loop's time, spent waiting out gaps on the clock by all its lines together: half
+a percent of a core buys the gap's tail (see the module's docstring) and leaves the rest of the
 box to the plant's other work."""
 BUDGET_WINDOW_S = 0.5
 """How often the budget is looked at: often enough to follow a change of load within a second,
-long enough to hold hundreds of transactions at 115200 baud."""
+long enough to hold about a hundred transactions at 115200 baud."""
 
 
 class SpinBudget:

@@ -4,8 +4,8 @@ The port's descriptor is watched by the loop all the time: every byte is taken i
 with its arrival time, so the line knows when it last went quiet even between transactions (a late
 reply, noise). Reads are served from that buffer; the inter-frame gap is kept with an exact timer
 (`gateway.bus.line_timer`), not with asyncio's millisecond timeouts. Nothing here blocks the loop
-but the last microseconds of a gap, waited out on the clock after a wake-up that came a learnt
-lead early (`gateway.bus.gap_lead`; tens of microseconds, never more than 400), and no thread is
+but the end of a gap, waited out on the clock after a wake-up that came a learnt lead early
+(`gateway.bus.gap_lead`; up to a few hundred microseconds, never more than 400), and no thread is
 involved: a transaction costs the loop a wake-up when the reply arrives and one when the gap
 ends, which is all the CPU it needs.
 
@@ -337,10 +337,10 @@ class SerialLine:
 
         `pick` runs in the wake-up that ends the gap (inside the gap timer's callback), so the
         gap is not stretched by another pass of the event loop; that wake-up comes a learnt
-        lead before the gap's end (`gateway.bus.gap_lead`, tens of microseconds), and the rest
-        of the gap is waited out on the clock, so the frame goes out as the gap ends. None from
-        `pick`: nothing to send now (returned as None). Bytes arriving during the gap restart
-        it; a frame already chosen then goes at the new gap's end.
+        lead before the gap's end (`gateway.bus.gap_lead`, up to a few hundred microseconds),
+        and the rest of the gap is waited out on the clock, so the frame goes out as the gap
+        ends. None from `pick`: nothing to send now (returned as None). Bytes arriving during the
+        gap restart it; a frame already chosen then goes at the new gap's end.
 
         `reply_within`, asked right after `pick`: how long the drive has to answer the frame
         just picked (None: no reply, or none to wait for here). The caller then resumes when
