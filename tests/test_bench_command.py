@@ -73,6 +73,7 @@ def test_bench_prints_checked_figures_as_json() -> None:
             assert (math.isnan(p50) and math.isnan(p99)) or 0 <= p50 <= p99
         else:
             assert 0 <= p50 <= p99, row["case"]
+            assert row["gap+ n"] > 0, row["case"]  # the transactions those quantiles rest on
         if "same reg" not in row["case"]:
             # Each client asks its own read: none joins another's transaction, so the clients
             # contend for the line and get what it carries, not a multiple of it.

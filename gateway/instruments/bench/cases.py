@@ -186,6 +186,12 @@ class CaseResult:
         return 1e6 * quantile(self.excess_gap, quantile_)
 
     @property
+    def excess_gap_count(self) -> int:
+        """How many transactions the excess gap's quantiles rest on (those the gap's end found
+        waiting): below a hundred, the p99 is the slowest of them."""
+        return self.excess_gap[-1][1] if self.excess_gap else 0
+
+    @property
     def overhead_us(self) -> float:
         """Measured time per transaction on a line beyond the wire's: everything not physics."""
         per_line = self.bus_transactions / max(self.case.lines, 1)

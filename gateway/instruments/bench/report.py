@@ -23,6 +23,7 @@ COLUMNS = (
     ("t3.5 viol", "{:>9}"),
     ("gap+ p50 us", "{:>11.0f}"),
     ("gap+ p99 us", "{:>11.0f}"),
+    ("gap+ n", "{:>6}"),
     ("ovh us/tx", "{:>9.0f}"),
     ("worst line", "{:>10.1%}"),
     ("CPU us/tx", "{:>9.0f}"),
@@ -53,6 +54,7 @@ def row(result: CaseResult) -> dict[str, Any]:
         # The gateway's own share: silence beyond t3.5 before a request that was waiting.
         "gap+ p50 us": result.excess_gap_us(0.50),
         "gap+ p99 us": result.excess_gap_us(0.99),
+        "gap+ n": result.excess_gap_count,
         # Measured time per transaction on a line minus the wire's: gaps, wake-ups, the pty.
         "ovh us/tx": result.overhead_us,
         "worst line": min(result.line_shares, default=float("nan")),
@@ -87,6 +89,11 @@ def summary(results: list[CaseResult]) -> list[str]:
         gaps = (
             f"excess gap median {result.excess_gap_us(0.5):.0f} us, "
             f"p99 {result.excess_gap_us(0.99):.0f} us (targets <= 50 and <= 250 us)"
+            + (
+                f"; the p99 is the slowest of {result.excess_gap_count} transactions"
+                if 0 < result.excess_gap_count < 100
+                else ""
+            )
         )
         if case.flood:
             base = alone.get(case.baudrate)
