@@ -57,7 +57,7 @@ from gateway.bus.direction import DirectionControl, DirectionMode, apply_kernel_
 from gateway.bus.gap_lead import GapLead, loop_spin_budget
 from gateway.bus.hardware_hints import burst_hint, echo_hint
 from gateway.bus.line_timer import LineTimer
-from gateway.bus.wakeup import settle, woken_or_timeout
+from gateway.bus.wakeup import MovingDeadline, settle, woken_or_timeout
 from gateway.errors import BadReply, PortError, ReplyTimeout
 from gateway.modbus.reply_search import MIN_REPLY, Found, ReplySearch, search_reply
 from gateway.modbus.rtu import MAX_FRAME, check_reply
@@ -162,12 +162,6 @@ class _Held(NamedTuple):
     """A copy of the request complete before this is the adapter's echo (`_echo_deadline`)."""
 
 
-def _reply_overdue() -> bool:
-    """The held caller's response timeout, kept by the gap timer: False wakes the caller, whose
-    own reading then finds the reply missing or incomplete."""
-    return False
-
-
 PTY_SLAVE_MAJORS = range(136, 144)
 """Linux's device numbers for pseudo-terminal slaves (/dev/pts/N)."""
 
@@ -212,8 +206,10 @@ class SerialLine:
         self._poll: select.poll | None = None
         self._holding = False
         """`send_after_gap`'s caller is held until the reply's first bytes, or the response
-        timeout, which the gap timer keeps (`_overdue` where there is no timerfd)."""
-        self._overdue: asyncio.TimerHandle | None = None
+        timeout (`_response_deadline`)."""
+        self._response_deadline: MovingDeadline | None = None
+        """The held caller's response timeout: it wakes the caller, whose own reading then
+        finds the reply missing or incomplete."""
         self._held: _Held | None = None
         """What the held caller sent, for the reader callback to finish the attempt itself."""
         self.gap_lead = GapLead(settings.gap_s)
@@ -272,6 +268,7 @@ class SerialLine:
         self._received.clear()
         self._error = None
         self._timer = LineTimer(loop)
+        self._response_deadline = MovingDeadline(loop, self._wake)
         self._learns_lead = self._timer.exact
         self.gap_lead.budget = loop_spin_budget(loop)
         if fd is not None:
@@ -311,6 +308,9 @@ class SerialLine:
         if self._timer is not None:
             self._timer.close()
             self._timer = None
+        if self._response_deadline is not None:
+            self._response_deadline.close()
+            self._response_deadline = None
         if port is not None:
             with contextlib.suppress(Exception):
                 port.close()
@@ -458,12 +458,10 @@ class SerialLine:
         self._waiter = waiting
         sent = sending.started + self.settings.char_format.wire_time_s(len(sending.frame))
         self._holding = True
-        # The gap timer is free until the next gap: it keeps the response timeout, at the cost
-        # of the timerfd write the next gap makes anyway, and asyncio's timer heap is spared.
-        if not self._timer.rearm(sent + within_s, _reply_overdue):
-            self._overdue = self._loop.call_at(
-                self._loop.time() + max(sent + within_s - time.monotonic(), 0.0), self._wake
-            )
+        # Not on the gap timer: a timerfd write per transaction for a deadline that is almost
+        # never reached costs more than the float stores of a moving deadline.
+        assert self._response_deadline is not None
+        self._response_deadline.set(sent + within_s)
         self._arrivals = [(len(self._received), sent)]  # what came, when: for echoes and bursts
         if this.replied is not None:
             self._held = _Held(sending, this, self._echo_deadline(sending.frame, sent))
@@ -526,13 +524,12 @@ class SerialLine:
         self._held = None
         self._arrivals = None
         self._holding = False
-        self._cancel_overdue()  # the timerfd's response timeout gives way to the next gap
+        self._cancel_overdue()
         self._waiter = None
 
     def _cancel_overdue(self) -> None:
-        overdue, self._overdue = self._overdue, None
-        if overdue is not None:
-            overdue.cancel()
+        if self._response_deadline is not None:
+            self._response_deadline.clear()
 
     def _keep_gap(self, this: _Round) -> None:
         """What `send_after_gap`'s loop does next, done here for a caller that stays held:

@@ -8,6 +8,7 @@ transaction.
 from __future__ import annotations
 
 import asyncio
+import math
 import time
 from collections.abc import Callable
 from functools import partial
@@ -46,6 +47,67 @@ class NeverEarly:
             self._handle = self._loop.call_later(remaining, self._due)
         else:
             self._action()
+
+
+class MovingDeadline:
+    """A deadline set anew for every transaction (a response timeout), watched by one loop
+    timer that is moved only when it comes due: `action` runs at the deadline or after it,
+    never before, and only if the deadline is still set then.
+
+    A busy line sets a response timeout a few milliseconds after the last one was cleared:
+    arming a timer for each (a timerfd write, or a timer handle pushed and cancelled) costs
+    every transaction. Here setting it is two float stores while a timer is pending no later
+    than the new deadline; that timer, when it fires, finds the deadline of the transaction on
+    the line by then and waits again for it. So the loop's timer moves about once per timeout's
+    length, not once per transaction.
+    """
+
+    __slots__ = ("_action", "_deadline", "_handle", "_handle_at", "_loop")
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, action: Callable[[], object]) -> None:
+        self._loop, self._action = loop, action
+        self._deadline = math.inf
+        """Of the current transaction; inf when none is set."""
+        self._handle: asyncio.TimerHandle | None = None
+        self._handle_at = math.inf
+        """When the pending timer fires (a `time.monotonic()` value); inf when none is."""
+
+    @property
+    def deadline(self) -> float:
+        return self._deadline
+
+    def set(self, deadline: float) -> None:
+        self._deadline = deadline
+        if deadline < self._handle_at:  # no timer yet, or one that would come too late
+            if self._handle is not None:
+                self._handle.cancel()
+            self._start(deadline)
+
+    def clear(self) -> None:
+        """No deadline now. The timer stays: the next `set` likely comes before it fires."""
+        self._deadline = math.inf
+
+    def close(self) -> None:
+        self._deadline = math.inf
+        if self._handle is not None:
+            self._handle.cancel()
+            self._handle, self._handle_at = None, math.inf
+
+    def _start(self, at: float) -> None:
+        self._handle_at = at
+        self._handle = self._loop.call_later(max(at - time.monotonic(), 0.0), self._fired)
+
+    def _fired(self) -> None:
+        self._handle, self._handle_at = None, math.inf
+        deadline = self._deadline
+        if deadline == math.inf:
+            return  # nothing to watch: the next `set` starts a timer
+        if deadline > time.monotonic():
+            # A later transaction's deadline, or uvloop's rounding to the nearest millisecond.
+            self._start(deadline)
+            return
+        self._deadline = math.inf
+        self._action()
 
 
 async def woken_or_timeout(waiter: asyncio.Future[None], timeout_s: float) -> None:

@@ -1,12 +1,14 @@
 """A coroutine's wait for news or its timeout: the timeout never ends it early, on either event
-loop (uvloop rounds timers to the nearest millisecond), and news ends it at once."""
+loop (uvloop rounds timers to the nearest millisecond), and news ends it at once. A response
+timeout set anew for every transaction (`MovingDeadline`) acts at its own deadline, never at an
+earlier transaction's, and not at all once cleared."""
 
 from __future__ import annotations
 
 import asyncio
 import time
 
-from gateway.bus.wakeup import settle, woken_or_timeout
+from gateway.bus.wakeup import MovingDeadline, settle, woken_or_timeout
 
 
 async def test_a_timeout_never_ends_the_wait_before_its_time() -> None:
@@ -25,3 +27,82 @@ async def test_news_ends_the_wait_at_once() -> None:
     started = time.monotonic()
     await woken_or_timeout(waiter, 10.0)
     assert time.monotonic() - started < 1.0
+
+
+async def _acted_at(deadline: MovingDeadline, acted: list[float], within_s: float) -> None:
+    ends = time.monotonic() + within_s
+    while not acted and time.monotonic() < ends:
+        await asyncio.sleep(0.0005)
+
+
+async def test_a_moving_deadline_never_acts_before_its_time() -> None:
+    loop = asyncio.get_running_loop()
+    acted: list[float] = []
+    deadline = MovingDeadline(loop, lambda: acted.append(time.monotonic()))
+    try:
+        for n in range(30):
+            acted.clear()
+            due = time.monotonic() + 0.0001 + 0.0001 * n  # 0.1-3 ms
+            deadline.set(due)
+            await _acted_at(deadline, acted, 1.0)
+            assert len(acted) == 1, f"deadline {n}: acted {len(acted)} times"
+            assert acted[0] >= due, f"deadline {n} acted {(due - acted[0]) * 1e6:.0f} us early"
+    finally:
+        deadline.close()
+
+
+async def test_each_transaction_is_timed_by_its_own_deadline_not_by_an_earlier_ones() -> None:
+    """A busy line: each reply clears the response timeout and the next request sets a later
+    one, long before the first would have passed. Only the last, never cleared, acts: at its own
+    time, though the loop's timer was started for the first."""
+    loop = asyncio.get_running_loop()
+    acted: list[float] = []
+    deadline = MovingDeadline(loop, lambda: acted.append(time.monotonic()))
+    try:
+        last = 0.0
+        for _ in range(10):  # ten transactions, 5 ms each, a 20 ms response timeout
+            last = time.monotonic() + 0.02
+            deadline.set(last)
+            await asyncio.sleep(0.005)
+            deadline.clear()
+        assert acted == []
+        last = time.monotonic() + 0.02
+        deadline.set(last)  # a drive that never answers
+        await _acted_at(deadline, acted, 1.0)
+        assert len(acted) == 1
+        assert acted[0] >= last
+        assert deadline.deadline == float("inf")  # acted on once: nothing left to watch
+    finally:
+        deadline.close()
+
+
+async def test_a_deadline_earlier_than_the_pending_timer_acts_on_time() -> None:
+    """A shorter response timeout after a longer one (a write's after a slow read's): it must
+    not wait for the timer started for the longer one."""
+    loop = asyncio.get_running_loop()
+    acted: list[float] = []
+    deadline = MovingDeadline(loop, lambda: acted.append(time.monotonic()))
+    try:
+        deadline.set(time.monotonic() + 5.0)
+        deadline.clear()
+        due = time.monotonic() + 0.01
+        deadline.set(due)
+        await _acted_at(deadline, acted, 2.0)
+        assert len(acted) == 1
+        assert due <= acted[0] < due + 1.0
+    finally:
+        deadline.close()
+
+
+async def test_a_cleared_or_closed_deadline_never_acts() -> None:
+    loop = asyncio.get_running_loop()
+    acted: list[float] = []
+    cleared = MovingDeadline(loop, lambda: acted.append(time.monotonic()))
+    closed = MovingDeadline(loop, lambda: acted.append(time.monotonic()))
+    cleared.set(time.monotonic() + 0.002)
+    closed.set(time.monotonic() + 0.002)
+    cleared.clear()
+    closed.close()
+    await asyncio.sleep(0.05)
+    assert acted == []
+    cleared.close()
