@@ -55,13 +55,9 @@ def _libc() -> ctypes.CDLL | None:
         return None
     try:
         libc = ctypes.CDLL(ctypes.util.find_library("c"), use_errno=True)
-        # Declared once: ctypes then converts each argument by its type instead of working
-        # out what each Python object is, on every call (a tenth of the call's cost).
-        settime = libc.timerfd_settime
+        libc.timerfd_create  # noqa: B018 - the attribute lookup is the check
     except (OSError, AttributeError):
         return None
-    settime.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p]
-    settime.restype = ctypes.c_int
     return libc
 
 
@@ -88,11 +84,7 @@ class LineTimer:
         """The loop's timer for the pending sleep where there is no timerfd."""
         self._fd = -1
         self._libc = _libc()
-        self._settime: Callable[[int, int, object, None], int] | None = None
-        self._spec_ref = ctypes.byref(self._spec)
-        """Made once: the spec lives as long as the timer."""
         if self._libc is not None:
-            self._settime = self._libc.timerfd_settime
             fd = int(self._libc.timerfd_create(CLOCK_MONOTONIC, TFD_NONBLOCK | TFD_CLOEXEC))
             if fd >= 0:
                 self._fd = fd
@@ -187,16 +179,17 @@ class LineTimer:
             settle(self._waiter)
 
     def _arm(self, deadline: float) -> bool:
-        assert self._settime is not None
+        assert self._libc is not None
         # Rounded up, never down: the gap may end a nanosecond late, never early. At least 1 ns:
         # an all-zero it_value would disarm the timer instead of firing it.
         seconds, nanoseconds = divmod(max(math.ceil(deadline * 1e9), 1), 1_000_000_000)
-        value = self._spec.it_value
-        value.tv_sec = seconds
-        value.tv_nsec = nanoseconds
-        done = self._settime(self._fd, TFD_TIMER_ABSTIME, self._spec_ref, None)
+        self._spec.it_value.tv_sec = seconds
+        self._spec.it_value.tv_nsec = nanoseconds
+        done = self._libc.timerfd_settime(
+            self._fd, TFD_TIMER_ABSTIME, ctypes.byref(self._spec), None
+        )
         self._arms += 1
-        return done == 0
+        return int(done) == 0
 
     def _fire_early(self) -> None:
         """`fire_due` found the deadline passed before the timer's own wake-up came: take that
