@@ -396,18 +396,15 @@ class SerialLine:
             return False  # closed, failed or not quiet after all: `send_after_gap` looks again
         if self._fd is None:
             return False  # a URL port: only `_discard_pending_url` can tell if bytes came
+        if self._bytes_waiting():
+            self._quiet_since = time.monotonic()
+            return False
         gap_end = self._quiet_since + self.settings.gap_s
         now = time.monotonic()
         lead = self.gap_lead
         if gap_end - lead.lead_s > now:
             return False  # woken before the lead (the timer's rounding slack): look again
-        # Woken within the lead (most wake-ups), the port is looked at once, after the rest of
-        # the gap is waited out (below): a look now as well would cost a poll(2) per
-        # transaction for bytes that, if any, the later look finds too.
-        early = gap_end > now
-        if not early and self._bytes_waiting():
-            self._quiet_since = time.monotonic()
-            return False
+        early = gap_end > now  # the line was seen quiet before the gap ended: look once more
         try:
             frame = this.take_pick()
         except Exception as exc:
