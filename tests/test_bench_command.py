@@ -74,6 +74,10 @@ def test_bench_prints_checked_figures_as_json() -> None:
         else:
             assert 0 <= p50 <= p99, row["case"]
             assert row["gap+ n"] > 0, row["case"]  # the transactions those quantiles rest on
+            # The drives, on their side: they hear at least the gateway's own share (plus its
+            # reading of the reply and the virtual line's relay), and answer on time or late.
+            assert row["heard+ p50 us"] >= p50, row["case"]
+            assert row["drive late p50 us"] >= 0, row["case"]
         if "same reg" not in row["case"]:
             # Each client asks its own read: none joins another's transaction, so the clients
             # contend for the line and get what it carries, not a multiple of it.
@@ -116,6 +120,8 @@ def test_bench_runs_several_lines_in_one_gateway_when_asked() -> None:
     (line,) = json.loads(result.stdout)["summary"]
     assert "worst line at" in line
     assert "of a core" in line
+    assert "the simulated drives answered" in line  # where the rest of the overhead goes
+    assert row["drive late p50 us"] >= 0
 
 
 def test_bench_on_a_terminal_redraws_one_progress_line_under_the_table() -> None:

@@ -321,6 +321,35 @@ def test_gap_violations_are_counted() -> None:
         assert line.stats["min_gap_s"] < 0
 
 
+def _counted(buckets: list[tuple[str, int]], at_most_s: float = float("inf")) -> int:
+    """Observations at or below `at_most_s` in a cumulative (`le`, count) histogram."""
+    return max((count for le, count in buckets if float(le) <= at_most_s), default=0)
+
+
+def test_the_line_tells_how_late_its_drives_answered_and_what_silence_they_heard() -> None:
+    """What the benchmark splits a transaction's overhead by: every reply's lateness after the
+    moment it was due, and the silence beyond t3.5 the drives heard before each request that
+    followed a reply (a master's pause shows there whole)."""
+    t35 = 3.5 * 11 / 9600
+    with (
+        SimulatedLine([1], baudrate=9600, wire_time=True, response_delay_ms=5.0) as line,
+        serial.Serial(line.path, 9600, parity="E", timeout=1) as port,
+    ):
+        exchange(port, bytes.fromhex(READ_STATE_WORD_1))
+        assert _counted(line.stats["reply_late_buckets"]) == 1
+        assert _counted(line.stats["heard_gap_buckets"]) == 0  # no request after a reply yet
+        time.sleep(t35 + 0.02)  # the thing under test: a master's pause of 20 ms beyond t3.5
+        exchange(port, bytes.fromhex(READ_STATE_WORD_1))
+        stats = line.stats
+    assert _counted(stats["reply_late_buckets"]) == 2
+    # Answered on time: the line spins out the last few hundred microseconds before a reply.
+    assert _counted(stats["reply_late_buckets"], 0.005) == 2
+    heard = stats["heard_gap_buckets"]
+    assert _counted(heard) == 1
+    assert _counted(heard, 0.01) == 0  # the 20 ms pause, in the last bucket (beyond 10 ms)
+    assert heard[-1][0] == "+Inf"
+
+
 # ---------------------------------------------------------------- the port itself
 
 

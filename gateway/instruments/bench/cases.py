@@ -181,9 +181,21 @@ class CaseResult:
     """Per line."""
     unloaded_p99_ms: float = float("nan")
     """Flood cases: the readers' p99 in the same case without the flood."""
+    drive_late: list[tuple[float, int]] = field(default_factory=list)
+    """How late the simulated drives' replies went out, over the measured time, all lines:
+    cumulative (upper bound, count) buckets, in seconds."""
+    heard_gap: list[tuple[float, int]] = field(default_factory=list)
+    """The silence beyond t3.5 the drives heard between each reply and the next request: the
+    gateway's share (`excess_gap`) plus its reading of the reply and the virtual line's relay."""
 
     def excess_gap_us(self, quantile_: float) -> float:
         return 1e6 * quantile(self.excess_gap, quantile_)
+
+    def drive_late_us(self, quantile_: float) -> float:
+        return 1e6 * quantile(self.drive_late, quantile_)
+
+    def heard_gap_us(self, quantile_: float) -> float:
+        return 1e6 * quantile(self.heard_gap, quantile_)
 
     @property
     def excess_gap_count(self) -> int:
@@ -395,7 +407,22 @@ async def _measure(
         peak_rss_mb=process.peak_rss_mb(),
         excess_gap=[(le, n - gaps_before.get(le, 0)) for le, n in sorted(gaps_after.items())],
         line_transactions=per_line,
+        drive_late=_histogram_change("reply_late_buckets", before, after),
+        heard_gap=_histogram_change("heard_gap_buckets", before, after),
     )
+
+
+def _histogram_change(
+    key: str, before: list[dict[str, Any]], after: list[dict[str, Any]]
+) -> list[tuple[float, int]]:
+    """A simulated line's cumulative histogram (`stats[key]`: (`le`, count) pairs) over the
+    measured time, every line summed: (upper bound, count) pairs as `quantile` takes them."""
+    counts: dict[float, int] = {}
+    for stats, sign in [*((each, -1) for each in before), *((each, 1) for each in after)]:
+        for le, count in stats.get(key, []):
+            bound = float(le)  # "+Inf" too
+            counts[bound] = counts.get(bound, 0) + sign * int(count)
+    return sorted(counts.items())
 
 
 async def _prepare(case: Case, port: int, dead: list[int], line: int = 0) -> list[Target]:

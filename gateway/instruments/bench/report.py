@@ -25,6 +25,8 @@ COLUMNS = (
     ("gap+ p99 us", "{:>11.0f}"),
     ("gap+ n", "{:>6}"),
     ("ovh us/tx", "{:>9.0f}"),
+    ("heard+ p50 us", "{:>13.0f}"),
+    ("drive late p50 us", "{:>17.0f}"),
     ("worst line", "{:>10.1%}"),
     ("CPU us/tx", "{:>9.0f}"),
     ("CPU us/ans", "{:>10.0f}"),
@@ -57,6 +59,11 @@ def row(result: CaseResult) -> dict[str, Any]:
         "gap+ n": result.excess_gap_count,
         # Measured time per transaction on a line minus the wire's: gaps, wake-ups, the pty.
         "ovh us/tx": result.overhead_us,
+        # Where the overhead goes besides the gateway's share: the silence beyond t3.5 the
+        # simulated drives heard after each reply (gap+ plus reading the reply and the pty
+        # relay), and how late the drives themselves answered (their thread woken late).
+        "heard+ p50 us": result.heard_gap_us(0.50),
+        "drive late p50 us": result.drive_late_us(0.50),
         "worst line": min(result.line_shares, default=float("nan")),
         "CPU us/tx": result.cpu_per_transaction_us,
         "CPU us/ans": result.cpu_per_answer_us,
@@ -110,7 +117,10 @@ def summary(results: list[CaseResult]) -> list[str]:
                 f"{case.baudrate} baud, {case.name}: worst line at {worst:.1%} of the wire "
                 f"maximum{than}; gateway CPU {result.cpu_share:.0%} of a core "
                 f"({result.cpu_per_transaction_us:.0f} us per transaction); {gaps}; "
-                f"peak RSS {result.peak_rss_mb:.1f} MB"
+                f"peak RSS {result.peak_rss_mb:.1f} MB; the simulated drives answered "
+                f"{result.drive_late_us(0.5):.0f} us late at the median "
+                f"(p90 {result.drive_late_us(0.9):.0f} us) and heard "
+                f"{result.heard_gap_us(0.5):.0f} us beyond t3.5 before each request"
             )
         elif case.no_wire:
             lines.append(

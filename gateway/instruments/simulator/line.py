@@ -11,6 +11,13 @@ the moment its last character would have left the wire.
 `stats["gap_violations"]` counts requests whose first byte came less than t3.5 after the end of
 the previous frame on the line (a request, or a reply), or while a reply was going out: a master
 that does that corrupts frames on a real line.
+
+Two histograms say where a transaction's time goes besides the wire and the master
+(`stats["reply_late_buckets"]`, `stats["heard_gap_buckets"]`, cumulative, in seconds): how late
+each reply went out after the moment it was due (the drives' own lateness: this thread woken late
+on a busy machine), and the silence beyond t3.5 the drives heard between a reply and the request
+after it (the master's share, its reading of the reply and the relay between the pty ends: all
+that the line waits for besides the drives).
 """
 
 from __future__ import annotations
@@ -29,6 +36,8 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from types import TracebackType
 from typing import Any, Final
 
+from gateway.buckets import Buckets
+from gateway.bus.gap_excess import BOUNDS_S
 from gateway.instruments.simulator.adapter import AdapterEffects
 from gateway.instruments.simulator.drive import SimulatedDrive
 from gateway.instruments.simulator.endpoint import Endpoint, point_link, remove_link
@@ -112,6 +121,10 @@ class SimulatedLine:
         self._sequence = itertools.count()
         self._last_frame_end: float | None = None
         self._request_wire_end = 0.0
+        self._reply_late = Buckets(BOUNDS_S)
+        self._heard_gap = Buckets(BOUNDS_S)
+        self._reply_ended_at: float | None = None
+        """When the last reply went out, until the request after it comes."""
 
     # ----------------------------------------------------------------- lifecycle
 
@@ -247,9 +260,15 @@ class SimulatedLine:
     @property
     def stats(self) -> dict[str, Any]:
         """A snapshot: requests, replies, broadcasts, crc_errors, ignored, gap_violations,
-        min_gap_s, faults_injected (spoilt replies) and faults_by_kind."""
+        min_gap_s, faults_injected (spoilt replies), faults_by_kind, and the histograms
+        reply_late_buckets and heard_gap_buckets (see the module's docstring)."""
         with self._lock:
-            return {**self._stats, "faults_by_kind": dict(self._stats["faults_by_kind"])}
+            return {
+                **self._stats,
+                "faults_by_kind": dict(self._stats["faults_by_kind"]),
+                "reply_late_buckets": self._reply_late.cumulative(),
+                "heard_gap_buckets": self._heard_gap.cumulative(),
+            }
 
     @property
     def lock(self) -> threading.Lock:
@@ -327,6 +346,9 @@ class SimulatedLine:
             self._stats["crc_errors"] += 1
             return
         self._stats["requests"] += 1
+        if self._reply_ended_at is not None:  # the master's turn after a reply
+            self._heard_gap.observe(frame.first_byte_at - self._reply_ended_at - self.t35_s)
+            self._reply_ended_at = None
         character_s = self.character_s if self.wire_time else 0.0
         request_wire_s = len(frame.data) * character_s
         self._check_gap(frame.first_byte_at, request_wire_s, character_s)
@@ -394,12 +416,14 @@ class SimulatedLine:
                 pass
             now = time.monotonic()
         while self._pending and self._pending[0][0] <= now:
-            _, _, reply, ends_reply = heapq.heappop(self._pending)
+            due, _, reply, ends_reply = heapq.heappop(self._pending)
             written_at = time.monotonic()
             if self._write(reply) and ends_reply:
                 with self._lock:
                     self._stats["replies"] += 1
                     self._frame_ended(written_at)
+                    self._reply_late.observe(written_at - due)
+                    self._reply_ended_at = written_at
 
     def _write(self, data: bytes) -> bool:
         endpoint = self._endpoint

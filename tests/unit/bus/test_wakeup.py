@@ -29,24 +29,35 @@ async def test_news_ends_the_wait_at_once() -> None:
     assert time.monotonic() - started < 1.0
 
 
-async def _acted_at(deadline: MovingDeadline, acted: list[float], within_s: float) -> None:
-    ends = time.monotonic() + within_s
-    while not acted and time.monotonic() < ends:
-        await asyncio.sleep(0.0005)
+class _Acted:
+    """The deadline's action: when it ran, and an event for the test to wait on."""
+
+    def __init__(self) -> None:
+        self.at: list[float] = []
+        self.event = asyncio.Event()
+
+    def __call__(self) -> None:
+        self.at.append(time.monotonic())
+        self.event.set()
+
+    async def wait(self, within_s: float) -> None:
+        await asyncio.wait_for(self.event.wait(), within_s)
+        self.event.clear()
 
 
 async def test_a_moving_deadline_never_acts_before_its_time() -> None:
-    loop = asyncio.get_running_loop()
-    acted: list[float] = []
-    deadline = MovingDeadline(loop, lambda: acted.append(time.monotonic()))
+    acted = _Acted()
+    deadline = MovingDeadline(asyncio.get_running_loop(), acted)
     try:
         for n in range(30):
-            acted.clear()
+            acted.at.clear()
             due = time.monotonic() + 0.0001 + 0.0001 * n  # 0.1-3 ms
             deadline.set(due)
-            await _acted_at(deadline, acted, 1.0)
-            assert len(acted) == 1, f"deadline {n}: acted {len(acted)} times"
-            assert acted[0] >= due, f"deadline {n} acted {(due - acted[0]) * 1e6:.0f} us early"
+            await acted.wait(1.0)
+            assert len(acted.at) == 1, f"deadline {n}: acted {len(acted.at)} times"
+            assert acted.at[0] >= due, (
+                f"deadline {n} acted {(due - acted.at[0]) * 1e6:.0f} us early"
+            )
     finally:
         deadline.close()
 
@@ -55,22 +66,19 @@ async def test_each_transaction_is_timed_by_its_own_deadline_not_by_an_earlier_o
     """A busy line: each reply clears the response timeout and the next request sets a later
     one, long before the first would have passed. Only the last, never cleared, acts: at its own
     time, though the loop's timer was started for the first."""
-    loop = asyncio.get_running_loop()
-    acted: list[float] = []
-    deadline = MovingDeadline(loop, lambda: acted.append(time.monotonic()))
+    acted = _Acted()
+    deadline = MovingDeadline(asyncio.get_running_loop(), acted)
     try:
-        last = 0.0
         for _ in range(10):  # ten transactions, 5 ms each, a 20 ms response timeout
-            last = time.monotonic() + 0.02
-            deadline.set(last)
+            deadline.set(time.monotonic() + 0.02)
             await asyncio.sleep(0.005)
             deadline.clear()
-        assert acted == []
+        assert acted.at == []
         last = time.monotonic() + 0.02
         deadline.set(last)  # a drive that never answers
-        await _acted_at(deadline, acted, 1.0)
-        assert len(acted) == 1
-        assert acted[0] >= last
+        await acted.wait(1.0)
+        assert len(acted.at) == 1
+        assert acted.at[0] >= last
         assert deadline.deadline == float("inf")  # acted on once: nothing left to watch
     finally:
         deadline.close()
@@ -79,30 +87,29 @@ async def test_each_transaction_is_timed_by_its_own_deadline_not_by_an_earlier_o
 async def test_a_deadline_earlier_than_the_pending_timer_acts_on_time() -> None:
     """A shorter response timeout after a longer one (a write's after a slow read's): it must
     not wait for the timer started for the longer one."""
-    loop = asyncio.get_running_loop()
-    acted: list[float] = []
-    deadline = MovingDeadline(loop, lambda: acted.append(time.monotonic()))
+    acted = _Acted()
+    deadline = MovingDeadline(asyncio.get_running_loop(), acted)
     try:
         deadline.set(time.monotonic() + 5.0)
         deadline.clear()
         due = time.monotonic() + 0.01
         deadline.set(due)
-        await _acted_at(deadline, acted, 2.0)
-        assert len(acted) == 1
-        assert due <= acted[0] < due + 1.0
+        await acted.wait(2.0)
+        assert len(acted.at) == 1
+        assert due <= acted.at[0] < due + 1.0
     finally:
         deadline.close()
 
 
 async def test_a_cleared_or_closed_deadline_never_acts() -> None:
     loop = asyncio.get_running_loop()
-    acted: list[float] = []
-    cleared = MovingDeadline(loop, lambda: acted.append(time.monotonic()))
-    closed = MovingDeadline(loop, lambda: acted.append(time.monotonic()))
+    acted = _Acted()
+    cleared = MovingDeadline(loop, acted)
+    closed = MovingDeadline(loop, acted)
     cleared.set(time.monotonic() + 0.002)
     closed.set(time.monotonic() + 0.002)
     cleared.clear()
     closed.close()
-    await asyncio.sleep(0.05)
-    assert acted == []
+    await asyncio.sleep(0.05)  # asserting an absence: nothing may act in this window
+    assert acted.at == []
     cleared.close()
