@@ -812,6 +812,7 @@ class SerialLine:
         """Wait until the reader callback has news (bytes, or the port failed) or `deadline`
         passes (False at once if it has). Response and character timeouts need no
         sub-millisecond precision: call_later does."""
+        self._require_port()  # failed while the caller was held: say so now, not at the timeout
         remaining = deadline - time.monotonic()
         if remaining <= 0:
             return False

@@ -195,12 +195,17 @@ class LineTimer:
         """`fire_due` found the deadline passed before the timer's own wake-up came: take that
         wake-up's expiry (it would cost the loop a pass for nothing) and act now.
 
-        Read, not disarmed: the deadline has passed, so the kernel has (nearly always) expired
+        Read, not disarmed: the deadline has passed, so the kernel has nearly always expired
         the timer already, and reading the count is a cheaper system call than a timerfd write.
-        An expiry that comes after the read finds nothing due in `_expired`, which reads it."""
+        Where it hasn't yet (its expiry may come tens of microseconds late on a VM), disarmed."""
         if self._fd >= 0:
-            with contextlib.suppress(BlockingIOError):
+            try:
                 os.read(self._fd, 8)
+            except BlockingIOError:
+                assert self._libc is not None
+                self._spec.it_value.tv_sec = self._spec.it_value.tv_nsec = 0  # all zero: disarm
+                self._libc.timerfd_settime(self._fd, 0, ctypes.byref(self._spec), None)
+                self._arms += 1
         self._deadline_reached()
 
     def _expired(self) -> None:

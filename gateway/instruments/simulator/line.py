@@ -461,6 +461,7 @@ class SimulatedLine:
         self._pending.clear()
         with self._lock:
             self._assembler = RequestAssembler(self.t35_s)
+            self._reply_ended_at = None  # the time unplugged is nobody's silence on the line
 
     def _in_loop(self, action: Callable[[], object]) -> None:
         """Run `action` on the line's thread (it owns the port), and wait for it."""

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import time
 import tty
 from collections import deque
 from collections.abc import Callable
@@ -16,7 +17,7 @@ import pytest
 from gateway.bus import line as line_module
 from gateway.bus.line import Exchange, Sending, SerialLine
 from gateway.config import BusConfig
-from gateway.errors import BadReply, ReplyTimeout
+from gateway.errors import BadReply, PortError, ReplyTimeout
 from gateway.instruments.simulator import SimulatedLine
 from gateway.modbus.rtu import build_frame
 from gateway.modbus.timing import FAST_T35_S
@@ -93,6 +94,60 @@ async def test_a_reply_that_never_comes_goes_back_to_the_callers_own_reading(
         assert waiting.frame[0] == SILENT
         with pytest.raises(ReplyTimeout):
             await serial.finish(waiting, expect_reply=True, timeout_s=0.05)
+    finally:
+        serial.close()
+
+
+@pytest.mark.line(addresses=[1])
+async def test_a_held_caller_whose_drive_is_silent_wakes_at_its_response_timeout_not_before(
+    line: SimulatedLine,
+) -> None:
+    """The response timeout of a held caller: from the request's end on the wire, never early,
+    and not long after either (a timer that moves only when it fires must still fire on time)."""
+    within_s = 0.15
+    serial = open_line(line.path)
+    try:
+        waiting = await asyncio.wait_for(
+            serial.send_after_gap(
+                picking(deque([build_frame(SILENT, read_pdu(STATE_WORD_1))])),
+                lambda: within_s,
+                lambda _, __: None,
+            ),
+            5.0,
+        )
+        woken = time.monotonic()
+        assert waiting is not None
+        sent = waiting.started + serial.settings.char_format.wire_time_s(len(waiting.frame))
+        assert woken >= sent + within_s
+        assert woken < sent + within_s + 0.1
+    finally:
+        serial.close()
+
+
+@pytest.mark.line(addresses=[1])
+async def test_a_port_that_fails_while_the_caller_is_held_is_reported_at_once(
+    line: SimulatedLine,
+) -> None:
+    """An adapter pulled while a request waits for its reply: the caller hears of it when it
+    happens, not once the response timeout has passed."""
+    serial = open_line(line.path)
+    try:
+        held = asyncio.ensure_future(
+            serial.send_after_gap(
+                picking(deque([build_frame(SILENT, read_pdu(STATE_WORD_1))])),
+                lambda: 10.0,
+                lambda _, __: None,
+            )
+        )
+        await asyncio.sleep(0.05)  # the request is out, its caller held until a reply
+        assert not held.done()
+        unplugged = time.monotonic()
+        line.unplug()
+        waiting = await asyncio.wait_for(held, 5.0)
+        assert waiting is not None
+        with pytest.raises(PortError):
+            await asyncio.wait_for(serial.finish(waiting, expect_reply=True, timeout_s=10.0), 5.0)
+        assert time.monotonic() - unplugged < 2.0
     finally:
         serial.close()
 
