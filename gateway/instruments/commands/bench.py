@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import signal
 import sys
 from pathlib import Path
 
@@ -98,7 +99,21 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.set_defaults(handler=handle)
 
 
+def _stop_on_terminate() -> None:
+    """SIGTERM (`timeout`, a CI runner, `kill`) ends the bench as Ctrl-C does: by an exception,
+    so that its `with` blocks stop the gateway and the simulated drives it started. Ended by the
+    signal's default instead, it left them running: the orphaned gateway went on reopening its
+    port, a pty whose number the kernel hands to the next bench's simulated line, and that
+    bench's drives then seemed offline (0BH) to its own gateway."""
+
+    def terminate(number: int, _frame: object) -> None:
+        raise SystemExit(128 + number)
+
+    signal.signal(signal.SIGTERM, terminate)
+
+
 def handle(args: argparse.Namespace) -> int:
+    _stop_on_terminate()
     if args.instructions:
         return count_instructions(args)
     from gateway.instruments.bench.cases import CaseResult, extra_cases, matrix, run_case
