@@ -203,3 +203,37 @@ def simulator_process(*args: str) -> Iterator[SimulatorProcess]:
         yield simulator
     finally:
         simulator.stop()
+
+
+def _descendants(pid: int) -> set[int]:
+    """The processes `pid` started, and theirs, from /proc."""
+    found: set[int] = set()
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        with contextlib.suppress(OSError):
+            for child in (task / "children").read_text().split():
+                found |= {int(child)} | _descendants(int(child))
+    return found
+
+
+def assert_sigterm_leaves_nothing_behind(command: Sequence[str], children: int) -> None:
+    """Start `command`; once it has started `children` processes, end it with SIGTERM (as
+    `timeout` or a CI runner would); every process it started must be gone soon after."""
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    started: set[int] = set()
+    try:
+        deadline = time.monotonic() + 60
+        while len(started) < children and time.monotonic() < deadline:
+            time.sleep(0.2)  # waiting for processes another process starts: nothing to await
+            started = _descendants(process.pid)
+        assert len(started) >= children, f"it started {len(started)} of {children} processes"
+        process.terminate()
+        assert process.wait(timeout=30) != 0
+    finally:
+        process.kill()
+        process.wait()
+    left = {pid for pid in started if Path(f"/proc/{pid}").exists()}
+    deadline = time.monotonic() + 10
+    while left and time.monotonic() < deadline:
+        time.sleep(0.2)
+        left = {pid for pid in left if Path(f"/proc/{pid}").exists()}
+    assert not left, f"still running after it ended: {left}"

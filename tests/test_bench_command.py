@@ -16,10 +16,11 @@ import struct
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 import pytest
+
+from tests.processes import assert_sigterm_leaves_nothing_behind
 
 
 def test_bench_prints_checked_figures_as_json() -> None:
@@ -149,44 +150,11 @@ def test_bench_on_a_terminal_redraws_one_progress_line_under_the_table() -> None
     assert not any(line.startswith("bench: case") for line in visible), visible
 
 
-BENCH = (sys.executable, "-m", "gateway", "bench")
-
-
-def _descendants(pid: int) -> set[int]:
-    """The processes started by `pid`, and theirs, from /proc."""
-    found: set[int] = set()
-    for task in Path(f"/proc/{pid}/task").glob("*"):
-        with contextlib.suppress(OSError):
-            for child in (task / "children").read_text().split():
-                found |= {int(child)} | _descendants(int(child))
-    return found
-
-
 def test_a_bench_ended_by_sigterm_leaves_no_gateway_or_simulated_line_behind() -> None:
     """`timeout` and CI runners end a bench with SIGTERM: its gateway and simulated drives must
     stop with it, or the orphaned gateway would take the next bench's line for its own."""
-    bench = subprocess.Popen(
-        [*BENCH, "--baud", "115200", "--case", "2w 1c", "--duration", "60", "--json"],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    try:
-        deadline = time.monotonic() + 30
-        started: set[int] = set()
-        while len(started) < 2 and time.monotonic() < deadline:  # the drives, the gateway
-            time.sleep(0.2)  # waiting for processes another process starts: nothing to await
-            started = _descendants(bench.pid)
-        assert len(started) >= 2, "the bench started no gateway and simulated line"
-        bench.terminate()
-        assert bench.wait(timeout=20) != 0
-    finally:
-        bench.kill()
-    left = {pid for pid in started if Path(f"/proc/{pid}").exists()}
-    deadline = time.monotonic() + 10
-    while left and time.monotonic() < deadline:
-        time.sleep(0.2)
-        left = {pid for pid in left if Path(f"/proc/{pid}").exists()}
-    assert not left, f"still running after the bench ended: {left}"
+    bench = [sys.executable, "-m", "gateway", "bench", "--baud", "115200", "--case", "2w 1c"]
+    assert_sigterm_leaves_nothing_behind([*bench, "--duration", "60", "--json"], children=2)
 
 
 def test_bench_and_stress_help_show_the_defaults() -> None:

@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import json
 import re
+import sys
 from collections import Counter
 
 from gateway.instruments.stress.checked_load import STEADY, LoadStats
 from gateway.instruments.stress.report import problems, table
 from gateway.instruments.stress.scenario import Recovery, StressResult, StressSettings
-from tests.processes import run_cli
+from tests.processes import assert_sigterm_leaves_nothing_behind, run_cli
 from tests.support import RecordProperty
 
 
@@ -84,3 +85,10 @@ def test_the_table_names_each_figure_and_the_verdict() -> None:
     assert text.rstrip().endswith("verdict                     pass")
     grown = StressResult(StressSettings(), load=load, memory_start_mb=40, memory_end_mb=47)
     assert problems(grown) == ["memory grew from 40.0 to 47.0 MB"]
+
+
+def test_a_stress_run_ended_by_sigterm_leaves_nothing_it_started_behind() -> None:
+    """Its gateway, simulated drives and broker stop with it: an orphaned gateway would take
+    the next run's line for its own."""
+    stress = [sys.executable, "-m", "gateway", "stress", "--duration", "120", "--json"]
+    assert_sigterm_leaves_nothing_behind(stress, children=2)

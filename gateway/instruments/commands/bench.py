@@ -5,13 +5,13 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-import signal
 import sys
 from pathlib import Path
 
 from gateway.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from gateway.errors import ConfigError
 from gateway.event_loop import choose_event_loop
+from gateway.instruments.stop_on_terminate import stop_on_terminate
 from gateway.progress import Progress
 
 BAUDRATES = (9600, 19200, 115200)
@@ -99,21 +99,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.set_defaults(handler=handle)
 
 
-def _stop_on_terminate() -> None:
-    """SIGTERM (`timeout`, a CI runner, `kill`) ends the bench as Ctrl-C does: by an exception,
-    so that its `with` blocks stop the gateway and the simulated drives it started. Ended by the
-    signal's default instead, it left them running: the orphaned gateway went on reopening its
-    port, a pty whose number the kernel hands to the next bench's simulated line, and that
-    bench's drives then seemed offline (0BH) to its own gateway."""
-
-    def terminate(number: int, _frame: object) -> None:
-        raise SystemExit(128 + number)
-
-    signal.signal(signal.SIGTERM, terminate)
-
-
 def handle(args: argparse.Namespace) -> int:
-    _stop_on_terminate()
+    stop_on_terminate()  # a bench ended by SIGTERM stops its gateway and drives too
     if args.instructions:
         return count_instructions(args)
     from gateway.instruments.bench.cases import CaseResult, extra_cases, matrix, run_case

@@ -15,6 +15,7 @@ import json
 import sys
 
 from gateway.cli import EXIT_FAILURE, EXIT_OK
+from gateway.instruments.stop_on_terminate import stop_on_terminate
 from gateway.progress import Progress
 
 BAUDRATES = (9600, 19200, 38400, 57600, 115200)
@@ -66,6 +67,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 
 def handle(args: argparse.Namespace) -> int:
+    stop_on_terminate()  # a run ended by SIGTERM stops its gateway, drives and broker too
     from gateway.instruments.stress.report import document, problems, table
     from gateway.instruments.stress.scenario import StressSettings, run_stress
 
