@@ -448,7 +448,6 @@ class SerialLine:
 
     def _hold_until_reply(self, sending: Sending, within_s: float, this: _Round) -> bool:
         assert self._timer is not None
-        assert self._loop is not None
         waiting = self._timer.waiting
         if waiting is None or self._waiter is not None:
             return False
@@ -474,7 +473,7 @@ class SerialLine:
         self._holding = False
         # `_arrivals` stays: the caller's own reading goes on with the record the hold began (an
         # echo seen then is known for one by its time; a reply's silences are all measured).
-        self._cancel_overdue()
+        self._clear_response_deadline()
         if self._waiter is not None and self._waiter.done():
             self._waiter = None
 
@@ -524,10 +523,10 @@ class SerialLine:
         self._held = None
         self._arrivals = None
         self._holding = False
-        self._cancel_overdue()
+        self._clear_response_deadline()
         self._waiter = None
 
-    def _cancel_overdue(self) -> None:
+    def _clear_response_deadline(self) -> None:
         if self._response_deadline is not None:
             self._response_deadline.clear()
 
