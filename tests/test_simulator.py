@@ -289,6 +289,21 @@ def test_wire_time_at_9600_baud() -> None:
         assert max(durations) < 0.1
 
 
+def test_a_line_that_does_not_spin_answers_right_and_never_early() -> None:
+    """`wake_early_s=0` (what `bench` nears with many lines: they share one line's spin): the
+    line sleeps until a reply is due instead of spinning out the last microseconds."""
+    with (
+        SimulatedLine([1], baudrate=9600, response_delay_ms=5.0, wake_early_s=0.0) as line,
+        serial.Serial(line.path, 9600, parity="E", timeout=1) as port,
+    ):
+        for _ in range(3):
+            started = time.monotonic()
+            assert exchange(port, bytes.fromhex(READ_STATE_WORD_1)) == bytes.fromhex(STOPPED_REPLY)
+            assert time.monotonic() - started >= 15 * 11 / 9600 + 0.005
+            time.sleep(0.01)
+        assert line.stats["replies"] == 3
+
+
 def test_no_wire_time_answers_at_once() -> None:
     with (
         SimulatedLine([1], baudrate=9600, wire_time=False, response_delay_ms=0) as line,
@@ -486,16 +501,23 @@ def test_simulate_command_serves_answers_commands_and_exits_on_sigterm() -> None
                 stream.close()
 
 
-def test_simulate_command_rejects_bad_arguments() -> None:
+@pytest.mark.parametrize(
+    ("arguments", "reason"),
+    [
+        (["--fault", "1:35"], "expected ADDR=CODE"),
+        (["--wake-early-us", "-1"], "--wake-early-us: wake-early -1 us is outside 0..10000"),
+    ],
+)
+def test_simulate_command_rejects_bad_arguments(arguments: list[str], reason: str) -> None:
     result = subprocess.run(
-        [sys.executable, "-m", "gateway", "simulate", "--pty", "--fault", "1:35"],
+        [sys.executable, "-m", "gateway", "simulate", "--pty", *arguments],
         capture_output=True,
         text=True,
         timeout=30,
         check=False,
     )
     assert result.returncode == 2
-    assert "expected ADDR=CODE" in result.stderr
+    assert reason in result.stderr
 
 
 def test_control_commands_in_process(tmp_path: Path) -> None:

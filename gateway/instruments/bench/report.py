@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from gateway.instruments.bench.cases import CaseResult
+from gateway.instruments.simulator.line import WAKE_EARLY_S
 
 COLUMNS = (
     ("case", "{:<40}"),
@@ -120,7 +121,9 @@ def summary(results: list[CaseResult]) -> list[str]:
                 f"peak RSS {result.peak_rss_mb:.1f} MB; the simulated drives answered "
                 f"{result.drive_late_us(0.5):.0f} us late at the median "
                 f"(p90 {result.drive_late_us(0.9):.0f} us) and heard "
-                f"{result.heard_gap_us(0.5):.0f} us beyond t3.5 before each request"
+                f"{result.heard_gap_us(0.5):.0f} us beyond t3.5 before each request "
+                f"(each line's drives spun at most {case.drive_spin_us:g} us before a reply, "
+                f"one line's {WAKE_EARLY_S * 1e6:g} us shared among {case.lines})"
             )
         elif case.no_wire:
             lines.append(

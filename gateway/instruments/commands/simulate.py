@@ -24,7 +24,7 @@ from types import FrameType
 
 from gateway.cli import EXIT_FAILURE, EXIT_OK
 from gateway.instruments.simulator.control import run_control_command
-from gateway.instruments.simulator.line import SimulatedLine
+from gateway.instruments.simulator.line import WAKE_EARLY_S, SimulatedLine
 from gateway.instruments.simulator.line_faults import KINDS
 from gateway.profile.invt import PROFILES, get_profile
 
@@ -79,6 +79,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="answer as fast as the pty allows instead of at the baud rate's pace",
     )
     parser.add_argument("--response-delay-ms", type=float, default=5.0, metavar="MS")
+    parser.add_argument(
+        "--wake-early-us",
+        type=_wake_early_us,
+        default=WAKE_EARLY_S * 1e6,
+        metavar="US",
+        help=f"wake this long before a reply is due and spin out the rest, so replies leave on "
+        f"time (default {WAKE_EARLY_S * 1e6:g}); several simulated lines on one machine should "
+        f"share it, or their spinning takes the cores from what they measure",
+    )
     parser.add_argument(
         "--fault",
         type=_pair,
@@ -209,6 +218,7 @@ def build_line(args: argparse.Namespace) -> SimulatedLine:
         device=args.device,
         link=args.link,
         fault_history=dict(args.fault_history),
+        wake_early_s=args.wake_early_us / 1e6,
     )
     for address, code in args.fault:
         line.inject_fault(address, code)
@@ -286,6 +296,13 @@ def _address(text: str) -> int:
     value = int(text)
     if not 1 <= value <= 247:
         raise argparse.ArgumentTypeError(f"drive address {value} is outside 1..247")
+    return value
+
+
+def _wake_early_us(text: str) -> float:
+    value = float(text)
+    if not 0.0 <= value <= 10_000.0:
+        raise argparse.ArgumentTypeError(f"wake-early {value:g} us is outside 0..10000")
     return value
 
 

@@ -53,6 +53,10 @@ STOP_TIMEOUT_S: Final = 1.0
 CALL_TIMEOUT_S: Final = 5.0
 READ_SIZE: Final = 4096
 GIL_SWITCH_INTERVAL_S: Final = 0.0002
+# How long before a reply is due the line wakes and spins out the rest: a timer wake-up is late
+# by up to a few hundred microseconds on a quiet machine. Several simulated lines on one
+# machine should share it (`bench` gives each of N lines WAKE_EARLY_S / N): sixteen lines
+# spinning 300 us before every reply took most of a core from the gateway they measured.
 WAKE_EARLY_S: Final = 0.0003
 
 
@@ -71,6 +75,7 @@ class SimulatedLine:
         *,
         models: Mapping[int, str] | None = None,
         fault_history: Mapping[int, Sequence[int]] | None = None,
+        wake_early_s: float = WAKE_EARLY_S,
     ) -> None:
         models = models or {}
         histories = fault_history or {}
@@ -88,6 +93,7 @@ class SimulatedLine:
         self.response_delay_ms = response_delay_ms
         self.device = device
         self.link = link
+        self.wake_early_s = wake_early_s
         char_format = CharacterFormat(baudrate, self.parity, stopbits)
         self.character_s = char_format.char_time_s
         self.t35_s = char_format.t35_s
@@ -313,7 +319,7 @@ class SimulatedLine:
         # Wake a little before a reply is due and wait out the rest in `_send_due`: a timer
         # wake-up is late by up to a few hundred microseconds, and a drive that answers late
         # would make the gateway look slower than the line allows.
-        deadlines = [self._pending[0][0] - WAKE_EARLY_S] if self._pending else []
+        deadlines = [self._pending[0][0] - self.wake_early_s] if self._pending else []
         silence = self._assembler.silence_deadline()
         if silence is not None:
             deadlines.append(silence)
@@ -410,9 +416,9 @@ class SimulatedLine:
             self._last_frame_end = at
 
     def _send_due(self, now: float) -> None:
-        if self._pending and self._pending[0][0] - now <= WAKE_EARLY_S:
+        if self._pending and self._pending[0][0] - now <= self.wake_early_s:
             due = self._pending[0][0]
-            while time.monotonic() < due:  # spins at most WAKE_EARLY_S, in the simulator only
+            while time.monotonic() < due:  # spins at most wake_early_s, in the simulator only
                 pass
             now = time.monotonic()
         while self._pending and self._pending[0][0] <= now:
