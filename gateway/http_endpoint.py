@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import inspect
 import logging
-from collections.abc import Callable, Mapping
+from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass
 from http import HTTPStatus
 
@@ -31,7 +32,8 @@ class Response:
     body: bytes
 
 
-Route = Callable[[], Response]
+# A route answers at once, or (a coroutine) gives the loop back while it makes its answer.
+Route = Callable[[], Response | Awaitable[Response]]
 
 
 def text_response(status: int, text: str) -> Response:
@@ -69,7 +71,8 @@ class HttpEndpoint:
     async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         try:
             request = await asyncio.wait_for(_read_request(reader), REQUEST_TIMEOUT_S)
-            response, head_only = self._respond(request)
+            answer, head_only = self._respond(request)
+            response = await answer if inspect.isawaitable(answer) else answer
             writer.write(_encode(response, head_only))
             await writer.drain()
         except (TimeoutError, ConnectionError, asyncio.IncompleteReadError, ValueError):
@@ -81,7 +84,7 @@ class HttpEndpoint:
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(writer.wait_closed(), 1.0)
 
-    def _respond(self, request: tuple[str, str]) -> tuple[Response, bool]:
+    def _respond(self, request: tuple[str, str]) -> tuple[Response | Awaitable[Response], bool]:
         method, target = request
         if method not in ("GET", "HEAD"):
             return text_response(HTTPStatus.METHOD_NOT_ALLOWED, "GET or HEAD only\n"), False

@@ -29,7 +29,6 @@ from prometheus_client import (
     CONTENT_TYPE_LATEST,
     CollectorRegistry,
     ProcessCollector,
-    generate_latest,
 )
 from prometheus_client import metrics as prometheus_client_metrics
 from prometheus_client.core import (
@@ -47,6 +46,7 @@ from gateway.bus import Bus, BusState, RequestDone
 from gateway.bus.line import SerialLine
 from gateway.errors import CannotListen
 from gateway.event_loop import running_loop_name
+from gateway.exposition import exposition
 from gateway.health import Phase, health_report
 from gateway.http_endpoint import HttpEndpoint, Response
 from gateway.modbus.functions import FUNCTIONS
@@ -516,6 +516,10 @@ _TCP_COUNTERS = {
 }
 
 
+async def _scrape(registry: CollectorRegistry) -> Response:
+    return Response(200, CONTENT_TYPE_LATEST, await exposition(registry))
+
+
 class MetricsFeature:
     """Serves /metrics and /health while the gateway runs; a feature of the application."""
 
@@ -555,7 +559,7 @@ class MetricsFeature:
             settings.host,
             settings.port,
             {
-                "/metrics": lambda: Response(200, CONTENT_TYPE_LATEST, generate_latest(registry)),
+                "/metrics": lambda: _scrape(registry),
                 "/health": self._health,
                 "/health/ready": self._health,
                 "/health/live": self._live,
