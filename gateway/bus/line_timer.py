@@ -179,15 +179,17 @@ class LineTimer:
             settle(self._waiter)
 
     def _arm(self, deadline: float) -> bool:
-        assert self._libc is not None
         # Rounded up, never down: the gap may end a nanosecond late, never early. At least 1 ns:
         # an all-zero it_value would disarm the timer instead of firing it.
         seconds, nanoseconds = divmod(max(math.ceil(deadline * 1e9), 1), 1_000_000_000)
+        return self._settime(seconds, nanoseconds, TFD_TIMER_ABSTIME)
+
+    def _settime(self, seconds: int, nanoseconds: int, flags: int) -> bool:
+        """The one timerfd write (all zero: disarm), counted in `_arms` for `_expired`."""
+        assert self._libc is not None
         self._spec.it_value.tv_sec = seconds
         self._spec.it_value.tv_nsec = nanoseconds
-        done = self._libc.timerfd_settime(
-            self._fd, TFD_TIMER_ABSTIME, ctypes.byref(self._spec), None
-        )
+        done = self._libc.timerfd_settime(self._fd, flags, ctypes.byref(self._spec), None)
         self._arms += 1
         return int(done) == 0
 
@@ -202,10 +204,7 @@ class LineTimer:
             try:
                 os.read(self._fd, 8)
             except BlockingIOError:
-                assert self._libc is not None
-                self._spec.it_value.tv_sec = self._spec.it_value.tv_nsec = 0  # all zero: disarm
-                self._libc.timerfd_settime(self._fd, 0, ctypes.byref(self._spec), None)
-                self._arms += 1
+                self._settime(0, 0, 0)  # all zero: disarmed
         self._deadline_reached()
 
     def _expired(self) -> None:

@@ -158,7 +158,7 @@ class Case:
     @property
     def simulator_args(self) -> list[str]:
         args = self.adapter_args + (["--no-wire-time"] if self.no_wire else [])
-        return args + (["--wake-early-us", f"{self.drive_spin_us:g}"] if self.lines > 1 else [])
+        return [*args, "--wake-early-us", f"{self.drive_spin_us:g}"]
 
     def baseline(self) -> Case:
         """The same load with every drive alive."""
