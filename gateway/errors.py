@@ -116,9 +116,11 @@ class LineError(GatewayError):
 class ReplyTimeout(LineError):
     """No complete reply within the response timeout."""
 
-    def __init__(self, message: str, received: bytes = b"") -> None:
+    def __init__(self, message: str, received: bytes = b"", late: tuple[float, ...] = ()) -> None:
         super().__init__(message)
         self.received = received
+        self.late = late
+        """During a resynchronisation: when each late reply set aside before it arrived."""
 
 
 class BadReply(LineError):

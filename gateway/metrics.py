@@ -495,12 +495,16 @@ _BUS_COUNTERS = {
     "offline_rejected": "Requests answered 0x0B at once because their drive is offline",
     "port_errors": "Times the serial port failed (unplugged, I/O error)",
     "reopens": "Times the serial port was opened again after failing",
+    "late_replies": "Replies that came after their request timed out, set aside, never an answer",
+    "resyncs": "Diagnostic echoes (08H) sent after a timeout to catch up with late replies",
 }
 _DRIVE_COUNTERS = {
     "transactions": "Attempts put on the wire for this drive, retries included",
     "retries": "Attempts repeated for this drive",
     "timeouts": "Attempts this drive did not answer in time",
     "failed": "Requests to this drive answered 0x0B after every attempt failed",
+    "late_replies": "Replies from this drive that came after their request timed out, set aside",
+    "resyncs": "Diagnostic echoes (08H) sent to this drive after a timeout, before anything else",
 }
 _TCP_COUNTERS = {
     "accepted": "Modbus-TCP connections accepted",

@@ -135,6 +135,27 @@ async def test_an_echoing_adapter_is_recognised_and_its_echo_never_taken_for_a_r
         assert "set `echo: true`" in said[0]
 
 
+async def test_an_echo_nobody_configured_costs_no_retries_whatever_the_register() -> None:
+    """The adapter hands each byte back as it leaves the wire, so the echo arrives in pieces.
+    Reads of 00xxH (the function parameters), whose echo's first bytes look like a reply with
+    a byte count of 0, were taken for corrupt replies: 3 of 4 failed. Each is read at once."""
+    with SimulatedLine(addresses=[1, 2], baudrate=19200, wire_time=True) as line:
+        line.set_adapter(echo=True)
+        async with running_gateway(line_config(line.path)) as app:
+            client = await TcpClient.connect(app.tcp.port)
+            expected = {}
+            for address in (1, 2):
+                with line.lock:
+                    expected[address] = line.drives[address].handle(read_pdu(0x0003, 2), 0.0)
+            answers = [await client.request(1 + n % 2, read_pdu(0x0003, 2)) for n in range(40)]
+            await client.close()
+            bus = app.buses["line1"]
+            assert answers == [expected[1 + n % 2] for n in range(40)]
+            assert bus.stats.retries == 0
+            assert not bus.stats.bad_replies
+            assert bus.line.echoes == bus.stats.transactions
+
+
 async def test_echo_true_still_reads_the_echo_back() -> None:
     with SimulatedLine(addresses=[1, 2], baudrate=19200, wire_time=True) as line:
         line.set_adapter(echo=True)

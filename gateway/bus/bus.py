@@ -26,10 +26,12 @@ from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
+from functools import partial
 from typing import Any, NamedTuple
 
 from gateway.bus.gap_excess import GapExcess
 from gateway.bus.health import HealthTracker
+from gateway.bus.late_replies import LateReplies
 from gateway.bus.line import Exchange, LineSettings, Sending, SerialLine
 from gateway.bus.line_share import LineShares
 from gateway.bus.queue import Priority, RequestQueue, Transaction, Waiter
@@ -103,6 +105,8 @@ class BusStats:
     offline_rejected: int = 0
     port_errors: int = 0
     reopens: int = 0
+    late_replies: int = 0
+    resyncs: int = 0
     busy_s: float = 0.0
     min_gap_s: float | None = None
 
@@ -117,6 +121,10 @@ class DriveStats:
     bad_replies: Counter[str] = field(default_factory=Counter)
     exceptions: Counter[int] = field(default_factory=Counter)
     failed: int = 0
+    late_replies: int = 0
+    """Replies that came after their request had timed out, set aside (`LateReplies`)."""
+    resyncs: int = 0
+    """Diagnostic echoes sent after a timeout before anything else went to this drive."""
     line_s: float = 0.0
     """Time the line was held for this address, timeouts included: a dead drive's cost shows."""
 
@@ -174,6 +182,9 @@ class Bus:
         self._carrying: Transaction | None = None
         """The transaction taken from the queue (`_pick`, at the gap's end) until it is answered:
         on the wire, or about to be. Whoever holds the bus must answer it, whatever happens."""
+        self.late_replies = LateReplies(self.name)
+        self._echo_sent: bytes | None = None
+        """The echo `_pick` sent in place of `_carrying`'s frame: its drive owes replies."""
         self._loop: asyncio.AbstractEventLoop | None = None
         self.line.on_port_error = self._wake
         self._listeners: list[DriveListener] = []
@@ -417,6 +428,7 @@ class Bus:
     def _done(self, callback: Callable[..., None], args: tuple[Any, ...]) -> None:
         """A transaction taken from the queue is over: tell its waiters, and `wait_idle`."""
         self._carrying = None
+        self._echo_sent = None
         callback(*args)
         self._idle.set()
 
@@ -495,6 +507,10 @@ class Bus:
                 continue
             self._carrying = transaction  # before anything can fail: it must be answered
             self._back_to_back = reply_heard_at != 0.0
+            if address in self.late_replies.owing:
+                # Its late replies first: `_execute` reads them off, then sends the request.
+                self._echo_sent = self.late_replies.echo_frame(address)
+                return self._echo_sent
             return transaction.frame or build_frame(address, transaction.pdu)
         return None
 
@@ -502,8 +518,8 @@ class Bus:
         """For the transaction `_pick` just sent: how long its drive has to answer (None: a
         broadcast, which has no reply)."""
         carrying = self._carrying
-        if carrying is None or carrying.address == BROADCAST_ADDRESS:
-            return None
+        if carrying is None or carrying.address == BROADCAST_ADDRESS or self._echo_sent:
+            return None  # an echo after a timeout is read by `_execute`, never by the hold
         return carrying.timeout_s
 
     async def _wait_for_work(self, timeout_s: float) -> None:
@@ -568,16 +584,29 @@ class Bus:
             retries = 0
         drive = self._drive(address)
         errors: list[LineError] = []
+        # The first attempt is on its way: the request itself, or the echo that catches up
+        # with its drive's late replies (`_pick`).
+        pending: Sending | None = first
+        if self._echo_sent is not None:
+            frame = transaction.frame or build_frame(address, transaction.pdu)
+            self._echo_sent = None
         for attempt in range(retries + 1):
             if attempt:
                 self.stats.retries += 1
                 drive.retries += 1
-            self._count_attempt(drive, frame)
-            started = first.started if attempt == 0 else time.monotonic()
+            started = pending.started if pending is not None else time.monotonic()
             try:
-                if attempt == 0:
+                if address in self.late_replies.owing:
+                    echo = await self._catch_up(transaction, pending, drive)
+                    pending = None
+                    if transaction.probe:  # the echo is all a probe asks
+                        return self._attempt_answered(transaction, attempt, started, echo, drive)
+                    started = time.monotonic()
+                self._count_attempt(drive, frame)
+                sending, pending = pending, None
+                if sending is not None:
                     exchange = await self.line.finish(
-                        first, expect_reply=not broadcast, timeout_s=transaction.timeout_s
+                        sending, expect_reply=not broadcast, timeout_s=transaction.timeout_s
                     )
                 else:
                     exchange = await self.line.transact(
@@ -586,6 +615,13 @@ class Bus:
             except ReplyTimeout as exc:
                 self.stats.timeouts += 1
                 drive.timeouts += 1
+                if broadcast:
+                    pass
+                elif exc.late and address not in self.late_replies.owing:
+                    # Its reply came within the drain: the only one it owed, set aside.
+                    self._late(address, exc.late, transaction.timeout_s, drive, started)
+                else:
+                    self.late_replies.timed_out(address, started)
                 dump_frame(self.name, "rx timeout", exc.received)
                 errors.append(exc)
                 if self.tap is not None:
@@ -616,6 +652,44 @@ class Bus:
             self._failed(address)
         error = GatewayTargetFailed(f"drive {address} on {self.name}: {errors[-1]}")
         return _fail, (transaction, error)
+
+    async def _catch_up(
+        self, transaction: Transaction, sent: Sending | None, drive: DriveStats
+    ) -> Exchange:
+        """Read off the late replies its drive still owes, up to the echo of a fresh value
+        (`gateway.bus.late_replies`); `sent`: that echo, already on its way from `_pick`.
+        Raises as an attempt does (ReplyTimeout when the echo doesn't come in time)."""
+        address, timeout_s = transaction.address, transaction.timeout_s
+        late = self.late_replies
+        if sent is None:
+            sent = await self.line.send_after_gap(partial(late.echo_frame, address))
+            assert sent is not None  # the pick always has a frame
+        self._count_attempt(drive, sent.frame)
+        self.stats.resyncs += 1
+        drive.resyncs += 1
+        try:
+            caught = await self.line.resynchronise(sent, timeout_s=timeout_s)
+        except ReplyTimeout as exc:
+            self._late(address, exc.late, timeout_s, drive)
+            raise
+        finally:
+            drive.line_s += time.monotonic() - sent.started
+        self._late(address, caught.late, timeout_s, drive)
+        late.caught_up(address)
+        self._record(caught.exchange, drive)
+        return caught.exchange
+
+    def _late(
+        self,
+        address: int,
+        late: tuple[float, ...],
+        timeout_s: float,
+        drive: DriveStats,
+        asked_at: float | None = None,
+    ) -> None:
+        self.stats.late_replies += len(late)
+        drive.late_replies += len(late)
+        self.late_replies.seen(address, late, timeout_s, asked_at)
 
     def _replied(self, sending: Sending, exchange: Exchange) -> None:
         """The line's reader callback has the whole and valid reply to the frame `_pick` chose:

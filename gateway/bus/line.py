@@ -127,6 +127,16 @@ class Exchange(NamedTuple):
     a URL port without arrival times)."""
 
 
+# A NamedTuple for the reason given at `Sending`.
+class Resynchronised(NamedTuple):
+    """A resynchronisation's echo came back (`SerialLine.resynchronise`)."""
+
+    exchange: Exchange
+    """The echo's exchange (or a device's exception 01H to 08H)."""
+    late: tuple[float, ...]
+    """When each whole frame that came before the echo arrived: replies to older requests."""
+
+
 Replied = Callable[[Sending, Exchange], None]
 """Told, in the port's reader callback, of an attempt whose whole and valid reply is there."""
 
@@ -160,6 +170,18 @@ class _Held(NamedTuple):
     round: _Round
     echo_by: float
     """A copy of the request complete before this is the adapter's echo (`_echo_deadline`)."""
+
+
+def _answers(request: bytes, received: bytes | bytearray) -> bool:
+    """Is there a whole, sound reply to `request` among `received`?"""
+    search = search_reply(received, request)
+    if search.found is not Found.COMPLETE:
+        return False
+    try:
+        check_reply(request, bytes(received[search.start : search.end]), crc_checked=True)
+    except BadReply:
+        return False
+    return True
 
 
 PTY_SLAVE_MAJORS = range(136, 144)
@@ -558,6 +580,72 @@ class SerialLine:
     async def finish(self, sending: Sending, *, expect_reply: bool, timeout_s: float) -> Exchange:
         """The rest of an attempt begun by `send_after_gap`: the frame's tail, echo, reply."""
         frame, started = sending.frame, sending.started
+        sent = await self._complete_request(sending)
+        if not expect_reply:
+            self._quiet_since = max(self._quiet_since, sent + self.settings.turnaround_s)
+            return Exchange(None, sending.gap_s, self._quiet_since - started)
+        try:
+            reply = await self._read_reply(frame, sent, sent + timeout_s)
+            pdu = check_reply(frame, reply)
+        except ReplyTimeout as exc:
+            drained = await self._drain(self.settings.drain_s)
+            if _answers(frame, drained):  # the reply came within the drain: nothing in flight
+                raise ReplyTimeout(str(exc), exc.received, late=(self._quiet_since,)) from None
+            raise
+        except BadReply:
+            await self._drain(0.0)
+            raise
+        finally:
+            if self._fd is None:  # no arrival times without a descriptor: now is the safe bet
+                self._quiet_since = max(self._quiet_since, time.monotonic())
+        heard_at = self._quiet_since if self._fd is not None else 0.0
+        return Exchange(pdu, sending.gap_s, self._quiet_since - started, heard_at)
+
+    async def resynchronise(self, sending: Sending, *, timeout_s: float) -> Resynchronised:
+        """The rest of an attempt whose frame is a diagnostic echo (08H 0000) carrying a fresh
+        value, sent to a drive that may still owe replies to requests that timed out.
+
+        A drive answers its requests in order, so every whole frame that comes before the echo
+        of this very value is a reply nobody waits for any more: it is set aside and returned,
+        never taken for an answer, and once the echo is back nothing older is in flight. A
+        device without 08H answers exception 01H, which ends the wait just as well: it comes
+        in order too. Raises ReplyTimeout when the echo doesn't come within `timeout_s` (the
+        drive is still busy with older requests, or gone), BadReply for a corrupt frame.
+        """
+        frame, started = sending.frame, sending.started
+        sent = await self._complete_request(sending)
+        deadline = sent + timeout_s
+        late: list[float] = []
+        try:
+            while True:
+                reply = await self._read_reply(frame, sent, deadline)
+                try:
+                    pdu = check_reply(frame, reply)
+                except BadReply as exc:
+                    if exc.kind in ("crc", "truncated"):
+                        raise
+                    late.append(self._quiet_since)  # whole and sound, but not this echo
+                    continue
+                break
+        except ReplyTimeout as exc:
+            await self._drain(self.settings.drain_s)
+            raise ReplyTimeout(str(exc), exc.received, late=tuple(late)) from None
+        except BadReply:
+            # A corrupt frame: the echo may be in it, or still to come; the next attempt
+            # resynchronises again with a fresh value.
+            await self._drain(0.0)
+            raise
+        finally:
+            if self._fd is None:
+                self._quiet_since = max(self._quiet_since, time.monotonic())
+        heard_at = self._quiet_since if self._fd is not None else 0.0
+        exchange = Exchange(pdu, sending.gap_s, self._quiet_since - started, heard_at)
+        return Resynchronised(exchange, tuple(late))
+
+    async def _complete_request(self, sending: Sending) -> float:
+        """Put the rest of `sending`'s frame on the wire (and read back its echo, where the
+        adapter is said to echo); when its last character has left the wire."""
+        frame, started = sending.frame, sending.started
         control = self.settings.direction
         if control is not None and control.mode is DirectionMode.RTS:
             sent = await self._finish_rts(sending, control)
@@ -571,23 +659,7 @@ class SerialLine:
             self._quiet_since = max(self._quiet_since, sent)
         if self.settings.echo:
             await self._read_echo(frame, sent)
-        if not expect_reply:
-            self._quiet_since = max(self._quiet_since, sent + self.settings.turnaround_s)
-            return Exchange(None, sending.gap_s, self._quiet_since - started)
-        try:
-            reply = await self._read_reply(frame, sent, sent + timeout_s)
-            pdu = check_reply(frame, reply)
-        except ReplyTimeout:
-            await self._drain(self.settings.drain_s)
-            raise
-        except BadReply:
-            await self._drain(0.0)
-            raise
-        finally:
-            if self._fd is None:  # no arrival times without a descriptor: now is the safe bet
-                self._quiet_since = max(self._quiet_since, time.monotonic())
-        heard_at = self._quiet_since if self._fd is not None else 0.0
-        return Exchange(pdu, sending.gap_s, self._quiet_since - started, heard_at)
+        return sent
 
     def _send_frame(self, frame: bytes) -> Sending:
         started = time.monotonic()
@@ -838,18 +910,22 @@ class SerialLine:
             await self._drain(0.0)
             raise BadReply("echo", f"echo {bytes(echo).hex(' ')} differs from what was sent")
 
-    async def _drain(self, wait_for_late_s: float) -> None:
-        """Listen up to `wait_for_late_s` for a late frame, then until the line is quiet."""
+    async def _drain(self, wait_for_late_s: float) -> bytearray:
+        """Listen up to `wait_for_late_s` for a late frame, then until the line is quiet; what
+        came (at most a frame's worth: enough to tell a late reply)."""
         char_timeout = self.settings.char_timeout_s
         started = time.monotonic()
         deadline = started + max(wait_for_late_s, char_timeout)
+        drained = bytearray()
         while True:
             now = time.monotonic()
             if now >= deadline or now - started > MAX_DRAIN_S:
-                return
+                return drained
             data = await self._read_some(256, deadline)
             if data:
                 self.discarded_bytes += len(data)
+                if len(drained) < MAX_FRAME:
+                    drained += data
                 # A late frame is arriving: follow it to its end, then stop.
                 deadline = self._quiet_since + char_timeout
 

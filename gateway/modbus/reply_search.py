@@ -80,6 +80,11 @@ def echo_passes_for_reply(request: bytes) -> bool:
     return length == len(request) and lookup(request[1]).fits(pdu, pdu)
 
 
+def _echo_coming(received: bytes | bytearray, request: bytes) -> bool:
+    """Is all that came so far the first part of `request` itself (an adapter's echo)?"""
+    return len(received) < len(request) and received == request[: len(received)]
+
+
 def search_reply(
     received: bytes | bytearray,
     request: bytes,
@@ -112,12 +117,19 @@ def search_reply(
         )
         if ours:
             if length == UNKNOWN_LENGTH:
+                if not start and _echo_coming(received, request):
+                    return ReplySearch(Found.PARTIAL, 0, len(request), echo)
                 return ReplySearch(Found.SILENCE_ENDS, start, size, echo)
             if length == NEED_MORE or size - start < length:
                 end = 0 if length == NEED_MORE else start + length
                 return ReplySearch(Found.PARTIAL, start, end, echo)
             if crc_ok(received[start : start + length]):
                 return ReplySearch(Found.COMPLETE, start, start + length, echo)
+            if not start and _echo_coming(received, request):
+                # Our own request coming back, so far: its first bytes read as a reply's
+                # header (03H from 00xxH: a byte count of 0) but fail its CRC. The rest of the
+                # echo, then the reply, are still to come.
+                return ReplySearch(Found.PARTIAL, 0, len(request), echo)
             if corrupt is None:
                 corrupt = ReplySearch(Found.CORRUPT, start, start + length, echo)
             continue  # fails its CRC from here: the reply may start further on

@@ -340,11 +340,24 @@ class SimulatedLine:
             log.warning("simulated line: %s closed", endpoint.path)
             self._unplug()
             return
-        if self._adapter.echo:  # the adapter hands the master's bytes straight back
-            self._write(data)
         with self._lock:
             for frame in self._assembler.feed(data, now):
                 self._on_frame(frame)
+            if self._adapter.echo:
+                self._echo(data, now)
+
+    def _echo(self, data: bytes, now: float) -> None:
+        """The adapter hands the master's bytes back as they leave on the wire: each byte a
+        character time after the one before (at once without wire time), so a master reads
+        the echo in pieces, as it does from real 2-wire adapters."""
+        if not self.wire_time:
+            self._write(data)
+            return
+        for index in range(len(data)):
+            at = now + (index + 1) * self.character_s
+            heapq.heappush(
+                self._pending, (at, next(self._sequence), data[index : index + 1], False)
+            )
 
     def _on_frame(self, frame: ReceivedFrame) -> None:
         """A request: count it, check the gap before it, hand it to its drive."""

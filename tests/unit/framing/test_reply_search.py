@@ -72,6 +72,32 @@ def test_the_echo_of_a_read_is_never_the_reply() -> None:
     assert alone.echo == 8
 
 
+def test_an_echo_arriving_in_pieces_is_waited_for_never_taken_for_a_reply() -> None:
+    # 03H from 0003H: the echo's third byte (the address's high byte, 00) reads as a byte
+    # count of 0, so its first five bytes look like a whole (corrupt) reply. They are the
+    # adapter's echo still arriving: wait for the rest, then find the reply after it.
+    request = build_frame(1, bytes.fromhex("0300030002"))
+    reply = build_frame(1, bytes.fromhex("0304000A0014"))
+    for n in range(1, len(request)):
+        assert search_reply(request[:n], request).found is Found.PARTIAL
+    assert search_reply(request, request).found is Found.NOTHING  # the echo, whole
+    both = request + reply
+    for n in range(len(request) + 1, len(both)):
+        assert search_reply(both[:n], request).found is Found.PARTIAL  # the reply, coming
+    search = search_reply(both, request)
+    assert (search.found, search.echo, search.start) == (Found.COMPLETE, 8, 8)
+
+
+def test_a_reply_that_starts_like_the_request_is_still_taken_when_whole() -> None:
+    # A 10H reply repeats the request's first six bytes; whole and sound, it is the reply even
+    # though what came so far is shorter than the request.
+    request = build_frame(1, bytes.fromhex("10200000020400010002"))
+    reply = build_frame(1, bytes.fromhex("1020000002"))
+    assert request[:6] == reply[:6]
+    search = search_reply(reply, request)
+    assert (search.found, search.start, search.end) == (Found.COMPLETE, 0, len(reply))
+
+
 def test_the_echo_of_a_write_is_skipped_once_the_adapter_is_known_to_echo() -> None:
     # 06H's reply repeats the request byte for byte: only knowing the adapter tells them apart.
     assert echo_passes_for_reply(WRITE_REQUEST)
