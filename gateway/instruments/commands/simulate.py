@@ -25,7 +25,7 @@ from types import FrameType
 from gateway.cli import EXIT_FAILURE, EXIT_OK
 from gateway.instruments.simulator.control import run_control_command
 from gateway.instruments.simulator.line import WAKE_EARLY_S, SimulatedLine
-from gateway.instruments.simulator.line_faults import KINDS
+from gateway.instruments.simulator.line_faults import KINDS, late_range
 from gateway.profile.invt import PROFILES, get_profile
 
 PARITIES = ("N", "E", "O")
@@ -128,10 +128,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--late-reply-ms",
-        type=float,
-        default=500.0,
+        type=late_reply_ms,
+        default=(500.0, 500.0),
         metavar="MS",
-        help="how much later than due a 'late' reply comes (default 500)",
+        help="how much later than due a 'late' reply comes: MS, or FROM-TO for a delay drawn "
+        "at random from that range, as a drive busy writing its EEPROM answers (default 500)",
     )
 
     adapter = parser.add_argument_group(
@@ -203,6 +204,13 @@ def describe_drives(line: SimulatedLine) -> str:
     return ", ".join(parts)
 
 
+def late_reply_ms(text: str) -> tuple[float, float]:
+    try:
+        return late_range(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def build_line(args: argparse.Namespace) -> SimulatedLine:
     models = dict(args.drive)
     addresses = sorted({*(args.address or ([] if models else [1])), *models})
@@ -227,8 +235,9 @@ def build_line(args: argparse.Namespace) -> SimulatedLine:
     if args.burst_ms or args.glitch or args.echo:
         line.set_adapter(burst_ms=args.burst_ms, glitch=args.glitch, echo=args.echo)
     if args.line_faults:
+        late_from_ms, late_ms = args.late_reply_ms
         line.set_line_faults(
-            args.line_faults, args.line_fault_kinds, args.line_fault_seed, args.late_reply_ms
+            args.line_faults, args.line_fault_kinds, args.line_fault_seed, late_ms, late_from_ms
         )
     return line
 

@@ -61,6 +61,15 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         help="the same seed spoils the same replies (default %(default)d)",
     )
     parser.add_argument(
+        "--late-ms",
+        type=_late_ms,
+        default=None,
+        metavar="MS|FROM-TO",
+        help="how late a 'late' reply comes, or a range to draw from (0-1000: a drive busy "
+        "writing its EEPROM). Beyond the response timeout and drain (200 ms) the errors are "
+        "expected and only wrong values are judged (default 100: inside the drain)",
+    )
+    parser.add_argument(
         "--json", action="store_true", help="one JSON document instead of the table"
     )
     parser.set_defaults(handler=handle)
@@ -77,6 +86,7 @@ def handle(args: argparse.Namespace) -> int:
         clients=args.clients,
         baudrate=args.baud,
         seed=args.seed,
+        **({} if args.late_ms is None else {"late_ms": args.late_ms}),
     )
 
     # The run is its duration; starting and stopping the processes add a few seconds.
@@ -95,6 +105,15 @@ def handle(args: argparse.Namespace) -> int:
             print(f"gateway's last log lines:\n{result.gateway_log}", file=sys.stderr)
         return EXIT_FAILURE
     return EXIT_OK
+
+
+def _late_ms(text: str) -> tuple[float, float]:
+    from gateway.instruments.simulator.line_faults import late_range
+
+    try:
+        return late_range(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _positive(text: str) -> float:

@@ -125,6 +125,9 @@ class SimulatedLine:
         # (due, sequence, bytes, ends a reply): a heap. A reply delivered in bursts is several.
         self._pending: list[tuple[float, int, bytes, bool]] = []
         self._sequence = itertools.count()
+        self._answered_by: dict[int, float] = {}
+        """Address → when its last scheduled reply ends: a drive answers in order, so a reply
+        to a later request never overtakes a late one (a busy drive, not a reordering line)."""
         self._last_frame_end: float | None = None
         self._request_wire_end = 0.0
         self._reply_late = Buckets(BOUNDS_S)
@@ -227,10 +230,13 @@ class SimulatedLine:
         kinds: Iterable[str] | None = None,
         seed: int | None = None,
         late_ms: float = 500.0,
+        late_from_ms: float | None = None,
     ) -> None:
-        """Spoil each reply with probability `rate`, one of `kinds` (all when None) at random."""
+        """Spoil each reply with probability `rate`, one of `kinds` (all when None) at random;
+        a late reply comes `late_ms` late, or at random from `late_from_ms` to `late_ms`."""
+        late_from_s = None if late_from_ms is None else late_from_ms / 1000
         with self._lock:
-            self._faults.configure(rate, kinds, seed, late_ms / 1000)
+            self._faults.configure(rate, kinds, seed, late_ms / 1000, late_from_s)
 
     def set_adapter(
         self, *, burst_ms: float = 0.0, glitch: bytes = b"", echo: bool = False
@@ -397,6 +403,8 @@ class SimulatedLine:
                 return
             reply, delay_s = spoilt.frame, delay_s + spoilt.extra_delay_s
         due = wire_end + delay_s + len(reply) * character_s
+        due = max(due, self._answered_by.get(address, 0.0) + len(reply) * character_s)
+        self._answered_by[address] = due
         parts = self._adapter.deliveries(reply, due, character_s)
         for index, (at, part) in enumerate(parts, 1):
             heapq.heappush(self._pending, (at, next(self._sequence), part, index == len(parts)))
@@ -478,6 +486,7 @@ class SimulatedLine:
         if self.link is not None:
             remove_link(self.link)
         self._pending.clear()
+        self._answered_by.clear()
         with self._lock:
             self._assembler = RequestAssembler(self.t35_s)
             self._reply_ended_at = None  # the time unplugged is nobody's silence on the line

@@ -56,6 +56,15 @@ class StressSettings:
     seed: int = 1
     outage_s: float = 1.0
     """How long the serial port and the broker stay away."""
+    late_ms: tuple[float, float] = (LATE_REPLY_MS, LATE_REPLY_MS)
+    """How late a 'late' reply comes: drawn from this range (ms)."""
+
+    @property
+    def late_beyond_drain(self) -> bool:
+        """Can a late reply outlast the response timeout and the drain? Then it fails its
+        request (and the drive's next ones while it is behind) by design: errors are expected,
+        and only wrong values are judged."""
+        return self.late_ms[1] > TIMEOUT_MS + DRAIN_MS
 
 
 @dataclass(frozen=True, slots=True)
@@ -260,7 +269,8 @@ def _simulator_arguments(settings: StressSettings, link: Path) -> list[str]:
     if settings.fault_rate > 0:
         arguments += ["--line-faults", str(settings.fault_rate)]
         arguments += ["--line-fault-seed", str(settings.seed)]
-        arguments += ["--late-reply-ms", str(LATE_REPLY_MS)]
+        low, high = settings.late_ms
+        arguments += ["--late-reply-ms", f"{low:g}-{high:g}"]
     return arguments
 
 
