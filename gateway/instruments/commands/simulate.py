@@ -98,6 +98,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--dead", type=_address, action="append", default=[], metavar="ADDR")
     parser.add_argument(
+        "--slow",
+        type=_slow,
+        action="append",
+        default=[],
+        metavar="ADDR=MS[-MS]",
+        help="this drive answers MS later than its response delay, or a delay drawn at random "
+        "from MS-MS for each reply (a drive busy writing its EEPROM, a slow device server)",
+    )
+    parser.add_argument(
         "--fault-history",
         type=_history,
         action="append",
@@ -211,6 +220,16 @@ def late_reply_ms(text: str) -> tuple[float, float]:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def _slow(text: str) -> tuple[int, tuple[float, float]]:
+    address, equals, delay = text.partition("=")
+    if not equals:
+        raise argparse.ArgumentTypeError(f"{text!r}: give ADDR=MS or ADDR=FROM-TO")
+    try:
+        return _address(address), late_range(delay)
+    except (ValueError, argparse.ArgumentTypeError) as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def build_line(args: argparse.Namespace) -> SimulatedLine:
     models = dict(args.drive)
     addresses = sorted({*(args.address or ([] if models else [1])), *models})
@@ -232,6 +251,8 @@ def build_line(args: argparse.Namespace) -> SimulatedLine:
         line.inject_fault(address, code)
     for address in args.dead:
         line.set_dead(address, True)
+    for address, (low_ms, high_ms) in args.slow:
+        line.set_reply_delay(address, low_ms, high_ms)
     if args.burst_ms or args.glitch or args.echo:
         line.set_adapter(burst_ms=args.burst_ms, glitch=args.glitch, echo=args.echo)
     if args.line_faults:

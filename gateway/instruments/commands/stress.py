@@ -70,6 +70,15 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "expected and only wrong values are judged (default 100: inside the drain)",
     )
     parser.add_argument(
+        "--slow-drive-ms",
+        type=_late_ms,
+        default=None,
+        metavar="MS|FROM-TO",
+        help="drive 1 answers every request this late, or late by a delay drawn from the range "
+        "for each reply (0-1000: slower than the response timeout at random); only wrong "
+        "values are judged then",
+    )
+    parser.add_argument(
         "--json", action="store_true", help="one JSON document instead of the table"
     )
     parser.set_defaults(handler=handle)
@@ -86,6 +95,7 @@ def handle(args: argparse.Namespace) -> int:
         clients=args.clients,
         baudrate=args.baud,
         seed=args.seed,
+        slow_drive_ms=args.slow_drive_ms,
         **({} if args.late_ms is None else {"late_ms": args.late_ms}),
     )
 

@@ -27,6 +27,7 @@ import heapq
 import itertools
 import logging
 import os
+import random
 import select
 import sys
 import threading
@@ -100,7 +101,10 @@ class SimulatedLine:
 
         self._lock = threading.Lock()
         self._dead: set[int] = set()
-        self._extra_delay_s: dict[int, float] = {}
+        self._extra_delay_s: dict[int, tuple[float, float]] = {}
+        """Address → how much later than its response delay it answers: drawn from this range
+        for each reply (`set_reply_delay`)."""
+        self._slow_random = random.Random(0)
         self._faults = LineFaults()
         self._adapter = AdapterEffects()
         self._stats: dict[str, Any] = {
@@ -218,11 +222,15 @@ class SimulatedLine:
         with self._lock:
             self._drive(address).set_fault_history(codes)
 
-    def set_reply_delay(self, address: int, ms: float) -> None:
-        """This address answers `ms` later than its response delay; 0 makes it punctual again."""
+    def set_reply_delay(self, address: int, ms: float, up_to_ms: float | None = None) -> None:
+        """This address answers `ms` later than its response delay (or, with `up_to_ms`, a
+        delay drawn at random from that range for each reply, as a drive busy writing its
+        EEPROM does); 0 makes it punctual again."""
+        low = max(ms, 0.0) / 1000
+        high = low if up_to_ms is None else max(up_to_ms / 1000, low)
         with self._lock:
             self._drive(address)
-            self._extra_delay_s[address] = max(ms, 0.0) / 1000
+            self._extra_delay_s[address] = (low, high)
 
     def set_line_faults(
         self,
@@ -393,7 +401,7 @@ class SimulatedLine:
             self._stats["ignored"] += 1
             return
         reply = build_frame(address, drive.handle(pdu, wire_end))
-        delay_s = self._response_delay_s(drive) + self._extra_delay_s.get(address, 0.0)
+        delay_s = self._response_delay_s(drive) + self._extra_delay(address)
         spoilt = self._faults.maybe_spoil(reply)
         if spoilt is not None:
             self._stats["faults_injected"] += 1
@@ -408,6 +416,10 @@ class SimulatedLine:
         parts = self._adapter.deliveries(reply, due, character_s)
         for index, (at, part) in enumerate(parts, 1):
             heapq.heappush(self._pending, (at, next(self._sequence), part, index == len(parts)))
+
+    def _extra_delay(self, address: int) -> float:
+        low, high = self._extra_delay_s.get(address, (0.0, 0.0))
+        return low if low == high else self._slow_random.uniform(low, high)
 
     def _response_delay_s(self, drive: SimulatedDrive) -> float:
         """P14.03 once written over Modbus, else the line's `response_delay_ms`; at least t3.5

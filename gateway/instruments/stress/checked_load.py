@@ -53,8 +53,10 @@ class Block:
     read_count: int
 
 
+# The first two read as many words: a late reply to one is byte for byte the shape of the
+# other's, so only the values tell them apart (RTU has no transaction id), and they are checked.
 BLOCKS: Final = (
-    Block(parse_parameter("P00.11"), 2, parse_parameter("P00.10"), 4),  # P00.10, P00.13 around
+    Block(parse_parameter("P00.11"), 2, parse_parameter("P00.10"), 3),  # P00.10 before
     Block(parse_parameter("P08.07"), 2, parse_parameter("P08.06"), 3),  # P08.06 before
     Block(parse_parameter("P01.20"), 1, parse_parameter("P01.20"), 1),
 )

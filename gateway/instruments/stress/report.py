@@ -110,6 +110,9 @@ def document(result: StressResult) -> dict[str, Any]:
             "baudrate": settings.baudrate,
             "seed": settings.seed,
             "late_ms": list(settings.late_ms),
+            "slow_drive_ms": None
+            if settings.slow_drive_ms is None
+            else list(settings.slow_drive_ms),
         },
         "elapsed_s": round(result.elapsed_s, 3),
         "frames": result.frames,

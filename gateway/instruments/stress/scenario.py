@@ -40,6 +40,8 @@ TIMEOUT_MS = 50
 DRAIN_MS = 150
 LATE_REPLY_MS = 100
 """After the response timeout, inside the drain: the gateway hears a late reply out and drops it."""
+DEFAULT_WINDOW_MS = 300 + 50
+"""A bus's default response timeout and drain, which a slow drive's run keeps."""
 RECOVERY_LIMIT_S = 30.0
 SETTLE_S = 0.5
 """After a recovery, answers to requests sent during the outage may still come back as errors."""
@@ -58,13 +60,17 @@ class StressSettings:
     """How long the serial port and the broker stay away."""
     late_ms: tuple[float, float] = (LATE_REPLY_MS, LATE_REPLY_MS)
     """How late a 'late' reply comes: drawn from this range (ms)."""
+    slow_drive_ms: tuple[float, float] | None = None
+    """Drive 1 answers every request this much late, drawn from the range for each reply."""
 
     @property
     def late_beyond_drain(self) -> bool:
-        """Can a late reply outlast the response timeout and the drain? Then it fails its
-        request (and the drive's next ones while it is behind) by design: errors are expected,
-        and only wrong values are judged."""
-        return self.late_ms[1] > TIMEOUT_MS + DRAIN_MS
+        """Can a reply outlast the response timeout and the drain? Then it fails its request
+        (and the drive's next ones while it is behind) by design: errors are expected, and
+        only wrong values are judged."""
+        window = TIMEOUT_MS + DRAIN_MS
+        slow = self.slow_drive_ms is not None and self.slow_drive_ms[1] > DEFAULT_WINDOW_MS
+        return slow or (self.fault_rate > 0 and self.late_ms[1] > window)
 
 
 @dataclass(frozen=True, slots=True)
@@ -266,6 +272,9 @@ def _simulator_arguments(settings: StressSettings, link: Path) -> list[str]:
     arguments = ["--link", str(link), "--baud", str(settings.baudrate), "--parity", "N"]
     for unit_id in _unit_ids(settings):
         arguments += ["--address", str(unit_id)]
+    if settings.slow_drive_ms is not None:
+        low, high = settings.slow_drive_ms
+        arguments += ["--slow", f"1={low:g}-{high:g}"]
     if settings.fault_rate > 0:
         arguments += ["--line-faults", str(settings.fault_rate)]
         arguments += ["--line-fault-seed", str(settings.seed)]
@@ -285,9 +294,13 @@ def _gateway_config(settings: StressSettings, link: Path, broker: Broker | None)
                 "baudrate": settings.baudrate,
                 # Parity N: a Linux pty refuses re-configuration once a parity is set.
                 "parity": "N",
-                "timeout_ms": TIMEOUT_MS,
+                # A slow drive meets the defaults a user starts with (300 ms, drain 50 ms).
+                **(
+                    {"timeout_ms": TIMEOUT_MS, "drain_ms": DRAIN_MS}
+                    if settings.slow_drive_ms is None
+                    else {}
+                ),
                 "retries": 2,
-                "drain_ms": DRAIN_MS,
                 "char_timeout_ms": 10,
             }
         ],
