@@ -219,7 +219,7 @@ def test_state_word_1(value: int, state: str) -> None:
 def test_state_word_2_bits() -> None:
     # bit 0 ready, bits 2-1 = 01 (motor 2), bit 4 overload pre-alarm, bits 6-5 = 10 communication
     word = 0b1_0_1_0_01_1
-    decoded = decode_state_word_2(word)
+    decoded = decode_state_word_2(word, True)
     assert decoded == StateWord2(
         ready=True,
         motor=2,
@@ -227,12 +227,15 @@ def test_state_word_2_bits() -> None:
         overload_pre_alarm=True,
         command_source="communication",
     )
-    assert decode_state_word_2(0b0100000).command_source == "terminal"
-    assert decode_state_word_2(0b1100000).command_source == "unknown_3"
-    assert decode_state_word_2(0b0001000).synchronous_motor
+    assert decode_state_word_2(0b0100000, True).command_source == "terminal"
+    assert decode_state_word_2(0b1100000, True).command_source == "unknown_3"
+    assert decode_state_word_2(0b0001000, True).synchronous_motor
     # Where bit 0 = 0 means ready (a model with the other polarity):
     assert decode_state_word_2(0, ready_bit_set_means_ready=False).ready
-    assert encode_state_word_2(decoded) == word
+    # A series not known: bit 0 is left undecided, the rest decoded.
+    unknown = decode_state_word_2(word, None)
+    assert (unknown.ready, unknown.command_source) == (None, "communication")
+    assert encode_state_word_2(decoded, True) == word
 
 
 @pytest.mark.parametrize(

@@ -112,8 +112,9 @@ def test_run_ramp_and_stop(line: SimulatedLine, port: serial.Serial) -> None:
 
 def test_fault_injected_then_reset_over_modbus(line: SimulatedLine, port: serial.Serial) -> None:
     line.inject_fault(2, 35)
-    # State word 1: fault; state word 2: not ready (GD350: bit 0 set), communication; STo.
-    assert exchange(port, frame(2, "03 21 00 00 03")) == frame(2, "03 06 00 04 00 41 00 23")
+    # State word 1: fault; state word 2: not ready (GD350: "=0: Not ready to run", page -282-
+    # of its communication chapter), communication; STo.
+    assert exchange(port, frame(2, "03 21 00 00 03")) == frame(2, "03 06 00 04 00 40 00 23")
     assert exchange(port, frame(2, "03 50 00 00 01")) == frame(2, "03 02 00 23")
     assert exchange(port, frame(2, "06 20 00 00 01")) == frame(2, "86 01")  # can't run faulty
     assert exchange(port, frame(2, "06 20 00 00 07")) == frame(2, "06 20 00 00 07")  # reset

@@ -32,17 +32,17 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 
 def handle(args: argparse.Namespace) -> int:
-    from gateway.profile import get_profile
-    from gateway.profile.faults import GD350_FAULTS
+    from gateway.profile import get_profile, words
 
     try:
         codes = [fault_code(text) for text in args.codes]
-        table = GD350_FAULTS if args.model is None else get_profile(args.model).faults
+        profile = None if args.model is None else get_profile(args.model)
     except ValueError as exc:
         print(f"invt-gateway decode-fault: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    table = words.fault_table(profile)
     for code in codes:
-        text = table.describe(code)
+        text = words.fault(profile, code).description
         print(text if len(codes) == 1 else f"{code}: {text}")
     if args.model is not None and not table.confirmed:
         print(

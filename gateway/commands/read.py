@@ -2,6 +2,10 @@
 
 Each name is one register (Pxx.yy, 2100H, a profile name), printed scaled with its unit and
 decoded where it is a code. `--via tcp://HOST:PORT` asks a running gateway instead of the line.
+
+State word 2 (2101H) and fault codes read differently by series: the series is `--model`, or
+what the drive's 2103H names (read once, only for those); where 2103H can't tell (010AH: GD300
+or GD300-LIFT, whose bit 0 polarities differ), 2101H bit 0 is shown undecided.
 """
 
 from __future__ import annotations
@@ -22,6 +26,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     add_target_arguments(parser)
     parser.add_argument(
+        "--model", help="the drive's series (gd350, gd300l...), when 2103H can't tell (010AH)"
+    )
+    parser.add_argument(
         "points", nargs="+", metavar="NAME", help="P00.11, 2100H, 0x3000, frequency_setpoint, ..."
     )
     parser.set_defaults(handler=handle)
@@ -29,12 +36,14 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 def handle(args: argparse.Namespace) -> int:
     from gateway.errors import FieldError
-    from gateway.tools.access import read_point
+    from gateway.profile import get_profile
+    from gateway.tools.access import read_point, series_of
     from gateway.tools.open import open_master
     from gateway.tools.points import resolve
 
     try:
         points = [resolve(name) for name in args.points]
+        profile = None if args.model is None else get_profile(args.model)
     except ValueError as exc:
         print(f"invt-gateway read: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -45,9 +54,11 @@ def handle(args: argparse.Namespace) -> int:
         return EXIT_FAILURE
     failed = False
     try:
+        if profile is None and any(point.depends_on_series for point in points):
+            profile = series_of(master, args.address)
         for point in points:
             try:
-                print(read_point(master, args.address, point).line(), flush=True)
+                print(read_point(master, args.address, point, profile).line(), flush=True)
             except FieldError as exc:
                 print(f"invt-gateway read: {exc}", file=sys.stderr)
                 failed = True

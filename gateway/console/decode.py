@@ -6,6 +6,9 @@
     loop-back 08H (probe) → echoed
 
 For a drive whose profile is not INVT (`generic`), registers keep their addresses and raw words.
+The status words are put in words by the drive's own series (`gateway.profile.words`), so the
+monitor says what the drive page and MQTT say: 0041H is "ready" on a GD350, "not ready" on a
+GD300-LIFT.
 """
 
 from __future__ import annotations
@@ -19,29 +22,29 @@ from gateway.modbus.functions import (
     WRITE_MULTIPLE_REGISTERS,
     WRITE_SINGLE_REGISTER,
 )
-from gateway.profile import exception_name, format_register, is_ram_address
+from gateway.profile import DriveProfile, exception_name, format_register, is_ram_address
 from gateway.tools.points import Point, resolve
 
 MAX_VALUES_SHOWN = 4
 """A 12-word poll names its first values and says how many more: a line stays one line."""
 
 
-def describe_request(pdu: bytes, invt: bool) -> str:
-    """What the request asks, without its answer."""
+def describe_request(pdu: bytes, profile: DriveProfile | None) -> str:
+    """What the request asks, without its answer (None: a drive the gateway has no profile of)."""
     if not pdu:
         return "empty request"
     function = pdu[0]
     if function in (READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS) and len(pdu) == 5:
         start, count = struct.unpack(">HH", pdu[1:5])
-        return f"read {_span(start, count, invt)}"
+        return f"read {_span(start, count, _invt(profile))}"
     if function == WRITE_SINGLE_REGISTER and len(pdu) == 5:
         address, value = struct.unpack(">HH", pdu[1:5])
-        return f"write {_assignment(address, value, invt)}"
+        return f"write {_assignment(address, value, profile)}"
     if function == WRITE_MULTIPLE_REGISTERS and len(pdu) >= 6:
         start, count = struct.unpack(">HH", pdu[1:5])
         words = _words(pdu[6:])
         shown = ", ".join(
-            _assignment(start + i, w, invt) for i, w in enumerate(words[:MAX_VALUES_SHOWN])
+            _assignment(start + i, w, profile) for i, w in enumerate(words[:MAX_VALUES_SHOWN])
         )
         more = f", +{count - MAX_VALUES_SHOWN} more" if count > MAX_VALUES_SHOWN else ""
         return f"write {shown}{more}"
@@ -50,9 +53,9 @@ def describe_request(pdu: bytes, invt: bool) -> str:
     return f"function {function:02X}H"
 
 
-def describe(pdu: bytes, reply: bytes | None, invt: bool) -> str:
+def describe(pdu: bytes, reply: bytes | None, profile: DriveProfile | None) -> str:
     """The request and, when the drive answered, what the answer says."""
-    request = describe_request(pdu, invt)
+    request = describe_request(pdu, profile)
     if reply is None:
         return request
     if reply and reply[0] & 0x80:
@@ -65,7 +68,7 @@ def describe(pdu: bytes, reply: bytes | None, invt: bool) -> str:
         (start,) = struct.unpack(">H", pdu[1:3])
         words = _words(reply[2:])
         shown = ", ".join(
-            _value(start + i, w, invt, named=len(words) > 1)
+            _value(start + i, w, profile, named=len(words) > 1)
             for i, w in enumerate(words[:MAX_VALUES_SHOWN])
         )
         more = f", +{len(words) - MAX_VALUES_SHOWN} more" if len(words) > MAX_VALUES_SHOWN else ""
@@ -97,22 +100,26 @@ def _name(address: int, invt: bool) -> str:
     return f"{point.label} {named}"
 
 
-def _assignment(address: int, value: int, invt: bool) -> str:
-    if not invt:
+def _assignment(address: int, value: int, profile: DriveProfile | None) -> str:
+    if not _invt(profile):
         return f"{format_register(address)} = {value:04X}H"
-    return f"{_name(address, invt)} = {_point(address).show(value)}"
+    return f"{_name(address, True)} = {_point(address).show(value, profile)}"
 
 
-def _value(address: int, value: int, invt: bool, *, named: bool) -> str:
-    if not invt:
+def _value(address: int, value: int, profile: DriveProfile | None, *, named: bool) -> str:
+    if not _invt(profile):
         return f"{value:04X}H"
     point = _point(address)
-    shown = point.show(value)
+    shown = point.show(value, profile)
     if point.meaning.value == "state_word_1":
         shown = f"{value:04X}H {shown.split('(', 1)[1].rstrip(')')}"
     if not named:
         return shown
     return f"{point.label if point.label.startswith('P') else format_register(address)} {shown}"
+
+
+def _invt(profile: DriveProfile | None) -> bool:
+    return profile is not None and profile.is_invt
 
 
 def _point(address: int) -> Point:

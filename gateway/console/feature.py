@@ -84,9 +84,7 @@ class ConsoleFeature:
         for bus in self.buses.values():
             bus.add_request_observer(live.request_done)
         self._live = live
-        labels = {
-            (d.bus, d.address): DriveLabel(d.name, d.unit_id, d.profile.is_invt) for d in drives
-        }
+        labels = {(d.bus, d.address): DriveLabel(d.name, d.unit_id, d.profile) for d in drives}
         policy = Policy(self.read_only, self.access, settings.commands_enabled)
         operations = DriveOperations(
             {d.name: d for d in drives}, self.router, policy, self.poller, self.events

@@ -97,7 +97,8 @@ class LiveState:
         bus = drive.bus if drive else None
         if event.kind in (EventKind.FAULT_RAISED, EventKind.FAULT_CLEARED):
             data = event.data
-            text = f"{data.get('fault_name')}: {data.get('fault_description')}"
+            # The description holds the short code already ("OH2: inverter module overheat").
+            text = str(data.get("fault_description"))
         elif event.kind is EventKind.DRIVE_OFFLINE:
             text = "offline: no answer"
         else:

@@ -32,6 +32,7 @@ from gateway.profile import (
     describe_exception,
     parse_parameter,
     register_by_name,
+    words,
 )
 from gateway.profile.parameters import FAULT_HISTORY, PARAMETERS, parameter_groups
 from gateway.profile.ram_writes import ram_write_address
@@ -90,6 +91,7 @@ class DriveOperations:
         """The group's registers with names, units and scaled values from the profile."""
         points = _group_points(group)
         values = await self._read_points(who, drive, [p.address for p in points])
+        profile = self._drive(drive).profile
         return [
             {
                 "name": p.label,
@@ -98,7 +100,9 @@ class DriveOperations:
                 "unit": p.unit,
                 "decimals": p.decimals,
                 "raw": values.get(p.address),
-                "value": None if values.get(p.address) is None else p.show(values[p.address]),
+                "value": (
+                    None if values.get(p.address) is None else p.show(values[p.address], profile)
+                ),
                 "writable": _writable(p),
             }
             for p in points
@@ -107,17 +111,17 @@ class DriveOperations:
     async def fault_history(self, who: Identity, drive: str) -> list[dict[str, Any]]:
         """P07.27 (the current fault) … P07.32, decoded with the drive's own fault table."""
         settings = self._drive(drive)
-        faults = settings.profile.faults
         start = parse_parameter(FAULT_HISTORY[0])
-        words = await self._read(who, settings, start, len(FAULT_HISTORY))
+        codes = await self._read(who, settings, start, len(FAULT_HISTORY))
+        faults = [words.fault(settings.profile, code) for code in codes]
         return [
             {
                 "parameter": name,
-                "code": code,
-                "name": "none" if code == 0 else faults.short_code(code),
-                "description": faults.describe(code),
+                "code": fault.code,
+                "name": fault.name,
+                "description": fault.description,
             }
-            for name, code in zip(FAULT_HISTORY, words, strict=True)
+            for name, fault in zip(FAULT_HISTORY, faults, strict=True)
         ]
 
     # -- writes -----------------------------------------------------------------------------
@@ -163,7 +167,7 @@ class DriveOperations:
         if not settings.profile.is_invt:
             raise OperationError(400, f"{drive} is a generic Modbus device: no INVT commands")
         pdu = struct.pack(">BHH", WRITE_SINGLE_REGISTER, address, raw)
-        what = describe(pdu, None, True).removeprefix("write ")
+        what = describe(pdu, None, settings.profile).removeprefix("write ")
         try:
             reply = await self._send(who, settings, pdu)
         except OperationError as exc:

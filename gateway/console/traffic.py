@@ -25,7 +25,7 @@ from gateway.console.decode import describe
 from gateway.errors import BadReply, LineError, PortError, ReplyTimeout
 from gateway.modbus.rtu import build_frame
 from gateway.poller.drive_state import iso_time
-from gateway.profile import exception_name
+from gateway.profile import DriveProfile, exception_name
 
 log = logging.getLogger(__name__)
 
@@ -38,7 +38,8 @@ WATCHER_QUEUE = 1000
 class DriveLabel:
     name: str
     unit_id: int
-    invt: bool
+    profile: DriveProfile
+    """The drive's profile with its site corrections: the monitor decodes with it."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -136,7 +137,7 @@ class TrafficMonitor:
 
     def to_json(self, record: Record) -> dict[str, Any]:
         label = self.drives.get((record.bus, record.address))
-        invt = label.invt if label is not None else False
+        profile = label.profile if label is not None else None
         meaning_reply = record.reply if record.outcome in ("ok", "exception") else None
         return {
             "seq": record.seq,
@@ -147,7 +148,7 @@ class TrafficMonitor:
             "unit_id": label.unit_id if label else None,
             "address": record.address,
             "function": f"{record.pdu[0]:02X}H" if record.pdu else "",
-            "meaning": describe(record.pdu, meaning_reply, invt),
+            "meaning": describe(record.pdu, meaning_reply, profile),
             "outcome": _outcome_words(record),
             "attempt": record.attempt,
             "latency_ms": round(record.latency_s * 1000, 1),

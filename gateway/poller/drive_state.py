@@ -81,12 +81,11 @@ class DriveState:
 
     def _fault_changed(self, before: int, now: int) -> list[DriveEvent]:
         events = []
-        table = self.profile.faults
         if before:
-            cleared = fault_fields(before, table)
+            cleared = fault_fields(self.profile, before)
             events.append(DriveEvent(EventKind.FAULT_CLEARED, self.name, cleared))
         if now:
-            raised = fault_fields(now, table)
+            raised = fault_fields(self.profile, now)
             snapshot = self.telemetry()
             events.append(DriveEvent(EventKind.FAULT_RAISED, self.name, raised, snapshot=snapshot))
         return events

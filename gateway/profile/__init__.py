@@ -3,7 +3,9 @@
 - `addressing`: Pxx.yy ↔ register, RAM-only addresses, register spellings ("2100H", "0x2100").
 - `registers`: the communication registers (2000H..., 2100H..., 3000H...) and the telemetry keys.
 - `parameters`: the Pxx.yy parameters known by name: decimals, range, default.
-- `states`: control word commands, state words 1 and 2.
+- `states`: control word commands, state words 1 and 2 (the bit-level codecs).
+- `words`: one decoder per status word (2100H, 2101H, fault codes, 2103H) for a drive's series:
+  what every surface (telemetry, `read`, `scan`, the console, the events) shows.
 - `faults`: fault codes → short code and description, one table per series.
 - `exception_codes`: INVT's meanings of exception codes 01H-09H, and the gateway's 0AH/0BH.
 - `invt`: model identification codes and the `DriveProfile` of each model.

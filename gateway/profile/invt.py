@@ -9,7 +9,9 @@ correct them without a code change (`drives[].identification`, `drives[].faults`
   the simulator answers and `scan` reports as unconfirmed;
 - `faults`: the fault table; Goodrive30, IPE300 and Goodrive300-LIFT have the common Goodrive one,
   unconfirmed (their manuals' fault chapters were not reachable);
-- `ready_bit_set_means_ready`: the polarity of 2101H bit 0 "differs by model";
+- `ready_bit_set_means_ready`: the polarity of 2101H bit 0, which differs by series; the page
+  each polarity comes from is in `ready_bit_source` (empty: no page found, the common reading
+  "1: ready to run" assumed and listed in `unconfirmed`);
 - `decimals_overrides`: the bus-voltage scale (3002H) on GD200A/GD20;
 - `ram_writes_via_10h`: whether 10H accepts RAM-only (8xxxH) addresses.
 
@@ -86,7 +88,11 @@ class DriveProfile:
     ram_writes_via_10h: bool = True  # unconfirmed
     manufacturer_group: int | None = None
     """A parameter group that can be neither read nor written (P99 on GD350, P29 on GD10...)."""
-    ready_bit_set_means_ready: bool = True  # unconfirmed
+    ready_bit_set_means_ready: bool = True
+    """2101H bit 0 = 1 means "ready to run" (GD300, GD350, GD30); False where the series' manual
+    says "=0: ready for operation" (GD35, GD300-LIFT)."""
+    ready_bit_source: str = ""
+    """The manual page `ready_bit_set_means_ready` comes from; empty when none was found."""
     decimals_overrides: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
     """Register name → decimals where this model differs from the register map."""
     virtual_input_bits: int = 9
@@ -129,7 +135,12 @@ class DriveProfile:
         if faults:
             profile = replace(profile, faults=profile.faults.with_overrides(faults))
         if ready_bit_set_means_ready is not None:
-            profile = replace(profile, ready_bit_set_means_ready=ready_bit_set_means_ready)
+            profile = replace(
+                profile,
+                ready_bit_set_means_ready=ready_bit_set_means_ready,
+                ready_bit_source="drives[].ready_bit_set_means_ready in the config",
+                unconfirmed=tuple(u for u in profile.unconfirmed if u != UNCONFIRMED_READY_BIT),
+            )
         return profile
 
     @property
@@ -142,29 +153,89 @@ class DriveProfile:
         return self.decimals_overrides.get(register_name, default)
 
 
-def _gd350_family(key: str, name: str, code: int) -> DriveProfile:
+UNCONFIRMED_READY_BIT: Final = "state word 2 ready-bit polarity"
+"""How `unconfirmed` names a series whose 2101H bit 0 no manual page we found states."""
+
+# 2101H bit 0, where a series' communication chapter states it (quoted from the page):
+GD300_READY_BIT: Final = (
+    'Goodrive300 Series VFD, communication protocol, page 219: "Bit0: =0: not ready for '
+    'operation =1: ready for operation" (easymanua.ls/invt/gd300-004g-4/manual?p=224)'
+)
+GD350_READY_BIT: Final = (
+    "Goodrive350 IP55 High-ingress Protection Series VFD, communication protocol, page -282-: "
+    '"Bit0: =0: Not ready to run =1: Ready to run" (easymanua.ls/invt/gd350-045g-055p-45-as-b/'
+    "manual?p=291); the team's design notes read the same in the GD350 chapter"
+)
+GD30_READY_BIT: Final = (
+    'Goodrive30 Series VFD, chapter 7 communication protocol, page -135-: "Bit0: =0: Not ready '
+    'to run =1: Ready to run" (easymanua.ls/invt/goodrive30-vfd-series/manual?p=141)'
+)
+GD35_READY_BIT: Final = (
+    'Goodrive35 inverters, communication protocol, page 279: "Bit0: =0:ready for operation '
+    '=1:not ready for operation" (easymanua.ls/invt/goodrive-35-series/manual?p=280)'
+)
+GD300L_READY_BIT: Final = (
+    "Goodrive300-LIFT series inverter, 10.4.5 data address definition, page -126-: "
+    '"Bit0: =0: ready for operation =1: not ready for operation" '
+    "(manualshive.com/en/manual/invt/gd300l-series/2085743?page=130)"
+)
+GD10_READY_BIT: Final = (
+    'Goodrive10 inverters, 7.4 communication protocol, page 87: "Bit0: =0:bus voltage is not '
+    'established =1:bus voltage is established" (manualshive.com/en/manual/universal-motors/'
+    "goodrive-10/1058543?page=88): the same polarity, in other words"
+)
+
+
+def _gd350_family(key: str, name: str, code: int, ready_bit_source: str = "") -> DriveProfile:
+    """GD350-UL and GD350A: their own chapters' 2101H rows were not found; the GD350's
+    polarity is assumed and marked unconfirmed."""
     return DriveProfile(
         key,
         name,
         identification=(code,),
         fault_registers=(FAULT_CODE, FAULT_CODE_MIRROR),
         manufacturer_group=99,
-        ready_bit_set_means_ready=False,  # unconfirmed: GD350 lists bit 0 = 0 as "ready"
+        ready_bit_source=ready_bit_source,
         virtual_input_bits=10,
         faults=GD350_FAULTS,
+        unconfirmed=() if ready_bit_source else (UNCONFIRMED_READY_BIT,),
     )
 
 
 _PROFILES: Final = (
-    DriveProfile("gd20", "GD20", identification=(0x0106,)),
-    DriveProfile("gd200a", "GD200A", identification=(0x0107, 0x010C)),
-    DriveProfile("gd300", "GD300", identification=(0x010A,), manufacturer_group=29),
-    _gd350_family("gd350", "GD350", 0x01A0),
+    DriveProfile("gd20", "GD20", identification=(0x0106,), unconfirmed=(UNCONFIRMED_READY_BIT,)),
+    DriveProfile(
+        "gd200a",
+        "GD200A",
+        identification=(0x0107, 0x010C),
+        unconfirmed=(UNCONFIRMED_READY_BIT,),
+    ),
+    DriveProfile(
+        "gd300",
+        "GD300",
+        identification=(0x010A,),
+        manufacturer_group=29,
+        ready_bit_source=GD300_READY_BIT,
+    ),
+    _gd350_family("gd350", "GD350", 0x01A0, GD350_READY_BIT),
     _gd350_family("gd350ul", "GD350-UL", 0x01A1),
     _gd350_family("gd350a", "GD350A", 0x01A2),
-    DriveProfile("gd10", "GD10", identification=(0x010D,), manufacturer_group=29),
-    DriveProfile("gd35", "GD35", identification=(0x0108,), manufacturer_group=29),
-    DriveProfile("gd100", "GD100", identification=(0x010B,)),
+    DriveProfile(
+        "gd10",
+        "GD10",
+        identification=(0x010D,),
+        manufacturer_group=29,
+        ready_bit_source=GD10_READY_BIT,
+    ),
+    DriveProfile(
+        "gd35",
+        "GD35",
+        identification=(0x0108,),
+        manufacturer_group=29,
+        ready_bit_set_means_ready=False,
+        ready_bit_source=GD35_READY_BIT,
+    ),
+    DriveProfile("gd100", "GD100", identification=(0x010B,), unconfirmed=(UNCONFIRMED_READY_BIT,)),
     # Goodrive30 ("Goodrive30 Series VFD", chapter 7 Communication protocol, manual page -135-,
     # easymanua.ls/invt/goodrive30-vfd-series/manual?p=141): 2101H bit 0 "=1: Ready to run", bits
     # 2-1 motor 1 or 2 ("=10: Reserved =11: Reserved"); 2009H's own row lists motors 1-4, so a
@@ -179,6 +250,7 @@ _PROFILES: Final = (
         manufacturer_group=29,
         faults=UNCONFIRMED_GOODRIVE_FAULTS,
         motors=2,
+        ready_bit_source=GD30_READY_BIT,
         unconfirmed=("identification code (placeholder 01F0H)", "fault table"),
     ),
     # IPE300 ("IPE300 series engineering VFD", 9.4 Communication protocol, manual pages
@@ -196,7 +268,7 @@ _PROFILES: Final = (
         unconfirmed=(
             "identification code (placeholder 01F1H)",
             "fault table",
-            "state word 2 ready-bit polarity",
+            UNCONFIRMED_READY_BIT,
             "manufacturer parameter group",
         ),
     ),
@@ -213,6 +285,7 @@ _PROFILES: Final = (
         fault_registers=(FAULT_CODE, FAULT_CODE_MIRROR),
         manufacturer_group=29,
         ready_bit_set_means_ready=False,
+        ready_bit_source=GD300L_READY_BIT,
         faults=UNCONFIRMED_GOODRIVE_FAULTS,
         unconfirmed=("fault table", "manufacturer parameter group"),
     ),

@@ -3,9 +3,12 @@
 Control word, as the manual lists it: 1 forward run, 2 reverse run, 3 forward jog, 4 reverse jog,
 5 stop, 6 coast stop, 7 fault reset, 8 jog stop.
 State word 1: 1 forward running, 2 reverse running, 3 stopped, 4 fault, 5 POFF, 6 pre-exciting.
-State word 2: bit 0 ready (its polarity differs by model: see `DriveProfile`), bits 2-1 motor,
-bit 3 synchronous motor, bit 4 overload pre-alarm, bits 6-5 command source
-(00 keypad, 01 terminal, 10 communication).
+State word 2: bit 0 ready (its polarity differs by series: `DriveProfile.ready_bit_set_means_ready`,
+the page it comes from in `ready_bit_source`), bits 2-1 motor, bit 3 synchronous motor, bit 4
+overload pre-alarm, bits 6-5 command source (00 keypad, 01 terminal, 10 communication).
+
+These are the bit-level codecs; the surfaces decode a drive's words through
+`gateway.profile.words`, which gives each its series' polarity.
 """
 
 from __future__ import annotations
@@ -75,7 +78,8 @@ _SOURCE_SHIFT: Final = 5
 
 @dataclass(frozen=True)
 class StateWord2:
-    ready: bool
+    ready: bool | None
+    """None: the series is not known, and bit 0 reads the opposite way on some series."""
     motor: int
     """1..4: the motor whose parameter set is active."""
     synchronous_motor: bool
@@ -84,13 +88,19 @@ class StateWord2:
     """"keypad", "terminal", "communication", or "unknown_3"."""
 
 
-def decode_state_word_2(value: int, ready_bit_set_means_ready: bool = True) -> StateWord2:
+def decode_state_word_2(value: int, ready_bit_set_means_ready: bool | None) -> StateWord2:
+    """The polarity has no default: a decoder that forgot it would answer for the wrong series
+    (`None` when the series is not known: `ready` is None then)."""
     try:
         source = CommandSource((value >> _SOURCE_SHIFT) & 0b11).name.lower()
     except ValueError:
         source = f"unknown_{(value >> _SOURCE_SHIFT) & 0b11}"
     return StateWord2(
-        ready=bool(value & _READY_BIT) == ready_bit_set_means_ready,
+        ready=(
+            None
+            if ready_bit_set_means_ready is None
+            else bool(value & _READY_BIT) == ready_bit_set_means_ready
+        ),
         motor=((value >> _MOTOR_SHIFT) & 0b11) + 1,
         synchronous_motor=bool(value & _SYNCHRONOUS_BIT),
         overload_pre_alarm=bool(value & _OVERLOAD_PRE_ALARM_BIT),
@@ -98,8 +108,10 @@ def decode_state_word_2(value: int, ready_bit_set_means_ready: bool = True) -> S
     )
 
 
-def encode_state_word_2(state: StateWord2, ready_bit_set_means_ready: bool = True) -> int:
+def encode_state_word_2(state: StateWord2, ready_bit_set_means_ready: bool) -> int:
     """The inverse of `decode_state_word_2` (the simulator builds 2101H with it)."""
+    if state.ready is None:
+        raise ValueError("state word 2: a drive is either ready or not")
     source = CommandSource[state.command_source.upper()]
     value = _READY_BIT if state.ready == ready_bit_set_means_ready else 0
     value |= ((state.motor - 1) & 0b11) << _MOTOR_SHIFT

@@ -15,10 +15,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Final
 
-from gateway.profile.faults import GD350_FAULTS, NO_FAULT, FaultTable
+from gateway.profile import words
 from gateway.profile.invt import STATE_WORD_1, DriveProfile
 from gateway.profile.registers import RUNNING_VALUES
-from gateway.profile.states import decode_state_word_1, decode_state_word_2
 
 STATE_WORD_2: Final = STATE_WORD_1 + 1
 
@@ -26,19 +25,15 @@ TelemetryValue = str | int | float | bool
 Telemetry = dict[str, TelemetryValue]
 
 
-def fault_name(code: int, table: FaultTable = GD350_FAULTS) -> str:
-    """The keypad's short code ("OL1"), "none" for 0, the number for a code `table` doesn't
-    list."""
-    return "none" if code == NO_FAULT else table.short_code(code)
-
-
-def fault_fields(code: int, table: FaultTable = GD350_FAULTS) -> Telemetry:
-    """The fault as the drive's own series names it: a code outside its table is
-    "unknown fault N", never another series' name for that number."""
+def fault_fields(profile: DriveProfile, code: int) -> Telemetry:
+    """The fault word's decoder (`words.fault`) as telemetry: a code outside the series' table
+    is "unknown fault N", never another series' name for that number. `fault_description` is
+    the line to show ("OH2: inverter module overheat"): it holds `fault_name` already."""
+    decoded = words.fault(profile, code)
     return {
-        "fault_code": code,
-        "fault_name": fault_name(code, table),
-        "fault_description": table.describe(code),
+        "fault_code": decoded.code,
+        "fault_name": decoded.name,
+        "fault_description": decoded.description,
     }
 
 
@@ -47,18 +42,19 @@ def decode_telemetry(profile: DriveProfile, registers: Mapping[int, int]) -> Tel
     telemetry: Telemetry = {}
     state_word_1 = registers.get(STATE_WORD_1)
     if state_word_1 is not None:
-        telemetry["state"] = decode_state_word_1(state_word_1)
+        telemetry["state"] = words.state_word_1(state_word_1)
         telemetry["state_word_1"] = state_word_1
     state_word_2 = registers.get(STATE_WORD_2)
     if state_word_2 is not None:
-        decoded = decode_state_word_2(state_word_2, profile.ready_bit_set_means_ready)
+        decoded = words.state_word_2(profile, state_word_2)
         telemetry["state_word_2"] = state_word_2
-        telemetry["ready"] = decoded.ready
+        if decoded.ready is not None:  # always, with a profile
+            telemetry["ready"] = decoded.ready
         telemetry["command_source"] = decoded.command_source
         telemetry["overload_pre_alarm"] = decoded.overload_pre_alarm
     fault = current_fault(profile, registers)
     if fault is not None:
-        telemetry.update(fault_fields(fault, profile.faults))
+        telemetry.update(fault_fields(profile, fault))
     for running in RUNNING_VALUES:
         raw = registers.get(running.register.address)
         if raw is not None:

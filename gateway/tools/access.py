@@ -12,7 +12,8 @@ from dataclasses import dataclass
 
 from gateway.errors import BadReply, FieldError, PortError, ReplyTimeout
 from gateway.modbus.functions import READ_HOLDING_REGISTERS, WRITE_SINGLE_REGISTER, is_exception
-from gateway.profile import parse_parameter
+from gateway.profile import DriveProfile, parse_parameter, profiles_for_identification
+from gateway.profile.invt import IDENTIFICATION
 from gateway.profile.ram_writes import ram_write_address
 from gateway.tools.advice import (
     COMMUNICATION_MODE,
@@ -35,11 +36,13 @@ MODBUS_FREQUENCY = 8
 class Reading:
     point: Point
     raw: int
+    profile: DriveProfile | None = None
+    """The drive's series, when known: 2101H bit 0 and fault names depend on it."""
 
     def line(self) -> str:
         """ "P00.11  10.0 s  (000BH = 0064H: acceleration time 1)"."""
         return (
-            f"{self.point.label}  {self.point.show(self.raw)}  "
+            f"{self.point.label}  {self.point.show(self.raw, self.profile)}  "
             f"({self.point.where} = {self.raw:04X}H: {self.point.description})"
         )
 
@@ -61,13 +64,15 @@ def ask(master: Master, address: int, pdu: bytes, what: str) -> bytes:
     return reply
 
 
-def read_point(master: Master, address: int, point: Point) -> Reading:
+def read_point(
+    master: Master, address: int, point: Point, profile: DriveProfile | None = None
+) -> Reading:
     what = f"reading {point.label} ({point.where}) at address {address}"
     pdu = struct.pack(">BHH", READ_HOLDING_REGISTERS, point.address, 1)
     reply = ask(master, address, pdu, what)
     if len(reply) != 4 or reply[:2] != bytes((READ_HOLDING_REGISTERS, 2)):
         raise FieldError(f"{what}: unexpected reply {reply.hex(' ')}", GARBLED)
-    return Reading(point, int.from_bytes(reply[2:4], "big"))
+    return Reading(point, int.from_bytes(reply[2:4], "big"), profile)
 
 
 def write_point(master: Master, address: int, point: Point, raw: int, *, ram: bool = False) -> str:
@@ -79,7 +84,8 @@ def write_point(master: Master, address: int, point: Point, raw: int, *, ram: bo
     if reply != pdu:
         raise FieldError(f"{what}: the echo {reply.hex(' ')} differs from the request", GARBLED)
     where = f"{register:04X}H, RAM only" if register != point.address else point.where
-    line = f"{point.label} <- {point.show(raw)}  ({where} = {raw:04X}H): written"
+    # What is written is never a status word, whose words alone depend on the series.
+    line = f"{point.label} <- {point.show(raw, None)}  ({where} = {raw:04X}H): written"
     warning = _communication_mode_warning(master, address, point)
     return line if warning is None else f"{line}\nwarning: {warning}"
 
@@ -104,3 +110,17 @@ def _communication_mode_warning(master: Master, address: int, point: Point) -> s
     return f"{name} is {actual}, so the drive does not obey Modbus here: " + "; ".join(
         COMMUNICATION_MODE
     )
+
+
+def series_of(master: Master, address: int) -> DriveProfile | None:
+    """The one series the drive's 2103H code names; None when it names none or two (010AH), or
+    the drive won't say (a generic device): the caller then shows what doesn't depend on it."""
+    pdu = struct.pack(">BHH", READ_HOLDING_REGISTERS, IDENTIFICATION, 1)
+    try:
+        reply = ask(master, address, pdu, f"reading 2103H at address {address}")
+    except FieldError:
+        return None
+    if len(reply) != 4:
+        return None
+    profiles = profiles_for_identification(int.from_bytes(reply[2:4], "big"))
+    return profiles[0] if len(profiles) == 1 else None

@@ -19,13 +19,10 @@ from enum import Enum
 from gateway.profile import (
     CONTROL_COMMANDS,
     RUNNING_VALUES,
+    DriveProfile,
     Parameter,
     Register,
     control_command,
-    decode_state_word_1,
-    decode_state_word_2,
-    describe_fault,
-    describe_identification,
     format_parameter,
     format_register,
     is_parameter_register,
@@ -33,6 +30,7 @@ from gateway.profile import (
     parse_register,
     register_at,
     register_by_name,
+    words,
 )
 from gateway.profile.parameters import FAULT_HISTORY
 
@@ -65,20 +63,26 @@ class Point:
     def where(self) -> str:
         return format_register(self.address)
 
-    def show(self, raw: int) -> str:
-        """ "10.0 s", "3 (stopped)", "35 (STo: maladjustment)", "0106H (GD20)", "5 (stop)"."""
+    @property
+    def depends_on_series(self) -> bool:
+        """Whether the words for a value need the drive's series (2101H bit 0, fault names)."""
+        return self.meaning in (Meaning.STATE_WORD_2, Meaning.FAULT)
+
+    def show(self, raw: int, profile: DriveProfile | None) -> str:
+        """ "10.0 s", "3 (stopped)", "35 (STo: maladjustment)", "0106H (GD20)", "5 (stop)".
+
+        The status words are shown by their decoders in `gateway.profile.words`, for
+        `profile`'s series (None: not known, so 2101H bit 0 is left undecided)."""
         raw &= 0xFFFF
         match self.meaning:
             case Meaning.STATE_WORD_1:
-                return f"{raw} ({decode_state_word_1(raw)})"
+                return words.show_state_word_1(raw)
             case Meaning.STATE_WORD_2:
-                state = decode_state_word_2(raw)
-                ready = "ready" if state.ready else "not ready"
-                return f"{raw:04X}H ({ready}, command source {state.command_source})"
+                return words.show_state_word_2(profile, raw)
             case Meaning.FAULT:
-                return f"{raw} ({describe_fault(raw)})"
+                return words.show_fault(profile, raw)
             case Meaning.IDENTIFICATION:
-                return f"{raw:04X}H ({describe_identification(raw)})"
+                return words.show_identification(raw)
             case Meaning.CONTROL_WORD if raw in _COMMAND_NAMES:
                 return f"{raw} ({_COMMAND_NAMES[raw]})"
         value = raw - 0x10000 if self.signed and raw & 0x8000 else raw

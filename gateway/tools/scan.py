@@ -16,12 +16,7 @@ from dataclasses import dataclass, field
 
 from gateway.errors import BadReply, ReplyTimeout
 from gateway.modbus.functions import DIAGNOSTICS, READ_HOLDING_REGISTERS, is_exception
-from gateway.profile import (
-    decode_state_word_1,
-    decode_state_word_2,
-    describe_identification,
-    profiles_for_identification,
-)
+from gateway.profile import DriveProfile, profiles_for_identification, words
 from gateway.profile.faults import GD350_FAULTS, FaultTable
 from gateway.profile.invt import STATE_WORD_1
 from gateway.tools.masters import Master
@@ -46,21 +41,33 @@ class FoundDrive:
     def model(self) -> str:
         if self.identification is None:
             return "unknown"
-        return describe_identification(self.identification)
+        return words.identification(self.identification)
+
+    @property
+    def profile(self) -> DriveProfile | None:
+        """The one series the code places; None for none or two (010AH: GD300 or GD300-LIFT)."""
+        if self.identification is None:
+            return None
+        profiles = profiles_for_identification(self.identification)
+        return profiles[0] if len(profiles) == 1 else None
 
     @property
     def state(self) -> str:
-        return "-" if self.state_word_1 is None else decode_state_word_1(self.state_word_1)
+        return "-" if self.state_word_1 is None else words.state_word_1(self.state_word_1)
 
     @property
     def command_source(self) -> str:
         if self.state_word_2 is None:
             return "-"
-        return decode_state_word_2(self.state_word_2).command_source
+        return words.state_word_2(self.profile, self.state_word_2).command_source
 
     @property
     def fault_text(self) -> str:
-        return "-" if self.fault is None else self.fault_table.describe(self.fault)
+        if self.fault is None:
+            return "-"
+        if self.profile is not None:
+            return words.fault(self.profile, self.fault).description
+        return self.fault_table.describe(self.fault)
 
     @property
     def fault_table(self) -> FaultTable:

@@ -117,8 +117,8 @@ function busRow(bus) {
 
 function driveRow(drive) {
   const online = drive.online === null ? "–" : (drive.online ? "online" : "offline");
-  const fault = drive.fault_name && drive.fault_name !== "none"
-    ? `${drive.fault_name}: ${drive.fault_description}` : "none";
+  // fault_description holds the short code already: "OH2: inverter module overheat".
+  const fault = drive.fault_name && drive.fault_name !== "none" ? drive.fault_description : "none";
   return el("tr", { "data-drive": drive.name, class: stateClass(drive) },
     el("td", {}, el("a", { href: `/drives/${encodeURIComponent(drive.name)}` }, drive.name)),
     el("td", {}, drive.unit_id),
@@ -168,7 +168,7 @@ function overviewPage() {
 
 const VALUE_ROWS = [
   ["state", "State", (v) => (v || "–").replace(/_/g, " ")],
-  ["fault_name", "Fault", (v, t) => (v && v !== "none" ? `${v}: ${t.fault_description}` : "none")],
+  ["fault_name", "Fault", (v, t) => (v && v !== "none" ? t.fault_description : "none")],
   ["output_frequency_hz", "Output frequency", (v) => fmt(v, 2, "Hz")],
   ["set_frequency_hz", "Set frequency", (v) => fmt(v, 2, "Hz")],
   ["output_current_a", "Output current", (v) => fmt(v, 1, "A")],
@@ -252,7 +252,7 @@ async function loadFaults(name) {
     const data = await api(`/api/drives/${encodeURIComponent(name)}/faults?limit=30`);
     fill("fault-history", data.fault_history.map((f) =>
       el("tr", { class: f.code ? "fault" : "" }, el("td", {}, f.parameter),
-        el("td", {}, f.code ? `${f.code} ${f.name}` : "none"), el("td", {}, f.description))));
+        el("td", {}, f.code ? String(f.code) : "none"), el("td", {}, f.description))));
     fill("drive-events", data.events.map((e) => eventRow(e, false)), "no events recorded for this drive");
     fill("recorded-faults", (data.recorded_faults || []).map((f) => {
       const s = f.snapshot || {};
