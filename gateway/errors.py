@@ -11,8 +11,7 @@
     │   ├── BusFailed           a bus's coroutine died of a bug
     │   └── FeatureFailed       a feature's background work died of a bug
     ├── MalformedFrame          bytes a peer sent that break its protocol: close that connection
-    │   ├── MalformedPacket     an MQTT packet the demo broker can't take
-    │   └── MalformedCertificate  a client certificate's DER the role reader can't walk
+    │   └── MalformedPacket     an MQTT packet the demo broker can't take
     ├── LineError               one attempt on the wire failed; internal to the bus, which retries
     │   ├── ReplyTimeout        no reply (or not all of it) within the response timeout
     │   ├── BadReply            bad CRC, truncated, wrong address or function, echo mismatch, noise
@@ -216,10 +215,6 @@ class CannotListen(GatewayError):
 
     Its message is one line a person can act on: what, where, and the likely cause.
     """
-
-
-class MalformedCertificate(MalformedFrame):
-    """A client certificate's DER that the role reader can't walk (it then has no role)."""
 
 
 class StoreError(GatewayError):

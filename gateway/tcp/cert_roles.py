@@ -2,10 +2,11 @@
 
 The Modbus Organization's TLS profile (MB-TCP-Security, R-21/R-22) carries the client's role in an
 X.509v3 extension, OID 1.3.6.1.4.1.50316.802.1, whose value is an ASN.1 UTF8String ("operator",
-"viewer", or a site's own names). Python's `ssl` doesn't show unknown extensions, so the role is
-read from the certificate's DER here: a few lines of DER walking, no crypto (the TLS handshake has
-already verified the certificate against the configured CA). Certificates without the extension
-can be given a role by their subject's common name (`role_map`).
+"viewer", or a site's own names). Python's `ssl` doesn't show unknown extensions, so the
+certificate is read with `cryptography`'s X.509 API (the TLS handshake has already verified it
+against the configured CA); an extension the library doesn't know comes back as its raw value,
+the UTF8String's DER, read here. Certificates without the extension can be given a role by their
+subject's common name (`role_map`).
 """
 
 from __future__ import annotations
@@ -13,99 +14,36 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Final
 
-from gateway.errors import MalformedCertificate
+from cryptography import x509
 
 ROLE_OID: Final = "1.3.6.1.4.1.50316.802.1"
-
-_SEQUENCE = 0x30
-_OID = 0x06
-_BOOLEAN = 0x01
-_OCTET_STRING = 0x04
-_UTF8_STRING = 0x0C
-_EXTENSIONS = 0xA3  # [3] EXPLICIT in TBSCertificate
-
-
-def encode_oid(dotted: str) -> bytes:
-    """The DER content bytes of an OBJECT IDENTIFIER ("1.3.6..." without tag and length)."""
-    arcs = [int(arc) for arc in dotted.split(".")]
-    out = bytearray([40 * arcs[0] + arcs[1]])
-    for arc in arcs[2:]:
-        chunk = [arc & 0x7F]
-        arc >>= 7
-        while arc:
-            chunk.append(0x80 | (arc & 0x7F))
-            arc >>= 7
-        out += bytes(reversed(chunk))
-    return bytes(out)
-
-
-_ROLE_OID_BYTES: Final = encode_oid(ROLE_OID)
-
-
-def _read(data: bytes, offset: int) -> tuple[int, int, int]:
-    """(tag, start of the value, end of the value) of the TLV at `offset`."""
-    if offset + 2 > len(data):
-        raise MalformedCertificate("truncated")
-    tag, length = data[offset], data[offset + 1]
-    start = offset + 2
-    if length & 0x80:
-        count = length & 0x7F
-        if count == 0 or count > 4 or start + count > len(data):
-            raise MalformedCertificate("bad length")
-        length = int.from_bytes(data[start : start + count], "big")
-        start += count
-    end = start + length
-    if end > len(data):
-        raise MalformedCertificate("truncated")
-    return tag, start, end
-
-
-def _children(data: bytes, start: int, end: int) -> list[tuple[int, int, int]]:
-    children = []
-    offset = start
-    while offset < end:
-        tag, value_start, value_end = _read(data, offset)
-        children.append((tag, value_start, value_end))
-        offset = value_end
-    return children
+_ROLE: Final = x509.ObjectIdentifier(ROLE_OID)
+_UTF8_STRING: Final = 0x0C
 
 
 def role_extension(certificate_der: bytes) -> str | None:
     """The role extension's value, or None when the certificate has none (or is unreadable)."""
     try:
-        tag, start, end = _read(certificate_der, 0)
-        if tag != _SEQUENCE:
-            return None
-        tbs_tag, tbs_start, tbs_end = _children(certificate_der, start, end)[0]
-        if tbs_tag != _SEQUENCE:
-            return None
-        for tag, value_start, value_end in _children(certificate_der, tbs_start, tbs_end):
-            if tag == _EXTENSIONS:
-                return _find_role(certificate_der, value_start, value_end)
-    except (MalformedCertificate, IndexError):
+        certificate = x509.load_der_x509_certificate(certificate_der)
+        value = certificate.extensions.get_extension_for_oid(_ROLE).value
+    except (ValueError, x509.ExtensionNotFound):  # not DER, or extensions that can't be parsed
         return None
-    return None
+    if not isinstance(value, x509.UnrecognizedExtension):
+        return None
+    return _utf8_string(value.value)
 
 
-def _find_role(data: bytes, start: int, end: int) -> str | None:
-    (tag, list_start, list_end), *_ = _children(data, start, end)
-    if tag != _SEQUENCE:
+def _utf8_string(der: bytes) -> str | None:
+    """The text of a DER UTF8String (tag 0CH, a short or long length, the bytes), or None."""
+    if len(der) < 2 or der[0] != _UTF8_STRING:
         return None
-    for tag, ext_start, ext_end in _children(data, list_start, list_end):
-        if tag != _SEQUENCE:
-            continue
-        parts = _children(data, ext_start, ext_end)
-        oid_tag, oid_start, oid_end = parts[0]
-        if oid_tag != _OID or data[oid_start:oid_end] != _ROLE_OID_BYTES:
-            continue
-        value_tag, value_start, _ = parts[-1]
-        if value_tag != _OCTET_STRING:
-            return None
-        inner_tag, text_start, text_end = _read(data, value_start)
-        if inner_tag != _UTF8_STRING:
-            return None
-        return data[text_start:text_end].decode("utf-8", errors="replace")
-    return None
+    length, start = der[1], 2
+    if length & 0x80:  # long form: the next (length & 7FH) bytes give the length
+        start += length & 0x7F
+        length = int.from_bytes(der[2:start], "big")
+    if start + length != len(der):
+        return None
+    return der[start:].decode("utf-8", errors="replace")
 
 
 def common_name(peer: Mapping[str, object] | None) -> str | None:

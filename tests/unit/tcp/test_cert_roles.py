@@ -1,62 +1,85 @@
 """A Modbus/TCP Security client's role, as pure functions: read from the role extension
-(OID 1.3.6.1.4.1.50316.802.1, a UTF8String) of the certificate's DER, else from the subject's
-common name through `role_map`, else none. The TLS tests read it from real openssl certificates;
-these walk hand-built DER, including broken DER that must never raise."""
+(OID 1.3.6.1.4.1.50316.802.1, a UTF8String) of the certificate, else from the subject's common
+name through `role_map`, else none. The certificates here are made with `cryptography`, as a CA's
+tooling makes them; the TLS tests read roles from real openssl certificates over a handshake."""
 
 from __future__ import annotations
 
+import datetime
+
 import pytest
+from cryptography import x509
+from cryptography.hazmat.primitives import hashes
+from cryptography.hazmat.primitives.asymmetric import ec
+from cryptography.hazmat.primitives.serialization import Encoding
+from cryptography.x509.oid import NameOID
 
-from gateway.tcp.cert_roles import ROLE_OID, client_role, encode_oid, role_extension
+from gateway.tcp.cert_roles import ROLE_OID, client_role, role_extension
 
-
-def tlv(tag: int, value: bytes) -> bytes:
-    length = len(value)
-    if length < 0x80:
-        return bytes((tag, length)) + value
-    size = (length.bit_length() + 7) // 8
-    return bytes((tag, 0x80 | size)) + length.to_bytes(size, "big") + value
-
-
-def certificate(*extensions: bytes) -> bytes:
-    """Certificate { TBSCertificate { version, serial, ..., [3] { Extensions } }, ... }: what the
-    walker looks at, with filler where a real certificate has its other fields."""
-    version = tlv(0xA0, tlv(0x02, b"\x02"))
-    serial = tlv(0x02, b"\x01")
-    subject = tlv(0x30, b"\x00" * 150)  # a long field: two-byte DER lengths on the way
-    tbs = version + serial + subject
-    if extensions:
-        tbs += tlv(0xA3, tlv(0x30, b"".join(extensions)))
-    return tlv(0x30, tlv(0x30, tbs) + tlv(0x30, b"") + tlv(0x03, b"\x00"))
-
-
-def extension(oid: str, value: bytes) -> bytes:
-    return tlv(0x30, tlv(0x06, encode_oid(oid)) + tlv(0x04, value))
-
-
-def role(name: str) -> bytes:
-    return extension(ROLE_OID, tlv(0x0C, name.encode()))
-
-
-KEY_USAGE = extension("2.5.29.15", tlv(0x03, b"\x05\xa0"))
+KEY = ec.generate_private_key(ec.SECP256R1())
 PEER = {"subject": ((("organizationName", "Plant"),), (("commonName", "scada-1"),))}
 
 
-def test_oids_are_encoded_as_der_writes_them() -> None:
-    assert encode_oid("1.2.840.113549") == bytes.fromhex("2A 86 48 86 F7 0D")  # RSA's arc
-    assert encode_oid(ROLE_OID) == bytes.fromhex("2B 06 01 04 01 83 89 0C 86 22 01")
+def der_string(tag: int, text: bytes) -> bytes:
+    """A DER string: short form below 128 bytes, long form above (as a CA writes them)."""
+    if len(text) < 0x80:
+        return bytes((tag, len(text))) + text
+    size = (len(text).bit_length() + 7) // 8
+    return bytes((tag, 0x80 | size)) + len(text).to_bytes(size, "big") + text
+
+
+def certificate(*extensions: x509.ExtensionType) -> bytes:
+    """A self-signed client certificate for scada-1 with these extensions, as DER."""
+    name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "scada-1")])
+    now = datetime.datetime.now(datetime.UTC)
+    builder = (
+        x509.CertificateBuilder()
+        .subject_name(name)
+        .issuer_name(name)
+        .public_key(KEY.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now)
+        .not_valid_after(now + datetime.timedelta(days=1))
+    )
+    for extension in extensions:
+        builder = builder.add_extension(extension, critical=False)
+    # DER, as `ssl` hands over the peer's certificate.
+    return builder.sign(KEY, hashes.SHA256()).public_bytes(Encoding.DER)
+
+
+def role(text: str) -> x509.UnrecognizedExtension:
+    return x509.UnrecognizedExtension(
+        x509.ObjectIdentifier(ROLE_OID), der_string(0x0C, text.encode())
+    )
+
+
+KEY_USAGE = x509.KeyUsage(
+    digital_signature=True,
+    content_commitment=False,
+    key_encipherment=True,
+    data_encipherment=False,
+    key_agreement=False,
+    key_cert_sign=False,
+    crl_sign=False,
+    encipher_only=False,
+    decipher_only=False,
+)
 
 
 def test_the_role_is_the_extensions_utf8_string_among_others() -> None:
     assert role_extension(certificate(KEY_USAGE, role("operator"))) == "operator"
     assert role_extension(certificate(role("Betreiber-Süd"))) == "Betreiber-Süd"
+    long_name = "plant-north-" + "x" * 200  # a two-byte DER length
+    assert role_extension(certificate(role(long_name))) == long_name
 
 
 def test_a_certificate_without_the_role_has_none() -> None:
     assert role_extension(certificate(KEY_USAGE)) is None
     assert role_extension(certificate()) is None
-    not_a_string = extension(ROLE_OID, tlv(0x02, b"\x01"))
+    not_a_string = x509.UnrecognizedExtension(x509.ObjectIdentifier(ROLE_OID), b"\x02\x01\x01")
     assert role_extension(certificate(not_a_string)) is None
+    cut_short = x509.UnrecognizedExtension(x509.ObjectIdentifier(ROLE_OID), b"\x0c\x05abc")
+    assert role_extension(certificate(cut_short)) is None
 
 
 @pytest.mark.parametrize("cut", [1, 2, 5, 40, 180])
