@@ -9,10 +9,10 @@ from datetime import UTC, datetime
 
 import pytest
 
+from gateway.backoff import Backoff
 from gateway.config import DriveConfig
 from gateway.errors import CommandRefused
 from gateway.instruments.embedded_broker import topic_matches
-from gateway.mqtt.connection import Backoff
 from gateway.mqtt.lanes import Lanes
 from gateway.mqtt.outbox import Outbox
 from gateway.mqtt.requests import (

@@ -20,7 +20,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import random
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -29,6 +28,7 @@ from enum import StrEnum
 from functools import partial
 from typing import Any, NamedTuple
 
+from gateway.backoff import Backoff
 from gateway.bus.gap_excess import GapExcess
 from gateway.bus.health import HealthTracker
 from gateway.bus.late_replies import LateReplies
@@ -538,7 +538,7 @@ class Bus:
             work.set_result(None)
 
     async def _open_with_backoff(self) -> None:
-        delay = self.settings.reopen_initial_s
+        backoff = Backoff(self.settings.reopen_initial_s, self.settings.reopen_max_s)
         failures = 0
         while not self.closing:
             try:
@@ -555,10 +555,9 @@ class Bus:
                 log.log(level, "bus %s: %s; retrying (attempt %d)", self.name, exc, failures)
                 # Only shutdown cuts the wait short: requests arriving meanwhile are refused
                 # (0BH) or queued, and must not turn the backoff into a retry per request.
-                until = time.monotonic() + delay * random.uniform(0.8, 1.2)
+                until = time.monotonic() + backoff.next_delay()
                 while not self.closing and (left := until - time.monotonic()) > 0:
                     await self._wait_for_work(left)
-                delay = min(delay * 2, self.settings.reopen_max_s)
                 continue
             if self.state is BusState.REOPENING:
                 self.stats.reopens += 1

@@ -12,12 +12,15 @@ from __future__ import annotations
 import random
 from dataclasses import dataclass
 
+from gateway.backoff import Backoff
+
 
 @dataclass(slots=True)
 class DriveHealth:
+    probes: Backoff
+    """The waits between probes while offline (`gateway.backoff`)."""
     consecutive_failures: int = 0
     offline: bool = False
-    probe_delay_s: float = 0.0
     next_probe_at: float = 0.0
     lost_with_line: bool = False
     """Offline because the port went, not because the drive fell silent."""
@@ -40,7 +43,11 @@ class HealthTracker:
         """How many drives are offline: none, and no probe can be due (asked per transaction)."""
 
     def _get(self, address: int) -> DriveHealth:
-        return self._drives.setdefault(address, DriveHealth())
+        health = self._drives.get(address)
+        if health is None:
+            probes = Backoff(self.probe_initial_s, self.probe_max_s, self._rng)
+            health = self._drives[address] = DriveHealth(probes)
+        return health
 
     @property
     def any_offline(self) -> bool:
@@ -66,7 +73,7 @@ class HealthTracker:
             self._offline -= 1
         health.consecutive_failures = 0
         health.offline = False
-        health.probe_delay_s = 0.0
+        health.probes.reset()
         health.lost_with_line = False
         return was_offline
 
@@ -81,7 +88,7 @@ class HealthTracker:
         if health.consecutive_failures >= self.offline_after:
             health.offline = True
             self._offline += 1
-            health.probe_delay_s = 0.0
+            health.probes.reset()
             self._schedule_probe(health, now)
             return True
         return False
@@ -98,7 +105,7 @@ class HealthTracker:
         self._offline += 1
         health.lost_with_line = True
         health.consecutive_failures = max(health.consecutive_failures, 1)
-        health.probe_delay_s = 0.0
+        health.probes.reset()
         self._schedule_probe(health, now)
         return True
 
@@ -123,14 +130,12 @@ class HealthTracker:
     def postpone_probe(self, address: int, now: float) -> None:
         """A probe is under way; don't start another before it has had its chance."""
         health = self._get(address)
-        health.next_probe_at = now + max(health.probe_delay_s, self.probe_initial_s)
+        health.next_probe_at = now + health.probes.delay_s
 
     def next_probe_at(self) -> float | None:
         times = [h.next_probe_at for h in self._drives.values() if h.offline]
         return min(times) if times else None
 
     def _schedule_probe(self, health: DriveHealth, now: float) -> None:
-        # Double the delay up to the cap, with jitter so several dead drives don't probe in step.
-        delay = health.probe_delay_s * 2 if health.probe_delay_s else self.probe_initial_s
-        health.probe_delay_s = min(delay, self.probe_max_s)
-        health.next_probe_at = now + health.probe_delay_s * self._rng.uniform(0.8, 1.0)
+        # Growing to the cap, jittered so several dead drives don't probe in step.
+        health.next_probe_at = now + health.probes.next_delay()

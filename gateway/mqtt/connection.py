@@ -3,8 +3,8 @@
 aiomqtt has no automatic reconnect; its documented pattern is a loop around `async with client`
 catching `MqttError`, which the bridge follows with a fresh client for every attempt (so no
 message received on a lost connection is ever handled after the next one). Between attempts the
-wait doubles up to a cap, with jitter, so gateways that lost one broker together don't all come
-back in the same instant.
+wait doubles up to a cap, with jitter (`gateway.backoff`), so gateways that lost one broker
+together don't all come back in the same instant.
 
 The TLS context is built once, from the files named in the configuration, and then shared by
 every attempt. A file that exists but isn't what it should be (validation only checks that it can
@@ -15,7 +15,6 @@ so a certificate put right on disk is picked up without a restart.
 from __future__ import annotations
 
 import json
-import random
 import ssl
 
 import aiomqtt
@@ -103,20 +102,3 @@ def make_client(
         timeout=CONNECT_TIMEOUT_S,
         tls_context=tls,
     )
-
-
-class Backoff:
-    def __init__(self, initial_s: float, max_s: float, rng: random.Random | None = None) -> None:
-        self.initial_s = initial_s
-        self.max_s = max_s
-        self._delay_s = initial_s
-        self._rng = rng or random.Random()
-
-    def next_delay(self) -> float:
-        """The wait before the next attempt: jittered, then doubled for the one after."""
-        delay = self._delay_s * self._rng.uniform(0.5, 1.0)
-        self._delay_s = min(self._delay_s * 2, self.max_s)
-        return delay
-
-    def reset(self) -> None:
-        self._delay_s = self.initial_s

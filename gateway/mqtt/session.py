@@ -26,13 +26,13 @@ import aiomqtt
 from paho.mqtt.reasoncodes import ReasonCode
 from paho.mqtt.subscribeoptions import SubscribeOptions
 
+from gateway.backoff import Backoff
 from gateway.errors import TlsSettingsError
 from gateway.mqtt.connection import (
     MQTT_3_1_1,
     MQTT_5,
     OFFLINE,
     ONLINE,
-    Backoff,
     make_client,
     tls_context,
 )
