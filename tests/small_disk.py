@@ -51,3 +51,22 @@ def fill(path: Path) -> int:
 def free_bytes(path: Path) -> int:
     stat = os.statvfs(path)
     return stat.f_bavail * stat.f_frsize
+
+
+@contextlib.contextmanager
+def read_only(path: Path) -> Iterator[Path]:
+    """`path` read-only for every process, root too, for as long as the block lasts: a mount
+    point remounted read-only (a disk that went read-only), a file bound read-only over itself
+    (a file the service's user may read but not write, as one restored by root)."""
+    if path.is_mount():
+        subprocess.run(["mount", "-o", "remount,ro", str(path)], check=True)
+        try:
+            yield path
+        finally:
+            subprocess.run(["mount", "-o", "remount,rw", str(path)], check=True)
+        return
+    subprocess.run(["mount", "--bind", "-o", "ro", str(path), str(path)], check=True)
+    try:
+        yield path
+    finally:
+        subprocess.run(["umount", str(path)], check=True)

@@ -119,7 +119,11 @@ class EventDatabase:
                 raise sqlite3.OperationalError(f"WAL mode refused (journal mode {mode})")
         db.execute("PRAGMA synchronous = FULL")
         self._page_size = _count(db, "PRAGMA page_size")
-        return schema.migrate(db, self.path)
+        migrated = schema.migrate(db, self.path)
+        # A write that changes nothing: a file this user may read but not write (restored as
+        # root, a read-only mount) is found now, not at the first event.
+        db.execute(f"PRAGMA user_version = {schema.version(db)}")
+        return migrated
 
     def close(self) -> None:
         if self._db is not None:

@@ -218,7 +218,8 @@ class EventStore:
         except StoreError as exc:
             self._memory_only = (
                 f"storage.path: cannot open the store ({exc}); events are kept in memory only, "
-                "a restart loses them"
+                "a restart loses them (the file and its directory must be the service user's, "
+                "on a writable disk)"
             )
             log.error("%s", self._memory_only)
             self._db.path = MEMORY
