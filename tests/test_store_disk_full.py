@@ -17,8 +17,9 @@ from pathlib import Path
 from typing import Any
 
 from gateway.app import Application
-from gateway.config import MetricsConfig, StorageConfig
+from gateway.config import ConsoleConfig, MetricsConfig, StorageConfig
 from gateway.store import EventType
+from tests.console_support import console_client
 from tests.mosquitto import MqttProbe, mqtt_probe, running_mosquitto, unique_base_topic
 from tests.mqtt_setup import mqtt_config, simulated_line
 from tests.small_disk import fill, free_bytes, small_disk
@@ -84,9 +85,14 @@ async def test_events_reach_the_broker_while_the_disk_is_full_and_are_stored_onc
             update={
                 "storage": StorageConfig(path=str(store)),  # max_mb: 64, the default
                 "metrics": MetricsConfig(enabled=True, host="127.0.0.1", port=metrics_port),
+                "console": ConsoleConfig(enabled=True, port=0, anonymous_view=True),
             }
         )
-        async with mqtt_probe(broker, topic) as probe, running_gateway(config) as app:
+        async with (
+            mqtt_probe(broker, topic) as probe,
+            running_gateway(config) as app,
+            console_client(app) as console,
+        ):
             await record(app, "before", 100)
             await eventually(lambda: len(received(probe, topic, "before")) == 100, 15)
             assert (await health(metrics_port))["status"] == "ok"
@@ -98,6 +104,8 @@ async def test_events_reach_the_broker_while_the_disk_is_full_and_are_stored_onc
             assert report["status"] == "degraded"
             assert "storage.path" in report["store"]["reason"]
             assert str(store) in report["store"]["reason"]
+            banner = (await console.get_json("/api/overview"))["store_problem"]
+            assert banner == report["store"]["reason"]  # the console's banner says it too
             metrics = await scrape(metrics_port)
             assert metrics("store_events_in_memory") == 200
             assert metrics("store_events_undelivered") == 0  # the broker has them all
@@ -107,6 +115,7 @@ async def test_events_reach_the_broker_while_the_disk_is_full_and_are_stored_onc
                 lambda: scrape_value(metrics_port, "store_events_in_memory", 0), 15, "written"
             )
             assert (await health(metrics_port))["status"] == "ok"
+            assert (await console.get_json("/api/overview"))["store_problem"] is None
             await record(app, "after", 100)
             await eventually(lambda: len(received(probe, topic, "after")) == 100, 15)
             await app.events.flush()
