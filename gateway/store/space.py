@@ -7,10 +7,12 @@ for itself to trim and checkpoint (in WAL mode even a delete is written to the l
 
     budget    what the store's files may take in all: max_mb, or what they take now plus what
               is free beyond the reserve, whichever is less
-    full      less than half the reserve is free (someone else filled the disk): nothing is
-              written, events wait in memory until space comes back. The store's own writes
-              dip into the reserve only for a moment (the log of one transaction, before the
-              trim and the checkpoint that follow it): the other half is theirs.
+    full      less than half the reserve is free (someone else filled the disk), or the budget
+              left is less than `MIN_BUDGET` (trimming a small store to nothing would give back
+              next to nothing): nothing is written, events wait in memory until space comes
+              back. The store's own writes dip into the reserve only for a moment (the log of
+              one transaction, before the trim and the checkpoint that follow it): the other
+              half is theirs.
 """
 
 from __future__ import annotations
@@ -23,6 +25,8 @@ from typing import Final
 RESERVE_FRACTION: Final = 0.05
 RESERVE_MIN: Final = 256 * 1024
 RESERVE_MAX: Final = 64 * 1024 * 1024
+MIN_BUDGET: Final = 256 * 1024
+"""Less room than this (or than max_mb, if smaller) is no room: see `full`."""
 FILE_SUFFIXES: Final = ("", "-wal", "-shm")
 """The database and what SQLite keeps beside it in WAL mode."""
 
@@ -42,7 +46,7 @@ class Room:
 
     @property
     def full(self) -> bool:
-        return self.free < self.reserve // 2
+        return self.free < self.reserve // 2 or self.budget < min(self.max_bytes, MIN_BUDGET)
 
     def why_full(self, path: str) -> str:
         return (
