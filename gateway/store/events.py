@@ -357,6 +357,8 @@ class EventStore:
             appended = await self._call(self._db.append, batch)
         except Exception as exc:  # DiskFull, sqlite3.Error, OSError: a full or failing disk
             self._write_failed(exc)
+            async with self._written:
+                self._written.notify_all()  # a flush waits no longer
             return False
         last = batch.events[-1].id if batch.events else 0
         while self._waiting and self._waiting[0].id <= last:
