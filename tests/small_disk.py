@@ -1,5 +1,6 @@
 """A small file system of its own for a store to fill: a tmpfs of a given size, mounted for the
-test and unmounted after it (the tests run as root in the container and CI)."""
+test and unmounted after it. Mounting needs root (the development container runs the tests as
+root); elsewhere these tests are skipped, and say why."""
 
 from __future__ import annotations
 
