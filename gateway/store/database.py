@@ -52,7 +52,7 @@ trim and the vacuum that follow them, before the checkpoint gives it back."""
 
 
 class DiskFull(StoreError):
-    """Less than the reserve is free on the store's disk: nothing was written."""
+    """The store's disk is full (`Room.full`): nothing was written."""
 
 
 @dataclass(slots=True)
