@@ -50,6 +50,9 @@ EXPIRE_EVERY_S: Final = 3600.0
 RETRY_WRITE_S: Final = 1.0
 WRITE_BATCH: Final = 100
 """Events written in one transaction at most: its log must fit in the disk's reserve."""
+TALLY_WRITE_S: Final = 0.5
+"""A changed tally waits this long for more changes (a SCADA writing every 100 ms is two writes
+to the disk a second, not ten): within a second in the store all the same."""
 STOP_BUDGET_S: Final = 0.4
 DROP_LOG_EVERY_S: Final = 60.0
 """A long outage past the bound drops events at every write: one log line a minute says so."""
@@ -94,6 +97,8 @@ class EventStore:
         """Ids of waiting events the broker acknowledged: written as delivered."""
         self._tallies: dict[str, NewEvent] = {}
         """Tallies changed since the last write, by key."""
+        self._tallies_since: float | None = None
+        """When the oldest unwritten change of a tally was made (monotonic)."""
         self._max_waiting = settings.max_waiting
         self._next_id = 1
         self._writes_done = 0
@@ -169,8 +174,10 @@ class EventStore:
         """A count still growing (a minute's SCADA writes) as it is now: written with the next
         write (within the second), so a killed gateway loses none of it; at the next start a
         tally left in the file becomes an event. `record(..., settles=key)` completes it."""
+        if not self._tallies:
+            self._tallies_since = time.monotonic()
+            self._queued.set()  # the writer wakes when it is due
         self._tallies[key] = NewEvent(str(type), at, data, drive)
-        self._queued.set()
 
     def record_drive_event(self, event: DriveEvent, snapshot: Telemetry | None = None) -> None:
         data: Json = {"drive": event.drive, **event.data, "time": iso_time(event.at)}
@@ -257,6 +264,9 @@ class EventStore:
 
     async def flush(self) -> None:
         """Until every event recorded so far is written (or a write failed: the disk)."""
+        if self._tallies:
+            self._tallies_since = -TALLY_WRITE_S  # due now
+            self._queued.set()
         async with self._written:
             await self._written.wait_for(
                 lambda: not (self._waiting or self._tallies) or self._cannot_write is not None
@@ -330,18 +340,22 @@ class EventStore:
     async def _write_forever(self) -> None:
         next_expiry = time.monotonic() + EXPIRE_EVERY_S
         while True:
-            if not (self._waiting or self._tallies):
-                if self._closing:
-                    return
+            due = self._due_in()
+            if due is None and self._closing:
+                return
+            if due != 0.0:
                 self._queued.clear()
+                wait_s = next_expiry - time.monotonic()
+                if due is not None:
+                    wait_s = min(wait_s, due)
                 with contextlib.suppress(TimeoutError):
-                    async with asyncio.timeout(max(0.0, next_expiry - time.monotonic())):
+                    async with asyncio.timeout(max(0.0, wait_s)):
                         await self._queued.wait()
             if time.monotonic() >= next_expiry:
                 next_expiry = time.monotonic() + EXPIRE_EVERY_S
                 await self._expire()
             await self._close_faults()
-            if not (self._waiting or self._tallies):
+            if self._due_in() != 0.0:
                 continue
             if not await self._write():
                 if self._closing:
@@ -366,6 +380,7 @@ class EventStore:
         for key, tally in batch.tallies.items():
             if self._tallies.get(key) is tally:
                 del self._tallies[key]  # not changed meanwhile
+        self._tallies_since = time.monotonic() if self._tallies else None
         self._writes_done += 1
         self.stats.stored += len(batch.events)
         if self._cannot_write is not None:
@@ -400,6 +415,14 @@ class EventStore:
         if self._executor is not None:
             # What the write-ahead log holds goes into the file and gives its space back.
             self._executor.submit(self._db.give_back).add_done_callback(_ignore)
+
+    def _due_in(self) -> float | None:
+        """Seconds until something is to be written (0.0: now), None with nothing to write."""
+        if self._waiting or (self._tallies and self._closing):
+            return 0.0
+        if self._tallies_since is None or not self._tallies:
+            return None
+        return max(0.0, self._tallies_since + TALLY_WRITE_S - time.monotonic())
 
     def _bound_reached(self, bound: int) -> str:
         if bound >= self._db.max_bytes:
