@@ -17,8 +17,9 @@ Bounds, checked after every write: the store's files (with the write-ahead log) 
 the bound the oldest events go first (then, with no event left, the oldest faults); rows older
 than `max_age_s` go at the hourly expiry. Events that go before the broker had them are counted
 as dropped; the caller logs them. Freed pages are given back to the file system (incremental
-vacuum), and the write-ahead log is checkpointed and truncated after each write, so the files
-themselves stay within the bound; a quarter of it is left for a write's log. With less than
+vacuum), and the write-ahead log is checkpointed within an eighth of the bound (truncated after
+each write while the disk is the bound), so the files themselves stay within it; a quarter of
+it is left for a write's log. With less than
 half the reserve free, nothing is written (`DiskFull`): the events wait in the caller's memory.
 
 `synchronous=FULL`: a committed event survives a power cut, not only a killed process.
@@ -260,15 +261,20 @@ class EventDatabase:
         return pages * self._page_size
 
     def _checkpoint(self, space: Room) -> None:
-        """After a write: the write-ahead log copied into the file and truncated, its space
-        given back; between writes (marks of delivery, an expiry) SQLite's own checkpoint keeps
-        it within its share of the budget."""
+        """SQLite's own checkpoint keeps the write-ahead log within its share of the budget.
+        After a write that took the log past it, or while the disk is what bounds the store,
+        the log is copied into the file and truncated at once, its space given back. (Not
+        after every write: on an SD card each checkpoint is two more syncs.)"""
         if not self.persistent:
             return
         limit = self._wal_limit(space)
         self.db.execute(f"PRAGMA wal_autocheckpoint = {limit // self._page_size}")
         self.db.execute(f"PRAGMA journal_size_limit = {limit}")
-        if os.path.exists(self.path + "-wal"):
+        try:
+            wal = os.stat(self.path + "-wal").st_size
+        except FileNotFoundError:
+            return
+        if wal > limit or (wal and space.budget < space.max_bytes):
             self.db.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchall()
 
     def _hold_size(self, bound: int) -> int:
