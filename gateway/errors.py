@@ -7,6 +7,7 @@
     ├── CannotListen            a port to serve on can't be bound: one line, exit code 1
     ├── StoreError              the event store's file can't be opened or used (names it and why):
     │                           events are kept in memory meanwhile
+    ├── StoreRefused            the store's file is a newer release's: one line, exit code 1
     ├── ServiceFailed           the service can't go on: stop with exit code 1 (systemd restarts it)
     │   ├── BusFailed           a bus's coroutine died of a bug
     │   └── FeatureFailed       a feature's background work died of a bug
@@ -220,6 +221,11 @@ class CannotListen(GatewayError):
 class StoreError(GatewayError):
     """The event store's database could not be opened or used (the message names the file and
     why): the gateway goes on, keeping events in memory."""
+
+
+class StoreRefused(GatewayError):
+    """The store's file was written by a newer release (its schema is past this release's): not
+    opened, not re-marked; the gateway doesn't start (one line, exit code 1)."""
 
 
 class MonitorError(GatewayError):

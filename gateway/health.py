@@ -5,7 +5,9 @@
 - ready: start-up is done (buses opened or retrying, Modbus-TCP listening) and no shutdown has
   begun. An offline drive or a missing adapter doesn't make the gateway unready: it still
   answers every request (0x0B for those drives) and restarting it would fix nothing. The
-  report lists them, as "degraded", for a person or an alert to act on.
+  report lists them, as "degraded", for a person or an alert to act on. So does a store that
+  can't keep events on disk (a full disk, a file it can't open): SCADA is served, but the events
+  are in memory only, where a restart loses them; `store.reason` names storage.path and why.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from enum import StrEnum
 from typing import Any
 
 from gateway.bus import Bus, BusState
+from gateway.store.status import StoreStatus
 
 
 class Phase(StrEnum):
@@ -30,6 +33,7 @@ def health_report(
     drives: Iterable[tuple[str, str, int]],
     tcp_clients: int,
     started_at: float,
+    store: StoreStatus | None = None,
 ) -> dict[str, Any]:
     """The JSON body of /health; `drives` are (drive, bus, address)."""
     per_bus: dict[str, dict[str, Any]] = {
@@ -50,9 +54,10 @@ def health_report(
         bus.state is not BusState.OPEN or report["drives_offline"]
         for bus, report in zip(buses.values(), per_bus.values(), strict=True)
     )
+    degraded = degraded or (store is not None and not store.ok)
     ready = phase is Phase.READY
     status = ("degraded" if degraded else "ok") if ready else str(phase)
-    return {
+    report: dict[str, Any] = {
         "status": status,
         "live": True,
         "ready": ready,
@@ -60,3 +65,6 @@ def health_report(
         "tcp_clients": tcp_clients,
         "buses": per_bus,
     }
+    if store is not None:
+        report["store"] = store.as_json()
+    return report

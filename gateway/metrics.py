@@ -461,6 +461,12 @@ class GatewayCollector(Collector):
             "1 when the store is on disk (storage.path), 0 when it could not be opened (memory)",
             value=1.0 if store.persistent else 0.0,
         )
+        yield GaugeMetricFamily(
+            f"{PREFIX}_store_events_in_memory",
+            "Recorded events not in storage.path yet, waiting in memory for the disk to take "
+            "them (a full or failing disk: /health says why); a restart loses them",
+            value=store.status().events_in_memory,
+        )
 
     def _access(self, access: AccessPolicy) -> CounterMetricFamily:
         denied = CounterMetricFamily(
@@ -613,7 +619,12 @@ class MetricsFeature:
         service = self.service
         drives = [(route.drive, route.bus.name, route.address) for route in service.router.routes]
         report = health_report(
-            service.phase, service.buses, drives, len(service.tcp.stats.active), self._started_at
+            service.phase,
+            service.buses,
+            drives,
+            len(service.tcp.stats.active),
+            self._started_at,
+            service.events.status(),
         )
         return {"gateway_id": service.settings.gateway_id, "version": __version__, **report}
 
@@ -718,4 +729,6 @@ _STORE_COUNTERS = {
     "events_delivered": "Events the broker acknowledged",
     "events_dropped": "Events removed before the broker had them (storage.max_mb or max_age_days)",
     "write_failures": "Writes to the store that failed (a full or failing disk); retried",
+    "events_not_stored": "Events pushed out of memory while the disk could not take them, though "
+    "the broker had them (gone from the history only)",
 }

@@ -136,8 +136,12 @@ class TcpClient:
         self._next_tid = 1
 
     @classmethod
-    async def connect(cls, port: int, host: str = "127.0.0.1") -> TcpClient:
-        reader, writer = await asyncio.open_connection(host, port)
+    async def connect(
+        cls, port: int, host: str = "127.0.0.1", source: str | None = None
+    ) -> TcpClient:
+        """`source`: the address to connect from (another loopback address: another client)."""
+        local = None if source is None else (source, 0)
+        reader, writer = await asyncio.open_connection(host, port, local_addr=local)
         return cls(reader, writer)
 
     def send(self, unit_id: int, pdu: bytes, transaction_id: int | None = None) -> int:

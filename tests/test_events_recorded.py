@@ -1,16 +1,32 @@
 """What else becomes an event in the store: SCADA's writes, tallied per client, unit id and
-minute; a bus's port lost and back."""
+minute (through a SIGKILL too); a bus's port lost and back."""
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import json
+import signal
+import sqlite3
 import struct
+import time
+from collections import Counter
 from pathlib import Path
+from typing import Any
 
 from gateway.instruments.simulator import SimulatedLine
 from gateway.profile.invt import STATE_WORD_1
 from gateway.store import EventType
-from tests.support import TcpClient, gateway_config, read_pdu, running_gateway, write_pdu
+from tests.mqtt_setup import simulated_line
+from tests.processes import gateway_process
+from tests.support import (
+    TcpClient,
+    free_port,
+    gateway_config,
+    read_pdu,
+    running_gateway,
+    write_pdu,
+)
 
 DRIVES = [{"name": "pump1", "address": 1}, {"name": "fan2", "address": 2}]
 FREQUENCY_SETPOINT = 0x2001
@@ -49,6 +65,54 @@ async def test_scada_writes_are_one_event_per_client_unit_and_minute(
         assert data["functions"] == ["06"]
         assert data["from"] <= data["to"]
     assert [d["writes"] for d in fan] == [1]
+
+
+def writes_in_store(store: Path) -> Counter[str]:
+    """SCADA writes per client, as an operator's sqlite3 reads them from the store's events."""
+    with contextlib.closing(sqlite3.connect(f"file:{store}?mode=ro", uri=True)) as db:
+        rows = db.execute("SELECT data FROM events WHERE type = 'modbus_writes'").fetchall()
+    writes: Counter[str] = Counter()
+    for (data,) in rows:
+        event = json.loads(data)
+        writes[event["client"]] += event["writes"]
+    return writes
+
+
+def file_config(line_path: str, tcp_port: int, store: Path) -> dict[str, Any]:
+    return {
+        "gateway_id": "audit",
+        "modbus_tcp": {"host": "127.0.0.1", "port": tcp_port},
+        "buses": [{"name": "line1", "port": line_path, "baudrate": 115200, "parity": "E"}],
+        "drives": [{"bus": "line1", "name": "pump1", "address": 1, "model": "gd350"}],
+        "storage": {"path": str(store)},
+    }
+
+
+async def test_scada_writes_of_the_minute_survive_a_sigkill(tmp_path: Path) -> None:
+    store = tmp_path / "events.db"
+    clients = [f"127.0.0.{n}" for n in range(2, 7)]
+    if time.time() % 60 > 45:
+        await asyncio.sleep(60 - time.time() % 60)  # the writes and the kill in one minute
+    with simulated_line((1,)) as line:
+        config = file_config(line.path, free_port(), store)
+        with gateway_process(config, tmp_path) as gateway:
+            gateway.wait_ready()
+            port = config["modbus_tcp"]["port"]
+            for source in clients:  # two set-points from each of five SCADA hosts
+                client = await TcpClient.connect(port, source=source)
+                try:
+                    for value in (1000, 1500):
+                        reply = await client.request(1, write_pdu(FREQUENCY_SETPOINT, value))
+                        assert reply == write_pdu(FREQUENCY_SETPOINT, value)
+                finally:
+                    await client.close()
+            await asyncio.sleep(1.0)  # what is tallied is in the store within a second
+            gateway.signal(signal.SIGKILL)  # in the same minute: no tally was complete
+            assert gateway.wait(5) == -signal.SIGKILL
+        with gateway_process(config, tmp_path) as gateway:
+            gateway.wait_ready()
+            writes = writes_in_store(store)
+    assert writes == dict.fromkeys(clients, 2)
 
 
 async def test_a_port_lost_and_back_are_events(line_link: tuple[SimulatedLine, Path]) -> None:

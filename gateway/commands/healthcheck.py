@@ -3,11 +3,17 @@
 For Docker's HEALTHCHECK (the slim image has no curl): asks /health on the metrics port of the
 configuration's gateway. With metrics disabled it checks that the Modbus-TCP port accepts a
 connection instead, which still tells a stuck or dead gateway from a working one.
+
+Exit 1 too while the store can't keep events on disk (storage.path can't be opened or written:
+the events are in memory only, a restart loses them), with the reason on stderr: "healthy" must
+not hide that. An offline drive or a lost port stays exit 0 (degraded in the report): the
+gateway serves all it can, and no restart brings a drive back.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import socket
 import sys
 import urllib.error
@@ -45,8 +51,13 @@ def handle(args: argparse.Namespace) -> int:
         url = f"http://{host}:{config.metrics.port}/health"
         try:
             with urllib.request.urlopen(url, timeout=args.timeout) as response:
-                print(response.read().decode(errors="replace").strip())
-                return EXIT_OK
+                body = response.read().decode(errors="replace").strip()
+            print(body)
+            problem = store_problem(body)
+            if problem is not None:
+                print(f"store: {problem}", file=sys.stderr)
+                return EXIT_FAILURE
+            return EXIT_OK
         except urllib.error.HTTPError as exc:  # 503: starting or stopping
             print(f"{url}: {exc.code} {exc.read().decode(errors='replace').strip()}")
             return EXIT_FAILURE
@@ -62,3 +73,14 @@ def handle(args: argparse.Namespace) -> int:
     except OSError as exc:
         print(f"Modbus-TCP {address[0]}:{address[1]}: {exc}", file=sys.stderr)
         return EXIT_FAILURE
+
+
+def store_problem(body: str) -> str | None:
+    """Why the store keeps events in memory only, from a /health report; None if it doesn't."""
+    try:
+        store = json.loads(body).get("store") or {}
+    except (ValueError, AttributeError):
+        return None
+    if store.get("state", "writing") == "writing":
+        return None
+    return str(store.get("reason") or store.get("state"))

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from gateway.app import Application
 from gateway.cli import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
 from gateway.config import GatewayConfig, load_config
-from gateway.errors import BusFailed, CannotListen, ConfigError, FeatureFailed
+from gateway.errors import BusFailed, CannotListen, ConfigError, FeatureFailed, StoreRefused
 from gateway.event_loop import EventLoopChoice, choose_event_loop
 from gateway.event_loop import run as run_on_loop
 from gateway.health import Phase
@@ -126,9 +126,10 @@ async def serve(
         log.error("cannot start: %s", exc)
         return EXIT_FAILURE
     except ExceptionGroup as group:
-        unbound = group.subgroup(CannotListen)
+        unbound = group.subgroup((CannotListen, StoreRefused))
         if unbound is not None:
-            # A port taken or a wrong address: one line that says which and why, no traceback.
+            # A port taken or a wrong address, a store of a newer release: one line that says
+            # which and why, no traceback.
             log.error("cannot start: %s", unbound.exceptions[0])
             return EXIT_FAILURE
         failed = group.subgroup((BusFailed, FeatureFailed))

@@ -16,6 +16,7 @@ from typing import Any, Protocol
 
 from gateway.poller.drive_state import iso_time
 from gateway.store.records import FaultRecord, StoredEvent
+from gateway.store.status import StoreStatus
 
 MEMORY_EVENTS = 2000
 
@@ -53,6 +54,10 @@ class EventStore(Protocol):
         """The faults recorded for `drive` (raised, cleared, duration, snapshot), newest first;
         empty where nothing keeps them."""
 
+    def store_problem(self) -> str | None:
+        """Why events are not kept on disk now (the console's banner); None when they are, or
+        where nothing was meant to keep them."""
+
 
 class MemoryEventStore:
     def __init__(self, size: int = MEMORY_EVENTS) -> None:
@@ -76,6 +81,9 @@ class MemoryEventStore:
     async def recorded_faults(self, drive: str, limit: int) -> list[dict[str, Any]]:
         return []
 
+    def store_problem(self) -> str | None:
+        return None
+
 
 class Recorder(Protocol):
     """The gateway's persistent event store (`gateway.store.EventStore`), as far as used here."""
@@ -85,6 +93,8 @@ class Recorder(Protocol):
     async def recent_events(self, limit: int, drive: str | None = None) -> list[StoredEvent]: ...
 
     async def fault_history(self, drive: str, limit: int) -> list[FaultRecord]: ...
+
+    def status(self) -> StoreStatus: ...
 
 
 class ConsoleEventsRecorded(MemoryEventStore):
@@ -122,6 +132,9 @@ class ConsoleEventsRecorded(MemoryEventStore):
 
     async def recorded_faults(self, drive: str, limit: int) -> list[dict[str, Any]]:
         return [fault.as_json() for fault in await self._store.fault_history(drive, limit)]
+
+    def store_problem(self) -> str | None:
+        return self._store.status().reason
 
 
 def console_event(event: StoredEvent) -> GatewayEvent:

@@ -164,6 +164,7 @@ class LiveState:
             "time": iso_time(time.time()),
             "buses": [self.bus_view(name) for name in self.buses],
             "drives": [self.drive_view(name) for name in self.drives],
+            "store_problem": self.events.store_problem(),
         }
 
     def bus_view(self, name: str) -> dict[str, Any]:

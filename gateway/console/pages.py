@@ -64,6 +64,7 @@ def page(
 
 OVERVIEW = """
 <h1>Overview <span id="live" class="live">connecting…</span></h1>
+<p id="store-banner" class="banner" role="alert" hidden></p>
 <section>
 <h2>Buses</h2>
 <table id="buses" class="grid">

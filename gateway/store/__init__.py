@@ -1,10 +1,14 @@
 """The local store: nothing a plant must know of is lost to a broker outage or a restart.
 
 - `records`: what is kept (an event with its id and original time; a fault with its snapshot);
+- `schema`: the tables as numbered migrations, applied on open; a newer release's file refused;
+- `space`: how much of its disk the store may take (max_mb, and a reserve left free);
 - `database`: the SQLite file (WAL mode), its bounds, its queries; used only from the store's
   own thread;
 - `events`: the `EventStore` the rest of the gateway talks to, on the event loop: `record`
-  returns at once; writing, reading and trimming run on the store's one thread;
+  returns at once; writing, reading and trimming run on the store's one thread; what the disk
+  can't take waits in memory and goes to the broker from there;
+- `status`: whether events are kept on disk now, for /health, `healthcheck` and the console;
 - `modbus_writes`: SCADA writes counted per client, unit id and minute, one event each.
 """
 

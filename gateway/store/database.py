@@ -1,18 +1,26 @@
 """The store's SQLite database: one file in WAL mode, bounded in size and age.
 
 Used only from the store's own thread (`gateway.store.events`): every call here blocks on the
-disk. Tables:
+disk. Tables (their migrations in `gateway.store.schema`):
 
-    events   id (AUTOINCREMENT: never reused, so strictly increasing across restarts and
-             trims), type, time, drive, data (JSON), delivered (0 until the broker has it)
+    events   id (given by the store when the event is recorded, never reused: strictly
+             increasing across restarts and trims), type, time, drive, data (JSON), delivered
+             (0 until the broker has it)
     faults   one row per fault of a drive: code, name, description, raised, cleared, and the
              snapshot of its running values when it was raised
+    tallies  counts still growing (a minute's SCADA writes), one row each, rewritten as they
+             grow; each becomes an event once complete, in the same transaction (or at the next
+             start, after a kill)
 
-Bounds, checked after every write: past `max_bytes` in use, the oldest events go first (then, with
-no event left, the oldest faults); rows older than `max_age_s` go at the hourly expiry. Events
-that go before the broker had them are counted as dropped; the caller logs them. Freed pages are
-given back to the file system (incremental vacuum), so the file itself stays within the bound;
-the write-ahead log beside it is checkpointed and truncated at a quarter of the bound.
+Bounds, checked after every write: the store's files (with the write-ahead log) stay within
+`max_bytes` and within what the disk has, leaving a reserve free (`gateway.store.space`). Past
+the bound the oldest events go first (then, with no event left, the oldest faults); rows older
+than `max_age_s` go at the hourly expiry. Events that go before the broker had them are counted
+as dropped; the caller logs them. Freed pages are given back to the file system (incremental
+vacuum), and the write-ahead log is checkpointed within an eighth of the bound (truncated after
+each write while the disk is the bound), so the files themselves stay within it; a quarter of
+it is left for a write's log. With less than
+half the reserve free, nothing is written (`DiskFull`): the events wait in the caller's memory.
 
 `synchronous=FULL`: a committed event survives a power cut, not only a killed process.
 """
@@ -20,51 +28,51 @@ the write-ahead log beside it is checkpointed and truncated at a quarter of the 
 from __future__ import annotations
 
 import json
+import os
 import sqlite3
-from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
 from gateway.errors import StoreError
+from gateway.store import schema
 from gateway.store.records import EventType, FaultRecord, NewEvent, StoredEvent
+from gateway.store.space import Room, room
 
 MEMORY: Final = ":memory:"
-SCHEMA_VERSION: Final = 1
 TRIM_FRACTION: Final = 16
 """Past the size bound, this fraction of the events (at least one) goes per step."""
-MIN_WAL_PAGES: Final = 16
+MIN_WAL_PAGES: Final = 4
+MAX_WAL_PAGES: Final = 1000
+WAL_FRACTION: Final = 8
+"""Between two writes, SQLite checkpoints the write-ahead log past this fraction of the budget."""
+HEADROOM_FRACTION: Final = 4
+"""The database keeps this fraction of the budget free for a write's log: the new events, the
+trim and the vacuum that follow them, before the checkpoint gives it back."""
 
-SCHEMA: Final = """
-CREATE TABLE IF NOT EXISTS events (
-    id INTEGER PRIMARY KEY AUTOINCREMENT,
-    type TEXT NOT NULL,
-    time REAL NOT NULL,
-    drive TEXT,
-    data TEXT NOT NULL,
-    delivered INTEGER NOT NULL DEFAULT 0
-);
-CREATE INDEX IF NOT EXISTS events_undelivered ON events (id) WHERE delivered = 0;
-CREATE INDEX IF NOT EXISTS events_by_drive ON events (drive, id);
-CREATE TABLE IF NOT EXISTS faults (
-    id INTEGER PRIMARY KEY AUTOINCREMENT,
-    drive TEXT NOT NULL,
-    code INTEGER NOT NULL,
-    name TEXT NOT NULL,
-    description TEXT NOT NULL,
-    raised REAL NOT NULL,
-    cleared REAL,
-    snapshot TEXT NOT NULL
-);
-CREATE INDEX IF NOT EXISTS faults_by_drive ON faults (drive, id);
-"""
+
+class DiskFull(StoreError):
+    """The store's disk is full (`Room.full`): nothing was written."""
+
+
+@dataclass(slots=True)
+class Batch:
+    """What the writer takes in one transaction."""
+
+    events: Sequence[NewEvent] = ()
+    delivered: frozenset[int] = frozenset()
+    """Ids of `events` the broker has already (published from memory): stored as delivered."""
+    tallies: Mapping[str, NewEvent] = field(default_factory=dict)
+    """Tallies to keep as they are now, by key."""
 
 
 @dataclass(frozen=True, slots=True)
 class Appended:
-    events: list[StoredEvent]
     dropped: int
     """Events removed by the size bound before the broker had them."""
+    bound: int
+    """What the store's files may take: max_mb, or less when the disk has less."""
 
 
 class EventDatabase:
@@ -75,6 +83,7 @@ class EventDatabase:
         self.forwarding = forwarding
         """False without MQTT: events are kept for their history, nobody waits for them."""
         self._db: sqlite3.Connection | None = None
+        self._page_size = 4096
 
     @property
     def persistent(self) -> bool:
@@ -82,7 +91,8 @@ class EventDatabase:
 
     # -- opening and closing -------------------------------------------------------------------
 
-    def open(self) -> None:
+    def open(self) -> list[int]:
+        """Open (or create) the file and bring its schema up to date; the migrations that ran."""
         try:
             if self.persistent:
                 Path(self.path).parent.mkdir(parents=True, exist_ok=True)
@@ -90,15 +100,18 @@ class EventDatabase:
         except (OSError, sqlite3.Error) as exc:
             raise StoreError(f"{self.path}: {exc}") from exc
         try:
-            self._set_up(db)
+            migrated = self._set_up(db)
         except sqlite3.Error as exc:
             db.close()
             raise StoreError(f"{self.path}: {exc}") from exc
+        except BaseException:
+            db.close()
+            raise
         self._db = db
+        return migrated
 
-    def _set_up(self, db: sqlite3.Connection) -> None:
-        new = db.execute("PRAGMA user_version").fetchone()[0] == 0
-        if new:
+    def _set_up(self, db: sqlite3.Connection) -> list[int]:
+        if schema.version(db) == 0:
             # Only before the first table: lets deletes give pages back to the file system.
             db.execute("PRAGMA auto_vacuum = INCREMENTAL")
         if self.persistent:
@@ -106,12 +119,12 @@ class EventDatabase:
             if str(mode).lower() != "wal":
                 raise sqlite3.OperationalError(f"WAL mode refused (journal mode {mode})")
         db.execute("PRAGMA synchronous = FULL")
-        page_size = db.execute("PRAGMA page_size").fetchone()[0]
-        wal_pages = max(MIN_WAL_PAGES, min(1000, self.max_bytes // page_size // 4))
-        db.execute(f"PRAGMA wal_autocheckpoint = {wal_pages}")
-        db.execute(f"PRAGMA journal_size_limit = {wal_pages * page_size}")
-        db.executescript(SCHEMA)
-        db.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
+        self._page_size = _count(db, "PRAGMA page_size")
+        migrated = schema.migrate(db, self.path)
+        # A write that changes nothing: a file this user may read but not write (restored as
+        # root, a read-only mount) is found now, not at the first event.
+        db.execute(f"PRAGMA user_version = {schema.version(db)}")
+        return migrated
 
     def close(self) -> None:
         if self._db is not None:
@@ -124,24 +137,68 @@ class EventDatabase:
             raise StoreError(f"{self.path}: not open")
         return self._db
 
-    # -- writing -------------------------------------------------------------------------------
+    def next_id(self) -> int:
+        """The id the next event gets: past every id this file ever gave (trimmed ones too)."""
+        sequence = self.db.execute("SELECT seq FROM sqlite_sequence WHERE name = 'events'")
+        row = sequence.fetchone()
+        newest = _count(self.db, "SELECT coalesce(max(id), 0) FROM events")
+        return max(newest, row[0] if row else 0) + 1
 
-    def append(self, events: Sequence[NewEvent]) -> Appended:
-        """Store `events` in one transaction (with their faults); then hold the size bound."""
+    def settle_tallies(self) -> int:
+        """Tallies left by a run that was killed become events (their ids from the file);
+        how many."""
         db = self.db
-        stored = []
         delivered = 0 if self.forwarding else 1
         with _transaction(db):
-            for event in events:
-                cursor = db.execute(
-                    "INSERT INTO events (type, time, drive, data, delivered) "
+            cursor = db.execute(
+                "INSERT INTO events (type, time, drive, data, delivered) "
+                "SELECT type, time, drive, data, ? FROM tallies ORDER BY time, key",
+                (delivered,),
+            )
+            db.execute("DELETE FROM tallies")
+        return max(0, cursor.rowcount)
+
+    # -- writing -------------------------------------------------------------------------------
+
+    def append(self, batch: Batch) -> Appended:
+        """Store `batch` in one transaction (events with their faults, tallies); then hold the
+        size bound. Raises `DiskFull` (nothing written) when the disk has less than the reserve."""
+        space = self.room()
+        if space.full:
+            raise DiskFull(space.why_full(self.path))
+        db = self.db
+        undelivered = 0 if self.forwarding else 1
+        with _transaction(db):
+            for key, tally in batch.tallies.items():
+                db.execute(
+                    "INSERT OR REPLACE INTO tallies (key, type, time, drive, data) "
                     "VALUES (?, ?, ?, ?, ?)",
-                    (event.type, event.time, event.drive, _dump(event.data), delivered),
+                    (key, tally.type, tally.time, tally.drive, _dump(tally.data)),
                 )
-                assert cursor.lastrowid is not None
-                stored.append(StoredEvent(cursor.lastrowid, event.type, event.time, event.data))
+            for event in batch.events:
+                delivered = 1 if event.id in batch.delivered else undelivered
+                db.execute(
+                    "INSERT INTO events (id, type, time, drive, data, delivered) "
+                    "VALUES (?, ?, ?, ?, ?, ?)",
+                    (event.id, event.type, event.time, event.drive, _dump(event.data), delivered),
+                )
+                if event.settles is not None:
+                    db.execute("DELETE FROM tallies WHERE key = ?", (event.settles,))
                 self._fault_history(event)
-        return Appended(stored, self._hold_size())
+        bound = space.budget - space.budget // HEADROOM_FRACTION
+        dropped = self._hold_size(bound)
+        self._checkpoint(space)
+        return Appended(dropped, space.budget)
+
+    def room(self) -> Room:
+        if not self.persistent:
+            return Room(0, self.max_bytes, 0, self.max_bytes)
+        return room(self.path, self.max_bytes)
+
+    def give_back(self) -> None:
+        """The disk is full: give the write-ahead log's space back (as far as it goes)."""
+        if self.persistent:
+            self.db.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchall()
 
     def close_open_faults(self, drive: str, at: float) -> int:
         """The drive shows no fault: a fault still open in its history cleared while the gateway
@@ -197,11 +254,34 @@ class EventDatabase:
         elif event.type == EventType.FAULT_CLEARED and open_row is not None:
             self.db.execute("UPDATE faults SET cleared = ? WHERE id = ?", (event.time, open_row[0]))
 
-    def _hold_size(self) -> int:
-        """Trim the oldest rows until the file is within `max_bytes`; undelivered dropped."""
+    def _wal_limit(self, space: Room) -> int:
+        pages = max(
+            MIN_WAL_PAGES, min(MAX_WAL_PAGES, space.budget // WAL_FRACTION // self._page_size)
+        )
+        return pages * self._page_size
+
+    def _checkpoint(self, space: Room) -> None:
+        """SQLite's own checkpoint keeps the write-ahead log within its share of the budget.
+        After a write that took the log past it, or while the disk is what bounds the store,
+        the log is copied into the file and truncated at once, its space given back. (Not
+        after every write: on an SD card each checkpoint is two more syncs.)"""
+        if not self.persistent:
+            return
+        limit = self._wal_limit(space)
+        self.db.execute(f"PRAGMA wal_autocheckpoint = {limit // self._page_size}")
+        self.db.execute(f"PRAGMA journal_size_limit = {limit}")
+        try:
+            wal = os.stat(self.path + "-wal").st_size
+        except FileNotFoundError:
+            return
+        if wal > limit or (wal and space.budget < space.max_bytes):
+            self.db.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchall()
+
+    def _hold_size(self, bound: int) -> int:
+        """Trim the oldest rows until the file is within `bound`; undelivered dropped."""
         db = self.db
         dropped = 0
-        while self.file_bytes() > self.max_bytes:
+        while self.file_bytes() > bound:
             free = _count(db, "PRAGMA freelist_count")
             if free:
                 # Pages freed by the last trim (or an expiry) go back to the file system first.
@@ -271,7 +351,10 @@ class _transaction:
         self.db.execute("BEGIN IMMEDIATE")
 
     def __exit__(self, kind: type[BaseException] | None, *rest: object) -> None:
-        self.db.execute("COMMIT" if kind is None else "ROLLBACK")
+        if kind is None:
+            self.db.execute("COMMIT")
+        elif self.db.in_transaction:  # SQLite rolls back by itself on some errors (a full disk)
+            self.db.execute("ROLLBACK")
 
 
 def _count(db: sqlite3.Connection, sql: str, *args: Any) -> int:

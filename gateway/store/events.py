@@ -1,37 +1,46 @@
 """The event store as the gateway uses it: record at once, write on the store's own thread.
 
     record     from anywhere on the event loop (poller, buses, commands, reload): the event gets
-               its time now and waits in memory (bounded) for the writer; returns at once
+               its time and its id now and waits in memory (bounded) for the writer; returns at
+               once
     writer     one task: takes what waits, writes it in one transaction on the store's thread
                (never on the event loop), holds the size bound, wakes whoever waits for events
     forwarding the MQTT bridge reads what the broker doesn't have yet, in id order, publishes it
                (QoS 1: acknowledged) and then marks it delivered; after a restart whatever was
                not marked goes out again (consumers de-duplicate by `id`)
+    tallies    `keep_tally`: a count still growing, written as it grows; the event that
+               completes it (`record(..., settles=key)`) replaces it in the same transaction
     reading    `recent_events` and `fault_history`, for MQTT requests and the console
 
-A store that can't be opened (a read-only disk, a corrupt file) must not keep the gateway from
-serving SCADA: it says so loudly, once, and keeps the events in memory (`persistent` is False, a
-metric shows it), where they still wait out a broker outage but not a restart.
+A disk that is full or failing must not cost the plant its events: what can't be written waits
+in memory (at most `max_waiting`, the oldest dropped and counted past it) and goes to the broker
+from there, with the id it will have in the file; the writer tries again every second and writes
+it, marked delivered where the broker has it, once the disk takes it. A store that can't be
+opened (a file of another user, a read-only disk, a damaged file) must not keep the gateway from
+serving SCADA either: it says so loudly and keeps the events in memory (`persistent` is False).
+Both show in `status()`: /health degraded, naming storage.path, and the console's banner.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import logging
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from typing import Final, TypeVar
 
-from gateway.errors import StoreError
+from gateway.errors import StoreError, StoreRefused
 from gateway.poller.drive_state import DriveEvent, EventKind, iso_time
 from gateway.profile.telemetry import Telemetry
 from gateway.settings import StoreSettings
-from gateway.store.database import MEMORY, EventDatabase
+from gateway.store.database import MEMORY, Batch, DiskFull, EventDatabase
 from gateway.store.records import EventType, FaultRecord, Json, NewEvent, StoredEvent
+from gateway.store.status import StoreState, StoreStatus
 from gateway.tasks import ServiceTasks, cancel_and_wait
 
 log = logging.getLogger(__name__)
@@ -39,6 +48,11 @@ T = TypeVar("T")
 
 EXPIRE_EVERY_S: Final = 3600.0
 RETRY_WRITE_S: Final = 1.0
+WRITE_BATCH: Final = 100
+"""Events written in one transaction at most: its log must fit in the disk's reserve."""
+TALLY_WRITE_S: Final = 0.5
+"""A changed tally waits this long for more changes (a SCADA writing every 100 ms is two writes
+to the disk a second, not ten): within a second in the store all the same."""
 STOP_BUDGET_S: Final = 0.4
 DROP_LOG_EVERY_S: Final = 60.0
 """A long outage past the bound drops events at every write: one log line a minute says so."""
@@ -56,8 +70,11 @@ class StoreStats:
     """Events removed (size or age bound, or memory while the disk failed) before the broker
     had them."""
     write_failures: int = 0
+    events_not_stored: int = 0
+    """Events pushed out of memory while the disk could not take them, though the broker had
+    them: gone from the history only."""
     undelivered: int = 0
-    """Stored, and not yet acknowledged by the broker."""
+    """Recorded (on disk or waiting in memory), and not yet acknowledged by the broker."""
 
 
 class EventStore:
@@ -75,7 +92,21 @@ class EventStore:
             settings.forwarding,
         )
         self._waiting: deque[NewEvent] = deque()
+        """Recorded, not in the file yet: oldest first, ids increasing."""
+        self._sent_from_memory: set[int] = set()
+        """Ids of waiting events the broker acknowledged: written as delivered."""
+        self._tallies: dict[str, NewEvent] = {}
+        """Tallies changed since the last write, by key."""
+        self._tallies_since: float | None = None
+        """When the oldest unwritten change of a tally was made (monotonic)."""
         self._max_waiting = settings.max_waiting
+        self._next_id = 1
+        self._writes_done = 0
+        """Counts the writes finished: a read of the file that a write overtook is read again."""
+        self._memory_only: str | None = None
+        """Why storage.path could not be opened (the events are in memory only)."""
+        self._cannot_write: str | None = None
+        """Why the last write failed (a full or failing disk); None while writing."""
         self._queued = asyncio.Event()
         self._stored = asyncio.Event()
         self._written = asyncio.Condition()
@@ -100,6 +131,15 @@ class EventStore:
     def persistent(self) -> bool:
         return self._db.persistent
 
+    def status(self) -> StoreStatus:
+        if self._memory_only is not None:
+            state, reason = StoreState.MEMORY_ONLY, self._memory_only
+        elif self._cannot_write is not None:
+            state, reason = StoreState.CANNOT_WRITE, self._cannot_write
+        else:
+            state, reason = StoreState.WRITING, None
+        return StoreStatus(state, self.path, reason, len(self._waiting))
+
     # -- recording: on the event loop, returns at once ------------------------------------------
 
     def record(
@@ -110,14 +150,34 @@ class EventStore:
         drive: str | None = None,
         at: float | None = None,
         snapshot: Json | None = None,
+        settles: str | None = None,
     ) -> None:
+        """`settles`: the key of the tally (`keep_tally`) this event completes."""
         self.stats.events_recorded += 1
-        event = NewEvent(str(type), time.time() if at is None else at, data, drive, snapshot)
+        at = time.time() if at is None else at
+        event = NewEvent(str(type), at, data, drive, snapshot, self._take_id(), settles)
         self._waiting.append(event)
+        if self._db.forwarding:
+            self.stats.undelivered += 1
+        if settles is not None:
+            self._tallies.pop(settles, None)
         while len(self._waiting) > self._max_waiting:
-            self._waiting.popleft()  # the disk is failing: the newest tell the current story
-            self._dropped(1, "in memory while the store could not be written", stored=False)
+            # The disk is failing: the newest tell the current story.
+            self._forget(self._waiting.popleft())
         self._queued.set()
+        if self._cannot_write is not None:
+            self._stored.set()  # not in the file soon: the broker gets it from memory
+
+    def keep_tally(
+        self, key: str, type: str, data: Json, *, drive: str | None = None, at: float
+    ) -> None:
+        """A count still growing (a minute's SCADA writes) as it is now: written with the next
+        write (within the second), so a killed gateway loses none of it; at the next start a
+        tally left in the file becomes an event. `record(..., settles=key)` completes it."""
+        if not self._tallies:
+            self._tallies_since = time.monotonic()
+            self._queued.set()  # the writer wakes when it is due
+        self._tallies[key] = NewEvent(str(type), at, data, drive)
 
     def record_drive_event(self, event: DriveEvent, snapshot: Telemetry | None = None) -> None:
         data: Json = {"drive": event.drive, **event.data, "time": iso_time(event.at)}
@@ -157,16 +217,29 @@ class EventStore:
     async def start(self) -> None:
         self._executor = ThreadPoolExecutor(1, thread_name_prefix="store")
         try:
-            await self._call(self._db.open)
+            migrated = await self._call(self._db.open)
+        except StoreRefused:
+            self._executor.shutdown(wait=False)
+            self._executor = None
+            raise
         except StoreError as exc:
-            log.error(
-                "storage.path: cannot open the store (%s); events are kept in memory only, "
-                "a restart loses them",
-                exc,
+            self._memory_only = (
+                f"storage.path: cannot open the store ({exc}); events are kept in memory only, "
+                "a restart loses them (the file and its directory must be the service user's, "
+                "on a writable disk)"
             )
+            log.error("%s", self._memory_only)
             self._db.path = MEMORY
-            await self._call(self._db.open)
-        self.stats.undelivered = await self._call(self._db.undelivered_count)
+            migrated = await self._call(self._db.open)
+        if self.persistent and migrated and migrated[0] > 1:
+            log.info("store %s: schema migrated to %d (ran %s)", self.path, migrated[-1], migrated)
+        settled = await self._call(self._db.settle_tallies)
+        if settled:
+            log.info("store %s: %d tallies left by the last run recorded", self.path, settled)
+        self._renumber(await self._call(self._db.next_id))
+        self.stats.undelivered = await self._call(self._db.undelivered_count) + (
+            len(self._waiting) if self._db.forwarding else 0
+        )
         dropped = await self._call(self._db.expire, time.time())
         self._dropped(dropped, f"older than storage.max_age_days ({self.settings.max_age_days:g})")
         if self.stats.undelivered:
@@ -190,16 +263,35 @@ class EventStore:
             self._executor = None
 
     async def flush(self) -> None:
-        """Until every event recorded so far is written (or dropped, the disk failing)."""
+        """Until every event recorded so far is written (or a write failed: the disk)."""
+        if self._tallies:
+            self._tallies_since = -TALLY_WRITE_S  # due now
+            self._queued.set()
         async with self._written:
-            await self._written.wait_for(lambda: not self._waiting)
+            await self._written.wait_for(
+                lambda: not (self._waiting or self._tallies) or self._cannot_write is not None
+            )
 
     # -- forwarding: the MQTT bridge's side ----------------------------------------------------
 
     async def undelivered(self, limit: int) -> list[StoredEvent]:
-        """The oldest events the broker has not acknowledged yet, in id order."""
+        """The oldest events the broker has not acknowledged yet, in id order: from the file,
+        then those waiting in memory (a disk that can't take them)."""
         self._stored.clear()  # before reading: a write finishing after it wakes `wait_stored`
-        return await self._call(self._db.undelivered, self._delivered_up_to, limit)
+        while True:
+            writes = self._writes_done
+            events = await self._call(self._db.undelivered, self._delivered_up_to, limit)
+            if writes == self._writes_done:
+                break  # what waits in memory now is what the file didn't have
+            if events:
+                return events  # a write ended meanwhile: the rest comes from the file next time
+        if len(events) < limit and self._db.forwarding:
+            after = max(self._delivered_up_to, events[-1].id if events else 0)
+            events += [
+                event.stored()
+                for event in itertools.islice(self._unsent_waiting(after), limit - len(events))
+            ]
+        return events
 
     async def wait_stored(self, timeout_s: float) -> None:
         with contextlib.suppress(TimeoutError):
@@ -214,6 +306,9 @@ class EventStore:
         self._delivered_up_to = max(self._delivered_up_to, *ids)
         self.stats.events_delivered += len(ids)
         self.stats.undelivered = max(0, self.stats.undelivered - len(ids))
+        if self._waiting:
+            first = self._waiting[0].id  # ids from it on, delivered: sent from memory
+            self._sent_from_memory.update(i for i in ids if i >= first)
         if self._executor is not None:
             self._executor.submit(self._db.mark_delivered, ids).add_done_callback(_log_failure)
 
@@ -244,45 +339,118 @@ class EventStore:
 
     async def _write_forever(self) -> None:
         next_expiry = time.monotonic() + EXPIRE_EVERY_S
-        failures = 0
         while True:
-            if not self._waiting:
-                if self._closing:
-                    return
+            due = self._due_in()
+            if due is None and self._closing:
+                return
+            if due != 0.0:
                 self._queued.clear()
+                wait_s = next_expiry - time.monotonic()
+                if due is not None:
+                    wait_s = min(wait_s, due)
                 with contextlib.suppress(TimeoutError):
-                    async with asyncio.timeout(max(0.0, next_expiry - time.monotonic())):
+                    async with asyncio.timeout(max(0.0, wait_s)):
                         await self._queued.wait()
             if time.monotonic() >= next_expiry:
                 next_expiry = time.monotonic() + EXPIRE_EVERY_S
                 await self._expire()
             await self._close_faults()
-            if not self._waiting:
+            if self._due_in() != 0.0:
                 continue
-            batch = list(self._waiting)
-            try:
-                appended = await self._call(self._db.append, batch)
-            except Exception as exc:  # sqlite3.Error, OSError: a full or failing disk
-                failures += 1
-                self.stats.write_failures += 1
-                level = logging.ERROR if failures == 1 else logging.DEBUG
-                log.log(level, "store %s: cannot write events: %s; retrying", self.path, exc)
+            if not await self._write():
                 if self._closing:
+                    log.error("store: %d events not written at stop", len(self._waiting))
                     return
                 await asyncio.sleep(RETRY_WRITE_S)
-                continue
-            if failures:
-                log.info("store %s: writing again after %d failures", self.path, failures)
-                failures = 0
-            for _ in batch:
-                self._waiting.popleft()  # only now: a failed write keeps them waiting
-            self.stats.stored += len(batch)
-            if self._db.forwarding:
-                self.stats.undelivered += len(batch)
-            self._dropped(appended.dropped, f"storage.max_mb ({self.settings.max_mb:g}) reached")
-            self._stored.set()
+
+    async def _write(self) -> bool:
+        """Write what waits in one transaction; False if the disk didn't take it."""
+        events = tuple(itertools.islice(self._waiting, WRITE_BATCH))
+        batch = Batch(events, frozenset(self._sent_from_memory), dict(self._tallies))
+        try:
+            appended = await self._call(self._db.append, batch)
+        except Exception as exc:  # DiskFull, sqlite3.Error, OSError: a full or failing disk
+            self._write_failed(exc)
             async with self._written:
-                self._written.notify_all()
+                self._written.notify_all()  # a flush waits no longer
+            return False
+        last = batch.events[-1].id if batch.events else 0
+        while self._waiting and self._waiting[0].id <= last:
+            self._sent_from_memory.discard(self._waiting.popleft().id)
+        for key, tally in batch.tallies.items():
+            if self._tallies.get(key) is tally:
+                del self._tallies[key]  # not changed meanwhile
+        self._tallies_since = time.monotonic() if self._tallies else None
+        self._writes_done += 1
+        self.stats.stored += len(batch.events)
+        if self._cannot_write is not None:
+            log.warning(
+                "store %s: writing again; %d events that waited in memory are in the file",
+                self.path,
+                len(batch.events),
+            )
+            self._cannot_write = None
+        self._dropped(appended.dropped, self._bound_reached(appended.bound))
+        self._stored.set()
+        async with self._written:
+            self._written.notify_all()
+        return True
+
+    def _write_failed(self, exc: Exception) -> None:
+        self.stats.write_failures += 1
+        reason = str(exc) if isinstance(exc, DiskFull) else f"storage.path {self.path}: {exc}"
+        first = self._cannot_write is None
+        self._cannot_write = reason
+        if first:
+            log.error(
+                "store: cannot write events: %s; they wait in memory (at most %d) and go to the "
+                "broker from there; retrying every %g s",
+                reason,
+                self._max_waiting,
+                RETRY_WRITE_S,
+            )
+            self._stored.set()  # the publisher takes them from memory now
+        else:
+            log.debug("store: still cannot write: %s", reason)
+        if self._executor is not None:
+            # What the write-ahead log holds goes into the file and gives its space back.
+            self._executor.submit(self._db.give_back).add_done_callback(_ignore)
+
+    def _due_in(self) -> float | None:
+        """Seconds until something is to be written (0.0: now), None with nothing to write."""
+        if self._waiting or (self._tallies and self._closing):
+            return 0.0
+        if self._tallies_since is None or not self._tallies:
+            return None
+        return max(0.0, self._tallies_since + TALLY_WRITE_S - time.monotonic())
+
+    def _bound_reached(self, bound: int) -> str:
+        if bound >= self._db.max_bytes:
+            return f"storage.max_mb ({self.settings.max_mb:g}) reached"
+        return f"its disk has room for {bound / 1024 / 1024:.1f} MB only (less than storage.max_mb)"
+
+    def _unsent_waiting(self, after: int) -> Iterator[NewEvent]:
+        for event in self._waiting:
+            if event.id > after and event.id not in self._sent_from_memory:
+                yield event
+
+    def _renumber(self, next_id: int) -> None:
+        """Ids from the file's sequence on; events recorded before start take the first."""
+        self._next_id = next_id
+        waiting = [replace(event, id=self._take_id()) for event in self._waiting]
+        self._waiting = deque(waiting)
+
+    def _take_id(self) -> int:
+        self._next_id += 1
+        return self._next_id - 1
+
+    def _forget(self, event: NewEvent) -> None:
+        """An event pushed out of memory past `max_waiting` before the file had it."""
+        if event.id in self._sent_from_memory:
+            self._sent_from_memory.discard(event.id)
+            self.stats.events_not_stored += 1  # the broker has it; the file never will
+            return
+        self._dropped(1, "waiting in memory while storage.path could not be written")
 
     async def _close_faults(self) -> None:
         while self._faults_to_close:
@@ -305,11 +473,11 @@ class EventStore:
             return
         self._dropped(dropped, f"older than storage.max_age_days ({self.settings.max_age_days:g})")
 
-    def _dropped(self, count: int, why: str, stored: bool = True) -> None:
+    def _dropped(self, count: int, why: str) -> None:
         if not count:
             return
         self.stats.events_dropped += count
-        if stored:
+        if self._db.forwarding:
             self.stats.undelivered = max(0, self.stats.undelivered - count)
         self._drops_unlogged += count
         now = time.monotonic()
@@ -324,6 +492,11 @@ class EventStore:
         )
         self._drops_logged_at = now
         self._drops_unlogged = 0
+
+
+def _ignore(future: Future[None]) -> None:
+    """Giving space back is worth trying; with the disk full it may fail too."""
+    future.exception()
 
 
 def _log_failure(future: Future[None]) -> None:

@@ -2,7 +2,9 @@
 
 A SCADA writing a set-point every second would otherwise put 86400 events a day into the store
 and onto the broker; who wrote to which drive, how often, and whether the drive took it is what an
-audit needs. A minute's tally goes out once the minute is over (and at stop).
+audit needs. A minute's tally goes out once the minute is over (and at stop). Until then it is
+kept in the store as it grows (`EventStore.keep_tally`, written within the second), so a gateway
+killed in the middle of a minute loses none of it: the next start records what it had counted.
 
     {"client": "10.0.0.5", "unit_id": 1, "drive": "pump1", "from": "...", "to": "...",
      "writes": 60, "refused": 0, "functions": ["06"], "registers": ["2001H"]}
@@ -71,6 +73,13 @@ class WriteTally:
             (register,) = struct.unpack(">H", pdu[1:3])
             if register not in tally.registers and len(tally.registers) < MAX_REGISTERS:
                 tally.registers.append(register)
+        self.events.keep_tally(
+            _tally_key(key),
+            EventType.MODBUS_WRITES,
+            self._data(key[0], unit_id, tally),
+            drive=self.drive_of(unit_id),
+            at=tally.first,
+        )
 
     async def start(self) -> None:
         self._task = self.tasks.start("store:modbus-writes", self._run())
@@ -93,6 +102,7 @@ class WriteTally:
                 self._data(client, unit_id, tally),
                 drive=self.drive_of(unit_id),
                 at=tally.first,
+                settles=_tally_key(key),
             )
 
     async def _run(self) -> None:
@@ -112,6 +122,11 @@ class WriteTally:
             "functions": [f"{code:02X}" for code in sorted(tally.functions)],
             "registers": [format_register(register) for register in tally.registers],
         }
+
+
+def _tally_key(key: tuple[str, int, int]) -> str:
+    client, unit_id, minute = key
+    return f"modbus_writes {client} {unit_id} {minute}"
 
 
 def _host(client: str) -> str:

@@ -29,7 +29,7 @@ class EventType(StrEnum):
 
 @dataclass(frozen=True, slots=True)
 class NewEvent:
-    """An event on its way into the store (it gets its id there)."""
+    """An event on its way into the store's file."""
 
     type: str
     time: float
@@ -38,6 +38,14 @@ class NewEvent:
     drive: str | None = None
     snapshot: Json | None = None
     """For a raised fault: the drive's running values at that moment (its fault history)."""
+    id: int = 0
+    """Given by the store when the event is recorded: the same from memory and from the file."""
+    settles: str | None = None
+    """The key of the tally this event completes: its row goes in the event's transaction."""
+
+    def stored(self) -> StoredEvent:
+        """As the broker gets it (from memory, before the file has it)."""
+        return StoredEvent(self.id, self.type, self.time, self.data)
 
 
 @dataclass(frozen=True, slots=True)

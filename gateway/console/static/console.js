@@ -156,6 +156,9 @@ function overviewPage() {
   };
   stream("/api/live", {
     overview: (data) => {
+      const banner = document.getElementById("store-banner");
+      banner.hidden = !data.store_problem;
+      banner.textContent = data.store_problem ? `Events are not kept on disk: ${data.store_problem}` : "";
       fill("buses", data.buses.map(busRow));
       fill("drives", data.drives.map(driveRow));
     },
