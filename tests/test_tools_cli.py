@@ -138,6 +138,18 @@ def test_decode_fault() -> None:
     assert run_cli("decode-fault", "abc").returncode == 2
 
 
+def test_decode_fault_by_the_keypads_short_code() -> None:
+    """What an engineer reads off the drive's display: the code comes back with its meaning."""
+    result = run_cli("decode-fault", "OC1")
+    assert (result.returncode, result.stdout) == (0, "4: OC1: overcurrent while accelerating\n")
+    assert run_cli("decode-fault", "out1").stdout == "1: OUt1: inverter unit phase U protection\n"
+    # A series' own table: the GD350 family's short codes beyond 36 are known by name too.
+    assert run_cli("decode-fault", "--model", "gd350", "STo").stdout.startswith("35: STo")
+    unknown = run_cli("decode-fault", "OC9")
+    assert unknown.returncode == 2
+    assert "keypad's short code" in unknown.stderr
+
+
 def test_read_and_write_via_a_running_gateway(tmp_path: Path) -> None:
     tcp_port = free_port()
     with SimulatedLine(addresses=[1], baudrate=115200, parity="N", wire_time=True) as line:

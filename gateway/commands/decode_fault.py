@@ -1,5 +1,8 @@
 """`invt-gateway decode-fault 35` → `STo: maladjustment`: INVT fault codes in words.
 
+`decode-fault OC1` (the keypad's short code, letter case aside) → `4: OC1: overcurrent while
+accelerating`: what the code is, for a fault read off the drive's display.
+
 `--model gd30` decodes with that series' own fault table: a code it doesn't list is
 "unknown fault N" (never another series' name), and the exit code is 1. Without `--model` the
 widest table (GD350 family, 0-69) is used.
@@ -9,8 +12,12 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
 
 from gateway.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
+
+if TYPE_CHECKING:
+    from gateway.profile.faults import FaultTable
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -26,7 +33,10 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         help="the drive's series (gd20, gd30, ipe300, gd300l, gd350a...): decode with its table",
     )
     parser.add_argument(
-        "codes", nargs="+", metavar="CODE", help="decimal as the keypad shows it, or 23H / 0x23"
+        "codes",
+        nargs="+",
+        metavar="CODE",
+        help="decimal as 2102H gives it, 23H / 0x23, or the keypad's short code (OC1, STo)",
     )
     parser.set_defaults(handler=handle)
 
@@ -35,15 +45,17 @@ def handle(args: argparse.Namespace) -> int:
     from gateway.profile import get_profile, words
 
     try:
-        codes = [fault_code(text) for text in args.codes]
         profile = None if args.model is None else get_profile(args.model)
+        table = words.fault_table(profile)
+        codes = [fault_code(text, table) for text in args.codes]
     except ValueError as exc:
         print(f"invt-gateway decode-fault: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    table = words.fault_table(profile)
-    for code in codes:
+    for given, code in zip(args.codes, codes, strict=True):
         text = words.fault(profile, code).description
-        print(text if len(codes) == 1 else f"{code}: {text}")
+        # Given by its keypad name, the number is the news; several: which is which.
+        numbered = len(codes) > 1 or not given.strip()[:1].isdigit()
+        print(f"{code}: {text}" if numbered else text)
     if args.model is not None and not table.confirmed:
         print(
             f"note: the {args.model} fault table is the {table.name}: "
@@ -53,13 +65,19 @@ def handle(args: argparse.Namespace) -> int:
     return EXIT_OK if all(table.knows(code) for code in codes) else EXIT_FAILURE
 
 
-def fault_code(text: str) -> int:
-    """ "35", "23H" or "0x23" → 35."""
+def fault_code(text: str, table: FaultTable) -> int:
+    """ "35", "23H", "0x23" or the keypad's "STo" → 35."""
     spelled = text.strip().lower()
     try:
         code = int(spelled[:-1], 16) if spelled.endswith("h") else int(spelled, 0)
     except ValueError:
-        raise ValueError(f"{text!r} is not a fault code: write 35, 23H or 0x23") from None
+        by_keypad = table.code_of(text)
+        if by_keypad is not None:
+            return by_keypad
+        raise ValueError(
+            f"{text!r} is not a fault code: write 35, 23H, 0x23 or the keypad's short code "
+            f"as the {table.name} table gives it (OC1, STo)"
+        ) from None
     if not 0 <= code <= 0xFFFF:
         raise ValueError(f"{text!r} is not a fault code: it must fit in one register")
     return code

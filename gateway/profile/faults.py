@@ -97,6 +97,15 @@ class FaultTable:
             return "" if code == NO_FAULT else str(code)
         return entry[0]
 
+    def code_of(self, short: str) -> int | None:
+        """The code whose keypad short code is `short` ("OC1" → 4), letter case aside (the
+        keypad's seven segments show "OUt1", people type "OUT1"); None when none has it."""
+        wanted = short.strip().casefold()
+        for code, (keypad, _) in self.entries.items():
+            if keypad and keypad.casefold() == wanted:
+                return code
+        return None
+
     def describe(self, code: int) -> str:
         """ "STo: maladjustment"; "none" for 0; the short code alone when that is all the manual
         gives; "unknown fault 99" for a code not in this table."""
