@@ -194,3 +194,34 @@ def test_scan_on_an_echoing_bursty_glitching_adapter_names_what_it_saw() -> None
     assert "set `echo: true`" in result.stdout
     assert "replies arrive in bursts" in result.stdout
     assert "stray byte(s) came before replies" in result.stdout
+
+
+def test_every_command_says_what_it_does_in_its_help() -> None:
+    """`invt-gateway COMMAND --help` has a description beyond the usage and the options."""
+    listed = run_cli("--help").stdout
+    commands = [
+        line.split()[0]
+        for line in listed.split("positional arguments:")[1].splitlines()
+        if line.startswith("    ") and not line.startswith("      ") and line.split()
+    ]
+    assert {"run", "check-config", "hash-password", "scan", "params"} <= set(commands)
+    for command in commands:
+        text = run_cli(command, "--help").stdout
+        between = text.split("\n\n")[1]  # after the usage: the description, or the options
+        assert not between.startswith(("options:", "positional arguments:")), command
+        assert len(between.split()) >= 8, (command, between)
+
+
+def test_check_config_warns_of_a_serial_device_that_is_not_there(tmp_path: Path) -> None:
+    config = tmp_path / "gateway.yaml"
+    config.write_text(
+        "buses:\n  - name: line1\n    port: /dev/ttyUSB-not-here-42\n"
+        "drives:\n  - name: pump1\n    bus: line1\n    address: 1\n"
+    )
+    result = run_cli("check-config", "--config", str(config))
+    assert result.returncode == 0  # valid: the file may be checked away from the box
+    assert "valid" in result.stdout
+    assert "buses[0].port: /dev/ttyUSB-not-here-42 does not exist" in result.stderr
+    present = config.read_text().replace("/dev/ttyUSB-not-here-42", "/dev/null")
+    config.write_text(present)
+    assert "warning" not in run_cli("check-config", "--config", str(config)).stderr

@@ -1,8 +1,17 @@
-"""`invt-gateway check-config --config FILE`: validate and print the routing table."""
+"""`invt-gateway check-config --config FILE`: validate a configuration and print its routing table.
+
+Validates the file as `run` would (every key, its type and range, the cross-checks: unique unit
+ids, no two buses on one port, drives on defined buses), then prints which unit id reaches which
+drive on which line. Exit 0 when valid, 3 when not (the key and the reason are printed). A serial
+port that isn't there on this machine is a warning, not an error: the file may be checked on
+another machine than the gateway box, but on the box `run` would keep trying to open it.
+"""
 
 from __future__ import annotations
 
 import argparse
+import os
+import sys
 
 from gateway.cli import EXIT_CONFIG, EXIT_OK
 from gateway.commands.run import DEFAULT_CONFIG, load_or_report
@@ -11,7 +20,10 @@ from gateway.config import GatewayConfig
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = subparsers.add_parser(
-        "check-config", help="validate a configuration file and print the routing table"
+        "check-config",
+        help="validate a configuration file and print the routing table",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--config", "-c", default=DEFAULT_CONFIG, help="YAML file")
     parser.set_defaults(handler=handle)
@@ -22,11 +34,28 @@ def handle(args: argparse.Namespace) -> int:
     if config is None:
         return EXIT_CONFIG
     print(f"{args.config}: valid")
+    for warning in missing_ports(config):
+        print(f"warning: {warning}", file=sys.stderr)
     print(routing_table(config))
     if config.modbus_tcp.access:
         print()
         print(access_table(config))
     return EXIT_OK
+
+
+def missing_ports(config: GatewayConfig) -> list[str]:
+    """A sentence for each bus whose serial device doesn't exist on this machine (a pyserial
+    URL, socket:// or rfc2217://, is a network address: not checked)."""
+    found = []
+    for index, bus in enumerate(config.buses):
+        if "://" in bus.port or os.path.exists(bus.port):
+            continue
+        found.append(
+            f"buses[{index}].port: {bus.port} does not exist on this machine (is the adapter "
+            "plugged in? /dev/serial/by-id/ lists the adapters by a name that survives a "
+            "replug); `run` would keep trying to open it"
+        )
+    return found
 
 
 def access_table(config: GatewayConfig) -> str:

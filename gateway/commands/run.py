@@ -27,7 +27,15 @@ DEFAULT_CONFIG = "/etc/invt-gateway/config.yaml"
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    parser = subparsers.add_parser("run", help="run the gateway service")
+    parser = subparsers.add_parser(
+        "run",
+        help="run the gateway service",
+        description="Run the gateway on the configuration file: the Modbus-TCP server, one "
+        "bus per RS-485 line, the poller, and (as configured) the MQTT bridge, the console and "
+        "/metrics with /health. Stops cleanly on SIGTERM or Ctrl-C; SIGHUP reloads the file. "
+        "Exit codes: 0 stopped, 1 failed (a port taken, a store from a newer release, a bug), "
+        "3 the configuration does not validate (the key and the reason are printed).",
+    )
     parser.add_argument(
         "--config", "-c", default=DEFAULT_CONFIG, help=f"YAML file (default {DEFAULT_CONFIG})"
     )

@@ -36,7 +36,10 @@ log = logging.getLogger(__name__)
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = subparsers.add_parser(
-        "demo", help="run the gateway on simulated drives (no hardware needed)"
+        "demo",
+        help="run the gateway on simulated drives (no hardware needed)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument(
         "--config", "-c", help="configuration to simulate (default: the embedded demo.yaml)"
