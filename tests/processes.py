@@ -20,6 +20,8 @@ from typing import Any
 
 import yaml
 
+from gateway.instruments.die_with_parent import die_with_parent
+
 START_TIMEOUT_S = 15.0
 
 
@@ -121,6 +123,9 @@ class GatewayProcess:
             stderr=subprocess.PIPE,
             text=True,
             env={**os.environ, **(env or {})},
+            # Pytest killed (a CI timeout): an orphaned gateway would go on reopening its pty
+            # path, and lock the pty the kernel gives the next run's simulated line that number.
+            preexec_fn=die_with_parent(),
         )
         assert self.process.stderr is not None
         self.log = LineCollector(self.process.stderr)
@@ -173,6 +178,7 @@ class SimulatorProcess:
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
+            preexec_fn=die_with_parent(),
         )
         assert self.process.stdout is not None
         assert self.process.stderr is not None
