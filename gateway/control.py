@@ -29,6 +29,8 @@ import tempfile
 from collections.abc import Awaitable, Callable
 from pathlib import Path
 
+from gateway.errors import ControlUnavailable
+
 log = logging.getLogger(__name__)
 
 RELOAD = "reload"
@@ -47,10 +49,6 @@ def control_path(config_path: str) -> Path:
     """The socket of the gateway that runs with `config_path`."""
     digest = hashlib.sha256(os.path.abspath(config_path).encode()).hexdigest()[:32]
     return control_folder() / f"{digest}.sock"
-
-
-class ControlUnavailable(Exception):
-    """The socket can't be made or reached; the message says why."""
 
 
 def _private_folder(folder: Path) -> None:

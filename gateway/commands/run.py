@@ -13,8 +13,14 @@ from collections.abc import Callable
 from gateway.app import Application
 from gateway.cli import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
 from gateway.config import GatewayConfig, load_config
-from gateway.control import RELOAD, ControlServer, ControlUnavailable
-from gateway.errors import BusFailed, CannotListen, ConfigError, FeatureFailed
+from gateway.control import RELOAD, ControlServer
+from gateway.errors import (
+    BusFailed,
+    CannotListen,
+    ConfigError,
+    ControlUnavailable,
+    FeatureFailed,
+)
 from gateway.event_loop import EventLoopChoice, choose_event_loop
 from gateway.event_loop import run as run_on_loop
 from gateway.health import Phase
