@@ -19,6 +19,7 @@ from gateway import __version__
 COMMANDS = {
     "run": "gateway.commands.run",
     "check-config": "gateway.commands.check_config",
+    "reload": "gateway.commands.reload",
     "demo": "gateway.instruments.commands.demo",
     "simulate": "gateway.instruments.commands.simulate",
     "bench": "gateway.instruments.commands.bench",

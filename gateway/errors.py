@@ -20,6 +20,7 @@
     ├── CommandRefused          an MQTT command refused before it reached the bus: `reason` says why
     ├── FieldError              a field tool failed: what happened, and what to check on site
     ├── MonitorError            `invt-gateway monitor` can't show the traffic: one line why
+    ├── ControlUnavailable      the control socket (`invt-gateway reload`) can't be made or reached
     ├── InstructionCountError   `bench --instructions`: the run is void (wrong reply, no count)
     ├── OperationError          a console request refused or failed, with its HTTP `status`
     └── ModbusError             answered to the client as a Modbus exception (has `code`)
@@ -230,6 +231,11 @@ class StoreRefused(GatewayError):
 
 class MonitorError(GatewayError):
     """Why `invt-gateway monitor` can't show the traffic, in one line."""
+
+
+class ControlUnavailable(GatewayError):
+    """The control socket can't be made (the gateway reloads on SIGHUP only) or reached (no
+    gateway runs with that file here); the message says why."""
 
 
 class InstructionCountError(GatewayError):

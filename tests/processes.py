@@ -20,6 +20,8 @@ from typing import Any
 
 import yaml
 
+from gateway.instruments.die_with_parent import die_with_parent
+
 START_TIMEOUT_S = 15.0
 
 
@@ -121,6 +123,9 @@ class GatewayProcess:
             stderr=subprocess.PIPE,
             text=True,
             env={**os.environ, **(env or {})},
+            # Pytest killed (a CI timeout): an orphaned gateway would go on reopening its pty
+            # path, and lock the pty the kernel gives the next run's simulated line that number.
+            preexec_fn=die_with_parent(),
         )
         assert self.process.stderr is not None
         self.log = LineCollector(self.process.stderr)
@@ -173,6 +178,7 @@ class SimulatorProcess:
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
+            preexec_fn=die_with_parent(),
         )
         assert self.process.stdout is not None
         assert self.process.stderr is not None
@@ -215,9 +221,21 @@ def _descendants(pid: int) -> set[int]:
     return found
 
 
-def assert_sigterm_leaves_nothing_behind(command: Sequence[str], children: int) -> None:
-    """Start `command`; once it has started `children` processes, end it with SIGTERM (as
-    `timeout` or a CI runner would); every process it started must be gone soon after."""
+def _running(pid: int) -> bool:
+    """Whether `pid` still runs: a zombie (ended, not yet reaped by whoever adopted it) does not."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def assert_ending_leaves_nothing_behind(
+    command: Sequence[str], children: int, signum: signal.Signals = signal.SIGTERM
+) -> None:
+    """Start `command`; once it has started `children` processes, end it with `signum`: SIGTERM
+    (as `timeout` or a CI runner would) or SIGKILL (`kill -9`, the OOM killer), which runs none
+    of its code. Every process it started must be gone soon after."""
     process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     started: set[int] = set()
     try:
@@ -226,14 +244,23 @@ def assert_sigterm_leaves_nothing_behind(command: Sequence[str], children: int) 
             time.sleep(0.2)  # waiting for processes another process starts: nothing to await
             started = _descendants(process.pid)
         assert len(started) >= children, f"it started {len(started)} of {children} processes"
-        process.terminate()
+        process.send_signal(signum)
         assert process.wait(timeout=30) != 0
     finally:
         process.kill()
         process.wait()
-    left = {pid for pid in started if Path(f"/proc/{pid}").exists()}
-    deadline = time.monotonic() + 10
+    # A gateway stops within 2 s of SIGTERM; a generous bound for a loaded machine.
+    deadline = time.monotonic() + 15
+    left = {pid for pid in started if _running(pid)}
     while left and time.monotonic() < deadline:
         time.sleep(0.2)
-        left = {pid for pid in left if Path(f"/proc/{pid}").exists()}
-    assert not left, f"still running after it ended: {left}"
+        left = {pid for pid in left if _running(pid)}
+    assert not left, f"still running after it ended: {_commands(left)}"
+
+
+def _commands(pids: set[int]) -> list[str]:
+    found = []
+    for pid in sorted(pids):
+        with contextlib.suppress(OSError):
+            found.append(Path(f"/proc/{pid}/cmdline").read_text().replace("\0", " ").strip())
+    return found

@@ -11,6 +11,7 @@ import os
 import pty
 import re
 import shutil
+import signal
 import socket
 import struct
 import subprocess
@@ -20,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.processes import assert_sigterm_leaves_nothing_behind
+from tests.processes import assert_ending_leaves_nothing_behind
 
 
 def test_bench_prints_checked_figures_as_json() -> None:
@@ -156,7 +157,14 @@ def test_a_bench_ended_by_sigterm_leaves_no_gateway_or_simulated_line_behind() -
     """`timeout` and CI runners end a bench with SIGTERM: its gateway and simulated drives must
     stop with it, or the orphaned gateway would take the next bench's line for its own."""
     bench = [sys.executable, "-m", "gateway", "bench", "--baud", "115200", "--case", "2w 1c"]
-    assert_sigterm_leaves_nothing_behind([*bench, "--duration", "60", "--json"], children=2)
+    assert_ending_leaves_nothing_behind([*bench, "--duration", "60", "--json"], children=2)
+
+
+def test_a_bench_killed_by_sigkill_leaves_no_gateway_or_simulated_line_behind() -> None:
+    """SIGKILL runs none of the bench's code: the kernel ends its children (PR_SET_PDEATHSIG)."""
+    bench = [sys.executable, "-m", "gateway", "bench", "--baud", "115200", "--case", "2w 1c"]
+    command = [*bench, "--duration", "60", "--json"]
+    assert_ending_leaves_nothing_behind(command, children=2, signum=signal.SIGKILL)
 
 
 def test_bench_and_stress_help_show_the_defaults() -> None:

@@ -298,7 +298,9 @@ async def test_idle_clients_are_closed_and_extra_connections_refused(
                 "port": 0,
                 "max_connections": 2,
                 "max_connections_per_client": 2,
-                "idle_timeout_s": 0.5,
+                # Long enough that first and second, each just served, are still open when the
+                # third knocks, even on a busy machine that stalls this process a while.
+                "idle_timeout_s": 2.0,
             },
             "buses": [{"name": "line1", "port": line.path, "baudrate": 115200}],
             "drives": [{"name": "pump1", "bus": "line1", "address": 1}],
@@ -310,10 +312,11 @@ async def test_idle_clients_are_closed_and_extra_connections_refused(
         assert await first.read(1, STATE_WORD_1) == [STOPPED]
         assert await second.read(1, STATE_WORD_1) == [STOPPED]  # both served: none evicted
         third = await TcpClient.connect(app.tcp.port)
-        assert await asyncio.wait_for(third.reader.read(100), 5) == b""  # refused: closed at once
+        assert await asyncio.wait_for(third.reader.read(100), 15) == b""  # refused: closed at once
+        assert app.tcp.stats.refused == 1
         assert await second.read(1, STATE_WORD_1) == [STOPPED]  # the others keep working
         # Silent for longer than idle_timeout_s: closed by the gateway.
-        assert await asyncio.wait_for(first.reader.read(100), 5) == b""
+        assert await asyncio.wait_for(first.reader.read(100), 15) == b""
         assert app.tcp.stats.idle_closed >= 1
         assert app.tcp.stats.refused == 1
         for client in (first, second, third):

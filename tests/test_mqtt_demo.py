@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 import time
+import uuid
 from collections.abc import AsyncIterator
 from pathlib import Path
 
@@ -19,7 +20,14 @@ import yaml
 
 from gateway.instruments.commands.demo import demo_config_text
 from gateway.instruments.embedded_broker import EmbeddedBroker
-from tests.mosquitto import Address, mqtt_probe, unique_base_topic
+from tests.mosquitto import (
+    Address,
+    BrokerAddress,
+    Mosquitto,
+    mqtt_probe,
+    unique_base_topic,
+)
+from tests.mosquitto import mosquitto as mosquitto
 from tests.processes import LineCollector, entry_point
 from tests.support import free_port
 
@@ -228,3 +236,34 @@ async def sessions(broker: EmbeddedBroker, count: int, within_s: float = 15.0) -
         assert time.monotonic() < deadline, f"sessions: {sorted(broker.sessions)}"
         await asyncio.sleep(0.05)  # polled with a deadline: the broker's sessions, no event
     return held()
+
+
+async def retained_under(broker: BrokerAddress, topic_filter: str) -> list[str]:
+    """The topics a fresh subscriber to `topic_filter` is handed as retained: all of them
+    arrive before a marker published after subscribing (one session, in order)."""
+    marker = f"{topic_filter.rstrip('#/')}/marker-{uuid.uuid4().hex[:8]}"
+    async with mqtt_probe(broker, topic_filter) as probe:
+        await probe.publish(marker, "end")
+        await probe.wait_for(marker)
+        return [m.topic for m in probe.messages if m.retain and m.payload]
+
+
+async def test_the_demo_leaves_no_discovery_configs_on_a_shared_broker(
+    tmp_path: Path, mosquitto: Mosquitto
+) -> None:
+    config = yaml.safe_load(demo_config_text(None))
+    config["console"]["port"] = 0
+    config["mqtt"].update({"port": mosquitto.port, "base_topic": unique_base_topic("demo")})
+    config_file = tmp_path / "demo.yaml"
+    config_file.write_text(yaml.safe_dump(config), encoding="utf-8")
+    demo = DemoProcess("--config", str(config_file), "--port", str(free_port()))
+    try:
+        published = await demo.wait_for("Home Assistant discovery published", "err")
+        count = int(published.split("(")[1].split()[0])
+        assert count > 0
+        while_running = await retained_under(mosquitto, "homeassistant/#")
+        assert len(while_running) == count, while_running  # the demo's, retained
+    finally:
+        assert await demo.interrupt() == 0, demo.err.text
+    assert await retained_under(mosquitto, "homeassistant/#") == []
+    assert f"cleared its {count} Home Assistant discovery configs" in demo.err.text

@@ -75,7 +75,8 @@ def test_unit_runs_the_service_as_the_issue_asks() -> None:
         "RestartPreventExitStatus": ["3"],  # a bad configuration: restarting won't help
         # The store, writable under ProtectSystem=strict and DynamicUser, kept across restarts.
         "StateDirectory": ["invt-gateway"],
-        "ExecReload": ["/bin/kill -HUP $MAINPID"],  # systemctl reload: the config read again
+        # systemctl reload: the config read again, and the reload fails when it is refused.
+        "ExecReload": [f"{INSTALLED_PATH} reload --config /etc/invt-gateway/config.yaml"],
     }
     for key, values in expected.items():
         assert settings.get(key) == values, key

@@ -21,9 +21,10 @@ from gateway.config import GatewayConfig
 from gateway.instruments.simulator import SimulatedLine
 from gateway.profile.invt import STATE_WORD_1
 from gateway.settings.reload import plan
-from tests.processes import GatewayProcess, gateway_process
+from tests.processes import GatewayProcess, gateway_process, run_cli
 from tests.support import TcpClient, free_port, read_pdu, write_pdu
 from tests.test_ops_metrics import Scrape, http_get
+from tests.test_ops_packaging import read_state_word
 
 FREQUENCY_SETPOINT = 0x2001
 
@@ -291,3 +292,47 @@ def test_mqtt_settings_apply_and_turning_mqtt_on_waits_for_a_restart() -> None:
     assert result.restart_needed == ["mqtt.enabled"]
     assert not result.restart_bridge
     assert result.running.mqtt == old.mqtt
+
+
+def test_the_reload_command_says_applied_or_refused_with_the_key(tmp_path: Path) -> None:
+    """`invt-gateway reload` (the unit's ExecReload): exit 0 only when the file was applied; a
+    refused file exits 3 with each problem's key, and the gateway keeps what it ran."""
+    port = free_port()
+    with (
+        SimulatedLine(addresses=[1, 2], baudrate=115200, parity="E") as line1,
+        SimulatedLine(addresses=[1, 2], baudrate=115200, parity="E") as line2,
+        gateway_process(config(line1.path, line2.path, port, BEFORE), tmp_path) as gateway,
+    ):
+        gateway.wait_ready()
+        path = str(gateway.config_file)
+        assert read_state_word(port, 4) == bytes.fromhex("83 0A")  # mixer4: not there yet
+
+        gateway.config_file.write_text(yaml.safe_dump(config(line1.path, line2.path, port, AFTER)))
+        applied = run_cli("reload", "--config", path)
+        assert applied.returncode == 0, applied.stderr
+        assert applied.stdout.startswith("applied: ")
+        assert "drives added: mixer4" in applied.stdout
+        assert read_state_word(port, 4) == bytes.fromhex("03 02 00 03")
+
+        gateway.config_file.write_text("buses: [unclosed\n")
+        broken = run_cli("reload", "--config", path)
+        assert broken.returncode == 3
+        assert broken.stderr.startswith(f"refused: {path}: ")
+
+        invalid = config(line1.path, line2.path, port, BEFORE)
+        invalid["modbus_tcp"]["idle_timeout_s"] = -1
+        invalid["drives"].append({"name": "x", "bus": "line9", "address": 9})
+        gateway.config_file.write_text(yaml.safe_dump(invalid))
+        refused = run_cli("reload", "--config", path)
+        assert refused.returncode == 3
+        assert refused.stdout == ""
+        assert "modbus_tcp.idle_timeout_s" in refused.stderr
+        # The running configuration stays: mixer4 (added before) answers, fan2 stays removed.
+        assert read_state_word(port, 4) == bytes.fromhex("03 02 00 03")
+        assert read_state_word(port, 2) == bytes.fromhex("83 0A")
+        assert gateway.log.count("reload refused") >= 2  # the journal says it too
+        assert gateway.process.poll() is None
+
+    gone = run_cli("reload", "--config", path)  # the gateway has stopped
+    assert gone.returncode == 1
+    assert "no gateway runs with" in gone.stderr

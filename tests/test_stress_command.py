@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import json
 import re
+import signal
 import sys
 from collections import Counter
 
 from gateway.instruments.stress.checked_load import STEADY, LoadStats
 from gateway.instruments.stress.report import problems, table
 from gateway.instruments.stress.scenario import Recovery, StressResult, StressSettings
-from tests.processes import assert_sigterm_leaves_nothing_behind, run_cli
+from tests.processes import assert_ending_leaves_nothing_behind, run_cli
 from tests.support import RecordProperty
 
 
@@ -91,4 +92,11 @@ def test_a_stress_run_ended_by_sigterm_leaves_nothing_it_started_behind() -> Non
     """Its gateway, simulated drives and broker stop with it: an orphaned gateway would take
     the next run's line for its own."""
     stress = [sys.executable, "-m", "gateway", "stress", "--duration", "120", "--json"]
-    assert_sigterm_leaves_nothing_behind(stress, children=2)
+    assert_ending_leaves_nothing_behind(stress, children=2)
+
+
+def test_a_stress_run_killed_by_sigkill_leaves_nothing_it_started_behind() -> None:
+    """SIGKILL runs none of its code: its simulated line, broker and gateway end with it all
+    the same (the kernel tells them: PR_SET_PDEATHSIG)."""
+    stress = [sys.executable, "-m", "gateway", "stress", "--duration", "120", "--json"]
+    assert_ending_leaves_nothing_behind(stress, children=3, signum=signal.SIGKILL)

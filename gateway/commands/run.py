@@ -13,7 +13,15 @@ from collections.abc import Callable
 from gateway.app import Application
 from gateway.cli import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
 from gateway.config import GatewayConfig, load_config
-from gateway.errors import BusFailed, CannotListen, ConfigError, FeatureFailed, StoreRefused
+from gateway.control import RELOAD, ControlServer
+from gateway.errors import (
+    BusFailed,
+    CannotListen,
+    ConfigError,
+    ControlUnavailable,
+    FeatureFailed,
+    StoreRefused,
+)
 from gateway.event_loop import EventLoopChoice, choose_event_loop
 from gateway.event_loop import run as run_on_loop
 from gateway.health import Phase
@@ -88,9 +96,10 @@ async def serve(
     """Run the gateway until SIGTERM or SIGINT; the exit code.
 
     Under systemd (`Type=notify`) it reports READY=1 once the buses and the TCP port are up,
-    STOPPING=1 on the signal, and pings the watchdog from this event loop meanwhile. SIGHUP
-    reads `config_path` again and applies it in place (`Application.reload`); a file that
-    doesn't validate changes nothing and is logged with each key path and reason.
+    STOPPING=1 on the signal, and pings the watchdog from this event loop meanwhile. SIGHUP,
+    or `invt-gateway reload` on the control socket (`gateway.control`), reads `config_path`
+    again and applies it in place (`Application.reload`); a file that doesn't validate changes
+    nothing and is logged (and answered, on the socket) with each key path and reason.
     """
     app = Application(runtime_settings(config))
     stop = asyncio.Event()
@@ -105,11 +114,11 @@ async def serve(
 
     for signum in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(signum, on_signal, signum)
+    reloader = Reloader(app, config_path, notifier)
     reload_asked = asyncio.Event()
     loop.add_signal_handler(signal.SIGHUP, reload_asked.set)
-    reloading = asyncio.create_task(
-        reload_on_hangup(app, config_path, reload_asked, notifier), name="reload"
-    )
+    reloading = asyncio.create_task(reloader.on_hangup(reload_asked), name="reload")
+    control = await listen_for_control(config_path, reloader)
 
     def ready() -> None:
         status = (
@@ -150,35 +159,80 @@ async def serve(
         for signum in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
             loop.remove_signal_handler(signum)
         reloading.cancel()
+        if control is not None:
+            await control.stop()
         if watchdog is not None:
             watchdog.cancel()
         notifier.close()
     return EXIT_OK
 
 
-async def reload_on_hangup(
-    app: Application, path: str | None, asked: asyncio.Event, notifier: Notifier
-) -> None:
-    """Each SIGHUP: read the file again (off the event loop), apply it if it is valid."""
-    while True:
-        await asked.wait()
-        asked.clear()
-        if path is None:
-            log.warning("SIGHUP received: no configuration file to read again")
-            continue
-        notifier.notify("RELOADING=1", "STATUS=reloading the configuration")
-        log.info("SIGHUP received: reading %s again", path)
+async def listen_for_control(path: str | None, reloader: Reloader) -> ControlServer | None:
+    """The control socket `invt-gateway reload` asks on; without it SIGHUP still reloads."""
+    if path is None:
+        return None
+    control = ControlServer(path, reloader.on_command)
+    try:
+        await control.start()
+    except ControlUnavailable as exc:
+        log.warning("no control socket, `invt-gateway reload` can't reach this gateway: %s", exc)
+        return None
+    return control
+
+
+class Reloader:
+    """Reads the file again and applies it, one reload at a time, whoever asks: SIGHUP (whose
+    sender hears nothing back) or `invt-gateway reload` on the control socket (which hears the
+    answer, and exits non-zero when the file was refused)."""
+
+    def __init__(self, app: Application, path: str | None, notifier: Notifier) -> None:
+        self.app = app
+        self.path = path
+        self.notifier = notifier
+        self._one_at_a_time = asyncio.Lock()
+
+    async def on_hangup(self, asked: asyncio.Event) -> None:
+        """Each SIGHUP: a reload, its outcome in the log only."""
+        while True:
+            await asked.wait()
+            asked.clear()
+            log.info("SIGHUP received")
+            await self.reload()
+
+    async def on_command(self, command: str) -> list[str]:
+        if command != RELOAD:
+            return [f"refused: unknown command {command!r} (known: {RELOAD})"]
+        log.info("reload asked on the control socket")
+        return await self.reload()
+
+    async def reload(self) -> list[str]:
+        """Read the file again (off the event loop) and apply it if it is valid; the outcome,
+        one line each, starting with applied, refused or skipped."""
+        async with self._one_at_a_time:
+            if self.path is None:
+                log.warning("reload skipped: no configuration file to read again")
+                return ["skipped: no configuration file to read again"]
+            self.notifier.notify("RELOADING=1", "STATUS=reloading the configuration")
+            try:
+                return await self._reload(self.path)
+            finally:
+                self.notifier.notify("READY=1", "STATUS=ready")
+
+    async def _reload(self, path: str) -> list[str]:
+        log.info("reading %s again", path)
         try:
             config = await asyncio.to_thread(load_config, path)
         except ConfigError as exc:
             # As check-config says it: every problem, with its key path, one line each (the
             # journal shows a line at a time). Nothing changes.
+            answer = []
             for key, reason in exc.problems:
                 problem = f"{key}: {reason}" if key else reason
                 log.error("reload refused, the running configuration stays: %s: %s", path, problem)
-        else:
-            if app.phase is Phase.READY:
-                await app.reload(runtime_settings(config))
-            else:
-                log.warning("reload skipped: the gateway is %s", app.phase.value)
-        notifier.notify("READY=1", "STATUS=ready")
+                answer.append(f"refused: {path}: {problem}")
+            return answer
+        if self.app.phase is not Phase.READY:
+            log.warning("reload skipped: the gateway is %s", self.app.phase.value)
+            return [f"skipped: the gateway is {self.app.phase.value}"]
+        plan = await self.app.reload(runtime_settings(config))
+        return [f"applied: {plan.summary}"]

@@ -21,11 +21,14 @@ import aiomqtt
 
 from gateway.config import MqttConfig
 from gateway.instruments.embedded_broker import EmbeddedBroker
+from gateway.mqtt.discovery_cleanup import own_discovery_topics, remove_stale_entities
 
 log = logging.getLogger(__name__)
 
 PROBE_TIMEOUT_S: Final = 1.0
 WATCH_RETRY_S: Final = 1.0
+CLEAR_TIMEOUT_S: Final = 10.0
+"""Connecting, collecting the retained configs (a second) and clearing them, at most."""
 
 
 @dataclass(frozen=True)
@@ -52,6 +55,35 @@ async def broker_for_demo(mqtt: MqttConfig) -> DemoBroker:
     config = mqtt.model_copy(update={"host": "127.0.0.1", "port": broker.port})
     note = f"MQTT broker at 127.0.0.1:{broker.port} (embedded: none was running at {where})"
     return DemoBroker(config, broker, note)
+
+
+async def clear_discovery(mqtt: MqttConfig, gateway_id: str) -> None:
+    """Clear the demo's Home Assistant discovery configs from the broker, once it has stopped.
+
+    They are retained: on a shared broker (a plant's, or a developer's Mosquitto) every demo
+    run would leave its entities in Home Assistant for good. The embedded broker needs none of
+    this: it goes with the demo. A demo stopped by SIGKILL leaves them; the next start of a
+    gateway with the same `gateway_id` (and discovery off) clears them.
+    """
+    if not mqtt.homeassistant_discovery:
+        return
+    where = f"{mqtt.host}:{mqtt.port}"
+    client = aiomqtt.Client(
+        mqtt.host,
+        mqtt.port,
+        identifier=f"invt-gateway-{gateway_id}-{uuid.uuid4().hex[:8]}-cleanup",
+        username=mqtt.username,
+        password=mqtt.password,
+        timeout=CLEAR_TIMEOUT_S / 2,
+    )
+    pattern = own_discovery_topics(mqtt.discovery_prefix, gateway_id)
+    try:
+        async with asyncio.timeout(CLEAR_TIMEOUT_S):
+            cleared = await remove_stale_entities(client, pattern, offered=())
+    except (aiomqtt.MqttError, TimeoutError) as exc:
+        log.warning("demo: its Home Assistant discovery configs stay on %s: %s", where, exc)
+        return
+    log.info("demo: cleared its %d Home Assistant discovery configs from %s", len(cleared), where)
 
 
 async def _answers(host: str, port: int) -> bool:

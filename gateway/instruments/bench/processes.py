@@ -19,6 +19,8 @@ from typing import Any
 
 import yaml
 
+from gateway.instruments.die_with_parent import die_with_parent
+
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
 GATEWAY_NICENESS = -10
 """The systemd unit's `Nice=`: the bench runs the gateway as the service runs, where it may."""
@@ -83,7 +85,12 @@ def simulator(
     for address in dead:
         args += ["--dead", str(address)]
     process = subprocess.Popen(
-        args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True
+        args,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        preexec_fn=die_with_parent(),
     )
     try:
         assert process.stdout is not None
@@ -139,6 +146,7 @@ def gateway(
             cwd=cwd,
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
+            preexec_fn=die_with_parent(),
         )
         try:
             wait_listening(port, process, start_timeout_s)

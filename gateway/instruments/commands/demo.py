@@ -167,7 +167,7 @@ async def serve_demo(
     mqtt = config.mqtt
     if mqtt is None or not mqtt.enabled:
         return await serve(config, on_ready=lambda app: print_banner(app, config, None, password))
-    from gateway.instruments.demo_broker import broker_for_demo
+    from gateway.instruments.demo_broker import broker_for_demo, clear_discovery
 
     broker = await broker_for_demo(mqtt)
     mqtt = broker.config
@@ -187,6 +187,8 @@ async def serve_demo(
     finally:
         if broker.embedded is not None:
             await broker.embedded.stop()
+        else:
+            await clear_discovery(mqtt, config.gateway_id)
 
 
 def simulate_buses(

@@ -19,20 +19,27 @@ from gateway.instruments.bench.processes import (
     stop_process,
     wait_listening,
 )
+from gateway.instruments.die_with_parent import die_with_parent
 
 START_TIMEOUT_S = 15.0
 MOSQUITTO_PATHS = ("/usr/sbin/mosquitto", "/usr/local/sbin/mosquitto")
 
 
-def start_simulator(arguments: list[str]) -> SimulatorProcess:
-    """`invt-gateway simulate --pty ARGUMENTS`: commands on its stdin, the path its first line."""
-    process = subprocess.Popen(
+def launch_simulator(arguments: list[str]) -> subprocess.Popen[str]:
+    """`invt-gateway simulate --pty ARGUMENTS`: commands on its stdin, the path its first line
+    (`simulator_started`). From the main thread (`die_with_parent`)."""
+    return subprocess.Popen(
         [*gateway_command(), "simulate", "--pty", *arguments],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
         text=True,
+        preexec_fn=die_with_parent(),
     )
+
+
+def simulator_started(process: subprocess.Popen[str]) -> SimulatorProcess:
+    """Once the simulator has said its path (blocks; it is stopped if it says none)."""
     assert process.stdout is not None
     path = process.stdout.readline().strip()
     if not path.startswith("/"):
@@ -53,12 +60,14 @@ class Gateway:
         self.starts = 0
 
     def start(self) -> None:
+        """From the main thread (`die_with_parent`)."""
         with self.log_file.open("ab") as log:
             self.process = subprocess.Popen(
                 [*gateway_command(), "run", "--config", str(self.config_file)],
                 stdin=subprocess.DEVNULL,
                 stdout=subprocess.DEVNULL,
                 stderr=log,
+                preexec_fn=die_with_parent(),
             )
         self.starts += 1
 
@@ -108,20 +117,28 @@ class Broker:
         self.host = "127.0.0.1"
         self.port = free_port()
         self.config_file = directory / "mosquitto.conf"
+        # Started as root, Mosquitto would become user "mosquitto", and the kernel forgets a
+        # process's parent-death signal when its user changes (`die_with_parent`).
+        user = "user root\n" if os.geteuid() == 0 else ""
         self.config_file.write_text(
-            f"listener {self.port} {self.host}\nallow_anonymous true\npersistence false\n"
-            "log_dest none\n",
+            f"{user}listener {self.port} {self.host}\nallow_anonymous true\n"
+            "persistence false\nlog_dest none\n",
             encoding="utf-8",
         )
         self.process: subprocess.Popen[bytes] | None = None
 
     def start(self) -> None:
+        """From the main thread (`die_with_parent`); `wait_listening` then says it is up."""
         self.process = subprocess.Popen(
             [self.executable, "-c", str(self.config_file)],
             stdin=subprocess.DEVNULL,
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
+            preexec_fn=die_with_parent(),
         )
+
+    def wait_listening(self) -> None:
+        assert self.process is not None
         wait_listening(self.port, self.process, START_TIMEOUT_S)
 
     def kill(self) -> None:

@@ -18,7 +18,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import os
-import subprocess
 import tempfile
 import time
 from collections.abc import Awaitable, Callable
@@ -26,10 +25,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from gateway.instruments.bench.processes import SimulatorProcess, free_port
+from gateway.instruments.bench.processes import SimulatorProcess, free_port, stop_process
 from gateway.instruments.stress.checked_load import STEADY, CheckedLoad, LoadStats
 from gateway.instruments.stress.hostile import HostileClient, HostileStats
-from gateway.instruments.stress.processes import Broker, Gateway, mosquitto_path, start_simulator
+from gateway.instruments.stress.processes import (
+    Broker,
+    Gateway,
+    launch_simulator,
+    mosquitto_path,
+    simulator_started,
+)
 
 if TYPE_CHECKING:
     from gateway.instruments.stress.broker_watch import OnlineWatch
@@ -117,13 +122,17 @@ async def run_stress(
     with tempfile.TemporaryDirectory(prefix="invt-stress-") as folder:
         directory = Path(folder)
         link = directory / "ttyRS485"
-        simulator = await asyncio.to_thread(start_simulator, _simulator_arguments(settings, link))
         executable = mosquitto_path()
         broker = Broker(executable, directory) if executable else None
         gateway: Gateway | None = None
+        # Each process is started here, on the loop's thread (`die_with_parent`), and held at
+        # once: the `finally` stops it even when the run ends before it is ready.
+        launched = launch_simulator(_simulator_arguments(settings, link))
         try:
+            simulator = await asyncio.to_thread(simulator_started, launched)
             if broker is not None:
-                await asyncio.to_thread(broker.start)
+                broker.start()
+                await asyncio.to_thread(broker.wait_listening)
                 result.broker = True
             gateway = Gateway(_gateway_config(settings, link, broker), directory)
             gateway.start()
@@ -136,7 +145,7 @@ async def run_stress(
                 await asyncio.to_thread(gateway.stop)
             if broker is not None:
                 await asyncio.to_thread(broker.stop)
-            await asyncio.to_thread(_stop_simulator, simulator)
+            await asyncio.to_thread(stop_process, launched)
     return result
 
 
@@ -220,7 +229,8 @@ async def _unplug(simulator: SimulatorProcess, load: CheckedLoad, outage_s: floa
 async def _restart_broker(broker: Broker, watch: OnlineWatch, outage_s: float) -> Recovery:
     await asyncio.to_thread(broker.kill)
     await asyncio.sleep(outage_s)
-    await asyncio.to_thread(broker.start)
+    broker.start()
+    await asyncio.to_thread(broker.wait_listening)
     started_at = time.monotonic()
     deadline = started_at + RECOVERY_LIMIT_S
     while time.monotonic() < deadline:
@@ -320,13 +330,3 @@ def _gateway_config(settings: StressSettings, link: Path, broker: Broker | None)
             "publish_interval_s": 5,
         }
     return config
-
-
-def _stop_simulator(simulator: SimulatorProcess) -> None:
-    process = simulator.process
-    process.terminate()
-    try:
-        process.communicate(timeout=5)  # also closes its pipes
-    except subprocess.TimeoutExpired:
-        process.kill()
-        process.communicate()
