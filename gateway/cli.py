@@ -11,7 +11,7 @@ import importlib
 import sys
 from collections.abc import Callable, Sequence
 
-from gateway import __version__
+from gateway.version import describe_version
 
 # Sub-commands and their modules, in the order `--help` lists them. The service and the field
 # tools a technician uses on real hardware, then the instruments (`gateway.instruments`), which
@@ -49,7 +49,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         prog="invt-gateway",
         description="Modbus-TCP and MQTT gateway for INVT drives on RS-485 (Modbus-RTU).",
     )
-    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {describe_version()}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, module_name in COMMANDS.items():
         if only is not None and name != only:

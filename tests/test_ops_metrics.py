@@ -12,6 +12,7 @@ from typing import Any
 
 from prometheus_client.parser import text_string_to_metric_families
 
+from gateway import __version__
 from gateway.app import Application
 from gateway.config import GatewayConfig
 from gateway.instruments.simulator import SimulatedLine
@@ -150,7 +151,7 @@ async def test_metrics_count_real_traffic_per_drive_source_and_code(line: Simula
         )
         build = {
             "gateway_id": "cabinet-test",
-            "version": "0.1.0",
+            "version": __version__,
             "python": platform.python_version(),
         }
         assert m("build_info", **build, event_loop=loop) == 1

@@ -8,6 +8,7 @@ serial port has no such limit; the tools open the line once per run, so a test r
 
 from __future__ import annotations
 
+import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -227,3 +228,26 @@ def test_check_config_warns_of_a_serial_device_that_is_not_there(tmp_path: Path)
     present = config.read_text().replace("/dev/ttyUSB-not-here-42", "/dev/null")
     config.write_text(present)
     assert "warning" not in run_cli("check-config", "--config", str(config)).stderr
+
+
+def test_version_names_the_release_and_the_commit_of_a_checkout(tmp_path: Path) -> None:
+    from gateway import __version__
+    from gateway.version import checkout_commit
+
+    result = run_cli("--version")
+    assert result.returncode == 0
+    root = Path(__file__).resolve().parent.parent
+    if (root / ".git").exists():  # the suite runs from a checkout, as CI's clone is
+        head = subprocess.run(
+            ["git", "-C", str(root), "rev-parse", "--short", "HEAD"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+        assert result.stdout == f"invt-gateway {__version__} (commit {head})\n"
+    else:
+        assert result.stdout == f"invt-gateway {__version__}\n"
+    # An installed release has no checkout beside its package: the release alone.
+    package = tmp_path / "site-packages" / "gateway"
+    package.mkdir(parents=True)
+    assert checkout_commit(package) is None
