@@ -7,11 +7,20 @@
 #     -p 5020:5020 -p 9102:9102 invt-gateway
 #   docker kill -s HUP invt-gateway     (reloads the configuration without a restart)
 #
+# Behind a plant's inspecting proxy, pip needs the plant's own index and its CA certificate:
+#   docker build --build-arg PIP_INDEX=https://pypi.plant.example/simple \
+#     --secret id=pip_ca,src=/usr/local/share/ca-certificates/plant-ca.crt -t invt-gateway .
+# The certificate is used by pip during the build only, never copied into the image. Labels:
+#   --build-arg CREATED="$(date -u +%FT%TZ)" --build-arg SOURCE=<where your copy of the source is>
+# podman and buildah keep the HEALTHCHECK only with `--format docker` (OCI images have none).
+#
 # The build stage installs the package from this source tree into a virtualenv; the runtime
 # stage copies only that virtualenv, so no compiler, pip cache or source ends up in the image.
 
 FROM python:3.11-slim-bookworm AS build
 ENV PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_NO_CACHE_DIR=1
+# Empty: pip's own default index. Not PIP_INDEX_URL itself: pip would read an empty one.
+ARG PIP_INDEX=
 WORKDIR /src
 COPY pyproject.toml README.md ./
 COPY gateway ./gateway
@@ -19,13 +28,26 @@ COPY gateway ./gateway
 # broker) stay out of the image; the CLI lists no command it doesn't have.
 # uvloop (the event loop in C) comes as a wheel for amd64 and arm64; on arm/v7 pip would need a
 # compiler for it, so there the gateway runs on asyncio's own loop (its log's first line says so).
-RUN rm -rf /src/gateway/instruments \
+RUN --mount=type=secret,id=pip_ca,required=false \
+    if [ -s /run/secrets/pip_ca ]; then export PIP_CERT=/run/secrets/pip_ca; fi \
+    && if [ -n "$PIP_INDEX" ]; then export PIP_INDEX_URL="$PIP_INDEX"; fi \
+    && rm -rf /src/gateway/instruments \
     && python -m venv /opt/invt-gateway \
     && /opt/invt-gateway/bin/pip install --no-cache-dir /src \
     && { /opt/invt-gateway/bin/pip install --no-cache-dir --only-binary uvloop '/src[uvloop]' \
          || echo "no uvloop wheel for $(uname -m): asyncio's own event loop"; }
 
 FROM python:3.11-slim-bookworm
+# The release (gateway.__version__: a test keeps the two equal), when and from what it was built.
+ARG VERSION=0.2.0
+ARG CREATED=unknown
+ARG SOURCE=unknown
+LABEL org.opencontainers.image.title="invt-gateway" \
+      org.opencontainers.image.description="Modbus-TCP and MQTT gateway for INVT drives on RS-485" \
+      org.opencontainers.image.version="$VERSION" \
+      org.opencontainers.image.created="$CREATED" \
+      org.opencontainers.image.source="$SOURCE" \
+      org.opencontainers.image.licenses="LicenseRef-Proprietary"
 # A system user without a home or shell; dialout lets it open serial devices passed in with
 # --device (they keep the host's group, which is dialout, GID 20, on Debian and Ubuntu hosts).
 RUN groupadd --system --gid 10001 invt-gateway \

@@ -307,3 +307,19 @@ def test_image_install_and_start_commands_work_in_a_fresh_virtualenv(tmp_path: P
             log.join()
             if process.stderr is not None:
                 process.stderr.close()
+
+
+def test_the_image_is_labelled_with_the_release_it_carries() -> None:
+    """OCI labels a registry and `docker inspect` show: the version is the package's own."""
+    from gateway import __version__
+
+    runtime = stages()[-1]
+    arguments = {arg.split("=", 1)[0]: arg.split("=", 1)[1] for k, arg in runtime if k == "ARG"}
+    assert arguments["VERSION"] == __version__
+    labels = " ".join(arguments for keyword, arguments in runtime if keyword == "LABEL")
+    for key in ("version", "created", "source", "licenses", "title"):
+        assert f"org.opencontainers.image.{key}=" in labels, key
+    # Behind an inspecting proxy: a pip index and a CA certificate for the build, from outside.
+    build = " ".join(arguments for keyword, arguments in stages()[0])
+    assert "PIP_INDEX" in build
+    assert "--mount=type=secret,id=pip_ca" in build
