@@ -67,7 +67,7 @@ SOCKET_BUFFER_BYTES = 32 * 1024
 class TcpSettings:
     host: str = "0.0.0.0"
     port: int = 5020
-    max_connections: int = 32
+    max_connections: int = 64
     idle_timeout_s: float = 300.0
     max_requests_per_connection: int = 16
     broadcast_reply: bool = True
