@@ -513,6 +513,10 @@ _TCP_COUNTERS = {
     "evicted": "Connections closed to make room for a new one: they had never completed a request",
     "slow_closed": "Connections closed for a frame not completed in time, or no first request",
     "write_limited": "Writes answered 0AH: the client had max_queued_writes_per_client waiting",
+    "tls_handshake_timeouts": (
+        "TLS connections closed with their handshake not done within first_request_timeout_s"
+    ),
+    "tls_handshakes_failed": "TLS handshakes that failed (no or an untrusted client certificate)",
 }
 
 
