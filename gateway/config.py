@@ -485,6 +485,9 @@ class ConsoleConfig(Section):
     cert_file: str | None = None
     key_file: str | None = None
     """Both given: the console speaks HTTPS only."""
+    request_timeout_s: float = Field(10.0, gt=0, le=3600)
+    """A request's head must arrive within this of connecting (or of its first byte), its body
+    within this of its head; otherwise the connection is closed (and counted)."""
 
     @field_validator("cert_file", "key_file")
     @classmethod

@@ -32,6 +32,7 @@ from gateway.console.auth import (
     Users,
     Via,
 )
+from gateway.console.deadlines import mark_requests
 from gateway.console.events import EventStore
 from gateway.console.live import LiveState
 from gateway.console.operations import (
@@ -107,7 +108,7 @@ CONSOLE: Final = web.AppKey("console", Console)
 
 
 def build_app(console: Console) -> web.Application:
-    app = web.Application(middlewares=[_guard], client_max_size=MAX_JSON)
+    app = web.Application(middlewares=[mark_requests, _guard], client_max_size=MAX_JSON)
     app[CONSOLE] = console
     static = resources.files("gateway.console").joinpath("static")
     routes = [
