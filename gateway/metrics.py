@@ -728,6 +728,18 @@ def _console_families(console: ConsoleFeature) -> Iterable[CounterMetricFamily]:
     timeouts.add_metric(["head"], closed.head)
     timeouts.add_metric(["body"], closed.body)
     yield timeouts
+    if console.console is None:
+        return
+    logins = CounterMetricFamily(
+        f"{PREFIX}_console_logins",
+        "Console login attempts by result: ok, failed (wrong name or password), throttled "
+        "(refused before the password was checked: that name and address must wait)",
+        labels=["result"],
+    )
+    counts = console.console.logins
+    for result in ("ok", "failed", "throttled"):
+        logins.add_metric([result], getattr(counts, result))
+    yield logins
 
 
 _STORE_COUNTERS = {
