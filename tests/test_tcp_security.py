@@ -193,7 +193,7 @@ async def test_stalled_handshakes_are_closed_and_counted_while_a_client_is_serve
         for _, writer, _ in stalled:
             writer.close()
         assert max(closed_after) < 2.5, max(closed_after)
-        assert min(closed_after) > 0.9, min(closed_after)
+        assert min(closed_after) > 0.8, min(closed_after)
         await eventually(lambda: app.tcp.stats.tls_handshake_timeouts == 50, what="counted")
         assert app.tcp.stats.tls_handshakes_failed == 0
         assert app.tcp.stats.accepted == 1  # the operator; the stalled ones never had a slot

@@ -199,6 +199,8 @@ class DeadlinedSite(web.BaseSite):
             self.host,
             self.port,
             ssl=self._ssl_context,
+            # HTTPS: the handshake comes before any of it, and asyncio gives it 60 s by default.
+            ssl_handshake_timeout=self.deadlines.timeout_s if self._ssl_context else None,
             backlog=self._backlog,
             reuse_address=True,
         )
