@@ -21,7 +21,13 @@ import pytest
 from gateway.app import Application
 from gateway.console.auth import MAX_FAILURES
 from gateway.instruments.simulator import SimulatedLine
-from tests.console_support import OPERATOR_PASSWORD, ConsoleClient, console_client, console_config
+from tests.console_support import (
+    OPERATOR_PASSWORD,
+    VIEWER_PASSWORD,
+    ConsoleClient,
+    console_client,
+    console_config,
+)
 from tests.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
 from tests.mosquitto import mosquitto as mosquitto
 from tests.mqtt_setup import mqtt_config
@@ -113,6 +119,20 @@ async def test_logins_logouts_commands_and_writes_are_audit_events_kept_across_a
     failed = next(e for e in kept if e["kind"] == "login_failed")
     assert (failed["who"], failed["address"]) == ("olga", "127.0.0.1")
     assert failed["text"] == "failed login for 'olga' from 127.0.0.1"
+
+
+async def test_a_write_refused_at_the_door_is_an_audit_event(line: SimulatedLine) -> None:
+    async with running_gateway(console_config(line.path)) as app, console_client(app) as victor:
+        assert (await victor.login("victor", VIEWER_PASSWORD)).status == 200
+        status, _ = await victor.post("/api/drives/pump1/command", {"command": "run_forward"})
+        assert status == 403
+        events = await audit_events(app)
+    refused = events[-1]
+    assert refused["type"] == "command"
+    data = refused["data"]
+    assert (data["drive"], data["user"], data["address"]) == ("pump1", "victor", "127.0.0.1")
+    assert data["category"] == "control"
+    assert data["result"].startswith("refused: victor (viewer) may not make changes")
 
 
 async def test_logins_are_published_on_bridge_event(

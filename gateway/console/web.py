@@ -108,6 +108,26 @@ class Console:
                 return Identity(session.user, session.role, Via.SESSION, request.remote)
         return ANONYMOUS if self.anonymous_view else None
 
+    def refused_write(self, who: Identity, request: web.Request, reason: str) -> None:
+        """A write refused before it could reach a drive: an audit event when somebody logged
+        in asked for it (anonymous refusals are not: nobody to name, and free to repeat)."""
+        if who.via is Via.ANONYMOUS:
+            return
+        name = request.match_info.get("name")
+        drive = self.live.drives.get(name) if name is not None else None
+        configuration = request.path.endswith("/parameter")
+        event = GatewayEvent(
+            "write",
+            f"{request.method} {request.path}",
+            drive=name if drive is not None else None,
+            bus=drive.bus if drive is not None else None,
+            who=who.client,
+            result=f"refused: {reason}",
+            address=who.address,
+            category=Category.CONFIGURATION if configuration else Category.CONTROL,
+        )
+        self.events.record(event)
+
     def audit(self, kind: str, user: str, address: str, result: str) -> None:
         """A login, failed login or logout: into the events (the store, MQTT), never with the
         password. The name as typed, cut short: it may be anything."""
@@ -196,10 +216,14 @@ async def _guarded(console: Console, request: web.Request, handler: Handler) -> 
             raise _error(401, "log in, or send an API token (Authorization: Bearer TOKEN)")
         raise web.HTTPFound(f"/login?next={quote(path)}")
     if request.method not in ("GET", "HEAD") and path != "/api/logout":
+        refusal = None
         if not who.may_write:
-            raise _error(403, f"{who.name} ({who.role}) may not make changes: operators only")
-        if who.via is Via.SESSION and not _csrf_ok(console, request):
-            raise _error(403, "missing or wrong CSRF token (X-CSRF-Token)")
+            refusal = f"{who.name} ({who.role}) may not make changes: operators only"
+        elif who.via is Via.SESSION and not _csrf_ok(console, request):
+            refusal = "missing or wrong CSRF token (X-CSRF-Token)"
+        if refusal is not None:
+            console.refused_write(who, request, refusal)
+            raise _error(403, refusal)
     request[IDENTITY] = who
     return await handler(request)
 
