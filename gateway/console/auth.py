@@ -35,6 +35,8 @@ FIRST_DELAY_S: Final = 1.0
 MAX_DELAY_S: Final = 60.0
 FORGET_S: Final = 900.0
 MAX_KEYS: Final = 10_000
+MAX_NAME_LENGTH: Final = 64
+"""Of a name typed at the login, what is kept (throttle, events): it may be anything."""
 _DUMMY_HASH: Final = "scrypt$16384$8$1$" + "A" * 22 + "$" + "A" * 43
 """Checked for an unknown user name, so its answer takes as long as a wrong password's."""
 
@@ -167,45 +169,62 @@ class LoginThrottle:
     Per name *and* address, so that somebody guessing alice's password from one machine slows
     only himself: alice logs in from her own. Per address too, with more room, so that trying
     many names from one machine is slowed as well (and scrypt's CPU with it). A key with no
-    failure for `FORGET_S` starts afresh; a login clears its (name, address)."""
+    failure for `FORGET_S` starts afresh; a login clears its (name, address). At most
+    `MAX_KEYS` keys are kept, the longest quiet ones forgotten first."""
 
     def __init__(self) -> None:
-        self._failures: dict[tuple[str, str], _Failures] = {}
+        self._failures: dict[tuple[str | None, str], _Failures] = {}
 
     def retry_after(self, name: str, address: str) -> float:
         """Seconds until an attempt for `name` from `address` is checked; 0 when it is now."""
         now = time.monotonic()
-        return max(failures.wait(free, now) for failures, free in self._both(name, address, now))
+        waits = [f.wait(free, now) for f, free in self._known(name, address, now)]
+        return max(waits, default=0.0)
 
     def refused(self, name: str, address: str) -> bool:
         """A throttled attempt: True for the first since the last failure (worth reporting)."""
         first = False
-        for failures, _ in self._both(name, address, time.monotonic()):
+        for failures, _ in self._known(name, address, time.monotonic()):
             first = first or not failures.told
             failures.told = True
         return first
 
     def failed(self, name: str, address: str) -> None:
         now = time.monotonic()
-        for failures, _ in self._both(name, address, now):
+        for key in _keys(name, address):
+            failures = self._failures.get(key)
+            if failures is None or now - failures.last > FORGET_S:
+                failures = self._failures[key] = _Failures()
             failures.count += 1
             failures.last = now
             failures.told = False
-        if len(self._failures) > MAX_KEYS:  # bounded: forget the keys with nothing recent
-            for key in [k for k, f in self._failures.items() if now - f.last > FORGET_S]:
-                del self._failures[key]
+        if len(self._failures) > MAX_KEYS:
+            self._forget(now)
 
     def succeeded(self, name: str, address: str) -> None:
-        self._failures.pop((name, address), None)
+        self._failures.pop(_keys(name, address)[0], None)
 
-    def _both(self, name: str, address: str, now: float) -> list[tuple[_Failures, int]]:
-        return [
-            (self._of((name, address), now), MAX_FAILURES),
-            (self._of(("", address), now), MAX_ADDRESS_FAILURES),
-        ]
+    def _known(self, name: str, address: str, now: float) -> list[tuple[_Failures, int]]:
+        """The recent failures of (name, address) and of address, with their free counts."""
+        found = []
+        frees = (MAX_FAILURES, MAX_ADDRESS_FAILURES)
+        for key, free in zip(_keys(name, address), frees, strict=True):
+            failures = self._failures.get(key)
+            if failures is not None and now - failures.last <= FORGET_S:
+                found.append((failures, free))
+        return found
 
-    def _of(self, key: tuple[str, str], now: float) -> _Failures:
-        failures = self._failures.get(key)
-        if failures is None or now - failures.last > FORGET_S:
-            failures = self._failures[key] = _Failures()
-        return failures
+    def _forget(self, now: float) -> None:
+        """Bounded: the keys with nothing recent go, then the quietest down to 90 %."""
+        for key in [k for k, f in self._failures.items() if now - f.last > FORGET_S]:
+            del self._failures[key]
+        excess = len(self._failures) - MAX_KEYS * 9 // 10
+        if excess > 0:
+            quietest = sorted(self._failures, key=lambda k: self._failures[k].last)[:excess]
+            for key in quietest:
+                del self._failures[key]
+
+
+def _keys(name: str, address: str) -> tuple[tuple[str | None, str], tuple[str | None, str]]:
+    """(name, address) and the address's own; a name as long as any worth keeping."""
+    return (name[:MAX_NAME_LENGTH], address), (None, address)

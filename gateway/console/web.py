@@ -26,6 +26,7 @@ from aiohttp import web
 from gateway.console import pages
 from gateway.console.auth import (
     ANONYMOUS,
+    MAX_NAME_LENGTH,
     SESSION_COOKIE,
     Identity,
     LoginCounts,
@@ -51,7 +52,6 @@ LIVE_PERIOD_S: Final = 0.5
 """The overview and a drive's page are pushed this often: live within a second."""
 HEARTBEAT_S: Final = 15.0
 MAX_JSON: Final = 16 * 1024
-MAX_NAME_IN_EVENT: Final = 64
 IDENTITY: Final = web.RequestKey("identity", Identity)
 _SECURITY_HEADERS: Final = {
     # No inline script or style, nothing from elsewhere: a plant network is often offline, and
@@ -131,7 +131,7 @@ class Console:
     def audit(self, kind: str, user: str, address: str, result: str) -> None:
         """A login, failed login or logout: into the events (the store, MQTT), never with the
         password. The name as typed, cut short: it may be anything."""
-        user = user[:MAX_NAME_IN_EVENT]
+        user = user[:MAX_NAME_LENGTH]
         text = audit_text(kind, {"user": user, "address": address})
         self.events.record(
             GatewayEvent(
@@ -327,7 +327,7 @@ async def login(request: web.Request) -> web.StreamResponse:
     if role is None:
         throttle.failed(name, address)
         console.logins.failed += 1
-        log.warning("console: failed login for %r from %s", name[:MAX_NAME_IN_EVENT], address)
+        log.warning("console: failed login for %r from %s", name[:MAX_NAME_LENGTH], address)
         console.audit("login_failed", name, address, "wrong name or password")
         raise _error(401, "wrong name or password")
     throttle.succeeded(name, address)
