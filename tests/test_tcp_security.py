@@ -20,11 +20,12 @@ from typing import Any
 import pytest
 from pymodbus.client import AsyncModbusTlsClient
 
-from gateway.config import GatewayConfig
+from gateway.config import GatewayConfig, MetricsConfig
 from gateway.instruments.simulator import SimulatedLine
 from gateway.profile.states import RunState
 from gateway.tcp.cert_roles import role_extension
-from tests.support import RecordProperty, TcpClient, eventually, running_gateway
+from tests.support import RecordProperty, TcpClient, eventually, free_port, running_gateway
+from tests.test_ops_metrics import http_get
 from tests.tls import client_with_role, make_ca, make_signed
 
 pytestmark = pytest.mark.line(addresses=[1])
@@ -173,7 +174,10 @@ async def test_without_a_trusted_certificate_there_is_no_connection(
 async def test_stalled_handshakes_are_closed_and_counted_while_a_client_is_served(
     line: SimulatedLine, pki: Pki, record_property: RecordProperty
 ) -> None:
-    async with running_gateway(secure_config(line.path, pki, first_request_timeout_s=1)) as app:
+    metrics_port = free_port()
+    metrics = MetricsConfig(enabled=True, host="127.0.0.1", port=metrics_port)
+    config = secure_config(line.path, pki, first_request_timeout_s=1)
+    async with running_gateway(config.model_copy(update={"metrics": metrics})) as app:
         port = app.tcp.tls_port
         assert port is not None
         # Half a ClientHello each: a record header announcing 512 bytes, and 16 of them.
@@ -195,7 +199,9 @@ async def test_stalled_handshakes_are_closed_and_counted_while_a_client_is_serve
         assert max(closed_after) < 2.5, max(closed_after)
         assert min(closed_after) > 0.8, min(closed_after)
         await eventually(lambda: app.tcp.stats.tls_handshake_timeouts == 50, what="counted")
-        assert app.tcp.stats.tls_handshakes_failed == 0
+        _, _, text = await http_get(metrics_port, "/metrics")
+        assert "invt_gateway_tcp_tls_handshake_timeouts_total 50.0" in text
+        assert "invt_gateway_tcp_tls_handshakes_failed_total 0.0" in text
         assert app.tcp.stats.accepted == 1  # the operator; the stalled ones never had a slot
         record_property(
             "figure:stalled TLS handshakes",
