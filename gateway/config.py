@@ -190,13 +190,15 @@ class ModbusTcpConfig(Section):
     host: str = "0.0.0.0"
     port: int = Field(5020, ge=0, le=65535)
     """502 is Modbus's port (needs root or CAP_NET_BIND_SERVICE); 0 picks a free one."""
-    max_connections: int = Field(32, ge=1, le=10000)
+    max_connections: int = Field(64, ge=1, le=10000)
+    """Two SCADA hosts, each with one connection per drive of a full 32-drive line."""
     idle_timeout_s: float = Field(300.0, gt=0)
     max_requests_per_connection: int = Field(16, ge=1, le=1024)
     """Outstanding (pipelined) requests one connection may have; more wait in its socket."""
     max_connections_per_client: int | None = Field(None, ge=1, le=10000)
-    """Connections one client address may hold; default half of max_connections (a few HMIs
-    behind one NAT still fit, one host can't take every slot)."""
+    """Connections one client address may hold; default half of max_connections (32: a SCADA
+    host with one connection per drive of a full line, or HMIs behind one NAT, fit; one host
+    can't take every slot)."""
     first_request_timeout_s: float = Field(10.0, gt=0, le=3600)
     """A new connection must complete a request within this; otherwise it is closed."""
     max_queued_writes_per_client: int = Field(16, ge=1, le=1024)
@@ -483,6 +485,9 @@ class ConsoleConfig(Section):
     cert_file: str | None = None
     key_file: str | None = None
     """Both given: the console speaks HTTPS only."""
+    request_timeout_s: float = Field(10.0, gt=0, le=3600)
+    """A request's head must arrive within this of connecting (or of its first byte), its body
+    within this of its head; otherwise the connection is closed (and counted)."""
 
     @field_validator("cert_file", "key_file")
     @classmethod

@@ -53,6 +53,7 @@ from gateway.modbus.functions import FUNCTIONS
 from gateway.modbus.request_checks import Reason
 
 if TYPE_CHECKING:
+    from gateway.console.feature import ConsoleFeature
     from gateway.mqtt import MqttBridge
 from gateway.routing import Router
 from gateway.settings import GatewaySettings, MetricsSettings
@@ -303,6 +304,9 @@ class GatewayCollector(Collector):
             yield from _mqtt_families(bridge)
         if self.service.tcp.access is not None:
             yield self._access(self.service.tcp.access)
+        console = getattr(self.service, "console", None)
+        if console is not None:
+            yield from _console_families(console)
         yield from self._store(self.service.events)
 
     def _gateway(self) -> Iterable[GaugeMetricFamily | InfoMetricFamily]:
@@ -523,6 +527,10 @@ _TCP_COUNTERS = {
     "evicted": "Connections closed to make room for a new one: they had never completed a request",
     "slow_closed": "Connections closed for a frame not completed in time, or no first request",
     "write_limited": "Writes answered 0AH: the client had max_queued_writes_per_client waiting",
+    "tls_handshake_timeouts": (
+        "TLS connections closed with their handshake not done within first_request_timeout_s"
+    ),
+    "tls_handshakes_failed": "TLS handshakes that failed (no or an untrusted client certificate)",
 }
 
 
@@ -722,6 +730,31 @@ def _mqtt_families(bridge: MqttBridge) -> Iterable[CounterMetricFamily | GaugeMe
     for status, count in sorted(statuses.items()):
         commands.add_metric([status], count)
     yield commands
+
+
+def _console_families(console: ConsoleFeature) -> Iterable[CounterMetricFamily]:
+    timeouts = CounterMetricFamily(
+        f"{PREFIX}_console_request_timeouts",
+        "Console connections closed: a request's head or body not there within "
+        "console.request_timeout_s",
+        labels=["phase"],
+    )
+    closed = console.deadlines.closed
+    timeouts.add_metric(["head"], closed.head)
+    timeouts.add_metric(["body"], closed.body)
+    yield timeouts
+    if console.console is None:
+        return
+    logins = CounterMetricFamily(
+        f"{PREFIX}_console_logins",
+        "Console login attempts by result: ok, failed (wrong name or password), throttled "
+        "(refused before the password was checked: that name and address must wait)",
+        labels=["result"],
+    )
+    counts = console.console.logins
+    for result in ("ok", "failed", "throttled"):
+        logins.add_metric([result], getattr(counts, result))
+    yield logins
 
 
 _STORE_COUNTERS = {

@@ -15,15 +15,17 @@ import struct
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pytest
 from pymodbus.client import AsyncModbusTlsClient
 
-from gateway.config import GatewayConfig
+from gateway.config import GatewayConfig, MetricsConfig
 from gateway.instruments.simulator import SimulatedLine
 from gateway.profile.states import RunState
 from gateway.tcp.cert_roles import role_extension
-from tests.support import TcpClient, running_gateway
+from tests.support import RecordProperty, TcpClient, eventually, free_port, running_gateway
+from tests.test_ops_metrics import http_get
 from tests.tls import client_with_role, make_ca, make_signed
 
 pytestmark = pytest.mark.line(addresses=[1])
@@ -61,10 +63,11 @@ def pki(tmp_path_factory: pytest.TempPathFactory) -> Pki:
     )
 
 
-def secure_config(line_path: str, pki: Pki) -> GatewayConfig:
+def secure_config(line_path: str, pki: Pki, **tcp: Any) -> GatewayConfig:
     return GatewayConfig.model_validate(
         {
             "modbus_tcp": {
+                **tcp,
                 "host": "127.0.0.1",
                 "port": 0,
                 "tls": {
@@ -165,3 +168,50 @@ async def test_without_a_trusted_certificate_there_is_no_connection(
 
         assert await asyncio.to_thread(ask) == b""
         assert app.tcp.stats.accepted == 0  # the handshake failed: never a connection
+        await eventually(lambda: app.tcp.stats.tls_handshakes_failed == 1, what="counted")
+
+
+async def test_stalled_handshakes_are_closed_and_counted_while_a_client_is_served(
+    line: SimulatedLine, pki: Pki, record_property: RecordProperty
+) -> None:
+    metrics_port = free_port()
+    metrics = MetricsConfig(enabled=True, host="127.0.0.1", port=metrics_port)
+    config = secure_config(line.path, pki, first_request_timeout_s=1)
+    async with running_gateway(config.model_copy(update={"metrics": metrics})) as app:
+        port = app.tcp.tls_port
+        assert port is not None
+        # Half a ClientHello each: a record header announcing 512 bytes, and 16 of them.
+        half_hello = bytes.fromhex("16 03 01 02 00 01 00 01 fc 03 03") + bytes(5)
+        stalled = []
+        for _ in range(50):
+            reader, writer = await asyncio.open_connection("127.0.0.1", port)
+            writer.write(half_hello)
+            stalled.append((reader, writer, time.monotonic()))
+        # Meanwhile an operator's client connects and is served.
+        async with pymodbus_tls(port, client_context(pki, pki.operator)) as operator:
+            read = await operator.read_holding_registers(ACCELERATION_TIME, count=1, device_id=1)
+            assert not read.isError()
+        closed_after = await asyncio.gather(
+            *(_closed_after(reader, started) for reader, _, started in stalled)
+        )
+        for _, writer, _ in stalled:
+            writer.close()
+        assert max(closed_after) < 2.5, max(closed_after)
+        assert min(closed_after) > 0.8, min(closed_after)
+        await eventually(lambda: app.tcp.stats.tls_handshake_timeouts == 50, what="counted")
+        _, _, text = await http_get(metrics_port, "/metrics")
+        assert "invt_gateway_tcp_tls_handshake_timeouts_total 50.0" in text
+        assert "invt_gateway_tcp_tls_handshakes_failed_total 0.0" in text
+        assert app.tcp.stats.accepted == 1  # the operator; the stalled ones never had a slot
+        record_property(
+            "figure:stalled TLS handshakes",
+            f"50 closed {min(closed_after):.2f}-{max(closed_after):.2f} s after connecting "
+            f"(first_request_timeout_s 1), counted; a TLS client served meanwhile",
+        )
+
+
+async def _closed_after(reader: asyncio.StreamReader, started: float) -> float:
+    """Seconds from `started` until the gateway closed the connection."""
+    with contextlib.suppress(ConnectionError):  # aborted: a reset is a close too
+        await asyncio.wait_for(reader.read(), 10)
+    return time.monotonic() - started

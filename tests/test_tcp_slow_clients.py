@@ -16,7 +16,7 @@ from collections.abc import AsyncIterator
 import pytest
 
 from gateway.instruments.simulator import SimulatedLine
-from tests.support import TcpClient, eventually, running_gateway, write_pdu
+from tests.support import RecordProperty, TcpClient, eventually, running_gateway, write_pdu
 from tests.test_tcp_protection import protected_config
 
 STATE_WORD_1 = 0x2100
@@ -130,6 +130,35 @@ async def test_one_address_can_not_take_every_slot(line: SimulatedLine) -> None:
         assert await other.read(2, STATE_WORD_1) == [STOPPED]
         for client in [*mine, other]:
             await client.close()
+
+
+async def test_with_the_defaults_a_scada_host_connects_once_per_drive(
+    line: SimulatedLine, record_property: RecordProperty
+) -> None:
+    # Several SCADA packages open one connection per device, and HMIs behind one NAT router
+    # share an address: a full 32-drive line from one host must fit, with room for others.
+    async with running_gateway(config(line.path)) as app:
+        settings = app.tcp.settings
+        scada = await asyncio.gather(*(TcpClient.connect(app.tcp.port) for _ in range(32)))
+        answers = await asyncio.gather(
+            *(client.read(1 + i % 2, STATE_WORD_1) for i, client in enumerate(scada)),
+            return_exceptions=True,
+        )
+        served = sum(1 for answer in answers if answer == [STOPPED])
+        assert served == 32, f"{served} of 32 served, {app.tcp.stats.refused} refused"
+        assert app.tcp.stats.refused == 0
+        # Another host (an engineering laptop) still gets in beside them.
+        other_reader, other_writer = await open_from("127.0.0.2", app.tcp.port)
+        other = TcpClient(other_reader, other_writer)
+        assert await other.read(2, STATE_WORD_1) == [STOPPED]
+        for client in [*scada, other]:
+            await client.close()
+        record_property(
+            "figure:one SCADA host",
+            f"32 connections from one address all served (max_connections "
+            f"{settings.max_connections}, per client {settings.per_client_limit}); "
+            f"another address served beside them",
+        )
 
 
 async def test_slow_senders_holding_every_slot_do_not_keep_a_good_client_out(

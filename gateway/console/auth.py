@@ -7,16 +7,15 @@
   the pages must echo in the `X-CSRF-Token` header.
 - A script sends its user's API token (`Authorization: Bearer TOKEN`): no cookie, so no CSRF.
 - Nobody logged in is a viewer when `anonymous_view` is on, else refused.
-- Failed logins are counted per client address and per user name: after `MAX_FAILURES` within
-  `FAILURE_WINDOW_S`, further attempts are refused (429) until the window has passed, so a
-  password can't be guessed at the line rate.
+- Failed logins are counted per user name and client address (`LoginThrottle`): after
+  `MAX_FAILURES` each further attempt from there waits twice as long as the last, so a password
+  can't be guessed at the line rate, and a guesser elsewhere can't lock the operator out.
 """
 
 from __future__ import annotations
 
 import secrets
 import time
-from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -29,7 +28,15 @@ SESSION_COOKIE: Final = "invt_console_session"
 SESSION_IDLE_S: Final = 8 * 3600.0
 MAX_SESSIONS: Final = 256
 MAX_FAILURES: Final = 5
-FAILURE_WINDOW_S: Final = 60.0
+"""Failed logins for one name from one address at full speed; each one beyond waits longer."""
+MAX_ADDRESS_FAILURES: Final = 50
+"""Failed logins from one address, whatever the names, at full speed."""
+FIRST_DELAY_S: Final = 1.0
+MAX_DELAY_S: Final = 60.0
+FORGET_S: Final = 900.0
+MAX_KEYS: Final = 10_000
+MAX_NAME_LENGTH: Final = 64
+"""Of a name typed at the login, what is kept (throttle, events): it may be anything."""
 _DUMMY_HASH: Final = "scrypt$16384$8$1$" + "A" * 22 + "$" + "A" * 43
 """Checked for an unknown user name, so its answer takes as long as a wrong password's."""
 
@@ -50,6 +57,8 @@ class Identity:
     name: str
     role: Role
     via: Via
+    address: str | None = None
+    """The client's IP address, for the audit (None: not asked over HTTP)."""
 
     @property
     def client(self) -> str:
@@ -127,36 +136,95 @@ class Sessions:
             del self._sessions[key]
 
 
-class LoginLimiter:
-    """Failed logins per key (client address, user name) in a sliding window."""
+@dataclass(slots=True)
+class _Failures:
+    count: int = 0
+    last: float = 0.0
+    told: bool = False
+    """A refusal since the last failure has been reported (the rest are only counted)."""
+
+    def wait(self, free: int, now: float) -> float:
+        """Seconds until the next attempt may be checked; 0: now."""
+        beyond = self.count - free
+        if beyond < 0:
+            return 0.0
+        delay = min(FIRST_DELAY_S * 2.0**beyond, MAX_DELAY_S)
+        return max(0.0, self.last + delay - now)
+
+
+@dataclass(slots=True)
+class LoginCounts:
+    """Login attempts by outcome, for /metrics."""
+
+    ok: int = 0
+    failed: int = 0
+    throttled: int = 0
+    """Refused (429) before the password was checked: its name and address must wait."""
+
+
+class LoginThrottle:
+    """Failed logins per (name, address), and per address over every name; beyond their free
+    failures each attempt waits twice as long as the one before (up to `MAX_DELAY_S`).
+
+    Per name *and* address, so that somebody guessing alice's password from one machine slows
+    only himself: alice logs in from her own. Per address too, with more room, so that trying
+    many names from one machine is slowed as well (and scrypt's CPU with it). A key with no
+    failure for `FORGET_S` starts afresh; a login clears its (name, address). At most
+    `MAX_KEYS` keys are kept, the longest quiet ones forgotten first."""
 
     def __init__(self) -> None:
-        self._failures: dict[str, deque[float]] = {}
+        self._failures: dict[tuple[str | None, str], _Failures] = {}
 
-    def retry_after(self, keys: Iterable[str]) -> float:
-        """Seconds until another attempt is allowed for every key; 0 when it is now."""
+    def retry_after(self, name: str, address: str) -> float:
+        """Seconds until an attempt for `name` from `address` is checked; 0 when it is now."""
         now = time.monotonic()
-        wait = 0.0
-        for key in keys:
-            failures = self._recent(key, now)
-            if len(failures) >= MAX_FAILURES:
-                wait = max(wait, failures[0] + FAILURE_WINDOW_S - now)
-        return wait
+        waits = [f.wait(free, now) for f, free in self._known(name, address, now)]
+        return max(waits, default=0.0)
 
-    def failed(self, keys: Iterable[str]) -> None:
+    def refused(self, name: str, address: str) -> bool:
+        """A throttled attempt: True for the first since the last failure (worth reporting)."""
+        first = False
+        for failures, _ in self._known(name, address, time.monotonic()):
+            first = first or not failures.told
+            failures.told = True
+        return first
+
+    def failed(self, name: str, address: str) -> None:
         now = time.monotonic()
-        for key in keys:
-            self._recent(key, now).append(now)
-        if len(self._failures) > 10_000:  # bounded: forget the keys with nothing recent
-            for key in [k for k, v in self._failures.items() if not self._recent(k, now)]:
+        for key in _keys(name, address):
+            failures = self._failures.get(key)
+            if failures is None or now - failures.last > FORGET_S:
+                failures = self._failures[key] = _Failures()
+            failures.count += 1
+            failures.last = now
+            failures.told = False
+        if len(self._failures) > MAX_KEYS:
+            self._forget(now)
+
+    def succeeded(self, name: str, address: str) -> None:
+        self._failures.pop(_keys(name, address)[0], None)
+
+    def _known(self, name: str, address: str, now: float) -> list[tuple[_Failures, int]]:
+        """The recent failures of (name, address) and of address, with their free counts."""
+        found = []
+        frees = (MAX_FAILURES, MAX_ADDRESS_FAILURES)
+        for key, free in zip(_keys(name, address), frees, strict=True):
+            failures = self._failures.get(key)
+            if failures is not None and now - failures.last <= FORGET_S:
+                found.append((failures, free))
+        return found
+
+    def _forget(self, now: float) -> None:
+        """Bounded: the keys with nothing recent go, then the quietest down to 90 %."""
+        for key in [k for k, f in self._failures.items() if now - f.last > FORGET_S]:
+            del self._failures[key]
+        excess = len(self._failures) - MAX_KEYS * 9 // 10
+        if excess > 0:
+            quietest = sorted(self._failures, key=lambda k: self._failures[k].last)[:excess]
+            for key in quietest:
                 del self._failures[key]
 
-    def succeeded(self, keys: Iterable[str]) -> None:
-        for key in keys:
-            self._failures.pop(key, None)
 
-    def _recent(self, key: str, now: float) -> deque[float]:
-        failures = self._failures.setdefault(key, deque(maxlen=MAX_FAILURES))
-        while failures and now - failures[0] > FAILURE_WINDOW_S:
-            failures.popleft()
-        return failures
+def _keys(name: str, address: str) -> tuple[tuple[str | None, str], tuple[str | None, str]]:
+    """(name, address) and the address's own; a name as long as any worth keeping."""
+    return (name[:MAX_NAME_LENGTH], address), (None, address)

@@ -1,5 +1,9 @@
 """The gateway's own events as the console shows them: faults raised and cleared, drives offline
-and online, ports lost and back, and writes (an audit line: who, what, when, result).
+and online, ports lost and back, and the audit: logins, failed logins, logouts and writes.
+
+Each audit event carries what IEC 62443-4-2 CR 2.8 asks of one: its time, its source (the
+user and the client's address), its category (`Category`), its type, its id (the store's, once
+stored) and its result. Passwords are never part of one.
 
 The console reads and writes them only through `EventStore`, a small interface: today an
 in-memory ring (`MemoryEventStore`, bounded, lost at restart); a store that survives restarts
@@ -12,13 +16,33 @@ import json
 import time
 from collections import deque
 from dataclasses import asdict, dataclass, field
-from typing import Any, Protocol
+from enum import StrEnum
+from typing import Any, Final, Protocol
 
 from gateway.poller.drive_state import iso_time
 from gateway.store.records import FaultRecord, StoredEvent
 from gateway.store.status import StoreStatus
 
 MEMORY_EVENTS = 2000
+
+
+class Category(StrEnum):
+    """What an audit event is about (CR 2.8's "event category")."""
+
+    AUTHENTICATION = "authentication"
+    """Logins, failed logins, logouts."""
+    CONTROL = "control"
+    """Commands and set-points: what a drive does now."""
+    CONFIGURATION = "configuration"
+    """Parameter writes: how a drive behaves from now on."""
+
+
+AUDIT_KINDS: Final = {
+    "login": Category.AUTHENTICATION,
+    "login_failed": Category.AUTHENTICATION,
+    "logout": Category.AUTHENTICATION,
+}
+"""The console's own audit events beside its writes, stored under the same type."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -30,9 +54,15 @@ class GatewayEvent:
     drive: str | None = None
     bus: str | None = None
     who: str | None = None
-    """For writes: "console:alice", "tcp:10.0.0.5:40112", "mqtt"."""
+    """For writes: "console:alice", "tcp:10.0.0.5:40112", "mqtt"; for logins the name."""
     result: str | None = None
     at: float = field(default_factory=time.time)
+    address: str | None = None
+    """The console client's address, for its audit events."""
+    category: str | None = None
+    """An audit event's `Category`."""
+    id: int | None = None
+    """The store's id (once stored: the same as on `<base>/bridge/event`)."""
 
     def to_json(self) -> dict[str, Any]:
         data = asdict(self)
@@ -119,8 +149,11 @@ class ConsoleEventsRecorded(MemoryEventStore):
                 "who": event.who,
                 "what": event.text,
                 "result": event.result,
+                **_source(event),
             }
             self._store.record("command", data, drive=event.drive)
+        elif event.kind in AUDIT_KINDS:
+            self._store.record(event.kind, _source(event))
 
     async def history(self, drive: str | None = None, limit: int = 200) -> list[GatewayEvent]:
         stored = [console_event(event) for event in await self._store.recent_events(limit, drive)]
@@ -135,6 +168,27 @@ class ConsoleEventsRecorded(MemoryEventStore):
 
     def store_problem(self) -> str | None:
         return self._store.status().reason
+
+
+def _source(event: GatewayEvent) -> dict[str, Any]:
+    """An audit event's CR 2.8 fields beside its type, time and id (the store's)."""
+    user = event.who.removeprefix("console:") if event.who else None
+    return {
+        "category": event.category,
+        "user": user,
+        "address": event.address,
+        "result": event.result,
+    }
+
+
+def audit_text(kind: str, data: dict[str, Any]) -> str:
+    """A login, failed login or logout in words."""
+    user, address = data.get("user"), data.get("address")
+    return {
+        "login": f"{user} logged in from {address}",
+        "login_failed": f"failed login for {user!r} from {address}",
+        "logout": f"{user} logged out from {address}",
+    }[kind]
 
 
 def console_event(event: StoredEvent) -> GatewayEvent:
@@ -158,10 +212,12 @@ def console_event(event: StoredEvent) -> GatewayEvent:
         kind, text = "write", str(what)
     elif kind == "modbus_writes":
         kind, text = "write", f"Modbus-TCP writes: {json.dumps(data, sort_keys=True)}"
+    elif kind in AUDIT_KINDS:
+        text = audit_text(kind, data)
     else:
         text = json.dumps(data, sort_keys=True)
     drive = data.get("drive")
-    who = data.get("who") or data.get("source") or data.get("client")
+    who = data.get("who") or data.get("user") or data.get("source") or data.get("client")
     result = data.get("result")
     return GatewayEvent(
         kind,
@@ -171,4 +227,11 @@ def console_event(event: StoredEvent) -> GatewayEvent:
         str(who) if who is not None else None,
         str(result) if result is not None else None,
         at=event.time,
+        address=_text(data.get("address")),
+        category=_text(data.get("category")),
+        id=event.id,
     )
+
+
+def _text(value: object) -> str | None:
+    return value if isinstance(value, str) else None

@@ -17,6 +17,7 @@ from aiohttp import web
 
 from gateway.bus import Bus, BusSettings
 from gateway.console.auth import Users
+from gateway.console.deadlines import KEEP_ALIVE_S, DeadlinedSite, RequestDeadlines
 from gateway.console.events import EventStore, MemoryEventStore
 from gateway.console.live import LiveState
 from gateway.console.operations import DriveOperations, Policy
@@ -61,7 +62,8 @@ class ConsoleFeature:
         self.events: EventStore = events if events is not None else MemoryEventStore()
         self.console: Console | None = None
         self._runner: web.AppRunner | None = None
-        self._site: web.TCPSite | None = None
+        self._site: DeadlinedSite | None = None
+        self.deadlines = RequestDeadlines(settings.request_timeout_s)
         self._sampler: asyncio.Task[None] | None = None
         self._live: LiveState | None = None
 
@@ -100,14 +102,14 @@ class ConsoleFeature:
             events=self.events,
         )
         self._runner = web.AppRunner(
-            build_app(self.console), access_log=None, shutdown_timeout=SHUTDOWN_S
+            build_app(self.console),
+            access_log=None,
+            shutdown_timeout=SHUTDOWN_S,
+            keepalive_timeout=KEEP_ALIVE_S,
         )
         await self._runner.setup()
-        site = web.TCPSite(
-            self._runner,
-            settings.host,
-            settings.port,
-            ssl_context=self._ssl_context(),
+        site = DeadlinedSite(
+            self._runner, settings.host, settings.port, self.deadlines, self._ssl_context()
         )
         try:
             await site.start()

@@ -17,7 +17,7 @@ from typing import Any, Final
 
 from gateway.console.auth import Identity
 from gateway.console.decode import describe
-from gateway.console.events import EventStore, GatewayEvent
+from gateway.console.events import Category, EventStore, GatewayEvent
 from gateway.errors import ModbusError, OperationError
 from gateway.modbus.functions import (
     READ_HOLDING_REGISTERS,
@@ -132,7 +132,9 @@ class DriveOperations:
                 400, f"unknown command {command!r}: one of {', '.join(COMMAND_NAMES)}"
             )
         control = register_by_name("control_word")
-        return await self._write(who, drive, control.address, CONTROL_COMMANDS[command])
+        return await self._write(
+            who, drive, control.address, CONTROL_COMMANDS[command], Category.CONTROL
+        )
 
     async def set_frequency(self, who: Identity, drive: str, hz: float) -> dict[str, Any]:
         setpoint = register_by_name("frequency_setpoint")
@@ -140,7 +142,7 @@ class DriveOperations:
             raw = setpoint.encode(hz)
         except ValueError as exc:
             raise OperationError(400, str(exc)) from None
-        return await self._write(who, drive, setpoint.address, raw)
+        return await self._write(who, drive, setpoint.address, raw, Category.CONTROL)
 
     async def write_parameter(
         self, who: Identity, drive: str, name: str, value: str, ram: bool
@@ -158,11 +160,13 @@ class DriveOperations:
             if not settings.profile.ram_writes_supported:
                 raise OperationError(400, f"{settings.model} has no RAM-only parameter writes")
             address = ram_write_address(address)
-        return await self._write(who, drive, address, raw)
+        return await self._write(who, drive, address, raw, Category.CONFIGURATION)
 
     # -- the path every request takes --------------------------------------------------------
 
-    async def _write(self, who: Identity, drive: str, address: int, raw: int) -> dict[str, Any]:
+    async def _write(
+        self, who: Identity, drive: str, address: int, raw: int, category: Category
+    ) -> dict[str, Any]:
         settings = self._drive(drive)
         if not settings.profile.is_invt:
             raise OperationError(400, f"{drive} is a generic Modbus device: no INVT commands")
@@ -171,13 +175,13 @@ class DriveOperations:
         try:
             reply = await self._send(who, settings, pdu)
         except OperationError as exc:
-            self._audit(who, drive, settings, what, f"refused: {exc}")
+            self._audit(who, drive, settings, category, what, f"refused: {exc}")
             raise
         if is_exception(reply):
             result = f"drive refused: {describe_exception(reply[1])}"
-            self._audit(who, drive, settings, what, result)
+            self._audit(who, drive, settings, category, what, result)
             raise OperationError(502, result)
-        self._audit(who, drive, settings, what, "ok")
+        self._audit(who, drive, settings, category, what, "ok")
         if self.poller is not None:
             self.poller.poll_now(drive)  # its new state shows at once
         return {"ok": True, "write": what}
@@ -224,11 +228,25 @@ class DriveOperations:
         return settings
 
     def _audit(
-        self, who: Identity, drive: str, settings: DriveSettings, what: str, result: str
+        self,
+        who: Identity,
+        drive: str,
+        settings: DriveSettings,
+        category: Category,
+        what: str,
+        result: str,
     ) -> None:
-        self.events.record(
-            GatewayEvent("write", what, drive, settings.bus, who=who.client, result=result)
+        event = GatewayEvent(
+            "write",
+            what,
+            drive,
+            settings.bus,
+            who=who.client,
+            result=result,
+            address=who.address,
+            category=category,
         )
+        self.events.record(event)
 
 
 def _group_points(group: str) -> list[Point]:

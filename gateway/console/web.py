@@ -16,6 +16,7 @@ import hmac
 import json
 import logging
 from collections.abc import Awaitable, Callable
+from dataclasses import replace
 from importlib import resources
 from typing import Any, Final
 from urllib.parse import quote
@@ -25,14 +26,17 @@ from aiohttp import web
 from gateway.console import pages
 from gateway.console.auth import (
     ANONYMOUS,
+    MAX_NAME_LENGTH,
     SESSION_COOKIE,
     Identity,
-    LoginLimiter,
+    LoginCounts,
+    LoginThrottle,
     Sessions,
     Users,
     Via,
 )
-from gateway.console.events import EventStore
+from gateway.console.deadlines import mark_requests
+from gateway.console.events import Category, EventStore, GatewayEvent, audit_text
 from gateway.console.live import LiveState
 from gateway.console.operations import (
     PARAMETER_GROUPS,
@@ -87,27 +91,65 @@ class Console:
         self.traffic = traffic
         self.events = events
         self.sessions = Sessions()
-        self.limiter = LoginLimiter()
+        self.throttle = LoginThrottle()
+        self.logins = LoginCounts()
         self.closing = asyncio.Event()
 
     def identify(self, request: web.Request) -> Identity | None:
         authorization = request.headers.get("Authorization", "")
         if authorization.startswith("Bearer "):
-            return self.users.by_token(authorization.removeprefix("Bearer ").strip())
+            user = self.users.by_token(authorization.removeprefix("Bearer ").strip())
+            return None if user is None else replace(user, address=request.remote)
         key = request.cookies.get(SESSION_COOKIE)
         if key:
             session = self.sessions.get(key)
             # A user removed from the config (or given another role) is gone at once.
             if session is not None and self.users.role_of(session.user) is session.role:
-                return Identity(session.user, session.role, Via.SESSION)
+                return Identity(session.user, session.role, Via.SESSION, request.remote)
         return ANONYMOUS if self.anonymous_view else None
+
+    def refused_write(self, who: Identity, request: web.Request, reason: str) -> None:
+        """A write refused before it could reach a drive: an audit event when somebody logged
+        in asked for it (anonymous refusals are not: nobody to name, and free to repeat)."""
+        if who.via is Via.ANONYMOUS:
+            return
+        name = request.match_info.get("name")
+        drive = self.live.drives.get(name) if name is not None else None
+        configuration = request.path.endswith("/parameter")
+        event = GatewayEvent(
+            "write",
+            f"{request.method} {request.path}",
+            drive=name if drive is not None else None,
+            bus=drive.bus if drive is not None else None,
+            who=who.client,
+            result=f"refused: {reason}",
+            address=who.address,
+            category=Category.CONFIGURATION if configuration else Category.CONTROL,
+        )
+        self.events.record(event)
+
+    def audit(self, kind: str, user: str, address: str, result: str) -> None:
+        """A login, failed login or logout: into the events (the store, MQTT), never with the
+        password. The name as typed, cut short: it may be anything."""
+        user = user[:MAX_NAME_LENGTH]
+        text = audit_text(kind, {"user": user, "address": address})
+        self.events.record(
+            GatewayEvent(
+                kind,
+                text,
+                who=user,
+                result=result,
+                address=address,
+                category=Category.AUTHENTICATION,
+            )
+        )
 
 
 CONSOLE: Final = web.AppKey("console", Console)
 
 
 def build_app(console: Console) -> web.Application:
-    app = web.Application(middlewares=[_guard], client_max_size=MAX_JSON)
+    app = web.Application(middlewares=[mark_requests, _guard], client_max_size=MAX_JSON)
     app[CONSOLE] = console
     static = resources.files("gateway.console").joinpath("static")
     routes = [
@@ -174,10 +216,14 @@ async def _guarded(console: Console, request: web.Request, handler: Handler) -> 
             raise _error(401, "log in, or send an API token (Authorization: Bearer TOKEN)")
         raise web.HTTPFound(f"/login?next={quote(path)}")
     if request.method not in ("GET", "HEAD") and path != "/api/logout":
+        refusal = None
         if not who.may_write:
-            raise _error(403, f"{who.name} ({who.role}) may not make changes: operators only")
-        if who.via is Via.SESSION and not _csrf_ok(console, request):
-            raise _error(403, "missing or wrong CSRF token (X-CSRF-Token)")
+            refusal = f"{who.name} ({who.role}) may not make changes: operators only"
+        elif who.via is Via.SESSION and not _csrf_ok(console, request):
+            refusal = "missing or wrong CSRF token (X-CSRF-Token)"
+        if refusal is not None:
+            console.refused_write(who, request, refusal)
+            raise _error(403, refusal)
     request[IDENTITY] = who
     return await handler(request)
 
@@ -265,21 +311,30 @@ async def login(request: web.Request) -> web.StreamResponse:
     console = request.app[CONSOLE]
     body = await _json_body(request)
     name, password = str(body.get("name", "")), str(body.get("password", ""))
-    keys = (f"address:{request.remote}", f"user:{name}")
-    wait = console.limiter.retry_after(keys)
+    address = request.remote or "?"
+    throttle = console.throttle
+    wait = throttle.retry_after(name, address)
     if wait > 0:
-        refused = _error(429, f"too many failed logins: try again in {wait:.0f} s")
-        refused.headers["Retry-After"] = str(max(1, round(wait)))
+        console.logins.throttled += 1
+        retry = max(1, round(wait))
+        if throttle.refused(name, address):  # the first refusal is reported, the rest counted
+            console.audit("login_failed", name, address, f"throttled: retry in {retry} s")
+        refused = _error(429, f"too many failed logins: try again in {retry} s")
+        refused.headers["Retry-After"] = str(retry)
         raise refused
     # scrypt takes tens of milliseconds of CPU: in a thread, so the bus never waits for it.
     role = await asyncio.to_thread(console.users.check_password, name, password)
     if role is None:
-        console.limiter.failed(keys)
-        log.warning("console: failed login for %r from %s", name, request.remote)
+        throttle.failed(name, address)
+        console.logins.failed += 1
+        log.warning("console: failed login for %r from %s", name[:MAX_NAME_LENGTH], address)
+        console.audit("login_failed", name, address, "wrong name or password")
         raise _error(401, "wrong name or password")
-    console.limiter.succeeded(keys)
+    throttle.succeeded(name, address)
+    console.logins.ok += 1
     key, session = console.sessions.open(name, role)
-    log.info("console: %s logged in from %s", name, request.remote)
+    log.info("console: %s logged in from %s", name, address)
+    console.audit("login", name, address, "ok")
     response = web.json_response(
         {"ok": True, "user": name, "role": str(role), "csrf_token": session.csrf_token}
     )
@@ -296,7 +351,12 @@ async def login(request: web.Request) -> web.StreamResponse:
 
 async def logout(request: web.Request) -> web.StreamResponse:
     console = request.app[CONSOLE]
-    console.sessions.close(request.cookies.get(SESSION_COOKIE, ""))
+    key = request.cookies.get(SESSION_COOKIE, "")
+    session = console.sessions.get(key) if key else None
+    if session is not None:
+        console.sessions.close(key)
+        log.info("console: %s logged out from %s", session.user, request.remote)
+        console.audit("logout", session.user, request.remote or "?", "ok")
     response = web.json_response({"ok": True})
     response.del_cookie(SESSION_COOKIE, path="/")
     return response

@@ -64,6 +64,8 @@ class ConsoleSettings:
     cert_file: str | None
     key_file: str | None
     """Both given: HTTPS only (the config refuses one without the other)."""
+    request_timeout_s: float = 10.0
+    """A request's head, then its body, must arrive within this (`gateway.console.deadlines`)."""
 
 
 def console_user(config: ConsoleUserConfig) -> ConsoleUser:
@@ -82,4 +84,5 @@ def console_settings(config: ConsoleConfig) -> ConsoleSettings | None:
         anonymous_view=config.anonymous_view,
         cert_file=config.cert_file,
         key_file=config.key_file,
+        request_timeout_s=config.request_timeout_s,
     )

@@ -25,6 +25,10 @@ class EventType(StrEnum):
     CONFIG_RELOADED = "config_reloaded"
     RETAINED_COMMAND_CLEARED = "retained_command_cleared"
     """A retained command was refused and removed from the broker (the MQTT bridge)."""
+    LOGIN = "login"
+    LOGIN_FAILED = "login_failed"
+    """A wrong name or password, or an attempt refused while its name and address wait."""
+    LOGOUT = "logout"
 
 
 @dataclass(frozen=True, slots=True)

@@ -15,7 +15,8 @@ What one client can cost the others is bounded: `max_requests_per_connection` re
 client that stops reading its answers is not read either (its answers wait in a buffer no larger
 than those requests' replies), a frame must be complete `PARTIAL_FRAME_TIMEOUT_S` after its first
 byte (however slowly the rest trickles in), a new connection must complete a request within
-`first_request_timeout_s`, silence gets `idle_timeout_s`, one address may hold at most
+`first_request_timeout_s` (and a TLS client its handshake before that: `handshakes`), silence gets
+`idle_timeout_s`, one address may hold at most
 `max_connections_per_client` slots, and `max_connections` caps the rest. When every slot is
 taken, a newcomer gets the slot of the oldest connection that has never completed a request: slow
 senders can't keep well-behaved clients out, and a client that has been served is never the one
@@ -44,6 +45,7 @@ from gateway.modbus.functions import changes_nothing, check_request, exception_p
 from gateway.modbus.mbap import HEADER_LENGTH, build_adu, parse_header
 from gateway.tcp.access import AccessPolicy, AccessRule
 from gateway.tcp.cert_roles import client_role
+from gateway.tcp.handshakes import HandshakeWatch
 
 log = logging.getLogger(__name__)
 
@@ -67,7 +69,7 @@ SOCKET_BUFFER_BYTES = 32 * 1024
 class TcpSettings:
     host: str = "0.0.0.0"
     port: int = 5020
-    max_connections: int = 32
+    max_connections: int = 64
     idle_timeout_s: float = 300.0
     max_requests_per_connection: int = 16
     broadcast_reply: bool = True
@@ -126,6 +128,10 @@ class TcpStats:
     """Connections closed for a frame not completed in time, or no request after connecting."""
     write_limited: int = 0
     """Writes refused with 0AH: the client had `max_queued_writes_per_client` waiting."""
+    tls_handshake_timeouts: int = 0
+    """TLS connections closed for a handshake not done within `first_request_timeout_s`."""
+    tls_handshakes_failed: int = 0
+    """TLS handshakes that failed: no certificate, one the CA didn't sign, a protocol error."""
     malformed_requests: Counter[str] = field(default_factory=Counter)
     """Requests answered at the front door (01H or 03H), by reason (`Reason` of the registry)."""
     active: set[str] = field(default_factory=set)
@@ -145,6 +151,8 @@ class ModbusTcpServer:
         self._server: asyncio.Server | None = None
         self._tls_server: asyncio.Server | None = None
         self._connections: set[Connection] = set()
+        self.handshakes: HandshakeWatch | None = None
+        """The TLS listener's handshakes, timed and counted."""
         self._networks = [ipaddress.ip_network(n, strict=False) for n in settings.allowed_networks]
         # None without rules: the common case costs one attribute test per request.
         self.access = AccessPolicy(settings.access) if settings.access else None
@@ -183,6 +191,8 @@ class ModbusTcpServer:
                 raise cannot_listen(
                     "Modbus/TCP Security", tls.host, tls.port, "modbus_tcp.tls files", exc
                 ) from exc
+            self.handshakes = HandshakeWatch(self.stats, settings.first_request_timeout_s)
+            self.handshakes.watch(context)
             self._tls_server = await self._listen(tls.host, tls.port, context)
             log.info("Modbus/TCP Security (TLS) listening on %s:%d", tls.host, self.tls_port)
 
@@ -192,7 +202,13 @@ class ModbusTcpServer:
         keys = "modbus_tcp.host/port" if context is None else "modbus_tcp.tls.host/port"
         try:
             server = await loop.create_server(
-                lambda: Connection(self), host, port, reuse_address=True, ssl=context
+                lambda: Connection(self),
+                host,
+                port,
+                reuse_address=True,
+                ssl=context,
+                # asyncio's default is 60 s: a stalled handshake would hold a socket that long.
+                ssl_handshake_timeout=None if context is None else self._handshake_timeout_s(),
             )
         except OSError as exc:
             raise cannot_listen(what, host, port, keys, exc) from exc
@@ -201,6 +217,10 @@ class ModbusTcpServer:
                 with contextlib.suppress(OSError):
                     sock.setsockopt(socket.SOL_SOCKET, option, SOCKET_BUFFER_BYTES)
         return server
+
+    def _handshake_timeout_s(self) -> float:
+        assert self.handshakes is not None, "watched before listening"
+        return self.handshakes.timeout_s
 
     def stop_accepting(self) -> None:
         for server in (self._server, self._tls_server):
@@ -222,6 +242,8 @@ class ModbusTcpServer:
             self._drained = None
         for connection in list(self._connections):
             connection.close()
+        if self.handshakes is not None:
+            self.handshakes.stop()
         if self._server is not None:
             try:
                 await asyncio.wait_for(self._server.wait_closed(), 1.0)
