@@ -44,7 +44,8 @@ def test_backup_change_by_hand_restore_then_no_difference(
         "unit": "s",
         "description": "acceleration time 1",
     }
-    assert "P07" not in saved["parameters"]  # the fault history is read-only
+    assert "P07.27" not in saved["parameters"]["P07"]  # the fault history is read-only
+    assert "P17" not in saved["parameters"]  # so is the monitoring group
     assert "P14.00" not in saved["parameters"]["P14"]  # the line's own settings stay put
 
     changed = run_cli(

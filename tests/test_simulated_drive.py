@@ -271,7 +271,7 @@ def test_constructor_checks_its_inputs() -> None:
     with pytest.raises(ValueError, match="at most 6 faults"):
         SimulatedDrive(1, fault_history=[1] * 7)
     with pytest.raises(ValueError, match="not a simulated parameter"):
-        SimulatedDrive(1, parameters={"P05.01": 1})
+        SimulatedDrive(1, parameters={"P12.01": 1})  # no P12 group
 
 
 # ---------------------------------------------------------------- pure helpers

@@ -4,10 +4,12 @@
     invt-gateway params diff pump1.yaml --port /dev/ttyUSB0 --address 2
     invt-gateway params restore pump1.yaml --port /dev/ttyUSB0 --address 2 [--apply] [--ram]
 
-`backup` saves every writable parameter of the drive's profile by group, with units and the
-model (from 2103H, or --model). `diff` lists what differs (exit 1 when anything does). `restore`
-shows that list and writes only what differs, and only with --apply (a dry run otherwise);
---ram writes RAM only (8xxxH, lost at power-off). Read-only and can't-change-while-running
+`backup` saves every writable parameter of the drive's series table (profile/data/) by group,
+with units, the manual's words for each value and the model (from 2103H, or --model); codes of
+an unconfirmed table the drive does not have are listed, not fatal. `diff` lists what differs
+(exit 1 when anything does). `restore` shows that list and writes only what differs, and only
+with --apply (a dry run otherwise), each write read back afterwards; --ram writes RAM only
+(8xxxH, lost at power-off). Read-only and can't-change-while-running
 parameters are skipped with the reason; the first exception the drive answers stops it, naming
 the parameter. `--via tcp://HOST:PORT` goes through a running gateway (address = unit id).
 """
@@ -16,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -99,19 +102,33 @@ def backup(master: Master, args: argparse.Namespace) -> int:
         print(f"invt-gateway params: {exc}", file=sys.stderr)
         return EXIT_USAGE
     specs = saved_parameters(profile)
+    absent: list[str] = []
+    started = time.monotonic()
     with progress(f"reading {profile.display_name} at {args.address}", len(specs)) as step:
-        values = read_parameters(master, args.address, specs, step)
-    text = to_yaml(ParameterSet(profile, values), code, args.address)
+        values = read_parameters(
+            master, args.address, specs, step, max_words=profile.max_words, absent=absent
+        )
+    took = time.monotonic() - started
+    text = to_yaml(ParameterSet(profile, values), code, args.address, absent=absent)
     try:
         args.file.write_text(text, encoding="utf-8")
     except OSError as exc:
         print(f"invt-gateway params: cannot write {args.file}: {exc.strerror}", file=sys.stderr)
         return EXIT_FAILURE
-    groups = sorted({spec.name.split(".")[0] for spec in specs})
+    groups = sorted({spec.group for spec in specs if spec.name in values})
     print(
-        f"{args.file}: {len(specs)} parameters of {profile.display_name} at address "
-        f"{args.address} ({', '.join(groups)})"
+        f"{args.file}: {len(values)} parameters of {profile.display_name} at address "
+        f"{args.address} ({', '.join(groups)}) in {took:.1f} s"
     )
+    unconfirmed = profile.parameter_table.unconfirmed_groups
+    if unconfirmed:
+        print(
+            f"unconfirmed for {profile.display_name} (another series' table): "
+            f"{', '.join(unconfirmed)}",
+            file=sys.stderr,
+        )
+    if absent:
+        print(f"not on this drive (exception 02H): {', '.join(absent)}", file=sys.stderr)
     return EXIT_OK
 
 
@@ -138,7 +155,8 @@ def compare(master: Master, args: argparse.Namespace, wanted: ParameterSet) -> i
     if args.action == "diff":
         print(f"{len(changes)} difference(s) in {len(specs)} parameters", file=sys.stderr)
         return EXIT_OK if not changes else EXIT_FAILURE
-    writes, skipped = plan(changes, actual, is_running(master, args.address))
+    running = is_running(master, args.address)
+    writes, skipped = plan(changes, actual, running, profile.parameter_table)
     for skip in skipped:
         print(f"skipped {skip.difference.spec.name}: {skip.reason}")
     if not args.apply:
@@ -164,6 +182,25 @@ def write_all(master: Master, args: argparse.Namespace, writes: list[Difference]
             print(f"{change.spec.name} <- {show(change.spec, change.file)}", flush=True)
     where = " to RAM only" if args.ram else ""
     print(f"{done} parameter(s) written{where}")
+    return verify(master, args, writes)
+
+
+def verify(master: Master, args: argparse.Namespace, writes: list[Difference]) -> int:
+    """Each written parameter read back: what the drive holds now that differs is reported
+    (a drive may re-initialise a parameter after another's write, or round a value)."""
+    from gateway.tools.params import read_parameters, show
+
+    if args.ram:
+        return EXIT_OK  # 8xxxH is write-only: a read gives the EEPROM's value, not the RAM's
+    specs = [change.spec for change in writes]
+    now = read_parameters(master, args.address, specs, max_words=16)
+    wrong = [change for change in writes if now[change.spec.name] != change.file]
+    for change in wrong:
+        got, wanted = show(change.spec, now[change.spec.name]), show(change.spec, change.file)
+        print(f"read back {change.spec.name}: drive {got}, file {wanted}")
+    if wrong:
+        print(f"{len(wrong)} parameter(s) differ after writing", file=sys.stderr)
+        return EXIT_FAILURE
     return EXIT_OK
 
 

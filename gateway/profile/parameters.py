@@ -33,10 +33,47 @@ class Parameter:
     maximum_from: str | None = None
     read_only: bool = False
     locked_while_running: bool = False
+    choices: tuple[tuple[int, str], ...] = ()
+    """The manual's words for each value ("2" → "SVPWM (V/F) control"), in order."""
+    hint: str = ""
+    """How to read a value that is not one choice: its bits or digits ("bit 0-8: S1-S8; HDI")."""
+    hexadecimal: bool = False
+    """The manual writes its values in hex (bit masks, digit-coded settings: 0x1FF)."""
+    default_known: bool = True
+    """False: the manual's default "depends on model"; `default` is then only what a simulated
+    drive starts with."""
+    confirmed: bool = True
+    """False: taken from another series' manual; this series' own table was not reachable."""
+    source: str = ""
+    """Where the row comes from: manual, section, page."""
+    note: str = ""
+    """What the source leaves unclear about this row (a garbled range, a shifted name)."""
 
     @property
     def address(self) -> int:
         return parse_parameter(self.name)
+
+    @property
+    def group(self) -> str:
+        """ "P00" for P00.11."""
+        return self.name.split(".")[0]
+
+    @property
+    def signed(self) -> bool:
+        """Negative values allowed: the register holds them in two's complement."""
+        return self.minimum < 0
+
+    def number(self, raw: int) -> int:
+        """The register word as the range reads it: two's complement when the range is signed."""
+        return raw - 0x10000 if self.signed and raw >= 0x8000 else raw
+
+    def word(self, number: int) -> int:
+        """The register word of a number in the range's units (the inverse of `number`)."""
+        return number & 0xFFFF
+
+    def choice(self, raw: int) -> str | None:
+        """The manual's words for a value, or None when the manual gives none for it."""
+        return next((words for value, words in self.choices if value == raw), None)
 
 
 _P = Parameter
