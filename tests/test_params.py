@@ -140,3 +140,106 @@ def test_diff_through_a_running_gateway(tmp_path: Path) -> None:
             result = run_cli("params", "diff", str(backup), *via)
             assert result.returncode == 1
             assert result.stdout == ("P00.12  deceleration time 1: drive 40.0 s, file 10.0 s\n")
+
+
+def test_backup_of_a_gd350_holds_every_writable_parameter_of_its_table(tmp_path: Path) -> None:
+    """The figure the README quotes: how many parameters, how long, at 19200 baud."""
+    from gateway.profile import get_profile
+    from gateway.tools.params import saved_parameters
+
+    wanted = {spec.name for spec in saved_parameters(get_profile("gd350"))}
+    backup = tmp_path / "gd350.yaml"
+    with simulator_process("--drive", "1=gd350", "--baud", "19200", "--parity", "N") as sim:
+        result = run_cli(
+            "params", "backup", str(backup), "--address", "1",
+            "--port", sim.path, "--baud", "19200", "--parity", "N",
+        )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    saved = yaml.safe_load(backup.read_text())
+    names = {name for group in saved["parameters"].values() for name in group}
+    assert names == wanted
+    assert len(names) > 300
+    assert f"{len(wanted)} parameters of GD350 at address 1" in result.stdout
+    assert "unconfirmed for GD350 (another series' table): P00, P01" in result.stderr
+    assert "P05" in saved["unconfirmed"]
+    assert "absent" not in saved  # the simulated drive serves the whole table
+    assert saved["parameters"]["P05"]["P05.01"] == {
+        "value": 1,
+        "description": "S1 terminal function selection",
+        "choice": "forward rotation",
+    }
+    assert saved["parameters"]["P05"]["P05.10"]["hex"] == "0x0000"
+    print(result.stdout.strip())  # the figure: N parameters ... in T s
+
+
+def test_a_clone_restored_onto_another_drive_leaves_no_difference(
+    line: SimulatorProcess, tmp_path: Path
+) -> None:
+    changes = (
+        "P00.11=25.0", "P00.03=60.00", "P00.04=55.00",
+        "P02.01=0x004B",  # rated power 7.5 kW: written first, it resets the motor's data
+        "P02.05=0x0064",  # rated current 10.0 A
+        "P03.12=0xFE0C",  # keypad torque -50.0 %: a signed value
+        "P05.10=0x0101",  # input polarity: a bit mask
+        "P05.02=0x000A",  # S2 = frequency UP
+        "P10.02=0xFC18",  # multi-step speed 0: -100.0 %
+        "P24.03=0x0FA0",  # hibernation start 40.00 Hz
+    )  # fmt: skip
+    changed = run_cli("write", "--port", line.path, *LINE, "--address", "1", *changes)
+    assert changed.returncode == 0, changed.stderr
+    backup = tmp_path / "donor.yaml"
+    assert params(line, "backup", str(backup), "--address", "1")[0] == 0
+    saved = yaml.safe_load(backup.read_text())["parameters"]
+    assert saved["P03"]["P03.12"]["value"] == -50.0
+    assert saved["P05"]["P05.02"]["choice"] == "frequency UP"
+
+    code, out, err = params(line, "diff", str(backup), "--address", "2")
+    assert code == 1
+    assert len(out.splitlines()) == len(changes)
+
+    code, out, err = params(line, "restore", str(backup), "--address", "2", "--apply")
+    assert code == 0, err
+    lines = out.splitlines()
+    assert lines.index("P02.01 <- 7.5 kW") < lines.index("P02.05 <- 10.0 A")
+    assert lines.index("P00.03 <- 60.00 Hz") < lines.index("P00.04 <- 55.00 Hz")
+    assert f"{len(changes)} parameter(s) written" in out
+    assert "read back" not in out
+
+    code, out, err = params(line, "diff", str(backup), "--address", "2")
+    assert (code, out) == (0, "")
+
+
+def test_an_old_eighteen_parameter_backup_still_restores(
+    line: SimulatorProcess, tmp_path: Path
+) -> None:
+    """A file `params backup` wrote before the series tables: the common table's 18 codes."""
+    old = {
+        "P00": {
+            "P00.00": 2, "P00.01": 2, "P00.02": 0, "P00.03": 50.0, "P00.04": 45.0,
+            "P00.05": 0.0, "P00.06": 8, "P00.07": 15, "P00.10": 50.0, "P00.11": 12.5,
+            "P00.12": 10.0, "P00.13": 0,
+        },
+        "P01": {"P01.20": 0.0},
+        "P08": {"P08.06": 5.0, "P08.07": 10.0, "P08.08": 10.0},
+        "P14": {"P14.03": 5, "P14.04": 0.0},
+    }  # fmt: skip
+    document = {
+        "model": "gd350a",
+        "series": "GD350A",
+        "identification": "01A2H",
+        "address": 1,
+        "saved": "2026-01-05T08:00:00Z",
+        "parameters": {
+            group: {name: {"value": value} for name, value in entries.items()}
+            for group, entries in old.items()
+        },
+    }
+    assert sum(len(entries) for entries in old.values()) == 18
+    backup = tmp_path / "old.yaml"
+    backup.write_text(yaml.safe_dump(document, sort_keys=False))
+    code, out, err = params(line, "restore", str(backup), "--address", "2", "--apply")
+    assert code == 0, err
+    assert "2 parameter(s) written" in out  # P00.04 and P00.11 differ from the factory's
+    code, out, err = params(line, "diff", str(backup), "--address", "2")
+    assert (code, out) == (0, "")
+    assert "0 difference(s) in 18 parameters" in err
