@@ -75,6 +75,16 @@ class Parameter:
         """The manual's words for a value, or None when the manual gives none for it."""
         return next((words for value, words in self.choices if value == raw), None)
 
+    def show(self, raw: int) -> str:
+        """ "50.00 Hz", "-50.0 %", "0x01FF", "2 (SVPWM (V/F) control)"."""
+        if self.hexadecimal and not self.decimals:
+            return f"0x{raw:04X}"
+        number = self.number(raw)
+        value = f"{number / 10**self.decimals:.{self.decimals}f}" if self.decimals else str(number)
+        text = f"{value} {self.unit}".rstrip()
+        choice = self.choice(raw)
+        return f"{text} ({choice})" if choice else text
+
 
 _P = Parameter
 PARAMETERS: Final[tuple[Parameter, ...]] = (

@@ -203,14 +203,8 @@ def engineering(spec: Parameter, raw: int) -> float | int:
 
 
 def show(spec: Parameter, raw: int) -> str:
-    """ "50.00 Hz", "0x01FF", "2 (SVPWM (V/F) control)"."""
-    if spec.hexadecimal and not spec.decimals:
-        return f"0x{raw:04X}"
-    number = spec.number(raw)
-    value = f"{number / 10**spec.decimals:.{spec.decimals}f}" if spec.decimals else str(number)
-    choice = spec.choice(raw)
-    text = f"{value} {spec.unit}".rstrip()
-    return f"{text} ({choice})" if choice else text
+    """ "50.00 Hz", "0x01FF", "2 (SVPWM (V/F) control)": `Parameter.show`."""
+    return spec.show(raw)
 
 
 def show_number(spec: Parameter, number: int) -> str:
