@@ -243,3 +243,27 @@ def test_an_old_eighteen_parameter_backup_still_restores(
     code, out, err = params(line, "diff", str(backup), "--address", "2")
     assert (code, out) == (0, "")
     assert "0 difference(s) in 18 parameters" in err
+
+
+def test_diff_and_restore_from_another_drive_on_the_line(line: SimulatorProcess) -> None:
+    """A clone without a file: drive 1 is the donor, drive 2 the replacement."""
+    changed = run_cli(
+        "write", "--port", line.path, *LINE, "--address", "1", "P00.12=40.0", "P05.02=0x000A"
+    )
+    assert changed.returncode == 0, changed.stderr
+    clone = ("--from-address", "1", "--address", "2", "--port", line.path, *LINE)
+    result = run_cli("params", "diff", *clone)
+    assert result.returncode == 1
+    assert result.stdout.splitlines() == [
+        "P00.12  deceleration time 1: drive 10.0 s, file 40.0 s",
+        "P05.02  S2 terminal function selection: drive 4 (forward jogging), file 10 (frequency UP)",
+    ]
+    result = run_cli("params", "restore", *clone, "--apply")
+    assert result.returncode == 0, result.stderr
+    result = run_cli("params", "diff", *clone)
+    assert (result.returncode, result.stdout) == (0, "")
+    both = run_cli("params", "diff", "x.yaml", *clone)
+    assert (both.returncode, both.stderr.strip()) == (
+        2,
+        "invt-gateway params: give either FILE or --from-address N",
+    )
