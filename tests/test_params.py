@@ -267,3 +267,26 @@ def test_diff_and_restore_from_another_drive_on_the_line(line: SimulatorProcess)
         2,
         "invt-gateway params: give either FILE or --from-address N",
     )
+
+
+def test_an_unconfirmed_code_the_drive_lacks_is_listed_not_fatal() -> None:
+    """Another series' table may name a code this drive lacks: it answers 02H for it."""
+    from gateway.errors import FieldError
+    from gateway.profile import Parameter, get_profile
+    from gateway.tools.masters import RtuMaster, SerialOptions
+    from gateway.tools.params import read_parameters
+
+    table = get_profile("gd350").parameter_table
+    borrowed = [row for row in table.rows if row.group == "P13"]  # P13.13-P13.15, unconfirmed
+    missing = Parameter("P13.16", "not on this drive", confirmed=False)
+    with SimulatedLine(addresses=[1], model="gd350", baudrate=115200, parity="N") as sim:
+        master = RtuMaster(SerialOptions(sim.path, 115200, "N"))
+        try:
+            absent: list[str] = []
+            values = read_parameters(master, 1, [*borrowed, missing], absent=absent)
+            assert (sorted(values), absent) == (["P13.13", "P13.14", "P13.15"], ["P13.16"])
+            confirmed = Parameter("P13.16", "not on this drive")
+            with pytest.raises(FieldError, match=r"reading P13\.16 at 1: exception 02H"):
+                read_parameters(master, 1, [*borrowed, confirmed], absent=[])
+        finally:
+            master.close()
