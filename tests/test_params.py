@@ -46,6 +46,7 @@ def test_backup_change_by_hand_restore_then_no_difference(
     }
     assert "P07.27" not in saved["parameters"]["P07"]  # the fault history is read-only
     assert "P17" not in saved["parameters"]  # so is the monitoring group
+    assert "P00.18" not in saved["parameters"]["P00"]  # a command (restore the defaults)
     assert "P14.00" not in saved["parameters"]["P14"]  # the line's own settings stay put
 
     changed = run_cli(
@@ -85,6 +86,7 @@ def test_restore_skips_what_the_drive_cant_take_and_stops_at_its_first_exception
     document["parameters"]["P00"]["P00.00"]["value"] = 1  # locked while running
     document["parameters"]["P00"]["P00.04"]["value"] = 55.0  # above P00.03 = 50 Hz: refused
     document["parameters"]["P00"]["P00.12"]["value"] = 30.0
+    document["parameters"]["P00"]["P00.18"] = {"value": 1}  # restore the defaults: never
     backup.write_text(yaml.safe_dump(document, sort_keys=False))
     started = run_cli("write", "--port", line.path, *LINE, "--address", "2", "2000H=run_forward")
     assert started.returncode == 0, started.stderr
@@ -92,6 +94,10 @@ def test_restore_skips_what_the_drive_cant_take_and_stops_at_its_first_exception
     code, out, err = params(line, "restore", str(backup), "--address", "2", "--apply")
     assert code == 1
     assert "skipped P00.00: can't change while the drive runs: stop it first" in out
+    assert (
+        "skipped P00.18: a command, not a setting: it restores the default values, clears the "
+        "fault records or locks the keypad"
+    ) in out
     assert "P00.12 <- 30.0 s" in out  # what fits is written before what the drive refuses
     assert "writing P00.04" in err
     assert "04H operation failure" in err

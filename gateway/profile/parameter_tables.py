@@ -220,13 +220,18 @@ def _table_rows(table: str) -> tuple[Parameter, ...]:
     else:
         rows = read_rows(_data(described["file"]), described["file"])
     groups: Mapping[str, str] = described.get("groups", {})
+    actions: Mapping[str, str] = described.get("actions", {})
     document = described["document"]
     result = []
     for row in rows:
         if groups and row.group not in groups:
             raise TableError(f"{described.get('file', table)}: {row.name}: no source for its group")
         pages = groups.get(row.group, "")
-        result.append(replace(row, source=f"{document}, {pages}" if pages else document))
+        source = f"{document}, {pages}" if pages else document
+        result.append(replace(row, source=source, action=actions.get(row.name, "")))
+    unknown = set(actions) - {row.name for row in result}
+    if unknown:
+        raise TableError(f"parameter_sources.yaml: {table}: actions name no row: {sorted(unknown)}")
     return tuple(result)
 
 

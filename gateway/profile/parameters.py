@@ -48,6 +48,9 @@ class Parameter:
     """Where the row comes from: manual, section, page."""
     note: str = ""
     """What the source leaves unclear about this row (a garbled range, a shifted name)."""
+    action: str = ""
+    """What writing it sets off, when it is a command rather than a setting ("restores the
+    factory defaults"): never saved nor restored."""
 
     @property
     def address(self) -> int:

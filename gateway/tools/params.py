@@ -14,12 +14,14 @@ differs. The file is meant to be read and edited by people:
         P00.03: {value: 50.0, unit: Hz, description: max. output frequency}
         P00.11: {value: 10.0, unit: s, description: acceleration time 1}
 
-Left out of a backup: read-only parameters (the fault history, the monitoring group P17) and
-the line's own settings P14.00-P14.02 (address, baud, data format): written to another drive
-they would take it off the line. Where the series' table is another series' (unconfirmed, see
-`profile.parameter_tables`), a code the drive answers with exception 02H is passed over and
-listed under `absent`, and the file lists the `unconfirmed` groups; their values are kept raw
--exact but their ranges are not held against the file.
+Left out of a backup: read-only parameters (the fault history, the monitoring group P17), the
+codes that set something off rather than store a setting (P00.15 autotuning, P00.18 restore
+the defaults, P07.01 parameter copy: `Parameter.action`), and the line's own settings
+P14.00-P14.02 (address, baud, data format): written to another drive they would take it off the
+line. Where the series' table is another series' (unconfirmed, see `profile.parameter_tables`),
+a code the drive answers with exception 02H is passed over and listed under `absent`, and the
+file lists the `unconfirmed` groups; their values are kept exactly but their ranges are not
+held against the file.
 
 A restore skips, with the reason, a read-only parameter and one that can't change while the
 drive runs (when it runs); it stops at the first exception the drive answers, naming the
@@ -68,8 +70,13 @@ def _nothing(name: str) -> None:
 
 
 def saved_parameters(profile: DriveProfile) -> list[Parameter]:
-    """What a backup holds: every writable parameter the profile knows but the line settings."""
-    return [p for p in profile.parameters if not p.read_only and p.name not in LINE_SETTINGS]
+    """What a backup holds: every writable parameter the profile knows but the line settings and
+    the codes that set something off (P00.18, restore the defaults)."""
+    return [
+        p
+        for p in profile.parameters
+        if not p.read_only and not p.action and p.name not in LINE_SETTINGS
+    ]
 
 
 # ------------------------------------------------------------------------------ the drive
@@ -330,6 +337,8 @@ def plan(
     for change in changes:
         if change.spec.read_only:
             skipped.append(Skipped(change, "read-only"))
+        elif change.spec.action:
+            skipped.append(Skipped(change, f"a command, not a setting: it {change.spec.action}"))
         elif change.spec.name in LINE_SETTINGS:
             skipped.append(Skipped(change, "the line's own setting: set it on the keypad"))
         elif change.spec.locked_while_running and running:
