@@ -119,6 +119,12 @@ def test_a_file_of_another_series_is_refused_and_a_bad_value_named(
     code, _, err = params(line, "diff", str(backup), "--address", "1")
     assert code == 2
     assert "parameters.P14.P14.03.value: 500 is outside 0 ms ... 200 ms" in err
+    document["parameters"]["P14"]["P14.03"]["value"] = 5
+    document["parameters"]["P05"]["P05.10"]["hex"] = "0x0101"  # edited where it only shows
+    backup.write_text(yaml.safe_dump(document))
+    code, _, err = params(line, "diff", str(backup), "--address", "1")
+    assert code == 2
+    assert "parameters.P05.P05.10.hex: 0x0101 is not value 0: edit value (hex only shows it)" in err
 
 
 def test_diff_through_a_running_gateway(tmp_path: Path) -> None:

@@ -252,8 +252,9 @@ def to_yaml(
     unconfirmed = sorted({spec.group for spec in parameters.specs() if not spec.confirmed})
     if unconfirmed:
         document["unconfirmed"] = unconfirmed
-    if absent:
-        document["absent"] = list(absent)
+    missing = list(absent)
+    if missing:
+        document["absent"] = missing
     document["parameters"] = groups
     return yaml.safe_dump(
         document, sort_keys=False, allow_unicode=True, width=120, default_flow_style=None
@@ -285,6 +286,12 @@ def from_yaml(text: str, source: str) -> ParameterSet:
             value = entry.get("value") if isinstance(entry, dict) else entry
             if isinstance(value, bool) or not isinstance(value, int | float):
                 raise ValueError(f"{source}: {key}.value: expected a number, got {value!r}")
+            shown_hex = entry.get("hex") if isinstance(entry, dict) else None
+            if shown_hex is not None and str(shown_hex).lower() != f"0x{int(value):04x}":
+                raise ValueError(
+                    f"{source}: {key}.hex: {shown_hex} is not value {value}: "
+                    f"edit value (hex only shows it)"
+                )
             number = round(value * 10**spec.decimals)
             # An unconfirmed range is another series': only the register's width holds.
             low, high = (spec.minimum, spec.maximum) if spec.confirmed else (-0x8000, 0xFFFF)
