@@ -51,6 +51,18 @@ def test_every_series_has_a_sourced_table_whose_bounds_exist(key: str) -> None:
             assert bound is None or table.named(bound) is not None, f"{key} {row.name}: {bound}"
 
 
+@pytest.mark.parametrize("key", sorted(PROFILES))
+def test_the_defaults_keep_the_bounds_they_name(key: str) -> None:
+    """A drive at its factory settings (a simulated one too) breaks none of its own ranges."""
+    table = get_profile(key).parameter_table
+    for row in table.rows:
+        low, high = table.named(row.minimum_from or ""), table.named(row.maximum_from or "")
+        if low is not None:
+            assert low.number(low.default) <= row.number(row.default), f"{key} {row.name}"
+        if high is not None:
+            assert row.number(row.default) <= high.number(high.default), f"{key} {row.name}"
+
+
 def test_the_goodrive200a_table_is_the_manuals_whole_and_confirmed() -> None:
     table = series_table("gd200a")
     assert len(table.rows) == 425
