@@ -59,14 +59,15 @@ class ParameterTable:
     rows: tuple[Parameter, ...]
     sources: Mapping[str, str] = field(default_factory=lambda: MappingProxyType({}))
     """Group ("P00") → where its rows come from, in words."""
+    _by_address: Mapping[int, Parameter] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
+        # frozen: the index is built once, here
         object.__setattr__(self, "_by_address", {row.address: row for row in self.rows})
 
     def at(self, address: int) -> Parameter | None:
         """The parameter at a register address (without the RAM bit), or None."""
-        by_address: dict[int, Parameter] = self.__dict__["_by_address"]
-        return by_address.get(address)
+        return self._by_address.get(address)
 
     def named(self, name: str) -> Parameter | None:
         """The parameter called `name` ("P00.11", any case), or None."""
