@@ -39,7 +39,7 @@ from gateway.profile.ram_writes import ram_write_address
 from gateway.routing import Router
 from gateway.settings import DriveSettings
 from gateway.tcp.access import AccessPolicy
-from gateway.tools.points import Point, resolve
+from gateway.tools.points import Point, for_series, resolve
 
 MAX_BLOCK: Final = 16
 """INVT drives answer at most 16 words per read."""
@@ -175,7 +175,7 @@ class DriveOperations:
         self, who: Identity, drive: str, name: str, value: str, ram: bool
     ) -> dict[str, Any]:
         try:
-            point = _series_point(self._drive(drive), resolve(name))
+            point = for_series(resolve(name), self._drive(drive).profile)
             raw = point.encode(value)
         except ValueError as exc:
             raise OperationError(400, str(exc)) from None
@@ -272,14 +272,6 @@ def _series_group(settings: DriveSettings, group: str) -> tuple[Parameter, ...]:
         known = ", ".join((*PARAMETER_GROUPS, *REGISTER_BLOCKS))
         raise OperationError(404, f"no group {group!r}: one of {known}")
     return settings.profile.parameter_groups.get(group, ())
-
-
-def _series_point(settings: DriveSettings, point: Point) -> Point:
-    """A parameter as the drive's series table scales it (the common table knows 27 codes)."""
-    row = settings.profile.parameter_table.at(point.address & 0x7FFF)
-    if not point.label.startswith("P") or row is None:
-        return point
-    return Point(point.label, point.address, row.description, row.decimals, row.unit, row.signed)
 
 
 def _writable(settings: DriveSettings, point: Point) -> bool:
