@@ -316,3 +316,14 @@ def test_a_gd200a_answers_as_its_manuals_table_says() -> None:
     assert drive.handle(write(p("P00.00"), 0), 0.0) == bytes([0x86, 0x04])  # 1-2 on a GD200A
     assert drive.handle(write(p("P07.11"), 300), 0.0) == bytes([0x86, 0x07])  # temperature ●
     assert drive.handle(read(p("P12.00")), 0.0) == bytes([0x83, 0x02])  # no P12 group
+
+
+def test_a_new_rated_motor_power_reinitialises_the_motors_data() -> None:
+    """GD200A manual, P02: "Resetting the rated motor power (P02.01) will initialize
+    P02.02-P02.10"; words after P02.01 in the same 10H write still land."""
+    drive = SimulatedDrive(1, "gd200a")
+    assert drive.handle(write(p("P02.02"), 4500), 0.0)[0] == 0x06  # 45.00 Hz
+    assert drive.handle(write(p("P02.01"), 75), 0.0)[0] == 0x06  # 7.5 kW
+    assert word(drive, p("P02.02"), 0.0) == 5000  # back to its default
+    assert drive.handle(write_many(p("P02.01"), 110, 4500), 0.0)[0] == 0x10
+    assert words(drive.handle(read(p("P02.01"), 2), 0.0)) == [110, 4500]

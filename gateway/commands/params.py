@@ -32,7 +32,7 @@ from gateway.commands.line_options import add_target_arguments
 
 if TYPE_CHECKING:
     from gateway.tools.masters import Master
-    from gateway.tools.params import Difference, ParameterSet
+    from gateway.tools.params import Difference, ParameterSet, Skipped
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -201,10 +201,16 @@ def compare(master: Master, args: argparse.Namespace, wanted: ParameterSet) -> i
     if not args.apply:
         print(f"dry run: {len(writes)} parameter(s) to write; --apply writes them")
         return EXIT_OK
-    return write_all(master, args, writes)
+    return write_all(master, args, writes, wanted, skipped)
 
 
-def write_all(master: Master, args: argparse.Namespace, writes: list[Difference]) -> int:
+def write_all(
+    master: Master,
+    args: argparse.Namespace,
+    writes: list[Difference],
+    wanted: ParameterSet,
+    skipped: list[Skipped],
+) -> int:
     from gateway.errors import FieldError
     from gateway.tools.params import show, write_parameter
 
@@ -221,24 +227,30 @@ def write_all(master: Master, args: argparse.Namespace, writes: list[Difference]
             print(f"{change.spec.name} <- {show(change.spec, change.file)}", flush=True)
     where = " to RAM only" if args.ram else ""
     print(f"{done} parameter(s) written{where}")
-    return verify(master, args, writes)
-
-
-def verify(master: Master, args: argparse.Namespace, writes: list[Difference]) -> int:
-    """Each written parameter read back: what the drive holds now that differs is reported
-    (a drive may re-initialise a parameter after another's write, or round a value)."""
-    from gateway.tools.params import read_parameters, show
-
     if args.ram:
         return EXIT_OK  # 8xxxH is write-only: a read gives the EEPROM's value, not the RAM's
-    specs = [change.spec for change in writes]
-    now = read_parameters(master, args.address, specs, max_words=16)
-    wrong = [change for change in writes if now[change.spec.name] != change.file]
+    return verify(master, args, wanted, {skip.difference.spec.name for skip in skipped})
+
+
+def verify(
+    master: Master, args: argparse.Namespace, wanted: ParameterSet, skipped: set[str]
+) -> int:
+    """The file's parameters read back after writing: what the drive holds that differs is
+    reported (a write may re-initialise other parameters, the drive may round a value)."""
+    from gateway.tools.params import Difference, read_parameters
+
+    specs = [spec for spec in wanted.specs() if spec.name not in skipped]
+    with progress(f"reading back address {args.address}", len(specs)) as step:
+        now = read_parameters(master, args.address, specs, step, max_words=16)
+    wrong = [
+        Difference(spec, now[spec.name], wanted.values[spec.name])
+        for spec in specs
+        if now[spec.name] != wanted.values[spec.name]
+    ]
     for change in wrong:
-        got, wanted = show(change.spec, now[change.spec.name]), show(change.spec, change.file)
-        print(f"read back {change.spec.name}: drive {got}, file {wanted}")
+        print(f"read back {change.line()}")
     if wrong:
-        print(f"{len(wrong)} parameter(s) differ after writing", file=sys.stderr)
+        print(f"{len(wrong)} parameter(s) differ from the file after writing", file=sys.stderr)
         return EXIT_FAILURE
     return EXIT_OK
 

@@ -222,6 +222,7 @@ def _table_rows(table: str) -> tuple[Parameter, ...]:
         rows = read_rows(_data(described["file"]), described["file"])
     groups: Mapping[str, str] = described.get("groups", {})
     actions: Mapping[str, str] = described.get("actions", {})
+    resets: Mapping[str, list[str]] = described.get("reinitialises", {})
     document = described["document"]
     result = []
     for row in rows:
@@ -229,10 +230,14 @@ def _table_rows(table: str) -> tuple[Parameter, ...]:
             raise TableError(f"{described.get('file', table)}: {row.name}: no source for its group")
         pages = groups.get(row.group, "")
         source = f"{document}, {pages}" if pages else document
-        result.append(replace(row, source=source, action=actions.get(row.name, "")))
-    unknown = set(actions) - {row.name for row in result}
+        reset = tuple(format_parameter(parse_parameter(name)) for name in resets.get(row.name, ()))
+        result.append(
+            replace(row, source=source, action=actions.get(row.name, ""), reinitialises=reset)
+        )
+    names = {row.name for row in result}
+    unknown = (set(actions) | set(resets) | {n for ns in resets.values() for n in ns}) - names
     if unknown:
-        raise TableError(f"parameter_sources.yaml: {table}: actions name no row: {sorted(unknown)}")
+        raise TableError(f"parameter_sources.yaml: {table}: no such rows: {sorted(unknown)}")
     return tuple(result)
 
 

@@ -51,6 +51,9 @@ class Parameter:
     action: str = ""
     """What writing it sets off, when it is a command rather than a setting ("restores the
     factory defaults"): never saved nor restored."""
+    reinitialises: tuple[str, ...] = ()
+    """Parameters the drive sets back to their defaults when this one is written (P02.01, the
+    motor's rated power, re-initialises P02.02-P02.10)."""
 
     @property
     def address(self) -> int:

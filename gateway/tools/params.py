@@ -55,8 +55,8 @@ from gateway.tools.masters import Master
 LINE_SETTINGS = frozenset({"P14.00", "P14.01", "P14.02"})
 """Address, baud rate, data format: the line's, not the drive's."""
 WRITTEN_FIRST = ("P02.00", "P02.01")
-"""Motor type and rated power: on INVT drives, writing the rated power re-initialises the rest of
-the motor's rated and model data (P02.02-P02.10 on a GD200A), so they go before them."""
+"""Motor type and rated power: writing the rated power re-initialises the rest of the motor's
+rated and model data (`Parameter.reinitialises`), so they go before them."""
 RUNNING_STATES = frozenset(
     {RunState.RUNNING_FORWARD, RunState.RUNNING_REVERSE, RunState.PRE_EXCITING}
 )
@@ -352,9 +352,30 @@ def plan(
             skipped.append(Skipped(change, "can't change while the drive runs: stop it first"))
         else:
             writes.append(change)
+    writes += _rewritten(writes, skipped, actual, table)
     first = [w for name in WRITTEN_FIRST for w in writes if w.spec.name == name]
     rest = [w for w in writes if w not in first]
     return first + _ordered(rest, actual, table), skipped
+
+
+def _rewritten(
+    writes: list[Difference],
+    skipped: list[Skipped],
+    actual: Mapping[str, int],
+    table: ParameterTable | None,
+) -> list[Difference]:
+    """The file's parameters a planned write re-initialises on the drive (P02.01 resets
+    P02.02-P02.10: `Parameter.reinitialises`), to be written again after it, from the file,
+    where the drive held the file's value too."""
+    planned = {w.spec.name for w in writes} | {skip.difference.spec.name for skip in skipped}
+    again: list[Difference] = []
+    for write in writes:
+        for name in write.spec.reinitialises:
+            spec = _spec_by_name(name, table)
+            if spec is not None and name in actual and name not in planned:
+                again.append(Difference(spec, actual[name], actual[name]))
+                planned.add(name)
+    return again
 
 
 def _ordered(

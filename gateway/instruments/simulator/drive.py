@@ -284,6 +284,13 @@ class SimulatedDrive:
                 if address & RAM_BIT and not self.profile.ram_writes_supported:
                     raise RequestRefused(exc.ILLEGAL_DATA_ADDRESS, "RAM-only writes not supported")
                 self._check_parameter_write(spec, value, parameters)
+                if parameters[spec.address] != value:
+                    # As the manual says: a new rated motor power (P02.01) re-initialises
+                    # P02.02-P02.10; later words of the same 10H write still land.
+                    for name in spec.reinitialises:
+                        reset = self.profile.parameter_table.named(name)
+                        if reset is not None:
+                            parameters[reset.address] = reset.default
                 parameters[spec.address] = value
                 written.append(spec.name)
                 if address & RAM_BIT:
