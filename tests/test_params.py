@@ -197,6 +197,7 @@ def test_a_clone_restored_onto_another_drive_leaves_no_difference(
         "P05.02=0x000A",  # S2 = frequency UP
         "P10.02=0xFC18",  # multi-step speed 0: -100.0 %
         "P24.03=0x0FA0",  # hibernation start 40.00 Hz
+        "P14.03=20",  # response delay: the communication group goes last
     )  # fmt: skip
     changed = run_cli("write", "--port", line.path, *LINE, "--address", "1", *changes)
     assert changed.returncode == 0, changed.stderr
@@ -220,7 +221,8 @@ def test_a_clone_restored_onto_another_drive_leaves_no_difference(
     # P02.01 re-initialises P02.02-P02.10 on the drive: those the file holds go again after it,
     # where they matched before too (P02.03's 1450 rpm would be lost otherwise).
     assert lines.index("P02.01 <- 7.5 kW") < lines.index("P02.03 <- 1450 rpm")
-    assert "18 parameter(s) written" in out
+    assert "19 parameter(s) written" in out
+    assert [line for line in lines if " <- " in line][-1] == "P14.03 <- 20 ms"
     assert "read back" not in out
 
     code, out, err = params(line, "diff", str(backup), "--address", "2")

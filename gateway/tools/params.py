@@ -57,6 +57,9 @@ LINE_SETTINGS = frozenset({"P14.00", "P14.01", "P14.02"})
 WRITTEN_FIRST = ("P02.00", "P02.01")
 """Motor type and rated power: writing the rated power re-initialises the rest of the motor's
 rated and model data (`Parameter.reinitialises`), so they go before them."""
+WRITTEN_LAST = "P14"
+"""The communication group: its response mode and protocol settings (P14.06: no reply to
+writes, another address map) would cut a restore short if written before the rest."""
 RUNNING_STATES = frozenset(
     {RunState.RUNNING_FORWARD, RunState.RUNNING_REVERSE, RunState.PRE_EXCITING}
 )
@@ -354,8 +357,9 @@ def plan(
             writes.append(change)
     writes += _rewritten(writes, skipped, actual, table)
     first = [w for name in WRITTEN_FIRST for w in writes if w.spec.name == name]
-    rest = [w for w in writes if w not in first]
-    return first + _ordered(rest, actual, table), skipped
+    last = [w for w in writes if w.spec.group == WRITTEN_LAST and w not in first]
+    rest = [w for w in writes if w not in first and w not in last]
+    return first + _ordered(rest, actual, table) + last, skipped
 
 
 def _rewritten(
