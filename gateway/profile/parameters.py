@@ -1,6 +1,9 @@
-"""The function parameters (Pxx.yy) the gateway and the simulator know: decimals, range, default.
+"""A function parameter (Pxx.yy) as described: decimals, range, default, marks, the manual's words.
 
-Ranges and factory defaults follow the Goodrive manuals; "depends on model" defaults (P00.11,
+`PARAMETERS` is the common table: 27 codes for remote control that every series' table starts
+with (`parameter_tables`, which loads each series' whole table from `data/`), and what `read`,
+`write` and the MQTT bridge scale by when the series is not known. Its ranges and factory
+defaults follow the Goodrive manuals; "depends on model" defaults (P00.11,
 P00.12, P08.07, P08.08) are given a typical 10.0 s. A range bound may be another parameter's
 value (P00.04, the upper limit, lies within P00.05 ... P00.03): `minimum_from`/`maximum_from`.
 
