@@ -1,16 +1,18 @@
 """A function parameter (Pxx.yy) as described: decimals, range, default, marks, the manual's words.
 
 `PARAMETERS` is the common table: 27 codes for remote control that every series' table starts
-with (`parameter_tables`, which loads each series' whole table from `data/`), and what `read`,
-`write` and the MQTT bridge scale by when the series is not known. Its ranges and factory
-defaults follow the Goodrive manuals; "depends on model" defaults (P00.11,
-P00.12, P08.07, P08.08) are given a typical 10.0 s. A range bound may be another parameter's
-value (P00.04, the upper limit, lies within P00.05 ... P00.03): `minimum_from`/`maximum_from`.
+with but the Goodrive200A's, whose manual was read whole (`parameter_tables` loads each series'
+table from `data/`); `read`, `write` and the MQTT bridge scale by it when the series is not
+known. Its ranges and factory defaults follow the Goodrive manuals; "depends on model" defaults
+(P00.11, P00.12, P08.07, P08.08) are given a typical 10.0 s. A range bound may be another
+parameter's value (P00.04, the upper limit, lies within P00.05 ... P00.03): `minimum_from` and
+`maximum_from`.
 
 Marks as in the manual: `read_only` ("●", e.g. the fault history P07.27-P07.32) and
 `locked_while_running` ("◎": writable only when the drive is stopped; exception 08H otherwise).
 Only P00.00 (speed control mode) carries "◎" here: PROTOCOL.md's frames write P00.03 right
-after a run command and expect an echo, so the frequency limits are not locked.
+after a run command and expect an echo, so the frequency limits are not locked. (The
+Goodrive200A manual marks P00.03-P00.05 "◎": its table says so.)
 """
 
 from __future__ import annotations
