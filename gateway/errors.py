@@ -152,6 +152,8 @@ class FieldError(GatewayError):
         super().__init__(message)
         self.message = message
         self.checks = tuple(checks)
+        self.exception_code: int | None = None
+        """The drive's exception code when the failure is its exception reply."""
 
     def __str__(self) -> str:
         if not self.checks:

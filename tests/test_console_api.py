@@ -203,6 +203,25 @@ async def test_a_parameter_write_to_ram_goes_to_the_ram_address(line: SimulatedL
         assert (status, body["error"]) == (400, "P07.27 is read-only")
 
 
+async def test_every_group_of_the_series_table_shows_with_the_manuals_words(
+    line: SimulatedLine,
+) -> None:
+    async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
+        await web.login("olga", OPERATOR_PASSWORD)
+        inputs = (await web.get_json("/api/drives/pump1/parameters?group=P05"))["parameters"]
+        assert len(inputs) > 40  # the GD350's table (GD200A's, unconfirmed): was empty
+        s1 = next(p for p in inputs if p["name"] == "P05.01")
+        assert (s1["raw"], s1["value"], s1["confirmed"]) == (1, "1 (forward rotation)", False)
+        assert {"value": 10, "words": "frequency UP"} in s1["choices"]
+        status, body = await web.post(
+            "/api/drives/pump1/parameter", {"name": "P03.12", "value": "-50.0", "ram": False}
+        )
+        assert status == 200, body  # scaled and signed as the series table says
+        vector = (await web.get_json("/api/drives/pump1/parameters?group=P03"))["parameters"]
+        torque = next(p for p in vector if p["name"] == "P03.12")
+        assert (torque["raw"], torque["value"]) == (0xFE0C, "-50.0 %")
+
+
 async def test_fault_history_is_decoded_with_the_drives_table(line: SimulatedLine) -> None:
     line.set_fault_history(1, [35, 0, 0, 0, 0, 0])
     async with running_gateway(console_config(line.path)) as app, console_client(app) as web:

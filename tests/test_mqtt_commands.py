@@ -162,6 +162,26 @@ async def test_parameter_writes_and_reads(plant: Plant) -> None:
     assert await plant.tcp.read(1, FREQUENCY_SETPOINT) == [4000]
 
 
+async def test_a_parameter_beyond_the_common_table_scales_as_the_series_table_says(
+    plant: Plant,
+) -> None:
+    """P03.12 (keypad torque, -300.0-300.0 %) is in the GD350's series table, not the common
+    one: written and read back in %, signed, without `decimals` in the message."""
+    response = await plant.bridge(
+        "write_parameter", {"drive": "pump1", "parameter": "P03.12", "value": -50.0}
+    )
+    assert response["status"] == "ok", response
+    assert plant.parameter(1, "P03.12") == 0xFE0C
+    response = await plant.bridge("read_parameter", {"drive": "pump1", "parameter": "P03.12"})
+    assert response["data"] == {
+        "drive": "pump1",
+        "parameter": "P03.12",
+        "register": "030CH",
+        "raw": 0xFE0C,
+        "value": -50.0,
+    }
+
+
 async def test_invalid_value_returns_the_invt_exception_by_name(plant: Plant) -> None:
     response = await plant.set("pump1", {"parameter": "P00.01", "value": 3})
     assert response["status"] == "error"
@@ -242,7 +262,7 @@ async def test_stale_command_is_refused(plant: Plant) -> None:
         ({"command": "run_forward", "frequency": 35}, "invalid_request"),
         ({"frequency_hz": -5}, "invalid_value"),
         ({"frequency_hz": "fast"}, "invalid_value"),
-        ({"parameter": "P05.01", "value": 1.5}, "invalid_value"),
+        ({"parameter": "P12.01", "value": 1.5}, "invalid_value"),  # in no table: decimals unknown
         ({"parameter": "P00.11", "value": 100000.0}, "invalid_value"),
         ({"parameter": "2001H", "value": 10, "command": "stop"}, "invalid_request"),
         ({}, "invalid_request"),

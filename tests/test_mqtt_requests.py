@@ -99,7 +99,7 @@ def test_ram_only_goes_to_8xxxh() -> None:
         ({"parameter": "P00.11"}, "invalid_request"),
         ({"parameter": "P00.11", "value": 1, "raw": 10}, "invalid_request"),
         ({"parameter": "P5.1x", "value": 1}, "invalid_request"),
-        ({"parameter": "P05.01", "value": 1}, "invalid_value"),
+        ({"parameter": "P12.01", "value": 1}, "invalid_value"),  # in no table: decimals unknown
         ({"parameter": "P00.11", "raw": 70000}, "invalid_value"),
         ({"parameter": "P00.11", "value": 1, "ram_only": "yes"}, "invalid_request"),
         ({"parameter": "2000H", "value": 1, "ram_only": True}, "invalid_request"),

@@ -271,7 +271,7 @@ def test_constructor_checks_its_inputs() -> None:
     with pytest.raises(ValueError, match="at most 6 faults"):
         SimulatedDrive(1, fault_history=[1] * 7)
     with pytest.raises(ValueError, match="not a simulated parameter"):
-        SimulatedDrive(1, parameters={"P05.01": 1})
+        SimulatedDrive(1, parameters={"P12.01": 1})  # no P12 group
 
 
 # ---------------------------------------------------------------- pure helpers
@@ -302,3 +302,28 @@ def test_request_assembler_cuts_back_to_back_frames_and_drops_garbage() -> None:
     (frame,) = assembler.on_silence(3.01)
     assert frame.valid
     assert frame.data == unknown
+
+
+def test_a_gd200a_answers_as_its_manuals_table_says() -> None:
+    """Defaults, ranges (exception 04H, INVT's "operation failure") and read-only codes
+    (exception 07H) from profile/data/gd200a_parameters.csv."""
+    drive = SimulatedDrive(1, "gd200a")
+    assert word(drive, p("P05.02"), 0.0) == 4  # S2: forward jogging
+    assert word(drive, p("P11.00"), 0.0) == 0x111
+    assert word(drive, p("P03.12"), 0.0) == 500  # 50.0 %
+    assert drive.handle(write(p("P03.12"), -3000 & 0xFFFF), 0.0)[0] == 0x06  # -300.0 %
+    assert drive.handle(write(p("P03.12"), -3001 & 0xFFFF), 0.0) == bytes([0x86, 0x04])
+    assert drive.handle(write(p("P00.00"), 0), 0.0) == bytes([0x86, 0x04])  # 1-2 on a GD200A
+    assert drive.handle(write(p("P07.11"), 300), 0.0) == bytes([0x86, 0x07])  # temperature ●
+    assert drive.handle(read(p("P12.00")), 0.0) == bytes([0x83, 0x02])  # no P12 group
+
+
+def test_a_new_rated_motor_power_reinitialises_the_motors_data() -> None:
+    """GD200A manual, P02: "Resetting the rated motor power (P02.01) will initialize
+    P02.02-P02.10"; words after P02.01 in the same 10H write still land."""
+    drive = SimulatedDrive(1, "gd200a")
+    assert drive.handle(write(p("P02.02"), 4500), 0.0)[0] == 0x06  # 45.00 Hz
+    assert drive.handle(write(p("P02.01"), 75), 0.0)[0] == 0x06  # 7.5 kW
+    assert word(drive, p("P02.02"), 0.0) == 5000  # back to its default
+    assert drive.handle(write_many(p("P02.01"), 110, 4500), 0.0)[0] == 0x10
+    assert words(drive.handle(read(p("P02.01"), 2), 0.0)) == [110, 4500]

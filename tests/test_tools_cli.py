@@ -95,6 +95,29 @@ def test_write_then_read_round_trips_with_scaling(simulator: SimulatorProcess) -
     assert result.stdout.splitlines()[1].startswith("2001H  25.00 Hz  (2001H = 09C4H")
 
 
+def test_a_parameter_beyond_the_common_table_is_scaled_by_the_drives_series(
+    simulator: SimulatorProcess,
+) -> None:
+    """P03.12 and P05.02 are in the GD350's series table, not the common one: the series comes
+    from 2103H (or --model) and scales, signs and names the values."""
+    result = run_cli(
+        "write", "--port", simulator.path, *LINE, "--address", "200", "P03.12=-50.0", "P05.02=10"
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.splitlines() == [
+        "P03.12 <- -50.0 %  (030CH = FE0CH): written",
+        "P05.02 <- 10 (frequency UP)  (0502H = 000AH): written",
+    ]
+    result = run_cli(
+        "read", "--port", simulator.path, *LINE, "-a", "200", "--model", "gd350", "P03.12"
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.startswith("P03.12  -50.0 %  (030CH = FE0CH: Keypad setting torque)")
+    result = run_cli("write", "--port", simulator.path, *LINE, "--model", "gd350", "P03.12=x")
+    assert result.returncode == 2  # refused before the line is opened
+    assert "not a number" in result.stderr
+
+
 def test_refused_write_names_the_drives_reason(simulator: SimulatorProcess) -> None:
     result = run_cli("write", "--port", simulator.path, *LINE, "--address", "1", "P00.01=3")
     assert result.returncode == 1

@@ -3,7 +3,8 @@
 Each name is one register (Pxx.yy, 2100H, a profile name), printed scaled with its unit and
 decoded where it is a code. `--via tcp://HOST:PORT` asks a running gateway instead of the line.
 
-State word 2 (2101H) and fault codes read differently by series: the series is `--model`, or
+State word 2 (2101H) and fault codes read differently by series, and a parameter is scaled by
+the series' table (profile/data/; the common table knows 27 codes): the series is `--model`, or
 what the drive's 2103H names (read once, only for those); where 2103H can't tell (010AH: GD300
 or GD300-LIFT, whose bit 0 polarities differ), 2101H bit 0 is shown undecided.
 """
@@ -39,7 +40,7 @@ def handle(args: argparse.Namespace) -> int:
     from gateway.profile import get_profile
     from gateway.tools.access import read_point, series_of
     from gateway.tools.open import open_master
-    from gateway.tools.points import resolve
+    from gateway.tools.points import beyond_common_table, for_series, resolve
 
     try:
         points = [resolve(name) for name in args.points]
@@ -54,8 +55,11 @@ def handle(args: argparse.Namespace) -> int:
         return EXIT_FAILURE
     failed = False
     try:
-        if profile is None and any(point.depends_on_series for point in points):
+        if profile is None and any(
+            point.depends_on_series or beyond_common_table(point) for point in points
+        ):
             profile = series_of(master, args.address)
+        points = [for_series(point, profile) for point in points]
         for point in points:
             try:
                 print(read_point(master, args.address, point, profile).line(), flush=True)

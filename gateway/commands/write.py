@@ -1,18 +1,25 @@
 """`invt-gateway write --port DEV --address 1 P00.11=10.0 frequency_setpoint=25.00`.
 
-Values are given as shown (10.0 s, 25.00 Hz) and scaled for the wire from the profile; the
-control word also takes command names (control_word=run_forward, =stop, =fault_reset). Each is
-one 06H write, confirmed by the drive's echo. `--ram` writes parameters to their RAM-only
-address (no EEPROM wear; lost at power-off). `--via tcp://HOST:PORT` goes through a gateway.
+Values are given as shown (10.0 s, 25.00 Hz) and scaled for the wire from the profile: a
+parameter by the series' table (`--model`, or what the drive's 2103H names, read only when a
+parameter is beyond the common table's 27 codes); the control word also takes command names
+(control_word=run_forward, =stop, =fault_reset). Each is one 06H write, confirmed by the
+drive's echo. `--ram` writes parameters to their RAM-only address (no EEPROM wear; lost at
+power-off). `--via tcp://HOST:PORT` goes through a gateway.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
 
 from gateway.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from gateway.commands.line_options import add_target_arguments
+
+if TYPE_CHECKING:
+    from gateway.profile import DriveProfile
+    from gateway.tools.points import Point
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -27,6 +34,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "--ram", action="store_true", help="write parameters to RAM only (8xxxH), sparing EEPROM"
     )
     parser.add_argument(
+        "--model", help="the drive's series (gd350, gd200a...), whose table scales parameters"
+    )
+    parser.add_argument(
         "assignments", nargs="+", metavar="NAME=VALUE", help="P00.11=10.0, 2001H=25.00, ..."
     )
     parser.set_defaults(handler=handle)
@@ -34,18 +44,22 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 def handle(args: argparse.Namespace) -> int:
     from gateway.errors import FieldError
-    from gateway.tools.access import write_point
+    from gateway.profile import get_profile
+    from gateway.tools.access import series_of, write_point
     from gateway.tools.open import open_master
-    from gateway.tools.points import Point, resolve
+    from gateway.tools.points import beyond_common_table, resolve
 
-    writes: list[tuple[Point, int]] = []
+    assignments: list[tuple[Point, str]] = []
+    writes: list[tuple[Point, int]] | None = None
     try:
         for assignment in args.assignments:
             name, equals, value = assignment.partition("=")
             if not equals or not value.strip():
                 raise ValueError(f"{assignment!r}: expected NAME=VALUE, e.g. P00.11=10.0")
-            point = resolve(name)
-            writes.append((point, point.encode(value)))
+            assignments.append((resolve(name), value))
+        profile = None if args.model is None else get_profile(args.model)
+        if profile is not None or not any(beyond_common_table(p) for p, _ in assignments):
+            writes = _encoded(assignments, profile)  # checked before the line is opened
     except ValueError as exc:
         print(f"invt-gateway write: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -55,6 +69,12 @@ def handle(args: argparse.Namespace) -> int:
         print(f"invt-gateway write: {exc}", file=sys.stderr)
         return EXIT_FAILURE
     try:
+        if writes is None:  # a parameter only the drive's own series table scales
+            try:
+                writes = _encoded(assignments, series_of(master, args.address))
+            except ValueError as exc:
+                print(f"invt-gateway write: {exc}", file=sys.stderr)
+                return EXIT_USAGE
         for point, raw in writes:
             # Stop at the first failure: later writes may depend on earlier ones.
             print(write_point(master, args.address, point, raw, ram=args.ram), flush=True)
@@ -64,3 +84,13 @@ def handle(args: argparse.Namespace) -> int:
     finally:
         master.close()
     return EXIT_OK
+
+
+def _encoded(
+    assignments: list[tuple[Point, str]], profile: DriveProfile | None
+) -> list[tuple[Point, int]]:
+    """Each value as the wire word, a parameter scaled by `profile`'s series table."""
+    from gateway.tools.points import for_series
+
+    points = [(for_series(point, profile), value) for point, value in assignments]
+    return [(point, point.encode(value)) for point, value in points]

@@ -34,12 +34,12 @@ from gateway.profile import (
     register_by_name,
     words,
 )
-from gateway.profile.parameters import FAULT_HISTORY, PARAMETERS, parameter_groups
+from gateway.profile.parameters import FAULT_HISTORY, Parameter
 from gateway.profile.ram_writes import ram_write_address
 from gateway.routing import Router
 from gateway.settings import DriveSettings
 from gateway.tcp.access import AccessPolicy
-from gateway.tools.points import Point, resolve
+from gateway.tools.points import Point, for_series, resolve
 
 MAX_BLOCK: Final = 16
 """INVT drives answer at most 16 words per read."""
@@ -88,7 +88,10 @@ class DriveOperations:
     # -- reads ------------------------------------------------------------------------------
 
     async def parameter_group(self, who: Identity, drive: str, group: str) -> list[dict[str, Any]]:
-        """The group's registers with names, units and scaled values from the profile."""
+        """The group's registers with names, units and scaled values from the profile: for a
+        parameter group, the drive's series table, with the manual's words for each value."""
+        if group not in REGISTER_BLOCKS:
+            return await self._parameter_rows(who, drive, _series_group(self._drive(drive), group))
         points = _group_points(group)
         values = await self._read_points(who, drive, [p.address for p in points])
         profile = self._drive(drive).profile
@@ -103,9 +106,35 @@ class DriveOperations:
                 "value": (
                     None if values.get(p.address) is None else p.show(values[p.address], profile)
                 ),
-                "writable": _writable(p),
+                "writable": _writable(self._drive(drive), p),
             }
             for p in points
+        ]
+
+    async def _parameter_rows(
+        self, who: Identity, drive: str, rows: tuple[Parameter, ...]
+    ) -> list[dict[str, Any]]:
+        values = await self._read_points(who, drive, [row.address for row in rows])
+        profile = self._drive(drive).profile
+
+        def shown(row: Parameter, raw: int) -> str:
+            # The fault history's codes in the drive's own fault table, as everywhere else.
+            return words.show_fault(profile, raw) if row.name in FAULT_HISTORY else row.show(raw)
+
+        return [
+            {
+                "name": row.name,
+                "address": f"{row.address:04X}H",
+                "description": row.description,
+                "unit": row.unit,
+                "decimals": row.decimals,
+                "raw": values.get(row.address),
+                "value": None if row.address not in values else shown(row, values[row.address]),
+                "writable": not row.read_only,
+                "choices": [{"value": value, "words": text} for value, text in row.choices],
+                "confirmed": row.confirmed,
+            }
+            for row in rows
         ]
 
     async def fault_history(self, who: Identity, drive: str) -> list[dict[str, Any]]:
@@ -148,11 +177,11 @@ class DriveOperations:
         self, who: Identity, drive: str, name: str, value: str, ram: bool
     ) -> dict[str, Any]:
         try:
-            point = resolve(name)
+            point = for_series(resolve(name), self._drive(drive).profile)
             raw = point.encode(value)
         except ValueError as exc:
             raise OperationError(400, str(exc)) from None
-        if not _writable(point):
+        if not _writable(self._drive(drive), point):
             raise OperationError(400, f"{point.label} is read-only")
         address = point.address
         if ram:
@@ -250,24 +279,23 @@ class DriveOperations:
 
 
 def _group_points(group: str) -> list[Point]:
-    if group in REGISTER_BLOCKS:
-        high = int(group[:2], 16)
-        return [
-            resolve(r.name)
-            for r in COMMUNICATION_REGISTERS
-            if r.address >> 8 == high and r.readable
-        ]
+    high = int(group[:2], 16)
+    return [
+        resolve(r.name) for r in COMMUNICATION_REGISTERS if r.address >> 8 == high and r.readable
+    ]
+
+
+def _series_group(settings: DriveSettings, group: str) -> tuple[Parameter, ...]:
     if group not in PARAMETER_GROUPS:
         known = ", ".join((*PARAMETER_GROUPS, *REGISTER_BLOCKS))
         raise OperationError(404, f"no group {group!r}: one of {known}")
-    known_parameters = parameter_groups(PARAMETERS).get(group, ())
-    return [resolve(p.name) for p in known_parameters]
+    return settings.profile.parameter_groups.get(group, ())
 
 
-def _writable(point: Point) -> bool:
+def _writable(settings: DriveSettings, point: Point) -> bool:
     if point.label.startswith("P"):
-        spec = next((p for p in PARAMETERS if p.name == point.label), None)
-        return spec is not None and not spec.read_only
+        row = settings.profile.parameter_table.at(point.address & 0x7FFF)
+        return row is not None and not row.read_only
     register = next((r for r in COMMUNICATION_REGISTERS if r.address == point.address), None)
     return register is not None and register.writable
 

@@ -161,7 +161,7 @@ class ReadParameter(BridgeRequest):
     async def execute(self, payload: Json) -> Json:
         check_keys(payload, BRIDGE_READ_KEYS)
         drive = self.context.commands.drive_named(payload)
-        read = parse_read(payload, drive.read_limit)
+        read = parse_read(payload, drive.read_limit, drive.profile)
         words = await self.context.commands.read(drive, read)
         return {"drive": drive.name, **read.echo, **read.result(words)}
 

@@ -225,7 +225,7 @@ def parse_write(message: Json, profile: DriveProfile) -> RegisterWrite:
     if has_raw:
         raw = _raw(message["raw"])
     else:
-        decimals = _decimals(message, address)
+        decimals = _decimals(message, address, profile)
         if decimals is None:
             raise CommandRefused(
                 "invalid_value",
@@ -245,17 +245,18 @@ def parse_write(message: Json, profile: DriveProfile) -> RegisterWrite:
     return RegisterWrite(start, (raw,), echo)
 
 
-def parse_read(message: Json, max_count: int) -> RegisterRead:
+def parse_read(message: Json, max_count: int, profile: DriveProfile | None = None) -> RegisterRead:
     """`max_count`: the most words one read of this drive may ask for (the drive's word limit,
-    or Modbus's own when the router splits longer reads for it)."""
+    or Modbus's own when the router splits longer reads for it); `profile`: the drive's, whose
+    series table scales a parameter."""
     address, spelled = _address(message)
     count = message.get("count", 1)
     if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= max_count:
         raise CommandRefused("invalid_request", f"count must be 1..{max_count}")
     if address + count > 0x10000:
         raise CommandRefused("invalid_request", f"count {count} from {spelled} passes FFFFH")
-    decimals = _decimals(message, address)
-    signed = is_signed(address)
+    decimals = _decimals(message, address, profile)
+    signed = is_signed(address, profile)
     echo: Json = {"parameter": spelled, "register": format_register(address)}
     if count != 1:
         echo["count"] = count
@@ -278,13 +279,13 @@ def _address(message: Json) -> tuple[int, str]:
     return address, str(spelled)
 
 
-def _decimals(message: Json, address: int) -> int | None:
+def _decimals(message: Json, address: int, profile: DriveProfile | None) -> int | None:
     if "decimals" in message:
         decimals = message["decimals"]
         if isinstance(decimals, bool) or not isinstance(decimals, int) or not 0 <= decimals <= 4:
             raise CommandRefused("invalid_request", "decimals must be 0..4")
         return decimals
-    return known_decimals(address)
+    return known_decimals(address, profile)
 
 
 def _number(value: Any, key: str) -> float:

@@ -21,7 +21,7 @@ from typing import Final
 
 from gateway.profile.addressing import RAM_BIT, is_parameter_register, is_ram_address
 from gateway.profile.invt import DriveProfile
-from gateway.profile.parameters import parameter_at
+from gateway.profile.parameters import Parameter, parameter_at
 from gateway.profile.ram_writes import ram_write_address
 from gateway.profile.registers import register_at, register_by_name
 from gateway.profile.states import ControlCommand
@@ -67,16 +67,29 @@ def ram_only_address(address: int, spelled: str, profile: DriveProfile) -> int:
     return ram
 
 
-def known_decimals(address: int) -> int | None:
-    """The decimals of a communication register or a known parameter (or its RAM twin)."""
+def known_decimals(address: int, profile: DriveProfile | None = None) -> int | None:
+    """The decimals of a communication register or a known parameter (or its RAM twin): the
+    drive's series table when `profile` is given, else the common table."""
     communication = register_at(address)
     if communication is not None:
         return communication.decimals
-    known = parameter_at(address & ~RAM_BIT) if is_parameter_register(address) else None
+    known = _parameter(address, profile)
     return None if known is None else known.decimals
 
 
-def is_signed(address: int) -> bool:
-    """Whether the register's word is a two's-complement number (a signed running value)."""
+def is_signed(address: int, profile: DriveProfile | None = None) -> bool:
+    """Whether the word is a two's-complement number (a signed running value, or a parameter
+    whose range goes below 0 in the drive's series table)."""
     communication = register_at(address)
-    return communication is not None and communication.signed
+    if communication is not None:
+        return communication.signed
+    known = _parameter(address, profile)
+    return known is not None and known.signed
+
+
+def _parameter(address: int, profile: DriveProfile | None) -> Parameter | None:
+    if not is_parameter_register(address):
+        return None
+    if profile is not None:
+        return profile.parameter_table.at(address & ~RAM_BIT)
+    return parameter_at(address & ~RAM_BIT)

@@ -33,7 +33,8 @@ from gateway.profile.faults import (
     UNCONFIRMED_GOODRIVE_FAULTS,
     FaultTable,
 )
-from gateway.profile.parameters import PARAMETERS, Parameter, parameter_groups
+from gateway.profile.parameter_tables import ParameterTable, series_table
+from gateway.profile.parameters import Parameter, parameter_groups
 
 STATE_WORD_1: Final = 0x2100
 FAULT_CODE: Final = 0x2102
@@ -103,8 +104,6 @@ class DriveProfile:
     2009H bits 1-0 select a motor; every manual's 2009H row, the GD30's included, lists 1-4."""
     max_frequency_hz: float = 50.0
     """P00.03's factory value: the set-point maximum until the drive's own is read."""
-    parameters: tuple[Parameter, ...] = PARAMETERS
-    """The Pxx.yy parameters known for this series (ranges, decimals, read-only marks)."""
     unconfirmed: tuple[str, ...] = ()
     """Facts of this profile no public manual confirmed, in words (docs, `scan`, `decode-fault`)."""
 
@@ -115,6 +114,15 @@ class DriveProfile:
     @property
     def max_fault_code(self) -> int:
         return max(self.faults.entries, default=0)
+
+    @property
+    def parameter_table(self) -> ParameterTable:
+        """The series' Pxx.yy parameters (ranges, decimals, marks, words): `parameter_tables`."""
+        return series_table(self.key)
+
+    @property
+    def parameters(self) -> tuple[Parameter, ...]:
+        return self.parameter_table.rows
 
     @property
     def parameter_groups(self) -> dict[str, tuple[Parameter, ...]]:

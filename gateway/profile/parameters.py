@@ -1,13 +1,18 @@
-"""The function parameters (Pxx.yy) the gateway and the simulator know: decimals, range, default.
+"""A function parameter (Pxx.yy) as described: decimals, range, default, marks, the manual's words.
 
-Ranges and factory defaults follow the Goodrive manuals; "depends on model" defaults (P00.11,
-P00.12, P08.07, P08.08) are given a typical 10.0 s. A range bound may be another parameter's
-value (P00.04, the upper limit, lies within P00.05 ... P00.03): `minimum_from`/`maximum_from`.
+`PARAMETERS` is the common table: 27 codes for remote control that every series' table starts
+with but the Goodrive200A's, whose manual was read whole (`parameter_tables` loads each series'
+table from `data/`); `read`, `write` and the MQTT bridge scale by it when the series is not
+known. Its ranges and factory defaults follow the Goodrive manuals; "depends on model" defaults
+(P00.11, P00.12, P08.07, P08.08) are given a typical 10.0 s. A range bound may be another
+parameter's value (P00.04, the upper limit, lies within P00.05 ... P00.03): `minimum_from` and
+`maximum_from`.
 
 Marks as in the manual: `read_only` ("●", e.g. the fault history P07.27-P07.32) and
 `locked_while_running` ("◎": writable only when the drive is stopped; exception 08H otherwise).
 Only P00.00 (speed control mode) carries "◎" here: PROTOCOL.md's frames write P00.03 right
-after a run command and expect an echo, so the frequency limits are not locked.
+after a run command and expect an echo, so the frequency limits are not locked. (The
+Goodrive200A manual marks P00.03-P00.05 "◎": its table says so.)
 """
 
 from __future__ import annotations
@@ -33,10 +38,63 @@ class Parameter:
     maximum_from: str | None = None
     read_only: bool = False
     locked_while_running: bool = False
+    choices: tuple[tuple[int, str], ...] = ()
+    """The manual's words for each value ("2" → "SVPWM (V/F) control"), in order."""
+    hint: str = ""
+    """How to read a value that is not one choice: its bits or digits ("bit 0-8: S1-S8; HDI")."""
+    hexadecimal: bool = False
+    """The manual writes its values in hex (bit masks, digit-coded settings: 0x1FF)."""
+    default_known: bool = True
+    """False: the manual's default "depends on model"; `default` is then only what a simulated
+    drive starts with."""
+    confirmed: bool = True
+    """False: taken from another series' manual; this series' own table was not reachable."""
+    source: str = ""
+    """Where the row comes from: manual, section, page."""
+    note: str = ""
+    """What the source leaves unclear about this row (a garbled range, a shifted name)."""
+    action: str = ""
+    """What writing it sets off, when it is a command rather than a setting ("restores the
+    factory defaults"): never saved nor restored."""
+    reinitialises: tuple[str, ...] = ()
+    """Parameters the drive sets back to their defaults when this one is written (P02.01, the
+    motor's rated power, re-initialises P02.02-P02.10)."""
 
     @property
     def address(self) -> int:
         return parse_parameter(self.name)
+
+    @property
+    def group(self) -> str:
+        """ "P00" for P00.11."""
+        return self.name.split(".")[0]
+
+    @property
+    def signed(self) -> bool:
+        """Negative values allowed: the register holds them in two's complement."""
+        return self.minimum < 0
+
+    def number(self, raw: int) -> int:
+        """The register word as the range reads it: two's complement when the range is signed."""
+        return raw - 0x10000 if self.signed and raw >= 0x8000 else raw
+
+    def word(self, number: int) -> int:
+        """The register word of a number in the range's units (the inverse of `number`)."""
+        return number & 0xFFFF
+
+    def choice(self, raw: int) -> str | None:
+        """The manual's words for a value, or None when the manual gives none for it."""
+        return next((words for value, words in self.choices if value == raw), None)
+
+    def show(self, raw: int) -> str:
+        """ "50.00 Hz", "-50.0 %", "0x01FF", "2 (SVPWM (V/F) control)"."""
+        if self.hexadecimal and not self.decimals:
+            return f"0x{raw:04X}"
+        number = self.number(raw)
+        value = f"{number / 10**self.decimals:.{self.decimals}f}" if self.decimals else str(number)
+        text = f"{value} {self.unit}".rstrip()
+        choice = self.choice(raw)
+        return f"{text} ({choice})" if choice else text
 
 
 _P = Parameter

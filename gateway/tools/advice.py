@@ -73,7 +73,8 @@ _EXCEPTION_CHECKS: dict[int, tuple[str, ...]] = {
 
 def exception_error(code: int, what: str) -> FieldError:
     """The error for an exception reply `code` to `what` ("reading P00.11 at address 1")."""
-    return FieldError(
-        f"{what}: exception {describe_exception(code)}",
-        _EXCEPTION_CHECKS.get(code, ()),
+    error = FieldError(
+        f"{what}: exception {describe_exception(code)}", _EXCEPTION_CHECKS.get(code, ())
     )
+    error.exception_code = code
+    return error

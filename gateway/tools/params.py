@@ -14,12 +14,20 @@ differs. The file is meant to be read and edited by people:
         P00.03: {value: 50.0, unit: Hz, description: max. output frequency}
         P00.11: {value: 10.0, unit: s, description: acceleration time 1}
 
-Left out of a backup: read-only parameters (the fault history) and the line's own settings
+Left out of a backup: read-only parameters (the fault history, the monitoring group P17), the
+codes that set something off rather than store a setting (P00.15 autotuning, P00.18 restore
+the defaults, P07.01 parameter copy: `Parameter.action`), and the line's own settings
 P14.00-P14.02 (address, baud, data format): written to another drive they would take it off the
-line. A restore skips, with the reason, a read-only parameter and one that can't change while
-the drive runs (when it runs); it stops at the first exception the drive answers, naming the
-parameter. Writes are ordered so that a bound (P00.03, max. frequency) is moved before the
-parameters it bounds need it.
+line. Where the series' table is another series' (unconfirmed, see `profile.parameter_tables`),
+a code the drive answers with exception 02H is passed over and listed under `absent`, and the
+file lists the `unconfirmed` groups; their values are kept exactly but their ranges are not
+held against the file.
+
+A restore skips, with the reason, a read-only parameter and one that can't change while the
+drive runs (when it runs); it stops at the first exception the drive answers, naming the
+parameter. Writes are ordered: the motor's type and rated power first (writing P02.01
+re-initialises the motor's other rated and model data), then each bound (P00.03, max.
+frequency) before the parameters it bounds need it. Each write is checked by reading it back.
 """
 
 from __future__ import annotations
@@ -36,8 +44,9 @@ from gateway.errors import FieldError
 from gateway.modbus.functions import READ_HOLDING_REGISTERS, WRITE_SINGLE_REGISTER
 from gateway.profile import DriveProfile, Parameter, get_profile, parse_parameter
 from gateway.profile.addressing import ram_address
+from gateway.profile.exception_codes import ILLEGAL_DATA_ADDRESS
 from gateway.profile.invt import IDENTIFICATION, STATE_WORD_1, describe_identification
-from gateway.profile.parameters import parameter_at
+from gateway.profile.parameter_tables import ParameterTable
 from gateway.profile.states import RunState
 from gateway.tools.access import ask
 from gateway.tools.advice import GARBLED
@@ -45,6 +54,12 @@ from gateway.tools.masters import Master
 
 LINE_SETTINGS = frozenset({"P14.00", "P14.01", "P14.02"})
 """Address, baud rate, data format: the line's, not the drive's."""
+WRITTEN_FIRST = ("P02.00", "P02.01")
+"""Motor type and rated power: writing the rated power re-initialises the rest of the motor's
+rated and model data (`Parameter.reinitialises`), so they go before them."""
+WRITTEN_LAST = "P14"
+"""The communication group: its response mode and protocol settings (P14.06: no reply to
+writes, another address map) would cut a restore short if written before the rest."""
 RUNNING_STATES = frozenset(
     {RunState.RUNNING_FORWARD, RunState.RUNNING_REVERSE, RunState.PRE_EXCITING}
 )
@@ -58,8 +73,13 @@ def _nothing(name: str) -> None:
 
 
 def saved_parameters(profile: DriveProfile) -> list[Parameter]:
-    """What a backup holds: every writable parameter the profile knows but the line settings."""
-    return [p for p in profile.parameters if not p.read_only and p.name not in LINE_SETTINGS]
+    """What a backup holds: every writable parameter the profile knows but the line settings and
+    the codes that set something off (P00.18, restore the defaults)."""
+    return [
+        p
+        for p in profile.parameters
+        if not p.read_only and not p.action and p.name not in LINE_SETTINGS
+    ]
 
 
 # ------------------------------------------------------------------------------ the drive
@@ -98,27 +118,53 @@ def profile_of(master: Master, address: int, model: str | None) -> tuple[DrivePr
 
 
 def read_parameters(
-    master: Master, address: int, specs: list[Parameter], progress: Progress = _nothing
+    master: Master,
+    address: int,
+    specs: list[Parameter],
+    progress: Progress = _nothing,
+    *,
+    max_words: int = 16,
+    absent: list[str] | None = None,
 ) -> dict[str, int]:
-    """Raw values by name, read in runs of contiguous registers (at most 16 words each)."""
+    """Raw values by name, read in runs of contiguous registers (at most `max_words` each).
+
+    With `absent`, an unconfirmed parameter the drive answers with exception 02H (no such
+    address: the table is another series') is named there and left out, not an error."""
     values: dict[str, int] = {}
-    for run in _runs(specs):
+    for run in _runs(specs, max_words):
         first = run[0]
         what = f"reading {first.name}-{run[-1].name} at address {address}"
         try:
-            words = read_words(master, address, first.address, len(run), what)
+            words: list[int | None] = list(
+                read_words(master, address, first.address, len(run), what)
+            )
         except FieldError:
-            if len(run) == 1:
+            if len(run) == 1 and not _may_be_absent(run[0], absent):
                 raise
             # One word at a time, so the error names the parameter the drive refuses.
-            words = [
-                read_word(master, address, spec.address, f"reading {spec.name} at {address}")
-                for spec in run
-            ]
+            words = [_read_one(master, address, spec, absent) for spec in run]
         for spec, word in zip(run, words, strict=True):
-            values[spec.name] = word
+            if word is not None:
+                values[spec.name] = word
             progress(spec.name)
     return values
+
+
+def _may_be_absent(spec: Parameter, absent: list[str] | None) -> bool:
+    return absent is not None and not spec.confirmed
+
+
+def _read_one(
+    master: Master, address: int, spec: Parameter, absent: list[str] | None
+) -> int | None:
+    try:
+        return read_word(master, address, spec.address, f"reading {spec.name} at {address}")
+    except FieldError as exc:
+        if exc.exception_code != ILLEGAL_DATA_ADDRESS or not _may_be_absent(spec, absent):
+            raise
+        assert absent is not None
+        absent.append(spec.name)
+        return None
 
 
 def _runs(specs: list[Parameter], max_words: int = 16) -> list[list[Parameter]]:
@@ -162,33 +208,57 @@ class ParameterSet:
 
 
 def engineering(spec: Parameter, raw: int) -> float | int:
-    return raw / 10**spec.decimals if spec.decimals else raw
+    number = spec.number(raw)
+    return number / 10**spec.decimals if spec.decimals else number
 
 
 def show(spec: Parameter, raw: int) -> str:
-    value = f"{raw / 10**spec.decimals:.{spec.decimals}f}" if spec.decimals else str(raw)
-    return f"{value} {spec.unit}".rstrip()
+    """ "50.00 Hz", "0x01FF", "2 (SVPWM (V/F) control)": `Parameter.show`."""
+    return spec.show(raw)
+
+
+def show_number(spec: Parameter, number: int) -> str:
+    """A bound in the range's units ("-300.0 %")."""
+    return show(spec, spec.word(number)).split(" (")[0]
 
 
 def to_yaml(
-    parameters: ParameterSet, identification: int, address: int, saved_at: float | None = None
+    parameters: ParameterSet,
+    identification: int,
+    address: int,
+    saved_at: float | None = None,
+    absent: Iterable[str] = (),
 ) -> str:
+    """The file: values in the manual's units, each with its unit, name and the manual's words
+    for it; `unconfirmed` lists the groups whose table is another series', `absent` the codes
+    of that table this drive does not have."""
     groups: dict[str, dict[str, dict[str, Any]]] = {}
     for spec in parameters.specs():
-        entry: dict[str, Any] = {"value": engineering(spec, parameters.values[spec.name])}
+        raw = parameters.values[spec.name]
+        entry: dict[str, Any] = {"value": engineering(spec, raw)}
+        if spec.hexadecimal and not spec.decimals:
+            entry["hex"] = f"0x{raw:04X}"
         if spec.unit:
             entry["unit"] = spec.unit
         entry["description"] = spec.description
-        groups.setdefault(spec.name.split(".")[0], {})[spec.name] = entry
+        if (choice := spec.choice(raw)) is not None:
+            entry["choice"] = choice
+        groups.setdefault(spec.group, {})[spec.name] = entry
     moment = time.gmtime(time.time() if saved_at is None else saved_at)
-    document = {
+    document: dict[str, Any] = {
         "model": parameters.profile.key,
         "series": parameters.profile.display_name,
         "identification": f"{identification:04X}H",
         "address": address,
         "saved": time.strftime("%Y-%m-%dT%H:%M:%SZ", moment),
-        "parameters": groups,
     }
+    unconfirmed = sorted({spec.group for spec in parameters.specs() if not spec.confirmed})
+    if unconfirmed:
+        document["unconfirmed"] = unconfirmed
+    missing = list(absent)
+    if missing:
+        document["absent"] = missing
+    document["parameters"] = groups
     return yaml.safe_dump(
         document, sort_keys=False, allow_unicode=True, width=120, default_flow_style=None
     )
@@ -219,11 +289,19 @@ def from_yaml(text: str, source: str) -> ParameterSet:
             value = entry.get("value") if isinstance(entry, dict) else entry
             if isinstance(value, bool) or not isinstance(value, int | float):
                 raise ValueError(f"{source}: {key}.value: expected a number, got {value!r}")
-            raw = round(value * 10**spec.decimals)
-            if not spec.minimum <= raw <= spec.maximum:
-                low, high = show(spec, spec.minimum), show(spec, spec.maximum)
-                raise ValueError(f"{source}: {key}.value: {value} is outside {low} ... {high}")
-            values[spec.name] = raw
+            shown_hex = entry.get("hex") if isinstance(entry, dict) else None
+            if shown_hex is not None and str(shown_hex).lower() != f"0x{int(value):04x}":
+                raise ValueError(
+                    f"{source}: {key}.hex: {shown_hex} is not value {value}: "
+                    f"edit value (hex only shows it)"
+                )
+            number = round(value * 10**spec.decimals)
+            # An unconfirmed range is another series': only the register's width holds.
+            low, high = (spec.minimum, spec.maximum) if spec.confirmed else (-0x8000, 0xFFFF)
+            if not low <= number <= high:
+                shown = f"{show_number(spec, low)} ... {show_number(spec, high)}"
+                raise ValueError(f"{source}: {key}.value: {value} is outside {shown}")
+            values[spec.name] = spec.word(number)
     return ParameterSet(profile, values)
 
 
@@ -258,7 +336,10 @@ class Skipped:
 
 
 def plan(
-    changes: Iterable[Difference], actual: Mapping[str, int], running: bool
+    changes: Iterable[Difference],
+    actual: Mapping[str, int],
+    running: bool,
+    table: ParameterTable | None = None,
 ) -> tuple[list[Difference], list[Skipped]]:
     """What to write, in an order the drive accepts, and what to skip and why."""
     writes: list[Difference] = []
@@ -266,23 +347,51 @@ def plan(
     for change in changes:
         if change.spec.read_only:
             skipped.append(Skipped(change, "read-only"))
+        elif change.spec.action:
+            skipped.append(Skipped(change, f"a command, not a setting: it {change.spec.action}"))
         elif change.spec.name in LINE_SETTINGS:
             skipped.append(Skipped(change, "the line's own setting: set it on the keypad"))
         elif change.spec.locked_while_running and running:
             skipped.append(Skipped(change, "can't change while the drive runs: stop it first"))
         else:
             writes.append(change)
-    return _ordered(writes, actual), skipped
+    writes += _rewritten(writes, skipped, actual, table)
+    first = [w for name in WRITTEN_FIRST for w in writes if w.spec.name == name]
+    last = [w for w in writes if w.spec.group == WRITTEN_LAST and w not in first]
+    rest = [w for w in writes if w not in first and w not in last]
+    return first + _ordered(rest, actual, table) + last, skipped
 
 
-def _ordered(writes: list[Difference], actual: Mapping[str, int]) -> list[Difference]:
+def _rewritten(
+    writes: list[Difference],
+    skipped: list[Skipped],
+    actual: Mapping[str, int],
+    table: ParameterTable | None,
+) -> list[Difference]:
+    """The file's parameters a planned write re-initialises on the drive (P02.01 resets
+    P02.02-P02.10: `Parameter.reinitialises`), to be written again after it, from the file,
+    where the drive held the file's value too."""
+    planned = {w.spec.name for w in writes} | {skip.difference.spec.name for skip in skipped}
+    again: list[Difference] = []
+    for write in writes:
+        for name in write.spec.reinitialises:
+            spec = _spec_by_name(name, table)
+            if spec is not None and name in actual and name not in planned:
+                again.append(Difference(spec, actual[name], actual[name]))
+                planned.add(name)
+    return again
+
+
+def _ordered(
+    writes: list[Difference], actual: Mapping[str, int], table: ParameterTable | None
+) -> list[Difference]:
     """Each write when the values its range depends on (P00.04 within P00.05 ... P00.03) let
     it through; what never fits keeps its place at the end, for the drive to refuse by name."""
     state = dict(actual)
     pending = list(writes)
     ordered: list[Difference] = []
     while pending:
-        fits = next((w for w in pending if _fits(w, state)), None)
+        fits = next((w for w in pending if _fits(w, state, table)), None)
         if fits is None:
             return ordered + pending
         pending.remove(fits)
@@ -291,25 +400,40 @@ def _ordered(writes: list[Difference], actual: Mapping[str, int]) -> list[Differ
     return ordered
 
 
-def _fits(write: Difference, state: Mapping[str, int]) -> bool:
+def _fits(write: Difference, state: Mapping[str, int], table: ParameterTable | None) -> bool:
     spec = write.spec
-    low = state.get(spec.minimum_from, spec.minimum) if spec.minimum_from else spec.minimum
-    high = state.get(spec.maximum_from, spec.maximum) if spec.maximum_from else spec.maximum
-    if not low <= write.file <= high:
+    wanted = spec.number(write.file)
+    low = _bound(spec.minimum_from, state, table, spec.minimum)
+    high = _bound(spec.maximum_from, state, table, spec.maximum)
+    if not low <= wanted <= high:
         return False
     # ... and it must not push a parameter it bounds out of its own range.
     for other, value in state.items():
-        spec_other = _spec_by_name(other)
+        spec_other = _spec_by_name(other, table)
         if spec_other is None:
             continue
-        if spec_other.maximum_from == spec.name and value > write.file:
+        if spec_other.maximum_from == spec.name and spec_other.number(value) > wanted:
             return False
-        if spec_other.minimum_from == spec.name and value < write.file:
+        if spec_other.minimum_from == spec.name and spec_other.number(value) < wanted:
             return False
     return True
 
 
-def _spec_by_name(name: str) -> Parameter | None:
+def _bound(
+    name: str | None, state: Mapping[str, int], table: ParameterTable | None, fixed: int
+) -> int:
+    """A range bound: the named parameter's value when it is known, else the fixed bound."""
+    if name is None or name not in state:
+        return fixed
+    spec = _spec_by_name(name, table)
+    return spec.number(state[name]) if spec is not None else state[name]
+
+
+def _spec_by_name(name: str, table: ParameterTable | None) -> Parameter | None:
+    if table is not None:
+        return table.named(name)
+    from gateway.profile.parameters import parameter_at
+
     try:
         return parameter_at(parse_parameter(name))
     except ValueError:

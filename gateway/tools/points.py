@@ -58,6 +58,8 @@ class Point:
     unit: str = ""
     signed: bool = False
     meaning: Meaning = Meaning.NUMBER
+    choices: tuple[tuple[int, str], ...] = ()
+    """The manual's words for a value (a parameter of the drive's series table)."""
 
     @property
     def where(self) -> str:
@@ -87,7 +89,9 @@ class Point:
                 return f"{raw} ({_COMMAND_NAMES[raw]})"
         value = raw - 0x10000 if self.signed and raw & 0x8000 else raw
         number = f"{value / 10**self.decimals:.{self.decimals}f}" if self.decimals else str(value)
-        return f"{number} {self.unit}".rstrip()
+        shown = f"{number} {self.unit}".rstrip()
+        words_for = next((text for choice, text in self.choices if choice == raw), None)
+        return f"{shown} ({words_for})" if words_for else shown
 
     def encode(self, text: str) -> int:
         """The raw word for a value typed as shown ("10.0", "-5", "0x0064", "stop")."""
@@ -174,6 +178,32 @@ def _register_point(register: Register, label: str) -> Point:
         register.signed,
         meaning,
     )
+
+
+def for_series(point: Point, profile: DriveProfile | None) -> Point:
+    """A parameter as the drive's series table describes and scales it (the common table, which
+    `resolve` uses, knows 27 codes); any other point, or without a series, as it is."""
+    if profile is None or not point.label.startswith("P"):
+        return point
+    row = profile.parameter_table.at(point.address & 0x7FFF)
+    if row is None:
+        return point
+    meaning = Meaning.FAULT if row.name in FAULT_HISTORY else Meaning.NUMBER
+    return Point(
+        point.label,
+        point.address,
+        row.description,
+        row.decimals,
+        row.unit,
+        row.signed,
+        meaning,
+        row.choices,
+    )
+
+
+def beyond_common_table(point: Point) -> bool:
+    """A parameter the common table doesn't know: only the drive's series can scale it."""
+    return point.label.startswith("P") and parameter_at(point.address & 0x7FFF) is None
 
 
 def _parameter_point(label: str, address: int) -> Point:

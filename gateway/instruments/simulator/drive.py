@@ -37,7 +37,7 @@ from gateway.profile import exception_codes as exc
 from gateway.profile.addressing import RAM_BIT, parse_parameter
 from gateway.profile.faults import COMMUNICATION_FAULT, NO_FAULT
 from gateway.profile.invt import DriveProfile, get_profile
-from gateway.profile.parameters import FAULT_HISTORY, PARAMETERS, Parameter, parameter_at
+from gateway.profile.parameters import FAULT_HISTORY, Parameter
 from gateway.profile.registers import COMMUNICATION_REGISTERS, Register, register_at, to_signed
 from gateway.profile.states import (
     CommandSource,
@@ -100,7 +100,7 @@ class SimulatedDrive:
         if not self.profile.is_invt:
             raise ValueError(f"{model!r} is not an INVT model: the simulator only knows INVT")
         self.nameplate = nameplate or Nameplate()
-        self._parameters = {spec.address: spec.default for spec in PARAMETERS}
+        self._parameters = {spec.address: spec.default for spec in self.profile.parameters}
         self._parameters[parse_parameter("P14.00")] = address
         for name, raw in {**SIMULATOR_DEFAULTS, **(parameters or {})}.items():
             self._set_initial_parameter(name, raw)
@@ -284,6 +284,13 @@ class SimulatedDrive:
                 if address & RAM_BIT and not self.profile.ram_writes_supported:
                     raise RequestRefused(exc.ILLEGAL_DATA_ADDRESS, "RAM-only writes not supported")
                 self._check_parameter_write(spec, value, parameters)
+                if parameters[spec.address] != value:
+                    # As the manual says: a new rated motor power (P02.01) re-initialises
+                    # P02.02-P02.10; later words of the same 10H write still land.
+                    for name in spec.reinitialises:
+                        reset = self.profile.parameter_table.named(name)
+                        if reset is not None:
+                            parameters[reset.address] = reset.default
                 parameters[spec.address] = value
                 written.append(spec.name)
                 if address & RAM_BIT:
@@ -318,16 +325,22 @@ class SimulatedDrive:
             raise RequestRefused(
                 exc.NOT_CHANGEABLE_WHILE_RUNNING, f"{spec.name} is locked while running"
             )
-        low = spec.minimum
-        if spec.minimum_from is not None:
-            low = parameters[parse_parameter(spec.minimum_from)]
-        high = spec.maximum
-        if spec.maximum_from is not None:
-            high = parameters[parse_parameter(spec.maximum_from)]
-        if not low <= value <= high:
+        low = self._bound(spec.minimum_from, parameters, spec.minimum)
+        high = self._bound(spec.maximum_from, parameters, spec.maximum)
+        number = spec.number(value)
+        if not low <= number <= high:
             raise RequestRefused(
-                exc.OPERATION_FAILURE, f"{spec.name} = {value} outside {low}..{high}"
+                exc.OPERATION_FAILURE, f"{spec.name} = {number} outside {low}..{high}"
             )
+
+    def _bound(self, name: str | None, parameters: Mapping[int, int], fixed: int) -> int:
+        """A range bound: another parameter's value (P00.04 <= P00.03), or the fixed one."""
+        if name is None:
+            return fixed
+        bound = self.profile.parameter_table.named(name)
+        if bound is None:
+            return fixed
+        return bound.number(parameters[bound.address])
 
     def _check_register_write(
         self, register: Register, value: int, parameters: Mapping[int, int]
@@ -499,13 +512,13 @@ class SimulatedDrive:
         plain = address & ~RAM_BIT
         if plain >> 8 == self.profile.manufacturer_group:
             return None  # the manufacturer's group can be neither read nor written
-        return parameter_at(plain)
+        return self.profile.parameter_table.at(plain)
 
     def _set_initial_parameter(self, name: str, raw: int) -> None:
-        spec = parameter_at(parse_parameter(name))
+        spec = self.profile.parameter_table.named(name)
         if spec is None:
             raise ValueError(f"{name} is not a simulated parameter")
-        if not spec.minimum <= raw <= spec.maximum:
+        if not spec.minimum <= spec.number(raw) <= spec.maximum:
             raise ValueError(f"{name} = {raw} is outside {spec.minimum}..{spec.maximum}")
         self._parameters[spec.address] = raw
 
