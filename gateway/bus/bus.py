@@ -586,18 +586,21 @@ class Bus:
         # The first attempt is on its way: the request itself, or the echo that catches up
         # with its drive's late replies (`_pick`).
         pending: Sending | None = first
+        echo_pending: Sending | None = None
         if self._echo_sent is not None:
             frame = transaction.frame or build_frame(address, transaction.pdu)
             self._echo_sent = None
+            echo_pending, pending = first, None
         for attempt in range(retries + 1):
             if attempt:
                 self.stats.retries += 1
                 drive.retries += 1
-            started = pending.started if pending is not None else time.monotonic()
+            on_its_way = echo_pending or pending
+            started = on_its_way.started if on_its_way is not None else time.monotonic()
             try:
                 if address in self.late_replies.owing:
-                    echo = await self._catch_up(transaction, pending, drive)
-                    pending = None
+                    sent, echo_pending = echo_pending, None  # taken, whatever comes of it
+                    echo = await self._catch_up(transaction, sent, drive)
                     if transaction.probe:  # the echo is all a probe asks
                         return self._attempt_answered(transaction, attempt, started, echo, drive)
                     started = time.monotonic()
@@ -670,9 +673,8 @@ class Bus:
             caught = await self.line.resynchronise(sent, timeout_s=timeout_s)
         except ReplyTimeout as exc:
             self._late(address, exc.late, timeout_s, drive)
-            raise
-        finally:
-            drive.line_s += time.monotonic() - sent.started
+            raise  # its line time is the attempt's (`_execute`)
+        drive.line_s += time.monotonic() - sent.started
         self._late(address, caught.late, timeout_s, drive)
         late.caught_up(address)
         self._record(caught.exchange, drive)

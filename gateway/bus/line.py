@@ -172,6 +172,16 @@ class _Held(NamedTuple):
     """A copy of the request complete before this is the adapter's echo (`_echo_deadline`)."""
 
 
+def _whole_frames(request: bytes, received: bytes | bytearray) -> list[bytes]:
+    """The whole, sound frames among `received` (a reply to `request`, or anyone's), in order;
+    what is between and after them is skipped."""
+    frames = []
+    while (search := search_reply(received, request)).found is Found.COMPLETE:
+        frames.append(bytes(received[search.start : search.end]))
+        received = received[search.end :]
+    return frames
+
+
 def _answers(request: bytes, received: bytes | bytearray) -> bool:
     """Is there a whole, sound reply to `request` among `received`?"""
     search = search_reply(received, request)
@@ -628,8 +638,16 @@ class SerialLine:
                     continue
                 break
         except ReplyTimeout as exc:
-            await self._drain(self.settings.drain_s)
-            raise ReplyTimeout(str(exc), exc.received, late=tuple(late)) from None
+            # What the drain hears is read too: more late replies, or the echo itself.
+            echo = None
+            for whole in _whole_frames(frame, await self._drain(self.settings.drain_s)):
+                try:
+                    echo = check_reply(frame, whole)
+                except BadReply:
+                    late.append(self._quiet_since)
+            if echo is None:
+                raise ReplyTimeout(str(exc), exc.received, late=tuple(late)) from None
+            pdu = echo
         except BadReply:
             # A corrupt frame: the echo may be in it, or still to come; the next attempt
             # resynchronises again with a fresh value.
