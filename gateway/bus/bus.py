@@ -648,6 +648,7 @@ class Bus:
             return self._attempt_answered(transaction, attempt, started, exchange, drive)
         self.stats.failed += 1
         drive.failed += 1
+        log.debug("bus %s: drive %d: every attempt failed: %s", self.name, address, errors)
         # A probe that got nothing usable counts as a failure whatever went wrong, so its drive
         # backs off; a request that got bad replies proves its drive is there.
         if transaction.probe or all(isinstance(error, ReplyTimeout) for error in errors):

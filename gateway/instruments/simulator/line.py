@@ -130,6 +130,10 @@ class SimulatedLine:
         self._pending: list[tuple[float, int, bytes, bool]] = []
         self._sequence = itertools.count()
         self._answered_by: dict[int, float] = {}
+        self._last_reply_due = 0.0
+        """When the last reply scheduled to cross the wire after all others ends."""
+        self._delivered_by = 0.0
+        """When the adapter hands over the last part of that reply (bursts hold parts back)."""
         """Address → when its last scheduled reply ends: a drive answers in order, so a reply
         to a later request never overtakes a late one (a busy drive, not a reordering line)."""
         self._last_frame_end: float | None = None
@@ -414,7 +418,14 @@ class SimulatedLine:
         due = max(due, self._answered_by.get(address, 0.0) + len(reply) * character_s)
         self._answered_by[address] = due
         parts = self._adapter.deliveries(reply, due, character_s)
+        # The adapter hands bytes over in the order they crossed the wire: a reply right behind
+        # one whose last part is held back for a burst comes after that part, never into it.
+        in_order = due >= self._last_reply_due
+        if in_order:
+            self._last_reply_due = due
         for index, (at, part) in enumerate(parts, 1):
+            if in_order:
+                at = self._delivered_by = max(at, self._delivered_by)
             heapq.heappush(self._pending, (at, next(self._sequence), part, index == len(parts)))
 
     def _extra_delay(self, address: int) -> float:
@@ -499,6 +510,7 @@ class SimulatedLine:
             remove_link(self.link)
         self._pending.clear()
         self._answered_by.clear()
+        self._last_reply_due = self._delivered_by = 0.0
         with self._lock:
             self._assembler = RequestAssembler(self.t35_s)
             self._reply_ended_at = None  # the time unplugged is nobody's silence on the line
