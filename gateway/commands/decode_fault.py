@@ -40,9 +40,9 @@ def handle(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"invt-gateway decode-fault: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    table = words.fault_table(profile)
+    table = words.fault_table(None) if profile is None else profile.faults
     for code in codes:
-        text = words.fault(profile, code).description
+        text = table.describe(code)
         print(text if len(codes) == 1 else f"{code}: {text}")
     if args.model is not None and not table.confirmed:
         print(

@@ -34,9 +34,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 def handle(args: argparse.Namespace) -> int:
     from gateway.errors import FieldError
+    from gateway.profile import Point, resolve
     from gateway.tools.access import write_point
     from gateway.tools.open import open_master
-    from gateway.tools.points import Point, resolve
 
     writes: list[tuple[Point, int]] = []
     try:

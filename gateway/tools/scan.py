@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 from gateway.errors import BadReply, ReplyTimeout
 from gateway.modbus.functions import DIAGNOSTICS, READ_HOLDING_REGISTERS, is_exception
-from gateway.profile import DriveProfile, profiles_for_identification, words
+from gateway.profile import InvtProfile, profiles_for_identification, words
 from gateway.profile.faults import GD350_FAULTS, FaultTable
 from gateway.profile.invt import STATE_WORD_1
 from gateway.tools.masters import Master
@@ -44,7 +44,7 @@ class FoundDrive:
         return words.identification(self.identification)
 
     @property
-    def profile(self) -> DriveProfile | None:
+    def profile(self) -> InvtProfile | None:
         """The one series the code places; None for none or two (010AH: GD300 or GD300-LIFT)."""
         if self.identification is None:
             return None

@@ -26,10 +26,11 @@ from gateway.cli import EXIT_FAILURE, EXIT_OK
 from gateway.instruments.simulator.control import run_control_command
 from gateway.instruments.simulator.line import WAKE_EARLY_S, SimulatedLine
 from gateway.instruments.simulator.line_faults import KINDS, late_range
-from gateway.profile.invt import PROFILES, get_profile
+from gateway.profile.invt import INVT_PROFILES
+from gateway.profile.models import get_profile
 
 PARITIES = ("N", "E", "O")
-INVT_MODELS = tuple(key for key, profile in PROFILES.items() if profile.is_invt)
+INVT_MODELS = tuple(INVT_PROFILES)
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -365,7 +366,7 @@ def _drive(text: str) -> tuple[int, str]:
     address, _, model = text.partition("=")
     try:
         key = get_profile(model).key
-        if not PROFILES[key].is_invt:
+        if key not in INVT_MODELS:
             raise ValueError(model)
         return _address(address), key
     except ValueError:
