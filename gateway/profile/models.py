@@ -1,6 +1,7 @@
 """The drive models users name (`model:` in the config, `--model`, `--drive ADDR=MODEL`).
 
-Every maker's profiles in one registry: a new maker adds its module's profiles to `_ALL`. A
+Every maker's profiles in one registry: a new maker adds its module's profiles to `_ALL`
+(`invt`, `abb`; `generic` for a device of no known maker). A
 model is named by its key (`gd30`, `gd300l`, `acs580`, `generic`) in any case, with or without
 `-`, `_` or spaces, "Goodrive" for "GD" (`Goodrive30`), or one of its profile's `aliases`.
 """
@@ -11,11 +12,16 @@ from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Final
 
+from gateway.profile.abb import ABB_PROFILES
 from gateway.profile.generic import GENERIC
 from gateway.profile.invt import INVT_PROFILES
 from gateway.profile.protocol import DriveProfile
 
-_ALL: Final[tuple[DriveProfile, ...]] = (*INVT_PROFILES.values(), GENERIC)
+_ALL: Final[tuple[DriveProfile, ...]] = (
+    *INVT_PROFILES.values(),
+    *ABB_PROFILES.values(),
+    GENERIC,
+)
 
 PROFILES: Final[Mapping[str, DriveProfile]] = MappingProxyType(
     {profile.key: profile for profile in _ALL}

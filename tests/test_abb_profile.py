@@ -1,0 +1,79 @@
+"""ABB drives (ACS355, ACS580) on the ABB Drives profile: a second maker behind the same
+`DriveProfile` protocol. The control words and bits asserted here are read off the manual pages
+`gateway/profile/data/abb_drives.yaml` cites, not off the module."""
+
+from __future__ import annotations
+
+import pytest
+
+from gateway.profile import get_profile
+from gateway.profile.states import RunState
+
+# ACS355 state diagram, page 319: CW = xxxx x1xx xxxx x110 → READY TO SWITCH ON,
+# xxxx x1xx xxxx x111 → READY TO OPERATE, xxxx x1xx x111 1111 → OPERATING.
+READY_TO_SWITCH_ON = 0b0000_0100_0111_0110
+READY_TO_OPERATE = 0b0000_0100_0111_0111
+OPERATING = 0b0000_0100_0111_1111
+CONTROL_WORD = 40001 - 40001  # the manuals' 40001 is address 0 on the wire
+INVT_STATES = {state.name.lower() for state in RunState}
+
+
+@pytest.mark.parametrize("model", ["acs355", "ACS580"])
+def test_run_forward_walks_the_state_machine_as_the_manual_gives_it(model: str) -> None:
+    profile = get_profile(model)
+    reference = profile.setpoint_word(25.0)
+    assert reference == 10000  # ±20000 is the full scale: 25 Hz of 50 Hz
+    writes = profile.control_writes(profile.command_name("run_forward"), reference)
+    assert [(w.start, w.words) for w in writes] == [
+        (CONTROL_WORD, (READY_TO_SWITCH_ON, reference)),  # 40001-40002 in one write
+        (CONTROL_WORD, (READY_TO_OPERATE,)),
+        (CONTROL_WORD, (OPERATING,)),
+    ]
+    assert writes[0].pause_s >= 0.1  # "Wait at least 100 ms before proceeding"
+
+
+def test_reverse_is_a_negative_reference_and_needs_one() -> None:
+    profile = get_profile("acs580")
+    writes = profile.control_writes("run_reverse", profile.setpoint_word(25.0))
+    assert writes[0].words == (READY_TO_SWITCH_ON, (-10000) & 0xFFFF)
+    with pytest.raises(ValueError, match="negative reference"):
+        profile.control_writes("run_reverse", None)
+
+
+def test_stop_and_fault_reset_are_the_manuals_bits() -> None:
+    profile = get_profile("acs580")
+    (stop,) = profile.control_writes("stop", None)
+    assert stop.words[0] & 0b1 == 0  # OFF1 = 0: stop along the active ramp
+    (coast,) = profile.control_writes("coast_stop", None)
+    assert coast.words[0] & 0b10 == 0  # OFF2 = 0: coast to a stop
+    low, high = profile.control_writes("fault_reset", None)
+    assert (low.words[0] & 0x80, high.words[0] & 0x80) == (0, 0x80)  # bit 7: a rising edge
+
+
+@pytest.mark.parametrize(
+    ("status_word", "reference", "state"),
+    [
+        (0b0000_0010_0011_0111, 10000, "running_forward"),  # RDY_REF: operation enabled
+        (0b0000_0010_0011_0111, (-10000) & 0xFFFF, "running_reverse"),
+        (0b0000_0010_0011_0011, 0, "stopped"),  # ready to operate, not enabled
+        (0b0000_0010_0011_1000, 0, "fault"),  # TRIPPED
+        (0b0000_0000_0100_0000, 0, "stopped"),  # switch-on inhibited
+    ],
+)
+def test_the_status_word_reads_in_the_words_invt_drives_use(
+    status_word: int, reference: int, state: str
+) -> None:
+    telemetry = get_profile("acs580").telemetry({0: 0, 1: reference, 3: status_word})
+    assert telemetry["state"] == state
+    assert telemetry["state"] in INVT_STATES  # what MQTT and the console show for any drive
+    assert telemetry["ready"] is bool(status_word & 0b10)  # RDY_RUN: ready to operate
+    assert telemetry["command_source"] == ("remote" if status_word & 0x200 else "local")
+
+
+def test_its_registers_are_named_by_the_manuals_numbers() -> None:
+    profile = get_profile("acs355")
+    point = profile.resolve("40004")
+    assert (point.address, point.description) == (3, "status word")
+    assert point.show(0x0237, profile).startswith("0237H (running_forward: ready to switch on")
+    assert profile.resolve("reference_1").show((-10000) & 0xFFFF, profile) == "-10000"
+    assert profile.point(0x2100) is None  # INVT's state word is no ABB register
