@@ -4,10 +4,20 @@
 
 from __future__ import annotations
 
+import struct
+
 import pytest
 
+from gateway.console.decode import describe
+from gateway.instruments.simulator import SimulatedLine
+from gateway.modbus.functions import READ_HOLDING_REGISTERS
 from gateway.profile import get_profile
 from gateway.profile.states import RunState
+from tests.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
+from tests.mosquitto import mosquitto as mosquitto
+from tests.mqtt_setup import FAST_POLL, mqtt_config
+from tests.processes import run_cli
+from tests.support import running_gateway, scan_rows
 
 # ACS355 state diagram, page 319: CW = xxxx x1xx xxxx x110 → READY TO SWITCH ON,
 # xxxx x1xx xxxx x111 → READY TO OPERATE, xxxx x1xx x111 1111 → OPERATING.
@@ -77,3 +87,75 @@ def test_its_registers_are_named_by_the_manuals_numbers() -> None:
     assert point.show(0x0237, profile).startswith("0237H (running_forward: ready to switch on")
     assert profile.resolve("reference_1").show((-10000) & 0xFFFF, profile) == "-10000"
     assert profile.point(0x2100) is None  # INVT's state word is no ABB register
+
+
+# ---------------------------------------------------------------- a mixed line, end to end
+
+
+def test_the_traffic_monitor_reads_an_abb_status_word_in_the_manuals_words() -> None:
+    profile = get_profile("acs580")
+    request = struct.pack(">BHH", READ_HOLDING_REGISTERS, 3, 1)
+    line = describe(request, bytes((READ_HOLDING_REGISTERS, 2, 0x02, 0x37)), profile)
+    assert line == (
+        "read 40004 status word → 0237H (running_forward: ready to switch on, ready to operate, "
+        "operation enabled, OFF2 inactive, OFF3 inactive, remote)"
+    )
+
+
+def test_scan_shows_an_abb_drive_beside_an_invt_one() -> None:
+    with SimulatedLine(addresses=[1, 2], models={2: "acs580"}, baudrate=115200) as line:
+        result = run_cli(
+            "scan", "--port", line.path, "--baud", "115200", "--addresses", "1-3",
+            env={"COLUMNS": "200"},  # the table's note column, untruncated
+        )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    rows = scan_rows(result.stdout)
+    assert sorted(rows) == [1, 2]
+    assert rows[1][:2] == ["GD350", "stopped"]
+    assert rows[2][:4] == ["ACS355 or ACS580 (ABB Drives profile)", "stopped", "none", "remote"]
+
+
+async def test_run_forward_over_mqtt_starts_an_abb_drive_as_it_does_an_invt_one(
+    mosquitto: Mosquitto,
+) -> None:
+    base = unique_base_topic()
+    drives = [
+        {"name": "pump1", "address": 1, "model": "gd350", "poll": FAST_POLL},
+        {"name": "fan2", "address": 2, "model": "acs580"},  # its profile's poll: 40001-40012
+    ]
+    with SimulatedLine(
+        addresses=[1, 2], models={2: "acs580"}, baudrate=115200, response_delay_ms=1
+    ) as line:
+        config = mqtt_config(
+            line.path, mosquitto, base, drives=drives, bus={"baudrate": 115200},
+            discovery_prefix=f"{base}/ha",
+        )  # fmt: skip
+        async with mqtt_probe(mosquitto, f"{base}/#") as probe, running_gateway(config):
+            for name in ("pump1", "fan2"):
+                await probe.wait_for(f"{base}/{name}", lambda s: s.get("state") == "stopped")
+                answer = await probe.request(
+                    f"{base}/{name}/set",
+                    {"command": "run_forward", "frequency_hz": 25.0},
+                    f"{base}/{name}/set/response",
+                )
+                assert answer["status"] == "ok", answer
+                await probe.wait_for(
+                    f"{base}/{name}", lambda s: s.get("state") == "running_forward"
+                )
+            drive = line.abb_drives[2]
+            assert drive.words[1] == 10000  # 25 Hz of the 50 Hz full scale (20000)
+            answer = await probe.request(
+                f"{base}/fan2/set",
+                {"command": "run_reverse", "frequency_hz": 10.0},
+                f"{base}/fan2/set/response",
+            )
+            assert answer["status"] == "ok", answer
+            await probe.wait_for(f"{base}/fan2", lambda s: s.get("state") == "running_reverse")
+            await probe.request(
+                f"{base}/fan2/set", {"command": "stop"}, f"{base}/fan2/set/response"
+            )
+            await probe.wait_for(f"{base}/fan2", lambda s: s.get("state") == "stopped")
+            state = await probe.wait_for(f"{base}/ha/sensor/invt_test/fan2_state/config")
+            assert state.json()["device"]["manufacturer"] == "ABB"
+            assert probe.on(f"{base}/ha/button/invt_test/fan2_run_forward/config")
+            assert not probe.on(f"{base}/ha/sensor/invt_test/fan2_output_frequency_hz/config")

@@ -38,7 +38,7 @@ from gateway.profile.invt import (
     model_from_identification,
     profiles_for_identification,
 )
-from gateway.profile.models import PROFILES, get_profile
+from gateway.profile.models import PROFILES, SCAN_QUESTIONS, get_profile
 from gateway.profile.parameters import (
     PARAMETERS,
     Parameter,
@@ -49,7 +49,7 @@ from gateway.profile.parameters import (
     unscale_parameter,
 )
 from gateway.profile.points import Point, resolve
-from gateway.profile.protocol import DriveProfile, PollGroup, RegisterWrite
+from gateway.profile.protocol import DriveProfile, Identified, PollGroup, Question, RegisterWrite
 from gateway.profile.registers import (
     COMMUNICATION_REGISTERS,
     RUNNING_VALUES,
@@ -80,15 +80,18 @@ __all__ = [
     "PARAMETERS",
     "PROFILES",
     "RUNNING_VALUES",
+    "SCAN_QUESTIONS",
     "CommandSource",
     "ControlCommand",
     "DriveProfile",
     "FaultTable",
     "GenericProfile",
+    "Identified",
     "InvtProfile",
     "Parameter",
     "Point",
     "PollGroup",
+    "Question",
     "Register",
     "RegisterWrite",
     "RunState",

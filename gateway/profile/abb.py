@@ -27,7 +27,7 @@ from gateway.profile.addressing import format_register, parse_register
 from gateway.profile.faults import FaultTable
 from gateway.profile.parameters import Parameter
 from gateway.profile.points import Point
-from gateway.profile.protocol import DriveProfile, PollGroup, RegisterWrite
+from gateway.profile.protocol import DriveProfile, Identified, PollGroup, Question, RegisterWrite
 from gateway.profile.registers import to_signed
 from gateway.profile.telemetry import Telemetry
 
@@ -244,6 +244,24 @@ class AbbProfile:
     def ram_only_address(self, address: int, spelled: str) -> int:
         raise ValueError(f"{self.display_name} has no RAM-only writes")
 
+
+def _identified(words: tuple[int, ...]) -> Identified | None:
+    """40001-40004 as a scan reads them; the status word's unused bits 13-15 are 0 on an ABB
+    drive (ACS320 manual, page 350: "13... 15 Unused"), so a device with them set is not one."""
+    status = words[STATUS_WORD]
+    if status & 0xE000:
+        return None
+    names = " or ".join(profile.display_name for profile in ABB_PROFILES.values())
+    return Identified(
+        model=f"{names} (ABB Drives profile)",
+        state=state(status, words[REFERENCE_1]),
+        fault="tripped" if status & _TRIPPED else "none",
+        command_source="remote" if status & _REMOTE else "local",
+    )
+
+
+SCAN_QUESTION: Final = Question("ABB", CONTROL_WORD, STATUS_WORD + 1, _identified)
+"""40001-40004: the control word, the references and the status word in one read."""
 
 ABB_PROFILES: Final[Mapping[str, AbbProfile]] = {
     key: AbbProfile(key, model["display_name"], tuple(model.get("aliases", ())))

@@ -12,16 +12,20 @@ from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Final
 
-from gateway.profile.abb import ABB_PROFILES
+from gateway.profile.abb import ABB_PROFILES, SCAN_QUESTION
 from gateway.profile.generic import GENERIC
 from gateway.profile.invt import INVT_PROFILES
-from gateway.profile.protocol import DriveProfile
+from gateway.profile.protocol import DriveProfile, Question
 
 _ALL: Final[tuple[DriveProfile, ...]] = (
     *INVT_PROFILES.values(),
     *ABB_PROFILES.values(),
     GENERIC,
 )
+
+SCAN_QUESTIONS: Final[tuple[Question, ...]] = (SCAN_QUESTION,)
+"""How `scan` asks a drive that refuses INVT's identification (2100H-2103H) what it is, maker by
+maker, in order."""
 
 PROFILES: Final[Mapping[str, DriveProfile]] = MappingProxyType(
     {profile.key: profile for profile in _ALL}

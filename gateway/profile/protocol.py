@@ -18,7 +18,7 @@ a drive is: the poller, the MQTT bridge, the settings and the console ask the pr
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
@@ -48,6 +48,29 @@ class RegisterWrite:
     pause_s: float = 0.0
     """How long to wait after this write before the next one of the same command (a state
     machine that needs time between steps)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Identified:
+    """What a maker's identification read says of a drive `scan` found."""
+
+    model: str
+    """ "ACS355 or ACS580 (ABB Drives profile)": the words a scan prints."""
+    state: str
+    """The same state words as the telemetry's `state` ("stopped", "running_forward"...)."""
+    fault: str
+    command_source: str
+
+
+@dataclass(frozen=True, slots=True)
+class Question:
+    """How `scan` asks a drive of one maker what it is: `count` words from `start`, and what
+    they say (None: not this maker's drive after all)."""
+
+    maker: str
+    start: int
+    count: int
+    answer: Callable[[tuple[int, ...]], Identified | None]
 
 
 class DriveProfile(Protocol):
