@@ -8,16 +8,18 @@ import struct
 
 import pytest
 
+from gateway.config import GatewayConfig
 from gateway.console.decode import describe
 from gateway.instruments.simulator import SimulatedLine
 from gateway.modbus.functions import READ_HOLDING_REGISTERS
 from gateway.profile import get_profile
 from gateway.profile.states import RunState
+from tests.console_support import OPERATOR_PASSWORD, console_client, console_config
 from tests.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
 from tests.mosquitto import mosquitto as mosquitto
 from tests.mqtt_setup import FAST_POLL, mqtt_config
 from tests.processes import run_cli
-from tests.support import running_gateway, scan_rows
+from tests.support import eventually, running_gateway, scan_rows
 
 # ACS355 state diagram, page 319: CW = xxxx x1xx xxxx x110 → READY TO SWITCH ON,
 # xxxx x1xx xxxx x111 → READY TO OPERATE, xxxx x1xx x111 1111 → OPERATING.
@@ -159,3 +161,31 @@ async def test_run_forward_over_mqtt_starts_an_abb_drive_as_it_does_an_invt_one(
             assert state.json()["device"]["manufacturer"] == "ABB"
             assert probe.on(f"{base}/ha/button/invt_test/fan2_run_forward/config")
             assert not probe.on(f"{base}/ha/sensor/invt_test/fan2_output_frequency_hz/config")
+
+
+async def test_the_console_starts_an_abb_drive_and_shows_it_running() -> None:
+    with SimulatedLine(
+        addresses=[1, 2], models={2: "acs580"}, baudrate=115200, response_delay_ms=1
+    ) as line:
+        settings = console_config(line.path).model_dump()
+        settings["drives"][1]["model"] = "acs580"  # fan2
+        config = GatewayConfig.model_validate(settings)
+        async with running_gateway(config) as app, console_client(app) as web:
+            await web.login("olga", OPERATOR_PASSWORD)
+            status, body = await web.post("/api/drives/fan2/frequency", {"hz": 25.0})
+            assert (status, body["write"]) == (200, "40002 reference 1 = 10000")
+            status, body = await web.post("/api/drives/fan2/command", {"command": "run_forward"})
+            assert status == 200, body
+            assert body["write"].split("; ") == [
+                "40001 control word = 1142",  # 0476H, 0477H, 047FH
+                "40001 control word = 1143",
+                "40001 control word = 1151",
+            ]
+
+            async def running() -> bool:
+                drives = (await web.get_json("/api/overview"))["drives"]
+                fan = next(d for d in drives if d["name"] == "fan2")
+                return bool(fan["state"] == "running forward")  # as it shows an INVT drive's
+
+            await eventually(running)
+            assert line.abb_drives[2].state(0.0) is RunState.RUNNING_FORWARD
