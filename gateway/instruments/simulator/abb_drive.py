@@ -18,6 +18,7 @@ import struct
 from enum import IntEnum
 from typing import Final
 
+from gateway.errors import RequestRefused
 from gateway.modbus.functions import (
     READ_HOLDING_REGISTERS,
     WRITE_MULTIPLE_REGISTERS,
@@ -92,7 +93,7 @@ class SimulatedAbbDrive:
                 values = struct.unpack_from(f">{count}H", pdu, 6)
                 self._write(start, values, now)
                 return pdu[:5]
-        except _Refused as refused:
+        except RequestRefused as refused:
             return exception_pdu(function, refused.code)
         except struct.error:
             return exception_pdu(function, code.ILLEGAL_DATA_VALUE)
@@ -115,7 +116,7 @@ class SimulatedAbbDrive:
     # -- the registers ----------------------------------------------------------------------
     def _check(self, start: int, count: int) -> None:
         if not 1 <= count <= 125 or start + count > LAST + 1:
-            raise _Refused(code.ILLEGAL_DATA_ADDRESS)
+            raise RequestRefused(code.ILLEGAL_DATA_ADDRESS, "outside 40001-40012")
 
     def _word(self, address: int) -> int:
         if address == STATUS_WORD:
@@ -128,7 +129,7 @@ class SimulatedAbbDrive:
     def _write(self, start: int, values: tuple[int, ...], now: float) -> None:
         addresses = range(start, start + len(values))
         if not values or any(address not in WRITABLE for address in addresses):
-            raise _Refused(code.ILLEGAL_DATA_ADDRESS)
+            raise RequestRefused(code.ILLEGAL_DATA_ADDRESS, "not a writable register")
         before = self.words[CONTROL_WORD]
         for address, value in zip(addresses, values, strict=True):
             self.words[address] = value
@@ -171,9 +172,3 @@ class SimulatedAbbDrive:
         if self.machine is Machine.OPERATION_ENABLED:
             word |= (1 << 2) | (1 << 8)  # operation enabled, at set-point (no ramp here)
         return word
-
-
-class _Refused(Exception):
-    def __init__(self, exception_code: int) -> None:
-        super().__init__(exception_code)
-        self.code = exception_code
