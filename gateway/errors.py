@@ -6,7 +6,8 @@
     │                           the MQTT session says so loudly and tries again later
     ├── CannotListen            a port to serve on can't be bound: one line, exit code 1
     ├── StoreError              the event store's file can't be opened or used (names it and why):
-    │                           events are kept in memory meanwhile
+    │   │                       events are kept in memory meanwhile
+    │   └── DiskFull            its disk has no room (`storage.path`): nothing written, events wait
     ├── StoreRefused            the store's file is a newer release's: one line, exit code 1
     ├── ServiceFailed           the service can't go on: stop with exit code 1 (systemd restarts it)
     │   ├── BusFailed           a bus's coroutine died of a bug
@@ -21,6 +22,8 @@
     ├── FieldError              a field tool failed: what happened, and what to check on site
     ├── MonitorError            `invt-gateway monitor` can't show the traffic: one line why
     ├── ControlUnavailable      the control socket (`invt-gateway reload`) can't be made or reached
+    ├── TableError              a parameter table shipped in the package is malformed (file, line,
+    │                           column): a packaging bug, found by the tests
     ├── InstructionCountError   `bench --instructions`: the run is void (wrong reply, no count)
     ├── OperationError          a console request refused or failed, with its HTTP `status`
     └── ModbusError             answered to the client as a Modbus exception (has `code`)
@@ -224,6 +227,15 @@ class CannotListen(GatewayError):
 class StoreError(GatewayError):
     """The event store's database could not be opened or used (the message names the file and
     why): the gateway goes on, keeping events in memory."""
+
+
+class DiskFull(StoreError):
+    """The store's disk is full (`Room.full`): nothing was written."""
+
+
+class TableError(GatewayError, ValueError):
+    """A parameter table's data file is malformed: the message names the file, the line and the
+    column."""
 
 
 class StoreRefused(GatewayError):

@@ -16,8 +16,8 @@ import serial
 
 from gateway.config import parse_config
 from gateway.instruments.simulator import SimulatedLine
-from gateway.profile import describe_identification, get_profile
-from gateway.profile.telemetry import decode_telemetry
+from gateway.profile import InvtProfile, describe_identification, get_profile
+from gateway.profile.invt import INVT_PROFILES
 from gateway.tools.scan import FoundDrive
 from tests.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
 from tests.mosquitto import mosquitto as mosquitto
@@ -98,8 +98,8 @@ def test_each_series_has_its_own_fault_table() -> None:
 
 def test_telemetry_names_a_fault_only_from_the_drives_own_table() -> None:
     registers = {0x2100: 4, 0x2101: 0, 0x2102: 40}
-    gd350a = decode_telemetry(get_profile("gd350a"), registers)
-    gd30 = decode_telemetry(get_profile("gd30"), registers)
+    gd350a = get_profile("gd350a").telemetry(registers)
+    gd30 = get_profile("gd30").telemetry(registers)
     assert (gd350a["fault_name"], gd350a["fault_description"]) == ("STO", "STO")
     assert (gd30["fault_name"], gd30["fault_description"]) == ("40", "unknown fault 40")
 
@@ -128,6 +128,7 @@ drives:
 """
     )
     profile = config.drives[0].profile()
+    assert isinstance(profile, InvtProfile)
     assert profile.identification == (0x01E5,)
     assert profile.identification_confirmed
     assert profile.faults.describe(40) == "BRK: brake fault"
@@ -198,7 +199,7 @@ def crc(frame: bytes) -> bytes:
 def test_a_goodrive30_takes_the_motors_its_2009h_row_lists() -> None:
     # The Goodrive30 manual (page -135-): 2009H bits 1-0 "=10: Motor 3 =11: Motor 4", while its
     # 2101H marks 10 and 11 "Reserved". The simulator follows the 2009H row: motor 3 is taken.
-    assert get_profile("gd30").motors == 2
+    assert INVT_PROFILES["gd30"].motors == 2
     with (
         SimulatedLine(addresses=[1], models={1: "gd30"}, baudrate=19200) as line,
         serial.Serial(line.path, 19200, parity="E", timeout=1) as port,
@@ -221,7 +222,7 @@ def read_word(port: serial.Serial, address: int, register: int) -> bytes:
 def test_a_gd300l_answers_its_fault_at_5000h_and_its_code_at_3016h() -> None:
     # The Goodrive300-LIFT manual (10.4.5, page -127-): 3016H "Identifying code of the inverter"
     # and 5000H "Fault code", after 2102H and 2103H.
-    assert get_profile("gd300l").fault_registers == (0x2102, 0x5000)
+    assert INVT_PROFILES["gd300l"].fault_registers == (0x2102, 0x5000)
     with (
         SimulatedLine(addresses=[4], models={4: "gd300l"}, baudrate=19200) as line,
         serial.Serial(line.path, 19200, parity="E", timeout=1) as port,
@@ -230,15 +231,15 @@ def test_a_gd300l_answers_its_fault_at_5000h_and_its_code_at_3016h() -> None:
         assert read_word(port, 4, 0x2102)[3:5] == b"\x00\x17"
         assert read_word(port, 4, 0x5000)[3:5] == b"\x00\x17"  # 23 = bCE at both
         assert read_word(port, 4, 0x3016)[3:5] == b"\x01\x0a"  # as 2103H: "GD300 0x010a"
-    telemetry = decode_telemetry(get_profile("gd300l"), {0x2100: 4, 0x2101: 0, 0x5000: 23})
+    telemetry = get_profile("gd300l").telemetry({0x2100: 4, 0x2101: 0, 0x5000: 23})
     assert telemetry["fault_description"] == "bCE: braking unit fault"
 
 
 def test_a_gd300l_reports_ready_with_bit_0_clear() -> None:
     # The Goodrive300-LIFT manual: 2101H bit 0 "=0: ready for operation".
     registers = {0x2100: 3, 0x2101: 0x0040, 0x2102: 0}
-    assert decode_telemetry(get_profile("gd300l"), registers)["ready"] is True
-    assert decode_telemetry(get_profile("gd20"), registers)["ready"] is False
+    assert get_profile("gd300l").telemetry(registers)["ready"] is True
+    assert get_profile("gd20").telemetry(registers)["ready"] is False
 
 
 # ---------------------------------------------------------------- scan

@@ -27,18 +27,17 @@ from gateway.instruments.simulator import SimulatedLine
 from gateway.instruments.simulator.drive import SimulatedDrive
 from gateway.mqtt.discovery import SENSORS
 from gateway.poller.drive_state import DriveState, EventKind
-from gateway.profile import PROFILES, DriveProfile
-from gateway.profile.invt import UNCONFIRMED_READY_BIT
+from gateway.profile import InvtProfile, resolve
+from gateway.profile.invt import INVT_PROFILES, UNCONFIRMED_READY_BIT
 from gateway.profile.states import RunState
 from gateway.profile.telemetry import decode_telemetry
 from gateway.tools.access import Reading
-from gateway.tools.points import resolve
 from gateway.tools.scan import FoundDrive
 from tests.mosquitto import mqtt_probe, running_mosquitto, unique_base_topic
 from tests.processes import gateway_process, run_cli
 from tests.support import free_port, read_pdu
 
-INVT = [profile for profile in PROFILES.values() if profile.is_invt]
+INVT = list(INVT_PROFILES.values())
 
 # 2101H bit 0: the value that means "ready", in each series' own communication chapter (the
 # pages are quoted in the profiles' `ready_bit_source`; these are read off the pages again).
@@ -62,13 +61,13 @@ def ready_in(text: str) -> bool | None:
     return None
 
 
-def monitor_line(profile: DriveProfile, address: int, raw: int) -> str:
+def monitor_line(profile: InvtProfile, address: int, raw: int) -> str:
     """The traffic monitor's meaning of a one-word read of `address` that answered `raw`."""
     return describe(read_pdu(address), struct.pack(">BBH", 3, 2, raw), profile)
 
 
 def scanned(
-    profile: DriveProfile,
+    profile: InvtProfile,
     state_word_1: int | None = None,
     state_word_2: int | None = None,
     fault: int | None = None,
@@ -82,7 +81,7 @@ def scanned(
 
 
 @pytest.mark.parametrize("profile", INVT, ids=lambda p: p.key)
-def test_each_polarity_cites_its_page_or_says_it_is_unconfirmed(profile: DriveProfile) -> None:
+def test_each_polarity_cites_its_page_or_says_it_is_unconfirmed(profile: InvtProfile) -> None:
     if profile.key in MANUAL_READY_VALUE:
         assert profile.ready_bit_set_means_ready == (MANUAL_READY_VALUE[profile.key] == 1)
         assert "page" in profile.ready_bit_source
@@ -93,7 +92,7 @@ def test_each_polarity_cites_its_page_or_says_it_is_unconfirmed(profile: DrivePr
 
 
 @pytest.mark.parametrize("profile", INVT, ids=lambda p: p.key)
-def test_the_simulator_answers_2101h_as_the_manual_says(profile: DriveProfile) -> None:
+def test_the_simulator_answers_2101h_as_the_manual_says(profile: InvtProfile) -> None:
     drive = SimulatedDrive(1, profile.key)
     ready_value = 1 if profile.ready_bit_set_means_ready else 0
     if profile.key in MANUAL_READY_VALUE:
@@ -112,7 +111,7 @@ def test_the_simulator_answers_2101h_as_the_manual_says(profile: DriveProfile) -
 
 
 @pytest.mark.parametrize("profile", INVT, ids=lambda p: p.key)
-def test_state_word_2_every_bit_reads_the_same_everywhere(profile: DriveProfile) -> None:
+def test_state_word_2_every_bit_reads_the_same_everywhere(profile: InvtProfile) -> None:
     point = resolve("2101H")
     for raw in range(0x80):  # bits 0-6: every bit the manuals define
         telemetry = decode_telemetry(profile, {0x2101: raw})
@@ -141,7 +140,7 @@ def test_a_series_the_reader_cannot_tell_leaves_bit_0_undecided() -> None:
 
 
 @pytest.mark.parametrize("profile", INVT, ids=lambda p: p.key)
-def test_state_word_1_every_value_reads_the_same_everywhere(profile: DriveProfile) -> None:
+def test_state_word_1_every_value_reads_the_same_everywhere(profile: InvtProfile) -> None:
     point = resolve("2100H")
     for raw in range(0, 9):  # 1-6 defined, 0, 7 and 8 not
         state = decode_telemetry(profile, {0x2100: raw})["state"]
@@ -152,7 +151,7 @@ def test_state_word_1_every_value_reads_the_same_everywhere(profile: DriveProfil
 
 
 @pytest.mark.parametrize("profile", INVT, ids=lambda p: p.key)
-def test_every_fault_code_reads_the_same_everywhere(profile: DriveProfile) -> None:
+def test_every_fault_code_reads_the_same_everywhere(profile: InvtProfile) -> None:
     point = resolve("2102H")
     store = MemoryEventStore()
     live = LiveState({}, [], [], None, store)

@@ -46,13 +46,13 @@ def handle(args: argparse.Namespace) -> int:
 
     try:
         profile = None if args.model is None else get_profile(args.model)
-        table = words.fault_table(profile)
+        table = words.fault_table(None) if profile is None else profile.faults
         codes = [fault_code(text, table) for text in args.codes]
     except ValueError as exc:
         print(f"invt-gateway decode-fault: {exc}", file=sys.stderr)
         return EXIT_USAGE
     for given, code in zip(args.codes, codes, strict=True):
-        text = words.fault(profile, code).description
+        text = table.describe(code)
         # Given by its keypad name, the number is the news; several: which is which.
         numbered = len(codes) > 1 or not given.strip()[:1].isdigit()
         print(f"{code}: {text}" if numbered else text)

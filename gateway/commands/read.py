@@ -37,14 +37,17 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 def handle(args: argparse.Namespace) -> int:
     from gateway.errors import FieldError
-    from gateway.profile import get_profile
+    from gateway.profile import get_profile, resolve
+    from gateway.profile.points import beyond_common_table, for_series
     from gateway.tools.access import read_point, series_of
     from gateway.tools.open import open_master
-    from gateway.tools.points import beyond_common_table, for_series, resolve
 
     try:
-        points = [resolve(name) for name in args.points]
         profile = None if args.model is None else get_profile(args.model)
+        # Without --model, INVT's names: the series, if it matters, is asked of the drive.
+        points = [
+            resolve(name) if profile is None else profile.resolve(name) for name in args.points
+        ]
     except ValueError as exc:
         print(f"invt-gateway read: {exc}", file=sys.stderr)
         return EXIT_USAGE

@@ -19,7 +19,7 @@ from gateway.commands.line_options import add_target_arguments
 
 if TYPE_CHECKING:
     from gateway.profile import DriveProfile
-    from gateway.tools.points import Point
+    from gateway.profile.points import Point
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -44,20 +44,22 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 def handle(args: argparse.Namespace) -> int:
     from gateway.errors import FieldError
-    from gateway.profile import get_profile
+    from gateway.profile import get_profile, resolve
+    from gateway.profile.points import beyond_common_table
     from gateway.tools.access import series_of, write_point
     from gateway.tools.open import open_master
-    from gateway.tools.points import beyond_common_table, resolve
 
     assignments: list[tuple[Point, str]] = []
     writes: list[tuple[Point, int]] | None = None
     try:
+        profile = None if args.model is None else get_profile(args.model)
         for assignment in args.assignments:
             name, equals, value = assignment.partition("=")
             if not equals or not value.strip():
                 raise ValueError(f"{assignment!r}: expected NAME=VALUE, e.g. P00.11=10.0")
-            assignments.append((resolve(name), value))
-        profile = None if args.model is None else get_profile(args.model)
+            # Without --model, INVT's names: the series, if it matters, is asked of the drive.
+            point = resolve(name) if profile is None else profile.resolve(name)
+            assignments.append((point, value))
         if profile is not None or not any(beyond_common_table(p) for p, _ in assignments):
             writes = _encoded(assignments, profile)  # checked before the line is opened
     except ValueError as exc:
@@ -90,7 +92,7 @@ def _encoded(
     assignments: list[tuple[Point, str]], profile: DriveProfile | None
 ) -> list[tuple[Point, int]]:
     """Each value as the wire word, a parameter scaled by `profile`'s series table."""
-    from gateway.tools.points import for_series
+    from gateway.profile.points import for_series
 
     points = [(for_series(point, profile), value) for point, value in assignments]
     return [(point, point.encode(value)) for point, value in points]

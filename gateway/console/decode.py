@@ -1,12 +1,12 @@
-"""A transaction in INVT's words, for the traffic monitor.
+"""A transaction in the drive's own words (its profile's), for the traffic monitor.
 
     read 2100H state word 1 → 0003H stopped
     write P00.11 = 10.0 s
     write 2000H control word = 1 (run_forward) → ok
     loop-back 08H (probe) → echoed
 
-For a drive whose profile is not INVT (`generic`), registers keep their addresses and raw words.
-The status words are put in words by the drive's own series (`gateway.profile.words`), so the
+A register the drive's profile doesn't name (every register of a `generic` device) keeps its
+address and raw word. The status words are put in words by the drive's own profile, so the
 monitor says what the drive page and MQTT say: 0041H is "ready" on a GD350, "not ready" on a
 GD300-LIFT.
 """
@@ -22,8 +22,7 @@ from gateway.modbus.functions import (
     WRITE_MULTIPLE_REGISTERS,
     WRITE_SINGLE_REGISTER,
 )
-from gateway.profile import DriveProfile, exception_name, format_register, is_ram_address
-from gateway.tools.points import Point, resolve
+from gateway.profile import DriveProfile, Point, exception_name, format_register, is_ram_address
 
 MAX_VALUES_SHOWN = 4
 """A 12-word poll names its first values and says how many more: a line stays one line."""
@@ -36,7 +35,7 @@ def describe_request(pdu: bytes, profile: DriveProfile | None) -> str:
     function = pdu[0]
     if function in (READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS) and len(pdu) == 5:
         start, count = struct.unpack(">HH", pdu[1:5])
-        return f"read {_span(start, count, _invt(profile))}"
+        return f"read {_span(start, count, profile)}"
     if function == WRITE_SINGLE_REGISTER and len(pdu) == 5:
         address, value = struct.unpack(">HH", pdu[1:5])
         return f"write {_assignment(address, value, profile)}"
@@ -78,20 +77,22 @@ def describe(pdu: bytes, reply: bytes | None, profile: DriveProfile | None) -> s
     return f"{request} → ok"
 
 
-def _span(start: int, count: int, invt: bool) -> str:
-    first = _name(start, invt)
+def _span(start: int, count: int, profile: DriveProfile | None) -> str:
+    first = _name(start, profile)
     if count == 1:
         return first
     last = start + count - 1
-    last_name = _point(last).label if invt and first.startswith("P") else format_register(last)
-    return f"{first} … {last_name} ({count} words)"
+    last_point = _point(last, profile)
+    named_last = last_point is not None and first.startswith("P")
+    last_name = last_point.label if last_point is not None and named_last else None
+    return f"{first} … {last_name or format_register(last)} ({count} words)"
 
 
-def _name(address: int, invt: bool) -> str:
+def _name(address: int, profile: DriveProfile | None) -> str:
     """ "2100H state word 1", "P00.11", "P00.11 (RAM)", "0005H"."""
-    if not invt:
+    point = _point(address, profile)
+    if point is None:
         return format_register(address)
-    point = _point(address)
     if point.label.startswith("P"):
         return f"{point.label} (RAM)" if is_ram_address(address) else point.label
     named = point.description.split(":", 1)[0] if point.unit or point.description else ""
@@ -101,15 +102,16 @@ def _name(address: int, invt: bool) -> str:
 
 
 def _assignment(address: int, value: int, profile: DriveProfile | None) -> str:
-    if not _invt(profile):
+    point = _point(address, profile)
+    if point is None:
         return f"{format_register(address)} = {value:04X}H"
-    return f"{_name(address, True)} = {_point(address).show(value, profile)}"
+    return f"{_name(address, profile)} = {point.show(value, profile)}"
 
 
 def _value(address: int, value: int, profile: DriveProfile | None, *, named: bool) -> str:
-    if not _invt(profile):
+    point = _point(address, profile)
+    if point is None:
         return f"{value:04X}H"
-    point = _point(address)
     shown = point.show(value, profile)
     if point.meaning.value == "state_word_1":
         shown = f"{value:04X}H {shown.split('(', 1)[1].rstrip(')')}"
@@ -118,12 +120,9 @@ def _value(address: int, value: int, profile: DriveProfile | None, *, named: boo
     return f"{point.label if point.label.startswith('P') else format_register(address)} {shown}"
 
 
-def _invt(profile: DriveProfile | None) -> bool:
-    return profile is not None and profile.is_invt
-
-
-def _point(address: int) -> Point:
-    return resolve(format_register(address))
+def _point(address: int, profile: DriveProfile | None) -> Point | None:
+    """The profile's point at `address`; None: no profile, or it doesn't name the address."""
+    return None if profile is None else profile.point(address)
 
 
 def _words(data: bytes) -> list[int]:

@@ -10,6 +10,7 @@ Each write is recorded as an audit event: who, what, when, and what came of it.
 
 from __future__ import annotations
 
+import asyncio
 import struct
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -28,22 +29,21 @@ from gateway.modbus.functions import (
 from gateway.poller import Poller
 from gateway.profile import (
     COMMUNICATION_REGISTERS,
-    CONTROL_COMMANDS,
+    Point,
+    RegisterWrite,
     describe_exception,
     parse_parameter,
-    register_by_name,
-    words,
+    resolve,
 )
-from gateway.profile.parameters import FAULT_HISTORY, Parameter
+from gateway.profile.parameters import FAULT_HISTORY, Parameter, parameter_groups
+from gateway.profile.points import for_series
 from gateway.profile.ram_writes import ram_write_address
 from gateway.routing import Router
 from gateway.settings import DriveSettings
 from gateway.tcp.access import AccessPolicy
-from gateway.tools.points import Point, for_series, resolve
 
 MAX_BLOCK: Final = 16
 """INVT drives answer at most 16 words per read."""
-COMMAND_NAMES: Final = tuple(CONTROL_COMMANDS)
 REGISTER_BLOCKS: Final = ("2000H", "2100H", "3000H")
 PARAMETER_GROUPS: Final = tuple(f"P{group:02d}" for group in range(18))
 
@@ -119,7 +119,9 @@ class DriveOperations:
 
         def shown(row: Parameter, raw: int) -> str:
             # The fault history's codes in the drive's own fault table, as everywhere else.
-            return words.show_fault(profile, raw) if row.name in FAULT_HISTORY else row.show(raw)
+            if row.name in FAULT_HISTORY:
+                return f"{raw} ({profile.faults.describe(raw)})"
+            return row.show(raw)
 
         return [
             {
@@ -142,13 +144,13 @@ class DriveOperations:
         settings = self._drive(drive)
         start = parse_parameter(FAULT_HISTORY[0])
         codes = await self._read(who, settings, start, len(FAULT_HISTORY))
-        faults = [words.fault(settings.profile, code) for code in codes]
+        faults = [settings.profile.fault_fields(code) for code in codes]
         return [
             {
                 "parameter": name,
-                "code": fault.code,
-                "name": fault.name,
-                "description": fault.description,
+                "code": fault["fault_code"],
+                "name": fault["fault_name"],
+                "description": fault["fault_description"],
             }
             for name, fault in zip(FAULT_HISTORY, faults, strict=True)
         ]
@@ -156,22 +158,23 @@ class DriveOperations:
     # -- writes -----------------------------------------------------------------------------
 
     async def command(self, who: Identity, drive: str, command: str) -> dict[str, Any]:
-        if command not in CONTROL_COMMANDS:
-            raise OperationError(
-                400, f"unknown command {command!r}: one of {', '.join(COMMAND_NAMES)}"
-            )
-        control = register_by_name("control_word")
-        return await self._write(
-            who, drive, control.address, CONTROL_COMMANDS[command], Category.CONTROL
-        )
-
-    async def set_frequency(self, who: Identity, drive: str, hz: float) -> dict[str, Any]:
-        setpoint = register_by_name("frequency_setpoint")
+        profile = self._drive(drive).profile
+        if command not in profile.commands:
+            known = ", ".join(profile.commands) or "none"
+            raise OperationError(400, f"unknown command {command!r}: one of {known}")
         try:
-            raw = setpoint.encode(hz)
+            writes = profile.control_writes(command, None)
         except ValueError as exc:
             raise OperationError(400, str(exc)) from None
-        return await self._write(who, drive, setpoint.address, raw, Category.CONTROL)
+        return await self._write_steps(who, drive, writes)
+
+    async def set_frequency(self, who: Identity, drive: str, hz: float) -> dict[str, Any]:
+        profile = self._drive(drive).profile
+        try:
+            writes = profile.control_writes(None, profile.setpoint_word(hz))
+        except ValueError as exc:
+            raise OperationError(400, str(exc)) from None
+        return await self._write_steps(who, drive, writes)
 
     async def write_parameter(
         self, who: Identity, drive: str, name: str, value: str, ram: bool
@@ -193,12 +196,29 @@ class DriveOperations:
 
     # -- the path every request takes --------------------------------------------------------
 
+    async def _write_steps(
+        self, who: Identity, drive: str, writes: tuple[RegisterWrite, ...]
+    ) -> dict[str, Any]:
+        """The profile's writes for a command, in order, one word at a time (the console writes
+        with 06H only), with the pauses its state machine asks for."""
+        done: list[str] = []
+        for step in writes:
+            for offset, word in enumerate(step.words):
+                address = step.start + offset
+                answer = await self._write(who, drive, address, word, Category.CONTROL)
+                done.append(answer["write"])
+            if step.pause_s:
+                await asyncio.sleep(step.pause_s)
+        return {"ok": True, "write": "; ".join(done)}
+
     async def _write(
         self, who: Identity, drive: str, address: int, raw: int, category: Category
     ) -> dict[str, Any]:
         settings = self._drive(drive)
-        if not settings.profile.is_invt:
-            raise OperationError(400, f"{drive} is a generic Modbus device: no INVT commands")
+        if not settings.profile.commands:
+            raise OperationError(
+                400, f"{drive} is a {settings.profile.display_name}: no drive commands"
+            )
         pdu = struct.pack(">BHH", WRITE_SINGLE_REGISTER, address, raw)
         what = describe(pdu, None, settings.profile).removeprefix("write ")
         try:
@@ -289,7 +309,7 @@ def _series_group(settings: DriveSettings, group: str) -> tuple[Parameter, ...]:
     if group not in PARAMETER_GROUPS:
         known = ", ".join((*PARAMETER_GROUPS, *REGISTER_BLOCKS))
         raise OperationError(404, f"no group {group!r}: one of {known}")
-    return settings.profile.parameter_groups.get(group, ())
+    return parameter_groups(settings.profile.parameters).get(group, ())
 
 
 def _writable(settings: DriveSettings, point: Point) -> bool:

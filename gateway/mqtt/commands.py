@@ -13,6 +13,7 @@ goes straight to its route.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import struct
 import time
@@ -142,7 +143,10 @@ class Commands:
         """Carry a command or parameter write to the drive; a `command` event says what came of
         it (who changed what on a drive, and when, is what a plant asks after an incident)."""
         try:
-            await self._execute(drive, write.pdu)
+            for pdu, pause_s in write.steps:
+                await self._execute(drive, pdu)
+                if pause_s:
+                    await asyncio.sleep(pause_s)
         except ModbusError as exc:
             error, code = modbus_error(exc)
             self._record(drive, write, {"result": error, "exception_code": code})

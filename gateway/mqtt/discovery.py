@@ -1,9 +1,10 @@
 """Home Assistant MQTT discovery: the entities each drive shows in Home Assistant. No I/O.
 
-Each drive is a device with sensors (state, fault, frequency, current, voltages, power, speed),
-buttons for its run and stop commands and a number for the frequency set-point (those two only
-when commands are enabled). The gateway itself is a device too (its connection state), the one
-drives are reached "via". Entities are available when both the gateway and the drive are.
+Each drive is a device with sensors (state, fault, frequency, current, voltages, power, speed:
+those its profile's telemetry holds), buttons for the run and stop commands its profile takes
+and a number for the frequency set-point (those two only when commands are enabled). The
+gateway itself is a device too (its connection state), the one drives are reached "via".
+Entities are available when both the gateway and the drive are.
 
 Ids are built from `gateway_id` and the drive's name, so two gateways on one broker never claim
 each other's entities.
@@ -91,8 +92,9 @@ def discovery_messages(
     commands = mqtt.commands_enabled
     for drive in drives:
         profile = drive.profile
-        if not profile.is_invt:
-            continue  # nothing decoded to show
+        sensors = [sensor for sensor in SENSORS if sensor.key in profile.telemetry_keys]
+        if not sensors:
+            continue  # nothing decoded to show (a generic device)
         common = {
             "availability": [
                 {"topic": topics.bridge_state, "value_template": ON_STATE},
@@ -102,14 +104,14 @@ def discovery_messages(
             "device": {
                 "identifiers": [f"{node}_{drive.name}"],
                 "name": drive.name,
-                "manufacturer": "INVT",
+                "manufacturer": profile.manufacturer,
                 "model": profile.display_name,
                 "via_device": node,
             },
             "origin": origin,
         }
         entity = f"{node}_{drive.name}"
-        for sensor in SENSORS:
+        for sensor in sensors:
             payload: dict[str, Any] = {
                 **common,
                 "name": sensor.name,
@@ -127,9 +129,11 @@ def discovery_messages(
             messages.append(
                 (f"{prefix}/sensor/{node}/{drive.name}_{sensor.key}/config", _dump(payload))
             )
-        if not commands:
+        if not commands or not profile.commands:
             continue
         for command, name, icon in BUTTONS:
+            if command not in profile.commands:
+                continue
             payload = {
                 **common,
                 "name": name,

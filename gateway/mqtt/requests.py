@@ -1,8 +1,8 @@
 """MQTT command payloads read into bus requests, and the answers written back. No I/O.
 
-This module reads JSON: keys, types, spellings. What a command means in registers (a command
-with a set-point is one 10H write of 2000H-2001H, where a RAM-only write goes, a register's
-decimals) is the drive profile's (`gateway.profile.commands`).
+This module reads JSON: keys, types, spellings. What a command means in registers (on an INVT
+drive a command with a set-point is one 10H write of 2000H-2001H; a RAM-only write's address; a
+register's decimals) is the drive's profile's (`DriveProfile.control_writes` and its kin).
 
 A command is refused before it reaches the bus when it is malformed, retained, stale or its value
 can't be written; every refusal is a `CommandRefused` with a short `reason` the response carries
@@ -32,14 +32,9 @@ from gateway.modbus.functions import (
     WRITE_MULTIPLE_REGISTERS,
     WRITE_SINGLE_REGISTER,
 )
-from gateway.profile import DriveProfile, control_command, format_register, parse_register
-from gateway.profile.commands import (
-    control_write,
-    is_signed,
-    known_decimals,
-    ram_only_address,
-    setpoint_word,
-)
+from gateway.profile import DriveProfile, format_register, parse_register
+from gateway.profile import RegisterWrite as Step
+from gateway.profile.commands import is_signed, known_decimals
 
 MILLISECONDS_EPOCH: Final = 1e11
 """A `time` above this is taken as milliseconds (JavaScript's Date.now()), not seconds."""
@@ -61,14 +56,29 @@ class RegisterWrite:
     words: tuple[int, ...]
     echo: Json = field(default_factory=dict)
     """What the acknowledgement repeats of the command."""
+    pause_s: float = 0.0
+    """The wait after this write before the next of `then`."""
+    then: tuple[Step, ...] = ()
+    """Further writes of the same command, in order (a drive whose state machine takes
+    several control words to start)."""
 
     @property
     def pdu(self) -> bytes:
-        if len(self.words) == 1:
-            return struct.pack(">BHH", WRITE_SINGLE_REGISTER, self.start, self.words[0])
-        count = len(self.words)
-        header = struct.pack(">BHHB", WRITE_MULTIPLE_REGISTERS, self.start, count, 2 * count)
-        return header + struct.pack(f">{count}H", *self.words)
+        return _write_pdu(self.start, self.words)
+
+    @property
+    def steps(self) -> tuple[tuple[bytes, float], ...]:
+        """Each write's PDU and the pause after it, in order."""
+        first = (self.pdu, self.pause_s)
+        return (first, *((_write_pdu(s.start, s.words), s.pause_s) for s in self.then))
+
+
+def _write_pdu(start: int, words: tuple[int, ...]) -> bytes:
+    if len(words) == 1:
+        return struct.pack(">BHH", WRITE_SINGLE_REGISTER, start, words[0])
+    count = len(words)
+    header = struct.pack(">BHHB", WRITE_MULTIPLE_REGISTERS, start, count, 2 * count)
+    return header + struct.pack(f">{count}H", *words)
 
 
 @dataclass(frozen=True, slots=True)
@@ -184,7 +194,7 @@ def parse_set(message: Json, profile: DriveProfile) -> RegisterWrite:
         raise CommandRefused(
             "invalid_request", "nothing to do: give command, frequency_hz or parameter"
         )
-    frequency = _frequency(message["frequency_hz"]) if has_frequency else None
+    frequency = _frequency(message["frequency_hz"], profile) if has_frequency else None
     echo: Json = {}
     command = None
     if has_command:
@@ -192,24 +202,27 @@ def parse_set(message: Json, profile: DriveProfile) -> RegisterWrite:
         if not isinstance(name, str):
             raise CommandRefused("invalid_request", "command must be a string")
         try:
-            command = control_command(name)
+            command = profile.command_name(name)
         except ValueError as exc:
             raise CommandRefused("invalid_request", str(exc)) from None
-        echo["command"] = command.name.lower()
+        echo["command"] = command
     if has_frequency:
         echo["frequency_hz"] = message["frequency_hz"]
-    write = control_write(command, frequency)
-    return RegisterWrite(write.start, write.words, echo)
+    try:
+        first, *rest = profile.control_writes(command, frequency)
+    except ValueError as exc:
+        raise CommandRefused("invalid_request", str(exc)) from None
+    return RegisterWrite(first.start, first.words, echo, first.pause_s, tuple(rest))
 
 
-def _frequency(value: Any) -> int:
+def _frequency(value: Any, profile: DriveProfile) -> int:
     number = _number(value, "frequency_hz")
     if number < 0:
         raise CommandRefused(
             "invalid_value", "frequency_hz must be 0 or more: use run_reverse for reverse"
         )
     try:
-        return setpoint_word(number)
+        return profile.setpoint_word(number)
     except ValueError as exc:
         raise CommandRefused("invalid_value", str(exc)) from None
 
@@ -222,6 +235,12 @@ def parse_write(message: Json, profile: DriveProfile) -> RegisterWrite:
     ram_only = message.get("ram_only", False)
     if not isinstance(ram_only, bool):
         raise CommandRefused("invalid_request", "ram_only must be true or false")
+    start = address
+    if ram_only:  # where it goes first: a write that can't go anywhere needs no value checked
+        try:
+            start = profile.ram_only_address(address, spelled)
+        except ValueError as exc:
+            raise CommandRefused("invalid_request", str(exc)) from None
     if has_raw:
         raw = _raw(message["raw"])
     else:
@@ -235,12 +254,7 @@ def parse_write(message: Json, profile: DriveProfile) -> RegisterWrite:
     echo: Json = {"parameter": spelled, "register": format_register(address), "raw": raw}
     if has_value:
         echo["value"] = message["value"]
-    start = address
     if ram_only:
-        try:
-            start = ram_only_address(address, spelled, profile)
-        except ValueError as exc:
-            raise CommandRefused("invalid_request", str(exc)) from None
         echo["ram_only"] = True
     return RegisterWrite(start, (raw,), echo)
 

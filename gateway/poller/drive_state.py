@@ -12,8 +12,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 
-from gateway.profile import DriveProfile, format_register
-from gateway.profile.telemetry import Telemetry, current_fault, decode_telemetry, fault_fields
+from gateway.profile import DriveProfile
+from gateway.profile.telemetry import Telemetry
 
 
 class EventKind(StrEnum):
@@ -46,12 +46,12 @@ class DriveState:
 
     def record_poll(self, start: int, words: Sequence[int], at: float) -> list[DriveEvent]:
         """A poll answered: store its words; the events it caused (fault, back online)."""
-        fault_before = current_fault(self.profile, self.registers)
+        fault_before = self.profile.current_fault(self.registers)
         for offset, word in enumerate(words):
             self.registers[start + offset] = word
         self.last_seen = at
         events = self.set_online(True)
-        fault_now = current_fault(self.profile, self.registers)
+        fault_now = self.profile.current_fault(self.registers)
         if fault_now is not None and fault_now != (fault_before or 0):
             events += self._fault_changed(fault_before or 0, fault_now)
         return events
@@ -67,14 +67,7 @@ class DriveState:
         return []
 
     def telemetry(self) -> Telemetry:
-        if self.profile.is_invt:
-            telemetry = decode_telemetry(self.profile, self.registers)
-        else:
-            # A generic Modbus device: nothing to decode, its words under their addresses.
-            telemetry = {
-                f"register_{format_register(address).lower()}": word
-                for address, word in sorted(self.registers.items())
-            }
+        telemetry = self.profile.telemetry(self.registers)
         if self.last_seen is not None:
             telemetry["last_seen"] = iso_time(self.last_seen)
         return telemetry
@@ -82,10 +75,10 @@ class DriveState:
     def _fault_changed(self, before: int, now: int) -> list[DriveEvent]:
         events = []
         if before:
-            cleared = fault_fields(self.profile, before)
+            cleared = self.profile.fault_fields(before)
             events.append(DriveEvent(EventKind.FAULT_CLEARED, self.name, cleared))
         if now:
-            raised = fault_fields(self.profile, now)
+            raised = self.profile.fault_fields(now)
             snapshot = self.telemetry()
             events.append(DriveEvent(EventKind.FAULT_RAISED, self.name, raised, snapshot=snapshot))
         return events

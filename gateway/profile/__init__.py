@@ -1,4 +1,12 @@
-"""Everything the gateway knows about INVT drives, as data: no I/O.
+"""Everything the gateway knows about drives, as data: no I/O.
+
+- `protocol`: the `DriveProfile` protocol, what the gateway asks of any model (identification,
+  register words and their decoders, commands, faults, parameters).
+- `models`: the registry of model names (`get_profile`, `PROFILES`), every maker's.
+- `generic`: a Modbus device the gateway only carries.
+- `points`: the point resolver (`P00.11`, `2100H`, `output_frequency`) and `Point`.
+
+INVT, one implementation of the protocol:
 
 - `addressing`: Pxx.yy ↔ register, RAM-only addresses, register spellings ("2100H", "0x2100").
 - `registers`: the communication registers (2000H..., 2100H..., 3000H...) and the telemetry keys.
@@ -10,7 +18,7 @@
   what every surface (telemetry, `read`, `scan`, the console, the events) shows.
 - `faults`: fault codes → short code and description, one table per series.
 - `exception_codes`: INVT's meanings of exception codes 01H-09H, and the gateway's 0AH/0BH.
-- `invt`: model identification codes and the `DriveProfile` of each model.
+- `invt`: model identification codes and the `InvtProfile` of each series.
 """
 
 from gateway.profile.addressing import (
@@ -24,16 +32,15 @@ from gateway.profile.addressing import (
 )
 from gateway.profile.exception_codes import EXCEPTIONS, describe_exception, exception_name
 from gateway.profile.faults import FAULTS, FaultTable, describe_fault, fault_short_code
+from gateway.profile.generic import GenericProfile
 from gateway.profile.invt import (
     IDENTIFICATION_CODES,
-    PROFILES,
-    DriveProfile,
-    PollGroup,
+    InvtProfile,
     describe_identification,
-    get_profile,
     model_from_identification,
     profiles_for_identification,
 )
+from gateway.profile.models import PROFILES, SCAN_QUESTIONS, get_profile
 from gateway.profile.parameters import (
     PARAMETERS,
     Parameter,
@@ -43,6 +50,8 @@ from gateway.profile.parameters import (
     scale_parameter,
     unscale_parameter,
 )
+from gateway.profile.points import Point, resolve
+from gateway.profile.protocol import DriveProfile, Identified, PollGroup, Question, RegisterWrite
 from gateway.profile.registers import (
     COMMUNICATION_REGISTERS,
     RUNNING_VALUES,
@@ -73,13 +82,20 @@ __all__ = [
     "PARAMETERS",
     "PROFILES",
     "RUNNING_VALUES",
+    "SCAN_QUESTIONS",
     "CommandSource",
     "ControlCommand",
     "DriveProfile",
     "FaultTable",
+    "GenericProfile",
+    "Identified",
+    "InvtProfile",
     "Parameter",
+    "Point",
     "PollGroup",
+    "Question",
     "Register",
+    "RegisterWrite",
     "RunState",
     "RunningValue",
     "StateWord2",
@@ -108,6 +124,7 @@ __all__ = [
     "ram_address",
     "register_at",
     "register_by_name",
+    "resolve",
     "scale_parameter",
     "unscale_parameter",
 ]

@@ -16,26 +16,18 @@ refusal it is.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Final
 
 from gateway.profile.addressing import RAM_BIT, is_parameter_register, is_ram_address
-from gateway.profile.invt import DriveProfile
+from gateway.profile.invt import InvtProfile
 from gateway.profile.parameters import Parameter, parameter_at
+from gateway.profile.protocol import DriveProfile, RegisterWrite
 from gateway.profile.ram_writes import ram_write_address
 from gateway.profile.registers import register_at, register_by_name
 from gateway.profile.states import ControlCommand
 
 CONTROL_WORD: Final = register_by_name("control_word")
 FREQUENCY_SETPOINT: Final = register_by_name("frequency_setpoint")
-
-
-@dataclass(frozen=True, slots=True)
-class RegisterWrite:
-    """Words for the drive from `start` (one word: 06H; several: one 10H write)."""
-
-    start: int
-    words: tuple[int, ...]
 
 
 def setpoint_word(frequency_hz: float) -> int:
@@ -55,7 +47,7 @@ def control_write(command: ControlCommand | None, setpoint: int | None) -> Regis
     return RegisterWrite(CONTROL_WORD.address, (int(command), setpoint))
 
 
-def ram_only_address(address: int, spelled: str, profile: DriveProfile) -> int:
+def ram_only_address(address: int, spelled: str, profile: InvtProfile) -> int:
     """Where a "RAM only" write of `address` goes. Raises ValueError when it has no RAM twin."""
     if not profile.ram_writes_supported:
         raise ValueError(f"{profile.display_name} has no RAM-only writes")

@@ -1,4 +1,4 @@
-"""Drive profiles: what differs between INVT series, as data.
+"""INVT drive profiles: what differs between INVT series, as data (`InvtProfile`).
 
 Facts marked **unconfirmed** in the INVT notes are fields here rather than code, so a site can
 correct them without a code change (`drives[].identification`, `drives[].faults`,
@@ -15,9 +15,8 @@ correct them without a code change (`drives[].identification`, `drives[].faults`
 - `decimals_overrides`: the bus-voltage scale (3002H) on GD200A/GD20;
 - `ram_writes_via_10h`: whether 10H accepts RAM-only (8xxxH) addresses.
 
-Model names users type: the profile keys (`gd30`, `ipe300`, `gd300l`, `gd350a`...), spelled in
-any case, with or without `-`, `_` or spaces, "Goodrive" for "GD" (`Goodrive30`), and each
-profile's `aliases` (`gd300lift` for `gd300l`).
+Users name a series by its key (`gd30`, `ipe300`, `gd300l`, `gd350a`...), "Goodrive" for "GD"
+(`Goodrive30`) or one of its `aliases` (`gd300lift` for `gd300l`): see `gateway.profile.models`.
 """
 
 from __future__ import annotations
@@ -25,7 +24,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
-from typing import Final
+from typing import TYPE_CHECKING, Final
 
 from gateway.profile.faults import (
     GD350_FAULTS,
@@ -34,7 +33,12 @@ from gateway.profile.faults import (
     FaultTable,
 )
 from gateway.profile.parameter_tables import ParameterTable, series_table
-from gateway.profile.parameters import Parameter, parameter_groups
+from gateway.profile.parameters import Parameter, parameter, parameter_groups
+from gateway.profile.protocol import PollGroup, RegisterWrite
+
+if TYPE_CHECKING:
+    from gateway.profile.points import Point
+    from gateway.profile.telemetry import Telemetry
 
 STATE_WORD_1: Final = 0x2100
 FAULT_CODE: Final = 0x2102
@@ -42,11 +46,11 @@ FAULT_CODE_MIRROR: Final = 0x5000
 """A second fault-code register some series list after 3016H (GD350 family, GD300-LIFT)."""
 IDENTIFICATION: Final = 0x2103
 RUNNING_FREQUENCY: Final = 0x3000
+MAX_FREQUENCY: Final = "P00.03"
+"""Max. output frequency: the set-point maximum Home Assistant shows."""
 
 INVT_MAX_WORDS: Final = 16
 """03H and 10H: "the max. continuous reading is 16 words", contiguous addresses."""
-MODBUS_MAX_WORDS: Final = 125
-"""The Modbus limit for 03H: a generic device never needs a request split."""
 
 GD30_PLACEHOLDER_CODE: Final = 0x01F0
 IPE300_PLACEHOLDER_CODE: Final = 0x01F1
@@ -56,16 +60,6 @@ series; they are what the simulator answers, and `scan` calls them unconfirmed. 
 drives answer something else sets `drives[].identification` in the config."""
 
 
-@dataclass(frozen=True)
-class PollGroup:
-    """A block the poller reads from each drive: `count` words from `start` every `interval_s`."""
-
-    name: str
-    start: int
-    count: int
-    interval_s: float
-
-
 STATE_POLL: Final = PollGroup("state", STATE_WORD_1, 3, 0.5)
 """2100H-2102H: state word 1, state word 2, fault code."""
 RUNNING_POLL: Final = PollGroup("running", RUNNING_FREQUENCY, 12, 2.0)
@@ -73,7 +67,9 @@ RUNNING_POLL: Final = PollGroup("running", RUNNING_FREQUENCY, 12, 2.0)
 
 
 @dataclass(frozen=True)
-class DriveProfile:
+class InvtProfile:
+    """An INVT series: the `DriveProfile` of every INVT model, its facts as fields."""
+
     key: str
     display_name: str
     identification: tuple[int, ...] = ()
@@ -108,10 +104,6 @@ class DriveProfile:
     """Facts of this profile no public manual confirmed, in words (docs, `scan`, `decode-fault`)."""
 
     @property
-    def is_invt(self) -> bool:
-        return bool(self.identification)
-
-    @property
     def max_fault_code(self) -> int:
         return max(self.faults.entries, default=0)
 
@@ -135,7 +127,7 @@ class DriveProfile:
         identification: tuple[int, ...] | None = None,
         faults: Mapping[int, str] | None = None,
         ready_bit_set_means_ready: bool | None = None,
-    ) -> DriveProfile:
+    ) -> InvtProfile:
         """This profile with a site's corrections of unconfirmed facts (from the config)."""
         profile = self
         if identification:
@@ -159,6 +151,82 @@ class DriveProfile:
 
     def decimals(self, register_name: str, default: int) -> int:
         return self.decimals_overrides.get(register_name, default)
+
+    # -- the `DriveProfile` protocol ----------------------------------------------------------
+    # The decoders and the command codecs are modules of their own that import this one, so
+    # they are imported where they are used.
+
+    @property
+    def manufacturer(self) -> str:
+        return "INVT"
+
+    @property
+    def split_by_default(self) -> bool:
+        return True  # every INVT chapter: "the max. continuous reading is 16 words"
+
+    def telemetry(self, registers: Mapping[int, int]) -> Telemetry:
+        from gateway.profile.telemetry import decode_telemetry
+
+        return decode_telemetry(self, registers)
+
+    @property
+    def telemetry_keys(self) -> frozenset[str]:
+        from gateway.profile.telemetry import TELEMETRY_KEYS
+
+        return TELEMETRY_KEYS
+
+    def point(self, address: int) -> Point | None:
+        from gateway.profile.addressing import format_register
+
+        return self.resolve(format_register(address))
+
+    def resolve(self, text: str) -> Point:
+        from gateway.profile.points import resolve
+
+        return resolve(text)
+
+    def current_fault(self, registers: Mapping[int, int]) -> int | None:
+        from gateway.profile.telemetry import current_fault
+
+        return current_fault(self, registers)
+
+    def fault_fields(self, code: int) -> Telemetry:
+        from gateway.profile.telemetry import fault_fields
+
+        return fault_fields(self, code)
+
+    @property
+    def commands(self) -> tuple[str, ...]:
+        from gateway.profile.states import CONTROL_COMMANDS
+
+        return tuple(CONTROL_COMMANDS)
+
+    def command_name(self, name: str) -> str:
+        from gateway.profile.states import control_command
+
+        return control_command(name).name.lower()
+
+    def setpoint_word(self, frequency_hz: float) -> int:
+        from gateway.profile.commands import setpoint_word
+
+        return setpoint_word(frequency_hz)
+
+    def control_writes(
+        self, command: str | None, setpoint: int | None
+    ) -> tuple[RegisterWrite, ...]:
+        from gateway.profile.commands import control_write
+        from gateway.profile.states import control_command
+
+        return (control_write(None if command is None else control_command(command), setpoint),)
+
+    def ram_only_address(self, address: int, spelled: str) -> int:
+        from gateway.profile.commands import ram_only_address
+
+        return ram_only_address(address, spelled, self)
+
+    @property
+    def max_frequency_parameter(self) -> Parameter | None:
+        return parameter(MAX_FREQUENCY)
 
 
 UNCONFIRMED_READY_BIT: Final = "state word 2 ready-bit polarity"
@@ -194,10 +262,10 @@ GD10_READY_BIT: Final = (
 )
 
 
-def _gd350_family(key: str, name: str, code: int, ready_bit_source: str = "") -> DriveProfile:
+def _gd350_family(key: str, name: str, code: int, ready_bit_source: str = "") -> InvtProfile:
     """GD350-UL and GD350A: their own chapters' 2101H rows were not found; the GD350's
     polarity is assumed and marked unconfirmed."""
-    return DriveProfile(
+    return InvtProfile(
         key,
         name,
         identification=(code,),
@@ -211,14 +279,14 @@ def _gd350_family(key: str, name: str, code: int, ready_bit_source: str = "") ->
 
 
 _PROFILES: Final = (
-    DriveProfile("gd20", "GD20", identification=(0x0106,), unconfirmed=(UNCONFIRMED_READY_BIT,)),
-    DriveProfile(
+    InvtProfile("gd20", "GD20", identification=(0x0106,), unconfirmed=(UNCONFIRMED_READY_BIT,)),
+    InvtProfile(
         "gd200a",
         "GD200A",
         identification=(0x0107, 0x010C),
         unconfirmed=(UNCONFIRMED_READY_BIT,),
     ),
-    DriveProfile(
+    InvtProfile(
         "gd300",
         "GD300",
         identification=(0x010A,),
@@ -228,14 +296,14 @@ _PROFILES: Final = (
     _gd350_family("gd350", "GD350", 0x01A0, GD350_READY_BIT),
     _gd350_family("gd350ul", "GD350-UL", 0x01A1),
     _gd350_family("gd350a", "GD350A", 0x01A2),
-    DriveProfile(
+    InvtProfile(
         "gd10",
         "GD10",
         identification=(0x010D,),
         manufacturer_group=29,
         ready_bit_source=GD10_READY_BIT,
     ),
-    DriveProfile(
+    InvtProfile(
         "gd35",
         "GD35",
         identification=(0x0108,),
@@ -243,13 +311,13 @@ _PROFILES: Final = (
         ready_bit_set_means_ready=False,
         ready_bit_source=GD35_READY_BIT,
     ),
-    DriveProfile("gd100", "GD100", identification=(0x010B,), unconfirmed=(UNCONFIRMED_READY_BIT,)),
+    InvtProfile("gd100", "GD100", identification=(0x010B,), unconfirmed=(UNCONFIRMED_READY_BIT,)),
     # Goodrive30 ("Goodrive30 Series VFD", chapter 7 Communication protocol, manual page -135-,
     # easymanua.ls/invt/goodrive30-vfd-series/manual?p=141): 2101H bit 0 "=1: Ready to run", bits
     # 2-1 motor 1 or 2 ("=10: Reserved =11: Reserved"); 2009H's own row lists motors 1-4, so a
     # write of 3 or 4 is not refused; virtual inputs 0x000-0x1FF, outputs 0x00-0x0F. Its 2103H
     # code and fault list: not found (see the module docstring).
-    DriveProfile(
+    InvtProfile(
         "gd30",
         "GD30",
         identification=(GD30_PLACEHOLDER_CODE,),
@@ -266,7 +334,7 @@ _PROFILES: Final = (
     # words, 08H loop-back, exceptions 01H-09H, 2000H 0001H forward run, 2001H set-point,
     # P00.01 = 2 and P00.06 = 8 for remote control, fault 35 = STo: the common map. Its register
     # table pages (2100H-2103H) and fault chapter were not reachable: code and fault list unknown.
-    DriveProfile(
+    InvtProfile(
         "ipe300",
         "IPE300",
         identification=(IPE300_PLACEHOLDER_CODE,),
@@ -285,7 +353,7 @@ _PROFILES: Final = (
     # and ?page=131): 2103H "GD300-----0x010a", mirrored at 3016H; fault code at 2102H and again
     # at 5000H; 2101H bit 0 "=0: ready for operation"; running values 3000H-3015H as the common
     # map (3007H output torque -250.0..250.0 %, 300AH/300BH 000-1FF). Its fault list: not found.
-    DriveProfile(
+    InvtProfile(
         "gd300l",
         "GD300-LIFT",
         identification=(0x010A,),
@@ -297,48 +365,18 @@ _PROFILES: Final = (
         faults=UNCONFIRMED_GOODRIVE_FAULTS,
         unconfirmed=("fault table", "manufacturer parameter group"),
     ),
-    DriveProfile(
-        "generic",
-        "generic Modbus device",
-        max_words=MODBUS_MAX_WORDS,
-        fault_registers=(),
-        poll_groups=(),
-        ram_writes_supported=False,
-        ram_writes_via_10h=False,
-    ),
 )
-PROFILES: Final[Mapping[str, DriveProfile]] = MappingProxyType(
+INVT_PROFILES: Final[Mapping[str, InvtProfile]] = MappingProxyType(
     {profile.key: profile for profile in _PROFILES}
 )
-
-
-def _normalise(name: str) -> str:
-    key = "".join(name.strip().lower().split()).replace("-", "").replace("_", "")
-    return "gd" + key.removeprefix("goodrive") if key.startswith("goodrive") else key
-
-
-_BY_NAME: Final = {
-    _normalise(spelled): profile
-    for profile in _PROFILES
-    for spelled in (profile.key, *profile.aliases)
-}
-
-
-def get_profile(name: str) -> DriveProfile:
-    """The profile called `name` ("gd350", "Goodrive30", "GD300-LIFT"); ValueError lists them."""
-    try:
-        return _BY_NAME[_normalise(name)]
-    except KeyError:
-        raise ValueError(
-            f"unknown drive profile {name!r}: valid profiles are {', '.join(PROFILES)}"
-        ) from None
+"""Every INVT series by key (`gateway.profile.models` names them all, with the other makers')."""
 
 
 _SERIES_WITHOUT_PROFILE: Final = {0x0109: "GD35-H1"}
 """Codes the manuals list for series the gateway has no profile of (yet): named, not driven."""
 
 
-def profiles_for_identification(code: int) -> tuple[DriveProfile, ...]:
+def profiles_for_identification(code: int) -> tuple[InvtProfile, ...]:
     """Every series that answers `code` at 2103H (010AH: GD300 and GD300-LIFT)."""
     return tuple(p for p in _PROFILES if code in p.identification)
 

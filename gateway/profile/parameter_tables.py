@@ -35,6 +35,7 @@ from typing import Any, Final
 
 import yaml
 
+from gateway.errors import TableError
 from gateway.profile.addressing import format_parameter, parse_parameter
 from gateway.profile.parameters import PARAMETERS, Parameter
 
@@ -80,10 +81,6 @@ class ParameterTable:
     def unconfirmed_groups(self) -> tuple[str, ...]:
         """Groups with a row taken from another series' table."""
         return tuple(sorted({row.group for row in self.rows if not row.confirmed}))
-
-
-class TableError(ValueError):
-    """A data file is malformed: the message names the file, the line and the column."""
 
 
 def read_rows(text: str, source: str) -> list[Parameter]:

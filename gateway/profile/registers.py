@@ -161,7 +161,7 @@ def decode_running_values(
     """Telemetry from a block read at `start`: {"output_frequency_hz": 50.0, ...}.
 
     Words at addresses that are not running values are skipped. `decimals_overrides` maps a
-    register name to the decimals a model uses instead (see `DriveProfile.decimals_overrides`).
+    register name to the decimals a model uses instead (see `InvtProfile.decimals_overrides`).
     """
     overrides = decimals_overrides or {}
     values: dict[str, float | int] = {}

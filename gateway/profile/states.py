@@ -3,7 +3,7 @@
 Control word, as the manual lists it: 1 forward run, 2 reverse run, 3 forward jog, 4 reverse jog,
 5 stop, 6 coast stop, 7 fault reset, 8 jog stop.
 State word 1: 1 forward running, 2 reverse running, 3 stopped, 4 fault, 5 POFF, 6 pre-exciting.
-State word 2: bit 0 ready (its polarity differs by series: `DriveProfile.ready_bit_set_means_ready`,
+State word 2: bit 0 ready (its polarity differs by series: `InvtProfile.ready_bit_set_means_ready`,
 the page it comes from in `ready_bit_source`), bits 2-1 motor, bit 3 synchronous motor, bit 4
 overload pre-alarm, bits 6-5 command source (00 keypad, 01 terminal, 10 communication).
 

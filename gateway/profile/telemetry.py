@@ -16,7 +16,7 @@ from collections.abc import Mapping
 from typing import Final
 
 from gateway.profile import words
-from gateway.profile.invt import STATE_WORD_1, DriveProfile
+from gateway.profile.invt import STATE_WORD_1, InvtProfile
 from gateway.profile.registers import RUNNING_VALUES
 
 STATE_WORD_2: Final = STATE_WORD_1 + 1
@@ -24,8 +24,24 @@ STATE_WORD_2: Final = STATE_WORD_1 + 1
 TelemetryValue = str | int | float | bool
 Telemetry = dict[str, TelemetryValue]
 
+TELEMETRY_KEYS: Final = frozenset(
+    {
+        "state",
+        "state_word_1",
+        "state_word_2",
+        "ready",
+        "command_source",
+        "overload_pre_alarm",
+        "fault_code",
+        "fault_name",
+        "fault_description",
+        *(running.key for running in RUNNING_VALUES),
+    }
+)
+"""Every key `decode_telemetry` can write."""
 
-def fault_fields(profile: DriveProfile, code: int) -> Telemetry:
+
+def fault_fields(profile: InvtProfile, code: int) -> Telemetry:
     """The fault word's decoder (`words.fault`) as telemetry: a code outside the series' table
     is "unknown fault N", never another series' name for that number. `fault_description` is
     the line to show ("OH2: inverter module overheat"): it holds `fault_name` already."""
@@ -37,7 +53,7 @@ def fault_fields(profile: DriveProfile, code: int) -> Telemetry:
     }
 
 
-def decode_telemetry(profile: DriveProfile, registers: Mapping[int, int]) -> Telemetry:
+def decode_telemetry(profile: InvtProfile, registers: Mapping[int, int]) -> Telemetry:
     """Telemetry from the latest raw value of each polled register (address → word)."""
     telemetry: Telemetry = {}
     state_word_1 = registers.get(STATE_WORD_1)
@@ -65,7 +81,7 @@ def decode_telemetry(profile: DriveProfile, registers: Mapping[int, int]) -> Tel
     return telemetry
 
 
-def current_fault(profile: DriveProfile, registers: Mapping[int, int]) -> int | None:
+def current_fault(profile: InvtProfile, registers: Mapping[int, int]) -> int | None:
     """The fault code from the first of the profile's fault registers that was read."""
     for register in profile.fault_registers:
         if register in registers:

@@ -3,8 +3,8 @@
 | word | decoder | what differs by series |
 |---|---|---|
 | 2100H state word 1 | `state_word_1` | nothing: 1-6 as every manual lists them |
-| 2101H state word 2 | `state_word_2` | bit 0's polarity (`DriveProfile.ready_bit_*`) |
-| 2102H, 5000H fault code | `fault` | the fault table (`DriveProfile.faults`) |
+| 2101H state word 2 | `state_word_2` | bit 0's polarity (`InvtProfile.ready_bit_*`) |
+| 2102H, 5000H fault code | `fault` | the fault table (`InvtProfile.faults`) |
 | 2103H, 3016H identification | `identification` | nothing: the code names the series |
 
 Every surface asks here: the telemetry (MQTT state, the keys Home Assistant discovery points at,
@@ -22,7 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from gateway.profile.faults import GD350_FAULTS, NO_FAULT, FaultTable
-from gateway.profile.invt import DriveProfile, describe_identification
+from gateway.profile.invt import InvtProfile, describe_identification
 from gateway.profile.states import StateWord2, decode_state_word_1, decode_state_word_2
 
 
@@ -31,7 +31,7 @@ def state_word_1(raw: int) -> str:
     return decode_state_word_1(raw)
 
 
-def state_word_2(profile: DriveProfile | None, raw: int) -> StateWord2:
+def state_word_2(profile: InvtProfile | None, raw: int) -> StateWord2:
     """2101H with the series' bit-0 polarity; `ready` is None when the series is not known."""
     polarity = None if profile is None else profile.ready_bit_set_means_ready
     return decode_state_word_2(raw, polarity)
@@ -48,11 +48,11 @@ class Fault:
     """ "OH2: inverter module overheat": the one line to print (the short code is in it)."""
 
 
-def fault_table(profile: DriveProfile | None) -> FaultTable:
+def fault_table(profile: InvtProfile | None) -> FaultTable:
     return GD350_FAULTS if profile is None else profile.faults
 
 
-def fault(profile: DriveProfile | None, code: int) -> Fault:
+def fault(profile: InvtProfile | None, code: int) -> Fault:
     """2102H, 5000H, P07.27-P07.32: a code outside the series' table is "unknown fault N"."""
     table = fault_table(profile)
     name = "none" if code == NO_FAULT else table.short_code(code)
@@ -72,7 +72,7 @@ def show_state_word_1(raw: int) -> str:
     return f"{raw} ({state_word_1(raw)})"
 
 
-def show_state_word_2(profile: DriveProfile | None, raw: int) -> str:
+def show_state_word_2(profile: InvtProfile | None, raw: int) -> str:
     """ "0041H (ready, command source communication)"."""
     state = state_word_2(profile, raw)
     if state.ready is None:
@@ -82,7 +82,7 @@ def show_state_word_2(profile: DriveProfile | None, raw: int) -> str:
     return f"{raw:04X}H ({ready}, command source {state.command_source})"
 
 
-def show_fault(profile: DriveProfile | None, raw: int) -> str:
+def show_fault(profile: InvtProfile | None, raw: int) -> str:
     """ "16 (OH2: inverter module overheat)", "0 (none)", "40 (unknown fault 40)"."""
     return f"{raw} ({fault(profile, raw).description})"
 

@@ -79,7 +79,7 @@ class DriveSettings:
 
 def drive_settings(config: DriveConfig) -> DriveSettings:
     profile = config.profile()
-    split = profile.is_invt if config.split is None else config.split
+    split = profile.split_by_default if config.split is None else config.split
     if config.poll is not None:
         groups = tuple(
             PollGroup(g.name, g.start, g.count, g.interval_ms / 1000) for g in config.poll

@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
-from gateway.errors import StoreError
+from gateway.errors import DiskFull, StoreError
 from gateway.store import schema
 from gateway.store.records import EventType, FaultRecord, NewEvent, StoredEvent
 from gateway.store.space import Room, room
@@ -50,10 +50,6 @@ WAL_FRACTION: Final = 8
 HEADROOM_FRACTION: Final = 4
 """The database keeps this fraction of the budget free for a write's log: the new events, the
 trim and the vacuum that follow them, before the checkpoint gives it back."""
-
-
-class DiskFull(StoreError):
-    """The store's disk is full (`Room.full`): nothing was written."""
 
 
 @dataclass(slots=True)

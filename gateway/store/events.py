@@ -34,11 +34,11 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from typing import Final, TypeVar
 
-from gateway.errors import StoreError, StoreRefused
+from gateway.errors import DiskFull, StoreError, StoreRefused
 from gateway.poller.drive_state import DriveEvent, EventKind, iso_time
 from gateway.profile.telemetry import Telemetry
 from gateway.settings import StoreSettings
-from gateway.store.database import MEMORY, Batch, DiskFull, EventDatabase
+from gateway.store.database import MEMORY, Batch, EventDatabase
 from gateway.store.records import EventType, FaultRecord, Json, NewEvent, StoredEvent
 from gateway.store.status import StoreState, StoreStatus
 from gateway.tasks import ServiceTasks, cancel_and_wait

@@ -14,6 +14,7 @@ from gateway.errors import BadReply, FieldError, PortError, ReplyTimeout
 from gateway.modbus.functions import READ_HOLDING_REGISTERS, WRITE_SINGLE_REGISTER, is_exception
 from gateway.profile import DriveProfile, parse_parameter, profiles_for_identification
 from gateway.profile.invt import IDENTIFICATION
+from gateway.profile.points import Meaning, Point
 from gateway.profile.ram_writes import ram_write_address
 from gateway.tools.advice import (
     COMMUNICATION_MODE,
@@ -24,7 +25,6 @@ from gateway.tools.advice import (
     exception_error,
 )
 from gateway.tools.masters import Master, TcpMaster
-from gateway.tools.points import Meaning, Point
 
 RUN_COMMAND_CHANNEL = "P00.01"
 COMMUNICATION_CHANNEL = 2

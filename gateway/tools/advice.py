@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from gateway.errors import FieldError
 from gateway.profile import describe_exception
-from gateway.profile import exception_codes as invt
+from gateway.profile import exception_codes as code
 
 NO_ANSWER = (
     "baud rate and data format: the drive's P14.01 and P14.02 must match --baud and --parity "
@@ -42,29 +42,29 @@ COMMUNICATION_MODE = (
 )
 
 _EXCEPTION_CHECKS: dict[int, tuple[str, ...]] = {
-    invt.ILLEGAL_COMMAND: (
+    code.ILLEGAL_COMMAND: (
         "the drive has no such function, or it is in a fault state: read 2102H",
         *COMMUNICATION_MODE,
     ),
-    invt.ILLEGAL_DATA_ADDRESS: (
+    code.ILLEGAL_DATA_ADDRESS: (
         "the register exists on this model (manufacturer groups P29/P99 are never readable)",
         "INVT reads at most 16 words at once",
     ),
-    invt.OPERATION_FAILURE: (
+    code.OPERATION_FAILURE: (
         "the value is inside the parameter's range; some ranges depend on another parameter "
         "(P00.04 within P00.05...P00.03)",
     ),
-    invt.PASSWORD_ERROR: ("the user password (P07.00)",),
-    invt.DATA_FRAME_ERROR: ("the frame reached the drive damaged: termination, wiring, baud rate",),
-    invt.PARAMETER_READ_ONLY: ("the parameter is read-only",),
-    invt.NOT_CHANGEABLE_WHILE_RUNNING: (
+    code.PASSWORD_ERROR: ("the user password (P07.00)",),
+    code.DATA_FRAME_ERROR: ("the frame reached the drive damaged: termination, wiring, baud rate",),
+    code.PARAMETER_READ_ONLY: ("the parameter is read-only",),
+    code.NOT_CHANGEABLE_WHILE_RUNNING: (
         "the parameter can only be changed while the drive is stopped",
     ),
-    invt.PASSWORD_PROTECTION: ("the drive is locked by a password (P07.00)",),
-    invt.GATEWAY_PATH_UNAVAILABLE: (
+    code.PASSWORD_PROTECTION: ("the drive is locked by a password (P07.00)",),
+    code.GATEWAY_PATH_UNAVAILABLE: (
         "the gateway's configuration has a drive with this unit id (check-config lists them)",
     ),
-    invt.GATEWAY_TARGET_FAILED: (
+    code.GATEWAY_TARGET_FAILED: (
         "the gateway got no answer from the drive: its log says why (offline, timeout, port)",
         *NO_ANSWER[:2],
     ),

@@ -4,7 +4,9 @@ The loop-back is the cheapest question every INVT drive answers, and any answer 
 exception) proves a device is there. A silent address costs exactly one short response timeout
 and no retry: a full scan of 1-247 at 50 ms takes about 15 s instead of the minutes a poll with
 a normal timeout and retries would. Only found addresses get the longer questions: 2100H-2103H
-in one read (state word 1, state word 2, fault code, identification code).
+in one read (state word 1, state word 2, fault code, identification code); a drive that refuses
+them is asked each other maker's question in turn (`gateway.profile.SCAN_QUESTIONS`: an ABB
+drive's 40001-40004).
 """
 
 from __future__ import annotations
@@ -16,7 +18,14 @@ from dataclasses import dataclass, field
 
 from gateway.errors import BadReply, ReplyTimeout
 from gateway.modbus.functions import DIAGNOSTICS, READ_HOLDING_REGISTERS, is_exception
-from gateway.profile import DriveProfile, profiles_for_identification, words
+from gateway.profile import (
+    SCAN_QUESTIONS,
+    Identified,
+    InvtProfile,
+    Question,
+    profiles_for_identification,
+    words,
+)
 from gateway.profile.faults import GD350_FAULTS, FaultTable
 from gateway.profile.invt import STATE_WORD_1
 from gateway.tools.masters import Master
@@ -36,15 +45,19 @@ class FoundDrive:
     state_word_2: int | None = None
     fault: int | None = None
     note: str = ""
+    identified: Identified | None = None
+    """What another maker's question found (a drive that refused 2100H-2103H)."""
 
     @property
     def model(self) -> str:
+        if self.identified is not None:
+            return self.identified.model
         if self.identification is None:
             return "unknown"
         return words.identification(self.identification)
 
     @property
-    def profile(self) -> DriveProfile | None:
+    def profile(self) -> InvtProfile | None:
         """The one series the code places; None for none or two (010AH: GD300 or GD300-LIFT)."""
         if self.identification is None:
             return None
@@ -53,16 +66,22 @@ class FoundDrive:
 
     @property
     def state(self) -> str:
+        if self.identified is not None:
+            return self.identified.state
         return "-" if self.state_word_1 is None else words.state_word_1(self.state_word_1)
 
     @property
     def command_source(self) -> str:
+        if self.identified is not None:
+            return self.identified.command_source
         if self.state_word_2 is None:
             return "-"
         return words.state_word_2(self.profile, self.state_word_2).command_source
 
     @property
     def fault_text(self) -> str:
+        if self.identified is not None:
+            return self.identified.fault
         if self.fault is None:
             return "-"
         if self.profile is not None:
@@ -141,6 +160,10 @@ def identify(master: Master, address: int, note: str) -> FoundDrive:
         except (ReplyTimeout, BadReply):
             continue
         if is_exception(reply):
+            for question in SCAN_QUESTIONS:
+                identified = ask(master, address, question)
+                if identified is not None:
+                    return FoundDrive(address, note=note, identified=identified)
             code = reply[1] if len(reply) > 1 else 0
             refused = f"2100H-2103H refused with exception {code:02X}H: not an INVT drive?"
             return FoundDrive(address, note=_join(note, refused))
@@ -148,6 +171,20 @@ def identify(master: Master, address: int, note: str) -> FoundDrive:
             state_1, state_2, fault, identification = struct.unpack(">4H", reply[2:])
             return FoundDrive(address, identification, state_1, state_2, fault, note)
     return FoundDrive(address, note=_join(note, "no answer to the identification read"))
+
+
+def ask(master: Master, address: int, question: Question) -> Identified | None:
+    """A maker's identification read; None when the drive refuses it or it says "not mine"."""
+    pdu = struct.pack(">BHH", READ_HOLDING_REGISTERS, question.start, question.count)
+    for _ in range(IDENTIFY_ATTEMPTS):
+        try:
+            reply = master.request(address, pdu)
+        except (ReplyTimeout, BadReply):
+            continue
+        if is_exception(reply) or len(reply) != 2 + 2 * question.count:
+            return None
+        return question.answer(struct.unpack(f">{question.count}H", reply[2:]))
+    return None
 
 
 def _join(*notes: str) -> str:

@@ -3,7 +3,7 @@
     invt-gateway simulate --pty --address 1 --address 2 [--link /tmp/ttyINVT]
     invt-gateway simulate --pty --address 1 --line-faults 0.05 --late-reply-ms 100
     invt-gateway simulate --pty --address 1 --burst-ms 40 --glitch FF --echo
-    invt-gateway simulate --pty --drive 1=gd30 --drive 2=ipe300 --drive 3=gd300l  (a mixed line)
+    invt-gateway simulate --pty --drive 1=gd30 --drive 2=ipe300 --drive 3=acs580  (a mixed line)
 
 The first line on stdout is the device path to point the gateway at. It serves until SIGTERM or
 SIGINT (exit 0). When stdin is not a terminal, it takes control commands there, one per line
@@ -23,13 +23,17 @@ from collections.abc import Iterator, Sequence
 from types import FrameType
 
 from gateway.cli import EXIT_FAILURE, EXIT_OK
+from gateway.instruments.simulator.abb_drive import ABB_MODELS
 from gateway.instruments.simulator.control import run_control_command
 from gateway.instruments.simulator.line import WAKE_EARLY_S, SimulatedLine
 from gateway.instruments.simulator.line_faults import KINDS, late_range
-from gateway.profile.invt import PROFILES, get_profile
+from gateway.profile.invt import INVT_PROFILES
+from gateway.profile.models import get_profile
 
 PARITIES = ("N", "E", "O")
-INVT_MODELS = tuple(key for key, profile in PROFILES.items() if profile.is_invt)
+INVT_MODELS = tuple(INVT_PROFILES)
+MODELS = (*INVT_MODELS, *sorted(ABB_MODELS))
+"""What the simulator can play: every INVT series, and ABB drives on the ABB Drives profile."""
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -58,7 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--model",
         default="gd350",
-        choices=INVT_MODELS,
+        choices=MODELS,
         help="the series of every drive not given with --drive (default gd350)",
     )
     parser.add_argument(
@@ -67,7 +71,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="ADDR=MODEL",
-        help="a drive of another series at ADDR, e.g. 3=gd300l (repeat for a mixed line)",
+        help="a drive of another series at ADDR, e.g. 3=gd300l or 4=acs580 (repeat: a mixed line)",
     )
     parser.add_argument("--baud", type=int, default=19200)
     parser.add_argument("--parity", default="E", type=str.upper, choices=PARITIES)
@@ -210,6 +214,8 @@ def describe_drives(line: SimulatedLine) -> str:
         if not profile.identification_confirmed:
             text += f" (2103H = {profile.identification[0]:04X}H, a placeholder: unconfirmed)"
         parts.append(text)
+    for address, abb in sorted(line.abb_drives.items()):
+        parts.append(f"{abb.profile.key} drive [{address}] (ABB Drives profile)")
     return ", ".join(parts)
 
 
@@ -365,12 +371,12 @@ def _drive(text: str) -> tuple[int, str]:
     address, _, model = text.partition("=")
     try:
         key = get_profile(model).key
-        if not PROFILES[key].is_invt:
+        if key not in MODELS:
             raise ValueError(model)
         return _address(address), key
     except ValueError:
         raise argparse.ArgumentTypeError(
-            f"{text!r}: expected ADDR=MODEL with MODEL one of {', '.join(INVT_MODELS)}"
+            f"{text!r}: expected ADDR=MODEL with MODEL one of {', '.join(MODELS)}"
         ) from None
 
 

@@ -36,7 +36,8 @@ from gateway.modbus.functions import (
 from gateway.profile import exception_codes as exc
 from gateway.profile.addressing import RAM_BIT, parse_parameter
 from gateway.profile.faults import COMMUNICATION_FAULT, NO_FAULT
-from gateway.profile.invt import DriveProfile, get_profile
+from gateway.profile.invt import InvtProfile
+from gateway.profile.models import get_profile
 from gateway.profile.parameters import FAULT_HISTORY, Parameter
 from gateway.profile.registers import COMMUNICATION_REGISTERS, Register, register_at, to_signed
 from gateway.profile.states import (
@@ -96,9 +97,10 @@ class SimulatedDrive:
         if not 1 <= address <= 247:
             raise ValueError(f"drive address {address} is outside 1..247")
         self.address = address
-        self.profile: DriveProfile = get_profile(model)
-        if not self.profile.is_invt:
-            raise ValueError(f"{model!r} is not an INVT model: the simulator only knows INVT")
+        profile = get_profile(model)
+        if not isinstance(profile, InvtProfile):
+            raise ValueError(f"{model!r} is not an INVT model: this simulated drive is INVT's")
+        self.profile = profile
         self.nameplate = nameplate or Nameplate()
         self._parameters = {spec.address: spec.default for spec in self.profile.parameters}
         self._parameters[parse_parameter("P14.00")] = address

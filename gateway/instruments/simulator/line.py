@@ -39,6 +39,7 @@ from typing import Any, Final
 
 from gateway.buckets import Buckets
 from gateway.bus.gap_excess import BOUNDS_S
+from gateway.instruments.simulator.abb_drive import ABB_MODELS, SimulatedAbbDrive
 from gateway.instruments.simulator.adapter import AdapterEffects
 from gateway.instruments.simulator.drive import SimulatedDrive
 from gateway.instruments.simulator.endpoint import Endpoint, point_link, remove_link
@@ -80,12 +81,21 @@ class SimulatedLine:
     ) -> None:
         models = models or {}
         histories = fault_history or {}
+        addresses = list(addresses)
         self.drives: dict[int, SimulatedDrive] = {
             address: SimulatedDrive(
                 address, models.get(address, model), fault_history=histories.get(address, ())
             )
             for address in addresses
+            if models.get(address, model) not in ABB_MODELS
         }
+        """The INVT drives on the line."""
+        self.abb_drives: dict[int, SimulatedAbbDrive] = {
+            address: SimulatedAbbDrive(address, models.get(address, model))
+            for address in addresses
+            if models.get(address, model) in ABB_MODELS
+        }
+        """The ABB drives on the line (ABB Drives profile)."""
         self.model = model
         self.baudrate = baudrate
         self.parity = parity.upper()
@@ -399,8 +409,11 @@ class SimulatedLine:
             self._stats["broadcasts"] += 1
             for each in self.drives.values():
                 each.apply_broadcast(pdu, wire_end)
+            for abb in self.abb_drives.values():
+                abb.apply_broadcast(pdu, wire_end)
             return
-        drive = self.drives.get(address)
+        drive: SimulatedDrive | SimulatedAbbDrive | None = self.drives.get(address)
+        drive = drive or self.abb_drives.get(address)
         if drive is None or address in self._dead:
             self._stats["ignored"] += 1
             return
@@ -432,7 +445,7 @@ class SimulatedLine:
         low, high = self._extra_delay_s.get(address, (0.0, 0.0))
         return low if low == high else self._slow_random.uniform(low, high)
 
-    def _response_delay_s(self, drive: SimulatedDrive) -> float:
+    def _response_delay_s(self, drive: SimulatedDrive | SimulatedAbbDrive) -> float:
         """P14.03 once written over Modbus, else the line's `response_delay_ms`; at least t3.5
         when emulating the wire (a drive can't answer inside the gap that ends the request)."""
         written = "P14.03" in drive.written_parameters

@@ -9,14 +9,10 @@ from importlib import resources
 
 import pytest
 
-from gateway.profile import PROFILES, get_profile
-from gateway.profile.parameter_tables import (
-    COLUMNS,
-    TableError,
-    read_rows,
-    series_table,
-    sources,
-)
+from gateway.errors import TableError
+from gateway.profile import get_profile
+from gateway.profile.invt import INVT_PROFILES as PROFILES  # the series with manual tables
+from gateway.profile.parameter_tables import COLUMNS, read_rows, series_table, sources
 
 HEADER = ",".join(COLUMNS)
 

@@ -1,4 +1,6 @@
-"""What a person types to name a value, and how its raw word reads.
+"""The point resolver: what a person types to name a value of an INVT drive, and how its raw
+word reads. `Point` is what every profile's `resolve` answers; this module's `resolve` is
+INVT's (`InvtProfile.resolve`), and the one the field tools use for a drive of no known model.
 
 Accepted spellings, tried in this order:
 - `P00.11`: a function parameter (scale, unit and meaning from the profile's parameter table);
@@ -15,24 +17,20 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 from enum import Enum
+from typing import TYPE_CHECKING
 
-from gateway.profile import (
-    CONTROL_COMMANDS,
-    RUNNING_VALUES,
-    DriveProfile,
-    Parameter,
-    Register,
-    control_command,
+from gateway.profile.addressing import (
     format_parameter,
     format_register,
     is_parameter_register,
-    parameter_at,
     parse_register,
-    register_at,
-    register_by_name,
-    words,
 )
-from gateway.profile.parameters import FAULT_HISTORY
+from gateway.profile.parameters import FAULT_HISTORY, Parameter, parameter_at
+from gateway.profile.registers import RUNNING_VALUES, Register, register_at, register_by_name
+from gateway.profile.states import CONTROL_COMMANDS, control_command
+
+if TYPE_CHECKING:
+    from gateway.profile.protocol import DriveProfile
 
 _PARAMETER = re.compile(r"P\d{1,2}\.\d{1,2}", re.IGNORECASE)
 _UNIT_SUFFIXES = ("_hz", "_v", "_a", "_rpm", "_pct")
@@ -75,14 +73,19 @@ class Point:
 
         The status words are shown by their decoders in `gateway.profile.words`, for
         `profile`'s series (None: not known, so 2101H bit 0 is left undecided)."""
+        # INVT's decoders import the profile that imports this module: imported here.
+        from gateway.profile import words
+        from gateway.profile.invt import InvtProfile
+
         raw &= 0xFFFF
+        series = profile if isinstance(profile, InvtProfile) else None
         match self.meaning:
             case Meaning.STATE_WORD_1:
                 return words.show_state_word_1(raw)
             case Meaning.STATE_WORD_2:
-                return words.show_state_word_2(profile, raw)
+                return words.show_state_word_2(series, raw)
             case Meaning.FAULT:
-                return words.show_fault(profile, raw)
+                return words.show_fault(series, raw)
             case Meaning.IDENTIFICATION:
                 return words.show_identification(raw)
             case Meaning.CONTROL_WORD if raw in _COMMAND_NAMES:

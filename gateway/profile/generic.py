@@ -1,0 +1,93 @@
+"""A Modbus device the gateway only carries (`model: generic`): no maker's knowledge at all.
+
+Requests pass through unsplit up to Modbus's own limit, nothing is polled unless the config asks,
+polled words are telemetry under their addresses (`register_0005h`), and nothing is a command.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Final
+
+from gateway.profile.addressing import format_register, parse_register
+from gateway.profile.faults import FaultTable
+from gateway.profile.parameter_tables import ParameterTable
+from gateway.profile.parameters import Parameter
+from gateway.profile.points import Point
+from gateway.profile.protocol import DriveProfile, PollGroup, RegisterWrite
+from gateway.profile.telemetry import Telemetry
+
+NO_FAULTS: Final = FaultTable("no fault table", {})
+MODBUS_MAX_WORDS: Final = 125
+"""The Modbus limit for 03H: a generic device never needs a request split."""
+
+
+@dataclass(frozen=True)
+class GenericProfile:
+    key: str = "generic"
+    display_name: str = "generic Modbus device"
+    manufacturer: str = ""
+    aliases: tuple[str, ...] = ()
+    identification: tuple[int, ...] = ()
+    unconfirmed: tuple[str, ...] = ()
+    max_words: int = MODBUS_MAX_WORDS
+    split_by_default: bool = False
+    poll_groups: tuple[PollGroup, ...] = ()
+    ram_writes_supported: bool = False
+    faults: FaultTable = NO_FAULTS
+    commands: tuple[str, ...] = ()
+    parameters: tuple[Parameter, ...] = ()
+    max_frequency_hz: float = 0.0
+    max_frequency_parameter: Parameter | None = None
+    telemetry_keys: frozenset[str] = frozenset()
+
+    @property
+    def parameter_table(self) -> ParameterTable:
+        return ParameterTable(self.key, ())
+
+    def with_overrides(
+        self,
+        *,
+        identification: tuple[int, ...] | None = None,
+        faults: Mapping[int, str] | None = None,
+        ready_bit_set_means_ready: bool | None = None,
+    ) -> DriveProfile:
+        return self  # nothing here is a fact a site could correct
+
+    def telemetry(self, registers: Mapping[int, int]) -> Telemetry:
+        """Nothing to decode: each word under its address."""
+        return {
+            f"register_{format_register(address).lower()}": word
+            for address, word in sorted(registers.items())
+        }
+
+    def point(self, address: int) -> Point | None:
+        return None
+
+    def resolve(self, text: str) -> Point:
+        address = parse_register(text)
+        return Point(format_register(address), address, "not in the profile: shown raw")
+
+    def current_fault(self, registers: Mapping[int, int]) -> int | None:
+        return None
+
+    def fault_fields(self, code: int) -> Telemetry:
+        return {}
+
+    def command_name(self, name: str) -> str:
+        raise ValueError(f"a {self.display_name} takes no drive commands")
+
+    def setpoint_word(self, frequency_hz: float) -> int:
+        raise ValueError(f"a {self.display_name} has no frequency set-point")
+
+    def control_writes(
+        self, command: str | None, setpoint: int | None
+    ) -> tuple[RegisterWrite, ...]:
+        raise ValueError(f"a {self.display_name} takes no drive commands")
+
+    def ram_only_address(self, address: int, spelled: str) -> int:
+        raise ValueError(f"{self.display_name} has no RAM-only writes")
+
+
+GENERIC: Final = GenericProfile()
