@@ -11,7 +11,6 @@ import sys
 from collections.abc import Callable
 
 from gateway.app import Application
-from gateway.cli import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
 from gateway.config import GatewayConfig, load_config
 from gateway.control import RELOAD, ControlServer
 from gateway.errors import (
@@ -24,6 +23,7 @@ from gateway.errors import (
 )
 from gateway.event_loop import EventLoopChoice, choose_event_loop
 from gateway.event_loop import run as run_on_loop
+from gateway.exit_codes import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, EXIT_STARTUP
 from gateway.health import Phase
 from gateway.logs import setup_logging
 from gateway.settings import runtime_settings
@@ -41,8 +41,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         description="Run the gateway on the configuration file: the Modbus-TCP server, one "
         "bus per RS-485 line, the poller, and (as configured) the MQTT bridge, the console and "
         "/metrics with /health. Stops cleanly on SIGTERM or Ctrl-C; SIGHUP reloads the file. "
-        "Exit codes: 0 stopped, 1 failed (a port taken, a store from a newer release, a bug), "
-        "3 the configuration does not validate (the key and the reason are printed).",
+        "Exit codes: 0 stopped, 1 failed while serving (a bus or a feature died), 3 the "
+        "configuration does not validate (the key and the reason are printed), 4 could not "
+        "start (a port taken, a store from a newer release).",
     )
     parser.add_argument(
         "--config", "-c", default=DEFAULT_CONFIG, help=f"YAML file (default {DEFAULT_CONFIG})"
@@ -141,14 +142,14 @@ async def serve(
         await app.run(stop, ready)
     except OSError as exc:
         log.error("cannot start: %s", exc)
-        return EXIT_FAILURE
+        return EXIT_STARTUP
     except ExceptionGroup as group:
         unbound = group.subgroup((CannotListen, StoreRefused))
         if unbound is not None:
             # A port taken or a wrong address, a store of a newer release: one line that says
             # which and why, no traceback.
             log.error("cannot start: %s", unbound.exceptions[0])
-            return EXIT_FAILURE
+            return EXIT_STARTUP
         failed = group.subgroup((BusFailed, FeatureFailed))
         if failed is None:
             raise
