@@ -118,7 +118,6 @@ async def serve(
     reloader = Reloader(app, config_path, notifier)
     reload_asked = asyncio.Event()
     loop.add_signal_handler(signal.SIGHUP, reload_asked.set)
-    reloading = asyncio.create_task(reloader.on_hangup(reload_asked), name="reload")
     control = await listen_for_control(config_path, reloader)
 
     def ready() -> None:
@@ -132,14 +131,14 @@ async def serve(
         if on_ready is not None:
             on_ready(app)
 
+    # In the application's TaskGroup: a bug in either stops the service, saying so, rather
+    # than leaving it deaf to SIGHUP or killed later by the watchdog without a reason.
+    alongside = {"reload": reloader.on_hangup(reload_asked)}
     interval_s = watchdog_interval_s()
-    watchdog = (
-        None
-        if interval_s is None or not notifier.enabled
-        else asyncio.create_task(keep_watchdog(notifier, interval_s), name="systemd-watchdog")
-    )
+    if interval_s is not None and notifier.enabled:
+        alongside["systemd-watchdog"] = keep_watchdog(notifier, interval_s)
     try:
-        await app.run(stop, ready)
+        await app.run(stop, ready, alongside)
     except OSError as exc:
         log.error("cannot start: %s", exc)
         return EXIT_STARTUP
@@ -159,11 +158,8 @@ async def serve(
     finally:
         for signum in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
             loop.remove_signal_handler(signum)
-        reloading.cancel()
         if control is not None:
             await control.stop()
-        if watchdog is not None:
-            watchdog.cancel()
         notifier.close()
     return EXIT_OK
 
