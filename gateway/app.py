@@ -2,8 +2,9 @@
 
     startup   buses open their ports (in the background, with backoff), the TCP server listens,
               features (poller, MQTT bridge, metrics) start, then "ready" is reported; every
-              background task (buses, poller, MQTT) runs in one TaskGroup: one that dies of a
-              bug stops the service (`BusFailed`, `FeatureFailed`: exit code 1)
+              background task (buses, poller, MQTT, the console's sampler, the service's
+              SIGHUP listener and watchdog) runs in one TaskGroup: one that dies of a bug
+              stops the service (`BusFailed`, `FeatureFailed`: exit code 1)
     serve     until the stop event is set (SIGTERM / SIGINT)
     shutdown  stop accepting; queued requests are answered 0x0B; the transaction on the wire
               finishes; features stop (MQTT publishes offline); within 2 s in all
@@ -15,8 +16,8 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Callable
-from typing import TYPE_CHECKING, Protocol
+from collections.abc import Callable, Coroutine, Mapping
+from typing import TYPE_CHECKING, Any, Protocol
 
 from gateway.bus import Bus, BusState
 from gateway.bus.queue import Waiter
@@ -238,6 +239,7 @@ class Application:
             self.buses,
             self.router,
             getattr(self, "poller", None),
+            self.tasks,
             read_only=self.settings.tcp.read_only,
             access=self.tcp.access,
             events=ConsoleEventsRecorded(self.events),
@@ -263,7 +265,15 @@ class Application:
         except GatewayPathUnavailable:
             return None
 
-    async def run(self, stop: asyncio.Event, on_ready: Callable[[], None] | None = None) -> None:
+    async def run(
+        self,
+        stop: asyncio.Event,
+        on_ready: Callable[[], None] | None = None,
+        alongside: Mapping[str, Coroutine[Any, Any, None]] | None = None,
+    ) -> None:
+        """Start up, serve until `stop` is set, shut down. `alongside`: the service's own
+        work by task name (the SIGHUP listener, the systemd watchdog), run in the TaskGroup
+        like every feature's from the start, and cancelled once the features have stopped."""
         async with asyncio.TaskGroup() as tasks:
             self.tasks.bind(tasks)
             self._group = tasks
@@ -271,6 +281,7 @@ class Application:
                 name: tasks.create_task(bus.run(), name=f"bus:{name}")
                 for name, bus in self.buses.items()
             }
+            beside = [self.tasks.start(name, work) for name, work in (alongside or {}).items()]
             try:
                 await self._startup()
                 self.phase = Phase.READY
@@ -281,6 +292,8 @@ class Application:
                 await self._shutdown()
                 for task in self._bus_tasks.values():
                     task.cancel()
+                running = [task for task in beside if not task.done()]
+                await asyncio.gather(*(cancel_and_wait(t, FEATURE_STOP_S) for t in running))
                 await self.tasks.stop_left_over(SHUTDOWN_BUDGET_S)
                 self.tasks.bind(None)
                 self._group = None

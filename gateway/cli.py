@@ -1,7 +1,8 @@
 """The `invt-gateway` command: a thin dispatcher over one module per sub-command.
 
 Each module in `gateway.commands` has `register(subparsers)`, which adds its parser and sets
-`handler` to a function taking the parsed arguments and returning the exit code.
+`handler` to a function taking the parsed arguments and returning the exit code (one of
+`gateway.exit_codes`, which the commands import; none imports this module back).
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import importlib
 import sys
 from collections.abc import Callable, Sequence
 
+from gateway.exit_codes import EXIT_INTERRUPTED
 from gateway.version import describe_version
 
 # Sub-commands and their modules, in the order `--help` lists them. The service and the field
@@ -34,12 +36,6 @@ COMMANDS = {
     "monitor": "gateway.commands.monitor",
 }
 INSTRUMENTS = "gateway.instruments"
-
-EXIT_OK = 0
-EXIT_FAILURE = 1
-EXIT_USAGE = 2
-EXIT_CONFIG = 3
-"""A configuration that does not validate: its own code, so the service manager shows why."""
 
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
@@ -73,7 +69,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return handler(args)
     except KeyboardInterrupt:
-        return 130
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

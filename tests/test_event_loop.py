@@ -18,7 +18,7 @@ import pytest
 import yaml
 from prometheus_client.parser import text_string_to_metric_families
 
-from gateway.cli import EXIT_CONFIG
+from gateway.exit_codes import EXIT_CONFIG
 from gateway.instruments.simulator import SimulatedLine
 from tests.processes import gateway_process, run_cli
 from tests.support import TcpClient, free_port

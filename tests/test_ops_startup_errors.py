@@ -1,9 +1,9 @@
-"""A port the gateway can't listen on: `run` and `demo` say so in one line and exit 1.
+"""A port the gateway can't listen on: `run` and `demo` say so in one line and exit 4.
 
 What a person sees when the Modbus-TCP port is taken (another gateway, a demo left running,
 another program), when `modbus_tcp.host` is not an address of this machine, or when the metrics
-port is taken: one line naming the address, the port and the likely cause, exit code 1 (the
-README's "failure to start"), and no traceback.
+port is taken: one line naming the address, the port and the likely cause, exit code 4 (the
+README's "failure to start", distinct from 1, a failure while serving), and no traceback.
 """
 
 from __future__ import annotations
@@ -16,13 +16,12 @@ from typing import Any
 import pytest
 import yaml
 
+from gateway.exit_codes import EXIT_STARTUP
 from gateway.instruments.commands.demo import demo_config_text
 from gateway.instruments.simulator import SimulatedLine
 from tests.processes import run_cli
 
 pytestmark = pytest.mark.line(addresses=[1], baudrate=19200)
-
-EXIT_FAILURE = 1
 
 
 @pytest.fixture
@@ -54,14 +53,14 @@ def the_one_error(stderr: str) -> str:
     return errors[0]
 
 
-def test_run_on_a_taken_port_says_so_in_one_line_and_exits_1(
+def test_run_on_a_taken_port_says_so_in_one_line_and_exits_4(
     tmp_path: Path, line: SimulatedLine, taken_port: int
 ) -> None:
     config = write_config(tmp_path, line, modbus_tcp={"host": "127.0.0.1", "port": taken_port})
 
     result = run_cli("run", "--config", config)
 
-    assert result.returncode == EXIT_FAILURE
+    assert result.returncode == EXIT_STARTUP
     error = the_one_error(result.stderr)
     assert f"Modbus-TCP cannot listen on 127.0.0.1:{taken_port}" in error
     assert "already in use" in error
@@ -77,7 +76,7 @@ def test_run_on_an_address_not_of_this_machine_names_the_host_key(
 
     result = run_cli("run", "--config", config)
 
-    assert result.returncode == EXIT_FAILURE
+    assert result.returncode == EXIT_STARTUP
     error = the_one_error(result.stderr)
     assert "192.0.2.7:5020" in error
     assert "not an address of this machine" in error
@@ -95,13 +94,13 @@ def test_run_with_the_metrics_port_taken_names_the_metrics_keys(
 
     result = run_cli("run", "--config", config)
 
-    assert result.returncode == EXIT_FAILURE
+    assert result.returncode == EXIT_STARTUP
     error = the_one_error(result.stderr)
     assert f"metrics and health cannot listen on 127.0.0.1:{taken_port}" in error
     assert "metrics.host/port" in error
 
 
-def test_demo_on_a_taken_port_says_so_in_one_line_and_exits_1(
+def test_demo_on_a_taken_port_says_so_in_one_line_and_exits_4(
     tmp_path: Path, taken_port: int
 ) -> None:
     config = yaml.safe_load(demo_config_text(None))
@@ -112,7 +111,7 @@ def test_demo_on_a_taken_port_says_so_in_one_line_and_exits_1(
 
     result = run_cli("demo", "--config", str(config_file), "--port", str(taken_port))
 
-    assert result.returncode == EXIT_FAILURE
+    assert result.returncode == EXIT_STARTUP
     error = the_one_error(result.stderr)
     assert f"Modbus-TCP cannot listen on 127.0.0.1:{taken_port}" in error
     assert "already in use" in error

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 
+from gateway.exit_codes import EXIT_CONFIG
 from gateway.instruments.simulator import SimulatedLine
 from tests.processes import entry_point, gateway_process
 from tests.support import free_port
@@ -72,7 +73,9 @@ def test_unit_runs_the_service_as_the_issue_asks() -> None:
         "DevicePolicy": ["closed"],
         "SupplementaryGroups": ["dialout"],
         "User": ["invt-gateway"],
-        "RestartPreventExitStatus": ["3"],  # a bad configuration: restarting won't help
+        # A bad configuration: restarting won't help. A failed start (a port taken) is
+        # restarted: the port may be free on the next try.
+        "RestartPreventExitStatus": [str(EXIT_CONFIG)],
         # The store, writable under ProtectSystem=strict and DynamicUser, kept across restarts.
         "StateDirectory": ["invt-gateway"],
         # systemctl reload: the config read again, and the reload fails when it is refused.

@@ -11,7 +11,7 @@ import gateway
 
 PACKAGE = Path(gateway.__file__).parent
 ALLOWED = (
-    "config.py",  # the models themselves
+    "config/",  # the models themselves
     "settings/",  # the one place they become runtime settings (and a reload compares them)
     "commands/",  # the commands that load a file (run, check-config)
     "instruments/commands/",  # ... and the instruments' (demo)
@@ -40,7 +40,10 @@ def config_importers() -> list[str]:
     return sorted(
         path.relative_to(PACKAGE).as_posix()
         for path in PACKAGE.rglob("*.py")
-        if "gateway.config" in imported_modules(path)
+        if any(
+            module == "gateway.config" or module.startswith("gateway.config.")
+            for module in imported_modules(path)
+        )
     )
 
 

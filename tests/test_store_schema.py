@@ -1,6 +1,6 @@
 """The store's schema across releases: a store of every earlier schema is migrated on start and
-keeps what it holds; a store of a newer release is refused (one line, exit 1) and left as it is;
-a store lacking a column it should have is kept out of use, loudly.
+keeps what it holds; a store of a newer release is refused (one line, the failed start's exit
+code) and left as it is; a store lacking a column it should have is kept out of use, loudly.
 
 The earlier schemas are recorded as their releases wrote them (tests/fixtures/store_schema_N.sql),
 not made by today's code: a migration edited after its release shows here.
@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from gateway.config import StorageConfig
+from gateway.exit_codes import EXIT_STARTUP
 from gateway.store import schema
 from gateway.store.status import StoreState
 from tests.mqtt_setup import simulated_line
@@ -85,7 +86,7 @@ def test_a_store_of_a_newer_release_is_refused_and_left_as_it_is(tmp_path: Path)
             "storage": {"path": str(path)},
         }
         with gateway_process(config, tmp_path) as gateway:
-            assert gateway.wait(20) == 1
+            assert gateway.wait(20) == EXIT_STARTUP
             log = gateway.log.text
     said = [line for line in log.splitlines() if "newer release" in line]
     assert len(said) == 1, log

@@ -13,9 +13,9 @@ import argparse
 import os
 import sys
 
-from gateway.cli import EXIT_CONFIG, EXIT_OK
 from gateway.commands.run import DEFAULT_CONFIG, load_or_report
 from gateway.config import GatewayConfig
+from gateway.exit_codes import EXIT_CONFIG, EXIT_OK
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -14,7 +14,7 @@ import argparse
 import sys
 from typing import TYPE_CHECKING
 
-from gateway.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
+from gateway.exit_codes import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 
 if TYPE_CHECKING:
     from gateway.profile.faults import FaultTable

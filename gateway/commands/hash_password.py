@@ -12,7 +12,7 @@ import argparse
 import getpass
 import sys
 
-from gateway.cli import EXIT_FAILURE, EXIT_OK
+from gateway.exit_codes import EXIT_FAILURE, EXIT_OK
 from gateway.passwords import hash_password, hash_token, new_token
 
 MIN_PASSWORD = 8

@@ -19,8 +19,8 @@ import sys
 import urllib.error
 import urllib.request
 
-from gateway.cli import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
 from gateway.commands.run import DEFAULT_CONFIG, load_or_report
+from gateway.exit_codes import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
 
 ANY_ADDRESS = ("0.0.0.0", "::", "")
 

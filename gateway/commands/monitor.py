@@ -17,8 +17,8 @@ from collections.abc import AsyncIterator
 from datetime import datetime
 from typing import Any
 
-from gateway.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from gateway.errors import MonitorError
+from gateway.exit_codes import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 
 DEFAULT_URL = "http://127.0.0.1:8080/"
 ENV_TOKEN = "INVT_GATEWAY_CONSOLE_TOKEN"

@@ -27,8 +27,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from gateway.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from gateway.commands.line_options import add_target_arguments
+from gateway.exit_codes import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 
 if TYPE_CHECKING:
     from gateway.tools.masters import Master

@@ -14,8 +14,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from gateway.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from gateway.commands.line_options import add_target_arguments
+from gateway.exit_codes import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

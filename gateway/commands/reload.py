@@ -15,10 +15,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from gateway.cli import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
 from gateway.commands.run import DEFAULT_CONFIG
 from gateway.control import RELOAD, ask
 from gateway.errors import ControlUnavailable
+from gateway.exit_codes import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
 
 TIMEOUT_S = 60.0
 """Reopening buses and restarting the MQTT bridge take seconds; systemd's own limit for

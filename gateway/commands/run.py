@@ -11,7 +11,6 @@ import sys
 from collections.abc import Callable
 
 from gateway.app import Application
-from gateway.cli import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
 from gateway.config import GatewayConfig, load_config
 from gateway.control import RELOAD, ControlServer
 from gateway.errors import (
@@ -24,6 +23,7 @@ from gateway.errors import (
 )
 from gateway.event_loop import EventLoopChoice, choose_event_loop
 from gateway.event_loop import run as run_on_loop
+from gateway.exit_codes import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, EXIT_STARTUP
 from gateway.health import Phase
 from gateway.logs import setup_logging
 from gateway.settings import runtime_settings
@@ -41,8 +41,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         description="Run the gateway on the configuration file: the Modbus-TCP server, one "
         "bus per RS-485 line, the poller, and (as configured) the MQTT bridge, the console and "
         "/metrics with /health. Stops cleanly on SIGTERM or Ctrl-C; SIGHUP reloads the file. "
-        "Exit codes: 0 stopped, 1 failed (a port taken, a store from a newer release, a bug), "
-        "3 the configuration does not validate (the key and the reason are printed).",
+        "Exit codes: 0 stopped, 1 failed while serving (a bus or a feature died), 3 the "
+        "configuration does not validate (the key and the reason are printed), 4 could not "
+        "start (a port taken, a store from a newer release).",
     )
     parser.add_argument(
         "--config", "-c", default=DEFAULT_CONFIG, help=f"YAML file (default {DEFAULT_CONFIG})"
@@ -117,7 +118,6 @@ async def serve(
     reloader = Reloader(app, config_path, notifier)
     reload_asked = asyncio.Event()
     loop.add_signal_handler(signal.SIGHUP, reload_asked.set)
-    reloading = asyncio.create_task(reloader.on_hangup(reload_asked), name="reload")
     control = await listen_for_control(config_path, reloader)
 
     def ready() -> None:
@@ -131,24 +131,24 @@ async def serve(
         if on_ready is not None:
             on_ready(app)
 
+    # In the application's TaskGroup: a bug in either stops the service, saying so, rather
+    # than leaving it deaf to SIGHUP or killed later by the watchdog without a reason.
+    alongside = {"reload": reloader.on_hangup(reload_asked)}
     interval_s = watchdog_interval_s()
-    watchdog = (
-        None
-        if interval_s is None or not notifier.enabled
-        else asyncio.create_task(keep_watchdog(notifier, interval_s), name="systemd-watchdog")
-    )
+    if interval_s is not None and notifier.enabled:
+        alongside["systemd-watchdog"] = keep_watchdog(notifier, interval_s)
     try:
-        await app.run(stop, ready)
+        await app.run(stop, ready, alongside)
     except OSError as exc:
         log.error("cannot start: %s", exc)
-        return EXIT_FAILURE
+        return EXIT_STARTUP
     except ExceptionGroup as group:
         unbound = group.subgroup((CannotListen, StoreRefused))
         if unbound is not None:
             # A port taken or a wrong address, a store of a newer release: one line that says
             # which and why, no traceback.
             log.error("cannot start: %s", unbound.exceptions[0])
-            return EXIT_FAILURE
+            return EXIT_STARTUP
         failed = group.subgroup((BusFailed, FeatureFailed))
         if failed is None:
             raise
@@ -158,11 +158,8 @@ async def serve(
     finally:
         for signum in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
             loop.remove_signal_handler(signum)
-        reloading.cancel()
         if control is not None:
             await control.stop()
-        if watchdog is not None:
-            watchdog.cancel()
         notifier.close()
     return EXIT_OK
 

@@ -10,8 +10,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from gateway.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from gateway.commands.line_options import add_serial_arguments
+from gateway.exit_codes import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from gateway.tools import SCAN_TIMEOUT_MS
 
 FIRST_ADDRESS = 1

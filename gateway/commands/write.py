@@ -14,8 +14,8 @@ import argparse
 import sys
 from typing import TYPE_CHECKING
 
-from gateway.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from gateway.commands.line_options import add_target_arguments
+from gateway.exit_codes import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 
 if TYPE_CHECKING:
     from gateway.profile import DriveProfile

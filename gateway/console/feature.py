@@ -27,7 +27,7 @@ from gateway.listen import cannot_listen
 from gateway.poller import Poller
 from gateway.routing import Router
 from gateway.settings import ConsoleSettings, DriveSettings
-from gateway.tasks import cancel_and_wait
+from gateway.tasks import ServiceTasks, cancel_and_wait
 from gateway.tcp.access import AccessPolicy
 
 log = logging.getLogger(__name__)
@@ -46,6 +46,7 @@ class ConsoleFeature:
         buses: Mapping[str, Bus],
         router: Router,
         poller: Poller | None,
+        tasks: ServiceTasks,
         *,
         read_only: bool,
         access: AccessPolicy | None,
@@ -57,6 +58,7 @@ class ConsoleFeature:
         self.buses = buses
         self.router = router
         self.poller = poller
+        self.tasks = tasks
         self.read_only = read_only
         self.access = access
         self.events: EventStore = events if events is not None else MemoryEventStore()
@@ -120,7 +122,9 @@ class ConsoleFeature:
             ) from exc
         self._site = site
         live.sample_buses()
-        self._sampler = asyncio.create_task(self._sample(live), name="console:sampler")
+        # In the service's TaskGroup: a bug here stops the service, saying so, rather than
+        # freezing the charts without a word.
+        self._sampler = self.tasks.start("console:sampler", self._sample(live))
         log.info("console on %s", self.url)
 
     async def stop(self) -> None:

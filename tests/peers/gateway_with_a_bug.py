@@ -1,10 +1,14 @@
-"""`invt-gateway run --config FILE`, whose poller is made to die of a bug once it is ready.
+"""`invt-gateway run --config FILE`, one of whose features is made to die of a bug once it is
+ready: `python -m tests.peers.gateway_with_a_bug FILE [poller|console-sampler]`.
 
-A real feature and a real bug, no mock: once a drive's poll is answered, the drive loses its poll
-timers (state the poll loop relies on, made inconsistent as a bug elsewhere could make it), and
-the loop fails (`min()` of nothing) outside the guard that keeps one failed poll from ending the
-polling.
-Everything else is what `invt-gateway run` does: `python -m tests.peers.gateway_with_a_bug FILE`.
+Real features and real bugs, no mock: state a feature relies on is made inconsistent, as a bug
+elsewhere could make it.
+- poller (the default): once a drive's poll is answered, the drive loses its poll timers, and
+  the loop fails (`min()` of nothing) outside the guard that keeps one failed poll from ending
+  the polling.
+- console-sampler: a bus appears in the application's map of buses that the console's live
+  state was never told of, and the sampler, sampling every bus, fails on it (`KeyError`).
+Everything else is what `invt-gateway run` does.
 """
 
 from __future__ import annotations
@@ -39,13 +43,20 @@ def break_the_poller(app: Application) -> None:
     app.poller.add_listener(TimerThief(app))
 
 
-def main(path: str) -> int:
+def break_the_console_sampler(app: Application) -> None:
+    app.buses["unannounced"] = next(iter(app.buses.values()))
+
+
+BUGS = {"poller": break_the_poller, "console-sampler": break_the_console_sampler}
+
+
+def main(path: str, bug: str = "poller") -> int:
     config = load_or_report(path)
     if config is None:
         return 2
     setup_logging(config.logging.level, config.logging.format)
-    return asyncio.run(serve(config, on_ready=break_the_poller))
+    return asyncio.run(serve(config, on_ready=BUGS[bug]))
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1]))
+    sys.exit(main(*sys.argv[1:]))

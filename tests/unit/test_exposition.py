@@ -12,8 +12,9 @@ from prometheus_client.metrics_core import Metric
 from prometheus_client.registry import Collector
 
 from gateway.bus import RequestDone
+from gateway.bus.metrics import DriveLabels
+from gateway.bus.request_metrics import RequestMetrics
 from gateway.exposition import exposition
-from gateway.metrics import DriveLabels, RequestMetrics
 
 
 async def test_the_text_is_the_one_generate_latest_makes() -> None:

@@ -8,7 +8,8 @@ from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.parser import text_string_to_metric_families
 
 from gateway.bus import RequestDone
-from gateway.metrics import DriveLabels, RequestMetrics
+from gateway.bus.metrics import DriveLabels
+from gateway.bus.request_metrics import RequestMetrics
 
 PUMP = DriveLabels("pump1", "line1", 1, 1, "gd350")
 Samples = dict[tuple[str, frozenset[tuple[str, str]]], float]

@@ -8,9 +8,9 @@ import shutil
 import sys
 from pathlib import Path
 
-from gateway.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from gateway.errors import ConfigError
 from gateway.event_loop import choose_event_loop
+from gateway.exit_codes import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from gateway.instruments.stop_on_terminate import stop_on_terminate
 from gateway.progress import Progress
 

@@ -20,11 +20,11 @@ from pathlib import Path
 from typing import Any
 
 from gateway.app import Application
-from gateway.cli import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
 from gateway.commands.run import event_loop_or_report, serve
 from gateway.config import GatewayConfig, parse_config
 from gateway.errors import ConfigError
 from gateway.event_loop import run as run_on_loop
+from gateway.exit_codes import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
 from gateway.logs import setup_logging
 
 DEMO_OPERATOR = "operator"

@@ -22,7 +22,7 @@ import sys
 from collections.abc import Iterator, Sequence
 from types import FrameType
 
-from gateway.cli import EXIT_FAILURE, EXIT_OK
+from gateway.exit_codes import EXIT_FAILURE, EXIT_OK
 from gateway.instruments.simulator.abb_drive import ABB_MODELS
 from gateway.instruments.simulator.control import run_control_command
 from gateway.instruments.simulator.line import WAKE_EARLY_S, SimulatedLine

@@ -14,7 +14,7 @@ import asyncio
 import json
 import sys
 
-from gateway.cli import EXIT_FAILURE, EXIT_OK
+from gateway.exit_codes import EXIT_FAILURE, EXIT_OK
 from gateway.instruments.stop_on_terminate import stop_on_terminate
 from gateway.progress import Progress
 
