@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 from gateway.logs import repeated
 
 if TYPE_CHECKING:
-    from gateway.tcp.server import TcpStats
+    from gateway.tcp.stats import TcpStats
 
 log = logging.getLogger(__name__)
 
