@@ -119,10 +119,34 @@ def test_a_parameter_beyond_the_common_table_is_scaled_by_the_drives_series(
 
 
 def test_refused_write_names_the_drives_reason(simulator: SimulatorProcess) -> None:
-    result = run_cli("write", "--port", simulator.path, *LINE, "--address", "1", "P00.01=3")
+    # Inside the manual's range, above P00.03 (50.00 Hz) that bounds it: only the drive knows.
+    result = run_cli("write", "--port", simulator.path, *LINE, "--address", "1", "P00.10=60")
     assert result.returncode == 1
     assert "exception 04H operation failure" in result.stderr
     assert "range" in result.stderr
+
+
+def test_values_are_taken_as_a_person_writes_them(simulator: SimulatorProcess) -> None:
+    """Units, the manual's words for a choice; refused before the wire, saying why: a finer
+    value than the register holds (never rounded silently), outside the range with its unit."""
+    line = ("--port", simulator.path, *LINE, "--address", "1")
+    written = run_cli("write", *line, "P00.11=12.5 s", "frequency_setpoint=25Hz", "P00.01=comm")
+    assert written.returncode == 0, written.stderr
+    assert "P00.11 <- 12.5 s" in written.stdout
+    assert "frequency_setpoint <- 25.00 Hz" in written.stdout
+    assert "P00.01 <- 2 (communication)" in written.stdout
+    finer = run_cli("write", *line, "P00.11=12.34")
+    assert finer.returncode == 2
+    assert "steps of 0.1 s" in finer.stderr
+    assert "12.3 s and 12.4 s" in finer.stderr
+    outside = run_cli("write", *line, "P00.03=700")
+    assert outside.returncode == 2
+    assert "outside 0.00..630.00 Hz" in outside.stderr
+    word = run_cli("write", *line, "P00.01=nowhere")
+    assert word.returncode == 2
+    assert "0 keypad, 1 terminal, 2 communication" in word.stderr
+    # Nothing of the refused writes reached the drive.
+    assert run_cli("read", *line, "P00.11").stdout.startswith("P00.11  12.5 s")
 
 
 def test_silent_address_says_what_to_check(simulator: SimulatorProcess) -> None:

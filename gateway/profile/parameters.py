@@ -100,7 +100,12 @@ class Parameter:
 _P = Parameter
 PARAMETERS: Final[tuple[Parameter, ...]] = (
     _P("P00.00", "speed control mode", default=2, maximum=3, locked_while_running=True),
-    _P("P00.01", "run command channel: 0 keypad, 1 terminal, 2 communication", maximum=2),
+    _P(
+        "P00.01",
+        "run command channel: 0 keypad, 1 terminal, 2 communication",
+        maximum=2,
+        choices=((0, "keypad"), (1, "terminal"), (2, "communication")),
+    ),
     _P("P00.02", "communication run command channel", maximum=3),
     _P(
         "P00.03",
@@ -132,7 +137,12 @@ PARAMETERS: Final[tuple[Parameter, ...]] = (
     _P("P00.10", "keypad set frequency", 2, "Hz", default=5000, maximum_from="P00.03"),
     _P("P00.11", "acceleration time 1", 1, "s", default=100, maximum=36000),
     _P("P00.12", "deceleration time 1", 1, "s", default=100, maximum=36000),
-    _P("P00.13", "running direction: 0 default, 1 reverse, 2 reverse forbidden", maximum=2),
+    _P(
+        "P00.13",
+        "running direction: 0 default, 1 reverse, 2 reverse forbidden",
+        maximum=2,
+        choices=((0, "default"), (1, "reverse"), (2, "reverse forbidden")),
+    ),
     _P("P01.20", "hibernation restore delay", 1, "s", maximum=36000),
     _P("P07.27", "type of current fault", read_only=True),
     _P("P07.28", "type of last fault", read_only=True),

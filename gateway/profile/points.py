@@ -58,6 +58,13 @@ class Point:
     meaning: Meaning = Meaning.NUMBER
     choices: tuple[tuple[int, str], ...] = ()
     """The manual's words for a value (a parameter of the drive's series table)."""
+    minimum: int | None = None
+    maximum: int | None = None
+    """The manual's range, as numbers of the register's scale (signed where the range is):
+    checked before a write goes on the wire. None: no range known."""
+    bounded_by: tuple[str | None, str | None] = (None, None)
+    """Parameters whose value bounds this one at run time (P00.04 within P00.05..P00.03): the
+    drive checks those; the manual's outer range is checked here."""
 
     @property
     def where(self) -> str:
@@ -97,22 +104,85 @@ class Point:
         return f"{shown} ({words_for})" if words_for else shown
 
     def encode(self, text: str) -> int:
-        """The raw word for a value typed as shown ("10.0", "-5", "0x0064", "stop")."""
+        """The raw word for a value as a person writes it: "10.0", "12.5 s", "25Hz" (the
+        point's own unit), "-5", "0x0064", "stop", or one of the manual's words for a choice
+        ("keypad"). Refused before the wire, saying why: a value finer than the register's
+        resolution (never rounded silently), outside the manual's range (given with its unit),
+        or not a number."""
         text = text.strip()
         if self.meaning is Meaning.CONTROL_WORD and not _is_number(text):
             return int(control_command(text))
         if text.lower().startswith("0x"):
             return _word(int(text, 16), text)
+        number = self._without_unit(text)
+        chosen = self._choice_named(number)
+        if chosen is not None:
+            return self._in_range(chosen, text) & 0xFFFF
         try:
-            value = float(text)
+            value = float(number)
         except ValueError:
-            raise ValueError(f"{self.label}: {text!r} is not a number") from None
-        raw = round(value * float(10**self.decimals))
+            raise ValueError(self._not_a_number(text)) from None
+        scaled = value * float(10**self.decimals)
+        raw = round(scaled)
+        if abs(scaled - raw) > 1e-6 * max(1.0, abs(scaled)):  # finer than the register holds
+            below, above = (raw if raw < scaled else raw - 1), (raw if raw > scaled else raw + 1)
+            raise ValueError(
+                f"{self.label} takes steps of {self._scaled(1)}: {text} would not be written as "
+                f"given (the nearest are {self._scaled(below)} and {self._scaled(above)})"
+                if self.decimals
+                else f"{self.label} takes whole numbers: {text} can't be written"
+            )
+        self._in_range(raw, text)  # the manual's range first: it says more than the word's
         low, high = (-0x8000, 0x7FFF) if self.signed else (0, 0xFFFF)
         if not low <= raw <= high:
             scale = f" (x{10**self.decimals})" if self.decimals else ""
             raise ValueError(f"{self.label} = {text}{scale} does not fit in one register")
         return raw & 0xFFFF
+
+    def _scaled(self, raw: int) -> str:
+        number = f"{raw / 10**self.decimals:.{self.decimals}f}" if self.decimals else str(raw)
+        return f"{number} {self.unit}".rstrip()
+
+    def _without_unit(self, text: str) -> str:
+        """ "25Hz", "12.5 s" → "25", "12.5": the point's own unit, letter case aside."""
+        unit = self.unit.strip()
+        if unit and text.casefold().endswith(unit.casefold()):
+            return text[: -len(unit)].rstrip()
+        return text
+
+    def _choice_named(self, text: str) -> int | None:
+        """The value whose manual words are `text` (or begin with it, when only one does)."""
+        if not self.choices or _is_number(text):
+            return None
+        wanted = text.casefold()
+        exact = [value for value, words in self.choices if words.casefold() == wanted]
+        if exact:
+            return exact[0]
+        begun = [value for value, words in self.choices if words.casefold().startswith(wanted)]
+        return begun[0] if len(begun) == 1 else None
+
+    def _not_a_number(self, text: str) -> str:
+        said = f"{self.label}: {text!r} is not a number"
+        if self.unit:
+            said += f" (in {self.unit}: 10, 10 {self.unit})"
+        if self.choices:
+            said += "; or one of: " + ", ".join(f"{v} {words}" for v, words in self.choices)
+        return said
+
+    def _in_range(self, raw: int, text: str) -> int:
+        low, high = self.minimum, self.maximum
+        if (low is not None and raw < low) or (high is not None and raw > high):
+            bounds = f"{self._scaled(low or 0).split()[0]}..{self._scaled(high or 0x7FFF)}"
+            lower, upper = self.bounded_by
+            if lower and upper:
+                at_run_time = f"; the drive also keeps it within {lower}..{upper}"
+            elif lower or upper:
+                at_run_time = f"; the drive also keeps it at or {'above' if lower else 'below'} "
+                at_run_time += lower or upper or ""
+            else:
+                at_run_time = ""
+            raise ValueError(f"{self.label} = {text} is outside {bounds}{at_run_time}")
+        return raw
 
 
 def resolve(text: str) -> Point:
@@ -201,6 +271,9 @@ def for_series(point: Point, profile: DriveProfile | None) -> Point:
         row.signed,
         meaning,
         row.choices,
+        row.minimum,
+        row.maximum,
+        (row.minimum_from, row.maximum_from),
     )
 
 
@@ -214,7 +287,19 @@ def _parameter_point(label: str, address: int) -> Point:
     if known is None:
         return Point(label, address, "not in the profile's parameter table: shown raw")
     meaning = Meaning.FAULT if known.name in FAULT_HISTORY else Meaning.NUMBER
-    return Point(label, address, known.description, known.decimals, known.unit, meaning=meaning)
+    return Point(
+        label,
+        address,
+        known.description,
+        known.decimals,
+        known.unit,
+        known.signed,
+        meaning,
+        known.choices,
+        known.minimum,
+        known.maximum,
+        (known.minimum_from, known.maximum_from),
+    )
 
 
 def _is_number(text: str) -> bool:
