@@ -183,11 +183,26 @@ async def test_a_parameter_beyond_the_common_table_scales_as_the_series_table_sa
 
 
 async def test_invalid_value_returns_the_invt_exception_by_name(plant: Plant) -> None:
-    response = await plant.set("pump1", {"parameter": "P00.01", "value": 3})
+    # Inside the manual's range, above P00.03 (50.00 Hz) that bounds it: the drive refuses.
+    before = plant.parameter(1, "P00.10")
+    response = await plant.set("pump1", {"parameter": "P00.10", "value": 60})
     assert response["status"] == "error"
     assert response["error"] == "operation_failure"
     assert response["exception_code"] == 4
     assert "04H" in str(response["message"])
+    assert plant.parameter(1, "P00.10") == before  # unchanged
+
+
+async def test_a_value_outside_the_manuals_range_or_finer_than_the_register_is_refused(
+    plant: Plant,
+) -> None:
+    """Checked before the wire, as `write` and the console check it: never rounded."""
+    outside = await plant.set("pump1", {"parameter": "P00.01", "value": 3})
+    assert (outside["status"], outside["error"]) == ("error", "invalid_value")
+    assert "outside 0..2" in str(outside["message"])
+    finer = await plant.set("pump1", {"parameter": "P00.11", "value": 12.34})
+    assert (finer["status"], finer["error"]) == ("error", "invalid_value")
+    assert "steps of 0.1 s" in str(finer["message"])
     assert plant.parameter(1, "P00.01") == 2  # unchanged
 
     response = await plant.bridge(

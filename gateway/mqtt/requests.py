@@ -34,7 +34,9 @@ from gateway.modbus.functions import (
 )
 from gateway.profile import DriveProfile, format_register, parse_register
 from gateway.profile import RegisterWrite as Step
+from gateway.profile.addressing import format_parameter, is_parameter_register
 from gateway.profile.commands import is_signed, known_decimals
+from gateway.profile.points import for_series
 
 MILLISECONDS_EPOCH: Final = 1e11
 """A `time` above this is taken as milliseconds (JavaScript's Date.now()), not seconds."""
@@ -250,7 +252,11 @@ def parse_write(message: Json, profile: DriveProfile) -> RegisterWrite:
                 "invalid_value",
                 f"the decimals of {spelled} are not in the profile: give decimals, or raw",
             )
-        raw = _scaled(_number(message["value"], "value"), decimals, spelled)
+        value = _number(message["value"], "value")
+        if "decimals" in message:  # the caller's own scale: only the register's bounds apply
+            raw = _scaled(value, decimals, spelled)
+        else:  # the profile's point: resolution and range as `write` and the console check them
+            raw = _encoded(value, address, profile)
     echo: Json = {"parameter": spelled, "register": format_register(address), "raw": raw}
     if has_value:
         echo["value"] = message["value"]
@@ -314,6 +320,17 @@ def _raw(value: Any) -> int:
     if not -0x8000 <= value <= 0xFFFF:
         raise CommandRefused("invalid_value", f"raw {value} does not fit in one register")
     return value & 0xFFFF
+
+
+def _encoded(value: float, address: int, profile: DriveProfile) -> int:
+    """The word for `value` at `address` as the profile's point encodes it (`Point.encode`):
+    refused, never rounded, when finer than the register holds or outside the manual's range."""
+    name = format_parameter(address) if is_parameter_register(address) else format_register(address)
+    point = for_series(profile.resolve(name), profile)
+    try:
+        return point.encode(repr(value))
+    except ValueError as exc:
+        raise CommandRefused("invalid_value", str(exc)) from None
 
 
 def _scaled(value: float, decimals: int, spelled: str) -> int:
