@@ -102,6 +102,11 @@ class Browser:
         await self.type("#login-password", password)
         await self.click("#login-submit")
 
+    async def resize(self, width: int, height: int) -> None:
+        """The page's viewport exactly this size, as on a phone or tablet of that size."""
+        metrics = {"width": width, "height": height, "deviceScaleFactor": 1, "mobile": False}
+        await self.run(self.driver.execute_cdp_cmd, "Emulation.setDeviceMetricsOverride", metrics)
+
     async def screenshot(self, name: str) -> Path:
         ARTIFACTS.joinpath("console").mkdir(parents=True, exist_ok=True)
         path = ARTIFACTS / "console" / f"{name}.png"
@@ -284,3 +289,75 @@ async def test_the_monitor_filters_pauses_and_downloads_what_it_shows(
     assert lines[0].startswith("time,client,unit_id,address,drive,function,meaning,outcome")
     assert len(lines) > 1
     assert all('"pump1"' in line for line in lines[1:])
+
+
+SIZES = {"phone": (390, 844), "tablet": (768, 1024), "desktop": (1400, 1000)}
+PAGES = {
+    "overview": ("/", "#drives tr[data-drive=pump1]"),
+    "drive": ("/drives/pump1", "#values tr[data-key=state]"),
+    "monitor": ("/monitor/line1", "#traffic tbody tr[data-seq]"),
+    "login": ("/login", "#login-form"),
+}
+FITS = """
+const header = document.querySelector("header .user a, header .user button");
+const box = header.getBoundingClientRect();
+return {
+  page: document.documentElement.scrollWidth, window: window.innerWidth,
+  login: [box.left, box.right, box.top, box.bottom, header.offsetParent !== null],
+};"""
+
+
+async def test_every_page_fits_a_phone_a_tablet_and_a_desktop_without_scrolling_sideways(
+    console: tuple[Application, Browser],
+) -> None:
+    _, browser = console
+    for size, (width, height) in SIZES.items():
+        await browser.resize(width, height)
+        for page, (path, filled) in PAGES.items():
+            await browser.open(path)
+            await browser.wait(showing(filled, ""))
+            fits = await browser.run(browser.driver.execute_script, FITS)
+            assert fits["window"] == width
+            assert fits["page"] <= width, f"{page} at {size}: {fits['page']} px wide"
+            left, right, top, bottom, shown = fits["login"]
+            where = f"{page} at {size}: the header's login at {fits['login']}"
+            assert shown, where
+            assert left >= 0, where
+            assert right <= width, where
+            assert top >= 0, where
+            assert bottom <= height, where
+            if size == "phone":
+                await browser.screenshot(f"{page}-phone")
+        if size == "phone":  # the drive page's charts, for a person to look at
+            await browser.open("/drives/pump1")
+            await browser.wait(lambda d: d.find_elements(By.CSS_SELECTOR, ".chart canvas"))
+            scroll = "document.querySelector('.charts').scrollIntoView()"
+            await browser.run(browser.driver.execute_script, scroll)
+            await browser.screenshot("drive-charts-phone")
+
+
+CHART_WIDTH = """const box = document.querySelector('#chart-frequency');
+const chart = box.querySelector('.uplot');
+return [chart === null ? 0 : chart.offsetWidth, box.clientWidth];"""
+
+
+def chart_fills_its_box(driver: Any) -> bool:
+    chart, box = driver.execute_script(CHART_WIDTH)
+    return bool(chart) and abs(chart - box) <= 2
+
+
+async def test_a_chart_follows_the_window_when_it_is_resized(
+    console: tuple[Application, Browser],
+) -> None:
+    _, browser = console
+    await browser.resize(1400, 1000)
+    await browser.open("/drives/pump1")
+    await browser.wait(chart_fills_its_box)
+    widths = []
+    for window in (700, 390, 1100):
+        await browser.resize(window, 900)
+        await browser.wait(chart_fills_its_box)
+        chart, _ = await browser.run(browser.driver.execute_script, CHART_WIDTH)
+        assert chart < window
+        widths.append(chart)
+    assert len(set(widths)) == len(widths)  # one chart a row at 700 px, three at 1100

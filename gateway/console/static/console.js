@@ -26,11 +26,33 @@ function fmt(value, decimals, unit) {
   return unit ? `${number} ${unit}` : number;
 }
 
-function timeOf(iso) {
-  if (!iso) return "–";
-  const date = new Date(iso);
-  return date.toLocaleTimeString([], { hour12: false }) + "." +
-    String(date.getMilliseconds()).padStart(3, "0");
+// One time format everywhere: the ISO date and the 24-hour clock, in this browser's time zone,
+// which the header names. The gateway sends UTC (ISO 8601 with Z); files downloaded keep that.
+function pad(number, width) { return String(number).padStart(width || 2, "0"); }
+
+function clock(date, seconds) {
+  const time = `${pad(date.getHours())}:${pad(date.getMinutes())}`;
+  return seconds ? `${time}:${pad(date.getSeconds())}` : time;
+}
+
+function stamp(value, milliseconds) {
+  if (value === null || value === undefined || value === "") return "–";
+  const date = typeof value === "number" ? new Date(value * 1000) : new Date(value);
+  if (Number.isNaN(date.getTime())) return String(value);
+  const day = `${date.getFullYear()}-${pad(date.getMonth() + 1)}-${pad(date.getDate())}`;
+  return `${day} ${clock(date, true)}${milliseconds ? `.${pad(date.getMilliseconds(), 3)}` : ""}`;
+}
+
+function zoneName() {
+  const minutes = -new Date().getTimezoneOffset();
+  const offset = `UTC${minutes < 0 ? "-" : "+"}${pad(Math.floor(Math.abs(minutes) / 60))}:` +
+    pad(Math.abs(minutes) % 60);
+  const name = Intl.DateTimeFormat().resolvedOptions().timeZone;
+  return name && name !== "UTC" ? `${name} (${offset})` : offset;
+}
+
+function timeCell(value, milliseconds) {
+  return el("td", { class: "time" }, stamp(value, milliseconds));
 }
 
 function toast(text, kind) {
@@ -129,11 +151,11 @@ function driveRow(drive) {
     el("td", { class: "fault" }, fault),
     el("td", { class: "frequency num" }, fmt(drive.output_frequency_hz, 2, "Hz")),
     el("td", { class: "current num" }, fmt(drive.output_current_a, 1, "A")),
-    el("td", {}, timeOf(drive.last_answer)));
+    timeCell(drive.last_answer));
 }
 
 function eventRow(event, withDrive) {
-  const cells = [el("td", {}, timeOf(event.time)), el("td", {}, event.kind.replace(/_/g, " "))];
+  const cells = [timeCell(event.time), el("td", {}, event.kind.replace(/_/g, " "))];
   if (withDrive) cells.push(el("td", {}, event.drive || event.bus || ""));
   cells.push(el("td", {}, event.text), el("td", {}, event.who || ""),
     el("td", { class: event.result && event.result !== "ok" ? "warn" : "" }, event.result || ""));
@@ -142,9 +164,13 @@ function eventRow(event, withDrive) {
 
 function fill(tableId, rows, empty) {
   const tbody = document.querySelector(`#${tableId} tbody`);
+  const headings = [...document.querySelectorAll(`#${tableId} thead th`)].map((th) => th.textContent);
   if (!rows.length && empty) {
-    const columns = document.querySelectorAll(`#${tableId} thead th`).length;
-    rows = [el("tr", {}, el("td", { colSpan: columns, class: "muted" }, empty))];
+    rows = [el("tr", {}, el("td", { colSpan: headings.length, class: "muted" }, empty))];
+  }
+  // Each cell knows its column's name: on a phone a row is a card of "name value" lines.
+  for (const row of rows) {
+    [...row.cells].forEach((cell, i) => { if (cell.colSpan === 1 && headings[i]) cell.dataset.label = headings[i]; });
   }
   tbody.replaceChildren(...rows);
 }
@@ -182,7 +208,7 @@ const VALUE_ROWS = [
   ["output_torque_pct", "Output torque", (v) => fmt(v, 1, "%")],
   ["command_source", "Command source", (v) => v || "–"],
   ["ready", "Ready", (v) => (v === undefined ? "–" : (v ? "yes" : "no"))],
-  ["last_seen", "Last answer", (v) => timeOf(v)],
+  ["last_seen", "Last answer", (v) => stamp(v)],
 ];
 
 const CHARTS = [
@@ -191,18 +217,30 @@ const CHARTS = [
   ["chart-voltage", 3, "Bus voltage", "V", "#059669"],
 ];
 
+const CHART_HEIGHT = 180;
+
 function makeCharts(columns) {
   return CHARTS.map(([id, index, label, unit, color]) => {
     const box = document.getElementById(id);
-    const width = Math.max(280, box.clientWidth || 360);
     const options = {
-      title: `${label} (${unit})`, width, height: 180,
+      title: `${label} (${unit})`, width: box.clientWidth || 360, height: CHART_HEIGHT,
       scales: { x: { time: true } },
       series: [{}, { label, stroke: color, width: 2, spanGaps: false }],
-      axes: [{}, { size: 50 }],
+      // The 24-hour clock as everywhere else (uPlot's own labels are 12-hour), far enough apart
+      // that two labels never overlap: seconds only when ticks are less than a minute apart.
+      axes: [
+        { space: 80, values: (u, ticks, axis, space, step) =>
+          ticks.map((tick) => clock(new Date(tick * 1000), step < 60)) },
+        { size: 50 },
+      ],
       legend: { show: false },
     };
     const plot = new uPlot(options, [columns[0], columns[index]], box);
+    // The chart follows its box (a window resized, a phone turned), not the width at load.
+    new ResizeObserver(() => {
+      const width = box.clientWidth;
+      if (width && Math.abs(width - plot.width) > 1) plot.setSize({ width, height: CHART_HEIGHT });
+    }).observe(box);
     return { plot, index };
   });
 }
@@ -260,7 +298,7 @@ async function loadFaults(name) {
     fill("recorded-faults", (data.recorded_faults || []).map((f) => {
       const s = f.snapshot || {};
       return el("tr", { class: f.cleared ? "" : "fault" },
-        el("td", {}, f.raised), el("td", {}, f.cleared || "still raised"),
+        timeCell(f.raised), f.cleared ? timeCell(f.cleared) : el("td", {}, "still raised"),
         el("td", {}, f.duration_s === null ? "-" : `${f.duration_s} s`),
         el("td", {}, `${f.code} ${f.name}`), el("td", {}, String(s.output_frequency_hz ?? "-")),
         el("td", {}, String(s.output_current_a ?? "-")), el("td", {}, String(s.bus_voltage_v ?? "-")));
@@ -405,7 +443,7 @@ function monitorPage() {
         el("div", { class: "hex" }, `← ${r.reply_hex || "(nothing)"}`));
     }
     return el("tr", { "data-seq": r.seq, class: outcomeClass(r) },
-      el("td", {}, timeOf(r.time)), el("td", {}, r.client),
+      timeCell(r.time, true), el("td", {}, r.client),
       el("td", {}, `${r.unit_id ?? "–"} / ${r.address}${r.drive ? ` ${r.drive}` : ""}`),
       el("td", {}, r.function), meaning,
       el("td", { class: "outcome" }, r.outcome), el("td", { class: "num" }, `${r.latency_ms} ms`));
@@ -493,6 +531,8 @@ function loginPage() {
 }
 
 (async () => {
+  const zone = document.getElementById("zone");
+  if (zone) zone.textContent = `times in ${zoneName()}`;
   await loadSession();
   const pages = { overview: overviewPage, drive: drivePage, monitor: monitorPage, login: loginPage };
   const start = pages[body.dataset.page];
