@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import re
 import shutil
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
@@ -296,6 +297,7 @@ PAGES = {
     "overview": ("/", "#drives tr[data-drive=pump1]"),
     "drive": ("/drives/pump1", "#values tr[data-key=state]"),
     "monitor": ("/monitor/line1", "#traffic tbody tr[data-seq]"),
+    "events": ("/events", "#all-events tbody tr"),
     "login": ("/login", "#login-form"),
 }
 FITS = """
@@ -361,3 +363,39 @@ async def test_a_chart_follows_the_window_when_it_is_resized(
         assert chart < window
         widths.append(chart)
     assert len(set(widths)) == len(widths)  # one chart a row at 700 px, three at 1100
+
+
+async def test_the_events_page_filters_by_kind_and_downloads_what_it_shows(
+    console: tuple[Application, Browser], tmp_path: Path
+) -> None:
+    _, browser = console
+    await browser.run(
+        browser.driver.execute_cdp_cmd,
+        "Page.setDownloadBehavior",
+        {"behavior": "allow", "downloadPath": str(tmp_path)},
+    )
+    await browser.login("olga", OPERATOR_PASSWORD)
+    await browser.wait(showing("#who", "olga (operator)"))
+    await browser.open("/events")
+    await browser.run(
+        lambda: Select(browser.driver.find_element(By.ID, "e-kind")).select_by_value("login")
+    )
+    await browser.wait(showing("#all-events tbody", "olga logged in from 127.0.0.1"))
+    assert "kind=login" in await browser.run(lambda: browser.driver.current_url)
+    when = await browser.text("#all-events tbody tr td.time")
+    assert re.fullmatch(r"\d{4}-\d{2}-\d{2} \d{2}:\d{2}:\d{2}", when), when
+    assert "olga from 127.0.0.1" in await browser.text("#all-events tbody tr")
+    await browser.screenshot("events")
+    await browser.type("#e-until", "2000-01-01 00:00\n")  # before anything happened here
+    await browser.wait(showing("#all-events tbody", "no event matches"))
+    await browser.type("#e-until", "yesterday\n")
+    await browser.wait(showing("#live", "a time as 2026-11-25 06:00"))
+    await browser.type("#e-until", "\n")
+    await browser.wait(showing("#all-events tbody", "olga logged in"))
+    await browser.click("#e-csv")
+    csv_file = tmp_path / "events.csv"
+    await browser.wait(lambda _: csv_file.exists() and csv_file.stat().st_size > 0)
+    lines = csv_file.read_text(encoding="utf-8").splitlines()
+    assert lines[0].startswith("id,time,kind,type,drive,bus,text,who,user,address")
+    assert len(lines) == 2
+    assert ",login," in lines[1]

@@ -23,7 +23,7 @@ def page(
     scripts: Sequence[str] = (),
 ) -> str:
     attributes = " ".join(f'data-{k}="{escape(v)}"' for k, v in data.items())
-    monitor_links = "".join(
+    monitor_links = '<a href="/events">Events</a>' + "".join(
         f'<a href="/monitor/{escape(bus)}">Monitor {escape(bus)}</a>' for bus in buses
     )
     if who is None or who.via is Via.ANONYMOUS:
@@ -85,7 +85,7 @@ OVERVIEW = """
 </table></div>
 </section>
 <section>
-<h2>Events</h2>
+<h2>Events <a class="more" href="/events">all events, filters, CSV</a></h2>
 <div class="scroll"><table id="events" class="grid cards small">
 <thead><tr><th>Time</th><th>Event</th><th>Drive / bus</th><th>What</th><th>Who</th>
 <th>Result</th></tr></thead>
@@ -190,4 +190,24 @@ LOGIN = """
 <button type="submit" id="login-submit">Log in</button>
 <p id="login-error" class="error" role="alert"></p>
 </form>
+"""
+
+EVENTS = """
+<h1>Events <span id="live" class="live">loading…</span></h1>
+<form id="event-filters" class="filters">
+<label>Event <select id="e-kind"><option value="">all</option></select></label>
+<label>Drive <select id="e-drive"><option value="">all</option></select></label>
+<label>From <input id="e-since" class="when" placeholder="YYYY-MM-DD HH:MM"></label>
+<label>To <input id="e-until" class="when" placeholder="YYYY-MM-DD HH:MM"></label>
+<label>Rows <select id="e-limit"><option>100</option><option selected>500</option>
+<option>2000</option></select></label>
+<button type="button" id="e-clear">Clear filters</button>
+<a id="e-csv" class="button" href="/api/events?format=csv" download="events.csv">Download CSV</a>
+<span id="e-count" class="muted"></span>
+</form>
+<div class="scroll"><table id="all-events" class="grid cards small">
+<thead><tr><th>Time</th><th>Event</th><th>Drive / bus</th><th>What</th><th>Who</th>
+<th>Result</th></tr></thead>
+<tbody></tbody>
+</table></div>
 """

@@ -154,12 +154,24 @@ function driveRow(drive) {
     timeCell(drive.last_answer));
 }
 
+function eventWhat(event) {
+  // "write (control)", "modbus writes", "login failed (authentication)"
+  const kind = (event.type === "modbus_writes" ? "Modbus-TCP write" : event.kind).replace(/_/g, " ");
+  const category = event.category ? ` (${event.category})` : "";
+  return `${kind}${category}${event.pending ? " · this minute" : ""}`;
+}
+
+function eventWho(event) {
+  const who = event.user ? `${event.user}${event.who && event.who.startsWith("console") ? " (console)" : ""}` : event.who;
+  return event.address && who !== event.address ? `${who || "?"} from ${event.address}` : (who || "");
+}
+
 function eventRow(event, withDrive) {
-  const cells = [timeCell(event.time), el("td", {}, event.kind.replace(/_/g, " "))];
+  const cells = [timeCell(event.time), el("td", {}, eventWhat(event))];
   if (withDrive) cells.push(el("td", {}, event.drive || event.bus || ""));
-  cells.push(el("td", {}, event.text), el("td", {}, event.who || ""),
+  cells.push(el("td", {}, event.text), el("td", {}, eventWho(event)),
     el("td", { class: event.result && event.result !== "ok" ? "warn" : "" }, event.result || ""));
-  return el("tr", { class: `event ${event.kind}` }, ...cells);
+  return el("tr", { class: `event ${event.kind}`, "data-id": event.id }, ...cells);
 }
 
 function fill(tableId, rows, empty) {
@@ -509,6 +521,95 @@ function monitorPage() {
   render();
 }
 
+// -- events ----------------------------------------------------------------------------------
+
+const EVENT_KINDS = [
+  ["write", "writes (all)"], ["command", "commands (console, MQTT)"],
+  ["modbus_writes", "Modbus-TCP writes"], ["fault_raised", "fault raised"],
+  ["fault_cleared", "fault cleared"], ["drive_offline", "drive offline"],
+  ["drive_online", "drive online"], ["port_lost", "port lost"], ["port_back", "port back"],
+  ["login", "login"], ["login_failed", "failed login"], ["logout", "logout"],
+  ["config_reloaded", "configuration reloaded"],
+];
+
+function parseStamp(text) {
+  // "2026-11-25 06:00" (seconds optional, a date alone is its midnight), as the tables write
+  // times: this browser's zone. Null when it is not one; undefined when empty.
+  if (!text.trim()) return undefined;
+  const m = /^(\d{4})-(\d{2})-(\d{2})(?:[ T](\d{2}):(\d{2})(?::(\d{2}))?)?$/.exec(text.trim());
+  if (!m) return null;
+  const date = new Date(+m[1], m[2] - 1, +m[3], +(m[4] || 0), +(m[5] || 0), +(m[6] || 0));
+  return Number.isNaN(date.getTime()) ? null : date;
+}
+
+function eventsPage() {
+  const field = {
+    kind: document.getElementById("e-kind"), drive: document.getElementById("e-drive"),
+    since: document.getElementById("e-since"), until: document.getElementById("e-until"),
+    limit: document.getElementById("e-limit"),
+  };
+  for (const [kind, label] of EVENT_KINDS) field.kind.append(el("option", { value: kind }, label));
+  for (const drive of (body.dataset.drives || "").split(",").filter(Boolean)) {
+    field.drive.append(el("option", { value: drive }, drive));
+  }
+  const asked = new URLSearchParams(location.search);
+  field.kind.value = asked.get("kind") || "";
+  field.drive.value = asked.get("drive") || "";
+  field.since.value = asked.get("since") ? stamp(asked.get("since")) : "";
+  field.until.value = asked.get("until") ? stamp(asked.get("until")) : "";
+  if (asked.get("limit")) field.limit.value = asked.get("limit");
+  const query = () => {
+    const q = new URLSearchParams();
+    if (field.kind.value) q.set("kind", field.kind.value);
+    if (field.drive.value) q.set("drive", field.drive.value);
+    // The fields hold this browser's local time; the API takes ISO 8601 with its zone (UTC).
+    for (const key of ["since", "until"]) {
+      const date = parseStamp(field[key].value);
+      field[key].setCustomValidity(date === null ? "a time as 2026-11-25 06:00" : "");
+      if (date === null) return null;
+      if (date) q.set(key, date.toISOString());
+    }
+    q.set("limit", field.limit.value);
+    return q;
+  };
+  const live = document.getElementById("live");
+  const load = async () => {
+    const q = query();
+    if (q === null) {
+      live.textContent = "a time as 2026-11-25 06:00";
+      live.className = "live off";
+      return;
+    }
+    history.replaceState(null, "", `/events?${q}`);
+    const csv = new URLSearchParams(q);
+    csv.set("format", "csv");
+    csv.delete("limit");
+    document.getElementById("e-csv").href = `/api/events?${csv}`;
+    try {
+      const data = await api(`/api/events?${q}`);
+      fill("all-events", data.events.map((e) => eventRow(e, true)), "no event matches");
+      document.getElementById("e-count").textContent =
+        `${data.events.length} event${data.events.length === 1 ? "" : "s"}, newest first`;
+      live.textContent = field.until.value ? "as asked" : "live";
+      live.className = "live on";
+    } catch (error) {
+      live.textContent = error.message;
+      live.className = "live off";
+    }
+  };
+  Object.values(field).forEach((f) => f.addEventListener("change", load));
+  document.getElementById("event-filters").addEventListener("submit", (event) => {
+    event.preventDefault();  // Enter in a time field: apply it, stay on the page
+    load();
+  });
+  document.getElementById("e-clear").addEventListener("click", () => {
+    field.kind.value = field.drive.value = field.since.value = field.until.value = "";
+    load();
+  });
+  load();
+  setInterval(() => { if (!field.until.value) load(); }, 5000);
+}
+
 // -- login -----------------------------------------------------------------------------------
 
 function loginPage() {
@@ -534,7 +635,9 @@ function loginPage() {
   const zone = document.getElementById("zone");
   if (zone) zone.textContent = `times in ${zoneName()}`;
   await loadSession();
-  const pages = { overview: overviewPage, drive: drivePage, monitor: monitorPage, login: loginPage };
+  const pages = {
+    overview: overviewPage, drive: drivePage, monitor: monitorPage, events: eventsPage, login: loginPage,
+  };
   const start = pages[body.dataset.page];
   if (start) start();
 })();
