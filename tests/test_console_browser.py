@@ -298,6 +298,7 @@ PAGES = {
     "drive": ("/drives/pump1", "#values tr[data-key=state]"),
     "monitor": ("/monitor/line1", "#traffic tbody tr[data-seq]"),
     "events": ("/events", "#all-events tbody tr"),
+    "diagnostics": ("/diagnostics", "table.diagnostics tbody tr[data-drive=fan2]"),
     "login": ("/login", "#login-form"),
 }
 FITS = """
@@ -328,8 +329,7 @@ async def test_every_page_fits_a_phone_a_tablet_and_a_desktop_without_scrolling_
             assert right <= width, where
             assert top >= 0, where
             assert bottom <= height, where
-            if size == "phone":
-                await browser.screenshot(f"{page}-phone")
+            await browser.screenshot(f"{page}-{size}")
         if size == "phone":  # the drive page's charts, for a person to look at
             await browser.open("/drives/pump1")
             await browser.wait(lambda d: d.find_elements(By.CSS_SELECTOR, ".chart canvas"))

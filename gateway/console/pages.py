@@ -23,7 +23,7 @@ def page(
     scripts: Sequence[str] = (),
 ) -> str:
     attributes = " ".join(f'data-{k}="{escape(v)}"' for k, v in data.items())
-    monitor_links = '<a href="/events">Events</a>' + "".join(
+    monitor_links = '<a href="/events">Events</a><a href="/diagnostics">Diagnostics</a>' + "".join(
         f'<a href="/monitor/{escape(bus)}">Monitor {escape(bus)}</a>' for bus in buses
     )
     if who is None or who.via is Via.ANONYMOUS:
@@ -210,4 +210,21 @@ EVENTS = """
 <th>Result</th></tr></thead>
 <tbody></tbody>
 </table></div>
+"""
+
+DIAGNOSTICS = """
+<h1>Diagnostics <span id="live" class="live">loading…</span></h1>
+<div id="buses-diagnostics"></div>
+<section>
+<h2>Modbus-TCP clients</h2>
+<div class="scroll"><table id="tcp-clients" class="grid cards small">
+<thead><tr><th>Address</th><th>Connected since</th><th>Requests</th><th>Errors</th>
+<th>In flight</th><th>TLS role</th></tr></thead>
+<tbody></tbody>
+</table></div>
+</section>
+<section>
+<h2>MQTT session</h2>
+<table id="mqtt-session" class="kv"><tbody></tbody></table>
+</section>
 """

@@ -15,6 +15,7 @@ import contextlib
 import hmac
 import json
 import logging
+import time
 from collections.abc import Awaitable, Callable
 from dataclasses import replace
 from datetime import datetime
@@ -37,6 +38,7 @@ from gateway.console.auth import (
     Via,
 )
 from gateway.console.deadlines import mark_requests
+from gateway.console.diagnostics import MqttSession, TcpClients, tcp_clients_json
 from gateway.console.events import (
     Category,
     EventQuery,
@@ -53,6 +55,7 @@ from gateway.console.operations import (
 )
 from gateway.console.traffic import TrafficMonitor
 from gateway.errors import OperationError
+from gateway.poller.drive_state import iso_time
 
 log = logging.getLogger(__name__)
 
@@ -92,6 +95,8 @@ class Console:
         operations: DriveOperations,
         traffic: TrafficMonitor,
         events: EventStore,
+        tcp: TcpClients | None = None,
+        mqtt: MqttSession | None = None,
     ) -> None:
         self.users = users
         self.anonymous_view = anonymous_view
@@ -101,6 +106,8 @@ class Console:
         self.operations = operations
         self.traffic = traffic
         self.events = events
+        self.tcp = tcp
+        self.mqtt = mqtt
         self.sessions = Sessions()
         self.throttle = LoginThrottle()
         self.logins = LoginCounts()
@@ -167,6 +174,7 @@ def build_app(console: Console) -> web.Application:
         web.get("/", overview_page),
         web.get("/drives/{name}", drive_page),
         web.get("/events", events_page),
+        web.get("/diagnostics", diagnostics_page),
         web.get("/monitor", monitor_page),
         web.get("/monitor/{bus}", monitor_page),
         web.get("/login", login_page),
@@ -176,6 +184,7 @@ def build_app(console: Console) -> web.Application:
         web.get("/api/overview", overview),
         web.get("/api/live", live_stream),
         web.get("/api/events", events),
+        web.get("/api/diagnostics", diagnostics),
         web.get("/api/drives/{name}", drive_detail),
         web.get("/api/drives/{name}/chart", drive_chart),
         web.get("/api/drives/{name}/faults", drive_faults),
@@ -317,6 +326,10 @@ async def events_page(request: web.Request) -> web.StreamResponse:
     return _html(request, "Events", pages.EVENTS, {"page": "events", "drives": drives})
 
 
+async def diagnostics_page(request: web.Request) -> web.StreamResponse:
+    return _html(request, "Diagnostics", pages.DIAGNOSTICS, {"page": "diagnostics"})
+
+
 async def login_page(request: web.Request) -> web.StreamResponse:
     return _html(request, "Log in", pages.LOGIN, {"page": "login"})
 
@@ -440,6 +453,22 @@ def _time_query(request: web.Request, key: str) -> float | None:
     if moment is None or moment.tzinfo is None:
         raise _error(400, f"{key}: an ISO 8601 time with its zone, e.g. 2026-11-25T06:00:00Z")
     return moment.timestamp()
+
+
+async def diagnostics(request: web.Request) -> web.StreamResponse:
+    """The line's counters per bus and drive (since start, last minute), the Modbus-TCP
+    clients and the MQTT session: all read from what their owners keep, nothing waits."""
+    console = request.app[CONSOLE]
+    return web.json_response(
+        {
+            "time": iso_time(time.time()),
+            "buses": console.live.line_counters(),
+            "modbus_tcp": None
+            if console.tcp is None
+            else {"clients": tcp_clients_json(console.tcp)},
+            "mqtt": None if console.mqtt is None else console.mqtt.status().to_json(),
+        }
+    )
 
 
 async def drive_detail(request: web.Request) -> web.StreamResponse:

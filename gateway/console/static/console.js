@@ -610,6 +610,91 @@ function eventsPage() {
   setInterval(() => { if (!field.until.value) load(); }, 5000);
 }
 
+// -- diagnostics -----------------------------------------------------------------------------
+
+const LINE_COUNTS = [
+  ["sent", "Frames sent"], ["replies", "Replies"], ["timeouts", "Timeouts"],
+  ["crc_errors", "CRC errors"], ["bad_replies", "Other bad replies"], ["exceptions", "Exceptions"],
+  ["retries", "Retries"], ["late_replies", "Late replies"], ["failed", "Failed requests"],
+];
+const TROUBLE = new Set(["timeouts", "crc_errors", "bad_replies", "exceptions", "late_replies", "failed"]);
+
+function exceptionsText(list) {
+  return list.length ? list.map((e) => `${e.code} ${e.name}: ${e.count}`).join(", ") : "0";
+}
+
+function countCell(key, total, minute) {
+  // Since start, and the last minute under it: a counter that grows now stands out.
+  const show = key === "exceptions" ? exceptionsText : String;
+  const now = key === "exceptions" ? minute.length : minute;
+  return el("td", { class: `num count ${TROUBLE.has(key) && now ? "warn" : ""}` },
+    el("span", {}, el("span", {}, show(total)), el("span", { class: "minute" }, `${show(minute)} last min`)));
+}
+
+function countsRow(label, scope, attrs) {
+  return el("tr", attrs, el("th", {}, label),
+    ...LINE_COUNTS.map(([key]) => countCell(key, scope.since_start[key], scope.last_minute[key])));
+}
+
+function busDiagnostics(bus) {
+  const tableId = `counts-${bus.name}`;
+  const head = el("tr", {}, el("th", {}, "Bus / drive"), ...LINE_COUNTS.map(([, label]) => el("th", {}, label)));
+  const section = el("section", { "data-bus": bus.name },
+    el("h2", {}, `Bus ${bus.name} `, el("span", { class: `badge ${bus.state}` }, bus.state)),
+    el("p", { class: "muted" },
+      `${bus.port} · ${bus.format} · counting since ${stamp(bus.counting_since)} · ` +
+      `${bus.requests} requests, ${bus.queue_full} refused (queue full), ` +
+      `${bus.coalesced} shared, ${bus.port_errors} port errors, ${bus.reopens} reopens`),
+    el("div", { class: "scroll" },
+      el("table", { id: tableId, class: "grid cards small diagnostics" }, el("thead", {}, head), el("tbody"))));
+  return section;
+}
+
+function diagnosticsPage() {
+  const holder = document.getElementById("buses-diagnostics");
+  const live = document.getElementById("live");
+  const show = (data) => {
+    for (const bus of data.buses) {
+      const id = `counts-${bus.name}`;
+      if (!document.getElementById(id)) holder.append(busDiagnostics(bus));
+      const rows = [countsRow(`${bus.name} (all)`, bus, { class: "total" })].concat(
+        bus.drives.map((d) => countsRow(d.drive ? `${d.drive} (${d.address})` : `address ${d.address}`,
+          d, { "data-drive": d.drive || "" })));
+      fill(id, rows);
+    }
+    const clients = data.modbus_tcp ? data.modbus_tcp.clients : [];
+    fill("tcp-clients", clients.map((c) => el("tr", { "data-client": c.client },
+      el("td", { class: "mono" }, c.address), timeCell(c.connected_since),
+      el("td", { class: "num" }, c.requests), el("td", { class: `num ${c.errors ? "warn" : ""}` }, c.errors),
+      el("td", { class: "num" }, c.in_flight), el("td", {}, c.tls ? (c.role || "TLS, no role") : "plain"))),
+    "no Modbus-TCP client connected");
+    const m = data.mqtt;
+    const rows = m ? [
+      ["Broker", `${m.broker}${m.tls ? " (TLS)" : ""}`],
+      ["Protocol", `MQTT ${m.protocol}`],
+      ["Connected", m.connected ? `yes, since ${stamp(m.connected_since)}` : "no"],
+      ["Events queued", String(m.queued)],
+      ["Events dropped", String(m.dropped)],
+      ["Last error", m.last_error ? `${m.last_error} (${stamp(m.last_error_at)})` : "none"],
+      ["Connections", `${m.connects} made, ${m.connect_failures} failed`],
+      ["Published", String(m.published)],
+    ] : [["MQTT", "not configured"]];
+    fill("mqtt-session", rows.map(([k, v]) => el("tr", { "data-key": k }, el("th", {}, k), el("td", {}, v))));
+  };
+  const load = async () => {
+    try {
+      show(await api("/api/diagnostics"));
+      live.textContent = "live";
+      live.className = "live on";
+    } catch (error) {
+      live.textContent = error.message;
+      live.className = "live off";
+    }
+  };
+  load();
+  setInterval(load, 2000);
+}
+
 // -- login -----------------------------------------------------------------------------------
 
 function loginPage() {
@@ -636,7 +721,8 @@ function loginPage() {
   if (zone) zone.textContent = `times in ${zoneName()}`;
   await loadSession();
   const pages = {
-    overview: overviewPage, drive: drivePage, monitor: monitorPage, events: eventsPage, login: loginPage,
+    overview: overviewPage, drive: drivePage, monitor: monitorPage, events: eventsPage,
+    diagnostics: diagnosticsPage, login: loginPage,
   };
   const start = pages[body.dataset.page];
   if (start) start();
