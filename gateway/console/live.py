@@ -204,7 +204,9 @@ class LiveState:
             counters = self._counters.get(name)
             if counters is None or counters.stats is not bus.stats:
                 counters = BusCounters(bus.stats)  # not sampled yet: since start only
-            names = {a: d for (b, a), d in self._by_address.items() if b == name}
+            names = {
+                address: drive for (on, address), drive in self._by_address.items() if on == name
+            }
             view = counters.view(bus.drive_stats, names)
             shown.append({**self.bus_view(name), **view})
         return shown
