@@ -243,6 +243,8 @@ class Application:
             read_only=self.settings.tcp.read_only,
             access=self.tcp.access,
             events=ConsoleEventsRecorded(self.events),
+            tcp=self.tcp,
+            mqtt=getattr(self, "mqtt", None),
         )
         self.features.append(self.console)
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import re
 import shutil
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
@@ -101,6 +102,11 @@ class Browser:
         await self.type("#login-name", name)
         await self.type("#login-password", password)
         await self.click("#login-submit")
+
+    async def resize(self, width: int, height: int) -> None:
+        """The page's viewport exactly this size, as on a phone or tablet of that size."""
+        metrics = {"width": width, "height": height, "deviceScaleFactor": 1, "mobile": False}
+        await self.run(self.driver.execute_cdp_cmd, "Emulation.setDeviceMetricsOverride", metrics)
 
     async def screenshot(self, name: str) -> Path:
         ARTIFACTS.joinpath("console").mkdir(parents=True, exist_ok=True)
@@ -284,3 +290,112 @@ async def test_the_monitor_filters_pauses_and_downloads_what_it_shows(
     assert lines[0].startswith("time,client,unit_id,address,drive,function,meaning,outcome")
     assert len(lines) > 1
     assert all('"pump1"' in line for line in lines[1:])
+
+
+SIZES = {"phone": (390, 844), "tablet": (768, 1024), "desktop": (1400, 1000)}
+PAGES = {
+    "overview": ("/", "#drives tr[data-drive=pump1]"),
+    "drive": ("/drives/pump1", "#values tr[data-key=state]"),
+    "monitor": ("/monitor/line1", "#traffic tbody tr[data-seq]"),
+    "events": ("/events", "#all-events tbody tr"),
+    "diagnostics": ("/diagnostics", "table.diagnostics tbody tr[data-drive=fan2]"),
+    "login": ("/login", "#login-form"),
+}
+FITS = """
+const header = document.querySelector("header .user a, header .user button");
+const box = header.getBoundingClientRect();
+return {
+  page: document.documentElement.scrollWidth, window: window.innerWidth,
+  login: [box.left, box.right, box.top, box.bottom, header.offsetParent !== null],
+};"""
+
+
+async def test_every_page_fits_a_phone_a_tablet_and_a_desktop_without_scrolling_sideways(
+    console: tuple[Application, Browser],
+) -> None:
+    _, browser = console
+    for size, (width, height) in SIZES.items():
+        await browser.resize(width, height)
+        for page, (path, filled) in PAGES.items():
+            await browser.open(path)
+            await browser.wait(showing(filled, ""))
+            fits = await browser.run(browser.driver.execute_script, FITS)
+            assert fits["window"] == width
+            assert fits["page"] <= width, f"{page} at {size}: {fits['page']} px wide"
+            left, right, top, bottom, shown = fits["login"]
+            where = f"{page} at {size}: the header's login at {fits['login']}"
+            assert shown, where
+            assert left >= 0, where
+            assert right <= width, where
+            assert top >= 0, where
+            assert bottom <= height, where
+            await browser.screenshot(f"{page}-{size}")
+        if size == "phone":  # the drive page's charts, for a person to look at
+            await browser.open("/drives/pump1")
+            await browser.wait(lambda d: d.find_elements(By.CSS_SELECTOR, ".chart canvas"))
+            scroll = "document.querySelector('.charts').scrollIntoView()"
+            await browser.run(browser.driver.execute_script, scroll)
+            await browser.screenshot("drive-charts-phone")
+
+
+CHART_WIDTH = """const box = document.querySelector('#chart-frequency');
+const chart = box.querySelector('.uplot');
+return [chart === null ? 0 : chart.offsetWidth, box.clientWidth];"""
+
+
+def chart_fills_its_box(driver: Any) -> bool:
+    chart, box = driver.execute_script(CHART_WIDTH)
+    return bool(chart) and abs(chart - box) <= 2
+
+
+async def test_a_chart_follows_the_window_when_it_is_resized(
+    console: tuple[Application, Browser],
+) -> None:
+    _, browser = console
+    await browser.resize(1400, 1000)
+    await browser.open("/drives/pump1")
+    await browser.wait(chart_fills_its_box)
+    widths = []
+    for window in (700, 390, 1100):
+        await browser.resize(window, 900)
+        await browser.wait(chart_fills_its_box)
+        chart, _ = await browser.run(browser.driver.execute_script, CHART_WIDTH)
+        assert chart < window
+        widths.append(chart)
+    assert len(set(widths)) == len(widths)  # one chart a row at 700 px, three at 1100
+
+
+async def test_the_events_page_filters_by_kind_and_downloads_what_it_shows(
+    console: tuple[Application, Browser], tmp_path: Path
+) -> None:
+    _, browser = console
+    await browser.run(
+        browser.driver.execute_cdp_cmd,
+        "Page.setDownloadBehavior",
+        {"behavior": "allow", "downloadPath": str(tmp_path)},
+    )
+    await browser.login("olga", OPERATOR_PASSWORD)
+    await browser.wait(showing("#who", "olga (operator)"))
+    await browser.open("/events")
+    await browser.run(
+        lambda: Select(browser.driver.find_element(By.ID, "e-kind")).select_by_value("login")
+    )
+    await browser.wait(showing("#all-events tbody", "olga logged in from 127.0.0.1"))
+    assert "kind=login" in await browser.run(lambda: browser.driver.current_url)
+    when = await browser.text("#all-events tbody tr td.time")
+    assert re.fullmatch(r"\d{4}-\d{2}-\d{2} \d{2}:\d{2}:\d{2}", when), when
+    assert "olga from 127.0.0.1" in await browser.text("#all-events tbody tr")
+    await browser.screenshot("events")
+    await browser.type("#e-until", "2000-01-01 00:00\n")  # before anything happened here
+    await browser.wait(showing("#all-events tbody", "no event matches"))
+    await browser.type("#e-until", "yesterday\n")
+    await browser.wait(showing("#live", "a time as 2026-11-25 06:00"))
+    await browser.type("#e-until", "\n")
+    await browser.wait(showing("#all-events tbody", "olga logged in"))
+    await browser.click("#e-csv")
+    csv_file = tmp_path / "events.csv"
+    await browser.wait(lambda _: csv_file.exists() and csv_file.stat().st_size > 0)
+    lines = csv_file.read_text(encoding="utf-8").splitlines()
+    assert lines[0].startswith("id,time,kind,type,drive,bus,text,who,user,address")
+    assert len(lines) == 2
+    assert ",login," in lines[1]

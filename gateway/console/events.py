@@ -12,14 +12,19 @@ in-memory ring (`MemoryEventStore`, bounded, lost at restart); a store that surv
 
 from __future__ import annotations
 
-import json
+import csv
+import io
+import itertools
 import time
 from collections import deque
-from dataclasses import asdict, dataclass, field
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field, replace
+from datetime import datetime
 from enum import StrEnum
 from typing import Any, Final, Protocol
 
 from gateway.poller.drive_state import iso_time
+from gateway.store.modbus_writes import client_host
 from gateway.store.records import FaultRecord, StoredEvent
 from gateway.store.status import StoreStatus
 
@@ -63,11 +68,60 @@ class GatewayEvent:
     """An audit event's `Category`."""
     id: int | None = None
     """The store's id (once stored: the same as on `<base>/bridge/event`)."""
+    type: str | None = None
+    """The store's type (`command`, `modbus_writes`...); None: the same as `kind`."""
+    pending: bool = False
+    """A Modbus-TCP write not yet in its minute's `modbus_writes` event (shown meanwhile)."""
+
+    @property
+    def store_type(self) -> str:
+        if self.type is not None:
+            return self.type
+        if self.kind == "write":
+            return "modbus_writes" if (self.who or "").startswith("tcp:") else "command"
+        return self.kind
+
+    @property
+    def user(self) -> str | None:
+        """An audit event's user: the name without the console's prefix."""
+        return self.who.removeprefix("console:") if self.who else None
 
     def to_json(self) -> dict[str, Any]:
         data = asdict(self)
         data["time"] = iso_time(self.at)
+        data["type"] = self.store_type
+        data["user"] = self.user if self.category is not None else None
         return data
+
+
+KIND_TYPES: Final = {"write": ("command", "modbus_writes")}
+"""A kind the pages show that stands for several of the store's types."""
+
+
+@dataclass(frozen=True, slots=True)
+class EventQuery:
+    """Which events: of one drive (and the line-wide ones), of some kinds, in a time range."""
+
+    drive: str | None = None
+    kinds: frozenset[str] = frozenset()
+    """The pages' kinds (`write`, `fault_raised`...) or the store's types (`modbus_writes`)."""
+    since: float | None = None
+    """Epoch seconds, inclusive."""
+    until: float | None = None
+    """Epoch seconds, exclusive."""
+
+    def types(self) -> tuple[str, ...]:
+        """The store's types that answer the kinds asked for (empty: every type)."""
+        return tuple(sorted({t for kind in self.kinds for t in KIND_TYPES.get(kind, (kind,))}))
+
+    def matches(self, event: GatewayEvent) -> bool:
+        if self.drive is not None and event.drive != self.drive:
+            return False
+        if self.kinds and not {event.kind, event.store_type} & self.kinds:
+            return False
+        if self.since is not None and event.at < self.since:
+            return False
+        return self.until is None or event.at < self.until
 
 
 class EventStore(Protocol):
@@ -77,8 +131,9 @@ class EventStore(Protocol):
     def recent(self, drive: str | None = None, limit: int = 200) -> list[GatewayEvent]:
         """The newest first; only `drive`'s (and the line-wide ones of no drive) when given."""
 
-    async def history(self, drive: str | None = None, limit: int = 200) -> list[GatewayEvent]:
-        """As `recent`, from wherever the events are kept longest (across restarts, if kept)."""
+    async def history(self, query: EventQuery, limit: int = 200) -> list[GatewayEvent]:
+        """The newest first, as `query` asks, from wherever the events are kept longest (across
+        restarts, if kept): each event once."""
 
     async def recorded_faults(self, drive: str, limit: int) -> list[dict[str, Any]]:
         """The faults recorded for `drive` (raised, cleared, duration, snapshot), newest first;
@@ -105,8 +160,9 @@ class MemoryEventStore:
                     break
         return found
 
-    async def history(self, drive: str | None = None, limit: int = 200) -> list[GatewayEvent]:
-        return self.recent(drive, limit)
+    async def history(self, query: EventQuery, limit: int = 200) -> list[GatewayEvent]:
+        found = (event for event in reversed(self._events) if query.matches(event))
+        return list(itertools.islice(found, limit))
 
     async def recorded_faults(self, drive: str, limit: int) -> list[dict[str, Any]]:
         return []
@@ -120,7 +176,15 @@ class Recorder(Protocol):
 
     def record(self, type: str, data: dict[str, Any], *, drive: str | None = None) -> None: ...
 
-    async def recent_events(self, limit: int, drive: str | None = None) -> list[StoredEvent]: ...
+    async def recent_events(
+        self,
+        limit: int,
+        drive: str | None = None,
+        *,
+        types: Sequence[str] = (),
+        since: float | None = None,
+        until: float | None = None,
+    ) -> list[StoredEvent]: ...
 
     async def fault_history(self, drive: str, limit: int) -> list[FaultRecord]: ...
 
@@ -155,13 +219,35 @@ class ConsoleEventsRecorded(MemoryEventStore):
         elif event.kind in AUDIT_KINDS:
             self._store.record(event.kind, _source(event))
 
-    async def history(self, drive: str | None = None, limit: int = 200) -> list[GatewayEvent]:
-        stored = [console_event(event) for event in await self._store.recent_events(limit, drive)]
-        # Modbus-TCP writes reach the store summed up per client, unit and minute; the audit
-        # line of each one, as it happened, is the ring's (since this start).
-        each_write = [e for e in self.recent(drive, limit) if (e.who or "").startswith("tcp:")]
-        merged = sorted([*stored, *each_write], key=lambda event: event.at, reverse=True)
+    async def history(self, query: EventQuery, limit: int = 200) -> list[GatewayEvent]:
+        found = await self._store.recent_events(
+            limit, query.drive, types=query.types(), since=query.since, until=query.until
+        )
+        stored = [e for e in map(console_event, found) if query.matches(e)]
+        merged = sorted([*stored, *await self._pending(query, limit)], key=_time, reverse=True)
         return merged[:limit]
+
+    async def _pending(self, query: EventQuery, limit: int) -> list[GatewayEvent]:
+        """Modbus-TCP writes reach the store summed up per client, drive and minute, once the
+        minute is over: until then each one is shown from the ring (since this start) as it
+        happened, and no longer once its minute's `modbus_writes` is stored (one row each)."""
+        writes = [
+            e
+            for e in self._events
+            if e.kind == "write" and (e.who or "").startswith("tcp:") and query.matches(e)
+        ][-limit:]
+        if not writes:
+            return []
+        since = writes[0].at - TALLY_SLACK_S
+        tallies = await self._store.recent_events(
+            MEMORY_EVENTS, types=("modbus_writes",), since=since - MINUTE_S
+        )
+        spans = [_tally_span(tally) for tally in tallies]
+        return [
+            replace(write, type="modbus_writes", pending=True)
+            for write in reversed(writes)
+            if not any(_covers(span, write) for span in spans)
+        ]
 
     async def recorded_faults(self, drive: str, limit: int) -> list[dict[str, Any]]:
         return [fault.as_json() for fault in await self._store.fault_history(drive, limit)]
@@ -170,12 +256,45 @@ class ConsoleEventsRecorded(MemoryEventStore):
         return self._store.status().reason
 
 
+TALLY_SLACK_S: Final = 1.0
+"""A write is seen by the console's audit and counted in its tally a moment apart."""
+MINUTE_S: Final = 60.0
+
+
+def _time(event: GatewayEvent) -> float:
+    return event.at
+
+
+def _tally_span(tally: StoredEvent) -> tuple[str | None, str | None, float, float]:
+    """(client host, drive, first write, last write) of a stored `modbus_writes`."""
+    data = tally.data
+    last = _epoch(data.get("to"), tally.time)
+    return _text(data.get("client")), _text(data.get("drive")), tally.time, last
+
+
+def _covers(span: tuple[str | None, str | None, float, float], write: GatewayEvent) -> bool:
+    host, drive, first, last = span
+    return (
+        host == client_host(write.who or "")
+        and drive == write.drive
+        and first - TALLY_SLACK_S <= write.at <= last + TALLY_SLACK_S
+    )
+
+
+def _epoch(value: object, default: float) -> float:
+    if not isinstance(value, str):
+        return default
+    try:
+        return datetime.fromisoformat(value).timestamp()
+    except ValueError:
+        return default
+
+
 def _source(event: GatewayEvent) -> dict[str, Any]:
     """An audit event's CR 2.8 fields beside its type, time and id (the store's)."""
-    user = event.who.removeprefix("console:") if event.who else None
     return {
         "category": event.category,
-        "user": user,
+        "user": event.user,
         "address": event.address,
         "result": event.result,
     }
@@ -211,14 +330,19 @@ def console_event(event: StoredEvent) -> GatewayEvent:
         )
         kind, text = "write", str(what)
     elif kind == "modbus_writes":
-        kind, text = "write", f"Modbus-TCP writes: {json.dumps(data, sort_keys=True)}"
+        kind, text = "write", modbus_writes_text(data)
     elif kind in AUDIT_KINDS:
         text = audit_text(kind, data)
+    elif kind == "config_reloaded":
+        text = _reload_text(data)
     else:
-        text = json.dumps(data, sort_keys=True)
+        text = _in_words(data)
     drive = data.get("drive")
     who = data.get("who") or data.get("user") or data.get("source") or data.get("client")
     result = data.get("result")
+    if event.type == "modbus_writes":
+        refused = data.get("refused") or 0
+        result = "ok" if not refused else f"{refused} refused"
     return GatewayEvent(
         kind,
         text,
@@ -230,7 +354,50 @@ def console_event(event: StoredEvent) -> GatewayEvent:
         address=_text(data.get("address")),
         category=_text(data.get("category")),
         id=event.id,
+        type=event.type,
     )
+
+
+CSV_COLUMNS: Final = (
+    *("id", "time", "kind", "type", "drive", "bus", "text"),
+    *("who", "user", "address", "category", "result"),
+)
+
+
+def events_csv(events: Sequence[GatewayEvent]) -> str:
+    """The events as a spreadsheet takes them: one row each, times in UTC (ISO 8601)."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\r\n")
+    writer.writerow(CSV_COLUMNS)
+    for event in events:
+        data = event.to_json()
+        writer.writerow(["" if data[c] is None else data[c] for c in CSV_COLUMNS])
+    return out.getvalue()
+
+
+def modbus_writes_text(data: dict[str, Any]) -> str:
+    """A minute's SCADA writes in words: "12 writes to unit 1 (function 06H, 10H; 2000H, 2001H)"."""
+    writes = data.get("writes")
+    count = f"{writes} write{'' if writes == 1 else 's'}"
+    functions = ", ".join(f"{code}H" for code in data.get("functions") or ())
+    registers = ", ".join(str(register) for register in data.get("registers") or ())
+    what = "; ".join(
+        part for part in (f"function {functions}" if functions else "", registers) if part
+    )
+    return f"{count} to unit {data.get('unit_id')}" + (f" ({what})" if what else "")
+
+
+def _reload_text(data: dict[str, Any]) -> str:
+    changed = ", ".join(map(str, data.get("changed") or ())) or "nothing"
+    waiting = ", ".join(map(str, data.get("restart_needed") or ()))
+    return f"configuration reloaded: {changed}" + (
+        f"; after a restart: {waiting}" if waiting else ""
+    )
+
+
+def _in_words(data: dict[str, Any]) -> str:
+    """An event of a type the console has no sentence for: its fields, not JSON."""
+    return ", ".join(f"{key} {value}" for key, value in data.items() if key != "time")
 
 
 def _text(value: object) -> str | None:

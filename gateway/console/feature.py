@@ -18,6 +18,7 @@ from aiohttp import web
 from gateway.bus import Bus, BusSettings
 from gateway.console.auth import Users
 from gateway.console.deadlines import KEEP_ALIVE_S, DeadlinedSite, RequestDeadlines
+from gateway.console.diagnostics import MqttSession, TcpClients
 from gateway.console.events import EventStore, MemoryEventStore
 from gateway.console.live import LiveState
 from gateway.console.operations import DriveOperations, Policy
@@ -51,6 +52,8 @@ class ConsoleFeature:
         read_only: bool,
         access: AccessPolicy | None,
         events: EventStore | None = None,
+        tcp: TcpClients | None = None,
+        mqtt: MqttSession | None = None,
     ) -> None:
         self.settings = settings
         self.lines = lines
@@ -62,6 +65,9 @@ class ConsoleFeature:
         self.read_only = read_only
         self.access = access
         self.events: EventStore = events if events is not None else MemoryEventStore()
+        self.tcp = tcp
+        self.mqtt = mqtt
+        """What the diagnostics page reads of the Modbus-TCP server and the MQTT bridge."""
         self.console: Console | None = None
         self._runner: web.AppRunner | None = None
         self._site: DeadlinedSite | None = None
@@ -102,6 +108,8 @@ class ConsoleFeature:
             operations=operations,
             traffic=TrafficMonitor(self.buses, labels),
             events=self.events,
+            tcp=self.tcp,
+            mqtt=self.mqtt,
         )
         self._runner = web.AppRunner(
             build_app(self.console),

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from typing import Any, Final
 
 from gateway.bus import Bus, BusSettings, BusState, RequestDone
+from gateway.console.diagnostics import BusCounters
 from gateway.console.events import EventStore, GatewayEvent
 from gateway.modbus.functions import lookup
 from gateway.poller import Poller
@@ -74,6 +75,7 @@ class LiveState:
             name: deque(maxlen=int(MINUTE_S) + 2) for name in buses
         }
         self._bus_states = {name: bus.state for name, bus in buses.items()}
+        self._counters: dict[str, BusCounters] = {}
         self._by_address = {(d.bus, d.address): d.name for d in drives}
 
     # -- poll listener ----------------------------------------------------------------------
@@ -141,7 +143,14 @@ class LiveState:
                     sum(d.line_s for d in list(bus.drive_stats.values())),
                 )
             )
+            self._count(name, bus, now)
             self._bus_state_event(name, bus)
+
+    def _count(self, name: str, bus: Bus, now: float) -> None:
+        counters = self._counters.get(name)
+        if counters is None or counters.stats is not bus.stats:  # new, or replaced by a reload
+            counters = self._counters[name] = BusCounters(bus.stats)
+        counters.sample(now, bus.drive_stats)
 
     def _bus_state_event(self, name: str, bus: Bus) -> None:
         before, now = self._bus_states[name], bus.state
@@ -186,6 +195,21 @@ class LiveState:
             "retries_per_min": _delta(minute, "retries"),
             "queue_depth": bus.queue_depth,
         }
+
+    def line_counters(self) -> list[dict[str, Any]]:
+        """Per bus and per drive: what the line did since the gateway started, and in the last
+        minute (the diagnostics page)."""
+        shown = []
+        for name, bus in self.buses.items():
+            counters = self._counters.get(name)
+            if counters is None or counters.stats is not bus.stats:
+                counters = BusCounters(bus.stats)  # not sampled yet: since start only
+            names = {
+                address: drive for (on, address), drive in self._by_address.items() if on == name
+            }
+            view = counters.view(bus.drive_stats, names)
+            shown.append({**self.bus_view(name), **view})
+        return shown
 
     def drive_view(self, name: str) -> dict[str, Any]:
         drive = self.drives[name]

@@ -23,7 +23,7 @@ def page(
     scripts: Sequence[str] = (),
 ) -> str:
     attributes = " ".join(f'data-{k}="{escape(v)}"' for k, v in data.items())
-    monitor_links = "".join(
+    monitor_links = '<a href="/events">Events</a><a href="/diagnostics">Diagnostics</a>' + "".join(
         f'<a href="/monitor/{escape(bus)}">Monitor {escape(bus)}</a>' for bus in buses
     )
     if who is None or who.via is Via.ANONYMOUS:
@@ -52,6 +52,7 @@ def page(
   <a class="brand" href="/">invt-gateway</a>
   <nav><a href="/">Overview</a>{monitor_links}</nav>
   <div class="user">{user}</div>
+  <span id="zone" class="zone"></span>
 </header>
 <main>
 {body}
@@ -67,29 +68,29 @@ OVERVIEW = """
 <p id="store-banner" class="banner" role="alert" hidden></p>
 <section>
 <h2>Buses</h2>
-<table id="buses" class="grid">
+<div class="scroll"><table id="buses" class="grid cards">
 <thead><tr><th>Bus</th><th>State</th><th>Port</th><th>Format</th><th>Utilisation</th>
 <th>Transactions/s</th><th>Timeouts/min</th><th>Bad replies/min</th><th>Retries/min</th>
 <th>Queue</th><th></th></tr></thead>
 <tbody></tbody>
-</table>
+</table></div>
 </section>
 <section>
 <h2>Drives</h2>
-<table id="drives" class="grid">
+<div class="scroll"><table id="drives" class="grid cards">
 <thead><tr><th>Drive</th><th>Unit id</th><th>Bus / address</th><th>Model</th><th>Online</th>
 <th>State</th><th>Fault</th><th>Output frequency</th><th>Current</th><th>Last answer</th></tr>
 </thead>
 <tbody></tbody>
-</table>
+</table></div>
 </section>
 <section>
-<h2>Events</h2>
-<table id="events" class="grid small">
+<h2>Events <a class="more" href="/events">all events, filters, CSV</a></h2>
+<div class="scroll"><table id="events" class="grid cards small">
 <thead><tr><th>Time</th><th>Event</th><th>Drive / bus</th><th>What</th><th>Who</th>
 <th>Result</th></tr></thead>
 <tbody></tbody>
-</table>
+</table></div>
 </section>
 """
 
@@ -129,21 +130,22 @@ DRIVE = """
 <section>
 <h2>Fault history</h2>
 <div class="columns">
-<table id="fault-history" class="grid small"><thead><tr><th>Parameter</th><th>Fault</th>
-<th>Meaning</th></tr></thead><tbody></tbody></table>
-<table id="drive-events" class="grid small"><thead><tr><th>Time</th><th>Event</th>
-<th>What</th><th>Who</th><th>Result</th></tr></thead><tbody></tbody></table>
+<div class="scroll"><table id="fault-history" class="grid cards small"><thead><tr>
+<th>Parameter</th><th>Fault</th><th>Meaning</th></tr></thead><tbody></tbody></table></div>
+<div class="scroll"><table id="drive-events" class="grid cards small"><thead><tr>
+<th>Time</th><th>Event</th><th>What</th><th>Who</th><th>Result</th></tr></thead><tbody></tbody></table></div>
 </div>
 <h3>Recorded by the gateway</h3>
-<table id="recorded-faults" class="grid small"><thead><tr><th>Raised</th><th>Cleared</th>
-<th>Duration</th><th>Fault</th><th>Hz</th><th>A</th><th>Bus V</th></tr></thead>
-<tbody></tbody></table>
+<div class="scroll"><table id="recorded-faults" class="grid cards small"><thead><tr>
+<th>Raised</th><th>Cleared</th><th>Duration</th><th>Fault</th><th>Hz</th><th>A</th><th>Bus V</th>
+</tr></thead>
+<tbody></tbody></table></div>
 </section>
 <section>
 <h2>Parameters</h2>
 <div id="groups" class="tabs"></div>
-<table id="parameters" class="grid small"><thead><tr><th>Parameter</th><th>Address</th>
-<th>Meaning</th><th>Value</th><th>Raw</th><th></th></tr></thead><tbody></tbody></table>
+<div class="scroll"><table id="parameters" class="grid cards small"><thead><tr>
+<th>Parameter</th><th>Address</th><th>Meaning</th><th>Value</th><th>Raw</th><th></th></tr></thead><tbody></tbody></table></div>
 </section>
 <dialog id="confirm">
 <form method="dialog">
@@ -172,11 +174,11 @@ MONITOR = """
 <button type="button" id="download-csv">Download CSV</button>
 <span id="count" class="muted"></span>
 </form>
-<table id="traffic" class="grid small mono">
+<div class="scroll"><table id="traffic" class="grid small mono">
 <thead><tr><th>Time</th><th>Who asked</th><th>Unit / addr</th><th>Fn</th><th>Meaning</th>
 <th>Outcome</th><th>Latency</th></tr></thead>
 <tbody></tbody>
-</table>
+</table></div>
 """
 
 LOGIN = """
@@ -188,4 +190,41 @@ LOGIN = """
 <button type="submit" id="login-submit">Log in</button>
 <p id="login-error" class="error" role="alert"></p>
 </form>
+"""
+
+EVENTS = """
+<h1>Events <span id="live" class="live">loading…</span></h1>
+<form id="event-filters" class="filters">
+<label>Event <select id="e-kind"><option value="">all</option></select></label>
+<label>Drive <select id="e-drive"><option value="">all</option></select></label>
+<label>From <input id="e-since" class="when" placeholder="YYYY-MM-DD HH:MM"></label>
+<label>To <input id="e-until" class="when" placeholder="YYYY-MM-DD HH:MM"></label>
+<label>Rows <select id="e-limit"><option>100</option><option selected>500</option>
+<option>2000</option></select></label>
+<button type="button" id="e-clear">Clear filters</button>
+<a id="e-csv" class="button" href="/api/events?format=csv" download="events.csv">Download CSV</a>
+<span id="e-count" class="muted"></span>
+</form>
+<div class="scroll"><table id="all-events" class="grid cards small">
+<thead><tr><th>Time</th><th>Event</th><th>Drive / bus</th><th>What</th><th>Who</th>
+<th>Result</th></tr></thead>
+<tbody></tbody>
+</table></div>
+"""
+
+DIAGNOSTICS = """
+<h1>Diagnostics <span id="live" class="live">loading…</span></h1>
+<div id="buses-diagnostics"></div>
+<section>
+<h2>Modbus-TCP clients</h2>
+<div class="scroll"><table id="tcp-clients" class="grid cards small">
+<thead><tr><th>Address</th><th>Connected since</th><th>Requests</th><th>Errors</th>
+<th>In flight</th><th>TLS role</th></tr></thead>
+<tbody></tbody>
+</table></div>
+</section>
+<section>
+<h2>MQTT session</h2>
+<table id="mqtt-session" class="kv"><tbody></tbody></table>
+</section>
 """

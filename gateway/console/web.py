@@ -15,8 +15,10 @@ import contextlib
 import hmac
 import json
 import logging
+import time
 from collections.abc import Awaitable, Callable
 from dataclasses import replace
+from datetime import datetime
 from importlib import resources
 from typing import Any, Final
 from urllib.parse import quote
@@ -36,7 +38,15 @@ from gateway.console.auth import (
     Via,
 )
 from gateway.console.deadlines import mark_requests
-from gateway.console.events import Category, EventStore, GatewayEvent, audit_text
+from gateway.console.diagnostics import MqttSession, TcpClients, tcp_clients_json
+from gateway.console.events import (
+    Category,
+    EventQuery,
+    EventStore,
+    GatewayEvent,
+    audit_text,
+    events_csv,
+)
 from gateway.console.live import LiveState
 from gateway.console.operations import (
     PARAMETER_GROUPS,
@@ -45,6 +55,7 @@ from gateway.console.operations import (
 )
 from gateway.console.traffic import TrafficMonitor
 from gateway.errors import OperationError
+from gateway.poller.drive_state import iso_time
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +63,9 @@ LIVE_PERIOD_S: Final = 0.5
 """The overview and a drive's page are pushed this often: live within a second."""
 HEARTBEAT_S: Final = 15.0
 MAX_JSON: Final = 16 * 1024
+MAX_EVENTS: Final = 2000
+MAX_CSV_EVENTS: Final = 20000
+"""A file of events may hold a shift's worth; a page shows fewer."""
 IDENTITY: Final = web.RequestKey("identity", Identity)
 _SECURITY_HEADERS: Final = {
     # No inline script or style, nothing from elsewhere: a plant network is often offline, and
@@ -81,6 +95,8 @@ class Console:
         operations: DriveOperations,
         traffic: TrafficMonitor,
         events: EventStore,
+        tcp: TcpClients | None = None,
+        mqtt: MqttSession | None = None,
     ) -> None:
         self.users = users
         self.anonymous_view = anonymous_view
@@ -90,6 +106,8 @@ class Console:
         self.operations = operations
         self.traffic = traffic
         self.events = events
+        self.tcp = tcp
+        self.mqtt = mqtt
         self.sessions = Sessions()
         self.throttle = LoginThrottle()
         self.logins = LoginCounts()
@@ -155,6 +173,8 @@ def build_app(console: Console) -> web.Application:
     routes = [
         web.get("/", overview_page),
         web.get("/drives/{name}", drive_page),
+        web.get("/events", events_page),
+        web.get("/diagnostics", diagnostics_page),
         web.get("/monitor", monitor_page),
         web.get("/monitor/{bus}", monitor_page),
         web.get("/login", login_page),
@@ -164,6 +184,7 @@ def build_app(console: Console) -> web.Application:
         web.get("/api/overview", overview),
         web.get("/api/live", live_stream),
         web.get("/api/events", events),
+        web.get("/api/diagnostics", diagnostics),
         web.get("/api/drives/{name}", drive_detail),
         web.get("/api/drives/{name}/chart", drive_chart),
         web.get("/api/drives/{name}/faults", drive_faults),
@@ -300,6 +321,15 @@ async def monitor_page(request: web.Request) -> web.StreamResponse:
     return _html(request, f"Monitor {bus}", pages.MONITOR, {"page": "monitor", "bus": bus})
 
 
+async def events_page(request: web.Request) -> web.StreamResponse:
+    drives = ",".join(request.app[CONSOLE].live.drives)
+    return _html(request, "Events", pages.EVENTS, {"page": "events", "drives": drives})
+
+
+async def diagnostics_page(request: web.Request) -> web.StreamResponse:
+    return _html(request, "Diagnostics", pages.DIAGNOSTICS, {"page": "diagnostics"})
+
+
 async def login_page(request: web.Request) -> web.StreamResponse:
     return _html(request, "Log in", pages.LOGIN, {"page": "login"})
 
@@ -389,9 +419,56 @@ async def overview(request: web.Request) -> web.StreamResponse:
 
 
 async def events(request: web.Request) -> web.StreamResponse:
-    drive = request.query.get("drive")
-    found = await request.app[CONSOLE].events.history(drive=drive, limit=_limit(request))
-    return web.json_response({"events": [e.to_json() for e in found]})
+    """The events, newest first: `?drive=&kind=&since=&until=&limit=`, `&format=csv` for a file."""
+    console = request.app[CONSOLE]
+    as_csv = request.query.get("format") == "csv"
+    limit = _limit(request, maximum=MAX_CSV_EVENTS if as_csv else MAX_EVENTS)
+    found = await console.events.history(_event_query(console, request), limit)
+    if not as_csv:
+        return web.json_response({"events": [e.to_json() for e in found]})
+    response = web.Response(text=events_csv(found), content_type="text/csv", charset="utf-8")
+    response.headers["Content-Disposition"] = 'attachment; filename="events.csv"'
+    return response
+
+
+def _event_query(console: Console, request: web.Request) -> EventQuery:
+    query = request.query
+    drive = query.get("drive") or None
+    if drive is not None and drive not in console.live.drives:
+        raise _error(404, f"drive: no drive named {drive!r}")
+    kinds = frozenset(k.strip() for value in query.getall("kind", []) for k in value.split(","))
+    return EventQuery(
+        drive, kinds - {""}, _time_query(request, "since"), _time_query(request, "until")
+    )
+
+
+def _time_query(request: web.Request, key: str) -> float | None:
+    value = request.query.get(key)
+    if not value:
+        return None
+    try:
+        moment = datetime.fromisoformat(value)
+    except ValueError:
+        moment = None
+    if moment is None or moment.tzinfo is None:
+        raise _error(400, f"{key}: an ISO 8601 time with its zone, e.g. 2026-11-25T06:00:00Z")
+    return moment.timestamp()
+
+
+async def diagnostics(request: web.Request) -> web.StreamResponse:
+    """The line's counters per bus and drive (since start, last minute), the Modbus-TCP
+    clients and the MQTT session: all read from what their owners keep, nothing waits."""
+    console = request.app[CONSOLE]
+    return web.json_response(
+        {
+            "time": iso_time(time.time()),
+            "buses": console.live.line_counters(),
+            "modbus_tcp": None
+            if console.tcp is None
+            else {"clients": tcp_clients_json(console.tcp)},
+            "mqtt": None if console.mqtt is None else console.mqtt.status().to_json(),
+        }
+    )
 
 
 async def drive_detail(request: web.Request) -> web.StreamResponse:
@@ -410,7 +487,7 @@ async def drive_faults(request: web.Request) -> web.StreamResponse:
     console = request.app[CONSOLE]
     name = _drive_name(request)
     history = await _operation(console.operations.fault_history(request[IDENTITY], name))
-    found = await console.events.history(drive=name, limit=_limit(request))
+    found = await console.events.history(EventQuery(drive=name), _limit(request))
     recorded = await console.events.recorded_faults(name, _limit(request))
     return web.json_response(
         {
@@ -571,8 +648,10 @@ def _drive_name(request: web.Request) -> str:
     return name
 
 
-def _limit(request: web.Request, key: str = "limit", default: int = 200) -> int:
+def _limit(
+    request: web.Request, key: str = "limit", default: int = 200, maximum: int = MAX_EVENTS
+) -> int:
     try:
-        return max(0, min(int(request.query.get(key, default)), 2000))
+        return max(0, min(int(request.query.get(key, default)), maximum))
     except ValueError:
         raise _error(400, f"{key}: a whole number") from None

@@ -23,6 +23,7 @@ from collections.abc import Awaitable, Sequence
 import aiomqtt
 
 from gateway.mqtt.commands import CommandDrive, Commands
+from gateway.mqtt.connection import MQTT_5
 from gateway.mqtt.discovery_cleanup import own_discovery_topics, remove_stale_entities
 from gateway.mqtt.dispatcher import Dispatcher
 from gateway.mqtt.kinds import Context, command_kinds
@@ -30,7 +31,7 @@ from gateway.mqtt.lanes import Lanes
 from gateway.mqtt.outbox import Outbox
 from gateway.mqtt.publisher import Publisher
 from gateway.mqtt.session import Session
-from gateway.mqtt.stats import BridgeStats
+from gateway.mqtt.stats import BridgeStats, SessionStatus
 from gateway.mqtt.topics import Topics
 from gateway.poller import DriveEvent, Poller
 from gateway.profile.telemetry import Telemetry
@@ -93,6 +94,25 @@ class MqttBridge:
     @property
     def connected(self) -> asyncio.Event:
         return self.session.connected
+
+    def status(self) -> SessionStatus:
+        """The session in a few figures, read from what the parts keep anyway: cheap."""
+        session, settings = self.session, self.settings
+        store = self.publisher.events.stats
+        return SessionStatus(
+            broker=f"{settings.host}:{settings.port}",
+            tls=settings.tls,
+            protocol="5" if session.protocol == MQTT_5 else "3.1.1",
+            connected=session.connected.is_set(),
+            connected_since=session.connected_since,
+            queued=store.undelivered,
+            dropped=store.events_dropped,
+            last_error=session.last_error,
+            last_error_at=session.last_error_at,
+            connects=self.stats.connects,
+            connect_failures=self.stats.connect_failures,
+            published=self.stats.published,
+        )
 
     # -- PollListener: called by the poller, return at once ----------------------------------
 

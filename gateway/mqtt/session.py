@@ -20,6 +20,7 @@ import asyncio
 import contextlib
 import logging
 import ssl
+import time
 from collections.abc import Awaitable, Callable, Iterable
 
 import aiomqtt
@@ -79,6 +80,11 @@ class Session:
         self._tls: ssl.SSLContext | None = None
         self._stopping = False
         """Set by `stop`: the loop ends at its next turn, whatever swallowed the cancellation."""
+        self.connected_since: float | None = None
+        """Wall clock of the connection now up; None while there is none."""
+        self.last_error: str | None = None
+        """Why the last connection failed or was lost (kept after a reconnect: it happened)."""
+        self.last_error_at: float | None = None
 
     async def start(self) -> None:
         self._stopping = False  # a reload stops the bridge and starts it again
@@ -142,22 +148,25 @@ class Session:
                     await self._connected(client)
             except* aiomqtt.MqttError as group:
                 # Refused MQTT 5: again at once, in 3.1.1; the broker is there, it answered.
+                self._note_error(group.exceptions[0])
                 retry_at_once = self._choose_protocol_after(group.exceptions[0])
                 if not retry_at_once:
                     failures += 1
                     self.stats.connect_failures += 1
                     self._log_failure(failures, group.exceptions[0])
-            except* Exception:
+            except* Exception as failure:
                 # A bug, or a client that can't be built: not the broker, but the bridge must not
                 # die of it either. The whole story once, then a line per attempt.
                 failures += 1
                 self.stats.connect_failures += 1
+                self._note_error(failure.exceptions[0])
                 if failures == 1:
                     log.exception("MQTT bridge failed; retrying with backoff")
                 else:
                     log.debug("MQTT bridge failed again (attempt %d)", failures, exc_info=True)
             finally:
                 self._client = None
+                self.connected_since = None
                 self.connected.clear()
                 self._on_lost()
             if self._stopping:
@@ -166,6 +175,10 @@ class Session:
                 retry_at_once = False
                 continue
             await asyncio.sleep(backoff.next_delay())
+
+    def _note_error(self, error: BaseException) -> None:
+        self.last_error = str(error) or type(error).__name__
+        self.last_error_at = time.time()
 
     def _choose_protocol_after(self, error: BaseException) -> bool:
         """After a failed attempt, before any succeeded: the protocol to try next. True: try it
@@ -207,6 +220,7 @@ class Session:
     async def _connected(self, client: aiomqtt.Client) -> None:
         self._settle()
         self.stats.connects += 1
+        self.connected_since = time.time()
         log.info(
             "MQTT: connected to %s:%d as %s", self.mqtt.host, self.mqtt.port, self.mqtt.client_id
         )

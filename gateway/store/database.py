@@ -311,14 +311,33 @@ class EventDatabase:
     def undelivered_count(self) -> int:
         return _count(self.db, "SELECT count(*) FROM events WHERE delivered = 0")
 
-    def recent(self, limit: int, drive: str | None) -> list[StoredEvent]:
-        """The newest `limit` events (of `drive`), newest first."""
-        if drive is None:
-            sql, args = "SELECT id, type, time, data FROM events ORDER BY id DESC LIMIT ?", (limit,)
-        else:
-            sql = "SELECT id, type, time, data FROM events WHERE drive = ? ORDER BY id DESC LIMIT ?"
-            args = (drive, limit)  # type: ignore[assignment]
-        return [_event(row) for row in self.db.execute(sql, args).fetchall()]
+    def recent(
+        self,
+        limit: int,
+        drive: str | None,
+        types: Sequence[str] = (),
+        since: float | None = None,
+        until: float | None = None,
+    ) -> list[StoredEvent]:
+        """The newest `limit` events (of `drive`, of one of `types`, at `since` or later and
+        before `until`), newest first."""
+        where: list[str] = []
+        args: list[object] = []
+        if drive is not None:
+            where.append("drive = ?")
+            args.append(drive)
+        if types:
+            where.append(f"type IN ({', '.join('?' for _ in types)})")
+            args.extend(types)
+        if since is not None:
+            where.append("time >= ?")
+            args.append(since)
+        if until is not None:
+            where.append("time < ?")
+            args.append(until)
+        condition = f"WHERE {' AND '.join(where)} " if where else ""
+        sql = f"SELECT id, type, time, data FROM events {condition}ORDER BY id DESC LIMIT ?"
+        return [_event(row) for row in self.db.execute(sql, (*args, limit)).fetchall()]
 
     def faults(self, drive: str, limit: int) -> list[FaultRecord]:
         """The newest `limit` faults of `drive`, newest first."""

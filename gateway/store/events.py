@@ -29,7 +29,7 @@ import itertools
 import logging
 import time
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from typing import Final, TypeVar
@@ -318,9 +318,18 @@ class EventStore:
 
     # -- reading: MQTT requests, the console ------------------------------------------------------
 
-    async def recent_events(self, limit: int, drive: str | None = None) -> list[StoredEvent]:
-        """The newest `limit` events (of `drive`), newest first."""
-        return await self._call(self._db.recent, limit, drive)
+    async def recent_events(
+        self,
+        limit: int,
+        drive: str | None = None,
+        *,
+        types: Sequence[str] = (),
+        since: float | None = None,
+        until: float | None = None,
+    ) -> list[StoredEvent]:
+        """The newest `limit` events (of `drive`, of one of `types`, from `since` to before
+        `until`, in epoch seconds), newest first."""
+        return await self._call(self._db.recent, limit, drive, tuple(types), since, until)
 
     async def fault_history(self, drive: str, limit: int) -> list[FaultRecord]:
         """The newest `limit` faults of `drive`, newest first."""

@@ -60,7 +60,7 @@ class WriteTally:
         if not pdu or not lookup(pdu[0]).writes:
             return
         now = time.time()
-        key = (_host(client), unit_id, int(now // MINUTE_S))
+        key = (client_host(client), unit_id, int(now // MINUTE_S))
         tally = self._tallies.get(key)
         if tally is None:
             tally = self._tallies[key] = _Tally(now, now)
@@ -129,7 +129,7 @@ def _tally_key(key: tuple[str, int, int]) -> str:
     return f"modbus_writes {client} {unit_id} {minute}"
 
 
-def _host(client: str) -> str:
+def client_host(client: str) -> str:
     """ "tcp:10.0.0.5:51234" → "10.0.0.5" (the port changes with each connection)."""
     address = client.removeprefix("tcp:")
     host, _, port = address.rpartition(":")

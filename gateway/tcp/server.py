@@ -32,6 +32,7 @@ import ipaddress
 import logging
 import socket
 import ssl
+import time
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
 from typing import cast
@@ -110,6 +111,22 @@ class TlsListener:
         context.load_cert_chain(self.cert_file, self.key_file)
         context.load_verify_locations(self.ca_file)
         return context
+
+
+@dataclass(frozen=True, slots=True)
+class ClientStatus:
+    """One open Modbus-TCP connection, as a diagnostics page shows it."""
+
+    client: str
+    """"tcp:ADDRESS:PORT", as the bus, the traffic monitor and the audit name it."""
+    connected_at: float
+    """Wall clock (epoch seconds)."""
+    requests: int
+    errors: int
+    """Requests answered with an exception (the drive's, or the gateway's: 0AH, 0BH...)."""
+    in_flight: int
+    tls: bool
+    role: str | None
 
 
 class ModbusTcpServer:
@@ -277,6 +294,23 @@ class ModbusTcpServer:
         self._connections.discard(oldest)  # its slot is free now, whatever its close does
         return True
 
+    def clients(self) -> list[ClientStatus]:
+        """The open connections, oldest first: a few attributes each, for a diagnostics page."""
+        loop = asyncio.get_running_loop()
+        to_wall = time.time() - loop.time()
+        return [
+            ClientStatus(
+                c.client,
+                c.connected_at + to_wall,
+                c.requests,
+                c.errors,
+                c.in_flight,
+                c.tls,
+                c.role,
+            )
+            for c in sorted(self._connections, key=lambda c: c.connected_at)
+        ]
+
     def forget(self, connection: Connection) -> None:
         self._connections.discard(connection)
         self.stats.active.discard(connection.client)
@@ -388,6 +422,10 @@ class Connection(asyncio.Protocol):
         self._idle_due = float("inf")
         self.role: str | None = None
         """A TLS client's role, from its certificate; None on the plain listener."""
+        self.tls = False
+        self.requests = 0
+        self.errors = 0
+        """Requests of this connection answered with an exception (for diagnostics)."""
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         # A stream transport: asyncio's, or uvloop's (which doesn't derive from asyncio's
@@ -397,6 +435,7 @@ class Connection(asyncio.Protocol):
         self.host = str(peer[0])
         self.client = f"tcp:{peer[0]}:{peer[1]}"
         secure = transport.get_extra_info("ssl_object")
+        self.tls = secure is not None
         if secure is not None and self.server.settings.tls is not None:
             # The handshake is done: the certificate is one the configured CA signed.
             role_map = self.server.settings.tls.role_map
@@ -482,6 +521,7 @@ class Connection(asyncio.Protocol):
             if buffer:
                 self._frame_started = self._last_data  # the next frame began in the last chunk
             self.server.stats.requests += 1
+            self.requests += 1
             write = not changes_nothing(pdu)
             checked = False
             if write:
@@ -534,6 +574,8 @@ class Connection(asyncio.Protocol):
         return True
 
     def _send(self, transaction_id: int, unit_id: int, reply: bytes) -> None:
+        if reply and reply[0] & 0x80:
+            self.errors += 1
         transport = self._transport
         if transport is not None and not transport.is_closing():
             # One write per frame: answers finishing in any order never interleave.
@@ -553,6 +595,7 @@ class Connection(asyncio.Protocol):
         stats = self.server.stats
         stats.write_limited += 1
         stats.exceptions += 1
+        self.errors += 1
         if self._transport is not None and not self._transport.is_closing():
             reply = exception_pdu(pdu[0], ExceptionCode.GATEWAY_PATH_UNAVAILABLE)
             self._transport.write(build_adu(transaction_id, unit_id, reply))

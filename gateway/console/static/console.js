@@ -26,11 +26,33 @@ function fmt(value, decimals, unit) {
   return unit ? `${number} ${unit}` : number;
 }
 
-function timeOf(iso) {
-  if (!iso) return "–";
-  const date = new Date(iso);
-  return date.toLocaleTimeString([], { hour12: false }) + "." +
-    String(date.getMilliseconds()).padStart(3, "0");
+// One time format everywhere: the ISO date and the 24-hour clock, in this browser's time zone,
+// which the header names. The gateway sends UTC (ISO 8601 with Z); files downloaded keep that.
+function pad(number, width) { return String(number).padStart(width || 2, "0"); }
+
+function clock(date, seconds) {
+  const time = `${pad(date.getHours())}:${pad(date.getMinutes())}`;
+  return seconds ? `${time}:${pad(date.getSeconds())}` : time;
+}
+
+function stamp(value, milliseconds) {
+  if (value === null || value === undefined || value === "") return "–";
+  const date = typeof value === "number" ? new Date(value * 1000) : new Date(value);
+  if (Number.isNaN(date.getTime())) return String(value);
+  const day = `${date.getFullYear()}-${pad(date.getMonth() + 1)}-${pad(date.getDate())}`;
+  return `${day} ${clock(date, true)}${milliseconds ? `.${pad(date.getMilliseconds(), 3)}` : ""}`;
+}
+
+function zoneName() {
+  const minutes = -new Date().getTimezoneOffset();
+  const offset = `UTC${minutes < 0 ? "-" : "+"}${pad(Math.floor(Math.abs(minutes) / 60))}:` +
+    pad(Math.abs(minutes) % 60);
+  const name = Intl.DateTimeFormat().resolvedOptions().timeZone;
+  return name && name !== "UTC" ? `${name} (${offset})` : offset;
+}
+
+function timeCell(value, milliseconds) {
+  return el("td", { class: "time" }, stamp(value, milliseconds));
 }
 
 function toast(text, kind) {
@@ -129,22 +151,38 @@ function driveRow(drive) {
     el("td", { class: "fault" }, fault),
     el("td", { class: "frequency num" }, fmt(drive.output_frequency_hz, 2, "Hz")),
     el("td", { class: "current num" }, fmt(drive.output_current_a, 1, "A")),
-    el("td", {}, timeOf(drive.last_answer)));
+    timeCell(drive.last_answer));
+}
+
+function eventWhat(event) {
+  // "write (control)", "modbus writes", "login failed (authentication)"
+  const kind = (event.type === "modbus_writes" ? "Modbus-TCP write" : event.kind).replace(/_/g, " ");
+  const category = event.category ? ` (${event.category})` : "";
+  return `${kind}${category}${event.pending ? " · this minute" : ""}`;
+}
+
+function eventWho(event) {
+  const who = event.user ? `${event.user}${event.who && event.who.startsWith("console") ? " (console)" : ""}` : event.who;
+  return event.address && who !== event.address ? `${who || "?"} from ${event.address}` : (who || "");
 }
 
 function eventRow(event, withDrive) {
-  const cells = [el("td", {}, timeOf(event.time)), el("td", {}, event.kind.replace(/_/g, " "))];
+  const cells = [timeCell(event.time), el("td", {}, eventWhat(event))];
   if (withDrive) cells.push(el("td", {}, event.drive || event.bus || ""));
-  cells.push(el("td", {}, event.text), el("td", {}, event.who || ""),
+  cells.push(el("td", {}, event.text), el("td", {}, eventWho(event)),
     el("td", { class: event.result && event.result !== "ok" ? "warn" : "" }, event.result || ""));
-  return el("tr", { class: `event ${event.kind}` }, ...cells);
+  return el("tr", { class: `event ${event.kind}`, "data-id": event.id }, ...cells);
 }
 
 function fill(tableId, rows, empty) {
   const tbody = document.querySelector(`#${tableId} tbody`);
+  const headings = [...document.querySelectorAll(`#${tableId} thead th`)].map((th) => th.textContent);
   if (!rows.length && empty) {
-    const columns = document.querySelectorAll(`#${tableId} thead th`).length;
-    rows = [el("tr", {}, el("td", { colSpan: columns, class: "muted" }, empty))];
+    rows = [el("tr", {}, el("td", { colSpan: headings.length, class: "muted" }, empty))];
+  }
+  // Each cell knows its column's name: on a phone a row is a card of "name value" lines.
+  for (const row of rows) {
+    [...row.cells].forEach((cell, i) => { if (cell.colSpan === 1 && headings[i]) cell.dataset.label = headings[i]; });
   }
   tbody.replaceChildren(...rows);
 }
@@ -182,7 +220,7 @@ const VALUE_ROWS = [
   ["output_torque_pct", "Output torque", (v) => fmt(v, 1, "%")],
   ["command_source", "Command source", (v) => v || "–"],
   ["ready", "Ready", (v) => (v === undefined ? "–" : (v ? "yes" : "no"))],
-  ["last_seen", "Last answer", (v) => timeOf(v)],
+  ["last_seen", "Last answer", (v) => stamp(v)],
 ];
 
 const CHARTS = [
@@ -191,18 +229,30 @@ const CHARTS = [
   ["chart-voltage", 3, "Bus voltage", "V", "#059669"],
 ];
 
+const CHART_HEIGHT = 180;
+
 function makeCharts(columns) {
   return CHARTS.map(([id, index, label, unit, color]) => {
     const box = document.getElementById(id);
-    const width = Math.max(280, box.clientWidth || 360);
     const options = {
-      title: `${label} (${unit})`, width, height: 180,
+      title: `${label} (${unit})`, width: box.clientWidth || 360, height: CHART_HEIGHT,
       scales: { x: { time: true } },
       series: [{}, { label, stroke: color, width: 2, spanGaps: false }],
-      axes: [{}, { size: 50 }],
+      // The 24-hour clock as everywhere else (uPlot's own labels are 12-hour), far enough apart
+      // that two labels never overlap: seconds only when ticks are less than a minute apart.
+      axes: [
+        { space: 80, values: (u, ticks, axis, space, step) =>
+          ticks.map((tick) => clock(new Date(tick * 1000), step < 60)) },
+        { size: 50 },
+      ],
       legend: { show: false },
     };
     const plot = new uPlot(options, [columns[0], columns[index]], box);
+    // The chart follows its box (a window resized, a phone turned), not the width at load.
+    new ResizeObserver(() => {
+      const width = box.clientWidth;
+      if (width && Math.abs(width - plot.width) > 1) plot.setSize({ width, height: CHART_HEIGHT });
+    }).observe(box);
     return { plot, index };
   });
 }
@@ -260,7 +310,7 @@ async function loadFaults(name) {
     fill("recorded-faults", (data.recorded_faults || []).map((f) => {
       const s = f.snapshot || {};
       return el("tr", { class: f.cleared ? "" : "fault" },
-        el("td", {}, f.raised), el("td", {}, f.cleared || "still raised"),
+        timeCell(f.raised), f.cleared ? timeCell(f.cleared) : el("td", {}, "still raised"),
         el("td", {}, f.duration_s === null ? "-" : `${f.duration_s} s`),
         el("td", {}, `${f.code} ${f.name}`), el("td", {}, String(s.output_frequency_hz ?? "-")),
         el("td", {}, String(s.output_current_a ?? "-")), el("td", {}, String(s.bus_voltage_v ?? "-")));
@@ -405,7 +455,7 @@ function monitorPage() {
         el("div", { class: "hex" }, `← ${r.reply_hex || "(nothing)"}`));
     }
     return el("tr", { "data-seq": r.seq, class: outcomeClass(r) },
-      el("td", {}, timeOf(r.time)), el("td", {}, r.client),
+      timeCell(r.time, true), el("td", {}, r.client),
       el("td", {}, `${r.unit_id ?? "–"} / ${r.address}${r.drive ? ` ${r.drive}` : ""}`),
       el("td", {}, r.function), meaning,
       el("td", { class: "outcome" }, r.outcome), el("td", { class: "num" }, `${r.latency_ms} ms`));
@@ -471,6 +521,180 @@ function monitorPage() {
   render();
 }
 
+// -- events ----------------------------------------------------------------------------------
+
+const EVENT_KINDS = [
+  ["write", "writes (all)"], ["command", "commands (console, MQTT)"],
+  ["modbus_writes", "Modbus-TCP writes"], ["fault_raised", "fault raised"],
+  ["fault_cleared", "fault cleared"], ["drive_offline", "drive offline"],
+  ["drive_online", "drive online"], ["port_lost", "port lost"], ["port_back", "port back"],
+  ["login", "login"], ["login_failed", "failed login"], ["logout", "logout"],
+  ["config_reloaded", "configuration reloaded"],
+];
+
+function parseStamp(text) {
+  // "2026-11-25 06:00" (seconds optional, a date alone is its midnight), as the tables write
+  // times: this browser's zone. Null when it is not one; undefined when empty.
+  if (!text.trim()) return undefined;
+  const m = /^(\d{4})-(\d{2})-(\d{2})(?:[ T](\d{2}):(\d{2})(?::(\d{2}))?)?$/.exec(text.trim());
+  if (!m) return null;
+  const date = new Date(+m[1], m[2] - 1, +m[3], +(m[4] || 0), +(m[5] || 0), +(m[6] || 0));
+  return Number.isNaN(date.getTime()) ? null : date;
+}
+
+function eventsPage() {
+  const field = {
+    kind: document.getElementById("e-kind"), drive: document.getElementById("e-drive"),
+    since: document.getElementById("e-since"), until: document.getElementById("e-until"),
+    limit: document.getElementById("e-limit"),
+  };
+  for (const [kind, label] of EVENT_KINDS) field.kind.append(el("option", { value: kind }, label));
+  for (const drive of (body.dataset.drives || "").split(",").filter(Boolean)) {
+    field.drive.append(el("option", { value: drive }, drive));
+  }
+  const asked = new URLSearchParams(location.search);
+  field.kind.value = asked.get("kind") || "";
+  field.drive.value = asked.get("drive") || "";
+  field.since.value = asked.get("since") ? stamp(asked.get("since")) : "";
+  field.until.value = asked.get("until") ? stamp(asked.get("until")) : "";
+  if (asked.get("limit")) field.limit.value = asked.get("limit");
+  const query = () => {
+    const q = new URLSearchParams();
+    if (field.kind.value) q.set("kind", field.kind.value);
+    if (field.drive.value) q.set("drive", field.drive.value);
+    // The fields hold this browser's local time; the API takes ISO 8601 with its zone (UTC).
+    for (const key of ["since", "until"]) {
+      const date = parseStamp(field[key].value);
+      field[key].setCustomValidity(date === null ? "a time as 2026-11-25 06:00" : "");
+      if (date === null) return null;
+      if (date) q.set(key, date.toISOString());
+    }
+    q.set("limit", field.limit.value);
+    return q;
+  };
+  const live = document.getElementById("live");
+  const load = async () => {
+    const q = query();
+    if (q === null) {
+      live.textContent = "a time as 2026-11-25 06:00";
+      live.className = "live off";
+      return;
+    }
+    history.replaceState(null, "", `/events?${q}`);
+    const csv = new URLSearchParams(q);
+    csv.set("format", "csv");
+    csv.delete("limit");
+    document.getElementById("e-csv").href = `/api/events?${csv}`;
+    try {
+      const data = await api(`/api/events?${q}`);
+      fill("all-events", data.events.map((e) => eventRow(e, true)), "no event matches");
+      document.getElementById("e-count").textContent =
+        `${data.events.length} event${data.events.length === 1 ? "" : "s"}, newest first`;
+      live.textContent = field.until.value ? "as asked" : "live";
+      live.className = "live on";
+    } catch (error) {
+      live.textContent = error.message;
+      live.className = "live off";
+    }
+  };
+  Object.values(field).forEach((f) => f.addEventListener("change", load));
+  document.getElementById("event-filters").addEventListener("submit", (event) => {
+    event.preventDefault();  // Enter in a time field: apply it, stay on the page
+    load();
+  });
+  document.getElementById("e-clear").addEventListener("click", () => {
+    field.kind.value = field.drive.value = field.since.value = field.until.value = "";
+    load();
+  });
+  load();
+  setInterval(() => { if (!field.until.value) load(); }, 5000);
+}
+
+// -- diagnostics -----------------------------------------------------------------------------
+
+const LINE_COUNTS = [
+  ["sent", "Frames sent"], ["replies", "Replies"], ["timeouts", "Timeouts"],
+  ["crc_errors", "CRC errors"], ["bad_replies", "Other bad replies"], ["exceptions", "Exceptions"],
+  ["retries", "Retries"], ["late_replies", "Late replies"], ["failed", "Failed requests"],
+];
+const TROUBLE = new Set(["timeouts", "crc_errors", "bad_replies", "exceptions", "late_replies", "failed"]);
+
+function exceptionsText(list) {
+  return list.length ? list.map((e) => `${e.code} ${e.name}: ${e.count}`).join(", ") : "0";
+}
+
+function countCell(key, total, minute) {
+  // Since start, and the last minute under it: a counter that grows now stands out.
+  const show = key === "exceptions" ? exceptionsText : String;
+  const now = key === "exceptions" ? minute.length : minute;
+  return el("td", { class: `num count ${TROUBLE.has(key) && now ? "warn" : ""}` },
+    el("span", {}, el("span", {}, show(total)), el("span", { class: "minute" }, `${show(minute)} last min`)));
+}
+
+function countsRow(label, scope, attrs) {
+  return el("tr", attrs, el("th", {}, label),
+    ...LINE_COUNTS.map(([key]) => countCell(key, scope.since_start[key], scope.last_minute[key])));
+}
+
+function busDiagnostics(bus) {
+  const tableId = `counts-${bus.name}`;
+  const head = el("tr", {}, el("th", {}, "Bus / drive"), ...LINE_COUNTS.map(([, label]) => el("th", {}, label)));
+  const section = el("section", { "data-bus": bus.name },
+    el("h2", {}, `Bus ${bus.name} `, el("span", { class: `badge ${bus.state}` }, bus.state)),
+    el("p", { class: "muted" },
+      `${bus.port} · ${bus.format} · counting since ${stamp(bus.counting_since)} · ` +
+      `${bus.requests} requests, ${bus.queue_full} refused (queue full), ` +
+      `${bus.coalesced} shared, ${bus.port_errors} port errors, ${bus.reopens} reopens`),
+    el("div", { class: "scroll" },
+      el("table", { id: tableId, class: "grid cards small diagnostics" }, el("thead", {}, head), el("tbody"))));
+  return section;
+}
+
+function diagnosticsPage() {
+  const holder = document.getElementById("buses-diagnostics");
+  const live = document.getElementById("live");
+  const show = (data) => {
+    for (const bus of data.buses) {
+      const id = `counts-${bus.name}`;
+      if (!document.getElementById(id)) holder.append(busDiagnostics(bus));
+      const rows = [countsRow(`${bus.name} (all)`, bus, { class: "total" })].concat(
+        bus.drives.map((d) => countsRow(d.drive ? `${d.drive} (${d.address})` : `address ${d.address}`,
+          d, { "data-drive": d.drive || "" })));
+      fill(id, rows);
+    }
+    const clients = data.modbus_tcp ? data.modbus_tcp.clients : [];
+    fill("tcp-clients", clients.map((c) => el("tr", { "data-client": c.client },
+      el("td", { class: "mono" }, c.address), timeCell(c.connected_since),
+      el("td", { class: "num" }, c.requests), el("td", { class: `num ${c.errors ? "warn" : ""}` }, c.errors),
+      el("td", { class: "num" }, c.in_flight), el("td", {}, c.tls ? (c.role || "TLS, no role") : "plain"))),
+    "no Modbus-TCP client connected");
+    const m = data.mqtt;
+    const rows = m ? [
+      ["Broker", `${m.broker}${m.tls ? " (TLS)" : ""}`],
+      ["Protocol", `MQTT ${m.protocol}`],
+      ["Connected", m.connected ? `yes, since ${stamp(m.connected_since)}` : "no"],
+      ["Events queued", String(m.queued)],
+      ["Events dropped", String(m.dropped)],
+      ["Last error", m.last_error ? `${m.last_error} (${stamp(m.last_error_at)})` : "none"],
+      ["Connections", `${m.connects} made, ${m.connect_failures} failed`],
+      ["Published", String(m.published)],
+    ] : [["MQTT", "not configured"]];
+    fill("mqtt-session", rows.map(([k, v]) => el("tr", { "data-key": k }, el("th", {}, k), el("td", {}, v))));
+  };
+  const load = async () => {
+    try {
+      show(await api("/api/diagnostics"));
+      live.textContent = "live";
+      live.className = "live on";
+    } catch (error) {
+      live.textContent = error.message;
+      live.className = "live off";
+    }
+  };
+  load();
+  setInterval(load, 2000);
+}
+
 // -- login -----------------------------------------------------------------------------------
 
 function loginPage() {
@@ -493,8 +717,13 @@ function loginPage() {
 }
 
 (async () => {
+  const zone = document.getElementById("zone");
+  if (zone) zone.textContent = `times in ${zoneName()}`;
   await loadSession();
-  const pages = { overview: overviewPage, drive: drivePage, monitor: monitorPage, login: loginPage };
+  const pages = {
+    overview: overviewPage, drive: drivePage, monitor: monitorPage, events: eventsPage,
+    diagnostics: diagnosticsPage, login: loginPage,
+  };
   const start = pages[body.dataset.page];
   if (start) start();
 })();

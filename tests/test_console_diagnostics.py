@@ -1,0 +1,133 @@
+"""The console's diagnostics against the gateway on the simulated line: the line's counters per
+bus and per drive since start and in the last minute, the Modbus-TCP clients, the MQTT session
+with a real Mosquitto (and without one)."""
+
+from __future__ import annotations
+
+import struct
+from typing import Any
+
+from gateway.app import Application
+from gateway.config import GatewayConfig, MqttConfig
+from gateway.instruments.simulator import SimulatedLine
+from tests.console_support import VIEWER_PASSWORD, ConsoleClient, console_client, console_config
+from tests.mosquitto import Mosquitto
+from tests.mosquitto import mosquitto as mosquitto
+from tests.support import TcpClient, eventually, free_port, running_gateway
+
+NOT_A_REGISTER = 0x0F00
+ILLEGAL_DATA_ADDRESS = 0x02
+
+
+def with_mqtt(config: GatewayConfig, host: str, port: int) -> GatewayConfig:
+    mqtt = MqttConfig.model_validate(
+        {"host": host, "port": port, "base_topic": "diagnostics", "reconnect_max_s": 1.0}
+    )
+    return config.model_copy(update={"mqtt": mqtt})
+
+
+async def diagnostics(web: ConsoleClient) -> dict[str, Any]:
+    found: dict[str, Any] = await web.get_json("/api/diagnostics")
+    return found
+
+
+def drive_counts(found: dict[str, Any], drive: str) -> dict[str, Any]:
+    (bus,) = found["buses"]
+    counted: dict[str, Any] = next(d for d in bus["drives"] if d["drive"] == drive)
+    return counted
+
+
+async def test_line_counters_per_drive_since_start_and_in_the_last_minute(
+    line: SimulatedLine,
+) -> None:
+    async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
+        assert (await web.login("victor", VIEWER_PASSWORD)).status == 200
+        # A SCADA read of a register pump1 doesn't have: the drive answers exception 02H.
+        client = await TcpClient.connect(app.tcp.port)
+        reply = await client.request(1, struct.pack(">BHH", 0x03, NOT_A_REGISTER, 1))
+        assert reply == bytes([0x83, ILLEGAL_DATA_ADDRESS])
+        line.set_dead(2)
+
+        async def fan2_timed_out() -> bool:
+            counted = drive_counts(await diagnostics(web), "fan2")
+            return bool(counted["last_minute"]["timeouts"])
+
+        await eventually(fan2_timed_out, every_s=0.1)
+        found = await diagnostics(web)
+        (bus,) = found["buses"]
+        assert (bus["name"], bus["state"]) == ("line1", "open")
+        assert bus["requests"] > 0
+        assert bus["since_start"]["sent"] >= bus["last_minute"]["sent"] > 0
+        pump = drive_counts(found, "pump1")
+        assert pump["address"] == 1
+        assert pump["since_start"]["exceptions"] == [
+            {"code": "02H", "name": "illegal_data_address", "count": 1}
+        ]
+        assert pump["since_start"]["replies"] == pump["since_start"]["sent"]
+        assert pump["since_start"]["timeouts"] == 0
+        fan = drive_counts(found, "fan2")
+        assert fan["since_start"]["timeouts"] >= fan["last_minute"]["timeouts"] > 0
+        assert fan["since_start"]["failed"] > 0
+        total = bus["since_start"]
+        assert total["timeouts"] == sum(d["since_start"]["timeouts"] for d in bus["drives"])
+        assert total["sent"] == sum(d["since_start"]["sent"] for d in bus["drives"])
+        # The client that asked is listed while connected, with its requests and errors.
+        (listed,) = found["modbus_tcp"]["clients"]
+        host, port = client.writer.get_extra_info("sockname")[:2]
+        assert listed["address"] == f"{host}:{port}"
+        assert (listed["requests"], listed["errors"], listed["tls"]) == (1, 1, False)
+        assert listed["connected_since"].endswith("Z")
+        await client.close()
+
+        async def no_client() -> bool:
+            return not (await diagnostics(web))["modbus_tcp"]["clients"]
+
+        await eventually(no_client, every_s=0.1)
+        assert found["mqtt"] is None
+
+
+async def test_the_mqtt_session_with_its_broker_and_without(
+    line: SimulatedLine, mosquitto: Mosquitto
+) -> None:
+    config = with_mqtt(console_config(line.path), mosquitto.host, mosquitto.port)
+    async with running_gateway(config) as app, console_client(app) as web:
+        assert (await web.login("victor", VIEWER_PASSWORD)).status == 200
+        await connected(app)
+        session = (await diagnostics(web))["mqtt"]
+        assert session["broker"] == f"{mosquitto.host}:{mosquitto.port}"
+        assert (session["protocol"], session["tls"], session["connected"]) == ("5", False, True)
+        assert session["connected_since"].endswith("Z")
+        assert (session["dropped"], session["last_error"]) == (0, None)
+        assert session["queued"] >= 0
+        mosquitto.stop()
+
+        async def lost() -> bool:
+            return not (await diagnostics(web))["mqtt"]["connected"]
+
+        await eventually(lost, every_s=0.1)
+        session = (await diagnostics(web))["mqtt"]
+        assert session["connected_since"] is None
+        assert session["last_error"]
+        assert session["last_error_at"].endswith("Z")
+
+
+async def test_no_broker_there_is_a_last_error(line: SimulatedLine) -> None:
+    config = with_mqtt(console_config(line.path), "127.0.0.1", free_port())
+    async with running_gateway(config) as app, console_client(app) as web:
+        assert (await web.login("victor", VIEWER_PASSWORD)).status == 200
+
+        async def failed() -> bool:
+            return bool((await diagnostics(web))["mqtt"]["last_error"])
+
+        await eventually(failed, every_s=0.1)
+        session = (await diagnostics(web))["mqtt"]
+        assert session["connected"] is False
+        assert session["connect_failures"] >= 1
+        assert session["connects"] == 0
+
+
+async def connected(app: Application) -> None:
+    async def up() -> bool:
+        return app.mqtt.connected.is_set()
+
+    await eventually(up)
