@@ -1,0 +1,368 @@
+"""A Modbus device described by a device file (a meter, a transmitter, remote I/O): its
+`DeviceProfile`, one implementation of `DriveProfile`.
+
+A device file is YAML: the device's name and maker, where its map comes from (`source`), how it
+may be read (`max_registers`, `max_bits`, `max_gap`, `interval_ms`) and its points, each a
+telemetry key (see `point_types` for the types and orders). Shipped files live in
+`data/devices/` and are named by their file name (`model: sdm630`); a site's own file is named
+by its path (`model: file:/etc/invt-gateway/devices/mymeter.yaml`).
+
+A device file is checked whole when it is loaded: every mistake is named by its file and key path
+("mymeter.yaml: points.voltage.type: ..."), overlapping points and points the device can't hold
+(a 32-bit value in a coil, a bit 16, a writable input register) included.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from functools import cached_property
+from importlib import resources
+from pathlib import Path
+from typing import Annotated, Any, Final, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from gateway.profile.addressing import format_register, parse_register
+from gateway.profile.faults import FaultTable
+from gateway.profile.parameter_tables import ParameterTable
+from gateway.profile.parameters import Parameter
+from gateway.profile.point_types import (
+    REGISTERS,
+    Kind,
+    Order,
+    Table,
+    TypedPoint,
+    Value,
+    word_key,
+)
+from gateway.profile.points import Point
+from gateway.profile.protocol import DriveProfile, PollGroup, RegisterWrite
+from gateway.profile.read_plan import Limits, plan_reads
+from gateway.profile.telemetry import Telemetry
+
+FILE_PREFIX: Final = "file:"
+"""`model: file:PATH`: a site's own device file."""
+MODBUS_MAX_REGISTERS: Final = 125
+MODBUS_MAX_BITS: Final = 2000
+NO_FAULTS: Final = FaultTable("no fault table", {})
+_NAME = r"^[a-z][a-z0-9_]*$"
+
+
+class DeviceFileError(ValueError):
+    """A device file that can't be used: the message names the file and the key."""
+
+
+# -- the file's shape ------------------------------------------------------------------------------
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class _PointSpec(_Section):
+    table: Table = Table.HOLDING
+    address: int | str
+    """The address on the wire (from 0): 16, "0x0010" or "0010H"."""
+    type: Kind = Kind.U16
+    registers: int | None = Field(None, ge=1, le=MODBUS_MAX_REGISTERS)
+    """A string's length in registers (other types know their own)."""
+    bit: int | None = None
+    order: Order | None = None
+    scale: float = 1.0
+    offset: float = 0.0
+    values: dict[int, str] | None = None
+    unit: str = ""
+    device_class: str | None = None
+    state_class: Literal["measurement", "total", "total_increasing"] | None = None
+    writable: bool = False
+    interval_ms: float | None = Field(None, gt=0)
+    description: str = ""
+
+    @field_validator("address")
+    @classmethod
+    def _address(cls, value: int | str) -> int:
+        address = value if isinstance(value, int) else parse_register(str(value))
+        if not 0 <= address <= 0xFFFF:
+            raise ValueError("must be 0..65535 (0000H...FFFFH), the address on the wire")
+        return address
+
+    @field_validator("scale")
+    @classmethod
+    def _scale(cls, value: float) -> float:
+        if value == 0:
+            raise ValueError("must not be 0")
+        return value
+
+
+class _DeviceSpec(_Section):
+    name: str = Field(min_length=1)
+    manufacturer: str = ""
+    source: str = Field(min_length=1)
+    """Where the register map comes from (a manual's page): every device file says."""
+    aliases: tuple[str, ...] = ()
+    max_registers: int = Field(MODBUS_MAX_REGISTERS, ge=1, le=MODBUS_MAX_REGISTERS)
+    max_bits: int = Field(MODBUS_MAX_BITS, ge=1, le=MODBUS_MAX_BITS)
+    max_gap: int = Field(0, ge=0, le=MODBUS_MAX_REGISTERS)
+    interval_ms: float = Field(1000, gt=0)
+    order: Order = Order.ABCD
+    """The points' order unless a point says otherwise."""
+    unconfirmed: tuple[str, ...] = ()
+    points: dict[Annotated[str, Field(pattern=_NAME)], _PointSpec] = Field(min_length=1)
+
+
+# -- the profile -------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class DeviceProfile:
+    key: str
+    display_name: str
+    typed_points: tuple[TypedPoint, ...]
+    limits: Limits
+    manufacturer: str = ""
+    aliases: tuple[str, ...] = ()
+    source: str = ""
+    unconfirmed: tuple[str, ...] = ()
+    identification: tuple[int, ...] = ()
+    split_by_default: bool = False
+    ram_writes_supported: bool = False
+    faults: FaultTable = NO_FAULTS
+    commands: tuple[str, ...] = ()
+    parameters: tuple[Parameter, ...] = ()
+    max_frequency_hz: float = 0.0
+    max_frequency_parameter: Parameter | None = None
+    _by_name: Mapping[str, TypedPoint] = field(default_factory=dict, compare=False, repr=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_by_name", {p.name: p for p in self.typed_points})
+
+    @property
+    def max_words(self) -> int:
+        return self.limits.max_registers
+
+    @cached_property
+    def poll_groups(self) -> tuple[PollGroup, ...]:
+        return plan_reads(self.typed_points, self.limits)
+
+    @property
+    def telemetry_keys(self) -> frozenset[str]:
+        return frozenset(self._by_name)
+
+    @property
+    def parameter_table(self) -> ParameterTable:
+        return ParameterTable(self.key, ())
+
+    def with_overrides(
+        self,
+        *,
+        identification: tuple[int, ...] | None = None,
+        faults: Mapping[int, str] | None = None,
+        ready_bit_set_means_ready: bool | None = None,
+    ) -> DriveProfile:
+        return self  # a device file is the site's to change
+
+    def telemetry(self, registers: Mapping[int, int]) -> Telemetry:
+        """Each point whose registers have all been read, decoded."""
+        telemetry: Telemetry = {}
+        for point in self.typed_points:
+            value = _read(point, registers)
+            if value is not None:
+                telemetry[point.name] = value
+        return telemetry
+
+    def point(self, address: int) -> Point | None:
+        """The holding register's point at `address` (SCADA's and the traffic monitor's)."""
+        for typed in self.typed_points:
+            if typed.table is Table.HOLDING and typed.address <= address < typed.end:
+                part = address - typed.address + 1
+                which = "" if typed.registers == 1 else f" (register {part} of {typed.registers})"
+                return Point(typed.name, address, f"{typed.name}{which}", unit=typed.unit)
+        return None
+
+    def resolve(self, text: str) -> Point:
+        spelled = text.strip()
+        typed = self._by_name.get(spelled.lower())
+        if typed is not None:
+            described = typed.description or typed.name
+            return Point(typed.name, typed.address, described, unit=typed.unit)
+        address = parse_register(spelled)
+        return self.point(address) or Point(
+            format_register(address), address, "not in the device file: shown raw"
+        )
+
+    def point_write(self, name: str, value: object) -> RegisterWrite:
+        point = self._by_name.get(name)
+        if point is None:
+            writable = ", ".join(p.name for p in self.typed_points if p.writable) or "none"
+            raise ValueError(f"{self.display_name} has no point {name!r}: writable are {writable}")
+        if not point.writable:
+            raise ValueError(f"{name} of {self.display_name} is not writable")
+        return RegisterWrite(point.address, point.encode(value))
+
+    def current_fault(self, registers: Mapping[int, int]) -> int | None:
+        return None
+
+    def fault_fields(self, code: int) -> Telemetry:
+        return {}
+
+    def command_name(self, name: str) -> str:
+        raise ValueError(f"a {self.display_name} takes no drive commands: write its points")
+
+    def setpoint_word(self, frequency_hz: float) -> int:
+        raise ValueError(f"a {self.display_name} has no frequency set-point")
+
+    def control_writes(
+        self, command: str | None, setpoint: int | None
+    ) -> tuple[RegisterWrite, ...]:
+        raise ValueError(f"a {self.display_name} takes no drive commands: write its points")
+
+    def ram_only_address(self, address: int, spelled: str) -> int:
+        raise ValueError(f"{self.display_name} has no RAM-only writes")
+
+
+def _read(point: TypedPoint, registers: Mapping[int, int]) -> Value | None:
+    words = []
+    for address in range(point.address, point.end):
+        word = registers.get(word_key(point.table, address))
+        if word is None:
+            return None
+        words.append(word)
+    return point.decode(words)
+
+
+# -- loading ---------------------------------------------------------------------------------------
+
+
+def shipped_devices() -> tuple[DeviceProfile, ...]:
+    """The device files in the package (`data/devices/*.yaml`), by file name."""
+    folder = resources.files("gateway.profile").joinpath("data", "devices")
+    return tuple(
+        device_profile(entry.name.removesuffix(".yaml"), entry.read_text(), entry.name)
+        for entry in sorted(folder.iterdir(), key=lambda e: e.name)
+        if entry.name.endswith(".yaml")
+    )
+
+
+def device_file_profile(model: str) -> DeviceProfile:
+    """`file:PATH`'s profile. Raises DeviceFileError."""
+    path = Path(model.removeprefix(FILE_PREFIX).strip())
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise DeviceFileError(f"device file {path}: {exc.strerror or exc}") from None
+    return device_profile(model, text, str(path))
+
+
+def device_profile(key: str, text: str, where: str) -> DeviceProfile:
+    """The profile of a device file's `text` (`where` names it in errors)."""
+    try:
+        data: Any = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise DeviceFileError(f"{where}: not YAML: {exc}") from None
+    try:
+        spec = _DeviceSpec.model_validate(data)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        path = ".".join(str(part) for part in first["loc"]) or "(top)"
+        more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
+        raise DeviceFileError(f"{where}: {path}: {first['msg']}{more}") from None
+    points = tuple(_typed(name, point, spec, where) for name, point in spec.points.items())
+    _check_overlaps(points, where)
+    limits = Limits(spec.max_registers, spec.max_bits, spec.max_gap, spec.interval_ms / 1000)
+    for point in points:
+        most = limits.most(point.table)
+        if point.registers > most:
+            raise DeviceFileError(
+                f"{where}: points.{point.name}: {point.registers} registers, more than the "
+                f"device's max_registers ({most}): it could never be read in one request"
+            )
+    return DeviceProfile(
+        key,
+        spec.name,
+        points,
+        limits,
+        manufacturer=spec.manufacturer,
+        aliases=spec.aliases,
+        source=spec.source,
+        unconfirmed=spec.unconfirmed,
+    )
+
+
+def _typed(name: str, spec: _PointSpec, device: _DeviceSpec, where: str) -> TypedPoint:
+    def wrong(key: str, why: str) -> DeviceFileError:
+        return DeviceFileError(f"{where}: points.{name}.{key}: {why}")
+
+    registers = _registers(spec, wrong)
+    assert isinstance(spec.address, int)  # the validator made it one
+    if spec.address + registers > 0x10000:
+        raise wrong("address", f"its {registers} registers pass FFFFH")
+    if spec.table.bits != (spec.type is Kind.BOOL):
+        raise wrong(
+            "type",
+            "a coil or discrete input is a bool, and a bool is a coil or a discrete input",
+        )
+    if (spec.type is Kind.BIT) != (spec.bit is not None) or not 0 <= (spec.bit or 0) <= 15:
+        raise wrong("bit", "a bit point needs bit: 0..15, and only a bit point has one")
+    if (spec.type is Kind.ENUM) != bool(spec.values):
+        raise wrong("values", "an enum needs values (raw: words), and only an enum has them")
+    if spec.writable and spec.table in (Table.INPUT, Table.DISCRETE_INPUT):
+        raise wrong("writable", "input registers and discrete inputs are read-only on every device")
+    if spec.writable and spec.type in (Kind.BIT, Kind.BOOL):
+        raise wrong("writable", "writing a bit or a coil is not supported yet")
+    order = spec.order or device.order
+    if spec.type is Kind.STRING and order.words_reversed:
+        raise wrong("order", "a string's registers come in order: ABCD or BADC")
+    return TypedPoint(
+        name=name,
+        table=spec.table,
+        address=spec.address,
+        kind=spec.type,
+        registers=registers,
+        order=order,
+        scale=spec.scale,
+        offset=spec.offset,
+        bit=spec.bit,
+        values=dict(spec.values or {}),
+        unit=spec.unit,
+        device_class=spec.device_class,
+        state_class=spec.state_class,
+        writable=spec.writable,
+        interval_s=None if spec.interval_ms is None else spec.interval_ms / 1000,
+        description=spec.description,
+    )
+
+
+def _registers(spec: _PointSpec, wrong: Any) -> int:
+    if spec.type is Kind.STRING:
+        if spec.registers is None:
+            raise wrong("registers", "a string needs its length in registers")
+        return spec.registers
+    if spec.registers is not None:
+        raise wrong("registers", f"only a string has registers: a {spec.type} knows its own")
+    return REGISTERS.get(spec.type, 1)
+
+
+def _check_overlaps(points: tuple[TypedPoint, ...], where: str) -> None:
+    """Two points on one register: a mistake, unless both are different bits of it."""
+    claimed: dict[tuple[Table, int], TypedPoint] = {}
+    bits: set[tuple[Table, int, int]] = set()
+    for point in points:
+        for address in range(point.address, point.end):
+            if point.kind is Kind.BIT:
+                assert point.bit is not None
+                key = (point.table, address, point.bit)
+                if key in bits:
+                    raise DeviceFileError(
+                        f"{where}: points.{point.name}: bit {point.bit} of "
+                        f"{format_register(address)} is another point's too"
+                    )
+                bits.add(key)
+                continue
+            other = claimed.setdefault((point.table, address), point)
+            if other is not point:
+                raise DeviceFileError(
+                    f"{where}: points.{point.name}: overlaps points.{other.name} at "
+                    f"{point.table.value} register {format_register(address)}"
+                )
