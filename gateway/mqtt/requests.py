@@ -13,6 +13,7 @@ Payloads (JSON objects; `transaction` is echoed, `time` is when it was sent):
                            {"frequency_hz": 35.0}
                            {"parameter": "P00.11", "value": 10.0, "ram_only": true}
                            {"parameter": "2001H", "raw": 3500}
+                           {"point": "demand_period", "value": 15}   (a device file's point)
     bridge/request/read_parameter   {"drive": "pump1", "parameter": "P07.27", "count": 6}
     bridge/request/write_parameter  {"drive": "pump1", "parameter": "P00.11", "value": 10.0}
 """
@@ -41,7 +42,7 @@ MILLISECONDS_EPOCH: Final = 1e11
 
 COMMON_KEYS: Final = frozenset({"transaction", "time"})
 WRITE_KEYS: Final = frozenset({"parameter", "register", "value", "raw", "decimals", "ram_only"})
-SET_KEYS: Final = COMMON_KEYS | WRITE_KEYS | {"command", "frequency_hz"}
+SET_KEYS: Final = COMMON_KEYS | WRITE_KEYS | {"command", "frequency_hz", "point"}
 BRIDGE_WRITE_KEYS: Final = COMMON_KEYS | WRITE_KEYS | {"drive"}
 BRIDGE_READ_KEYS: Final = COMMON_KEYS | {"drive", "parameter", "register", "count", "decimals"}
 
@@ -181,6 +182,8 @@ def parse_set(message: Json, profile: DriveProfile) -> RegisterWrite:
     """A `<drive>/set` payload: a control command (with a set-point), a set-point alone, or a
     parameter write."""
     check_keys(message, SET_KEYS)
+    if "point" in message:
+        return parse_point_write(message, profile)
     has_command = "command" in message
     has_frequency = "frequency_hz" in message
     has_write = bool(WRITE_KEYS & set(message))
@@ -213,6 +216,31 @@ def parse_set(message: Json, profile: DriveProfile) -> RegisterWrite:
     except ValueError as exc:
         raise CommandRefused("invalid_request", str(exc)) from None
     return RegisterWrite(first.start, first.words, echo, first.pause_s, tuple(rest))
+
+
+def parse_point_write(message: Json, profile: DriveProfile) -> RegisterWrite:
+    """`{"point": name, "value": v}`: a device file's writable point, `v` as it is published
+    (scaled; an enumeration's words; a text)."""
+    extra = sorted(set(message) - COMMON_KEYS - {"point", "value"})
+    if extra or "value" not in message:
+        raise CommandRefused(
+            "invalid_request", 'a point write is {"point": name, "value": value} and nothing else'
+        )
+    name = message["point"]
+    if not isinstance(name, str):
+        raise CommandRefused("invalid_request", "point must be a point's name")
+    try:
+        write = profile.point_write(name, message["value"])
+    except ValueError as exc:
+        writable = any(p.name == name and p.writable for p in profile.typed_points)
+        reason = "invalid_value" if writable else "invalid_request"  # the value, or the point
+        raise CommandRefused(reason, str(exc)) from None
+    echo: Json = {
+        "point": name,
+        "value": message["value"],
+        "register": format_register(write.start),
+    }
+    return RegisterWrite(write.start, write.words, echo)
 
 
 def _frequency(value: Any, profile: DriveProfile) -> int:

@@ -1,0 +1,142 @@
+"""Other Modbus devices on the line: a meter described by a device file, played by pymodbus's
+own RTU server (an independent peer) on a pty, published over a real Mosquitto. Every value the
+gateway publishes is the one the server holds (`tests/peers/pymodbus_meter.py` lays its
+registers out by hand), and a write to a writable point lands in the server."""
+
+from __future__ import annotations
+
+import json
+import struct
+import subprocess
+import sys
+from collections.abc import AsyncIterator, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from gateway.app import Application
+from tests.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
+from tests.mosquitto import mosquitto as mosquitto
+from tests.mqtt_setup import mqtt_config
+from tests.peers.pymodbus_meter import EXPECTED
+from tests.support import TcpClient, eventually, pty_cable, running_gateway
+
+ROOT = Path(__file__).resolve().parent.parent
+METER_FILE = ROOT / "tests" / "fixtures" / "devices" / "test_meter.yaml"
+UNIT = 7
+
+
+@pytest.fixture
+def meter_line() -> Iterator[str]:
+    """The meter at the far end of a pty cable; yields the device path the gateway opens."""
+    with pty_cable() as (gateway_end, meter_end):
+        process = subprocess.Popen(
+            [sys.executable, "-m", "tests.peers.pymodbus_meter", meter_end, "19200", str(UNIT)],
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,  # pymodbus warns of its own deprecations there
+            text=True,
+        )
+        try:
+            assert process.stdout is not None
+            assert process.stdout.readline().strip() == "ready"
+            yield gateway_end
+        finally:
+            process.terminate()
+            process.communicate(timeout=10)
+
+
+@dataclass
+class Plant:
+    base: str
+    app: Application
+    probe: MqttProbe
+    tcp: TcpClient
+
+    async def set(self, payload: dict[str, object]) -> dict[str, Any]:
+        response: dict[str, Any] = await self.probe.request(
+            f"{self.base}/meter1/set", payload, f"{self.base}/meter1/set/response"
+        )
+        return response
+
+    async def state(self, key: str, value: object) -> dict[str, Any]:
+        received = await self.probe.wait_for(f"{self.base}/meter1", lambda s: s[key] == value)
+        state: dict[str, Any] = received.json()
+        return state
+
+
+@pytest.fixture
+async def plant(mosquitto: Mosquitto, meter_line: str) -> AsyncIterator[Plant]:
+    base = unique_base_topic()
+    drives = [{"name": "meter1", "address": UNIT, "model": f"file:{METER_FILE}"}]
+    line = {"baudrate": 19200, "parity": "N", "timeout_ms": 500}
+    config = mqtt_config(meter_line, mosquitto, base, drives=drives, bus=line)
+    async with (
+        mqtt_probe(mosquitto, f"{base}/#", "homeassistant/#") as probe,
+        running_gateway(config) as app,
+    ):
+        await probe.wait_for(f"{base}/meter1/availability", lambda a: a["state"] == "online")
+        tcp = await TcpClient.connect(app.tcp.port)
+        try:
+            yield Plant(base, app, probe, tcp)
+        finally:
+            await tcp.close()
+
+
+async def test_every_published_value_is_what_the_meter_holds(plant: Plant) -> None:
+    received = await plant.probe.wait_for(f"{plant.base}/meter1", lambda s: set(EXPECTED) <= set(s))
+    state = received.json()
+    assert {key: state[key] for key in EXPECTED} == {
+        **EXPECTED,
+        "temperature": pytest.approx(-12.5),
+    }
+    assert isinstance(state["energy_wh"], int)  # a u64 beyond a float's 53 bits, exact
+
+
+async def test_a_write_to_a_writable_point_lands_in_the_meter(plant: Plant) -> None:
+    response = await plant.set({"point": "setpoint", "value": 231.25})
+    assert response["status"] == "ok", response
+    # Read back from the meter itself (no poll cache on this drive): f32 ABCD in 0-1.
+    words = await plant.tcp.read(UNIT, 0, 2)
+    assert struct.unpack(">f", struct.pack(">2H", *words)) == (231.25,)
+    await plant.state("setpoint", 231.25)
+
+    response = await plant.set({"point": "temperature", "value": -3.5})
+    assert response["status"] == "ok", response
+    assert await plant.tcp.read(UNIT, 30, 1) == [(-35) & 0xFFFF]
+    await plant.state("temperature", -3.5)
+
+
+async def test_a_point_that_is_not_writable_is_refused_by_name(plant: Plant) -> None:
+    response = await plant.set({"point": "frequency", "value": 50})
+    assert (response["status"], response["error"]) == ("error", "invalid_request")
+    assert "frequency of test meter is not writable" in response["message"]
+    response = await plant.set({"point": "setpoint", "value": "high"})
+    assert (response["error"], response["message"]) == (
+        "invalid_value",
+        "setpoint must be a number",
+    )
+    words = await plant.tcp.read(UNIT, 2, 2)
+    assert struct.unpack(">f", struct.pack(">2H", words[1], words[0])) == (49.75,)  # untouched
+
+
+async def test_home_assistant_sees_each_point_with_its_unit_and_class(plant: Plant) -> None:
+    topic = "homeassistant/sensor/invt_test/meter1_energy_wh/config"
+    config = (await plant.probe.wait_for(topic)).json()
+    assert (config["unit_of_measurement"], config["device_class"]) == ("Wh", "energy")
+    assert config["state_class"] == "total_increasing"
+    assert config["state_topic"] == f"{plant.base}/meter1"
+    number = "homeassistant/number/invt_test/meter1_setpoint/config"
+    setpoint = (await plant.probe.wait_for(number)).json()
+    template = setpoint["command_template"].replace("{{ value }}", "231.25")
+    assert json.loads(template) == {"point": "setpoint", "value": 231.25}
+
+
+async def test_pass_through_still_serves_the_meter(plant: Plant) -> None:
+    # SCADA's own reads of every table go through untouched (input register 0-1: flow, BADC).
+    reply = await plant.tcp.request(UNIT, bytes.fromhex("04 00 00 00 02"))
+    flow = struct.unpack(">f", bytes([reply[3], reply[2], reply[5], reply[4]]))
+    assert flow == (12.25,)
+    await eventually(lambda: plant.app.poller.polls > 4)
