@@ -21,6 +21,7 @@ from tests.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
 from tests.mosquitto import mosquitto as mosquitto
 from tests.mqtt_setup import mqtt_config
 from tests.peers.pymodbus_meter import EXPECTED
+from tests.processes import run_cli
 from tests.support import TcpClient, eventually, pty_cable, running_gateway
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -140,3 +141,29 @@ async def test_pass_through_still_serves_the_meter(plant: Plant) -> None:
     flow = struct.unpack(">f", bytes([reply[3], reply[2], reply[5], reply[4]]))
     assert flow == (12.25,)
     await eventually(lambda: plant.app.poller.polls > 4)
+
+
+def test_check_config_names_a_device_files_mistake_by_file_and_point(tmp_path: Path) -> None:
+    device = tmp_path / "mymeter.yaml"
+    device.write_text(
+        "name: my meter\nsource: its manual\npoints:\n"
+        "  flow: {table: input, address: 0, type: f32}\n"
+        "  level: {table: input, address: 1}\n"
+    )
+    config = tmp_path / "gateway.yaml"
+    config.write_text(
+        "buses: [{name: line1, port: /dev/null, baudrate: 9600}]\n"
+        "drives:\n"
+        "  - {name: meter1, bus: line1, address: 3, model: sdm630}\n"
+        f"  - {{name: boiler, bus: line1, address: 4, model: 'file:{device}'}}\n"
+    )
+    result = run_cli("check-config", "--config", str(config))
+    assert result.returncode == 3, result.stdout + result.stderr
+    assert (
+        f"drives[1] (boiler).model: {device}: points.level: overlaps points.flow "
+        "at input register 0001H"
+    ) in result.stderr
+    device.write_text(device.read_text().replace("address: 1}", "address: 2}"))
+    result = run_cli("check-config", "--config", str(config))
+    assert result.returncode == 0, result.stderr
+    assert "sdm630" in result.stdout
