@@ -49,6 +49,12 @@ def word_key(table: Table, address: int) -> int:
     return TABLE_KEY_BASE[table] + address
 
 
+def table_of(key: int) -> tuple[Table, int]:
+    """`word_key`'s table and address back."""
+    table = next(t for t, base in TABLE_KEY_BASE.items() if base <= key < base + 0x10000)
+    return table, key - TABLE_KEY_BASE[table]
+
+
 class Order(StrEnum):
     ABCD = "ABCD"
     CDAB = "CDAB"
@@ -118,6 +124,8 @@ class TypedPoint:
     writable: bool = False
     interval_s: float | None = None
     """Its own poll interval (None: the device's)."""
+    decimals: int | None = None
+    """Published rounded to this many decimals (None: as decoded)."""
     description: str = ""
 
     @property
@@ -138,7 +146,10 @@ class TypedPoint:
         (raw,) = struct.unpack(">" + _STRUCT[self.kind], data)
         if self.kind is Kind.ENUM:
             return self.values.get(raw, str(raw))
-        return self._scaled(raw)
+        if self.kind is Kind.F32:
+            raw = shortest_f32(raw)
+        value = self._scaled(raw)
+        return value if self.decimals is None else round(value, self.decimals)
 
     def encode(self, value: object) -> tuple[int, ...]:
         """The words that hold `value` (as published: scaled, an enumeration's words). Raises
@@ -179,6 +190,17 @@ class TypedPoint:
         if not low <= whole <= high:
             raise ValueError(f"{self.name} = {value} is outside what a {self.kind} holds")
         return whole
+
+
+def shortest_f32(value: float) -> float:
+    """The shortest decimal that is the same 32-bit float: 230.1, not 230.10000610351562 (the
+    float the device holds, as a person wrote it; JSON carries doubles)."""
+    exact = struct.pack(">f", value)
+    for digits in range(6, 10):
+        shorter = float(f"{value:.{digits}g}")
+        if struct.pack(">f", shorter) == exact:
+            return shorter
+    return value
 
 
 def _integer_range(kind: Kind) -> tuple[int, int]:

@@ -35,6 +35,7 @@ from gateway.profile.point_types import (
     Table,
     TypedPoint,
     Value,
+    table_of,
     word_key,
 )
 from gateway.profile.points import Point
@@ -78,6 +79,8 @@ class _PointSpec(_Section):
     state_class: Literal["measurement", "total", "total_increasing"] | None = None
     writable: bool = False
     interval_ms: float | None = Field(None, gt=0)
+    decimals: int | None = Field(None, ge=0, le=9)
+    """Published rounded to this many decimals (a scaled count: 12.5, not 12.500000001)."""
     description: str = ""
 
     @field_validator("address")
@@ -173,9 +176,11 @@ class DeviceProfile:
         return telemetry
 
     def point(self, address: int) -> Point | None:
-        """The holding register's point at `address` (SCADA's and the traffic monitor's)."""
+        """The point at `address`: a holding register's, or another table's at its
+        `point_types.word_key` (what the traffic monitor and the field tools show)."""
+        table, address = table_of(address)
         for typed in self.typed_points:
-            if typed.table is Table.HOLDING and typed.address <= address < typed.end:
+            if typed.table is table and typed.address <= address < typed.end:
                 part = address - typed.address + 1
                 which = "" if typed.registers == 1 else f" (register {part} of {typed.registers})"
                 return Point(typed.name, address, f"{typed.name}{which}", unit=typed.unit)
@@ -330,6 +335,7 @@ def _typed(name: str, spec: _PointSpec, device: _DeviceSpec, where: str) -> Type
         state_class=spec.state_class,
         writable=spec.writable,
         interval_s=None if spec.interval_ms is None else spec.interval_ms / 1000,
+        decimals=spec.decimals,
         description=spec.description,
     )
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from gateway.profile import get_profile
-from gateway.profile.point_types import Table
+from gateway.profile.point_types import Table, word_key
 from gateway.profile.points_device import DeviceFileError, DeviceProfile, device_profile
 
 HEADER = "name: test meter\nsource: a test\n"
@@ -110,3 +110,14 @@ def test_reads_merge_across_allowed_gaps_and_never_split_a_value() -> None:
 def test_a_point_longer_than_one_request_allows_is_refused() -> None:
     with pytest.raises(DeviceFileError, match=r"points\.name: 10 registers, more than"):
         profile_of("max_registers: 8\npoints:\n  name: {type: string, address: 0, registers: 10}\n")
+
+
+def test_a_point_is_named_in_its_own_table() -> None:
+    profile = get_profile("sdm630")
+    named = profile.point(word_key(Table.INPUT, 3))  # phase 2's volts, second register
+    assert named is not None
+    assert named.label == "voltage_l2"
+    holding = profile.point(3)  # holding register 3: the demand period's second register
+    assert holding is not None
+    assert holding.label == "demand_period"
+    assert get_profile("analog_input_4_20ma").telemetry({0x10000: 65535}) == {"channel_1": 20.0}

@@ -91,3 +91,14 @@ def test_a_value_that_does_not_fit_is_refused_by_name() -> None:
         point(Kind.ENUM, values={0: "auto"}).encode("off")
     with pytest.raises(ValueError, match="at most 4 characters"):
         point(Kind.STRING, registers=2).encode("too long")
+
+
+def test_a_float32_is_published_as_the_decimal_it_was_written_as() -> None:
+    # 230.1 as an f32 is 43 66 19 9A, which is 230.10000610351562 as a double.
+    words = (0x4366, 0x199A)
+    assert point(Kind.F32).decode(words) == 230.1
+    assert struct.pack(">f", 230.1) == struct.pack(">2H", *words)  # the same f32
+
+
+def test_decimals_round_what_a_scale_leaves() -> None:
+    assert point(Kind.U16, scale=16 / 65535, offset=4.0, decimals=3).decode([65535]) == 20.0
