@@ -5,6 +5,7 @@ registers out by hand), and a write to a writable point lands in the server."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 import struct
 import subprocess
@@ -167,3 +168,19 @@ def test_check_config_names_a_device_files_mistake_by_file_and_point(tmp_path: P
     result = run_cli("check-config", "--config", str(config))
     assert result.returncode == 0, result.stderr
     assert "sdm630" in result.stdout
+
+
+async def test_a_change_within_the_deadband_is_not_published(plant: Plant) -> None:
+    topic = f"{plant.base}/meter1"
+    await plant.state("setpoint", 230.5)
+    mark, polls = len(plant.probe.messages), plant.app.poller.polls
+    assert (await plant.set({"point": "setpoint", "value": 230.75}))["status"] == "ok"
+    await asyncio.sleep(1.0)  # five polls at 200 ms
+    assert plant.app.poller.polls >= polls + 5
+    published = [m.json().get("setpoint") for m in plant.probe.messages[mark:] if m.topic == topic]
+    assert 230.75 not in published  # within its deadband of 0.5 V
+    words = await plant.tcp.read(UNIT, 0, 2)
+    assert struct.unpack(">f", struct.pack(">2H", *words)) == (230.75,)  # yet it is written
+
+    assert (await plant.set({"point": "setpoint", "value": 231.5}))["status"] == "ok"
+    await plant.state("setpoint", 231.5)  # 0.75 V from 230.5 published: beyond the deadband

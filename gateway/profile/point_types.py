@@ -102,6 +102,21 @@ REGISTERS: Final = {kind: struct.calcsize(code) // 2 for kind, code in _STRUCT.i
 Value = int | float | str | bool
 
 
+@dataclass(frozen=True, slots=True)
+class Reporting:
+    """When a point's new value is news (report by exception; see `report_by_exception`)."""
+
+    deadband: float = 0.0
+    """A number must move by more than this (its unit) since it was last published."""
+    deadband_percent: float = 0.0
+    """... and by more than this share of the value last published."""
+    min_interval_s: float = 0.0
+    """A change is published no sooner than this after the point was last published."""
+    max_interval_s: float | None = None
+    """Published at least this often, changed or not (None: the gateway's
+    `mqtt.publish_interval_s` only)."""
+
+
 @dataclass(frozen=True)
 class TypedPoint:
     """One value of a device: where it is, how it is held, what it means."""
@@ -126,6 +141,7 @@ class TypedPoint:
     """Its own poll interval (None: the device's)."""
     decimals: int | None = None
     """Published rounded to this many decimals (None: as decoded)."""
+    reporting: Reporting = Reporting()
     description: str = ""
 
     @property

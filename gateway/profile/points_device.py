@@ -32,6 +32,7 @@ from gateway.profile.point_types import (
     REGISTERS,
     Kind,
     Order,
+    Reporting,
     Table,
     TypedPoint,
     Value,
@@ -82,6 +83,11 @@ class _PointSpec(_Section):
     decimals: int | None = Field(None, ge=0, le=9)
     """Published rounded to this many decimals (a scaled count: 12.5, not 12.500000001)."""
     description: str = ""
+    deadband: float | None = Field(None, ge=0)
+    deadband_percent: float | None = Field(None, ge=0)
+    min_interval_ms: float | None = Field(None, ge=0)
+    max_interval_ms: float | None = Field(None, gt=0)
+    """Report by exception (`report_by_exception`); None: the device file's default."""
 
     @field_validator("address")
     @classmethod
@@ -112,6 +118,11 @@ class _DeviceSpec(_Section):
     order: Order = Order.ABCD
     """The points' order unless a point says otherwise."""
     unconfirmed: tuple[str, ...] = ()
+    deadband: float = Field(0.0, ge=0)
+    deadband_percent: float = Field(0.0, ge=0)
+    min_interval_ms: float = Field(0.0, ge=0)
+    max_interval_ms: float | None = Field(None, gt=0)
+    """Report by exception: every point's unless it sets its own."""
     points: dict[Annotated[str, Field(pattern=_NAME)], _PointSpec] = Field(min_length=1)
 
 
@@ -337,6 +348,21 @@ def _typed(name: str, spec: _PointSpec, device: _DeviceSpec, where: str) -> Type
         interval_s=None if spec.interval_ms is None else spec.interval_ms / 1000,
         decimals=spec.decimals,
         description=spec.description,
+        reporting=_reporting(spec, device),
+    )
+
+
+def _reporting(spec: _PointSpec, device: _DeviceSpec) -> Reporting:
+    def own_or_device(own: float | None, default: float | None) -> float | None:
+        return default if own is None else own
+
+    min_ms = own_or_device(spec.min_interval_ms, device.min_interval_ms) or 0.0
+    max_ms = own_or_device(spec.max_interval_ms, device.max_interval_ms)
+    return Reporting(
+        deadband=own_or_device(spec.deadband, device.deadband) or 0.0,
+        deadband_percent=own_or_device(spec.deadband_percent, device.deadband_percent) or 0.0,
+        min_interval_s=min_ms / 1000,
+        max_interval_s=None if max_ms is None else max_ms / 1000,
     )
 
 
