@@ -184,3 +184,26 @@ async def test_a_change_within_the_deadband_is_not_published(plant: Plant) -> No
 
     assert (await plant.set({"point": "setpoint", "value": 231.5}))["status"] == "ok"
     await plant.state("setpoint", 231.5)  # 0.75 V from 230.5 published: beyond the deadband
+
+
+async def test_a_point_beyond_its_limit_raises_an_alarm_and_clears_it(plant: Plant) -> None:
+    events = f"{plant.base}/bridge/event"
+    mark = len(plant.probe.messages)
+    assert (await plant.set({"point": "temperature", "value": 5.0}))["status"] == "ok"
+    raised = await plant.probe.wait_for(events, lambda e: e["type"] == "alarm_raised", after=mark)
+    assert raised.json()["data"] | {"time": None} == {
+        "drive": "meter1",
+        "point": "temperature",
+        "limit": "high",
+        "value": 5.0,
+        "threshold": 0.0,
+        "time": None,
+    }
+    # Back below 0 °C but within the hysteresis of 1 °C: still raised; below -1 °C: cleared.
+    mark = len(plant.probe.messages)
+    assert (await plant.set({"point": "temperature", "value": -0.5}))["status"] == "ok"
+    assert (await plant.set({"point": "temperature", "value": -1.5}))["status"] == "ok"
+    cleared = await plant.probe.wait_for(events, lambda e: e["type"] == "alarm_cleared", after=mark)
+    assert cleared.json()["data"]["value"] == -1.5
+    types = [m.json()["type"] for m in plant.probe.messages[mark:] if m.topic == events]
+    assert types.count("alarm_cleared") == 1

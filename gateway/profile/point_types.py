@@ -103,6 +103,18 @@ Value = int | float | str | bool
 
 
 @dataclass(frozen=True, slots=True)
+class Limit:
+    """A point's limit alarms (see `limit_alarms`): None where there is no such limit."""
+
+    high: float | None = None
+    low: float | None = None
+    hysteresis: float = 0.0
+    """How far back inside the limit the value must come for the alarm to clear."""
+    delay_s: float = 0.0
+    """How long a value must stay beyond (or back inside) before the alarm changes."""
+
+
+@dataclass(frozen=True, slots=True)
 class Reporting:
     """When a point's new value is news (report by exception; see `report_by_exception`)."""
 
@@ -142,6 +154,7 @@ class TypedPoint:
     decimals: int | None = None
     """Published rounded to this many decimals (None: as decoded)."""
     reporting: Reporting = Reporting()
+    limit: Limit = Limit()
     description: str = ""
 
     @property

@@ -31,6 +31,7 @@ from gateway.profile.parameters import Parameter
 from gateway.profile.point_types import (
     REGISTERS,
     Kind,
+    Limit,
     Order,
     Reporting,
     Table,
@@ -88,6 +89,11 @@ class _PointSpec(_Section):
     min_interval_ms: float | None = Field(None, ge=0)
     max_interval_ms: float | None = Field(None, gt=0)
     """Report by exception (`report_by_exception`); None: the device file's default."""
+    high: float | None = None
+    low: float | None = None
+    hysteresis: float = Field(0.0, ge=0)
+    alarm_delay_ms: float = Field(0.0, ge=0)
+    """Limit alarms (`limit_alarms`): `alarm_raised` beyond high or low, cleared back inside."""
 
     @field_validator("address")
     @classmethod
@@ -327,6 +333,11 @@ def _typed(name: str, spec: _PointSpec, device: _DeviceSpec, where: str) -> Type
         raise wrong("writable", "input registers and discrete inputs are read-only on every device")
     if spec.writable and spec.type in (Kind.BIT, Kind.BOOL):
         raise wrong("writable", "writing a bit or a coil is not supported yet")
+    limited = spec.high is not None or spec.low is not None
+    if limited and spec.type in (Kind.STRING, Kind.ENUM, Kind.BIT, Kind.BOOL):
+        raise wrong("high" if spec.high is not None else "low", "only a number has limits")
+    if spec.high is not None and spec.low is not None and spec.low >= spec.high:
+        raise wrong("low", f"must be below high ({spec.high:g})")
     order = spec.order or device.order
     if spec.type is Kind.STRING and order.words_reversed:
         raise wrong("order", "a string's registers come in order: ABCD or BADC")
@@ -349,6 +360,7 @@ def _typed(name: str, spec: _PointSpec, device: _DeviceSpec, where: str) -> Type
         decimals=spec.decimals,
         description=spec.description,
         reporting=_reporting(spec, device),
+        limit=Limit(spec.high, spec.low, spec.hysteresis, spec.alarm_delay_ms / 1000),
     )
 
 

@@ -121,3 +121,10 @@ def test_a_point_is_named_in_its_own_table() -> None:
     assert holding is not None
     assert holding.label == "demand_period"
     assert get_profile("analog_input_4_20ma").telemetry({0x10000: 65535}) == {"channel_1": 20.0}
+
+
+def test_limits_only_on_numbers_and_low_below_high() -> None:
+    with pytest.raises(DeviceFileError, match=r"points\.a\.low: must be below high \(5\)"):
+        profile_of("points:\n  a: {address: 0, high: 5, low: 5}\n")
+    with pytest.raises(DeviceFileError, match=r"points\.a\.high: only a number has limits"):
+        profile_of("points:\n  a: {address: 0, type: string, registers: 2, high: 5}\n")
