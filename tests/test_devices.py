@@ -207,3 +207,21 @@ async def test_a_point_beyond_its_limit_raises_an_alarm_and_clears_it(plant: Pla
     assert cleared.json()["data"]["value"] == -1.5
     types = [m.json()["type"] for m in plant.probe.messages[mark:] if m.topic == events]
     assert types.count("alarm_cleared") == 1
+
+
+def test_check_config_warns_of_a_line_its_polls_would_fill(tmp_path: Path) -> None:
+    config = tmp_path / "gateway.yaml"
+    config.write_text(
+        "buses: [{name: line1, port: /dev/null, baudrate: 1200}]\n"
+        "mqtt: {host: 127.0.0.1}\n"
+        "drives:\n"
+        "  - {name: meter1, bus: line1, address: 3, model: sdm630}\n"
+        "  - {name: meter2, bus: line1, address: 4, model: sdm630}\n"
+    )
+    result = run_cli("check-config", "--config", str(config))
+    assert result.returncode == 0, result.stderr
+    assert "line1: 2 polled" in result.stdout
+    assert "buses[0] (line1): its polls alone need 1" in result.stderr  # more than 100 %
+    config.write_text(config.read_text().replace("1200", "19200"))
+    result = run_cli("check-config", "--config", str(config))
+    assert "polls alone" not in result.stderr
