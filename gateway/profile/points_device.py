@@ -204,11 +204,27 @@ class DeviceProfile:
         return None
 
     def resolve(self, text: str) -> Point:
+        """A point the field tools (`read`, `write`) can carry: one holding register of a
+        16-bit integer; another point is refused by name (they would read the wrong table, or
+        one register of a wider value); an address is taken as a holding register."""
         spelled = text.strip()
         typed = self._by_name.get(spelled.lower())
         if typed is not None:
+            if typed.table is not Table.HOLDING or typed.kind not in (Kind.U16, Kind.S16):
+                raise ValueError(
+                    f"{typed.name} is a {typed.kind} in the {typed.table.value} table: the field "
+                    "tools carry single holding registers; read it from MQTT or the console"
+                )
             described = typed.description or typed.name
-            return Point(typed.name, typed.address, described, unit=typed.unit)
+            decimals = _decimals_of(typed.scale) if typed.offset == 0 else 0
+            return Point(
+                typed.name,
+                typed.address,
+                described,
+                decimals=decimals,
+                unit=typed.unit,
+                signed=typed.kind is Kind.S16,
+            )
         address = parse_register(spelled)
         return self.point(address) or Point(
             format_register(address), address, "not in the device file: shown raw"
@@ -242,6 +258,15 @@ class DeviceProfile:
 
     def ram_only_address(self, address: int, spelled: str) -> int:
         raise ValueError(f"{self.display_name} has no RAM-only writes")
+
+
+def _decimals_of(scale: float) -> int:
+    """A scale of 0.1 as the field tools' decimals (1); any other scale (or an offset) shows
+    the raw word."""
+    for decimals in range(5):
+        if scale == 10.0**-decimals:
+            return decimals
+    return 0
 
 
 def _read(point: TypedPoint, registers: Mapping[int, int]) -> Value | None:

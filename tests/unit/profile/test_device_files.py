@@ -13,6 +13,7 @@ from gateway.profile.point_types import Table, word_key
 from gateway.profile.points_device import DeviceFileError, DeviceProfile, device_profile
 
 HEADER = "name: test meter\nsource: a test\n"
+TEST_METER = Path(__file__).parents[2] / "fixtures" / "devices" / "test_meter.yaml"
 
 
 def profile_of(text: str) -> DeviceProfile:
@@ -128,3 +129,13 @@ def test_limits_only_on_numbers_and_low_below_high() -> None:
         profile_of("points:\n  a: {address: 0, high: 5, low: 5}\n")
     with pytest.raises(DeviceFileError, match=r"points\.a\.high: only a number has limits"):
         profile_of("points:\n  a: {address: 0, type: string, registers: 2, high: 5}\n")
+
+
+def test_the_field_tools_get_single_holding_registers_only() -> None:
+    profile = get_profile(f"file:{TEST_METER}")
+    temperature = profile.resolve("temperature")
+    assert (temperature.address, temperature.show(0xFF83, profile)) == (30, "-12.5 °C")
+    with pytest.raises(ValueError, match="flow is a f32 in the input table"):
+        profile.resolve("flow")
+    with pytest.raises(ValueError, match="setpoint is a f32 in the holding table"):
+        profile.resolve("setpoint")
