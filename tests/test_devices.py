@@ -225,3 +225,20 @@ def test_check_config_warns_of_a_line_its_polls_would_fill(tmp_path: Path) -> No
     config.write_text(config.read_text().replace("1200", "19200"))
     result = run_cli("check-config", "--config", str(config))
     assert "polls alone" not in result.stderr
+
+
+async def test_a_writable_coil_is_switched(plant: Plant) -> None:
+    response = await plant.set({"point": "valve_open", "value": True})
+    assert response["status"] == "ok", response
+    assert await plant.tcp.request(UNIT, bytes.fromhex("01 00 00 00 02")) == bytes.fromhex(
+        "01 01 03"
+    )  # coils 0 and 1 on
+    await plant.state("valve_open", True)
+    response = await plant.set({"point": "valve_open", "value": 1})
+    assert (response["error"], response["message"]) == (
+        "invalid_value",
+        "valve_open is on or off: give true or false",
+    )
+    topic = "homeassistant/switch/invt_test/meter1_valve_open/config"
+    switch = (await plant.probe.wait_for(topic)).json()
+    assert json.loads(switch["payload_on"]) == {"point": "valve_open", "value": True}

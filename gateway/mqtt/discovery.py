@@ -2,10 +2,10 @@
 
 Each drive is a device with sensors (state, fault, frequency, current, voltages, power, speed:
 those its profile's telemetry holds; a device file's points with their units and classes, and a
-number for each writable numeric point when commands are enabled), buttons for the run and stop
-commands its profile takes and a number for the frequency set-point (those two only when
-commands are enabled). The
-gateway itself is a device too (its connection state), the one drives are reached "via".
+number for each writable numeric point and a switch for each writable coil when commands are
+enabled), buttons for the run and stop commands its profile takes and a number for the frequency
+set-point (those two only when commands are enabled). The gateway itself is a device too (its
+connection state), the one drives are reached "via".
 Entities are available when both the gateway and the drive are.
 
 Ids are built from `gateway_id` and the drive's name, so two gateways on one broker never claim
@@ -193,10 +193,13 @@ def _point_numbers(
     topics: Topics,
     profile: DriveProfile,
 ) -> list[tuple[str, str]]:
-    """A number entity for each writable numeric point, written through `<drive>/set`."""
+    """A number entity for each writable numeric point, a switch for each writable coil,
+    written through `<drive>/set`."""
     messages = []
     for point in profile.typed_points:
-        if not point.writable or point.kind in (Kind.STRING, Kind.ENUM):
+        if point.writable and point.kind is Kind.BOOL:
+            messages.append(_switch(prefix, node, drive, common, topics, point))
+        if not point.writable or point.kind in (Kind.STRING, Kind.ENUM, Kind.BOOL):
             continue
         payload = {
             **common,
@@ -215,6 +218,24 @@ def _point_numbers(
             payload["unit_of_measurement"] = point.unit
         messages.append((f"{prefix}/number/{node}/{drive}_{point.name}/config", _dump(payload)))
     return messages
+
+
+def _switch(
+    prefix: str, node: str, drive: str, common: dict[str, Any], topics: Topics, point: TypedPoint
+) -> tuple[str, str]:
+    payload = {
+        **common,
+        "name": point.name.replace("_", " ").capitalize(),
+        "unique_id": f"{node}_{drive}_{point.name}_set",
+        "command_topic": topics.set(drive),
+        "payload_on": json.dumps({"point": point.name, "value": True}),
+        "payload_off": json.dumps({"point": point.name, "value": False}),
+        "state_topic": topics.drive_state(drive),
+        "value_template": f"{{{{ 'ON' if value_json.{point.name} else 'OFF' }}}}",
+        "state_on": "ON",
+        "state_off": "OFF",
+    }
+    return f"{prefix}/switch/{node}/{drive}_{point.name}/config", _dump(payload)
 
 
 def _bridge_device(node: str, gateway_id: str) -> dict[str, Any]:

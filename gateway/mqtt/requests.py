@@ -31,12 +31,16 @@ from gateway.errors import CommandRefused
 from gateway.modbus.functions import (
     READ_HOLDING_REGISTERS,
     WRITE_MULTIPLE_REGISTERS,
+    WRITE_SINGLE_COIL,
     WRITE_SINGLE_REGISTER,
 )
 from gateway.profile import DriveProfile, format_register, parse_register
 from gateway.profile import RegisterWrite as Step
 from gateway.profile.commands import is_signed, known_decimals
+from gateway.profile.point_types import Table
 
+COIL_ON: Final = 0xFF00
+"""05H's word for "on" (0000H is off; Modbus allows no other)."""
 MILLISECONDS_EPOCH: Final = 1e11
 """A `time` above this is taken as milliseconds (JavaScript's Date.now()), not seconds."""
 
@@ -63,18 +67,24 @@ class RegisterWrite:
     """Further writes of the same command, in order (a drive whose state machine takes
     several control words to start)."""
 
+    coil: bool = False
+    """A coil's state (05H, words[0] 1 = on), not registers."""
+
     @property
     def pdu(self) -> bytes:
-        return _write_pdu(self.start, self.words)
+        return _write_pdu(self.start, self.words, self.coil)
 
     @property
     def steps(self) -> tuple[tuple[bytes, float], ...]:
         """Each write's PDU and the pause after it, in order."""
         first = (self.pdu, self.pause_s)
-        return (first, *((_write_pdu(s.start, s.words), s.pause_s) for s in self.then))
+        rest = ((_write_pdu(s.start, s.words, s.table is Table.COIL), s.pause_s) for s in self.then)
+        return (first, *rest)
 
 
-def _write_pdu(start: int, words: tuple[int, ...]) -> bytes:
+def _write_pdu(start: int, words: tuple[int, ...], coil: bool = False) -> bytes:
+    if coil:
+        return struct.pack(">BHH", WRITE_SINGLE_COIL, start, COIL_ON if words[0] else 0)
     if len(words) == 1:
         return struct.pack(">BHH", WRITE_SINGLE_REGISTER, start, words[0])
     count = len(words)
@@ -220,7 +230,7 @@ def parse_set(message: Json, profile: DriveProfile) -> RegisterWrite:
 
 def parse_point_write(message: Json, profile: DriveProfile) -> RegisterWrite:
     """`{"point": name, "value": v}`: a device file's writable point, `v` as it is published
-    (scaled; an enumeration's words; a text)."""
+    (scaled; an enumeration's words; a text; true or false for a coil)."""
     extra = sorted(set(message) - COMMON_KEYS - {"point", "value"})
     if extra or "value" not in message:
         raise CommandRefused(
@@ -240,7 +250,7 @@ def parse_point_write(message: Json, profile: DriveProfile) -> RegisterWrite:
         "value": message["value"],
         "register": format_register(write.start),
     }
-    return RegisterWrite(write.start, write.words, echo)
+    return RegisterWrite(write.start, write.words, echo, coil=write.table is Table.COIL)
 
 
 def _frequency(value: Any, profile: DriveProfile) -> int:

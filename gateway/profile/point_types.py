@@ -183,6 +183,10 @@ class TypedPoint:
     def encode(self, value: object) -> tuple[int, ...]:
         """The words that hold `value` (as published: scaled, an enumeration's words). Raises
         ValueError saying why it can't be written."""
+        if self.kind is Kind.BOOL:
+            if not isinstance(value, bool):
+                raise ValueError(f"{self.name} is on or off: give true or false")
+            return (int(value),)
         if self.kind is Kind.STRING:
             if not isinstance(value, str):
                 raise ValueError(f"{self.name} is a text: give a string")

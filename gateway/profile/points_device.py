@@ -237,7 +237,7 @@ class DeviceProfile:
             raise ValueError(f"{self.display_name} has no point {name!r}: writable are {writable}")
         if not point.writable:
             raise ValueError(f"{name} of {self.display_name} is not writable")
-        return RegisterWrite(point.address, point.encode(value))
+        return RegisterWrite(point.address, point.encode(value), table=point.table)
 
     def current_fault(self, registers: Mapping[int, int]) -> int | None:
         return None
@@ -356,8 +356,10 @@ def _typed(name: str, spec: _PointSpec, device: _DeviceSpec, where: str) -> Type
         raise wrong("values", "an enum needs values (raw: words), and only an enum has them")
     if spec.writable and spec.table in (Table.INPUT, Table.DISCRETE_INPUT):
         raise wrong("writable", "input registers and discrete inputs are read-only on every device")
-    if spec.writable and spec.type in (Kind.BIT, Kind.BOOL):
-        raise wrong("writable", "writing a bit or a coil is not supported yet")
+    if spec.writable and spec.type is Kind.BIT:
+        raise wrong(
+            "writable", "a bit can't be written alone (its register's other bits would be too)"
+        )
     limited = spec.high is not None or spec.low is not None
     if limited and spec.type in (Kind.STRING, Kind.ENUM, Kind.BIT, Kind.BOOL):
         raise wrong("high" if spec.high is not None else "low", "only a number has limits")

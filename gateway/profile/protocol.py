@@ -50,13 +50,15 @@ class PollGroup:
 
 @dataclass(frozen=True, slots=True)
 class RegisterWrite:
-    """Words for the drive from `start` (one word: 06H; several: one 10H write)."""
+    """Words for the drive from `start` (one word: 06H; several: one 10H write), or a coil's
+    state (`table` COIL: one 05H write of words[0], 1 = on)."""
 
     start: int
     words: tuple[int, ...]
     pause_s: float = 0.0
     """How long to wait after this write before the next one of the same command (a state
     machine that needs time between steps)."""
+    table: Table = Table.HOLDING
 
 
 @dataclass(frozen=True, slots=True)

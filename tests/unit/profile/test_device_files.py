@@ -60,6 +60,10 @@ def test_a_site_file_is_named_by_its_path(tmp_path: Path) -> None:
         ("  a: {address: 0, type: bit, bit: 16}\n", "meter.yaml: points.a.bit: a bit point"),
         ("  a: {table: coil, address: 0, type: u32}\n", "meter.yaml: points.a.type: a coil"),
         (
+            "  a: {address: 0, type: bit, bit: 1, writable: true}\n",
+            "points.a.writable: a bit can't",
+        ),
+        (
             "  a: {table: input, address: 0, writable: true}\n",
             "points.a.writable: input registers and discrete inputs are read-only",
         ),
