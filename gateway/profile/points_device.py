@@ -24,6 +24,7 @@ from typing import Annotated, Any, Final, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from gateway.errors import DeviceFileError
 from gateway.profile.addressing import format_register, parse_register
 from gateway.profile.faults import FaultTable
 from gateway.profile.parameter_tables import ParameterTable
@@ -51,10 +52,6 @@ MODBUS_MAX_REGISTERS: Final = 125
 MODBUS_MAX_BITS: Final = 2000
 NO_FAULTS: Final = FaultTable("no fault table", {})
 _NAME = r"^[a-z][a-z0-9_]*$"
-
-
-class DeviceFileError(ValueError):
-    """A device file that can't be used: the message names the file and the key."""
 
 
 # -- the file's shape ------------------------------------------------------------------------------
