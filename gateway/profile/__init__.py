@@ -8,8 +8,8 @@
 
 Other Modbus devices (meters, transmitters, remote I/O), described by device files:
 
-- `points_device`: a device file (`data/devices/*.yaml`, or a site's `file:PATH`) as a
-  `DeviceProfile`, checked whole at load.
+- `device_files`: a device file (`data/devices/*.yaml`, or a site's `file:PATH`), checked whole
+  at load, read into its `points_device.DeviceProfile`.
 - `point_types`: typed points (u16...f64, strings, bits, enumerations, coils) in each word and
   byte order, and where each table's words are kept (`word_key`).
 - `read_plan`: the reads planned from the points; `report_by_exception`: when a reading is news;

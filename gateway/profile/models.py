@@ -14,9 +14,9 @@ from types import MappingProxyType
 from typing import Final
 
 from gateway.profile.abb import ABB_PROFILES, SCAN_QUESTION
+from gateway.profile.device_files import FILE_PREFIX, device_file_profile, shipped_devices
 from gateway.profile.generic import GENERIC
 from gateway.profile.invt import INVT_PROFILES
-from gateway.profile.points_device import FILE_PREFIX, device_file_profile, shipped_devices
 from gateway.profile.protocol import DriveProfile, Question
 
 _ALL: Final[tuple[DriveProfile, ...]] = (

@@ -10,8 +10,9 @@ import pytest
 
 from gateway.errors import DeviceFileError
 from gateway.profile import get_profile
+from gateway.profile.device_files import device_profile
 from gateway.profile.point_types import Table, word_key
-from gateway.profile.points_device import DeviceProfile, device_profile
+from gateway.profile.points_device import DeviceProfile
 
 HEADER = "name: test meter\nsource: a test\n"
 TEST_METER = Path(__file__).parents[2] / "fixtures" / "devices" / "test_meter.yaml"
