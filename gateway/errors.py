@@ -24,6 +24,8 @@
     ├── ControlUnavailable      the control socket (`invt-gateway reload`) can't be made or reached
     ├── TableError              a parameter table shipped in the package is malformed (file, line,
     │                           column): a packaging bug, found by the tests
+    ├── DeviceFileError         a device file (`model: sdm630`, `file:PATH`) can't be used: names
+    │                           the file and the key path (`points.flow.type`) and why
     ├── InstructionCountError   `bench --instructions`: the run is void (wrong reply, no count)
     ├── OperationError          a console request refused or failed, with its HTTP `status`
     └── ModbusError             answered to the client as a Modbus exception (has `code`)
@@ -236,6 +238,11 @@ class DiskFull(StoreError):
 class TableError(GatewayError, ValueError):
     """A parameter table's data file is malformed: the message names the file, the line and the
     column."""
+
+
+class DeviceFileError(GatewayError, ValueError):
+    """A device file that can't be used: the message names the file, the key path and why (a
+    ValueError, so the configuration's `model` check reports it under the drive's key)."""
 
 
 class StoreRefused(GatewayError):

@@ -20,7 +20,7 @@ EXEMPT = (
     "instruments/simulator/",  # each simulated drive is one maker's model
     "instruments/commands/simulate.py",  # which models the simulator can play
 )
-PROFILE_CLASSES = frozenset({"InvtProfile", "GenericProfile"})
+PROFILE_CLASSES = frozenset({"InvtProfile", "GenericProfile", "AbbProfile", "DeviceProfile"})
 
 
 def maker_questions(source: str) -> list[str]:

@@ -2,7 +2,8 @@
 
 Validates the file as `run` would (every key, its type and range, the cross-checks: unique unit
 ids, no two buses on one port, drives on defined buses), then prints which unit id reaches which
-drive on which line. Exit 0 when valid, 3 when not (the key and the reason are printed). A serial
+drive on which line, and how much of each line its polls take (a line its polls alone would
+fill is a warning). Exit 0 when valid, 3 when not (the key and the reason are printed). A serial
 port that isn't there on this machine is a warning, not an error: the file may be checked on
 another machine than the gateway box, but on the box `run` would keep trying to open it.
 """
@@ -37,6 +38,11 @@ def handle(args: argparse.Namespace) -> int:
     for warning in missing_ports(config):
         print(f"warning: {warning}", file=sys.stderr)
     print(routing_table(config))
+    print()
+    budget, overloaded = line_budget(config)
+    print(budget)
+    for warning in overloaded:
+        print(f"warning: {warning}", file=sys.stderr)
     if config.modbus_tcp.access:
         print()
         print(access_table(config))
@@ -78,6 +84,34 @@ def access_table(config: GatewayConfig) -> str:
         name = rule.name or f"access[{index}]"
         lines.append(f"  {index + 1}. {verdict:6} {units}, {functions}{registers}  ({name})")
     return "\n".join(lines)
+
+
+def line_budget(config: GatewayConfig) -> tuple[str, list[str]]:
+    """Each line's poll load (of the drives `run` would poll), and a warning for each line the
+    polls would fill."""
+    from gateway.modbus.timing import CharacterFormat
+    from gateway.poller.budget import poll_load
+    from gateway.poller.plan import poll_schedules
+    from gateway.settings import runtime_settings
+
+    settings = runtime_settings(config)
+    lines = ["Poll load (wire time of every planned read; each device's answer delay on top):"]
+    overloaded = []
+    for index, bus in enumerate(config.buses):
+        line = CharacterFormat(bus.baudrate, bus.parity, bus.stopbits, bus.bytesize)
+        polled = [d for d in settings.drives if d.bus == bus.name and settings.polled(d)]
+        load = poll_load((s for d in polled for s in poll_schedules(d)), line)
+        lines.append(
+            f"  {bus.name}: {len(polled)} polled, {load.requests_per_s:.1f} requests/s, "
+            f"{load.busy_fraction:.0%} of the line"
+        )
+        if load.busy_fraction >= 1.0:
+            overloaded.append(
+                f"buses[{index}] ({bus.name}): its polls alone need {load.busy_fraction:.0%} of "
+                "the line: polls will fall behind; lengthen intervals (interval_ms) or raise "
+                "the baud rate"
+            )
+    return "\n".join(lines), overloaded
 
 
 def _listed(values: tuple[int, ...]) -> str:

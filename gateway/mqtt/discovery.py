@@ -1,9 +1,11 @@
 """Home Assistant MQTT discovery: the entities each drive shows in Home Assistant. No I/O.
 
 Each drive is a device with sensors (state, fault, frequency, current, voltages, power, speed:
-those its profile's telemetry holds), buttons for the run and stop commands its profile takes
-and a number for the frequency set-point (those two only when commands are enabled). The
-gateway itself is a device too (its connection state), the one drives are reached "via".
+those its profile's telemetry holds; a device file's points with their units and classes, and a
+number for each writable numeric point and a switch for each writable coil when commands are
+enabled), buttons for the run and stop commands its profile takes and a number for the frequency
+set-point (those two only when commands are enabled). The gateway itself is a device too (its
+connection state), the one drives are reached "via".
 Entities are available when both the gateway and the drive are.
 
 Ids are built from `gateway_id` and the drive's name, so two gateways on one broker never claim
@@ -19,6 +21,8 @@ from typing import Any, Final
 
 from gateway import __version__
 from gateway.mqtt.topics import Topics
+from gateway.profile import DriveProfile
+from gateway.profile.point_types import Kind, TypedPoint
 from gateway.settings import DriveSettings, MqttSettings
 
 MAX_SETPOINT_HZ: Final = 630.0
@@ -34,6 +38,8 @@ class Sensor:
     unit: str | None = None
     device_class: str | None = None
     icon: str | None = None
+    state_class: str | None = "measurement"
+    """Home Assistant's state class where the sensor has a unit (or the device file says)."""
 
 
 SENSORS: Final = (
@@ -93,6 +99,7 @@ def discovery_messages(
     for drive in drives:
         profile = drive.profile
         sensors = [sensor for sensor in SENSORS if sensor.key in profile.telemetry_keys]
+        sensors += [_point_sensor(point) for point in profile.typed_points]
         if not sensors:
             continue  # nothing decoded to show (a generic device)
         common = {
@@ -121,7 +128,9 @@ def discovery_messages(
             }
             if sensor.unit is not None:
                 payload["unit_of_measurement"] = sensor.unit
-                payload["state_class"] = "measurement"
+                payload["state_class"] = sensor.state_class
+            elif sensor.state_class is not None:
+                payload["state_class"] = sensor.state_class
             if sensor.device_class is not None:
                 payload["device_class"] = sensor.device_class
             if sensor.icon is not None:
@@ -129,6 +138,8 @@ def discovery_messages(
             messages.append(
                 (f"{prefix}/sensor/{node}/{drive.name}_{sensor.key}/config", _dump(payload))
             )
+        if commands:
+            messages += _point_numbers(prefix, node, drive.name, common, topics, profile)
         if not commands or not profile.commands:
             continue
         for command, name, icon in BUTTONS:
@@ -164,6 +175,67 @@ def discovery_messages(
             (f"{prefix}/number/{node}/{drive.name}_frequency_setpoint/config", _dump(setpoint))
         )
     return messages
+
+
+def _point_sensor(point: TypedPoint) -> Sensor:
+    """A device file's point as a sensor: its unit and classes as the file gives them."""
+    name = point.name.replace("_", " ").capitalize()
+    return Sensor(
+        point.name, name, point.unit or None, point.device_class, state_class=point.state_class
+    )
+
+
+def _point_numbers(
+    prefix: str,
+    node: str,
+    drive: str,
+    common: dict[str, Any],
+    topics: Topics,
+    profile: DriveProfile,
+) -> list[tuple[str, str]]:
+    """A number entity for each writable numeric point, a switch for each writable coil,
+    written through `<drive>/set`."""
+    messages = []
+    for point in profile.typed_points:
+        if point.writable and point.kind is Kind.BOOL:
+            messages.append(_switch(prefix, node, drive, common, topics, point))
+        if not point.writable or point.kind in (Kind.STRING, Kind.ENUM, Kind.BOOL):
+            continue
+        payload = {
+            **common,
+            "name": point.name.replace("_", " ").capitalize(),
+            "unique_id": f"{node}_{drive}_{point.name}_set",
+            "command_topic": topics.set(drive),
+            "command_template": f'{{"point": "{point.name}", "value": {{{{ value }}}}}}',
+            "state_topic": topics.drive_state(drive),
+            "value_template": f"{{{{ value_json.{point.name} }}}}",
+            "mode": "box",
+            "min": -1e9,
+            "max": 1e9,
+            "step": "any",
+        }
+        if point.unit:
+            payload["unit_of_measurement"] = point.unit
+        messages.append((f"{prefix}/number/{node}/{drive}_{point.name}/config", _dump(payload)))
+    return messages
+
+
+def _switch(
+    prefix: str, node: str, drive: str, common: dict[str, Any], topics: Topics, point: TypedPoint
+) -> tuple[str, str]:
+    payload = {
+        **common,
+        "name": point.name.replace("_", " ").capitalize(),
+        "unique_id": f"{node}_{drive}_{point.name}_set",
+        "command_topic": topics.set(drive),
+        "payload_on": json.dumps({"point": point.name, "value": True}),
+        "payload_off": json.dumps({"point": point.name, "value": False}),
+        "state_topic": topics.drive_state(drive),
+        "value_template": f"{{{{ 'ON' if value_json.{point.name} else 'OFF' }}}}",
+        "state_on": "ON",
+        "state_off": "OFF",
+    }
+    return f"{prefix}/switch/{node}/{drive}_{point.name}/config", _dump(payload)
 
 
 def _bridge_device(node: str, gateway_id: str) -> dict[str, Any]:

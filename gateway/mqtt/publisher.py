@@ -5,10 +5,11 @@ drains it while connected. Events come from the store (`gateway.store`), where t
 first: `forward_events` publishes them in id order and marks each delivered only once the broker
 acknowledged it (QoS 1), so an outage or a restart loses none.
 
-A drive's state is published when it changed (`last_seen` aside) or every `publish_interval_s`,
-retained, so a dashboard that subscribes late still gets it at once; an availability is published
-once per connection and change. What a broken connection kept from being published goes back to
-the outbox, to go out after the next connect.
+A drive's state is published when it changed (`last_seen` aside; a device file's points by
+their report-by-exception rules, `gateway.profile.report_by_exception`) or every
+`publish_interval_s`, retained, so a dashboard that subscribes late still gets it at once; an
+availability is published once per connection and change. What a broken connection kept from
+being published goes back to the outbox, to go out after the next connect.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from gateway.mqtt.requests import Json, dump
 from gateway.mqtt.stats import BridgeStats
 from gateway.mqtt.topics import Topics
 from gateway.poller import Poller
+from gateway.profile.report_by_exception import ExceptionReport
 from gateway.profile.telemetry import Telemetry
 from gateway.settings import DriveSettings, MqttSettings
 from gateway.store import EventStore, EventType
@@ -64,6 +66,12 @@ class Publisher:
         """Drive → (its last state payload without last_seen, monotonic time published)."""
         self._availability: dict[str, bool] = {}
         """Drive → the availability last published on this connection."""
+        self._reports = {
+            d.name: ExceptionReport(d.profile.typed_points)
+            for d in drives
+            if d.profile.typed_points
+        }
+        """Device → what its points last published said (drives compare whole states)."""
 
     # -- once per connection -------------------------------------------------------------------
 
@@ -136,12 +144,15 @@ class Publisher:
         compared = json.dumps({k: v for k, v in telemetry.items() if k != "last_seen"})
         last = self._published.get(drive)
         now = time.monotonic()
+        report = self._reports.get(drive)
         if not force and last is not None:
-            unchanged = last[0] == compared
-            if unchanged and now - last[1] < self.mqtt.publish_interval_s:
+            quiet = last[0] == compared if report is None else not report.news(telemetry, now)
+            if quiet and now - last[1] < self.mqtt.publish_interval_s:
                 return
         await self.publish(client, self.topics.drive_state(drive), dump(telemetry), retain=True)
         self._published[drive] = (compared, now)
+        if report is not None:
+            report.published(telemetry, now)
 
     async def answer(self, client: aiomqtt.Client, topic: str, response: Json) -> None:
         """A command's answer; when the connection is gone, there is nobody to tell."""

@@ -13,6 +13,7 @@ Payloads (JSON objects; `transaction` is echoed, `time` is when it was sent):
                            {"frequency_hz": 35.0}
                            {"parameter": "P00.11", "value": 10.0, "ram_only": true}
                            {"parameter": "2001H", "raw": 3500}
+                           {"point": "demand_period", "value": 15}   (a device file's point)
     bridge/request/read_parameter   {"drive": "pump1", "parameter": "P07.27", "count": 6}
     bridge/request/write_parameter  {"drive": "pump1", "parameter": "P00.11", "value": 10.0}
 """
@@ -30,20 +31,24 @@ from gateway.errors import CommandRefused
 from gateway.modbus.functions import (
     READ_HOLDING_REGISTERS,
     WRITE_MULTIPLE_REGISTERS,
+    WRITE_SINGLE_COIL,
     WRITE_SINGLE_REGISTER,
 )
 from gateway.profile import DriveProfile, format_register, parse_register
 from gateway.profile import RegisterWrite as Step
 from gateway.profile.addressing import format_parameter, is_parameter_register
 from gateway.profile.commands import is_signed, known_decimals
+from gateway.profile.point_types import Table
 from gateway.profile.points import for_series
 
+COIL_ON: Final = 0xFF00
+"""05H's word for "on" (0000H is off; Modbus allows no other)."""
 MILLISECONDS_EPOCH: Final = 1e11
 """A `time` above this is taken as milliseconds (JavaScript's Date.now()), not seconds."""
 
 COMMON_KEYS: Final = frozenset({"transaction", "time"})
 WRITE_KEYS: Final = frozenset({"parameter", "register", "value", "raw", "decimals", "ram_only"})
-SET_KEYS: Final = COMMON_KEYS | WRITE_KEYS | {"command", "frequency_hz"}
+SET_KEYS: Final = COMMON_KEYS | WRITE_KEYS | {"command", "frequency_hz", "point"}
 BRIDGE_WRITE_KEYS: Final = COMMON_KEYS | WRITE_KEYS | {"drive"}
 BRIDGE_READ_KEYS: Final = COMMON_KEYS | {"drive", "parameter", "register", "count", "decimals"}
 
@@ -64,18 +69,24 @@ class RegisterWrite:
     """Further writes of the same command, in order (a drive whose state machine takes
     several control words to start)."""
 
+    coil: bool = False
+    """A coil's state (05H, words[0] 1 = on), not registers."""
+
     @property
     def pdu(self) -> bytes:
-        return _write_pdu(self.start, self.words)
+        return _write_pdu(self.start, self.words, self.coil)
 
     @property
     def steps(self) -> tuple[tuple[bytes, float], ...]:
         """Each write's PDU and the pause after it, in order."""
         first = (self.pdu, self.pause_s)
-        return (first, *((_write_pdu(s.start, s.words), s.pause_s) for s in self.then))
+        rest = ((_write_pdu(s.start, s.words, s.table is Table.COIL), s.pause_s) for s in self.then)
+        return (first, *rest)
 
 
-def _write_pdu(start: int, words: tuple[int, ...]) -> bytes:
+def _write_pdu(start: int, words: tuple[int, ...], coil: bool = False) -> bytes:
+    if coil:
+        return struct.pack(">BHH", WRITE_SINGLE_COIL, start, COIL_ON if words[0] else 0)
     if len(words) == 1:
         return struct.pack(">BHH", WRITE_SINGLE_REGISTER, start, words[0])
     count = len(words)
@@ -183,6 +194,8 @@ def parse_set(message: Json, profile: DriveProfile) -> RegisterWrite:
     """A `<drive>/set` payload: a control command (with a set-point), a set-point alone, or a
     parameter write."""
     check_keys(message, SET_KEYS)
+    if "point" in message:
+        return parse_point_write(message, profile)
     has_command = "command" in message
     has_frequency = "frequency_hz" in message
     has_write = bool(WRITE_KEYS & set(message))
@@ -215,6 +228,31 @@ def parse_set(message: Json, profile: DriveProfile) -> RegisterWrite:
     except ValueError as exc:
         raise CommandRefused("invalid_request", str(exc)) from None
     return RegisterWrite(first.start, first.words, echo, first.pause_s, tuple(rest))
+
+
+def parse_point_write(message: Json, profile: DriveProfile) -> RegisterWrite:
+    """`{"point": name, "value": v}`: a device file's writable point, `v` as it is published
+    (scaled; an enumeration's words; a text; true or false for a coil)."""
+    extra = sorted(set(message) - COMMON_KEYS - {"point", "value"})
+    if extra or "value" not in message:
+        raise CommandRefused(
+            "invalid_request", 'a point write is {"point": name, "value": value} and nothing else'
+        )
+    name = message["point"]
+    if not isinstance(name, str):
+        raise CommandRefused("invalid_request", "point must be a point's name")
+    try:
+        write = profile.point_write(name, message["value"])
+    except ValueError as exc:
+        writable = any(p.name == name and p.writable for p in profile.typed_points)
+        reason = "invalid_value" if writable else "invalid_request"  # the value, or the point
+        raise CommandRefused(reason, str(exc)) from None
+    echo: Json = {
+        "point": name,
+        "value": message["value"],
+        "register": format_register(write.start),
+    }
+    return RegisterWrite(write.start, write.words, echo, coil=write.table is Table.COIL)
 
 
 def _frequency(value: Any, profile: DriveProfile) -> int:

@@ -1,8 +1,8 @@
 """What the gateway knows of one drive from its polls: raw registers, availability, events.
 
 The state changes only here, and each change that a dashboard must hear about as it happens (a
-fault raised or cleared, the drive lost or back) comes back from the method that made it, as a
-`DriveEvent`.
+fault raised or cleared, the drive lost or back, a device's point beyond its limit or back)
+comes back from the method that made it, as a `DriveEvent`.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 
 from gateway.profile import DriveProfile
+from gateway.profile.limit_alarms import LimitAlarms
 from gateway.profile.telemetry import Telemetry
 
 
@@ -21,6 +22,9 @@ class EventKind(StrEnum):
     FAULT_CLEARED = "fault_cleared"
     DRIVE_OFFLINE = "drive_offline"
     DRIVE_ONLINE = "drive_online"
+    ALARM_RAISED = "alarm_raised"
+    ALARM_CLEARED = "alarm_cleared"
+    """A device file's point beyond its limit, or back inside (`gateway.profile.limit_alarms`)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -43,6 +47,7 @@ class DriveState:
         """None until the first poll has answered or failed."""
         self.last_seen: float | None = None
         """Wall-clock time of the last poll the drive answered."""
+        self.alarms = LimitAlarms(profile.typed_points)
 
     def record_poll(self, start: int, words: Sequence[int], at: float) -> list[DriveEvent]:
         """A poll answered: store its words; the events it caused (fault, back online)."""
@@ -54,6 +59,11 @@ class DriveState:
         fault_now = self.profile.current_fault(self.registers)
         if fault_now is not None and fault_now != (fault_before or 0):
             events += self._fault_changed(fault_before or 0, fault_now)
+        if self.profile.typed_points:
+            reading = self.profile.telemetry(self.registers)
+            for change in self.alarms.check(reading, time.monotonic()):
+                kind = EventKind.ALARM_RAISED if change.raised else EventKind.ALARM_CLEARED
+                events.append(DriveEvent(kind, self.name, change.data(), at))
         return events
 
     def set_online(self, online: bool) -> list[DriveEvent]:

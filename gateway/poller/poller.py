@@ -31,6 +31,7 @@ from gateway.modbus.functions import is_exception
 from gateway.poller.drive_state import DriveEvent, DriveState
 from gateway.poller.plan import PollBlock, PollSchedule, poll_schedules
 from gateway.profile import exception_name, format_register
+from gateway.profile.point_types import word_key
 from gateway.profile.telemetry import Telemetry
 from gateway.routing import Route, Router
 from gateway.settings import DriveSettings
@@ -247,7 +248,7 @@ class Poller:
         self.polls += 1
         drive.polls += 1
         try:
-            reply = await self.router.poll(drive.route, block.start, block.count)
+            reply = await self.router.poll(drive.route, block.start, block.count, block.function)
         except BusClosed:
             return False  # shutting down: not the drive's failure, nothing to count
         except DriveOffline:
@@ -264,8 +265,7 @@ class Poller:
         if is_exception(reply):
             self._drive_refused(drive, block, reply[1] if len(reply) > 1 else 0)
             return True
-        words = list(struct.unpack(f">{(len(reply) - 2) // 2}H", reply[2:]))
-        self._answered(drive, block.start, words)
+        self._answered(drive, word_key(block.table, block.start), _values(block, reply))
         return True
 
     def _answered(self, drive: PolledDrive, start: int, words: list[int]) -> None:
@@ -322,3 +322,10 @@ class Poller:
         for event in events:
             for listener in self._listeners:
                 listener.drive_event(event)
+
+
+def _values(block: PollBlock, reply: bytes) -> list[int]:
+    """A read's words, or its bits as 0 and 1 (first bit: the low bit of the first byte)."""
+    if block.table.bits:
+        return [reply[2 + n // 8] >> (n % 8) & 1 for n in range(block.count)]
+    return list(struct.unpack(f">{(len(reply) - 2) // 2}H", reply[2:]))

@@ -6,6 +6,15 @@
 - `generic`: a Modbus device the gateway only carries.
 - `points`: the point resolver (`P00.11`, `2100H`, `output_frequency`) and `Point`.
 
+Other Modbus devices (meters, transmitters, remote I/O), described by device files:
+
+- `device_files`: a device file (`data/devices/*.yaml`, or a site's `file:PATH`), checked whole
+  at load, read into its `points_device.DeviceProfile`.
+- `point_types`: typed points (u16...f64, strings, bits, enumerations, coils) in each word and
+  byte order, and where each table's words are kept (`word_key`).
+- `read_plan`: the reads planned from the points; `report_by_exception`: when a reading is news;
+  `limit_alarms`: high and low limits with hysteresis and delay.
+
 INVT, one implementation of the protocol:
 
 - `addressing`: Pxx.yy ↔ register, RAM-only addresses, register spellings ("2100H", "0x2100").

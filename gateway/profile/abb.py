@@ -27,6 +27,7 @@ from gateway.profile.addressing import format_register, parse_register
 from gateway.profile.faults import FaultTable
 from gateway.profile.parameter_tables import ParameterTable
 from gateway.profile.parameters import Parameter
+from gateway.profile.point_types import TypedPoint, no_typed_points
 from gateway.profile.points import Point
 from gateway.profile.protocol import DriveProfile, Identified, PollGroup, Question, RegisterWrite
 from gateway.profile.registers import to_signed
@@ -141,6 +142,7 @@ class AbbProfile:
         | {f"reference_{n}" for n in (1, 2)}
         | {f"actual_value_{n}" for n in range(1, len(ACTUAL_VALUES) + 1)}
     )
+    typed_points: tuple[TypedPoint, ...] = ()
 
     @property
     def parameter_table(self) -> ParameterTable:
@@ -199,6 +201,9 @@ class AbbProfile:
         if found is not None:
             return found
         return Point(format_register(address), address, "not in the profile: shown raw")
+
+    def point_write(self, name: str, value: object) -> RegisterWrite:
+        raise ValueError(no_typed_points(self.display_name))
 
     # -- faults -----------------------------------------------------------------------------
     def current_fault(self, registers: Mapping[int, int]) -> int | None:

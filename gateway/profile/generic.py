@@ -14,6 +14,7 @@ from gateway.profile.addressing import format_register, parse_register
 from gateway.profile.faults import FaultTable
 from gateway.profile.parameter_tables import ParameterTable
 from gateway.profile.parameters import Parameter
+from gateway.profile.point_types import TypedPoint, no_typed_points
 from gateway.profile.points import Point
 from gateway.profile.protocol import DriveProfile, PollGroup, RegisterWrite
 from gateway.profile.telemetry import Telemetry
@@ -41,6 +42,7 @@ class GenericProfile:
     max_frequency_hz: float = 0.0
     max_frequency_parameter: Parameter | None = None
     telemetry_keys: frozenset[str] = frozenset()
+    typed_points: tuple[TypedPoint, ...] = ()
 
     @property
     def parameter_table(self) -> ParameterTable:
@@ -68,6 +70,9 @@ class GenericProfile:
     def resolve(self, text: str) -> Point:
         address = parse_register(text)
         return Point(format_register(address), address, "not in the profile: shown raw")
+
+    def point_write(self, name: str, value: object) -> RegisterWrite:
+        raise ValueError(no_typed_points(self.display_name))
 
     def current_fault(self, registers: Mapping[int, int]) -> int | None:
         return None

@@ -34,6 +34,7 @@ from gateway.profile.faults import (
 )
 from gateway.profile.parameter_tables import ParameterTable, series_table
 from gateway.profile.parameters import Parameter, parameter, parameter_groups
+from gateway.profile.point_types import TypedPoint, no_typed_points
 from gateway.profile.protocol import PollGroup, RegisterWrite
 
 if TYPE_CHECKING:
@@ -102,6 +103,7 @@ class InvtProfile:
     """P00.03's factory value: the set-point maximum until the drive's own is read."""
     unconfirmed: tuple[str, ...] = ()
     """Facts of this profile no public manual confirmed, in words (docs, `scan`, `decode-fault`)."""
+    typed_points: tuple[TypedPoint, ...] = ()
 
     @property
     def max_fault_code(self) -> int:
@@ -184,6 +186,9 @@ class InvtProfile:
         from gateway.profile.points import resolve
 
         return resolve(text)
+
+    def point_write(self, name: str, value: object) -> RegisterWrite:
+        raise ValueError(no_typed_points(self.display_name))
 
     def current_fault(self, registers: Mapping[int, int]) -> int | None:
         from gateway.profile.telemetry import current_fault

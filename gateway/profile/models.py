@@ -1,7 +1,8 @@
 """The drive models users name (`model:` in the config, `--model`, `--drive ADDR=MODEL`).
 
 Every maker's profiles in one registry: a new maker adds its module's profiles to `_ALL`
-(`invt`, `abb`; `generic` for a device of no known maker). A
+(`invt`, `abb`; `generic` for a device of no known maker; each device file of
+`data/devices/`, named by its file name, and a site's own as `file:PATH`). A
 model is named by its key (`gd30`, `gd300l`, `acs580`, `generic`) in any case, with or without
 `-`, `_` or spaces, "Goodrive" for "GD" (`Goodrive30`), or one of its profile's `aliases`.
 """
@@ -13,6 +14,7 @@ from types import MappingProxyType
 from typing import Final
 
 from gateway.profile.abb import ABB_PROFILES, SCAN_QUESTION
+from gateway.profile.device_files import FILE_PREFIX, device_file_profile, shipped_devices
 from gateway.profile.generic import GENERIC
 from gateway.profile.invt import INVT_PROFILES
 from gateway.profile.protocol import DriveProfile, Question
@@ -21,6 +23,7 @@ _ALL: Final[tuple[DriveProfile, ...]] = (
     *INVT_PROFILES.values(),
     *ABB_PROFILES.values(),
     GENERIC,
+    *shipped_devices(),
 )
 
 SCAN_QUESTIONS: Final[tuple[Question, ...]] = (SCAN_QUESTION,)
@@ -43,10 +46,15 @@ _BY_NAME: Final = {
 
 
 def get_profile(name: str) -> DriveProfile:
-    """The profile called `name` ("gd350", "Goodrive30", "GD300-LIFT"); ValueError lists them."""
+    """The profile called `name` ("gd350", "Goodrive30", "GD300-LIFT", "sdm630"), or a site's
+    device file (`file:/etc/invt-gateway/devices/mymeter.yaml`, read again each time: a reload
+    sees the file's changes); ValueError lists them, or says what is wrong with the file."""
+    if name.strip().startswith(FILE_PREFIX):
+        return device_file_profile(name)
     try:
         return _BY_NAME[_normalise(name)]
     except KeyError:
         raise ValueError(
-            f"unknown drive profile {name!r}: valid profiles are {', '.join(PROFILES)}"
+            f"unknown drive profile {name!r}: valid profiles are {', '.join(PROFILES)}, "
+            f"or {FILE_PREFIX}PATH for a device file"
         ) from None

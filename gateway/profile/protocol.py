@@ -1,16 +1,19 @@
 """What the gateway asks of a drive model, whoever makes it: the `DriveProfile` protocol.
 
-Implementations, one module each: `invt.InvtProfile` (every INVT series), `generic.GenericProfile`
-(a Modbus device the gateway only carries: raw words, no commands). `models` is the registry of
-the names users type (`model:` in the config). Nothing outside `gateway.profile` asks which maker
-a drive is: the poller, the MQTT bridge, the settings and the console ask the profile.
+Implementations, one module each: `invt.InvtProfile` (every INVT series), `abb.AbbProfile`,
+`generic.GenericProfile` (a Modbus device the gateway only carries: raw words, no commands),
+`points_device.DeviceProfile` (a device file's typed points: a meter, a transmitter, remote
+I/O). `models` is the registry of the names users type (`model:` in the config). Nothing
+outside `gateway.profile` asks which maker a drive is: the poller, the MQTT bridge, the settings
+and the console ask the profile.
 
 | part | members |
 |---|---|
 | identification | `key`, `aliases`, `display_name`, `manufacturer`, `identification`, |
 | | `unconfirmed`, `with_overrides` |
 | the line | `max_words`, `split_by_default`, `poll_groups`, `ram_writes_supported` |
-| register words and their decoders | `telemetry`, `telemetry_keys`, `point`, `resolve` |
+| register words and their decoders | `telemetry`, `telemetry_keys`, `point`, `resolve`, |
+| | `typed_points`, `point_write` |
 | faults | `faults`, `current_fault`, `fault_fields` |
 | commands | `commands`, `command_name`, `setpoint_word`, `control_writes`, `ram_only_address` |
 | parameters | `parameter_table`, `parameters`, `max_frequency_hz`, `max_frequency_parameter` |
@@ -22,6 +25,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
+from gateway.profile.point_types import Table, TypedPoint
+
 if TYPE_CHECKING:
     from gateway.profile.faults import FaultTable
     from gateway.profile.parameter_tables import ParameterTable
@@ -32,23 +37,28 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class PollGroup:
-    """A block the poller reads from each drive: `count` words from `start` every `interval_s`."""
+    """A block the poller reads from each drive: `count` words (or bits) of `table` from
+    `start` every `interval_s`. Its words are kept under `point_types.word_key` (a holding
+    register under its bare address)."""
 
     name: str
     start: int
     count: int
     interval_s: float
+    table: Table = Table.HOLDING
 
 
 @dataclass(frozen=True, slots=True)
 class RegisterWrite:
-    """Words for the drive from `start` (one word: 06H; several: one 10H write)."""
+    """Words for the drive from `start` (one word: 06H; several: one 10H write), or a coil's
+    state (`table` COIL: one 05H write of words[0], 1 = on)."""
 
     start: int
     words: tuple[int, ...]
     pause_s: float = 0.0
     """How long to wait after this write before the next one of the same command (a state
     machine that needs time between steps)."""
+    table: Table = Table.HOLDING
 
 
 @dataclass(frozen=True, slots=True)
@@ -136,6 +146,15 @@ class DriveProfile(Protocol):
 
     def resolve(self, text: str) -> Point:
         """The point a person names ("P00.11", "2100H", "output_frequency"). Raises ValueError."""
+
+    @property
+    def typed_points(self) -> tuple[TypedPoint, ...]:
+        """A device's values as its device file describes them (empty for a drive profile):
+        each a telemetry key with its unit and Home Assistant classes."""
+
+    def point_write(self, name: str, value: object) -> RegisterWrite:
+        """The write that sets the typed point `name` to `value`. Raises ValueError when there
+        is no such point, it isn't writable or the value doesn't fit."""
 
     # -- faults ------------------------------------------------------------------------------
     @property

@@ -145,15 +145,18 @@ class Router:
         self._submit(route, pdu, waiter, client, Priority.READ)
         return True
 
-    async def poll(self, route: Route, start: int, count: int) -> bytes:
-        """Read `count` words from `start` of the drive, never from the cache, at poll priority;
-        the reply PDU (an exception reply too). What the drive says goes into the cache."""
-        pdu = struct.pack(">BHH", READ_HOLDING_REGISTERS, start, count)
+    async def poll(
+        self, route: Route, start: int, count: int, function: int = READ_HOLDING_REGISTERS
+    ) -> bytes:
+        """Read `count` words (or bits) from `start` of the drive with `function` (01H-04H),
+        never from the cache, at poll priority; the reply PDU (an exception reply too). What
+        the drive says of its holding registers goes into the cache (the one table it serves)."""
+        pdu = struct.pack(">BHH", function, start, count)
         # The cache only takes what was true when the poll was issued and no write followed.
         issued_at = time.monotonic()
         generation = self.cache.generation(route.drive)
         reply = await self._forward(route, pdu, POLL_CLIENT, Priority.POLL)
-        if not is_exception(reply):
+        if function == READ_HOLDING_REGISTERS and not is_exception(reply):
             words = struct.unpack(f">{(len(reply) - 2) // 2}H", reply[2:])
             self.cache.store(route.drive, start, words, issued_at, generation)
         return reply

@@ -1,0 +1,97 @@
+"""Limit alarms on a device's points: high and low limits with hysteresis and a delay. No I/O.
+
+A point's alarm is raised when its value has stayed beyond the limit (above `high`, below `low`)
+for `delay_s`, and cleared when it has stayed back inside by more than `hysteresis` for as long:
+a value hovering at the limit raises one alarm, not one per poll. Each change comes back as an
+`AlarmChange` for the poller to turn into an `alarm_raised` / `alarm_cleared` event.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from typing import Literal
+
+from gateway.profile.point_types import TypedPoint
+
+Side = Literal["high", "low"]
+
+
+@dataclass(frozen=True, slots=True)
+class AlarmChange:
+    point: str
+    side: Side
+    raised: bool
+    value: float
+    limit: float
+
+    def data(self) -> dict[str, str | float]:
+        """The event's data: {"point": "flow", "limit": "high", "value": 12.5, "threshold": 12}."""
+        return {
+            "point": self.point,
+            "limit": self.side,
+            "value": self.value,
+            "threshold": self.limit,
+        }
+
+
+@dataclass(slots=True)
+class _Watch:
+    point: str
+    side: Side
+    limit: float
+    hysteresis: float
+    delay_s: float
+    active: bool = False
+    since: float | None = None
+    """When the value last crossed to the other side of where the alarm stands (None: it
+    hasn't, or it crossed back)."""
+
+    def beyond(self, value: float) -> bool:
+        return value > self.limit if self.side == "high" else value < self.limit
+
+    def back(self, value: float) -> bool:
+        if self.side == "high":
+            return value < self.limit - self.hysteresis
+        return value > self.limit + self.hysteresis
+
+    def check(self, value: float, now: float) -> AlarmChange | None:
+        crossing = self.back(value) if self.active else self.beyond(value)
+        if not crossing:
+            self.since = None
+            return None
+        if self.since is None:
+            self.since = now
+        if now - self.since < self.delay_s:
+            return None
+        self.active, self.since = not self.active, None
+        return AlarmChange(self.point, self.side, self.active, value, self.limit)
+
+
+class LimitAlarms:
+    """The limit alarms of one device's points, and where each stands."""
+
+    def __init__(self, points: Iterable[TypedPoint]) -> None:
+        self._watches: list[_Watch] = []
+        for point in points:
+            limit = point.limit
+            sides: tuple[tuple[Side, float | None], ...] = (
+                ("high", limit.high),
+                ("low", limit.low),
+            )
+            for side, threshold in sides:
+                if threshold is not None:
+                    watch = _Watch(point.name, side, threshold, limit.hysteresis, limit.delay_s)
+                    self._watches.append(watch)
+
+    def check(self, reading: Mapping[str, object], now: float) -> list[AlarmChange]:
+        """The alarms `reading` (point name → value) raises or clears at monotonic `now`."""
+        changes = []
+        for watch in self._watches:
+            value = reading.get(watch.point)
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                continue  # not read yet
+            change = watch.check(float(value), now)
+            if change is not None:
+                changes.append(change)
+        return changes
