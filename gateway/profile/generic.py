@@ -12,6 +12,7 @@ from typing import Final
 
 from gateway.profile.addressing import format_register, parse_register
 from gateway.profile.faults import FaultTable
+from gateway.profile.not_a_drive import NotADrive
 from gateway.profile.parameter_tables import ParameterTable
 from gateway.profile.parameters import Parameter
 from gateway.profile.point_types import TypedPoint, no_typed_points
@@ -25,7 +26,7 @@ MODBUS_MAX_WORDS: Final = 125
 
 
 @dataclass(frozen=True)
-class GenericProfile:
+class GenericProfile(NotADrive):
     key: str = "generic"
     display_name: str = "generic Modbus device"
     manufacturer: str = ""
@@ -73,26 +74,6 @@ class GenericProfile:
 
     def point_write(self, name: str, value: object) -> RegisterWrite:
         raise ValueError(no_typed_points(self.display_name))
-
-    def current_fault(self, registers: Mapping[int, int]) -> int | None:
-        return None
-
-    def fault_fields(self, code: int) -> Telemetry:
-        return {}
-
-    def command_name(self, name: str) -> str:
-        raise ValueError(f"a {self.display_name} takes no drive commands")
-
-    def setpoint_word(self, frequency_hz: float) -> int:
-        raise ValueError(f"a {self.display_name} has no frequency set-point")
-
-    def control_writes(
-        self, command: str | None, setpoint: int | None
-    ) -> tuple[RegisterWrite, ...]:
-        raise ValueError(f"a {self.display_name} takes no drive commands")
-
-    def ram_only_address(self, address: int, spelled: str) -> int:
-        raise ValueError(f"{self.display_name} has no RAM-only writes")
 
 
 GENERIC: Final = GenericProfile()

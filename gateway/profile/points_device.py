@@ -11,10 +11,11 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Final
+from typing import ClassVar, Final
 
 from gateway.profile.addressing import format_register, parse_register
 from gateway.profile.faults import FaultTable
+from gateway.profile.not_a_drive import NotADrive
 from gateway.profile.parameter_tables import ParameterTable
 from gateway.profile.parameters import Parameter
 from gateway.profile.point_types import Kind, Table, TypedPoint, Value, table_of, word_key
@@ -27,7 +28,9 @@ NO_FAULTS: Final = FaultTable("no fault table", {})
 
 
 @dataclass(frozen=True)
-class DeviceProfile:
+class DeviceProfile(NotADrive):
+    no_commands_hint: ClassVar[str] = ": write its points"
+
     key: str
     display_name: str
     typed_points: tuple[TypedPoint, ...]
@@ -129,26 +132,6 @@ class DeviceProfile:
         if not point.writable:
             raise ValueError(f"{name} of {self.display_name} is not writable")
         return RegisterWrite(point.address, point.encode(value), table=point.table)
-
-    def current_fault(self, registers: Mapping[int, int]) -> int | None:
-        return None
-
-    def fault_fields(self, code: int) -> Telemetry:
-        return {}
-
-    def command_name(self, name: str) -> str:
-        raise ValueError(f"a {self.display_name} takes no drive commands: write its points")
-
-    def setpoint_word(self, frequency_hz: float) -> int:
-        raise ValueError(f"a {self.display_name} has no frequency set-point")
-
-    def control_writes(
-        self, command: str | None, setpoint: int | None
-    ) -> tuple[RegisterWrite, ...]:
-        raise ValueError(f"a {self.display_name} takes no drive commands: write its points")
-
-    def ram_only_address(self, address: int, spelled: str) -> int:
-        raise ValueError(f"{self.display_name} has no RAM-only writes")
 
 
 def _decimals_of(scale: float) -> int:

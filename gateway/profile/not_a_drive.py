@@ -1,0 +1,40 @@
+"""What a profile of a device that is not a drive answers to the drive's part of the protocol
+(`gateway.profile.protocol.DriveProfile`): no fault word, no commands, no set-point, no RAM-only
+writes. The generic device and the typed-points devices share it."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, ClassVar
+
+if TYPE_CHECKING:
+    from gateway.profile.protocol import RegisterWrite
+    from gateway.profile.telemetry import Telemetry
+
+
+class NotADrive:
+    """Mixed into a profile dataclass that has a `display_name`."""
+
+    display_name: str
+    no_commands_hint: ClassVar[str] = ""
+    """Said after "takes no drive commands" (what to do instead, e.g. ": write its points")."""
+
+    def current_fault(self, registers: Mapping[int, int]) -> int | None:
+        return None
+
+    def fault_fields(self, code: int) -> Telemetry:
+        return {}
+
+    def command_name(self, name: str) -> str:
+        raise ValueError(f"a {self.display_name} takes no drive commands{self.no_commands_hint}")
+
+    def setpoint_word(self, frequency_hz: float) -> int:
+        raise ValueError(f"a {self.display_name} has no frequency set-point")
+
+    def control_writes(
+        self, command: str | None, setpoint: int | None
+    ) -> tuple[RegisterWrite, ...]:
+        raise ValueError(f"a {self.display_name} takes no drive commands{self.no_commands_hint}")
+
+    def ram_only_address(self, address: int, spelled: str) -> int:
+        raise ValueError(f"{self.display_name} has no RAM-only writes")
