@@ -4,8 +4,11 @@ with a real Mosquitto (and without one)."""
 
 from __future__ import annotations
 
+import logging
 import struct
 from typing import Any
+
+import pytest
 
 from gateway.app import Application
 from gateway.config import GatewayConfig, MqttConfig
@@ -131,3 +134,32 @@ async def connected(app: Application) -> None:
         return app.mqtt.connected.is_set()
 
     await eventually(up)
+
+
+async def test_the_logs_recent_lines_with_a_level_filter(
+    line: SimulatedLine, caplog: pytest.LogCaptureFixture
+) -> None:
+    """What the gateway logged while it ran, newest last, filtered by level; a bad level is a
+    clear 400."""
+    caplog.set_level(logging.INFO)  # the service's own default (`logging.level: info`)
+    async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
+        assert (await web.login("victor", VIEWER_PASSWORD)).status == 200
+        line.set_dead(2)  # the bus says so at WARNING once the drive goes offline
+
+        async def offline_said() -> bool:
+            found = await web.get_json("/api/log?level=warning")
+            return any("drive 2 offline" in entry["message"] for entry in found["lines"])
+
+        await eventually(offline_said, within_s=20, every_s=0.2)
+        warnings = (await web.get_json("/api/log?level=warning"))["lines"]
+        assert warnings
+        assert {entry["level"] for entry in warnings} <= {"warning", "error"}
+        assert all(entry["time"].endswith("Z") for entry in warnings)
+        everything = (await web.get_json("/api/log?level=debug"))["lines"]
+        assert len(everything) >= len(warnings)
+        assert any(entry["logger"] == "gateway.console.feature" for entry in everything)
+        last_two = (await web.get_json("/api/log?level=debug&limit=2"))["lines"]
+        assert len(last_two) == 2
+        async with web.session.get(f"{web.base}/api/log?level=loud") as response:
+            assert response.status == 400
+            assert "level must be one of" in await response.text()

@@ -21,6 +21,7 @@ from gateway.console.deadlines import KEEP_ALIVE_S, DeadlinedSite, RequestDeadli
 from gateway.console.diagnostics import MqttSession, TcpClients
 from gateway.console.events import EventStore, MemoryEventStore
 from gateway.console.live import LiveState
+from gateway.console.log_tail import LogTail
 from gateway.console.operations import DriveOperations, Policy
 from gateway.console.traffic import DriveLabel, TrafficMonitor
 from gateway.console.web import Console, build_app
@@ -74,6 +75,8 @@ class ConsoleFeature:
         self.deadlines = RequestDeadlines(settings.request_timeout_s)
         self._sampler: asyncio.Task[None] | None = None
         self._live: LiveState | None = None
+        self.log_tail = LogTail()
+        """The log's recent lines for the diagnostics page: kept from start to stop."""
 
     @property
     def port(self) -> int:
@@ -110,7 +113,9 @@ class ConsoleFeature:
             events=self.events,
             tcp=self.tcp,
             mqtt=self.mqtt,
+            log=self.log_tail,
         )
+        self.log_tail.attach()
         self._runner = web.AppRunner(
             build_app(self.console),
             access_log=None,
@@ -124,6 +129,7 @@ class ConsoleFeature:
         try:
             await site.start()
         except OSError as exc:
+            self.log_tail.detach()
             await self._runner.cleanup()
             raise cannot_listen(
                 "the console", settings.host, settings.port, "console.host/port", exc
@@ -146,6 +152,7 @@ class ConsoleFeature:
             await cancel_and_wait(self._sampler, 0.2)
         if self._runner is not None:
             await self._runner.cleanup()
+        self.log_tail.detach()
 
     def _ssl_context(self) -> ssl.SSLContext | None:
         settings = self.settings

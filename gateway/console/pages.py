@@ -227,4 +227,18 @@ DIAGNOSTICS = """
 <h2>MQTT session</h2>
 <table id="mqtt-session" class="kv"><tbody></tbody></table>
 </section>
+<section>
+<h2>Log</h2>
+<form id="log-filter" class="filters">
+<label>Level <select id="log-level" name="level">
+<option value="debug">debug</option><option value="info" selected>info</option>
+<option value="warning">warning</option><option value="error">error</option>
+</select></label>
+<span id="log-count" class="muted"></span>
+</form>
+<div class="scroll"><table id="log-lines" class="grid cards small">
+<thead><tr><th>Time</th><th>Level</th><th>Logger</th><th>Message</th></tr></thead>
+<tbody></tbody>
+</table></div>
+</section>
 """

@@ -48,6 +48,8 @@ from gateway.console.events import (
     events_csv,
 )
 from gateway.console.live import LiveState
+from gateway.console.log_tail import MAX_LINES as LOG_LINES
+from gateway.console.log_tail import LogTail
 from gateway.console.operations import (
     PARAMETER_GROUPS,
     REGISTER_BLOCKS,
@@ -97,6 +99,7 @@ class Console:
         events: EventStore,
         tcp: TcpClients | None = None,
         mqtt: MqttSession | None = None,
+        log: LogTail | None = None,
     ) -> None:
         self.users = users
         self.anonymous_view = anonymous_view
@@ -108,6 +111,7 @@ class Console:
         self.events = events
         self.tcp = tcp
         self.mqtt = mqtt
+        self.log = log if log is not None else LogTail()
         self.sessions = Sessions()
         self.throttle = LoginThrottle()
         self.logins = LoginCounts()
@@ -185,6 +189,7 @@ def build_app(console: Console) -> web.Application:
         web.get("/api/live", live_stream),
         web.get("/api/events", events),
         web.get("/api/diagnostics", diagnostics),
+        web.get("/api/log", recent_log),
         web.get("/api/drives/{name}", drive_detail),
         web.get("/api/drives/{name}/chart", drive_chart),
         web.get("/api/drives/{name}/faults", drive_faults),
@@ -469,6 +474,17 @@ async def diagnostics(request: web.Request) -> web.StreamResponse:
             "mqtt": None if console.mqtt is None else console.mqtt.status().to_json(),
         }
     )
+
+
+async def recent_log(request: web.Request) -> web.StreamResponse:
+    """The log's recent lines (`?level=warning`, default info; `?limit=N`), oldest first."""
+    console = request.app[CONSOLE]
+    level = request.query.get("level", "info")
+    try:
+        lines = console.log.lines(level, _limit(request, "limit", 200, LOG_LINES))
+    except ValueError as exc:
+        raise _error(400, str(exc)) from None
+    return web.json_response({"level": level, "lines": lines})
 
 
 async def drive_detail(request: web.Request) -> web.StreamResponse:

@@ -681,9 +681,21 @@ function diagnosticsPage() {
     ] : [["MQTT", "not configured"]];
     fill("mqtt-session", rows.map(([k, v]) => el("tr", { "data-key": k }, el("th", {}, k), el("td", {}, v))));
   };
+  const level = document.getElementById("log-level");
+  const showLog = (data) => {
+    // Newest first: what just happened is what the engineer came for.
+    const lines = data.lines.slice().reverse();
+    fill("log-lines", lines.map((line) => el("tr", { "data-level": line.level },
+      timeCell(line.time), el("td", { class: line.level === "error" || line.level === "warning" ? "warn" : "" }, line.level),
+      el("td", { class: "mono" }, line.logger), el("td", {}, line.message))),
+    `no log line at ${data.level} or above yet`);
+    document.getElementById("log-count").textContent = `${data.lines.length} lines`;
+  };
+  level.addEventListener("change", async () => showLog(await api(`/api/log?level=${level.value}`)));
   const load = async () => {
     try {
       show(await api("/api/diagnostics"));
+      showLog(await api(`/api/log?level=${level.value}`));
       live.textContent = "live";
       live.className = "live on";
     } catch (error) {
