@@ -245,6 +245,7 @@ class Application:
             events=ConsoleEventsRecorded(self.events),
             tcp=self.tcp,
             mqtt=getattr(self, "mqtt", None),
+            configuration=lambda: self.settings.shown_configuration(),
         )
         self.features.append(self.console)
 

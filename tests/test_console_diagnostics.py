@@ -13,7 +13,13 @@ import pytest
 from gateway.app import Application
 from gateway.config import GatewayConfig, MqttConfig
 from gateway.instruments.simulator import SimulatedLine
-from tests.console_support import VIEWER_PASSWORD, ConsoleClient, console_client, console_config
+from tests.console_support import (
+    OPERATOR_PASSWORD,
+    VIEWER_PASSWORD,
+    ConsoleClient,
+    console_client,
+    console_config,
+)
 from tests.mosquitto import Mosquitto
 from tests.mosquitto import mosquitto as mosquitto
 from tests.support import TcpClient, eventually, free_port, running_gateway
@@ -163,3 +169,30 @@ async def test_the_logs_recent_lines_with_a_level_filter(
         async with web.session.get(f"{web.base}/api/log?level=loud") as response:
             assert response.status == 400
             assert "level must be one of" in await response.text()
+
+
+async def test_the_running_configuration_for_operators_with_its_secrets_masked(
+    line: SimulatedLine,
+) -> None:
+    config = with_mqtt(console_config(line.path), "127.0.0.1", free_port())
+    mqtt = config.mqtt.model_copy(update={"username": "plant", "password": "broker-secret-9"})
+    config = config.model_copy(update={"mqtt": mqtt})
+    async with running_gateway(config) as app:
+        async with console_client(app) as viewer:
+            assert (await viewer.login("victor", VIEWER_PASSWORD)).status == 200
+            async with viewer.session.get(f"{viewer.base}/api/config") as refused:
+                assert refused.status == 403
+        async with console_client(app) as web:
+            assert (await web.login("olga", OPERATOR_PASSWORD)).status == 200
+            async with web.session.get(f"{web.base}/api/config") as response:
+                assert response.status == 200
+                text = await response.text()
+            shown = (await web.get_json("/api/config"))["configuration"]
+    # Every section, defaults filled in; the secrets only as "set".
+    assert shown["buses"][0]["port"] == line.path
+    assert shown["buses"][0]["drain_ms"] == 50  # a default the file left out
+    assert shown["mqtt"]["username"] == "plant"
+    assert shown["mqtt"]["password"] == "***"
+    assert {user["password_hash"] for user in shown["console"]["users"]} == {"***"}
+    assert "broker-secret-9" not in text
+    assert "scrypt" not in text  # no hash of any user's password either

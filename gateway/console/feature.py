@@ -11,7 +11,8 @@ from __future__ import annotations
 import asyncio
 import logging
 import ssl
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 from aiohttp import web
 
@@ -55,6 +56,7 @@ class ConsoleFeature:
         events: EventStore | None = None,
         tcp: TcpClients | None = None,
         mqtt: MqttSession | None = None,
+        configuration: Callable[[], dict[str, Any]] | None = None,
     ) -> None:
         self.settings = settings
         self.lines = lines
@@ -69,6 +71,8 @@ class ConsoleFeature:
         self.tcp = tcp
         self.mqtt = mqtt
         """What the diagnostics page reads of the Modbus-TCP server and the MQTT bridge."""
+        self.configuration = configuration
+        """The running configuration, secrets masked, as of now (after the last reload)."""
         self.console: Console | None = None
         self._runner: web.AppRunner | None = None
         self._site: DeadlinedSite | None = None
@@ -114,6 +118,7 @@ class ConsoleFeature:
             tcp=self.tcp,
             mqtt=self.mqtt,
             log=self.log_tail,
+            configuration=self.configuration,
         )
         self.log_tail.attach()
         self._runner = web.AppRunner(

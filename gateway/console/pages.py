@@ -241,4 +241,10 @@ DIAGNOSTICS = """
 <tbody></tbody>
 </table></div>
 </section>
+<section id="running-config" hidden>
+<h2>Running configuration</h2>
+<p class="muted">As the gateway runs now (after the last reload), defaults filled in, secrets
+masked. Operators only.</p>
+<pre id="config-text" class="scroll mono"></pre>
+</section>
 """

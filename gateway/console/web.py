@@ -100,6 +100,7 @@ class Console:
         tcp: TcpClients | None = None,
         mqtt: MqttSession | None = None,
         log: LogTail | None = None,
+        configuration: Callable[[], dict[str, Any]] | None = None,
     ) -> None:
         self.users = users
         self.anonymous_view = anonymous_view
@@ -112,6 +113,7 @@ class Console:
         self.tcp = tcp
         self.mqtt = mqtt
         self.log = log if log is not None else LogTail()
+        self.configuration = configuration
         self.sessions = Sessions()
         self.throttle = LoginThrottle()
         self.logins = LoginCounts()
@@ -190,6 +192,7 @@ def build_app(console: Console) -> web.Application:
         web.get("/api/events", events),
         web.get("/api/diagnostics", diagnostics),
         web.get("/api/log", recent_log),
+        web.get("/api/config", running_configuration),
         web.get("/api/drives/{name}", drive_detail),
         web.get("/api/drives/{name}/chart", drive_chart),
         web.get("/api/drives/{name}/faults", drive_faults),
@@ -485,6 +488,18 @@ async def recent_log(request: web.Request) -> web.StreamResponse:
     except ValueError as exc:
         raise _error(400, str(exc)) from None
     return web.json_response({"level": level, "lines": lines})
+
+
+async def running_configuration(request: web.Request) -> web.StreamResponse:
+    """The configuration the gateway runs on now, secrets masked; operators only (it maps the
+    plant's network: addresses, ports, users)."""
+    console = request.app[CONSOLE]
+    who = console.identify(request)
+    if who is None or not who.may_write:
+        raise _error(403, "the running configuration is for operators")
+    if console.configuration is None:
+        raise _error(404, "no configuration to show")
+    return web.json_response({"configuration": console.configuration()})
 
 
 async def drive_detail(request: web.Request) -> web.StreamResponse:

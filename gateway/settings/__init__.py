@@ -11,6 +11,7 @@ itself, the commands that load a file, and reload's planning) imports `gateway.c
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from gateway.bus import BusSettings
 from gateway.config import GatewayConfig
@@ -25,6 +26,7 @@ from gateway.settings.local import (
     store_settings,
 )
 from gateway.settings.mqtt import MqttSettings, mqtt_settings
+from gateway.settings.shown import shown_configuration
 from gateway.settings.tcp import tcp_settings
 from gateway.tcp import TcpSettings
 
@@ -44,6 +46,10 @@ class GatewaySettings:
     console: ConsoleSettings | None
     log_level: str
     """Python's name of the level ("INFO")."""
+
+    def shown_configuration(self) -> dict[str, Any]:
+        """The running configuration, secrets masked (`gateway.settings.shown`)."""
+        return shown_configuration(self.source)
 
     def polled(self, drive: DriveSettings) -> bool:
         """Without MQTT or the console only the drives that ask for it are polled: polls cost

@@ -705,6 +705,11 @@ function diagnosticsPage() {
   };
   load();
   setInterval(load, 2000);
+  // Operators only: a viewer's 403 leaves the section hidden.
+  api("/api/config").then((data) => {
+    document.getElementById("config-text").textContent = JSON.stringify(data.configuration, null, 2);
+    document.getElementById("running-config").hidden = false;
+  }).catch(() => {});
 }
 
 // -- login -----------------------------------------------------------------------------------
