@@ -175,6 +175,7 @@ async def test_the_running_configuration_for_operators_with_its_secrets_masked(
     line: SimulatedLine,
 ) -> None:
     config = with_mqtt(console_config(line.path), "127.0.0.1", free_port())
+    assert config.mqtt is not None
     mqtt = config.mqtt.model_copy(update={"username": "plant", "password": "broker-secret-9"})
     config = config.model_copy(update={"mqtt": mqtt})
     async with running_gateway(config) as app:
