@@ -197,3 +197,20 @@ async def test_the_running_configuration_for_operators_with_its_secrets_masked(
     assert {user["password_hash"] for user in shown["console"]["users"]} == {"***"}
     assert "broker-secret-9" not in text
     assert "scrypt" not in text  # no hash of any user's password either
+
+
+async def test_the_adapters_glitches_and_echoes_since_start(line: SimulatedLine) -> None:
+    """What only /metrics said before: glitch bytes skipped and echoes, per bus."""
+    line.set_adapter(glitch=b"\xff", echo=True)
+    async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
+        assert (await web.login("victor", VIEWER_PASSWORD)).status == 200
+        client = await TcpClient.connect(app.tcp.port)
+        for _ in range(5):
+            await client.read(1, 0x2100)
+        await client.close()
+        (bus,) = (await diagnostics(web))["buses"]
+        counted = app.buses["line1"].line
+        assert bus["line"]["glitch_bytes"] >= 5
+        assert bus["line"]["echoes"] >= 5
+        assert bus["line"]["glitch_bytes"] <= counted.garbage_bytes
+        assert bus["line"]["echoes"] <= counted.echoes

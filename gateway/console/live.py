@@ -208,7 +208,13 @@ class LiveState:
                 address: drive for (on, address), drive in self._by_address.items() if on == name
             }
             view = counters.view(bus.drive_stats, names)
-            shown.append({**self.bus_view(name), **view})
+            line = bus.line
+            hardware = {  # what the adapter does to replies, since start (as /metrics has it)
+                "glitch_bytes": line.garbage_bytes,
+                "echoes": line.echoes,
+                "longest_reply_silence_ms": round(line.longest_reply_silence_s * 1000, 1),
+            }
+            shown.append({**self.bus_view(name), **view, "line": hardware})
         return shown
 
     def drive_view(self, name: str) -> dict[str, Any]:

@@ -641,10 +641,8 @@ function busDiagnostics(bus) {
   const head = el("tr", {}, el("th", {}, "Bus / drive"), ...LINE_COUNTS.map(([, label]) => el("th", {}, label)));
   const section = el("section", { "data-bus": bus.name },
     el("h2", {}, `Bus ${bus.name} `, el("span", { class: `badge ${bus.state}` }, bus.state)),
-    el("p", { class: "muted" },
-      `${bus.port} · ${bus.format} · counting since ${stamp(bus.counting_since)} · ` +
-      `${bus.requests} requests, ${bus.queue_full} refused (queue full), ` +
-      `${bus.coalesced} shared, ${bus.port_errors} port errors, ${bus.reopens} reopens`),
+    el("p", { class: "muted", "data-summary": bus.name }),
+    el("p", { class: "muted", "data-line": bus.name }),
     el("div", { class: "scroll" },
       el("table", { id: tableId, class: "grid cards small diagnostics" }, el("thead", {}, head), el("tbody"))));
   return section;
@@ -657,6 +655,14 @@ function diagnosticsPage() {
     for (const bus of data.buses) {
       const id = `counts-${bus.name}`;
       if (!document.getElementById(id)) holder.append(busDiagnostics(bus));
+      // Refreshed with the counters: requests, port errors and the adapter's effects grow too.
+      holder.querySelector(`p[data-summary="${bus.name}"]`).textContent =
+        `${bus.port} · ${bus.format} · counting since ${stamp(bus.counting_since)} · ` +
+        `${bus.requests} requests, ${bus.queue_full} refused (queue full), ` +
+        `${bus.coalesced} shared, ${bus.port_errors} port errors, ${bus.reopens} reopens`;
+      holder.querySelector(`p[data-line="${bus.name}"]`).textContent =
+        `adapter: ${bus.line.glitch_bytes} glitch bytes skipped, ${bus.line.echoes} echoes, ` +
+        `longest silence inside a reply ${bus.line.longest_reply_silence_ms} ms`;
       const rows = [countsRow(`${bus.name} (all)`, bus, { class: "total" })].concat(
         bus.drives.map((d) => countsRow(d.drive ? `${d.drive} (${d.address})` : `address ${d.address}`,
           d, { "data-drive": d.drive || "" })));
