@@ -104,6 +104,7 @@ class Application:
             bus.add_listener(self.poller.on_drive_health)
         self.poller.add_listener(DriveEventLog())
         self.poller.add_listener(self.events)
+        self.poller.open_faults = self.events.open_faults  # no fault raised twice by a restart
         self.features.append(self.poller)
 
     def _add_mqtt(self, mqtt: MqttSettings) -> None:

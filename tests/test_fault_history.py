@@ -109,3 +109,31 @@ async def test_a_fault_that_cleared_while_the_gateway_was_down_is_closed(
     assert fault["code"] == 11
     assert fault["cleared"] is not None
     assert fault["duration_s"] > 0
+
+
+async def test_a_fault_still_there_after_a_restart_is_not_raised_again(
+    mosquitto: Mosquitto,
+) -> None:
+    """One row per event: a trip that outlives a restart of the gateway was raised once, and
+    its clearing after the restart is the next event, not a second raise."""
+    base = unique_base_topic()
+    events = f"{base}/bridge/event"
+    with simulated_line() as line:
+        config = mqtt_config(line.path, mosquitto, base, homeassistant_discovery=False)
+        async with mqtt_probe(mosquitto, f"{base}/#") as probe, running_gateway(config):
+            await probe.wait_for(f"{base}/pump1/availability", lambda a: a["state"] == "online")
+            line.inject_fault(1, 11)
+            first = await probe.wait_for(events, lambda e: e["type"] == "fault_raised")
+        async with mqtt_probe(mosquitto, f"{base}/#") as probe, running_gateway(config) as app:
+            await probe.wait_for(f"{base}/pump1", lambda s: s.get("fault_code") == 11)
+            line.clear_fault(1)
+            await probe.wait_for(events, lambda e: e["type"] == "fault_cleared")
+            raised_ids = {
+                m.json()["id"]
+                for m in probe.messages
+                if m.topic == events and m.json()["type"] == "fault_raised"
+            }
+            stored = await app.events.recent_events(50)
+    # At most the first run's own event again (store-and-forward may resend it), never a new one.
+    assert raised_ids <= {first.json()["id"]}
+    assert [e.id for e in stored if e.type == "fault_raised"] == [first.json()["id"]]

@@ -48,10 +48,16 @@ class DriveState:
         self.last_seen: float | None = None
         """Wall-clock time of the last poll the drive answered."""
         self.alarms = LimitAlarms(profile.typed_points)
+        self.fault_before_start: int | None = None
+        """The fault the last run left open for this drive (from the store): its first poll
+        compares with it, so a fault still there after a restart is not raised again, and one
+        cleared meanwhile is cleared."""
 
     def record_poll(self, start: int, words: Sequence[int], at: float) -> list[DriveEvent]:
         """A poll answered: store its words; the events it caused (fault, back online)."""
         fault_before = self.profile.current_fault(self.registers)
+        if fault_before is None:  # not polled yet: what the last run knew, if anything
+            fault_before, self.fault_before_start = self.fault_before_start, None
         for offset, word in enumerate(words):
             self.registers[start + offset] = word
         self.last_seen = at

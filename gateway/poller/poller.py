@@ -22,7 +22,7 @@ import contextlib
 import logging
 import struct
 import time
-from collections.abc import Iterable
+from collections.abc import Awaitable, Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Final, Protocol
 
@@ -96,6 +96,8 @@ class Poller:
         """Read each drive's P00.03 at start (for Home Assistant's set-point maximum)."""
         self.max_frequency_hz: dict[str, float] = {}
         """Drive name → its P00.03, for the drives that answered at start."""
+        self.open_faults: Callable[[], Awaitable[Mapping[str, int]]] | None = None
+        """Asked once at start: each drive's fault the last run left open (the store's)."""
 
     def _polled(self, settings: DriveSettings) -> PolledDrive:
         timers = [_GroupTimer(s) for s in poll_schedules(settings)]
@@ -116,6 +118,10 @@ class Poller:
     # -- lifecycle ---------------------------------------------------------------------------
 
     async def start(self) -> None:
+        if self.open_faults is not None:
+            for name, code in (await self.open_faults()).items():
+                if name in self.drives:
+                    self.drives[name].state.fault_before_start = code
         if self.read_max_frequency:
             from gateway.poller.max_frequency import read_max_frequencies
 

@@ -351,6 +351,13 @@ class EventDatabase:
             for row in rows
         ]
 
+    def open_faults(self) -> dict[str, int]:
+        """Drive → the code of its fault raised and not cleared (as the last run saw it)."""
+        rows = self.db.execute(
+            "SELECT drive, code FROM faults WHERE cleared IS NULL ORDER BY id"
+        ).fetchall()
+        return {drive: code for drive, code in rows}  # the newest per drive wins
+
     def file_bytes(self) -> int:
         """The database's size (what the file holds once the WAL is checkpointed)."""
         return _count(self.db, "PRAGMA page_count") * _count(self.db, "PRAGMA page_size")

@@ -335,6 +335,14 @@ class EventStore:
         """The newest `limit` faults of `drive`, newest first."""
         return await self._call(self._db.faults, drive, limit)
 
+    async def open_faults(self) -> dict[str, int]:
+        """Drive → its fault still open in the fault history: what the drives were in when
+        the last run stopped. Empty when the store can't say (it isn't running)."""
+        try:
+            return await self._call(self._db.open_faults)
+        except StoreError:
+            return {}
+
     async def size_bytes(self) -> int:
         return await self._call(self._db.file_bytes)
 
