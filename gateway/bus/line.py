@@ -59,6 +59,7 @@ from gateway.bus.hardware_hints import burst_hint, echo_hint
 from gateway.bus.line_timer import LineTimer
 from gateway.bus.wakeup import MovingDeadline, settle, woken_or_timeout
 from gateway.errors import BadReply, PortError, ReplyTimeout
+from gateway.modbus.functions import EXCEPTION_BIT
 from gateway.modbus.reply_search import MIN_REPLY, Found, ReplySearch, search_reply
 from gateway.modbus.rtu import MAX_FRAME, check_reply
 from gateway.modbus.timing import CharacterFormat
@@ -170,6 +171,16 @@ class _Held(NamedTuple):
     round: _Round
     echo_by: float
     """A copy of the request complete before this is the adapter's echo (`_echo_deadline`)."""
+
+
+def _echo_of(echo_request: bytes, reply: bytes) -> bytes:
+    """The PDU of `reply` if it is the answer to this very 08H 0000 request: the request byte
+    for byte (its fresh value included: an older echo of another value is a late reply, which
+    check_reply's length rule alone would let through), or the device's exception to 08H."""
+    pdu = check_reply(echo_request, reply)
+    if reply != echo_request and not pdu[0] & EXCEPTION_BIT:
+        raise BadReply("mismatch", f"echo {reply.hex(' ')} is not of this value", reply)
+    return pdu
 
 
 def _whole_frames(request: bytes, received: bytes | bytearray) -> list[bytes]:
@@ -630,7 +641,7 @@ class SerialLine:
             while True:
                 reply = await self._read_reply(frame, sent, deadline)
                 try:
-                    pdu = check_reply(frame, reply)
+                    pdu = _echo_of(frame, reply)
                 except BadReply as exc:
                     if exc.kind in ("crc", "truncated"):
                         raise
@@ -642,7 +653,7 @@ class SerialLine:
             echo = None
             for whole in _whole_frames(frame, await self._drain(self.settings.drain_s)):
                 try:
-                    echo = check_reply(frame, whole)
+                    echo = _echo_of(frame, whole)
                 except BadReply:
                     late.append(self._quiet_since)
             if echo is None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from gateway.bus.late_replies import LateReplies
 from gateway.modbus.crc import crc_ok
 
@@ -26,3 +28,20 @@ def test_a_drive_owes_from_its_first_timeout_until_its_echo_is_back() -> None:
     assert late.owing == {3: 10.0}
     late.caught_up(3)
     assert late.owing == {}
+
+
+def test_only_the_echo_of_this_very_value_ends_a_catch_up() -> None:
+    """An older echo (another value) has the same function and length: by those alone it
+    would pass, and the bus would think itself caught up with a reply still in flight."""
+    from gateway.bus.line import _echo_of
+    from gateway.errors import BadReply
+    from gateway.modbus.rtu import build_frame
+
+    late = LateReplies("line1")
+    older, newer = late.echo_frame(1), late.echo_frame(1)
+    assert _echo_of(newer, newer) == newer[1:-2]
+    with pytest.raises(BadReply) as refused:  # never taken for this one
+        _echo_of(newer, older)
+    assert refused.value.kind == "mismatch"
+    no_08h = build_frame(1, bytes.fromhex("8801"))  # a device without 08H: in order too
+    assert _echo_of(newer, no_08h) == bytes.fromhex("8801")
