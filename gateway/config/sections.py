@@ -294,6 +294,27 @@ class PollGroupConfig(Section):
     interval_ms: float = Field(gt=0)
 
 
+class ReportConfig(Section):
+    """Report by exception: when a drive's state is worth publishing. A key left out takes the
+    next level's (a telemetry key's → its drive's `report` → `mqtt.report` → publish on any
+    change, and every `mqtt.publish_interval_s`: the behaviour before these keys existed)."""
+
+    deadband: float | None = Field(None, ge=0)
+    """A number must move by more than this (in its unit) since it was last published."""
+    deadband_percent: float | None = Field(None, ge=0)
+    """... and by more than this share of the value last published."""
+    min_interval_ms: float | None = Field(None, ge=0)
+    """A change is published no sooner than this after the key was last published."""
+    max_interval_ms: float | None = Field(None, gt=0)
+    """Published at least this often, changed or not (default: `mqtt.publish_interval_s`)."""
+
+
+class DriveReportConfig(ReportConfig):
+    """A drive's `report`: its defaults, and `keys` (telemetry key → its own rule)."""
+
+    keys: dict[str, ReportConfig] = Field(default_factory=dict)
+
+
 class DriveConfig(Section):
     name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_-]+$")
     """Also the drive's MQTT topic, so no spaces, slashes or wildcards."""
@@ -319,6 +340,9 @@ class DriveConfig(Section):
     code → "SHORT: description" (e.g. `40: "BRKE: brake feedback fault"`)."""
     ready_bit_set_means_ready: bool | None = None
     """The polarity of state word 2 bit 0 where the profile's is unconfirmed."""
+    report: DriveReportConfig | None = None
+    """When its state is worth publishing on MQTT (report by exception); a device file's
+    points carry their own rules, in the file."""
 
     @property
     def effective_unit_id(self) -> int:
@@ -342,6 +366,22 @@ class DriveConfig(Section):
         get_profile(value)
         return value
 
+    @model_validator(mode="after")
+    def _report_keys(self) -> DriveConfig:
+        if self.report is None:
+            return self
+        profile = self.profile()
+        if profile.typed_points:
+            raise ValueError("report: a device's points set their reporting in its device file")
+        known = profile.telemetry_keys
+        for key in self.report.keys:
+            if key not in known:
+                shown = ", ".join(sorted(known))
+                raise ValueError(
+                    f"report.keys.{key}: not a telemetry key of {self.model} ({shown})"
+                )
+        return self
+
 
 _DOT = "RabbitMQ's MQTT plugin turns it into '/', so topics would differ between brokers"
 
@@ -364,6 +404,8 @@ class MqttConfig(Section):
     discovery_prefix: str = "homeassistant"
     publish_interval_s: float = Field(60.0, gt=0)
     """A drive's state is published on change and at least this often."""
+    report: ReportConfig = ReportConfig()
+    """Every drive's report by exception unless its own `report` says otherwise."""
     command_max_age_s: float = Field(10.0, gt=0)
     """A command whose `time` is older than this is refused (it sat in a queue somewhere), and
     so is one that waited longer than this in the gateway before its turn came."""
