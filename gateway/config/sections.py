@@ -315,6 +315,27 @@ class DriveReportConfig(ReportConfig):
     keys: dict[str, ReportConfig] = Field(default_factory=dict)
 
 
+class AlarmConfig(Section):
+    """A limit alarm on one of a drive's telemetry keys (`gateway.profile.limit_alarms`)."""
+
+    high: float | None = None
+    """Raised when the value stays above this for `delay_ms`."""
+    low: float | None = None
+    """Raised when the value stays below this for `delay_ms`."""
+    hysteresis: float = Field(0.0, ge=0)
+    """How far back inside the limit the value must come for the alarm to clear."""
+    delay_ms: float = Field(0.0, ge=0)
+    """How long beyond (or back inside) before the alarm changes."""
+
+    @model_validator(mode="after")
+    def _limits(self) -> AlarmConfig:
+        if self.high is None and self.low is None:
+            raise ValueError("an alarm needs a high or a low limit (or both)")
+        if self.high is not None and self.low is not None and self.low >= self.high:
+            raise ValueError(f"low ({self.low}) must be below high ({self.high})")
+        return self
+
+
 class DriveConfig(Section):
     name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_-]+$")
     """Also the drive's MQTT topic, so no spaces, slashes or wildcards."""
@@ -343,6 +364,8 @@ class DriveConfig(Section):
     report: DriveReportConfig | None = None
     """When its state is worth publishing on MQTT (report by exception); a device file's
     points carry their own rules, in the file."""
+    alarms: dict[str, AlarmConfig] = Field(default_factory=dict)
+    """Limit alarms: telemetry key (`output_current_a`, `bus_voltage_v`) → its limits."""
 
     @property
     def effective_unit_id(self) -> int:
@@ -367,19 +390,25 @@ class DriveConfig(Section):
         return value
 
     @model_validator(mode="after")
-    def _report_keys(self) -> DriveConfig:
-        if self.report is None:
+    def _telemetry_keys(self) -> DriveConfig:
+        """`report` and `alarms` name telemetry keys the drive has; a device's are in its file."""
+        if self.report is None and not self.alarms:
             return self
         profile = self.profile()
         if profile.typed_points:
-            raise ValueError("report: a device's points set their reporting in its device file")
+            section = "report" if self.report is not None else "alarms"
+            raise ValueError(f"{section}: a device's points set theirs in its device file")
+        named = {"alarms": tuple(self.alarms)}
+        if self.report is not None:
+            named["report.keys"] = tuple(self.report.keys)
         known = profile.telemetry_keys
-        for key in self.report.keys:
-            if key not in known:
-                shown = ", ".join(sorted(known))
-                raise ValueError(
-                    f"report.keys.{key}: not a telemetry key of {self.model} ({shown})"
-                )
+        for where, keys in named.items():
+            for key in keys:
+                if key not in known:
+                    shown = ", ".join(sorted(known))
+                    raise ValueError(
+                        f"{where}.{key}: not a telemetry key of {self.model} ({shown})"
+                    )
         return self
 
 

@@ -3,7 +3,8 @@
 Each drive is a device with sensors (state, fault, frequency, current, voltages, power, speed:
 those its profile's telemetry holds; a device file's points with their units and classes, and a
 number for each writable numeric point and a switch for each writable coil when commands are
-enabled), buttons for the run and stop commands its profile takes and a number for the frequency
+enabled; a problem binary sensor per limit alarm of `drives[].alarms`), buttons for the run and
+stop commands its profile takes and a number for the frequency
 set-point (those two only when commands are enabled). The gateway itself is a device too (its
 connection state), the one drives are reached "via".
 Entities are available when both the gateway and the drive are.
@@ -22,6 +23,7 @@ from typing import Any, Final
 from gateway import __version__
 from gateway.mqtt.topics import Topics
 from gateway.profile import DriveProfile
+from gateway.profile.limit_alarms import Side, alarm_name
 from gateway.profile.point_types import Kind, TypedPoint
 from gateway.settings import DriveSettings, MqttSettings
 
@@ -138,6 +140,7 @@ def discovery_messages(
             messages.append(
                 (f"{prefix}/sensor/{node}/{drive.name}_{sensor.key}/config", _dump(payload))
             )
+        messages += _alarm_sensors(prefix, node, drive, common, topics)
         if commands:
             messages += _point_numbers(prefix, node, drive.name, common, topics, profile)
         if not commands or not profile.commands:
@@ -174,6 +177,30 @@ def discovery_messages(
         messages.append(
             (f"{prefix}/number/{node}/{drive.name}_frequency_setpoint/config", _dump(setpoint))
         )
+    return messages
+
+
+def _alarm_sensors(
+    prefix: str, node: str, drive: DriveSettings, common: dict[str, Any], topics: Topics
+) -> list[tuple[str, str]]:
+    """A problem binary sensor per limit alarm of a drive (`drives[].alarms`), on its flag."""
+    messages = []
+    for key, limit in drive.alarms.items():
+        sides: tuple[tuple[Side, float | None], ...] = (("high", limit.high), ("low", limit.low))
+        for side, at in sides:
+            if at is None:
+                continue
+            flag = alarm_name(key, side)
+            payload = {
+                **common,
+                "name": f"Alarm {key} {side}",
+                "unique_id": f"{node}_{drive.name}_{flag}",
+                "device_class": "problem",
+                "state_topic": topics.drive_state(drive.name),
+                "value_template": f"{{{{ 'ON' if value_json.{flag} else 'OFF' }}}}",
+            }
+            topic = f"{prefix}/binary_sensor/{node}/{drive.name}_{flag}/config"
+            messages.append((topic, _dump(payload)))
     return messages
 
 
