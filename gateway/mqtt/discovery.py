@@ -5,8 +5,8 @@ those its profile's telemetry holds; a device file's points with their units and
 binary sensor for each bool or bit point, and a number for each writable numeric point and a
 switch for each writable coil when commands are enabled; a problem binary sensor per limit alarm
 of `drives[].alarms`), buttons for the run and stop commands its profile takes and a number for
-the frequency set-point (those two only when commands are enabled). The gateway itself is a device too (its
-connection state), the one drives are reached "via".
+the frequency set-point (those two only when commands are enabled). The gateway itself is a
+device too (its connection state), the one drives are reached "via".
 Entities are available when both the gateway and the drive are.
 
 Ids are built from `gateway_id` and the drive's name, so two gateways on one broker never claim
