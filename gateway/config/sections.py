@@ -294,6 +294,48 @@ class PollGroupConfig(Section):
     interval_ms: float = Field(gt=0)
 
 
+class ReportConfig(Section):
+    """Report by exception: when a drive's state is worth publishing. A key left out takes the
+    next level's (a telemetry key's → its drive's `report` → `mqtt.report` → publish on any
+    change, and every `mqtt.publish_interval_s`: the behaviour before these keys existed)."""
+
+    deadband: float | None = Field(None, ge=0)
+    """A number must move by more than this (in its unit) since it was last published."""
+    deadband_percent: float | None = Field(None, ge=0)
+    """... and by more than this share of the value last published."""
+    min_interval_ms: float | None = Field(None, ge=0)
+    """A change is published no sooner than this after the key was last published."""
+    max_interval_ms: float | None = Field(None, gt=0)
+    """Published at least this often, changed or not (default: `mqtt.publish_interval_s`)."""
+
+
+class DriveReportConfig(ReportConfig):
+    """A drive's `report`: its defaults, and `keys` (telemetry key → its own rule)."""
+
+    keys: dict[str, ReportConfig] = Field(default_factory=dict)
+
+
+class AlarmConfig(Section):
+    """A limit alarm on one of a drive's telemetry keys (`gateway.profile.limit_alarms`)."""
+
+    high: float | None = None
+    """Raised when the value stays above this for `delay_ms`."""
+    low: float | None = None
+    """Raised when the value stays below this for `delay_ms`."""
+    hysteresis: float = Field(0.0, ge=0)
+    """How far back inside the limit the value must come for the alarm to clear."""
+    delay_ms: float = Field(0.0, ge=0)
+    """How long beyond (or back inside) before the alarm changes."""
+
+    @model_validator(mode="after")
+    def _limits(self) -> AlarmConfig:
+        if self.high is None and self.low is None:
+            raise ValueError("an alarm needs a high or a low limit (or both)")
+        if self.high is not None and self.low is not None and self.low >= self.high:
+            raise ValueError(f"low ({self.low}) must be below high ({self.high})")
+        return self
+
+
 class DriveConfig(Section):
     name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_-]+$")
     """Also the drive's MQTT topic, so no spaces, slashes or wildcards."""
@@ -319,6 +361,11 @@ class DriveConfig(Section):
     code → "SHORT: description" (e.g. `40: "BRKE: brake feedback fault"`)."""
     ready_bit_set_means_ready: bool | None = None
     """The polarity of state word 2 bit 0 where the profile's is unconfirmed."""
+    report: DriveReportConfig | None = None
+    """When its state is worth publishing on MQTT (report by exception); a device file's
+    points carry their own rules, in the file."""
+    alarms: dict[str, AlarmConfig] = Field(default_factory=dict)
+    """Limit alarms: telemetry key (`output_current_a`, `bus_voltage_v`) → its limits."""
 
     @property
     def effective_unit_id(self) -> int:
@@ -342,6 +389,28 @@ class DriveConfig(Section):
         get_profile(value)
         return value
 
+    @model_validator(mode="after")
+    def _telemetry_keys(self) -> DriveConfig:
+        """`report` and `alarms` name telemetry keys the drive has; a device's are in its file."""
+        if self.report is None and not self.alarms:
+            return self
+        profile = self.profile()
+        if profile.typed_points:
+            section = "report" if self.report is not None else "alarms"
+            raise ValueError(f"{section}: a device's points set theirs in its device file")
+        named = {"alarms": tuple(self.alarms)}
+        if self.report is not None:
+            named["report.keys"] = tuple(self.report.keys)
+        known = profile.telemetry_keys
+        for where, keys in named.items():
+            for key in keys:
+                if key not in known:
+                    shown = ", ".join(sorted(known))
+                    raise ValueError(
+                        f"{where}.{key}: not a telemetry key of {self.model} ({shown})"
+                    )
+        return self
+
 
 _DOT = "RabbitMQ's MQTT plugin turns it into '/', so topics would differ between brokers"
 
@@ -364,6 +433,8 @@ class MqttConfig(Section):
     discovery_prefix: str = "homeassistant"
     publish_interval_s: float = Field(60.0, gt=0)
     """A drive's state is published on change and at least this often."""
+    report: ReportConfig = ReportConfig()
+    """Every drive's report by exception unless its own `report` says otherwise."""
     command_max_age_s: float = Field(10.0, gt=0)
     """A command whose `time` is older than this is refused (it sat in a queue somewhere), and
     so is one that waited longer than this in the gateway before its turn came."""

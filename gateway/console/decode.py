@@ -23,6 +23,7 @@ from gateway.modbus.functions import (
     WRITE_SINGLE_REGISTER,
 )
 from gateway.profile import DriveProfile, Point, exception_name, format_register, is_ram_address
+from gateway.profile.point_types import Table, word_key
 
 MAX_VALUES_SHOWN = 4
 """A 12-word poll names its first values and says how many more: a line stays one line."""
@@ -35,7 +36,7 @@ def describe_request(pdu: bytes, profile: DriveProfile | None) -> str:
     function = pdu[0]
     if function in (READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS) and len(pdu) == 5:
         start, count = struct.unpack(">HH", pdu[1:5])
-        return f"read {_span(start, count, profile)}"
+        return f"read {_span(start, count, profile, _base(function, profile))}"
     if function == WRITE_SINGLE_REGISTER and len(pdu) == 5:
         address, value = struct.unpack(">HH", pdu[1:5])
         return f"write {_assignment(address, value, profile)}"
@@ -66,8 +67,9 @@ def describe(pdu: bytes, reply: bytes | None, profile: DriveProfile | None) -> s
     if function in (READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS) and len(pdu) == 5:
         (start,) = struct.unpack(">H", pdu[1:3])
         words = _words(reply[2:])
+        base = _base(function, profile)
         shown = ", ".join(
-            _value(start + i, w, profile, named=len(words) > 1)
+            _value(start + i, w, profile, base, named=len(words) > 1)
             for i, w in enumerate(words[:MAX_VALUES_SHOWN])
         )
         more = f", +{len(words) - MAX_VALUES_SHOWN} more" if len(words) > MAX_VALUES_SHOWN else ""
@@ -77,20 +79,29 @@ def describe(pdu: bytes, reply: bytes | None, profile: DriveProfile | None) -> s
     return f"{request} → ok"
 
 
-def _span(start: int, count: int, profile: DriveProfile | None) -> str:
-    first = _name(start, profile)
+def _base(function: int, profile: DriveProfile | None) -> int:
+    """Added to a read's addresses to look their points up: a device's points are per table
+    (its input register 0002H is not its holding register 0002H, `point_types.word_key`); a
+    drive's registers are one table, whichever function reads them."""
+    if function == READ_INPUT_REGISTERS and profile is not None and profile.typed_points:
+        return word_key(Table.INPUT, 0)
+    return word_key(Table.HOLDING, 0)
+
+
+def _span(start: int, count: int, profile: DriveProfile | None, base: int = 0) -> str:
+    first = _name(start, profile, base)
     if count == 1:
         return first
     last = start + count - 1
-    last_point = _point(last, profile)
+    last_point = _point(last, profile, base)
     named_last = last_point is not None and first.startswith("P")
     last_name = last_point.label if last_point is not None and named_last else None
     return f"{first} … {last_name or format_register(last)} ({count} words)"
 
 
-def _name(address: int, profile: DriveProfile | None) -> str:
+def _name(address: int, profile: DriveProfile | None, base: int = 0) -> str:
     """ "2100H state word 1", "P00.11", "P00.11 (RAM)", "0005H"."""
-    point = _point(address, profile)
+    point = _point(address, profile, base)
     if point is None:
         return format_register(address)
     if point.label.startswith("P"):
@@ -108,8 +119,10 @@ def _assignment(address: int, value: int, profile: DriveProfile | None) -> str:
     return f"{_name(address, profile)} = {point.show(value, profile)}"
 
 
-def _value(address: int, value: int, profile: DriveProfile | None, *, named: bool) -> str:
-    point = _point(address, profile)
+def _value(
+    address: int, value: int, profile: DriveProfile | None, base: int = 0, *, named: bool
+) -> str:
+    point = _point(address, profile, base)
     if point is None:
         return f"{value:04X}H"
     shown = point.show(value, profile)
@@ -120,9 +133,10 @@ def _value(address: int, value: int, profile: DriveProfile | None, *, named: boo
     return f"{point.label if point.label.startswith('P') else format_register(address)} {shown}"
 
 
-def _point(address: int, profile: DriveProfile | None) -> Point | None:
-    """The profile's point at `address`; None: no profile, or it doesn't name the address."""
-    return None if profile is None else profile.point(address)
+def _point(address: int, profile: DriveProfile | None, base: int = 0) -> Point | None:
+    """The profile's point at `address` (in the table `base` says); None: no profile, or it
+    doesn't name the address."""
+    return None if profile is None else profile.point(base + address)
 
 
 def _words(data: bytes) -> list[int]:

@@ -1,11 +1,12 @@
 """Home Assistant MQTT discovery: the entities each drive shows in Home Assistant. No I/O.
 
 Each drive is a device with sensors (state, fault, frequency, current, voltages, power, speed:
-those its profile's telemetry holds; a device file's points with their units and classes, and a
-number for each writable numeric point and a switch for each writable coil when commands are
-enabled), buttons for the run and stop commands its profile takes and a number for the frequency
-set-point (those two only when commands are enabled). The gateway itself is a device too (its
-connection state), the one drives are reached "via".
+those its profile's telemetry holds; a device file's points with their units and classes, a
+binary sensor for each bool or bit point, and a number for each writable numeric point and a
+switch for each writable coil when commands are enabled; a problem binary sensor per limit alarm
+of `drives[].alarms`), buttons for the run and stop commands its profile takes and a number for
+the frequency set-point (those two only when commands are enabled). The gateway itself is a
+device too (its connection state), the one drives are reached "via".
 Entities are available when both the gateway and the drive are.
 
 Ids are built from `gateway_id` and the drive's name, so two gateways on one broker never claim
@@ -22,6 +23,7 @@ from typing import Any, Final
 from gateway import __version__
 from gateway.mqtt.topics import Topics
 from gateway.profile import DriveProfile
+from gateway.profile.limit_alarms import Side, alarm_name
 from gateway.profile.point_types import Kind, TypedPoint
 from gateway.settings import DriveSettings, MqttSettings
 
@@ -29,6 +31,8 @@ MAX_SETPOINT_HZ: Final = 630.0
 """The highest P00.03 (max. output frequency) of any Goodrive: no set-point entity goes above."""
 
 ON_STATE: Final = "{{ value_json.state }}"
+TWO_STATE: Final = (Kind.BOOL, Kind.BIT)
+"""A device's points Home Assistant shows as binary sensors (on, off), not as sensors."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -99,7 +103,7 @@ def discovery_messages(
     for drive in drives:
         profile = drive.profile
         sensors = [sensor for sensor in SENSORS if sensor.key in profile.telemetry_keys]
-        sensors += [_point_sensor(point) for point in profile.typed_points]
+        sensors += [_point_sensor(p) for p in profile.typed_points if p.kind not in TWO_STATE]
         if not sensors:
             continue  # nothing decoded to show (a generic device)
         common = {
@@ -138,6 +142,8 @@ def discovery_messages(
             messages.append(
                 (f"{prefix}/sensor/{node}/{drive.name}_{sensor.key}/config", _dump(payload))
             )
+        messages += _alarm_sensors(prefix, node, drive, common, topics)
+        messages += _point_binary_sensors(prefix, node, drive.name, common, topics, profile)
         if commands:
             messages += _point_numbers(prefix, node, drive.name, common, topics, profile)
         if not commands or not profile.commands:
@@ -174,6 +180,57 @@ def discovery_messages(
         messages.append(
             (f"{prefix}/number/{node}/{drive.name}_frequency_setpoint/config", _dump(setpoint))
         )
+    return messages
+
+
+def _point_binary_sensors(
+    prefix: str,
+    node: str,
+    drive: str,
+    common: dict[str, Any],
+    topics: Topics,
+    profile: DriveProfile,
+) -> list[tuple[str, str]]:
+    """A binary sensor for each bool or bit point (a sensor would show True and False)."""
+    messages = []
+    for point in profile.typed_points:
+        if point.kind not in TWO_STATE:
+            continue
+        payload = {
+            **common,
+            "name": point.name.replace("_", " ").capitalize(),
+            "unique_id": f"{node}_{drive}_{point.name}",
+            "state_topic": topics.drive_state(drive),
+            "value_template": f"{{{{ 'ON' if value_json.{point.name} else 'OFF' }}}}",
+        }
+        if point.device_class is not None:
+            payload["device_class"] = point.device_class
+        topic = f"{prefix}/binary_sensor/{node}/{drive}_{point.name}/config"
+        messages.append((topic, _dump(payload)))
+    return messages
+
+
+def _alarm_sensors(
+    prefix: str, node: str, drive: DriveSettings, common: dict[str, Any], topics: Topics
+) -> list[tuple[str, str]]:
+    """A problem binary sensor per limit alarm of a drive (`drives[].alarms`), on its flag."""
+    messages = []
+    for key, limit in drive.alarms.items():
+        sides: tuple[tuple[Side, float | None], ...] = (("high", limit.high), ("low", limit.low))
+        for side, at in sides:
+            if at is None:
+                continue
+            flag = alarm_name(key, side)
+            payload = {
+                **common,
+                "name": f"Alarm {key} {side}",
+                "unique_id": f"{node}_{drive.name}_{flag}",
+                "device_class": "problem",
+                "state_topic": topics.drive_state(drive.name),
+                "value_template": f"{{{{ 'ON' if value_json.{flag} else 'OFF' }}}}",
+            }
+            topic = f"{prefix}/binary_sensor/{node}/{drive.name}_{flag}/config"
+            messages.append((topic, _dump(payload)))
     return messages
 
 

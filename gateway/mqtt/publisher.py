@@ -5,8 +5,9 @@ drains it while connected. Events come from the store (`gateway.store`), where t
 first: `forward_events` publishes them in id order and marks each delivered only once the broker
 acknowledged it (QoS 1), so an outage or a restart loses none.
 
-A drive's state is published when it changed (`last_seen` aside; a device file's points by
-their report-by-exception rules, `gateway.profile.report_by_exception`) or every
+A drive's state is published when it has news by its report-by-exception rules
+(`gateway.profile.report_by_exception`; a drive's from `mqtt.report` and its own `report`, by
+default any change but `last_seen`'s; a device file's points by theirs) or every
 `publish_interval_s`, retained, so a dashboard that subscribes late still gets it at once; an
 availability is published once per connection and change. What a broken connection kept from
 being published goes back to the outbox, to go out after the next connect.
@@ -15,7 +16,6 @@ being published goes back to the outbox, to go out after the next connect.
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import time
 from collections.abc import Sequence
@@ -33,6 +33,7 @@ from gateway.poller import Poller
 from gateway.profile.report_by_exception import ExceptionReport
 from gateway.profile.telemetry import Telemetry
 from gateway.settings import DriveSettings, MqttSettings
+from gateway.settings.mqtt import DriveReporting
 from gateway.store import EventStore, EventType
 
 log = logging.getLogger(__name__)
@@ -62,16 +63,12 @@ class Publisher:
         self.poller = poller
         self.stats = stats
         self.events = events
-        self._published: dict[str, tuple[str, float]] = {}
-        """Drive → (its last state payload without last_seen, monotonic time published)."""
+        self._published: dict[str, float] = {}
+        """Drive → the monotonic time its state was last published."""
         self._availability: dict[str, bool] = {}
         """Drive → the availability last published on this connection."""
-        self._reports = {
-            d.name: ExceptionReport(d.profile.typed_points)
-            for d in drives
-            if d.profile.typed_points
-        }
-        """Device → what its points last published said (drives compare whole states)."""
+        self._reports = {d.name: self._report(d) for d in drives}
+        """Drive or device → what its keys (points) last published said."""
 
     # -- once per connection -------------------------------------------------------------------
 
@@ -141,18 +138,18 @@ class Publisher:
     async def state(
         self, client: aiomqtt.Client, drive: str, telemetry: Telemetry, force: bool = False
     ) -> None:
-        compared = json.dumps({k: v for k, v in telemetry.items() if k != "last_seen"})
+        reading = {k: v for k, v in telemetry.items() if k != "last_seen"}
         last = self._published.get(drive)
         now = time.monotonic()
         report = self._reports.get(drive)
         if not force and last is not None:
-            quiet = last[0] == compared if report is None else not report.news(telemetry, now)
-            if quiet and now - last[1] < self.mqtt.publish_interval_s:
+            quiet = report is not None and not report.news(reading, now)
+            if quiet and now - last < self.mqtt.publish_interval_s:
                 return
         await self.publish(client, self.topics.drive_state(drive), dump(telemetry), retain=True)
-        self._published[drive] = (compared, now)
+        self._published[drive] = now
         if report is not None:
-            report.published(telemetry, now)
+            report.published(reading, now)
 
     async def answer(self, client: aiomqtt.Client, topic: str, response: Json) -> None:
         """A command's answer; when the connection is gone, there is nobody to tell."""
@@ -194,6 +191,12 @@ class Publisher:
         payload = ONLINE if online else OFFLINE
         await self.publish(client, self.topics.availability(drive), payload, retain=True)
         self._availability[drive] = online
+
+    def _report(self, drive: DriveSettings) -> ExceptionReport:
+        if drive.profile.typed_points:
+            return ExceptionReport(drive.profile.typed_points)
+        rules = self.mqtt.reporting.get(drive.name, DriveReporting())
+        return ExceptionReport.of_keys(rules.default, rules.keys)
 
     def _info(self) -> str:
         return dump(

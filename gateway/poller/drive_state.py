@@ -8,12 +8,13 @@ comes back from the method that made it, as a `DriveEvent`.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 
 from gateway.profile import DriveProfile
 from gateway.profile.limit_alarms import LimitAlarms
+from gateway.profile.point_types import Limit
 from gateway.profile.telemetry import Telemetry
 
 
@@ -24,7 +25,8 @@ class EventKind(StrEnum):
     DRIVE_ONLINE = "drive_online"
     ALARM_RAISED = "alarm_raised"
     ALARM_CLEARED = "alarm_cleared"
-    """A device file's point beyond its limit, or back inside (`gateway.profile.limit_alarms`)."""
+    """A device file's point or a drive's telemetry key beyond its limit, or back inside
+    (`gateway.profile.limit_alarms`)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -39,7 +41,9 @@ class DriveEvent:
 
 
 class DriveState:
-    def __init__(self, name: str, profile: DriveProfile) -> None:
+    def __init__(
+        self, name: str, profile: DriveProfile, limits: Mapping[str, Limit] | None = None
+    ) -> None:
         self.name = name
         self.profile = profile
         self.registers: dict[int, int] = {}
@@ -47,7 +51,13 @@ class DriveState:
         """None until the first poll has answered or failed."""
         self.last_seen: float | None = None
         """Wall-clock time of the last poll the drive answered."""
-        self.alarms = LimitAlarms(profile.typed_points)
+        self.alarms = (
+            LimitAlarms(profile.typed_points)
+            if profile.typed_points
+            else LimitAlarms.of_keys(limits or {})
+        )
+        self._alarm_flags = not profile.typed_points and bool(limits)
+        """A drive's state carries its alarms' flags (a device's points are its whole state)."""
         self.fault_before_start: int | None = None
         """The fault the last run left open for this drive (from the store): its first poll
         compares with it, so a fault still there after a restart is not raised again, and one
@@ -56,16 +66,17 @@ class DriveState:
     def record_poll(self, start: int, words: Sequence[int], at: float) -> list[DriveEvent]:
         """A poll answered: store its words; the events it caused (fault, back online)."""
         fault_before = self.profile.current_fault(self.registers)
-        if fault_before is None:  # not polled yet: what the last run knew, if anything
-            fault_before, self.fault_before_start = self.fault_before_start, None
         for offset, word in enumerate(words):
             self.registers[start + offset] = word
         self.last_seen = at
         events = self.set_online(True)
         fault_now = self.profile.current_fault(self.registers)
+        if fault_now is not None and fault_before is None:
+            # The fault word's first poll: compared with what the last run left open, if any.
+            fault_before, self.fault_before_start = self.fault_before_start, None
         if fault_now is not None and fault_now != (fault_before or 0):
             events += self._fault_changed(fault_before or 0, fault_now)
-        if self.profile.typed_points:
+        if self.alarms.watching:
             reading = self.profile.telemetry(self.registers)
             for change in self.alarms.check(reading, time.monotonic()):
                 kind = EventKind.ALARM_RAISED if change.raised else EventKind.ALARM_CLEARED
@@ -84,6 +95,8 @@ class DriveState:
 
     def telemetry(self) -> Telemetry:
         telemetry = self.profile.telemetry(self.registers)
+        if self._alarm_flags:
+            telemetry.update(self.alarms.active(telemetry))
         if self.last_seen is not None:
             telemetry["last_seen"] = iso_time(self.last_seen)
         return telemetry

@@ -102,7 +102,7 @@ class Poller:
     def _polled(self, settings: DriveSettings) -> PolledDrive:
         timers = [_GroupTimer(s) for s in poll_schedules(settings)]
         route = self.router.route_for_drive(settings.name)
-        state = DriveState(settings.name, settings.profile)
+        state = DriveState(settings.name, settings.profile, settings.alarms)
         drive = PolledDrive(settings, route, state, timers)
         self.drives[settings.name] = drive
         self._by_bus_address[(settings.bus, settings.address)] = settings.name

@@ -3,7 +3,9 @@
 A point's alarm is raised when its value has stayed beyond the limit (above `high`, below `low`)
 for `delay_s`, and cleared when it has stayed back inside by more than `hysteresis` for as long:
 a value hovering at the limit raises one alarm, not one per poll. Each change comes back as an
-`AlarmChange` for the poller to turn into an `alarm_raised` / `alarm_cleared` event.
+`AlarmChange` for the poller to turn into an `alarm_raised` / `alarm_cleared` event. A drive's
+alarms are on its telemetry keys (`drives[].alarms`); its state carries each one's flag
+(`alarm_name`), for Home Assistant's binary sensor.
 """
 
 from __future__ import annotations
@@ -12,7 +14,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Literal
 
-from gateway.profile.point_types import TypedPoint
+from gateway.profile.point_types import Limit, TypedPoint
 
 Side = Literal["high", "low"]
 
@@ -69,20 +71,41 @@ class _Watch:
 
 
 class LimitAlarms:
-    """The limit alarms of one device's points, and where each stands."""
+    """The limit alarms of one device's points (or one drive's telemetry keys), and where each
+    stands."""
 
     def __init__(self, points: Iterable[TypedPoint]) -> None:
         self._watches: list[_Watch] = []
         for point in points:
-            limit = point.limit
-            sides: tuple[tuple[Side, float | None], ...] = (
-                ("high", limit.high),
-                ("low", limit.low),
-            )
-            for side, threshold in sides:
-                if threshold is not None:
-                    watch = _Watch(point.name, side, threshold, limit.hysteresis, limit.delay_s)
-                    self._watches.append(watch)
+            self._watch(point.name, point.limit)
+
+    @classmethod
+    def of_keys(cls, limits: Mapping[str, Limit]) -> LimitAlarms:
+        """A drive's: its telemetry keys' limits (`drives[].alarms`)."""
+        alarms = cls(())
+        for key, limit in limits.items():
+            alarms._watch(key, limit)
+        return alarms
+
+    @property
+    def watching(self) -> bool:
+        return bool(self._watches)
+
+    def active(self, reading: Mapping[str, object]) -> dict[str, bool]:
+        """Each alarm's flag by its name (`alarm_name`): whether it stands now; left out while
+        its value is unread (absent rather than guessed)."""
+        return {
+            alarm_name(watch.point, watch.side): watch.active
+            for watch in self._watches
+            if watch.point in reading
+        }
+
+    def _watch(self, name: str, limit: Limit) -> None:
+        sides: tuple[tuple[Side, float | None], ...] = (("high", limit.high), ("low", limit.low))
+        for side, threshold in sides:
+            if threshold is not None:
+                watch = _Watch(name, side, threshold, limit.hysteresis, limit.delay_s)
+                self._watches.append(watch)
 
     def check(self, reading: Mapping[str, object], now: float) -> list[AlarmChange]:
         """The alarms `reading` (point name → value) raises or clears at monotonic `now`."""
@@ -95,3 +118,8 @@ class LimitAlarms:
             if change is not None:
                 changes.append(change)
         return changes
+
+
+def alarm_name(point: str, side: Side) -> str:
+    """The key of an alarm's flag in a drive's state: `output_current_a_high_alarm`."""
+    return f"{point}_{side}_alarm"

@@ -1,6 +1,7 @@
-"""Report by exception: whether a device's new reading is worth publishing. No I/O.
+"""Report by exception: whether a device's or a drive's new reading is worth publishing. No I/O.
 
-A device's state is one message of all its points; it goes out when one point has news:
+A state is one message of all its points (a drive's: its telemetry keys); it goes out when one
+point has news:
 
     changed    a number moved by more than its `deadband` and more than its `deadband_percent`
                of the value last published (any other value: it differs), and the point's
@@ -18,7 +19,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
-from gateway.profile.point_types import TypedPoint, Value
+from gateway.profile.point_types import Reporting, TypedPoint, Value
 
 
 @dataclass(slots=True)
@@ -28,44 +29,61 @@ class _Published:
 
 
 class ExceptionReport:
-    """What was last published of one device's points, and when."""
+    """What was last published of one device's points (or one drive's keys), and when."""
 
     def __init__(self, points: Iterable[TypedPoint]) -> None:
-        self.points = {point.name: point for point in points}
+        self._rules = {point.name: point.reporting for point in points}
+        self._default: Reporting | None = None
+        """The rule of a key `_rules` doesn't name (None: such a key is not watched)."""
         self._published: dict[str, _Published] = {}
+
+    @classmethod
+    def of_keys(cls, default: Reporting, rules: Mapping[str, Reporting]) -> ExceptionReport:
+        """A drive's: every key of its readings by `default`, unless `rules` has its own (a
+        drive's keys are what its registers give, not a list declared beforehand)."""
+        report = cls(())
+        report._rules = dict(rules)
+        report._default = default
+        return report
 
     def news(self, reading: Mapping[str, object], now: float) -> bool:
         """Whether `reading` (a state: point name → value) has news at monotonic time `now`."""
-        return any(self._news(point, reading.get(name), now) for name, point in self.points.items())
+        return any(
+            self._news(name, rule, reading.get(name), now) for name, rule in self._watched(reading)
+        )
 
     def published(self, reading: Mapping[str, object], now: float) -> None:
         """`reading` went out at `now`: each point's new reference."""
-        for name in self.points:
+        for name, _ in self._watched(reading):
             value = reading.get(name)
             if isinstance(value, int | float | str | bool):
                 self._published[name] = _Published(value, now)
 
-    def _news(self, point: TypedPoint, value: object, now: float) -> bool:
-        last = self._published.get(point.name)
+    def _watched(self, reading: Mapping[str, object]) -> list[tuple[str, Reporting]]:
+        watched = list(self._rules.items())
+        if self._default is not None:
+            watched += [(name, self._default) for name in reading if name not in self._rules]
+        return watched
+
+    def _news(self, name: str, rule: Reporting, value: object, now: float) -> bool:
+        last = self._published.get(name)
         if value is None:
             return False  # not read yet: nothing to say
         if last is None:
             return True
-        rule = point.reporting
         since = now - last.at
         if rule.max_interval_s is not None and since >= rule.max_interval_s:
             return True
-        return since >= rule.min_interval_s and _moved(point, last.value, value)
+        return since >= rule.min_interval_s and _moved(rule, last.value, value)
 
 
-def _moved(point: TypedPoint, before: Value, now: object) -> bool:
+def _moved(rule: Reporting, before: Value, now: object) -> bool:
     numbers = (int, float)
     if isinstance(before, bool) or isinstance(now, bool):
         return before != now
     if not (isinstance(before, numbers) and isinstance(now, numbers)):
         return before != now
     change = abs(now - before)
-    rule = point.reporting
     return (
         change > 0 and change > rule.deadband and change > abs(before) * rule.deadband_percent / 100
     )

@@ -3,7 +3,8 @@ settings (its route's numbers, profile and poll groups)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 
 from gateway.bus import Bus, BusSettings
 from gateway.bus.direction import DirectionControl, DirectionMode
@@ -12,6 +13,7 @@ from gateway.bus.line_share import LineShares
 from gateway.config import BusConfig, DriveConfig, Rs485Config
 from gateway.modbus.timing import CharacterFormat
 from gateway.profile import DriveProfile, PollGroup
+from gateway.profile.point_types import Limit
 from gateway.profile.ram_writes import ram_write_address
 from gateway.routing import Route
 
@@ -75,6 +77,8 @@ class DriveSettings:
     """The configured groups, or the profile's."""
     asks_for_polls: bool
     """Configured poll groups or a cache age: polled even without MQTT or the console."""
+    alarms: Mapping[str, Limit] = field(default_factory=dict)
+    """Limit alarms on its telemetry keys (a device's points carry theirs)."""
 
 
 def drive_settings(config: DriveConfig) -> DriveSettings:
@@ -100,6 +104,10 @@ def drive_settings(config: DriveConfig) -> DriveSettings:
         cache_max_age_s=None if config.cache_max_age_ms is None else config.cache_max_age_ms / 1000,
         poll_groups=groups,
         asks_for_polls=config.poll is not None or config.cache_max_age_ms is not None,
+        alarms={
+            key: Limit(a.high, a.low, a.hysteresis, a.delay_ms / 1000)
+            for key, a in config.alarms.items()
+        },
     )
 
 

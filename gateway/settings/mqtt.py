@@ -2,9 +2,19 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 
-from gateway.config import GatewayConfig, MqttConfig
+from gateway.config import DriveReportConfig, GatewayConfig, MqttConfig, ReportConfig
+from gateway.profile.point_types import Reporting
+
+
+@dataclass(frozen=True, slots=True)
+class DriveReporting:
+    """One drive's report by exception: the rule of its keys, and of the keys set apart."""
+
+    default: Reporting = field(default_factory=Reporting)
+    keys: Mapping[str, Reporting] = field(default_factory=dict)
 
 
 @dataclass(frozen=True, slots=True)
@@ -28,6 +38,9 @@ class MqttSettings:
     publish_interval_s: float
     command_max_age_s: float
     commands_enabled: bool
+    reporting: Mapping[str, DriveReporting] = field(default_factory=dict)
+    """Drive → its report by exception (`mqtt.report` under its own `report`); a device file's
+    points carry theirs."""
 
 
 def mqtt_settings(config: GatewayConfig) -> MqttSettings | None:
@@ -54,4 +67,30 @@ def mqtt_settings(config: GatewayConfig) -> MqttSettings | None:
         publish_interval_s=mqtt.publish_interval_s,
         command_max_age_s=mqtt.command_max_age_s,
         commands_enabled=mqtt.commands_enabled,
+        reporting={d.name: _drive_reporting(mqtt.report, d.report) for d in config.drives},
+    )
+
+
+def _drive_reporting(gateway: ReportConfig, drive: DriveReportConfig | None) -> DriveReporting:
+    default = _layered(gateway, drive)
+    keys = drive.keys if drive is not None else {}
+    return DriveReporting(
+        _rule(default), {key: _rule(_layered(default, own)) for key, own in keys.items()}
+    )
+
+
+def _layered(under: ReportConfig, over: ReportConfig | None) -> ReportConfig:
+    """`over`'s keys where it sets them, `under`'s elsewhere."""
+    if over is None:
+        return under
+    return under.model_copy(update=over.model_dump(exclude_none=True, exclude={"keys"}))
+
+
+def _rule(config: ReportConfig) -> Reporting:
+    max_ms = config.max_interval_ms
+    return Reporting(
+        deadband=config.deadband or 0.0,
+        deadband_percent=config.deadband_percent or 0.0,
+        min_interval_s=(config.min_interval_ms or 0.0) / 1000,
+        max_interval_s=None if max_ms is None else max_ms / 1000,
     )

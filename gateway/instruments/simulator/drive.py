@@ -17,6 +17,7 @@ ramp did since the last call. What it answers follows the INVT communication cha
 from __future__ import annotations
 
 import math
+import random
 import struct
 import time
 from collections.abc import Iterable, Mapping, Sequence
@@ -121,6 +122,8 @@ class SimulatedDrive:
         self.ram_writes = 0
         """Parameter words written to RAM only (8xxxH): these don't wear the EEPROM."""
         self.written_parameters: set[str] = set()
+        self.output_current: tuple[float, float] | None = None
+        """(amps, jitter) a test set (`set_output_current`); None: what the motor draws."""
         self.set_fault_history(fault_history)
 
     # ----------------------------------------------------------------- requests
@@ -228,6 +231,9 @@ class SimulatedDrive:
         bus_v = plate.bus_voltage_v - 0.05 * power_pct
         if phase is RampPhase.DECELERATING:
             bus_v += 25.0  # energy flowing back from the motor lifts the DC bus
+        if self.output_current is not None:
+            amps, jitter = self.output_current
+            current_a = amps + random.uniform(-jitter, jitter)
         rpm = frequency * 60.0 / plate.pole_pairs * (1.0 - plate.rated_slip * load_pct / 100.0)
         identification = self.identification
         values = {
@@ -239,7 +245,7 @@ class SimulatedDrive:
             0x3001: round(abs(self._setting_hz()) * 100),
             0x3002: round(bus_v * 10),
             0x3003: round(plate.rated_voltage_v * min(speed_ratio, 1.0)) if turning else 0,
-            0x3004: round(current_a * 10) if turning else 0,
+            0x3004: round(current_a * 10) if turning or self.output_current else 0,
             0x3005: round(rpm),
             0x3006: round(power_pct * 10) & 0xFFFF,
             0x3007: round(torque_pct * 10) & 0xFFFF,
@@ -444,6 +450,11 @@ class SimulatedDrive:
         expired = timeout_s and last is not None and now - last > timeout_s
         if expired and last is not None and self._mode is not Mode.FAULT:
             self.inject_fault(COMMUNICATION_FAULT, last + timeout_s)
+
+    def set_output_current(self, amps: float | None, jitter_a: float = 0.0) -> None:
+        """3004H reads `amps`, each read moved by up to ±`jitter_a` at random, running or not
+        (as a current transformer's noise does); None: what the motor draws again."""
+        self.output_current = None if amps is None else (amps, abs(jitter_a))
 
     # ----------------------------------------------------------------- faults
 

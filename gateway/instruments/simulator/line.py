@@ -231,6 +231,11 @@ class SimulatedLine:
         with self._lock:
             self._drive(address).clear_fault(time.monotonic())
 
+    def set_output_current(self, address: int, amps: float | None, jitter_a: float = 0.0) -> None:
+        """One drive's output current (3004H), jittering by up to ±`jitter_a` per read."""
+        with self._lock:
+            self._drive(address).set_output_current(amps, jitter_a)
+
     def set_fault_history(self, address: int, codes: Sequence[int]) -> None:
         """P07.27-P07.32 of one drive, newest first."""
         with self._lock:
