@@ -20,6 +20,7 @@ import os
 import select
 import termios
 import time
+from abc import ABC, abstractmethod
 from collections.abc import Callable
 
 import serial
@@ -106,7 +107,7 @@ def _take_direction(raw: serial.SerialBase, settings: LineSettings) -> None:
         set_rts(raw, not control.rts_level_for_tx, settings.where)  # listening until a request
 
 
-class Port:
+class Port(ABC):
     """An open serial port, as the line uses it; `TtyPort` or `UrlPort`."""
 
     watched = False
@@ -162,22 +163,22 @@ class Port:
         """Bytes the kernel holds that the loop hasn't taken in yet (only a watched port knows)."""
         return False
 
+    @abstractmethod
     def discard_pending(self) -> None:
         """Throw away bytes nobody asked for; a byte still arriving makes the line not quiet."""
-        raise NotImplementedError
 
+    @abstractmethod
     async def wait(self, deadline: float) -> bool:
         """Wait for news: bytes came into the receiver (True), or `deadline` passed (False).
         Raises PortError when the port fails meanwhile."""
-        raise NotImplementedError
 
+    @abstractmethod
     def write_now(self, frame: bytes) -> int:
         """Write what the port takes without waiting; how many bytes that was."""
-        raise NotImplementedError
 
+    @abstractmethod
     async def write(self, frame: bytes) -> None:
         """Write all of `frame`."""
-        raise NotImplementedError
 
     def write_whole(self, frame: bytes) -> None:
         """The whole frame through pyserial (RTS mode: the port's own write, then its drain)."""
