@@ -383,7 +383,7 @@ class SerialLine:
         """The reader callback, while a caller is held until its reply: finish the attempt here
         if the reply is all there and valid. True: dealt with, the caller stays held (also
         while the reply is still coming); False: wake the caller, whose own reading decides
-        (`_search_reply`: a corrupt reply, one ended by a silence), going on with the record
+        (`ReplyReader`: a corrupt reply, one ended by a silence), going on with the record
         of arrivals the hold began.
         """
         frame = held.sending.frame
