@@ -1,6 +1,8 @@
 """One RS-485 line: its queue, its policy and its serial port.
 
-- `line`: the serial port on the event loop (bytes taken in as they arrive, exact timing).
+- `line`: the inter-frame gap and each attempt's start, on the event loop, with its parts:
+  `port` (a tty the loop watches, or a pyserial URL), `receiver` (the bytes heard and the reply
+  among them), `rts` (RTS around each request), `reply_reader` (what the caller reads itself).
 - `line_timer`: exact wake-ups for the inter-frame gap (a timerfd the loop watches).
 - `wakeup`: how a waiting coroutine of the bus or the line is woken, or times out.
 - `queue`: the bounded priority queue with per-client fairness and coalescing of identical reads.

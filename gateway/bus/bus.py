@@ -89,29 +89,6 @@ class BusSettings:
 
 
 @dataclass(slots=True)
-class BusStats:
-    """Counters a dashboard or the benchmark reads; plain numbers, written by the bus only."""
-
-    requests: int = 0
-    transactions: int = 0
-    retries: int = 0
-    timeouts: int = 0
-    bad_replies: Counter[str] = field(default_factory=Counter)
-    exceptions: Counter[int] = field(default_factory=Counter)
-    failed: int = 0
-    broadcasts: int = 0
-    coalesced: int = 0
-    queue_full: int = 0
-    offline_rejected: int = 0
-    port_errors: int = 0
-    reopens: int = 0
-    late_replies: int = 0
-    resyncs: int = 0
-    busy_s: float = 0.0
-    min_gap_s: float | None = None
-
-
-@dataclass(slots=True)
 class DriveStats:
     """The line's counters for one address (0: broadcasts), for metrics to read at scrape time."""
 
@@ -127,6 +104,58 @@ class DriveStats:
     """Diagnostic echoes sent after a timeout before anything else went to this drive."""
     line_s: float = 0.0
     """Time the line was held for this address, timeouts included: a dead drive's cost shows."""
+
+
+@dataclass(slots=True)
+class BusStats:
+    """Counters a dashboard or the benchmark reads; plain numbers, written by the bus only.
+
+    What happened on the wire is counted once, for the address it happened with (`drives`); the
+    bus's totals of those counters are their sums, worked out when read (a scrape), not kept.
+    """
+
+    drives: dict[int, DriveStats] = field(default_factory=dict)
+    requests: int = 0
+    broadcasts: int = 0
+    coalesced: int = 0
+    queue_full: int = 0
+    offline_rejected: int = 0
+    port_errors: int = 0
+    reopens: int = 0
+    busy_s: float = 0.0
+    min_gap_s: float | None = None
+
+    @property
+    def transactions(self) -> int:
+        return sum(drive.transactions for drive in self.drives.values())
+
+    @property
+    def retries(self) -> int:
+        return sum(drive.retries for drive in self.drives.values())
+
+    @property
+    def timeouts(self) -> int:
+        return sum(drive.timeouts for drive in self.drives.values())
+
+    @property
+    def bad_replies(self) -> Counter[str]:
+        return sum((drive.bad_replies for drive in self.drives.values()), Counter())
+
+    @property
+    def exceptions(self) -> Counter[int]:
+        return sum((drive.exceptions for drive in self.drives.values()), Counter())
+
+    @property
+    def failed(self) -> int:
+        return sum(drive.failed for drive in self.drives.values())
+
+    @property
+    def late_replies(self) -> int:
+        return sum(drive.late_replies for drive in self.drives.values())
+
+    @property
+    def resyncs(self) -> int:
+        return sum(drive.resyncs for drive in self.drives.values())
 
 
 # Immutable, and built per transaction: a NamedTuple costs a fraction of a frozen dataclass,
@@ -164,7 +193,7 @@ class Bus:
         self.line = line or SerialLine(settings.line)
         self.state = BusState.OPENING
         self.stats = BusStats()
-        self.drive_stats: dict[int, DriveStats] = {}
+        self.drive_stats = self.stats.drives
         self.gap_excess = GapExcess()
         """The silence beyond the inter-frame gap before each back-to-back request: our share."""
         self._reply_heard_at = 0.0
@@ -593,7 +622,6 @@ class Bus:
             echo_pending, pending = first, None
         for attempt in range(retries + 1):
             if attempt:
-                self.stats.retries += 1
                 drive.retries += 1
             on_its_way = echo_pending or pending
             started = on_its_way.started if on_its_way is not None else time.monotonic()
@@ -615,7 +643,6 @@ class Bus:
                         frame, expect_reply=not broadcast, timeout_s=transaction.timeout_s
                     )
             except ReplyTimeout as exc:
-                self.stats.timeouts += 1
                 drive.timeouts += 1
                 if broadcast:
                     pass
@@ -630,7 +657,6 @@ class Bus:
                     self.tap(self.name, transaction, attempt, started, exc)
                 continue
             except BadReply as exc:
-                self.stats.bad_replies[exc.kind] += 1
                 drive.bad_replies[exc.kind] += 1
                 dump_frame(self.name, f"rx bad {exc.kind}", exc.frame)
                 log.debug("bus %s: %s", self.name, exc)
@@ -646,7 +672,6 @@ class Bus:
             finally:
                 drive.line_s += time.monotonic() - started
             return self._attempt_answered(transaction, attempt, started, exchange, drive)
-        self.stats.failed += 1
         drive.failed += 1
         log.debug("bus %s: drive %d: every attempt failed: %s", self.name, address, errors)
         # A probe that got nothing usable counts as a failure whatever went wrong, so its drive
@@ -668,7 +693,6 @@ class Bus:
             sent = await self.line.send_after_gap(partial(late.echo_frame, address))
             assert sent is not None  # the pick always has a frame
         self._count_attempt(drive, sent.frame)
-        self.stats.resyncs += 1
         drive.resyncs += 1
         try:
             caught = await self.line.resynchronise(sent, timeout_s=timeout_s)
@@ -689,7 +713,6 @@ class Bus:
         drive: DriveStats,
         asked_at: float | None = None,
     ) -> None:
-        self.stats.late_replies += len(late)
         drive.late_replies += len(late)
         self.late_replies.seen(address, late, timeout_s, asked_at)
 
@@ -727,7 +750,6 @@ class Bus:
 
     def _count_attempt(self, drive: DriveStats, frame: bytes) -> None:
         """One attempt on the wire, whichever way it ends (`_execute` or `_replied`)."""
-        self.stats.transactions += 1
         drive.transactions += 1
         dump_frame(self.name, "tx", frame)
 
@@ -767,7 +789,6 @@ class Bus:
             self.stats.min_gap_s = exchange.gap_s
         pdu = exchange.reply_pdu
         if pdu and pdu[0] & 0x80 and len(pdu) > 1:
-            self.stats.exceptions[pdu[1]] += 1
             drive.exceptions[pdu[1]] += 1
 
     def _answered(self, address: int) -> None:

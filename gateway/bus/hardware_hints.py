@@ -1,6 +1,6 @@
 """What to change when a line's hardware shows itself in the replies: words for the log and `scan`.
 
-The line notices two effects of common hardware (`gateway.bus.line`) and copes with both; these
+The line notices two effects of common hardware (`gateway.bus.receiver`) and copes with both; these
 say, once, what would make it cleaner, in terms a technician can act on.
 """
 

@@ -33,7 +33,7 @@ def test_a_drive_owes_from_its_first_timeout_until_its_echo_is_back() -> None:
 def test_only_the_echo_of_this_very_value_ends_a_catch_up() -> None:
     """An older echo (another value) has the same function and length: by those alone it
     would pass, and the bus would think itself caught up with a reply still in flight."""
-    from gateway.bus.line import _echo_of
+    from gateway.bus.receiver import echo_of as _echo_of
     from gateway.errors import BadReply
     from gateway.modbus.rtu import build_frame
 

@@ -14,7 +14,7 @@ from collections.abc import Callable
 
 import pytest
 
-from gateway.bus import line as line_module
+from gateway.bus import port as port_module
 from gateway.bus.line import Exchange, Sending, SerialLine
 from gateway.config import BusConfig
 from gateway.errors import BadReply, PortError, ReplyTimeout
@@ -179,7 +179,7 @@ async def test_an_echo_seen_while_held_is_still_known_for_one_when_the_reply_sto
     pass for the drive's acknowledgement, whichever reading (the callback's or the caller's)
     ends the attempt."""
     # Judged as a wire, not a pty: the echo is told from the reply by its timing.
-    monkeypatch.setattr(line_module, "is_pseudo_terminal", lambda _port: False)
+    monkeypatch.setattr(port_module, "is_pseudo_terminal", lambda _port: False)
     master, slave = os.openpty()
     tty.setraw(slave)
     loop = asyncio.get_running_loop()

@@ -1,0 +1,47 @@
+"""What one attempt on the line is and did: the frame on its way, the exchange it made."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+
+# Immutable, and built per transaction: a NamedTuple costs a fraction of a frozen dataclass,
+# whose __init__ goes through object.__setattr__ for every field.
+class Sending(NamedTuple):
+    """An attempt whose frame has started to go out."""
+
+    frame: bytes
+    started: float
+    """When the first byte was handed to the port (`time.monotonic()`)."""
+    gap_s: float
+    """Silence kept before it (measured, not assumed)."""
+    written: int
+    """Bytes the port took at once; `finish` writes the rest."""
+    write_at: float = 0.0
+    """RTS direction control with a set-up delay: when `finish` may write the frame (the
+    driver was switched on at `started`)."""
+
+
+# A NamedTuple for the reason given at `Sending`.
+class Exchange(NamedTuple):
+    """What one attempt did on the wire."""
+
+    reply_pdu: bytes | None
+    """The reply's PDU, or None for a broadcast."""
+    gap_s: float
+    """Silence kept before the request (measured, not assumed)."""
+    busy_s: float
+    """Time the line was busy with this exchange: request, drive's delay, reply."""
+    reply_heard_at: float = 0.0
+    """When the reply's last byte arrived (`time.monotonic()`); 0.0 when not known (a broadcast,
+    a URL port without arrival times)."""
+
+
+# A NamedTuple for the reason given at `Sending`.
+class Resynchronised(NamedTuple):
+    """A resynchronisation's echo came back (`SerialLine.resynchronise`)."""
+
+    exchange: Exchange
+    """The echo's exchange (or a device's exception 01H to 08H)."""
+    late: tuple[float, ...]
+    """When each whole frame that came before the echo arrived: replies to older requests."""
