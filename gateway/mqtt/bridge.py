@@ -100,7 +100,7 @@ class MqttBridge:
         session, settings = self.session, self.settings
         store = self.publisher.events.stats
         return SessionStatus(
-            broker=f"{settings.host}:{settings.port}",
+            broker=session.server_name,
             tls=settings.tls,
             protocol="5" if session.protocol == MQTT_5 else "3.1.1",
             connected=session.connected.is_set(),
