@@ -226,6 +226,11 @@ class CannotListen(GatewayError):
     """
 
 
+class BrokerShared(GatewayError):
+    """Another gateway is live on this one's MQTT base topic: the service can't start (exit
+    code 4); the message names the other gateway and the keys to change."""
+
+
 class StoreError(GatewayError):
     """The event store's database could not be opened or used (the message names the file and
     why): the gateway goes on, keeping events in memory."""

@@ -14,6 +14,7 @@ from gateway.app import Application
 from gateway.config import GatewayConfig, load_config
 from gateway.control import RELOAD, ControlServer
 from gateway.errors import (
+    BrokerShared,
     BusFailed,
     CannotListen,
     ConfigError,
@@ -143,7 +144,7 @@ async def serve(
         log.error("cannot start: %s", exc)
         return EXIT_STARTUP
     except ExceptionGroup as group:
-        unbound = group.subgroup((CannotListen, StoreRefused))
+        unbound = group.subgroup((CannotListen, StoreRefused, BrokerShared))
         if unbound is not None:
             # A port taken or a wrong address, a store of a newer release: one line that says
             # which and why, no traceback.

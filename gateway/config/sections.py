@@ -415,10 +415,21 @@ class DriveConfig(Section):
 _DOT = "RabbitMQ's MQTT plugin turns it into '/', so topics would differ between brokers"
 
 
+def broker_address(value: str) -> tuple[str, int]:
+    """`host:port` (an IPv6 address in brackets, `[::1]:1883`) as its two parts."""
+    host, colon, port = value.rpartition(":")
+    host = host[1:-1] if host.startswith("[") and host.endswith("]") else host
+    if not colon or not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ValueError(f"{value!r} is not host:port (a port 1-65535)")
+    return host, int(port)
+
+
 class MqttConfig(Section):
     enabled: bool = True
     host: str = "127.0.0.1"
     port: int = Field(1883, ge=1, le=65535)
+    servers: tuple[str, ...] | None = None
+    """`host:port` of each broker (a cluster's nodes), tried in turn; instead of host/port."""
     username: str | None = None
     password: str | None = None
     """Better from the environment variable INVT_GATEWAY_MQTT_PASSWORD than in the file."""
@@ -467,6 +478,32 @@ class MqttConfig(Section):
     def _readable(cls, value: str | None) -> str | None:
         # Found now rather than at the first connection attempt, retried in the background.
         return readable_file(value)
+
+    @field_validator("servers")
+    @classmethod
+    def _servers(cls, value: tuple[str, ...] | None) -> tuple[str, ...] | None:
+        if value is not None:
+            if not value:
+                raise ValueError("at least one host:port (or leave it out for host/port)")
+            for server in value:
+                broker_address(server)
+            if len(set(value)) != len(value):
+                raise ValueError("a server listed twice")
+        return value
+
+    @model_validator(mode="after")
+    def _one_form(self) -> MqttConfig:
+        given = sorted({"host", "port"} & self.model_fields_set)
+        if self.servers is not None and given:
+            keys = "/".join(given)
+            raise ValueError(f"servers and {keys} both given: list every broker in servers alone")
+        return self
+
+    def broker_addresses(self) -> tuple[tuple[str, int], ...]:
+        """The brokers to try, in order: `servers`, or the one `host`/`port`."""
+        if self.servers is None:
+            return ((self.host, self.port),)
+        return tuple(broker_address(server) for server in self.servers)
 
     @model_validator(mode="after")
     def _tls_files(self) -> MqttConfig:

@@ -22,6 +22,7 @@ from collections.abc import Awaitable, Sequence
 
 import aiomqtt
 
+from gateway.mqtt.alone import check_alone
 from gateway.mqtt.commands import CommandDrive, Commands
 from gateway.mqtt.connection import MQTT_5
 from gateway.mqtt.discovery_cleanup import own_discovery_topics, remove_stale_entities
@@ -100,7 +101,7 @@ class MqttBridge:
         session, settings = self.session, self.settings
         store = self.publisher.events.stats
         return SessionStatus(
-            broker=f"{settings.host}:{settings.port}",
+            broker=session.server_name,
             tls=settings.tls,
             protocol="5" if session.protocol == MQTT_5 else "3.1.1",
             connected=session.connected.is_set(),
@@ -128,6 +129,7 @@ class MqttBridge:
     # -- lifecycle ---------------------------------------------------------------------------
 
     async def start(self) -> None:
+        await check_alone(self.settings, self.topics)
         await self.session.start()
 
     async def stop(self) -> None:

@@ -26,6 +26,26 @@ from gateway.settings import MqttSettings
 
 ONLINE = json.dumps({"state": "online"}, separators=(",", ":"))
 OFFLINE = json.dumps({"state": "offline"}, separators=(",", ":"))
+
+
+def server_name(server: tuple[str, int]) -> str:
+    """`host:port` as the configuration writes it (an IPv6 address in brackets)."""
+    host, port = server
+    return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+
+
+def online_payload(mqtt: MqttSettings, server: tuple[str, int]) -> str:
+    """`bridge/state` while connected: online, through which broker, and whose it is (a second
+    gateway on the same base topic or client id finds it at its start)."""
+    state = {
+        "state": "online",
+        "server": server_name(server),
+        "gateway_id": mqtt.gateway_id,
+        "client_id": mqtt.client_id,
+    }
+    return json.dumps(state, separators=(",", ":"))
+
+
 CONNECT_TIMEOUT_S = 5.0
 """Connecting, subscribing, and waiting for a QoS 1 acknowledgement."""
 
@@ -73,19 +93,21 @@ def make_client(
     mqtt: MqttSettings,
     topics: Topics,
     tls: ssl.SSLContext | None,
+    server: tuple[str, int],
     protocol: aiomqtt.ProtocolVersion = MQTT_3_1_1,
     identifier: str | None = None,
     will: bool = True,
 ) -> aiomqtt.Client:
-    """A fresh client for one connection attempt; `tls` from `tls_context`, built once.
+    """A fresh client for one connection attempt to `server` (one of `mqtt.servers`); `tls`
+    from `tls_context`, built once, for every server alike.
 
     MQTT 5 where the broker speaks it: only there does a subscription keep the retain flag of a
     message delivered live (retain-as-published), so a retained command can always be refused.
     """
     five = protocol == MQTT_5
     return aiomqtt.Client(
-        mqtt.host,
-        mqtt.port,
+        server[0],
+        server[1],
         username=mqtt.username,
         password=mqtt.password,
         identifier=identifier or mqtt.client_id,

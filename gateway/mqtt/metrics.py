@@ -23,6 +23,15 @@ class MqttMetrics(Collector):
         )
         connected.add_metric([], 1.0 if bridge.connected.is_set() else 0.0)
         yield connected
+        server = GaugeMetricFamily(
+            f"{PREFIX}_mqtt_server_info",
+            "1 for the broker of mqtt.servers the bridge uses (or tries next), 0 for the others",
+            labels=["server"],
+        )
+        in_use = bridge.session.server_name
+        for name in bridge.session.server_names():
+            server.add_metric([name], 1.0 if name == in_use else 0.0)
+        yield server
         yield CounterMetricFamily(
             f"{PREFIX}_mqtt_messages_published",
             "Messages the bridge published (states, availability, events, answers, discovery)",

@@ -8,6 +8,7 @@
              subscribe, the tasks that run while connected), which says online (`say_online`)
              once it is subscribed
     lost     any error ends the session; `on_lost`; wait (jittered, capped backoff), connect again
+             to the next of `mqtt.servers` (a cluster's nodes, in turn)
     stop     publish offline, end the loop
 
 The session knows nothing of what is published or received: that is the publisher's and the
@@ -33,8 +34,9 @@ from gateway.mqtt.connection import (
     MQTT_3_1_1,
     MQTT_5,
     OFFLINE,
-    ONLINE,
     make_client,
+    online_payload,
+    server_name,
     tls_context,
 )
 from gateway.mqtt.stats import BridgeStats
@@ -85,6 +87,20 @@ class Session:
         self.last_error: str | None = None
         """Why the last connection failed or was lost (kept after a reconnect: it happened)."""
         self.last_error_at: float | None = None
+        self._server_index = 0
+        """Which of `mqtt.servers` is in use, or tried next; the next one after each failure."""
+
+    @property
+    def server(self) -> tuple[str, int]:
+        """The broker connected to, or the one the next attempt goes to."""
+        return self.mqtt.servers[self._server_index]
+
+    @property
+    def server_name(self) -> str:
+        return server_name(self.server)
+
+    def server_names(self) -> list[str]:
+        return [server_name(server) for server in self.mqtt.servers]
 
     async def start(self) -> None:
         self._stopping = False  # a reload stops the bridge and starts it again
@@ -117,7 +133,13 @@ class Session:
         client id (`<id>-<purpose>`), no last will. Call once the session has connected."""
         identifier = f"{self.mqtt.client_id}-{purpose}"
         return make_client(
-            self.mqtt, self.topics, self._tls, self.protocol, identifier=identifier, will=False
+            self.mqtt,
+            self.topics,
+            self._tls,
+            self.server,
+            self.protocol,
+            identifier=identifier,
+            will=False,
         )
 
     async def subscribe(self, client: aiomqtt.Client, topics: Iterable[str]) -> None:
@@ -138,7 +160,7 @@ class Session:
             try:
                 # Inside the try: whatever building a client raises is one more failed attempt,
                 # never the end of the loop.
-                client = make_client(self.mqtt, self.topics, tls, self.protocol)
+                client = make_client(self.mqtt, self.topics, tls, self.server, self.protocol)
                 async with client:
                     self._client = client
                     if failures:
@@ -174,6 +196,9 @@ class Session:
             if retry_at_once:
                 retry_at_once = False
                 continue
+            # Whatever failed, the next broker of the list is tried (a cluster's node that
+            # died may stay away; any node will do), after the backoff's wait.
+            self._server_index = (self._server_index + 1) % len(self.mqtt.servers)
             await asyncio.sleep(backoff.next_delay())
 
     def _note_error(self, error: BaseException) -> None:
@@ -210,26 +235,24 @@ class Session:
         self._settled = True
         if self.protocol == MQTT_3_1_1:
             log.warning(
-                "MQTT: the broker %s:%d speaks MQTT 3.1.1 only. A retained command it delivers "
+                "MQTT: the broker %s speaks MQTT 3.1.1 only. A retained command it delivers "
                 "while the gateway is connected arrives without its retain flag there, so it "
                 "can't be told from a fresh one (retained ones found on subscribing still are).",
-                self.mqtt.host,
-                self.mqtt.port,
+                self.server_name,
             )
 
     async def _connected(self, client: aiomqtt.Client) -> None:
         self._settle()
         self.stats.connects += 1
         self.connected_since = time.time()
-        log.info(
-            "MQTT: connected to %s:%d as %s", self.mqtt.host, self.mqtt.port, self.mqtt.client_id
-        )
+        log.info("MQTT: connected to %s as %s", self.server_name, self.mqtt.client_id)
         await self._on_connect(client)
 
     async def say_online(self, client: aiomqtt.Client) -> None:
         """Retained "online" on `bridge/state`: for `on_connect` to send once it listens to the
         request topics, so a client that acts on "online" is heard."""
-        await client.publish(self.topics.bridge_state, ONLINE, qos=QOS, retain=True)
+        online = online_payload(self.mqtt, self.server)
+        await client.publish(self.topics.bridge_state, online, qos=QOS, retain=True)
         self.stats.published += 1
 
     async def _tls_context(self, backoff: Backoff) -> ssl.SSLContext | None:
@@ -255,7 +278,7 @@ class Session:
             return tls
 
     def _log_failure(self, failures: int, exc: BaseException) -> None:
-        where = f"{self.mqtt.host}:{self.mqtt.port}"
+        where = self.server_name
         # Loudly once, then quietly: a broker down for a night must not flood the journal.
         level = logging.WARNING if failures == 1 else logging.DEBUG
         log.log(

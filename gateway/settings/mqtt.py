@@ -22,8 +22,8 @@ class MqttSettings:
     gateway_id: str
     client_id: str
     """Unique per gateway: two with the same id would throw each other off the broker."""
-    host: str
-    port: int
+    servers: tuple[tuple[str, int], ...]
+    """The brokers (host, port) tried in turn: a cluster's nodes, or the one `host`/`port`."""
     username: str | None
     password: str | None
     tls: bool
@@ -51,8 +51,7 @@ def mqtt_settings(config: GatewayConfig) -> MqttSettings | None:
     return MqttSettings(
         gateway_id=config.gateway_id,
         client_id=mqtt.client_id or f"invt-gateway-{config.gateway_id}",
-        host=mqtt.host,
-        port=mqtt.port,
+        servers=mqtt.broker_addresses(),
         username=mqtt.username,
         password=mqtt.password,
         tls=mqtt.tls,

@@ -1,0 +1,75 @@
+"""Gateways sharing a broker never step on each other: a second gateway on a live gateway's base
+topic is refused at start (exit code 4, saying whose it is and which keys to change), while the
+same gateway started again right after a SIGKILL (its last will not yet out) starts as usual."""
+
+from __future__ import annotations
+
+import asyncio
+from pathlib import Path
+from typing import Any
+
+from gateway.exit_codes import EXIT_STARTUP
+from tests.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
+from tests.mosquitto import mosquitto as mosquitto
+from tests.mqtt_setup import FAST_POLL, simulated_line
+from tests.processes import gateway_process
+from tests.support import free_port
+
+
+def config(gateway_id: str, line: str, broker: Mosquitto, base: str) -> dict[str, Any]:
+    return {
+        "gateway_id": gateway_id,
+        "modbus_tcp": {"host": "127.0.0.1", "port": free_port()},
+        "buses": [{"name": "line1", "port": line, "baudrate": 115200}],
+        "drives": [
+            {"name": "pump1", "bus": "line1", "address": 1, "model": "gd350", "poll": FAST_POLL},
+        ],
+        "mqtt": {"servers": [f"{broker.host}:{broker.port}"], "base_topic": base},
+    }
+
+
+async def test_a_second_gateway_on_a_live_base_topic_is_refused(
+    mosquitto: Mosquitto, tmp_path: Path
+) -> None:
+    base = unique_base_topic()
+    with simulated_line((1,)) as line_a, simulated_line((1,)) as line_b:
+        async with mqtt_probe(mosquitto, f"{base}/bridge/state") as probe:
+            with gateway_process(config("cabinet-a", line_a.path, mosquitto, base), tmp_path):
+                await probe.wait_for(f"{base}/bridge/state", lambda s: s["state"] == "online")
+                copied = config("cabinet-b", line_b.path, mosquitto, base)
+                with gateway_process(copied, tmp_path) as second:
+                    code = await asyncio.to_thread(second.wait, 15.0)
+                    assert code == EXIT_STARTUP
+                    error = second.log.text
+                    assert "gateway 'cabinet-a'" in error
+                    assert f"mqtt.base_topic {base!r}" in error
+                # The first was never disturbed: still online, as itself.
+                mark = len(probe.messages)
+                await asyncio.sleep(0.3)  # asserting an absence: no "offline" from the refusal
+                assert all(m.json()["state"] == "online" for m in probe.messages[mark:])
+
+
+async def test_the_same_gateway_started_again_before_its_last_will_starts(
+    mosquitto: Mosquitto, tmp_path: Path
+) -> None:
+    base = unique_base_topic()
+    with simulated_line((1,)) as line:
+        settings = config("cabinet-a", line.path, mosquitto, base)
+        async with mqtt_probe(mosquitto, f"{base}/bridge/state") as probe:
+            # Its previous run, killed a moment ago: the broker hasn't published its will yet.
+            previous = {
+                "state": "online",
+                "server": "10.0.0.9:1883",
+                "gateway_id": "cabinet-a",
+                "client_id": "invt-gateway-cabinet-a",
+            }
+            await probe.publish(f"{base}/bridge/state", previous, retain=True)
+            await probe.wait_for(f"{base}/bridge/state")  # our own, echoed
+            mark = len(probe.messages)
+            with gateway_process(settings, tmp_path) as again:
+                await asyncio.to_thread(again.wait_ready)
+                state = await probe.wait_for(
+                    f"{base}/bridge/state", lambda s: s["server"] != "10.0.0.9:1883", after=mark
+                )
+                assert state.json()["state"] == "online"
+                assert again.process.poll() is None
