@@ -17,7 +17,6 @@ from gateway.profile.states import RunState
 from tests.support import eventually, running_gateway, scan_rows
 from tests.support.console_support import OPERATOR_PASSWORD, console_client, console_config
 from tests.support.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
-from tests.support.mosquitto import mosquitto as mosquitto
 from tests.support.mqtt_setup import FAST_POLL, mqtt_config
 from tests.support.processes import run_cli
 

@@ -30,7 +30,6 @@ from tests.support.console_support import (
     console_config,
 )
 from tests.support.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
-from tests.support.mosquitto import mosquitto as mosquitto
 from tests.support.mqtt_setup import mqtt_config
 
 WRONG = "hunter2-not-olgas"

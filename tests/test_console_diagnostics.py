@@ -18,7 +18,6 @@ from tests.support.console_support import (
     console_config,
 )
 from tests.support.mosquitto import Mosquitto
-from tests.support.mosquitto import mosquitto as mosquitto
 
 NOT_A_REGISTER = 0x0F00
 ILLEGAL_DATA_ADDRESS = 0x02

@@ -21,7 +21,6 @@ from gateway.app import Application
 from tests.peers.pymodbus_meter import EXPECTED
 from tests.support import TcpClient, eventually, pty_cable, running_gateway
 from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
-from tests.support.mosquitto import mosquitto as mosquitto
 from tests.support.mqtt_setup import mqtt_config
 from tests.support.processes import run_cli
 

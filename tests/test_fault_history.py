@@ -8,7 +8,6 @@ from typing import Any
 
 from tests.support import running_gateway
 from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
-from tests.support.mosquitto import mosquitto as mosquitto
 from tests.support.mqtt_setup import mqtt_config, simulated_line
 
 CODES = (2, 11, 15, 23, 40)

@@ -19,7 +19,6 @@ from gateway.profile.invt import STATE_WORD_1
 from gateway.profile.states import RunState
 from tests.support import TcpClient, eventually, free_port, running_gateway
 from tests.support.mosquitto import BrokerProxy, Mosquitto, mqtt_probe, unique_base_topic
-from tests.support.mosquitto import mosquitto as mosquitto
 from tests.support.mqtt_setup import DRIVES, mqtt_config, simulated_line
 
 

@@ -18,7 +18,6 @@ from gateway.profile.invt import STATE_WORD_1
 from gateway.profile.states import RunState
 from tests.support import TcpClient, eventually, running_gateway
 from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
-from tests.support.mosquitto import mosquitto as mosquitto
 from tests.support.mqtt_setup import mqtt_config, simulated_line
 
 FREQUENCY_SETPOINT = 0x2001

@@ -28,7 +28,6 @@ from tests.support.mosquitto import (
     mqtt_probe,
     unique_base_topic,
 )
-from tests.support.mosquitto import mosquitto as mosquitto
 from tests.support.processes import LineCollector, entry_point
 
 

@@ -18,7 +18,6 @@ from gateway.profile.states import RunState
 from gateway.settings import runtime_settings
 from tests.support import free_port, running_gateway
 from tests.support.mosquitto import Address, Mosquitto, mqtt_probe, unique_base_topic
-from tests.support.mosquitto import mosquitto as mosquitto
 from tests.support.mqtt_setup import mqtt_config, simulated_line
 
 

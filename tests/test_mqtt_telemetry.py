@@ -11,7 +11,6 @@ from gateway.errors import BusClosed
 from gateway.profile.invt import STATE_WORD_1
 from tests.support import TcpClient, eventually, running_gateway
 from tests.support.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
-from tests.support.mosquitto import mosquitto as mosquitto
 from tests.support.mqtt_setup import mqtt_config, simulated_line
 
 

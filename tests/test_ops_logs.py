@@ -16,7 +16,6 @@ import pytest
 from gateway.instruments.simulator import SimulatedLine
 from tests.support import TcpClient, free_port, gateway_config, read_pdu, running_gateway
 from tests.support.mosquitto import Mosquitto, unique_base_topic
-from tests.support.mosquitto import mosquitto as mosquitto
 from tests.support.mqtt_setup import mqtt_config, simulated_line
 from tests.support.processes import gateway_process
 

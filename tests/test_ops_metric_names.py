@@ -21,7 +21,6 @@ from gateway.config import GatewayConfig
 from gateway.instruments.simulator import SimulatedLine
 from tests.support import TcpClient, free_port, read_pdu, running_gateway, write_pdu
 from tests.support.mosquitto import Mosquitto, unique_base_topic
-from tests.support.mosquitto import mosquitto as mosquitto
 from tests.test_ops_metrics import http_get
 
 PINNED = Path(__file__).parent / "fixtures" / "metric_families.tsv"

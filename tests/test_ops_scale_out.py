@@ -11,7 +11,6 @@ from typing import Any
 
 from tests.support import free_port
 from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
-from tests.support.mosquitto import mosquitto as mosquitto
 from tests.support.mqtt_setup import FAST_POLL, simulated_line
 from tests.support.processes import gateway_process
 

@@ -21,7 +21,6 @@ from gateway.instruments.stress.checked_load import STEADY, CheckedLoad
 from gateway.instruments.stress.scenario import first_answer_after
 from tests.support import RecordProperty, eventually, free_port, running_gateway
 from tests.support.mosquitto import Mosquitto, unique_base_topic
-from tests.support.mosquitto import mosquitto as mosquitto
 from tests.support.processes import GatewayProcess
 
 UNITS = [1, 2]

@@ -21,7 +21,6 @@ from gateway.profile.invt import INVT_PROFILES
 from gateway.tools.scan import FoundDrive
 from tests.support import running_gateway, scan_rows
 from tests.support.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
-from tests.support.mosquitto import mosquitto as mosquitto
 from tests.support.mqtt_setup import FAST_POLL, mqtt_config
 from tests.support.processes import run_cli, simulator_process
 from tests.support.protocol_frames import PROTOCOL_EXCHANGES

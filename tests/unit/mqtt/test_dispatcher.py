@@ -18,7 +18,6 @@ from gateway.mqtt.lanes import Lanes
 from gateway.mqtt.requests import Json, dump, ok_response
 from gateway.mqtt.stats import BridgeStats
 from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
-from tests.support.mosquitto import mosquitto as mosquitto
 
 MAX_WAITING = 2
 

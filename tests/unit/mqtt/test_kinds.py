@@ -13,7 +13,6 @@ from gateway.mqtt.requests import Json, RegisterRead
 from gateway.settings import runtime_settings
 from tests.support import running_application
 from tests.support.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
-from tests.support.mosquitto import mosquitto as mosquitto
 from tests.support.mqtt_setup import mqtt_config, simulated_line
 
 STOPPED = 3
