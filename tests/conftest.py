@@ -1,5 +1,6 @@
-"""What every test shares: its own state directory, the simulated line most tests run on, and
-the figures the tests measured (recovery times, faults survived), shown after the run.
+"""What every test shares: its own state directory, the simulated line most tests run on, a
+Mosquitto of its own for the tests that ask for `mosquitto`, and the figures the tests measured
+(recovery times, faults survived), shown after the run.
 
 A test records a figure with `record_property("figure:<what>", text)`; they also land in a JUnit
 XML report (`--junitxml`) as properties, so CI can keep them.
@@ -18,6 +19,7 @@ import pytest
 from gateway.config import ENV_STATE_DIRECTORY
 from gateway.event_loop import ENV_EVENT_LOOP
 from gateway.instruments.simulator import SimulatedLine
+from tests.support.mosquitto import mosquitto as mosquitto  # a broker of its own, per test
 
 FIGURE = "figure:"
 

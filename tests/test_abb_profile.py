@@ -14,12 +14,11 @@ from gateway.instruments.simulator import SimulatedLine
 from gateway.modbus.functions import READ_HOLDING_REGISTERS
 from gateway.profile import get_profile
 from gateway.profile.states import RunState
-from tests.console_support import OPERATOR_PASSWORD, console_client, console_config
-from tests.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
-from tests.mosquitto import mosquitto as mosquitto
-from tests.mqtt_setup import FAST_POLL, mqtt_config
-from tests.processes import run_cli
 from tests.support import eventually, running_gateway, scan_rows
+from tests.support.console_support import OPERATOR_PASSWORD, console_client, console_config
+from tests.support.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
+from tests.support.mqtt_setup import FAST_POLL, mqtt_config
+from tests.support.processes import run_cli
 
 # ACS355 state diagram, page 319: CW = xxxx x1xx xxxx x110 → READY TO SWITCH ON,
 # xxxx x1xx xxxx x111 → READY TO OPERATE, xxxx x1xx x111 1111 → OPERATING.

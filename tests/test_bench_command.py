@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.processes import assert_ending_leaves_nothing_behind
+from tests.support.processes import assert_ending_leaves_nothing_behind
 
 
 def test_bench_prints_checked_figures_as_json() -> None:

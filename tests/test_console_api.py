@@ -17,7 +17,8 @@ import pytest
 from gateway.app import Application
 from gateway.console.auth import MAX_FAILURES
 from gateway.instruments.simulator import SimulatedLine
-from tests.console_support import (
+from tests.support import TcpClient, eventually, read_pdu, running_gateway
+from tests.support.console_support import (
     OPERATOR_PASSWORD,
     OPERATOR_TOKEN,
     VIEWER_PASSWORD,
@@ -26,8 +27,7 @@ from tests.console_support import (
     console_config,
     state_word,
 )
-from tests.support import TcpClient, eventually, read_pdu, running_gateway
-from tests.tls import make_certificates
+from tests.support.tls import make_certificates
 
 STATE_WORD_1 = 0x2100
 RUNNING_FORWARD = 1

@@ -21,17 +21,16 @@ import pytest
 from gateway.app import Application
 from gateway.console.auth import MAX_FAILURES
 from gateway.instruments.simulator import SimulatedLine
-from tests.console_support import (
+from tests.support import running_gateway
+from tests.support.console_support import (
     OPERATOR_PASSWORD,
     VIEWER_PASSWORD,
     ConsoleClient,
     console_client,
     console_config,
 )
-from tests.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
-from tests.mosquitto import mosquitto as mosquitto
-from tests.mqtt_setup import mqtt_config
-from tests.support import running_gateway
+from tests.support.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
+from tests.support.mqtt_setup import mqtt_config
 
 WRONG = "hunter2-not-olgas"
 AUDIT_FIELDS = {"category", "user", "address", "result"}

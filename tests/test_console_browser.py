@@ -24,8 +24,13 @@ from selenium.webdriver.support.ui import Select, WebDriverWait
 
 from gateway.app import Application
 from gateway.instruments.simulator import SimulatedLine
-from tests.console_support import OPERATOR_PASSWORD, VIEWER_PASSWORD, console_config, state_word
 from tests.support import TcpClient, running_gateway
+from tests.support.console_support import (
+    OPERATOR_PASSWORD,
+    VIEWER_PASSWORD,
+    console_config,
+    state_word,
+)
 
 T = TypeVar("T")
 CHROMIUM = shutil.which("chromium")

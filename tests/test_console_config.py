@@ -8,7 +8,7 @@ import yaml
 from gateway.config import parse_config
 from gateway.errors import ConfigError
 from gateway.passwords import token_matches, verify_password
-from tests.processes import run_cli
+from tests.support.processes import run_cli
 
 BASE = {"buses": [{"name": "line1", "port": "/dev/ttyUSB0"}]}
 

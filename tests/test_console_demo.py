@@ -12,8 +12,8 @@ import aiohttp
 import yaml
 
 from gateway.instruments.commands.demo import demo_config_text
-from tests.processes import entry_point
 from tests.support import free_port
+from tests.support.processes import entry_point
 
 
 async def test_the_demo_prints_the_console_address_and_an_operator_password(

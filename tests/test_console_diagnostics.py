@@ -13,16 +13,15 @@ import pytest
 from gateway.app import Application
 from gateway.config import GatewayConfig, MqttConfig
 from gateway.instruments.simulator import SimulatedLine
-from tests.console_support import (
+from tests.support import TcpClient, eventually, free_port, running_gateway
+from tests.support.console_support import (
     OPERATOR_PASSWORD,
     VIEWER_PASSWORD,
     ConsoleClient,
     console_client,
     console_config,
 )
-from tests.mosquitto import Mosquitto
-from tests.mosquitto import mosquitto as mosquitto
-from tests.support import TcpClient, eventually, free_port, running_gateway
+from tests.support.mosquitto import Mosquitto
 
 NOT_A_REGISTER = 0x0F00
 ILLEGAL_DATA_ADDRESS = 0x02

@@ -13,13 +13,13 @@ from typing import Any
 from gateway.app import Application
 from gateway.instruments.simulator import SimulatedLine
 from gateway.poller.drive_state import iso_time
-from tests.console_support import (
+from tests.support import TcpClient, eventually, running_gateway
+from tests.support.console_support import (
     OPERATOR_PASSWORD,
     ConsoleClient,
     console_client,
     console_config,
 )
-from tests.support import TcpClient, eventually, running_gateway
 
 SET_POINT = 0x2001
 CONTROL_WORD = 0x2000

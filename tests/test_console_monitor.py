@@ -7,9 +7,9 @@ import asyncio
 import os
 
 from gateway.instruments.simulator import SimulatedLine
-from tests.console_support import OPERATOR_TOKEN, console_config
-from tests.processes import entry_point, run_cli
 from tests.support import TcpClient, read_pdu, running_gateway
+from tests.support.console_support import OPERATOR_TOKEN, console_config
+from tests.support.processes import entry_point, run_cli
 
 
 async def test_monitor_prints_a_scada_read_in_words(line: SimulatedLine) -> None:

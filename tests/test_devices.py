@@ -18,12 +18,11 @@ from typing import Any
 import pytest
 
 from gateway.app import Application
-from tests.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
-from tests.mosquitto import mosquitto as mosquitto
-from tests.mqtt_setup import mqtt_config
 from tests.peers.pymodbus_meter import EXPECTED
-from tests.processes import run_cli
 from tests.support import TcpClient, eventually, pty_cable, running_gateway
+from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
+from tests.support.mqtt_setup import mqtt_config
+from tests.support.processes import run_cli
 
 ROOT = Path(__file__).resolve().parent.parent
 METER_FILE = ROOT / "tests" / "fixtures" / "devices" / "test_meter.yaml"

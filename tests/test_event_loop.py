@@ -20,8 +20,8 @@ from prometheus_client.parser import text_string_to_metric_families
 
 from gateway.exit_codes import EXIT_CONFIG
 from gateway.instruments.simulator import SimulatedLine
-from tests.processes import gateway_process, run_cli
 from tests.support import TcpClient, free_port
+from tests.support.processes import gateway_process, run_cli
 
 STATE_WORD_1 = 0x2100
 STOPPED = 3

@@ -17,8 +17,6 @@ from typing import Any
 from gateway.instruments.simulator import SimulatedLine
 from gateway.profile.invt import STATE_WORD_1
 from gateway.store import EventType
-from tests.mqtt_setup import simulated_line
-from tests.processes import gateway_process
 from tests.support import (
     TcpClient,
     free_port,
@@ -27,6 +25,8 @@ from tests.support import (
     running_gateway,
     write_pdu,
 )
+from tests.support.mqtt_setup import simulated_line
+from tests.support.processes import gateway_process
 
 DRIVES = [{"name": "pump1", "address": 1}, {"name": "fan2", "address": 2}]
 FREQUENCY_SETPOINT = 0x2001

@@ -6,10 +6,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from tests.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
-from tests.mosquitto import mosquitto as mosquitto
-from tests.mqtt_setup import mqtt_config, simulated_line
 from tests.support import running_gateway
+from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
+from tests.support.mqtt_setup import mqtt_config, simulated_line
 
 CODES = (2, 11, 15, 23, 40)
 """OUt2, OL1, OH1, bCE, STO on the GD350: five different trips."""

@@ -10,7 +10,6 @@ import pytest
 
 from gateway.config import GatewayConfig
 from gateway.instruments.simulator import SimulatedLine
-from tests.protocol_frames import PROTOCOL_EXCHANGES
 from tests.support import (
     TcpClient,
     eventually,
@@ -19,6 +18,7 @@ from tests.support import (
     running_gateway,
     write_pdu,
 )
+from tests.support.protocol_frames import PROTOCOL_EXCHANGES
 
 pytestmark = pytest.mark.line(addresses=[1, 2, 3])
 

@@ -17,10 +17,9 @@ import yaml
 
 from gateway.profile.invt import STATE_WORD_1
 from gateway.profile.states import RunState
-from tests.mosquitto import BrokerProxy, Mosquitto, mqtt_probe, unique_base_topic
-from tests.mosquitto import mosquitto as mosquitto
-from tests.mqtt_setup import DRIVES, mqtt_config, simulated_line
 from tests.support import TcpClient, eventually, free_port, running_gateway
+from tests.support.mosquitto import BrokerProxy, Mosquitto, mqtt_probe, unique_base_topic
+from tests.support.mqtt_setup import DRIVES, mqtt_config, simulated_line
 
 
 async def read_for(tcp: TcpClient, seconds: float) -> list[float]:

@@ -26,11 +26,11 @@ from typing import Any
 import aiomqtt
 
 from gateway.instruments.simulator import SimulatedLine
-from tests.mosquitto import MqttProbe, mqtt_probe, unique_base_topic
-from tests.mqtt_setup import simulated_line
 from tests.nats import NatsNode, nats_cluster
-from tests.processes import GatewayProcess
 from tests.support import RecordProperty, free_port
+from tests.support.mosquitto import MqttProbe, mqtt_probe, unique_base_topic
+from tests.support.mqtt_setup import simulated_line
+from tests.support.processes import GatewayProcess
 
 RETAINED_WITHIN_S = 5.0
 POLL = [{"name": "state", "start": 0x2100, "count": 3, "interval_ms": 300}]

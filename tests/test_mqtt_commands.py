@@ -16,10 +16,9 @@ from gateway.instruments.simulator import SimulatedLine
 from gateway.profile import parse_parameter
 from gateway.profile.invt import STATE_WORD_1
 from gateway.profile.states import RunState
-from tests.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
-from tests.mosquitto import mosquitto as mosquitto
-from tests.mqtt_setup import mqtt_config, simulated_line
 from tests.support import TcpClient, eventually, running_gateway
+from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
+from tests.support.mqtt_setup import mqtt_config, simulated_line
 
 FREQUENCY_SETPOINT = 0x2001
 

@@ -20,16 +20,15 @@ import yaml
 
 from gateway.instruments.commands.demo import demo_config_text
 from gateway.instruments.embedded_broker import EmbeddedBroker
-from tests.mosquitto import (
+from tests.support import free_port
+from tests.support.mosquitto import (
     Address,
     BrokerAddress,
     Mosquitto,
     mqtt_probe,
     unique_base_topic,
 )
-from tests.mosquitto import mosquitto as mosquitto
-from tests.processes import LineCollector, entry_point
-from tests.support import free_port
+from tests.support.processes import LineCollector, entry_point
 
 
 @contextlib.asynccontextmanager

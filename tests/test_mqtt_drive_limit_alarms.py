@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import asyncio
 
-from tests.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
-from tests.mosquitto import mosquitto as mosquitto
-from tests.mqtt_setup import FAST_POLL, mqtt_config, simulated_line
 from tests.support import running_gateway
+from tests.support.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
+from tests.support.mosquitto import mosquitto as mosquitto
+from tests.support.mqtt_setup import FAST_POLL, mqtt_config, simulated_line
 
 RAMP_A = (8.0, 9.0, 10.0, 11.0, 12.0, 11.0, 10.0, 9.0, 8.0, 7.0)
 STEP_S = 0.7

@@ -16,10 +16,9 @@ from gateway.instruments.embedded_broker import EmbeddedBroker
 from gateway.mqtt.connection import MQTT_3_1_1, MQTT_5
 from gateway.profile.states import RunState
 from gateway.settings import runtime_settings
-from tests.mosquitto import Address, Mosquitto, mqtt_probe, unique_base_topic
-from tests.mosquitto import mosquitto as mosquitto
-from tests.mqtt_setup import mqtt_config, simulated_line
 from tests.support import free_port, running_gateway
+from tests.support.mosquitto import Address, Mosquitto, mqtt_probe, unique_base_topic
+from tests.support.mqtt_setup import mqtt_config, simulated_line
 
 
 async def test_a_retained_command_published_while_connected_is_refused_and_cleared(

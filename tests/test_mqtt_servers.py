@@ -10,9 +10,9 @@ from pathlib import Path
 
 from gateway.config import GatewayConfig, MqttConfig
 from gateway.mqtt.metrics import MqttMetrics
-from tests.mosquitto import Mosquitto, mqtt_probe, running_mosquitto, unique_base_topic
-from tests.mqtt_setup import DRIVES, simulated_line
 from tests.support import eventually, gateway_config, running_gateway
+from tests.support.mosquitto import Mosquitto, mqtt_probe, running_mosquitto, unique_base_topic
+from tests.support.mqtt_setup import DRIVES, simulated_line
 
 GOOD = """
 buses: [{name: line1, port: /dev/serial/by-id/usb-FTDI-line1}]

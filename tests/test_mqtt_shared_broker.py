@@ -9,11 +9,11 @@ from pathlib import Path
 from typing import Any
 
 from gateway.exit_codes import EXIT_STARTUP
-from tests.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
-from tests.mosquitto import mosquitto as mosquitto
-from tests.mqtt_setup import FAST_POLL, simulated_line
-from tests.processes import gateway_process
 from tests.support import free_port
+from tests.support.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
+from tests.support.mosquitto import mosquitto as mosquitto
+from tests.support.mqtt_setup import FAST_POLL, simulated_line
+from tests.support.processes import gateway_process
 
 
 def config(gateway_id: str, line: str, broker: Mosquitto, base: str) -> dict[str, Any]:

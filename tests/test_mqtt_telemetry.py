@@ -9,10 +9,9 @@ import pytest
 
 from gateway.errors import BusClosed
 from gateway.profile.invt import STATE_WORD_1
-from tests.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
-from tests.mosquitto import mosquitto as mosquitto
-from tests.mqtt_setup import mqtt_config, simulated_line
 from tests.support import TcpClient, eventually, running_gateway
+from tests.support.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
+from tests.support.mqtt_setup import mqtt_config, simulated_line
 
 
 async def test_state_fault_and_running_values_are_decoded(mosquitto: Mosquitto) -> None:

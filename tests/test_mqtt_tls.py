@@ -19,11 +19,11 @@ from gateway.errors import ConfigError, TlsSettingsError
 from gateway.instruments.simulator import SimulatedLine
 from gateway.mqtt.connection import tls_context
 from gateway.settings import mqtt_settings
-from tests.mosquitto import mqtt_probe, unique_base_topic
-from tests.mqtt_setup import MQTT_LINE
-from tests.processes import gateway_process
 from tests.support import TcpClient, eventually, free_port, running_gateway
-from tests.tls import PASSWORD, USERNAME, Certificates, TlsMosquitto, make_certificates
+from tests.support.mosquitto import mqtt_probe, unique_base_topic
+from tests.support.mqtt_setup import MQTT_LINE
+from tests.support.processes import gateway_process
+from tests.support.tls import PASSWORD, USERNAME, Certificates, TlsMosquitto, make_certificates
 
 pytestmark = pytest.mark.line(**MQTT_LINE)
 

@@ -14,11 +14,10 @@ from pathlib import Path
 import pytest
 
 from gateway.instruments.simulator import SimulatedLine
-from tests.mosquitto import Mosquitto, unique_base_topic
-from tests.mosquitto import mosquitto as mosquitto
-from tests.mqtt_setup import mqtt_config, simulated_line
-from tests.processes import gateway_process
 from tests.support import TcpClient, free_port, gateway_config, read_pdu, running_gateway
+from tests.support.mosquitto import Mosquitto, unique_base_topic
+from tests.support.mqtt_setup import mqtt_config, simulated_line
+from tests.support.processes import gateway_process
 
 pytestmark = pytest.mark.line(addresses=[1])
 

@@ -28,8 +28,8 @@ import pytest
 import yaml
 
 from gateway.instruments.simulator import SimulatedLine
-from tests.processes import LineCollector
 from tests.support import free_port
+from tests.support.processes import LineCollector
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCKERFILE = ROOT / "Dockerfile"

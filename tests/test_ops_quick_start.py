@@ -22,8 +22,8 @@ from pathlib import Path
 
 import pytest
 
-from tests.processes import LineCollector
 from tests.support import free_port
+from tests.support.processes import LineCollector
 
 REPOSITORY = Path(__file__).resolve().parent.parent
 DEBIAN_PYTHON = Path("/usr/bin/python3")

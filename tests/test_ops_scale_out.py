@@ -9,11 +9,10 @@ import signal
 from pathlib import Path
 from typing import Any
 
-from tests.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
-from tests.mosquitto import mosquitto as mosquitto
-from tests.mqtt_setup import FAST_POLL, simulated_line
-from tests.processes import gateway_process
 from tests.support import free_port
+from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
+from tests.support.mqtt_setup import FAST_POLL, simulated_line
+from tests.support.processes import gateway_process
 
 OFFLINE = {"state": "offline"}
 

@@ -13,8 +13,8 @@ from pathlib import Path
 import yaml
 
 from gateway.instruments.simulator import SimulatedLine
-from tests.processes import LineCollector
 from tests.support import free_port
+from tests.support.processes import LineCollector
 from tests.test_ops_packaging import read_state_word
 
 

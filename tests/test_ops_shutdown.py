@@ -17,7 +17,6 @@ from pathlib import Path
 import pytest
 
 from gateway.instruments.simulator import SimulatedLine
-from tests.processes import gateway_process
 from tests.support import (
     Swallower,
     TcpClient,
@@ -26,6 +25,7 @@ from tests.support import (
     gateway_config,
     running_gateway,
 )
+from tests.support.processes import gateway_process
 
 QUEUED = 6
 WORDS = 16

@@ -19,7 +19,7 @@ import yaml
 from gateway.exit_codes import EXIT_STARTUP
 from gateway.instruments.commands.demo import demo_config_text
 from gateway.instruments.simulator import SimulatedLine
-from tests.processes import run_cli
+from tests.support.processes import run_cli
 
 pytestmark = pytest.mark.line(addresses=[1], baudrate=19200)
 

@@ -19,8 +19,8 @@ import pytest
 
 from gateway.exit_codes import EXIT_CONFIG
 from gateway.instruments.simulator import SimulatedLine
-from tests.processes import entry_point, gateway_process
 from tests.support import free_port
+from tests.support.processes import entry_point, gateway_process
 
 ROOT = Path(__file__).resolve().parent.parent
 UNIT = ROOT / "config" / "invt-gateway.service"

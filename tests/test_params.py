@@ -11,8 +11,8 @@ import pytest
 import yaml
 
 from gateway.instruments.simulator import SimulatedLine
-from tests.processes import SimulatorProcess, gateway_process, run_cli, simulator_process
 from tests.support import free_port
+from tests.support.processes import SimulatorProcess, gateway_process, run_cli, simulator_process
 
 LINE = ("--baud", "115200", "--parity", "N")
 

@@ -19,10 +19,9 @@ from gateway.config import GatewayConfig, MqttConfig
 from gateway.instruments.simulator import SimulatedLine
 from gateway.instruments.stress.checked_load import STEADY, CheckedLoad
 from gateway.instruments.stress.scenario import first_answer_after
-from tests.mosquitto import Mosquitto, unique_base_topic
-from tests.mosquitto import mosquitto as mosquitto
-from tests.processes import GatewayProcess
 from tests.support import RecordProperty, eventually, free_port, running_gateway
+from tests.support.mosquitto import Mosquitto, unique_base_topic
+from tests.support.processes import GatewayProcess
 
 UNITS = [1, 2]
 # Parity N: the port is reopened, and a pty refuses re-configuration with a parity.

@@ -19,12 +19,11 @@ from gateway.instruments.simulator import SimulatedLine
 from gateway.profile import InvtProfile, describe_identification, get_profile
 from gateway.profile.invt import INVT_PROFILES
 from gateway.tools.scan import FoundDrive
-from tests.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
-from tests.mosquitto import mosquitto as mosquitto
-from tests.mqtt_setup import FAST_POLL, mqtt_config
-from tests.processes import run_cli, simulator_process
-from tests.protocol_frames import PROTOCOL_EXCHANGES
 from tests.support import running_gateway, scan_rows
+from tests.support.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
+from tests.support.mqtt_setup import FAST_POLL, mqtt_config
+from tests.support.processes import run_cli, simulator_process
+from tests.support.protocol_frames import PROTOCOL_EXCHANGES
 from tests.test_simulator import exchange
 
 FIVE_SERIES = ("gd30", "ipe300", "gd350a", "gd300l", "gd350ul")

@@ -25,7 +25,7 @@ from gateway.instruments.simulator.control import USAGE, run_control_command
 from gateway.modbus.crc import crc_ok
 from gateway.modbus.functions import NEED_MORE, rtu_reply_length
 from gateway.modbus.rtu import build_frame
-from tests.protocol_frames import PROTOCOL_EXCHANGES
+from tests.support.protocol_frames import PROTOCOL_EXCHANGES
 
 pytestmark = pytest.mark.line(addresses=[1, 2, 3], wire_time=False, response_delay_ms=0)
 

@@ -33,9 +33,9 @@ from gateway.profile.states import RunState
 from gateway.profile.telemetry import decode_telemetry
 from gateway.tools.access import Reading
 from gateway.tools.scan import FoundDrive
-from tests.mosquitto import mqtt_probe, running_mosquitto, unique_base_topic
-from tests.processes import gateway_process, run_cli
 from tests.support import free_port, read_pdu
+from tests.support.mosquitto import mqtt_probe, running_mosquitto, unique_base_topic
+from tests.support.processes import gateway_process, run_cli
 
 INVT = list(INVT_PROFILES.values())
 

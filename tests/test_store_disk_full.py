@@ -19,11 +19,11 @@ from typing import Any
 from gateway.app import Application
 from gateway.config import ConsoleConfig, MetricsConfig, StorageConfig
 from gateway.store import EventType
-from tests.console_support import console_client
-from tests.mosquitto import MqttProbe, mqtt_probe, running_mosquitto, unique_base_topic
-from tests.mqtt_setup import mqtt_config, simulated_line
-from tests.small_disk import fill, free_bytes, small_disk
 from tests.support import eventually, free_port, running_gateway
+from tests.support.console_support import console_client
+from tests.support.mosquitto import MqttProbe, mqtt_probe, running_mosquitto, unique_base_topic
+from tests.support.mqtt_setup import mqtt_config, simulated_line
+from tests.support.small_disk import fill, free_bytes, small_disk
 from tests.test_ops_metrics import Scrape, http_get
 
 BURST = 20

@@ -19,10 +19,10 @@ from gateway.config import StorageConfig
 from gateway.exit_codes import EXIT_STARTUP
 from gateway.store import schema
 from gateway.store.status import StoreState
-from tests.mqtt_setup import simulated_line
-from tests.processes import gateway_process
 from tests.support import free_port
-from tests.test_store import running_store
+from tests.support.mqtt_setup import simulated_line
+from tests.support.processes import gateway_process
+from tests.unit.store.test_store import running_store
 
 FIXTURES = Path(__file__).parent / "fixtures"
 RELEASED = {1: FIXTURES / "store_schema_1.sql"}

@@ -12,8 +12,8 @@ from collections import Counter
 from gateway.instruments.stress.checked_load import STEADY, LoadStats
 from gateway.instruments.stress.report import problems, table
 from gateway.instruments.stress.scenario import Recovery, StressResult, StressSettings
-from tests.processes import assert_ending_leaves_nothing_behind, run_cli
 from tests.support import RecordProperty
+from tests.support.processes import assert_ending_leaves_nothing_behind, run_cli
 
 
 def test_a_short_stress_run_passes_and_reports_every_figure(

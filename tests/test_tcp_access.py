@@ -18,8 +18,8 @@ import pytest
 from gateway.config import GatewayConfig, parse_config
 from gateway.errors import ConfigError
 from gateway.instruments.simulator import SimulatedLine
-from tests.processes import run_cli
 from tests.support import TcpClient, free_port, running_gateway, write_many, write_pdu
+from tests.support.processes import run_cli
 
 pytestmark = pytest.mark.line(addresses=[1, 2, 3])
 

@@ -26,8 +26,8 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from gateway.instruments.simulator import SimulatedLine
-from tests.processes import GatewayProcess, gateway_process
 from tests.support import RecordProperty, free_port, read_pdu
+from tests.support.processes import GatewayProcess, gateway_process
 
 STATE_WORD_1 = 0x2100
 STOPPED = 3

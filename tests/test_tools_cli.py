@@ -15,8 +15,8 @@ from pathlib import Path
 import pytest
 
 from gateway.instruments.simulator import SimulatedLine
-from tests.processes import SimulatorProcess, gateway_process, run_cli, simulator_process
 from tests.support import free_port, scan_rows
+from tests.support.processes import SimulatorProcess, gateway_process, run_cli, simulator_process
 
 SIMULATED = {1: "GD350", 7: "GD350", 200: "GD350"}
 LINE = ("--baud", "115200", "--parity", "N")

@@ -28,7 +28,7 @@ from gateway.profile.faults import FaultTable
 from gateway.profile.parameter_tables import ParameterTable
 from gateway.profile.parameters import Parameter
 from gateway.profile.point_types import TypedPoint, no_typed_points
-from gateway.profile.points import Point
+from gateway.profile.points import Point, Profile
 from gateway.profile.protocol import DriveProfile, Identified, PollGroup, Question, RegisterWrite
 from gateway.profile.registers import to_signed
 from gateway.profile.telemetry import Telemetry
@@ -112,7 +112,7 @@ def show_status_word(raw: int) -> str:
 class AbbPoint(Point):
     """A register of the ABB Drives profile: the status word reads in the manual's words."""
 
-    def show(self, raw: int, profile: DriveProfile | None) -> str:
+    def show(self, raw: int, profile: Profile | None) -> str:
         if self.address == STATUS_WORD:
             return show_status_word(raw & 0xFFFF)
         return f"{to_signed(raw) if self.signed else raw & 0xFFFF}"

@@ -19,7 +19,6 @@ from __future__ import annotations
 from typing import Final
 
 from gateway.profile.addressing import RAM_BIT, is_parameter_register, is_ram_address
-from gateway.profile.invt import InvtProfile
 from gateway.profile.parameters import Parameter, parameter_at
 from gateway.profile.protocol import DriveProfile, RegisterWrite
 from gateway.profile.ram_writes import ram_write_address
@@ -47,7 +46,7 @@ def control_write(command: ControlCommand | None, setpoint: int | None) -> Regis
     return RegisterWrite(CONTROL_WORD.address, (int(command), setpoint))
 
 
-def ram_only_address(address: int, spelled: str, profile: InvtProfile) -> int:
+def ram_only_address(address: int, spelled: str, profile: DriveProfile) -> int:
     """Where a "RAM only" write of `address` goes. Raises ValueError when it has no RAM twin."""
     if not profile.ram_writes_supported:
         raise ValueError(f"{profile.display_name} has no RAM-only writes")

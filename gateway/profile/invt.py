@@ -24,41 +24,72 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Final
+from typing import Final, TypedDict
 
+from gateway.profile.addressing import format_register
+from gateway.profile.commands import control_write, ram_only_address, setpoint_word
 from gateway.profile.faults import (
     GD350_FAULTS,
     GOODRIVE_FAULTS,
     UNCONFIRMED_GOODRIVE_FAULTS,
     FaultTable,
 )
+
+# INVT's fixed addresses and 2103H names live in `invt_codes` (below the decoders); they are
+# named here too (`X as X`), where callers have long found them.
+from gateway.profile.invt_codes import (
+    FAULT_CODE as FAULT_CODE,
+)
+from gateway.profile.invt_codes import (
+    FAULT_CODE_MIRROR as FAULT_CODE_MIRROR,
+)
+from gateway.profile.invt_codes import (
+    GD30_PLACEHOLDER_CODE as GD30_PLACEHOLDER_CODE,
+)
+from gateway.profile.invt_codes import (
+    IDENTIFICATION as IDENTIFICATION,
+)
+from gateway.profile.invt_codes import (
+    IDENTIFICATION_CODES as IDENTIFICATION_CODES,
+)
+from gateway.profile.invt_codes import (
+    IPE300_PLACEHOLDER_CODE as IPE300_PLACEHOLDER_CODE,
+)
+from gateway.profile.invt_codes import (
+    RUNNING_FREQUENCY as RUNNING_FREQUENCY,
+)
+from gateway.profile.invt_codes import (
+    SERIES_CODES,
+    series_keys_for_identification,
+)
+from gateway.profile.invt_codes import (
+    STATE_WORD_1 as STATE_WORD_1,
+)
+from gateway.profile.invt_codes import (
+    describe_identification as describe_identification,
+)
+from gateway.profile.invt_codes import (
+    model_from_identification as model_from_identification,
+)
 from gateway.profile.parameter_tables import ParameterTable, series_table
 from gateway.profile.parameters import Parameter, parameter, parameter_groups
 from gateway.profile.point_types import TypedPoint, no_typed_points
+from gateway.profile.points import Point, resolve
 from gateway.profile.protocol import PollGroup, RegisterWrite
+from gateway.profile.states import CONTROL_COMMANDS, control_command
+from gateway.profile.telemetry import (
+    TELEMETRY_KEYS,
+    Telemetry,
+    current_fault,
+    decode_telemetry,
+    fault_fields,
+)
 
-if TYPE_CHECKING:
-    from gateway.profile.points import Point
-    from gateway.profile.telemetry import Telemetry
-
-STATE_WORD_1: Final = 0x2100
-FAULT_CODE: Final = 0x2102
-FAULT_CODE_MIRROR: Final = 0x5000
-"""A second fault-code register some series list after 3016H (GD350 family, GD300-LIFT)."""
-IDENTIFICATION: Final = 0x2103
-RUNNING_FREQUENCY: Final = 0x3000
 MAX_FREQUENCY: Final = "P00.03"
 """Max. output frequency: the set-point maximum Home Assistant shows."""
 
 INVT_MAX_WORDS: Final = 16
 """03H and 10H: "the max. continuous reading is 16 words", contiguous addresses."""
-
-GD30_PLACEHOLDER_CODE: Final = 0x01F0
-IPE300_PLACEHOLDER_CODE: Final = 0x01F1
-"""No public manual we could reach gives the 2103H code of a Goodrive30 or an IPE300. These
-placeholders lie outside every code INVT publishes, so they are never mistaken for another
-series; they are what the simulator answers, and `scan` calls them unconfirmed. A site whose
-drives answer something else sets `drives[].identification` in the config."""
 
 
 STATE_POLL: Final = PollGroup("state", STATE_WORD_1, 3, 0.5)
@@ -155,8 +186,8 @@ class InvtProfile:
         return self.decimals_overrides.get(register_name, default)
 
     # -- the `DriveProfile` protocol ----------------------------------------------------------
-    # The decoders and the command codecs are modules of their own that import this one, so
-    # they are imported where they are used.
+    # The decoders and the command codecs are modules of their own, below this one: they read
+    # a series through small protocols of their own (`words.Series`), never this class.
 
     @property
     def manufacturer(self) -> str:
@@ -167,66 +198,43 @@ class InvtProfile:
         return True  # every INVT chapter: "the max. continuous reading is 16 words"
 
     def telemetry(self, registers: Mapping[int, int]) -> Telemetry:
-        from gateway.profile.telemetry import decode_telemetry
-
         return decode_telemetry(self, registers)
 
     @property
     def telemetry_keys(self) -> frozenset[str]:
-        from gateway.profile.telemetry import TELEMETRY_KEYS
-
         return TELEMETRY_KEYS
 
     def point(self, address: int) -> Point | None:
-        from gateway.profile.addressing import format_register
-
         return self.resolve(format_register(address))
 
     def resolve(self, text: str) -> Point:
-        from gateway.profile.points import resolve
-
         return resolve(text)
 
     def point_write(self, name: str, value: object) -> RegisterWrite:
         raise ValueError(no_typed_points(self.display_name))
 
     def current_fault(self, registers: Mapping[int, int]) -> int | None:
-        from gateway.profile.telemetry import current_fault
-
         return current_fault(self, registers)
 
     def fault_fields(self, code: int) -> Telemetry:
-        from gateway.profile.telemetry import fault_fields
-
         return fault_fields(self, code)
 
     @property
     def commands(self) -> tuple[str, ...]:
-        from gateway.profile.states import CONTROL_COMMANDS
-
         return tuple(CONTROL_COMMANDS)
 
     def command_name(self, name: str) -> str:
-        from gateway.profile.states import control_command
-
         return control_command(name).name.lower()
 
     def setpoint_word(self, frequency_hz: float) -> int:
-        from gateway.profile.commands import setpoint_word
-
         return setpoint_word(frequency_hz)
 
     def control_writes(
         self, command: str | None, setpoint: int | None
     ) -> tuple[RegisterWrite, ...]:
-        from gateway.profile.commands import control_write
-        from gateway.profile.states import control_command
-
         return (control_write(None if command is None else control_command(command), setpoint),)
 
     def ram_only_address(self, address: int, spelled: str) -> int:
-        from gateway.profile.commands import ram_only_address
-
         return ram_only_address(address, spelled, self)
 
     @property
@@ -267,13 +275,29 @@ GD10_READY_BIT: Final = (
 )
 
 
-def _gd350_family(key: str, name: str, code: int, ready_bit_source: str = "") -> InvtProfile:
+class _Named(TypedDict):
+    key: str
+    display_name: str
+    identification: tuple[int, ...]
+    identification_confirmed: bool
+
+
+def _named(key: str) -> _Named:
+    """A series' key, name and 2103H codes, as `invt_codes.SERIES_CODES` gives them."""
+    series = SERIES_CODES[key]
+    return _Named(
+        key=key,
+        display_name=series.display_name,
+        identification=series.codes,
+        identification_confirmed=series.confirmed,
+    )
+
+
+def _gd350_family(key: str, ready_bit_source: str = "") -> InvtProfile:
     """GD350-UL and GD350A: their own chapters' 2101H rows were not found; the GD350's
     polarity is assumed and marked unconfirmed."""
     return InvtProfile(
-        key,
-        name,
-        identification=(code,),
+        **_named(key),
         fault_registers=(FAULT_CODE, FAULT_CODE_MIRROR),
         manufacturer_group=99,
         ready_bit_source=ready_bit_source,
@@ -284,49 +308,38 @@ def _gd350_family(key: str, name: str, code: int, ready_bit_source: str = "") ->
 
 
 _PROFILES: Final = (
-    InvtProfile("gd20", "GD20", identification=(0x0106,), unconfirmed=(UNCONFIRMED_READY_BIT,)),
+    InvtProfile(**_named("gd20"), unconfirmed=(UNCONFIRMED_READY_BIT,)),
     InvtProfile(
-        "gd200a",
-        "GD200A",
-        identification=(0x0107, 0x010C),
+        **_named("gd200a"),
         unconfirmed=(UNCONFIRMED_READY_BIT,),
     ),
     InvtProfile(
-        "gd300",
-        "GD300",
-        identification=(0x010A,),
+        **_named("gd300"),
         manufacturer_group=29,
         ready_bit_source=GD300_READY_BIT,
     ),
-    _gd350_family("gd350", "GD350", 0x01A0, GD350_READY_BIT),
-    _gd350_family("gd350ul", "GD350-UL", 0x01A1),
-    _gd350_family("gd350a", "GD350A", 0x01A2),
+    _gd350_family("gd350", GD350_READY_BIT),
+    _gd350_family("gd350ul"),
+    _gd350_family("gd350a"),
     InvtProfile(
-        "gd10",
-        "GD10",
-        identification=(0x010D,),
+        **_named("gd10"),
         manufacturer_group=29,
         ready_bit_source=GD10_READY_BIT,
     ),
     InvtProfile(
-        "gd35",
-        "GD35",
-        identification=(0x0108,),
+        **_named("gd35"),
         manufacturer_group=29,
         ready_bit_set_means_ready=False,
         ready_bit_source=GD35_READY_BIT,
     ),
-    InvtProfile("gd100", "GD100", identification=(0x010B,), unconfirmed=(UNCONFIRMED_READY_BIT,)),
+    InvtProfile(**_named("gd100"), unconfirmed=(UNCONFIRMED_READY_BIT,)),
     # Goodrive30 ("Goodrive30 Series VFD", chapter 7 Communication protocol, manual page -135-,
     # easymanua.ls/invt/goodrive30-vfd-series/manual?p=141): 2101H bit 0 "=1: Ready to run", bits
     # 2-1 motor 1 or 2 ("=10: Reserved =11: Reserved"); 2009H's own row lists motors 1-4, so a
     # write of 3 or 4 is not refused; virtual inputs 0x000-0x1FF, outputs 0x00-0x0F. Its 2103H
     # code and fault list: not found (see the module docstring).
     InvtProfile(
-        "gd30",
-        "GD30",
-        identification=(GD30_PLACEHOLDER_CODE,),
-        identification_confirmed=False,
+        **_named("gd30"),
         aliases=("goodrive30",),
         manufacturer_group=29,
         faults=UNCONFIRMED_GOODRIVE_FAULTS,
@@ -340,10 +353,7 @@ _PROFILES: Final = (
     # P00.01 = 2 and P00.06 = 8 for remote control, fault 35 = STo: the common map. Its register
     # table pages (2100H-2103H) and fault chapter were not reachable: code and fault list unknown.
     InvtProfile(
-        "ipe300",
-        "IPE300",
-        identification=(IPE300_PLACEHOLDER_CODE,),
-        identification_confirmed=False,
+        **_named("ipe300"),
         aliases=("ipe", "ipe300series"),
         faults=UNCONFIRMED_GOODRIVE_FAULTS,
         unconfirmed=(
@@ -359,9 +369,7 @@ _PROFILES: Final = (
     # at 5000H; 2101H bit 0 "=0: ready for operation"; running values 3000H-3015H as the common
     # map (3007H output torque -250.0..250.0 %, 300AH/300BH 000-1FF). Its fault list: not found.
     InvtProfile(
-        "gd300l",
-        "GD300-LIFT",
-        identification=(0x010A,),
+        **_named("gd300l"),
         aliases=("gd300lift", "goodrive300lift"),
         fault_registers=(FAULT_CODE, FAULT_CODE_MIRROR),
         manufacturer_group=29,
@@ -377,42 +385,6 @@ INVT_PROFILES: Final[Mapping[str, InvtProfile]] = MappingProxyType(
 """Every INVT series by key (`gateway.profile.models` names them all, with the other makers')."""
 
 
-_SERIES_WITHOUT_PROFILE: Final = {0x0109: "GD35-H1"}
-"""Codes the manuals list for series the gateway has no profile of (yet): named, not driven."""
-
-
 def profiles_for_identification(code: int) -> tuple[InvtProfile, ...]:
     """Every series that answers `code` at 2103H (010AH: GD300 and GD300-LIFT)."""
-    return tuple(p for p in _PROFILES if code in p.identification)
-
-
-def model_from_identification(code: int) -> str | None:
-    """ "GD350" for 01A0H, "GD300 or GD300-LIFT" for 010AH; None for a code no profile has."""
-    names = [profile.display_name for profile in profiles_for_identification(code)]
-    if code in _SERIES_WITHOUT_PROFILE:
-        names.append(_SERIES_WITHOUT_PROFILE[code])
-    return " or ".join(names) if names else None
-
-
-def describe_identification(code: int) -> str:
-    """What a scan shows: the series, "(01F0H unconfirmed)" after a placeholder code, or
-    "unknown series (0199H)" for an INVT drive no profile places."""
-    profiles = profiles_for_identification(code)
-    names = model_from_identification(code)
-    if names is None:
-        return f"unknown series ({code:04X}H)"
-    if profiles and not all(profile.identification_confirmed for profile in profiles):
-        return f"{names} ({code:04X}H unconfirmed)"
-    return names
-
-
-IDENTIFICATION_CODES: Final[Mapping[int, str]] = MappingProxyType(
-    {
-        code: names
-        for code in sorted(
-            {*_SERIES_WITHOUT_PROFILE, *(c for p in _PROFILES for c in p.identification)}
-        )
-        if (names := model_from_identification(code)) is not None
-    }
-)
-"""2103H code → the series it names (GD200A answers 0107H or 010CH: the manuals disagree)."""
+    return tuple(INVT_PROFILES[key] for key in series_keys_for_identification(code))

@@ -17,8 +17,9 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 from enum import Enum
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
+from gateway.profile import words
 from gateway.profile.addressing import (
     format_parameter,
     format_register,
@@ -30,11 +31,19 @@ from gateway.profile.registers import RUNNING_VALUES, Register, register_at, reg
 from gateway.profile.states import CONTROL_COMMANDS, control_command
 
 if TYPE_CHECKING:
-    from gateway.profile.protocol import DriveProfile
+    from gateway.profile.parameter_tables import ParameterTable
 
 _PARAMETER = re.compile(r"P\d{1,2}\.\d{1,2}", re.IGNORECASE)
 _UNIT_SUFFIXES = ("_hz", "_v", "_a", "_rpm", "_pct")
 _COMMAND_NAMES = {int(command): name for name, command in CONTROL_COMMANDS.items()}
+
+
+class Profile(Protocol):
+    """What a point reads of a drive's profile (any `DriveProfile`): typed here rather than
+    importing the protocol, which names `Point`."""
+
+    @property
+    def parameter_table(self) -> ParameterTable: ...
 
 
 class Meaning(Enum):
@@ -75,17 +84,14 @@ class Point:
         """Whether the words for a value need the drive's series (2101H bit 0, fault names)."""
         return self.meaning in (Meaning.STATE_WORD_2, Meaning.FAULT)
 
-    def show(self, raw: int, profile: DriveProfile | None) -> str:
+    def show(self, raw: int, profile: Profile | None) -> str:
         """ "10.0 s", "3 (stopped)", "35 (STo: maladjustment)", "0106H (GD20)", "5 (stop)".
 
         The status words are shown by their decoders in `gateway.profile.words`, for
         `profile`'s series (None: not known, so 2101H bit 0 is left undecided)."""
-        # INVT's decoders import the profile that imports this module: imported here.
-        from gateway.profile import words
-        from gateway.profile.invt import InvtProfile
-
         raw &= 0xFFFF
-        series = profile if isinstance(profile, InvtProfile) else None
+        # An INVT series decides 2101H bit 0 and the fault names; another maker's doesn't.
+        series = profile if isinstance(profile, words.Series) else None
         match self.meaning:
             case Meaning.STATE_WORD_1:
                 return words.show_state_word_1(raw)
@@ -253,7 +259,7 @@ def _register_point(register: Register, label: str) -> Point:
     )
 
 
-def for_series(point: Point, profile: DriveProfile | None) -> Point:
+def for_series(point: Point, profile: Profile | None) -> Point:
     """A parameter as the drive's series table describes and scales it (the common table, which
     `resolve` uses, knows 27 codes); any other point, or without a series, as it is."""
     if profile is None or not point.label.startswith("P"):

@@ -13,10 +13,10 @@ Keys whose registers have not been read yet are absent rather than guessed.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Final
+from typing import Final, Protocol
 
 from gateway.profile import words
-from gateway.profile.invt import STATE_WORD_1, InvtProfile
+from gateway.profile.invt_codes import STATE_WORD_1
 from gateway.profile.registers import RUNNING_VALUES
 
 STATE_WORD_2: Final = STATE_WORD_1 + 1
@@ -41,7 +41,16 @@ TELEMETRY_KEYS: Final = frozenset(
 """Every key `decode_telemetry` can write."""
 
 
-def fault_fields(profile: InvtProfile, code: int) -> Telemetry:
+class Series(words.Series, Protocol):
+    """What the telemetry reads of an INVT series (`invt.InvtProfile`), besides its words."""
+
+    @property
+    def fault_registers(self) -> tuple[int, ...]: ...
+
+    def decimals(self, register_name: str, default: int) -> int: ...
+
+
+def fault_fields(profile: Series, code: int) -> Telemetry:
     """The fault word's decoder (`words.fault`) as telemetry: a code outside the series' table
     is "unknown fault N", never another series' name for that number. `fault_description` is
     the line to show ("OH2: inverter module overheat"): it holds `fault_name` already."""
@@ -53,7 +62,7 @@ def fault_fields(profile: InvtProfile, code: int) -> Telemetry:
     }
 
 
-def decode_telemetry(profile: InvtProfile, registers: Mapping[int, int]) -> Telemetry:
+def decode_telemetry(profile: Series, registers: Mapping[int, int]) -> Telemetry:
     """Telemetry from the latest raw value of each polled register (address → word)."""
     telemetry: Telemetry = {}
     state_word_1 = registers.get(STATE_WORD_1)
@@ -81,7 +90,7 @@ def decode_telemetry(profile: InvtProfile, registers: Mapping[int, int]) -> Tele
     return telemetry
 
 
-def current_fault(profile: InvtProfile, registers: Mapping[int, int]) -> int | None:
+def current_fault(profile: Series, registers: Mapping[int, int]) -> int | None:
     """The fault code from the first of the profile's fault registers that was read."""
     for register in profile.fault_registers:
         if register in registers:

@@ -20,10 +20,23 @@ opposite way, and a fault code is named from the widest table (the GD350 family'
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
 
 from gateway.profile.faults import GD350_FAULTS, NO_FAULT, FaultTable
-from gateway.profile.invt import InvtProfile, describe_identification
+from gateway.profile.invt_codes import describe_identification
 from gateway.profile.states import StateWord2, decode_state_word_1, decode_state_word_2
+
+
+@runtime_checkable
+class Series(Protocol):
+    """What these decoders read of an INVT series (`invt.InvtProfile`): typed here rather than
+    importing the profile, which imports its decoders."""
+
+    @property
+    def ready_bit_set_means_ready(self) -> bool: ...
+
+    @property
+    def faults(self) -> FaultTable: ...
 
 
 def state_word_1(raw: int) -> str:
@@ -31,7 +44,7 @@ def state_word_1(raw: int) -> str:
     return decode_state_word_1(raw)
 
 
-def state_word_2(profile: InvtProfile | None, raw: int) -> StateWord2:
+def state_word_2(profile: Series | None, raw: int) -> StateWord2:
     """2101H with the series' bit-0 polarity; `ready` is None when the series is not known."""
     polarity = None if profile is None else profile.ready_bit_set_means_ready
     return decode_state_word_2(raw, polarity)
@@ -48,11 +61,11 @@ class Fault:
     """ "OH2: inverter module overheat": the one line to print (the short code is in it)."""
 
 
-def fault_table(profile: InvtProfile | None) -> FaultTable:
+def fault_table(profile: Series | None) -> FaultTable:
     return GD350_FAULTS if profile is None else profile.faults
 
 
-def fault(profile: InvtProfile | None, code: int) -> Fault:
+def fault(profile: Series | None, code: int) -> Fault:
     """2102H, 5000H, P07.27-P07.32: a code outside the series' table is "unknown fault N"."""
     table = fault_table(profile)
     name = "none" if code == NO_FAULT else table.short_code(code)
@@ -72,7 +85,7 @@ def show_state_word_1(raw: int) -> str:
     return f"{raw} ({state_word_1(raw)})"
 
 
-def show_state_word_2(profile: InvtProfile | None, raw: int) -> str:
+def show_state_word_2(profile: Series | None, raw: int) -> str:
     """ "0041H (ready, command source communication)"."""
     state = state_word_2(profile, raw)
     if state.ready is None:
@@ -82,7 +95,7 @@ def show_state_word_2(profile: InvtProfile | None, raw: int) -> str:
     return f"{raw:04X}H ({ready}, command source {state.command_source})"
 
 
-def show_fault(profile: InvtProfile | None, raw: int) -> str:
+def show_fault(profile: Series | None, raw: int) -> str:
     """ "16 (OH2: inverter module overheat)", "0 (none)", "40 (unknown fault 40)"."""
     return f"{raw} ({fault(profile, raw).description})"
 

@@ -17,8 +17,7 @@ from gateway.mqtt.dispatcher import CommandKind, Dispatcher, Incoming, transacti
 from gateway.mqtt.lanes import Lanes
 from gateway.mqtt.requests import Json, dump, ok_response
 from gateway.mqtt.stats import BridgeStats
-from tests.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
-from tests.mosquitto import mosquitto as mosquitto
+from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
 
 MAX_WAITING = 2
 

@@ -11,10 +11,9 @@ from gateway.mqtt.dispatcher import CommandKind
 from gateway.mqtt.kinds import BRIDGE_REQUESTS, BridgeRequest
 from gateway.mqtt.requests import Json, RegisterRead
 from gateway.settings import runtime_settings
-from tests.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
-from tests.mosquitto import mosquitto as mosquitto
-from tests.mqtt_setup import mqtt_config, simulated_line
 from tests.support import running_application
+from tests.support.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
+from tests.support.mqtt_setup import mqtt_config, simulated_line
 
 STOPPED = 3
 

@@ -10,7 +10,7 @@ from gateway.modbus.crc import crc16, crc_bytes, crc_ok
 from gateway.modbus.functions import NEED_MORE, UNKNOWN_LENGTH, exception_pdu, rtu_reply_length
 from gateway.modbus.mbap import build_adu, parse_header
 from gateway.modbus.rtu import build_frame, check_reply
-from tests.protocol_frames import PROTOCOL_FRAMES
+from tests.support.protocol_frames import PROTOCOL_FRAMES
 
 
 @pytest.mark.parametrize("frame_hex", PROTOCOL_FRAMES)

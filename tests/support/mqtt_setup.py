@@ -9,8 +9,8 @@ from typing import Any
 
 from gateway.config import GatewayConfig, MqttConfig
 from gateway.instruments.simulator import SimulatedLine
-from tests.mosquitto import BrokerAddress
 from tests.support import gateway_config
+from tests.support.mosquitto import BrokerAddress
 
 FAST_POLL = [
     {"name": "state", "start": 0x2100, "count": 3, "interval_ms": 150},

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.mosquitto import Mosquitto
+from tests.support.mosquitto import Mosquitto
 
 USERNAME = "plant-gateway"
 PASSWORD = "s3cret-for-tests"
