@@ -14,6 +14,7 @@ as such in SUBACK, which the protocol allows). Point a real gateway at Mosquitto
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import struct
 import uuid
@@ -51,6 +52,10 @@ class Session:
         self.writer.write(packet)
 
 
+STOP_S = 5.0
+"""The most a stop waits for the listening socket to close once every client is gone."""
+
+
 class EmbeddedBroker:
     def __init__(self, host: str = "127.0.0.1", port: int = 1883) -> None:
         self.host = host
@@ -66,12 +71,16 @@ class EmbeddedBroker:
         log.info("embedded MQTT broker on %s:%d (demo only)", self.host, self.port)
 
     async def stop(self) -> None:
+        # The clients' connections first: a server's wait_closed may wait for every connection
+        # to end (uvloop's does), and a client that stays connected would hold the stop forever.
         if self._server is not None:
             self._server.close()
-            await self._server.wait_closed()
         for task in list(self._connections):
             task.cancel()
         await asyncio.gather(*self._connections, return_exceptions=True)
+        if self._server is not None:
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._server.wait_closed(), STOP_S)
 
     # -- one client --------------------------------------------------------------------------
 
