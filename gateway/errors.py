@@ -8,7 +8,8 @@
     ├── StoreError              the event store's file can't be opened or used (names it and why):
     │   │                       events are kept in memory meanwhile
     │   └── DiskFull            its disk has no room (`storage.path`): nothing written, events wait
-    ├── StoreRefused            the store's file is a newer release's: one line, exit code 1
+    ├── StoreRefused            the store's file is a newer release's: one line, exit code 4
+    ├── BrokerShared            another gateway is live on this one's MQTT base topic: exit code 4
     ├── ServiceFailed           the service can't go on: stop with exit code 1 (systemd restarts it)
     │   ├── BusFailed           a bus's coroutine died of a bug
     │   └── FeatureFailed       a feature's background work died of a bug
