@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 import aiomqtt
+import pytest
 
 from gateway.instruments.simulator import SimulatedLine
 from tests.nats import NatsNode, nats_cluster
@@ -31,6 +32,8 @@ from tests.support import RecordProperty, free_port
 from tests.support.mosquitto import MqttProbe, mqtt_probe, unique_base_topic
 from tests.support.mqtt_setup import simulated_line
 from tests.support.processes import GatewayProcess
+
+pytestmark = pytest.mark.cluster  # run with `pytest -m cluster` (pyproject says why)
 
 RETAINED_WITHIN_S = 5.0
 POLL = [{"name": "state", "start": 0x2100, "count": 3, "interval_ms": 300}]
