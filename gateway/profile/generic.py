@@ -13,7 +13,6 @@ from typing import Final
 from gateway.profile.addressing import format_register, parse_register
 from gateway.profile.faults import FaultTable
 from gateway.profile.not_a_drive import NotADrive
-from gateway.profile.parameter_tables import ParameterTable
 from gateway.profile.parameters import Parameter
 from gateway.profile.point_types import TypedPoint, no_typed_points
 from gateway.profile.points import Point
@@ -44,10 +43,6 @@ class GenericProfile(NotADrive):
     max_frequency_parameter: Parameter | None = None
     telemetry_keys: frozenset[str] = frozenset()
     typed_points: tuple[TypedPoint, ...] = ()
-
-    @property
-    def parameter_table(self) -> ParameterTable:
-        return ParameterTable(self.key, ())
 
     def with_overrides(
         self,

@@ -1,11 +1,13 @@
 """What a profile of a device that is not a drive answers to the drive's part of the protocol
 (`gateway.profile.protocol.DriveProfile`): no fault word, no commands, no set-point, no RAM-only
-writes. The generic device and the typed-points devices share it."""
+writes, no function parameters. The generic device and the typed-points devices share it."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, ClassVar
+
+from gateway.profile.parameter_tables import ParameterTable
 
 if TYPE_CHECKING:
     from gateway.profile.protocol import RegisterWrite
@@ -15,9 +17,15 @@ if TYPE_CHECKING:
 class NotADrive:
     """Mixed into a profile dataclass that has a `display_name`."""
 
+    key: str
     display_name: str
     no_commands_hint: ClassVar[str] = ""
     """Said after "takes no drive commands" (what to do instead, e.g. ": write its points")."""
+
+    @property
+    def parameter_table(self) -> ParameterTable:
+        """No function parameters: an empty table."""
+        return ParameterTable(self.key, ())
 
     def current_fault(self, registers: Mapping[int, int]) -> int | None:
         return None

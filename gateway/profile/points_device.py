@@ -16,7 +16,6 @@ from typing import ClassVar, Final
 from gateway.profile.addressing import format_register, parse_register
 from gateway.profile.faults import FaultTable
 from gateway.profile.not_a_drive import NotADrive
-from gateway.profile.parameter_tables import ParameterTable
 from gateway.profile.parameters import Parameter
 from gateway.profile.point_types import Kind, Table, TypedPoint, Value, table_of, word_key
 from gateway.profile.points import Point
@@ -63,10 +62,6 @@ class DeviceProfile(NotADrive):
     @property
     def telemetry_keys(self) -> frozenset[str]:
         return frozenset(self._by_name)
-
-    @property
-    def parameter_table(self) -> ParameterTable:
-        return ParameterTable(self.key, ())
 
     def with_overrides(
         self,
