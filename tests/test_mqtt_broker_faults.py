@@ -200,10 +200,15 @@ async def test_same_base_topic_is_reported(
         # (tests/test_mqtt_shared_broker.py), so they meet once it is back.
         mosquitto.stop()
         with caplog.at_level(logging.ERROR, logger="gateway.mqtt.kinds"):
-            async with running_gateway(one) as one_app, running_gateway(other):
+            async with running_gateway(one) as one_app, running_gateway(other) as other_app:
                 mosquitto.start()
-                await eventually(lambda: one_app.mqtt.stats.conflicts, within_s=10.0)
-        assert "also publishes under" in caplog.text
+                # Each hears of the other, whichever published its info last (kinds.GatewayInfo).
+                await eventually(
+                    lambda: one_app.mqtt.stats.conflicts and other_app.mqtt.stats.conflicts,
+                    within_s=10.0,
+                )
+        assert "gateway 'other' also publishes under" in caplog.text
+        assert "gateway 'one' also publishes under" in caplog.text
 
 
 async def test_an_event_being_published_when_the_connection_breaks_is_not_lost(

@@ -238,7 +238,14 @@ class DiscoveryAsked:
 
 class GatewayInfo:
     command = False
-    """Our own `bridge/info`: another gateway publishing it would overwrite our retained state."""
+    """Our own `bridge/info`: another gateway publishing it would overwrite our retained state.
+
+    Each gateway publishes its info before it subscribes, so two that connect at the same moment
+    can both publish first: only the later one's info stays retained, and that one never hears
+    of the other. So a gateway that finds a new one answers once with its own info again: the
+    other, subscribed by now, hears it live and reports the conflict too (once per gateway
+    found, so two of them don't answer each other for ever).
+    """
 
     response_topic = None
 
@@ -246,28 +253,32 @@ class GatewayInfo:
         self.context = context
 
     def lane(self, message: Incoming) -> str | None:
-        self._check_alone(message.payload)
-        return None
+        if not self._found_another(message.payload):
+            return None
+        return "info"
 
     async def run(self, client: aiomqtt.Client, message: Incoming) -> None:
-        pass  # never queued: `lane` checked it
+        await self.context.publisher.info(client)
 
-    def _check_alone(self, payload: bytes) -> None:
+    def _found_another(self, payload: bytes) -> bool:
+        """Counts and reports another gateway's info; True the first time that gateway is seen."""
         context = self.context
         try:
             other = json.loads(payload).get("gateway_id")
         except (ValueError, AttributeError):
-            return
-        if isinstance(other, str) and other != context.gateway_id:
-            context.stats.conflicts += 1
-            if other not in context.other_gateways:
-                context.other_gateways.add(other)
-                log.error(
-                    "MQTT: gateway %r also publishes under %r: give each gateway its own "
-                    "base_topic",
-                    other,
-                    context.topics.base,
-                )
+            return False
+        if not isinstance(other, str) or other == context.gateway_id:
+            return False
+        context.stats.conflicts += 1
+        if other in context.other_gateways:
+            return False
+        context.other_gateways.add(other)
+        log.error(
+            "MQTT: gateway %r also publishes under %r: give each gateway its own base_topic",
+            other,
+            context.topics.base,
+        )
+        return True
 
 
 def command_kinds(
