@@ -1,14 +1,18 @@
 """Two gateways on a three-node NATS cluster (`mqtt.servers` listing every node), a dashboard's
-persistent QoS 1 subscription on a node that stays up. The node a gateway uses is SIGKILLed (and
-brought back), a gateway is SIGKILLed and restarted: every event still reaches the subscriber,
-every drive's retained state is readable through every live node within 5 s of a change, and the
-time each gateway took to publish again is printed.
+persistent QoS 1 subscription on a node that stays up. The node a gateway uses is SIGKILLed and
+stays down; later a gateway is SIGKILLed and restarted: every event still reaches the
+subscriber, every drive's retained state is readable through every live node within 5 s of a
+change, and the gateway whose node died publishes again through another node within
+`RESUMED_WITHIN_S`.
 
-The node is back 2 s after its SIGKILL, as a restarted service would be: NATS 2.9 can't set up
-a clean session (the gateway's) while the previous session's JetStream consumers are on a dead
-node, nor place a new replicated consumer (one per QoS 1 subscription) with a node of three
-down; the gateway retries, across the listed nodes, until it can. Skipped where nats-server
-isn't installed.
+What that bound is made of: NATS elects new leaders for the JetStream streams the dead node led
+(MQTT sessions, QoS 1 messages, retained messages; 6-12 s measured here, most of it the raft
+election timeouts), during which a node can't finish a QoS 1 publish; then one connection
+attempt (at most `CONNECT_TIMEOUT_S`, 5 s) and the backoff (`reconnect_max_s`, 1 s here).
+It holds because the gateway subscribes at QoS 0 (`SUBSCRIBE_QOS`): a QoS 1 subscription is a
+replicated JetStream consumer, and with a node down creating a dozen of them outlasted every
+attempt, so the gateway came back only with the node. The dashboards reading retained state
+here subscribe at QoS 0 too, for the same reason. Skipped where nats-server isn't installed.
 """
 
 from __future__ import annotations
@@ -36,6 +40,8 @@ from tests.support.processes import GatewayProcess
 pytestmark = pytest.mark.cluster  # run with `pytest -m cluster` (pyproject says why)
 
 RETAINED_WITHIN_S = 5.0
+RESUMED_WITHIN_S = 25.0
+"""From the SIGKILL of a gateway's node to its "online" through another node (module doc)."""
 POLL = [{"name": "state", "start": 0x2100, "count": 3, "interval_ms": 300}]
 """The state words only: what changes with a fault; the cluster's nodes have CPU to spare."""
 FAULTS = (11, 12, 13)
@@ -133,7 +139,7 @@ async def wait_until_serving(node: NatsNode, timeout_s: float = 20.0) -> None:
 async def retained_fault(node: NatsNode, topic: str) -> int | None:
     """The drive's retained state as a dashboard connecting to `node` now reads it."""
     try:
-        async with mqtt_probe(node, topic) as probe:
+        async with mqtt_probe(node, topic, qos=0) as probe:
             received = await probe.wait_for(topic, timeout_s=1.0)
             return int(received.json()["fault_code"])
     except (AssertionError, aiomqtt.MqttError):
@@ -197,7 +203,7 @@ async def toggling(everyone: list[Gateway]) -> AsyncIterator[None]:
             await task
 
 
-async def test_gateways_on_a_nats_cluster_survive_a_node_and_a_gateway_dying(
+async def test_gateways_on_a_nats_cluster_ride_a_dead_node_and_a_dead_gateway(
     tmp_path: Path, record_property: RecordProperty
 ) -> None:
     site = unique_base_topic("site")
@@ -224,17 +230,16 @@ async def test_gateways_on_a_nats_cluster_survive_a_node_and_a_gateway_dying(
                 await assert_retained_everywhere([a, b], nodes)
                 async with toggling([a, b]):
                     await asyncio.sleep(2)
-                    # The node gateway A uses dies without a word; A moves to another.
+                    # The node gateway A uses dies without a word, and stays dead to the end:
+                    # A goes on through the other two.
                     mark, killed = len(probe.messages), time.monotonic()
                     n0.kill()
-                    # Back after a moment, as a restarted service would be: NATS 2.9 can't
-                    # set up a clean session whose last consumers lived on a dead node.
-                    await asyncio.sleep(2)
-                    n0.start()
                     a_after_node = await resumed(probe, a, mark, killed)
+                    assert a_after_node < RESUMED_WITHIN_S, (
+                        f"gateway a took {a_after_node:.1f} s to publish again through a live node"
+                    )
                     await asyncio.sleep(2)
                 # Checked between the storms, so each change is the test's own.
-                await wait_until_serving(n0)
                 await assert_retained_everywhere([a, b], nodes)
                 async with toggling([a, b]):
                     await asyncio.sleep(1)
@@ -245,8 +250,12 @@ async def test_gateways_on_a_nats_cluster_survive_a_node_and_a_gateway_dying(
                     b_after_restart = await resumed(probe, b, mark, killed)
                     await asyncio.sleep(2)
                 await assert_retained_everywhere([a, b], nodes)
+                assert not n0.running
 
-                # Every event each gateway stored reaches the subscriber (duplicates allowed).
+                # Every event each gateway stored reaches the subscriber; QoS 1 is at least
+                # once, so one the broker had whose acknowledgement died with the node or the
+                # gateway comes again (counted, not refused: dashboards de-duplicate by id).
+                duplicates = {}
                 for gateway in (a, b):
                     topic = f"{gateway.base}/bridge/event"
                     stored = gateway.stored_ids()
@@ -257,9 +266,14 @@ async def test_gateways_on_a_nats_cluster_survive_a_node_and_a_gateway_dying(
                         )
                         await asyncio.sleep(0.1)
                     assert len(stored) > 10
+                    ids = [m.json()["id"] for m in probe.on(topic)]
+                    duplicates[gateway.name] = (len(stored), len(ids) - len(set(ids)))
     record_property(
         "figure:NATS cluster failover",
-        f"gateway a published again {a_after_node:.2f} s after its node's SIGKILL (node back "
-        f"after 2 s); gateway b {b_after_restart:.2f} s after its own SIGKILL and restart; "
-        "every stored event delivered",
+        f"gateway a published again {a_after_node:.2f} s after its node's SIGKILL (the node "
+        f"left down); gateway b {b_after_restart:.2f} s after its own SIGKILL and restart; "
+        + "; ".join(
+            f"{name}: {stored} events stored, all delivered, {again} delivered twice"
+            for name, (stored, again) in duplicates.items()
+        ),
     )

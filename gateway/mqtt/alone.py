@@ -23,7 +23,13 @@ import logging
 import aiomqtt
 
 from gateway.errors import BrokerShared, TlsSettingsError
-from gateway.mqtt.connection import MQTT_3_1_1, make_client, server_name, tls_context
+from gateway.mqtt.connection import (
+    MQTT_3_1_1,
+    SUBSCRIBE_QOS,
+    make_client,
+    server_name,
+    tls_context,
+)
 from gateway.mqtt.topics import Topics
 from gateway.settings import MqttSettings
 
@@ -70,7 +76,7 @@ async def _retained_state(
     identifier = f"{mqtt.client_id}-check"
     client = make_client(mqtt, topics, tls, server, MQTT_3_1_1, identifier=identifier, will=False)
     async with client:
-        await client.subscribe(topics.bridge_state, qos=1)
+        await client.subscribe(topics.bridge_state, qos=SUBSCRIBE_QOS)
         try:
             async with asyncio.timeout(CHECK_BUDGET_S / 2):
                 async for message in client.messages:

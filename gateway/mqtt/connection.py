@@ -49,6 +49,20 @@ def online_payload(mqtt: MqttSettings, server: tuple[str, int]) -> str:
 CONNECT_TIMEOUT_S = 5.0
 """Connecting, subscribing, and waiting for a QoS 1 acknowledgement."""
 
+SUBSCRIBE_QOS = 0
+"""Every subscription the gateway makes (requests, commands, the start's checks) asks for QoS 0.
+
+Our sessions are clean: what the broker holds for us dies with the connection, so QoS 1 on the
+way in would add nothing a live TCP connection doesn't already give. It costs a lot on a NATS
+cluster, though: there each QoS 1 subscription is a JetStream consumer replicated on
+`stream_replicas` nodes, created one after another while the broker reads the SUBSCRIBE (about
+0.4 s each on a healthy three-node cluster, up to NATS's 4 s API timeout each while a node is
+down and its raft groups elect new leaders). A gateway with a few drives then missed
+`CONNECT_TIMEOUT_S`, reconnected to another node (throwing its half-made session off the
+first), and never got back while the node stayed down. At QoS 0 a subscription is plain NATS
+interest: the node answers at once. At most once, too: no command is delivered twice.
+"""
+
 
 def tls_context(mqtt: MqttSettings) -> ssl.SSLContext | None:
     """The client's TLS context, or None without TLS. Raises TlsSettingsError."""

@@ -17,6 +17,8 @@ from collections.abc import Collection
 
 import aiomqtt
 
+from gateway.mqtt.connection import SUBSCRIBE_QOS
+
 log = logging.getLogger(__name__)
 
 COLLECT_S = 1.0
@@ -34,7 +36,7 @@ async def remove_stale_entities(
     """Clear the retained configs under `pattern` that are not in `offered`; which were."""
     found: set[str] = set()
     async with client:
-        await client.subscribe(pattern, qos=1)
+        await client.subscribe(pattern, qos=SUBSCRIBE_QOS)
         try:
             async with asyncio.timeout(collect_s):
                 async for message in client.messages:

@@ -34,6 +34,7 @@ from gateway.mqtt.connection import (
     MQTT_3_1_1,
     MQTT_5,
     OFFLINE,
+    SUBSCRIBE_QOS,
     make_client,
     online_payload,
     server_name,
@@ -146,10 +147,10 @@ class Session:
         if self.protocol == MQTT_5:
             # Retain-as-published: a retained command keeps its flag when delivered live too,
             # so it is refused however it comes (under 3.1.1 the broker clears it).
-            options = SubscribeOptions(qos=QOS, retainAsPublished=True)
+            options = SubscribeOptions(qos=SUBSCRIBE_QOS, retainAsPublished=True)
             await client.subscribe([(topic, options) for topic in topics])
             return
-        await client.subscribe([(topic, QOS) for topic in topics])
+        await client.subscribe([(topic, SUBSCRIBE_QOS) for topic in topics])
 
     async def _run(self) -> None:
         backoff = Backoff(RECONNECT_INITIAL_S, self.mqtt.reconnect_max_s)

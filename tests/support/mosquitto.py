@@ -248,12 +248,15 @@ async def mqtt_probe(
     broker: BrokerAddress, *subscriptions: str, **connect: Any
 ) -> AsyncIterator[MqttProbe]:
     """`connect`: more of aiomqtt.Client's arguments (tls_context, username, password; an
-    `identifier` with `clean_session=False` for a session the broker keeps while it is away)."""
+    `identifier` with `clean_session=False` for a session the broker keeps while it is away).
+    `qos`: the subscriptions', 1 unless given (0 for a dashboard that only reads state: on NATS
+    a QoS 1 subscription is a replicated JetStream consumer, slow to set up)."""
+    qos: int = connect.pop("qos", 1)
     identifier = connect.pop("identifier", f"probe-{uuid.uuid4().hex[:8]}")
     client = aiomqtt.Client(broker.host, broker.port, identifier=identifier, **connect)
     async with client:
         for topic in subscriptions:
-            await client.subscribe(topic, qos=1)
+            await client.subscribe(topic, qos=qos)
         probe = MqttProbe(client)
         task = asyncio.create_task(probe._collect(), name="mqtt-probe")
         try:
