@@ -121,6 +121,7 @@ class Application:
         """Apply a new, valid configuration in place (`gateway.settings.reload`); what changed."""
         poller: Poller | None = getattr(self, "poller", None)
         plan = plan_reload(self.settings.source, new.source, mqtt_running=hasattr(self, "mqtt"))
+        await self._check_bridge_alone(plan)  # before anything changes: a refusal keeps it all
         running = self.settings = plan.settings
         if poller is None and any(running.polled(d) for d in plan.added):
             plan.restart_needed.append("polling (no drive was polled at start)")
@@ -147,6 +148,18 @@ class Application:
         log.warning("config reloaded: %s", plan.summary)
         return plan
 
+    async def _check_bridge_alone(self, plan: ReloadPlan) -> None:
+        """Raises BrokerShared when the bridge would start again on a base topic (or broker)
+        where another live gateway is: as at start, found before it overwrites that gateway's
+        retained state and answers its commands. Our own gateway id there is us: it passes."""
+        mqtt = plan.settings.mqtt
+        if not plan.restart_bridge or mqtt is None:
+            return
+        from gateway.mqtt.alone import check_alone
+        from gateway.mqtt.topics import Topics
+
+        await check_alone(mqtt, Topics(mqtt.base_topic))
+
     async def _reload_mqtt(self, plan: ReloadPlan) -> None:
         """The bridge, started again with the running configuration: new settings, the drives
         it serves now (a removed one's topics are no longer subscribed, an added one's are)."""
@@ -164,7 +177,7 @@ class Application:
         self.poller.add_listener(new)
         self.features[self.features.index(old)] = new
         self.mqtt = new
-        await new.start()
+        await new.start(checked=True)  # by `_check_bridge_alone`, before the reload began
 
     async def _reload_metrics(self, plan: ReloadPlan) -> None:
         metrics: MetricsFeature | None = getattr(self, "metrics", None)

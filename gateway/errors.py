@@ -10,6 +10,7 @@
     │   └── DiskFull            its disk has no room (`storage.path`): nothing written, events wait
     ├── StoreRefused            the store's file is a newer release's: one line, exit code 4
     ├── BrokerShared            another gateway is live on this one's MQTT base topic: exit code 4
+    │                           (a reload onto it: refused)
     ├── ServiceFailed           the service can't go on: stop with exit code 1 (systemd restarts it)
     │   ├── BusFailed           a bus's coroutine died of a bug
     │   └── FeatureFailed       a feature's background work died of a bug
@@ -229,7 +230,9 @@ class CannotListen(GatewayError):
 
 class BrokerShared(GatewayError):
     """Another gateway is live on this one's MQTT base topic: the service can't start (exit
-    code 4); the message names the other gateway and the keys to change."""
+    code 4), or a reload onto that base topic is refused (the running configuration stays;
+    `invt-gateway reload` exits 3); the message names the other gateway and the keys to
+    change."""
 
 
 class StoreError(GatewayError):

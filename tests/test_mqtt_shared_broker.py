@@ -1,19 +1,24 @@
 """Gateways sharing a broker never step on each other: a second gateway on a live gateway's base
-topic is refused at start (exit code 4, saying whose it is and which keys to change), while the
-same gateway started again right after a SIGKILL (its last will not yet out) starts as usual."""
+topic is refused at start (exit code 4, saying whose it is and which keys to change), and so is
+a reload that would move a running gateway onto it (`invt-gateway reload` exits 3, SIGHUP logs
+it; the running configuration stays), while the same gateway started again right after a
+SIGKILL (its last will not yet out) starts as usual."""
 
 from __future__ import annotations
 
 import asyncio
+import signal
 from pathlib import Path
 from typing import Any
 
-from gateway.exit_codes import EXIT_STARTUP
+import yaml
+
+from gateway.exit_codes import EXIT_CONFIG, EXIT_STARTUP
 from tests.support import free_port
 from tests.support.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
 from tests.support.mosquitto import mosquitto as mosquitto
 from tests.support.mqtt_setup import FAST_POLL, simulated_line
-from tests.support.processes import gateway_process
+from tests.support.processes import gateway_process, run_cli
 
 
 def config(gateway_id: str, line: str, broker: Mosquitto, base: str) -> dict[str, Any]:
@@ -73,3 +78,55 @@ async def test_the_same_gateway_started_again_before_its_last_will_starts(
                 )
                 assert state.json()["state"] == "online"
                 assert again.process.poll() is None
+
+
+async def test_a_reload_onto_a_live_gateways_base_topic_is_refused(
+    mosquitto: Mosquitto, tmp_path: Path
+) -> None:
+    site = unique_base_topic()
+    a_base, b_base = f"{site}/a", f"{site}/b"
+    states = (f"{a_base}/bridge/state", f"{b_base}/bridge/state")
+    with simulated_line((1,)) as line_a, simulated_line((1,)) as line_b:
+        async with mqtt_probe(mosquitto, *states, f"{b_base}/pump1") as probe:
+            with (
+                gateway_process(config("cabinet-a", line_a.path, mosquitto, a_base), tmp_path),
+                gateway_process(config("cabinet-b", line_b.path, mosquitto, b_base), tmp_path) as b,
+            ):
+                for topic in states:
+                    await probe.wait_for(topic, lambda s: s["state"] == "online", timeout_s=15)
+                # Cabinet B's file edited onto cabinet A's base topic (a copied line).
+                edited = config("cabinet-b", line_b.path, mosquitto, a_base)
+                b.config_file.write_text(yaml.safe_dump(edited), encoding="utf-8")
+                mark = len(probe.messages)
+                refused = await asyncio.to_thread(run_cli, "reload", "--config", str(b.config_file))
+                assert refused.returncode == EXIT_CONFIG, refused.stdout + refused.stderr
+                assert refused.stdout == ""
+                assert refused.stderr.startswith(f"refused: {b.config_file}: ")
+                assert "gateway 'cabinet-a'" in refused.stderr
+                assert f"mqtt.base_topic {a_base!r}" in refused.stderr
+                b.log.wait_for("reload refused, the running configuration stays")
+                # SIGHUP (no one to answer): refused the same way, in the log.
+                b.signal(signal.SIGHUP)
+                b.log.wait_for_count("reload refused", 2)
+                # B goes on as it ran: a fault on its drive shows on its own base topic; A's
+                # base topic never heard from B; neither said offline.
+                line_b.inject_fault(1, 11)
+                await probe.wait_for(f"{b_base}/pump1", lambda s: s["fault_code"] == 11, after=mark)
+                seen = [m.json() for m in probe.messages[mark:] if m.topic in states]
+                assert all(state["state"] == "online" for state in seen), seen
+                on_a = [m.json() for m in probe.messages if m.topic == states[0]]
+                assert all(state["gateway_id"] == "cabinet-a" for state in on_a), on_a
+                assert b.process.poll() is None
+                assert "config reloaded" not in b.log.text
+
+                # The same file on a base topic of its own is applied.
+                moved = config("cabinet-b", line_b.path, mosquitto, f"{site}/b2")
+                b.config_file.write_text(yaml.safe_dump(moved), encoding="utf-8")
+                async with mqtt_probe(mosquitto, f"{site}/b2/bridge/state") as moved_probe:
+                    applied = await asyncio.to_thread(
+                        run_cli, "reload", "--config", str(b.config_file)
+                    )
+                    assert applied.returncode == 0, applied.stderr
+                    await moved_probe.wait_for(
+                        f"{site}/b2/bridge/state", lambda s: s["state"] == "online", timeout_s=15
+                    )

@@ -6,7 +6,8 @@ status. It finds the gateway that runs with the same `--config` file through the
 (`gateway.control`): under systemd, in a container (`docker exec`), or beside a plain `run`.
 
 Exit codes: 0 applied (keys that need a restart are named, and kept at their running values),
-3 refused (the file does not validate: each problem with its key path; nothing changed),
+3 refused (the file does not validate: each problem with its key path; or its MQTT settings
+would put the gateway on a base topic another live gateway holds; nothing changed),
 1 skipped (the gateway is starting or stopping) or no gateway reached.
 """
 

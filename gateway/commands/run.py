@@ -232,5 +232,10 @@ class Reloader:
         if self.app.phase is not Phase.READY:
             log.warning("reload skipped: the gateway is %s", self.app.phase.value)
             return [f"skipped: the gateway is {self.app.phase.value}"]
-        plan = await self.app.reload(runtime_settings(config))
+        try:
+            plan = await self.app.reload(runtime_settings(config))
+        except BrokerShared as exc:
+            # The new MQTT settings would take another live gateway's place: nothing changed.
+            log.error("reload refused, the running configuration stays: %s: %s", path, exc)
+            return [f"refused: {path}: {exc}"]
         return [f"applied: {plan.summary}"]

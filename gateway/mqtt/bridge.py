@@ -128,8 +128,11 @@ class MqttBridge:
 
     # -- lifecycle ---------------------------------------------------------------------------
 
-    async def start(self) -> None:
-        await check_alone(self.settings, self.topics)
+    async def start(self, checked: bool = False) -> None:
+        """`checked`: a reload has just made sure no other gateway is live on our base topic
+        (`check_alone`, which raises BrokerShared); a start makes sure here."""
+        if not checked:
+            await check_alone(self.settings, self.topics)
         await self.session.start()
 
     async def stop(self) -> None:
