@@ -266,3 +266,35 @@ async def test_the_demo_leaves_no_discovery_configs_on_a_shared_broker(
         assert await demo.interrupt() == 0, demo.err.text
     assert await retained_under(mosquitto, "homeassistant/#") == []
     assert f"cleared its {count} Home Assistant discovery configs" in demo.err.text
+
+
+async def test_a_demo_of_a_configuration_listing_servers_runs_on_one_broker(
+    tmp_path: Path,
+) -> None:
+    """`mqtt.servers` (a cluster's nodes) in the demo's file: the demo uses the first; with
+    `--mqtt-port` its host on that port. Nothing answers there, so the demo starts its broker
+    there, and the gateway publishes to it (it used to go on with the list, away from it)."""
+    base = unique_base_topic("demo")
+    config = yaml.safe_load(demo_config_text(None))
+    config["console"]["port"] = 0
+    del config["mqtt"]["host"], config["mqtt"]["port"]
+    listed = [f"127.0.0.1:{free_port()}", f"127.0.0.1:{free_port()}"]
+    config["mqtt"].update({"servers": listed, "base_topic": base})
+    config["gateway_id"] = f"demo-{base}"
+    config_file = tmp_path / "demo.yaml"
+    config_file.write_text(yaml.safe_dump(config), encoding="utf-8")
+    mqtt_port = free_port()
+    demo = DemoProcess(
+        "--config", str(config_file), "--port", str(free_port()), "--mqtt-port", str(mqtt_port)
+    )
+    try:
+        await demo.wait_for("Stop with Ctrl-C")
+        warning = await demo.wait_for("mqtt.servers lists 2 brokers", "err")
+        assert listed[0] in warning
+        async with mqtt_probe(Address("127.0.0.1", mqtt_port), f"{base}/bridge/state") as probe:
+            online = await probe.wait_for(f"{base}/bridge/state", lambda s: s["state"] == "online")
+            assert online.json()["server"] == f"127.0.0.1:{mqtt_port}"
+        assert f"127.0.0.1:{mqtt_port} (embedded" in demo.out.text
+        assert f"-p {mqtt_port}" in demo.out.text
+    finally:
+        assert await demo.interrupt() == 0, demo.err.text

@@ -21,7 +21,7 @@ from typing import Any
 
 from gateway.app import Application
 from gateway.commands.run import event_loop_or_report, serve
-from gateway.config import GatewayConfig, parse_config
+from gateway.config import GatewayConfig, MqttConfig, parse_config
 from gateway.errors import ConfigError
 from gateway.event_loop import run as run_on_loop
 from gateway.exit_codes import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
@@ -98,10 +98,6 @@ def handle(args: argparse.Namespace) -> int:
         config = config.model_copy(
             update={"modbus_tcp": config.modbus_tcp.model_copy(update={"port": args.port})}
         )
-    if args.mqtt_port is not None and config.mqtt is not None:
-        config = config.model_copy(
-            update={"mqtt": config.mqtt.model_copy(update={"port": args.mqtt_port})}
-        )
     if args.console_port is not None:
         config = config.model_copy(
             update={"console": config.console.model_copy(update={"port": args.console_port})}
@@ -110,6 +106,8 @@ def handle(args: argparse.Namespace) -> int:
     if loop is None:
         return EXIT_CONFIG
     setup_logging(config.logging.level, config.logging.format)
+    if config.mqtt is not None:
+        config = config.model_copy(update={"mqtt": one_broker(config.mqtt, args.mqtt_port)})
     if args.watch:
         return asyncio.run(watch_demo(config))
     with contextlib.ExitStack() as stack:
@@ -127,6 +125,24 @@ def handle(args: argparse.Namespace) -> int:
         config, password = with_demo_operator(config)
         log.info("event loop: %s", loop.describe())
         return run_on_loop(serve_demo(config, args.config, password), loop)
+
+
+def one_broker(mqtt: MqttConfig, port: int | None) -> MqttConfig:
+    """The demo's one broker, as `host`/`port`: what it probes, starts in its place when none
+    answers (possibly on another port), shows in the banner and watches, and what the gateway
+    then connects to. `--mqtt-port` (`port`) changes its port. A configuration listing
+    `mqtt.servers` (a cluster's nodes) runs the demo on the first of them: without this the
+    demo rewrote `host`/`port` while the gateway went on with the list, away from the broker
+    it had started."""
+    host, configured = mqtt.broker_addresses()[0]
+    if mqtt.servers is not None and len(mqtt.servers) > 1:
+        log.warning(
+            "demo: mqtt.servers lists %d brokers; the demo uses one, the first: %s",
+            len(mqtt.servers),
+            mqtt.servers[0],
+        )
+    chosen = {"servers": None, "host": host, "port": configured if port is None else port}
+    return mqtt.model_copy(update=chosen)
 
 
 async def watch_demo(config: GatewayConfig) -> int:
