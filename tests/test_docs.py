@@ -9,6 +9,7 @@ page a user looks it up on, read from the code itself, not from a list kept besi
 - every command of `invt-gateway` and every option of it, in its section of the Commands page;
 - every MQTT topic the `Topics` class makes, and every `bridge/request/<op>`, on the MQTT page;
 - every event type (`EventType`) on the Events page;
+- every environment variable the package reads (`INVT_GATEWAY_*`, `INVT_BENCH_*`);
 - every metric family `/metrics` publishes (`tests/fixtures/metric_families.tsv`, which
   `test_ops_metric_names` holds against a real scrape), in the Operations page's metrics table,
   with each of its labels in its row.
@@ -236,6 +237,20 @@ def test_every_event_type_is_in_the_events_page() -> None:
     text = page("events.md")
     missing = [kind.value for kind in EventType if f"`{kind.value}`" not in text]
     assert not missing, f"event types not in docs/pages/events.md: {missing}"
+
+
+# --- environment variables ---------------------------------------------------------------
+
+
+def test_every_environment_variable_the_code_names_is_documented() -> None:
+    """The variables are named as constants in the code (`ENV_MQTT_PASSWORD = "INVT_..."`):
+    every `INVT_GATEWAY_*` and `INVT_BENCH_*` string in the package is one."""
+    source = "".join(path.read_text(encoding="utf-8") for path in (ROOT / "gateway").rglob("*.py"))
+    variables = set(re.findall(r"[\"'](INVT_(?:GATEWAY|BENCH)_[A-Z_]+)[\"']", source))
+    assert {"INVT_GATEWAY_MQTT_PASSWORD", "INVT_GATEWAY_EVENT_LOOP"} <= variables
+    documented = "".join(all_pages().values())
+    missing = sorted(variable for variable in variables if f"`{variable}" not in documented)
+    assert not missing, f"environment variables in no page of docs/pages/: {missing}"
 
 
 # --- metrics ----------------------------------------------------------------------------------
