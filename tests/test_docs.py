@@ -5,7 +5,8 @@ MQTT topics, event types, metric families), so each one the code has must be doc
 page a user looks it up on, read from the code itself, not from a list kept beside it:
 
 - every configuration key of the models (`gateway/config/`), by its full path, shown in a YAML
-  example on some page (an example is what a user copies; the key's comment says what it does);
+  example on some page (an example is what a user copies; the key's comment says what it does),
+  and every key of a device file (`gateway/profile/device_files.py`) in the device-file example;
 - every command of `invt-gateway` and every option of it, in its section of the Commands page;
 - every MQTT topic the `Topics` class makes, and every `bridge/request/<op>`, on the MQTT page;
 - every event type (`EventType`) on the Events page;
@@ -40,6 +41,7 @@ from gateway.cli import build_parser
 from gateway.config import GatewayConfig
 from gateway.mqtt.kinds import BRIDGE_REQUESTS
 from gateway.mqtt.topics import Topics
+from gateway.profile.device_files import _DeviceSpec, device_profile
 from gateway.store.records import EventType
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -137,6 +139,18 @@ def test_the_reference_example_is_a_valid_configuration() -> None:
     assert set(example) == set(GatewayConfig.model_fields), "the first example shows every section"
     config = GatewayConfig.model_validate(example)
     assert config.buses[0].baudrate == 19200
+
+
+def test_every_device_file_key_is_in_the_example_and_it_loads() -> None:
+    """A device file (a meter's, an I/O module's) is configuration too: its example on the Other
+    Modbus devices page shows every key of the device-file model and loads as a device."""
+    text = page("devices.md").split("```yaml\n", 1)[1].split("```", 1)[0]
+    device = device_profile("file:boiler-meter.yaml", text, "docs/pages/devices.md")
+    example = yaml.safe_load(text)
+    assert [point.name for point in device.typed_points] == list(example["points"])
+    shown = set(keys_shown(_DeviceSpec, example))
+    missing = [key for key in config_keys(_DeviceSpec) if key not in shown]
+    assert not missing, f"device-file keys not in the example of docs/pages/devices.md: {missing}"
 
 
 # --- commands and options -------------------------------------------------------------------
