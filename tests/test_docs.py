@@ -23,6 +23,7 @@ the one CI runs.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import os
 import re
 import shutil
@@ -329,8 +330,10 @@ def test_the_readmes_links_into_the_docs_lead_to_pages() -> None:
 
 
 def mkdocs_build(config: Path, site: Path) -> subprocess.CompletedProcess[str]:
-    if shutil.which("mkdocs", path=str(Path(sys.executable).parent)) is None:
-        pytest.fail("MkDocs is not installed: pip install -e '.[docs]' (bash .ci/test does)")
+    if importlib.util.find_spec("mkdocs") is None or importlib.util.find_spec("material") is None:
+        pytest.fail(
+            "MkDocs or its Material theme is missing: pip install -e '.[docs]' (.ci/test does)"
+        )
     return subprocess.run(
         [sys.executable, "-m", "mkdocs", "build", "--strict", "-f", str(config), "-d", str(site)],
         capture_output=True,
