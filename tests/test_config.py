@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 
 from gateway.config import parse_config
 from gateway.errors import ConfigError
+from tests.support.processes import check_config
 
 GOOD = """
 modbus_tcp: {host: 0.0.0.0, port: 5020, max_connections: 32, idle_timeout_s: 300}
@@ -30,17 +31,6 @@ drives:
   - {name: pump1, bus: line1, address: 1}
   - {name: fan3,  bus: line1, address: 3, unit_id: 13, model: gd350, timeout_ms: 150}
 """
-
-
-def check_config(tmp_path: Path, text: str) -> subprocess.CompletedProcess[str]:
-    path = tmp_path / "config.yaml"
-    path.write_text(text)
-    return subprocess.run(
-        [sys.executable, "-m", "gateway", "check-config", "--config", str(path)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
 
 
 def test_the_issue_example_is_valid_and_prints_the_routing_table(tmp_path: Path) -> None:
