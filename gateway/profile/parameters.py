@@ -59,6 +59,9 @@ class Parameter:
     reinitialises: tuple[str, ...] = ()
     """Parameters the drive sets back to their defaults when this one is written (P02.01, the
     motor's rated power, re-initialises P02.02-P02.10)."""
+    factory: str = ""
+    """What the factory set here, when the manual says it did (the bar codes P07.21-P07.26):
+    one drive's own, never copied to another."""
 
     @property
     def address(self) -> int:
@@ -85,6 +88,29 @@ class Parameter:
     def choice(self, raw: int) -> str | None:
         """The manual's words for a value, or None when the manual gives none for it."""
         return next((words for value, words in self.choices if value == raw), None)
+
+    def show_number(self, number: int) -> str:
+        """A number of the range's scale without its unit ("-300.0", "400.00", "0x01FF")."""
+        if self.hexadecimal and not self.decimals:
+            return f"0x{number & 0xFFFF:04X}"
+        return f"{number / 10**self.decimals:.{self.decimals}f}" if self.decimals else str(number)
+
+    def range_text(self) -> str:
+        """The manual's range with its unit, and the parameters that bound it at run time:
+        "0.00 ... 400.00 Hz, within P00.05 ... P00.03"."""
+        text = f"{self.show_number(self.minimum)} ... {self.show_number(self.maximum)}"
+        text = f"{text} {self.unit}".rstrip()
+        low, high = self.minimum_from, self.maximum_from
+        if low and high:
+            return f"{text}, within {low} ... {high}"
+        if low or high:
+            return f"{text}, {'at least' if low else 'at most'} {low or high}"
+        return text
+
+    def shown_default(self) -> str | None:
+        """The factory's value as `show` writes it; None where the manual says it "depends on
+        model" (then whether a value differs from it can't be told)."""
+        return self.show(self.default) if self.default_known else None
 
     def show(self, raw: int) -> str:
         """ "50.00 Hz", "-50.0 %", "0x01FF", "2 (SVPWM (V/F) control)"."""
