@@ -389,7 +389,7 @@ function setupParameters(name) {
       : null;
     // Whether the value is the factory's: "depends on model" defaults can't say.
     const differs = p.differs_from_default === true;
-    const fallback = p.default === null && p.range !== undefined ? "depends on model" : "–";
+    const fallback = p.default === null && p.range !== undefined && p.writable ? "depends on model" : "–";
     const meaning = p.confirmed === false ? `${p.description} (unconfirmed for this series)` : p.description;
     return el("tr", { class: differs ? "differs" : "", "data-name": p.name },
       el("td", {}, p.name), el("td", { class: "mono" }, p.address),
