@@ -5,8 +5,10 @@
 from __future__ import annotations
 
 import struct
+from pathlib import Path
 
 import pytest
+import yaml
 
 from gateway.config import GatewayConfig
 from gateway.console.decode import describe
@@ -188,3 +190,28 @@ async def test_the_console_starts_an_abb_drive_and_shows_it_running() -> None:
 
             await eventually(running)
             assert line.abb_drives[2].state(0.0) is RunState.RUNNING_FORWARD
+
+
+def test_a_site_names_an_abb_fault_and_is_told_what_doesnt_apply(tmp_path: Path) -> None:
+    """`drives[].faults` corrects an ABB drive's fault names as it does an INVT drive's (the
+    rest of the profile kept); the INVT-only corrections are refused by `check-config`."""
+    profile = get_profile("acs580").with_overrides(faults={0x2310: "OC: overcurrent"})
+    assert profile.faults.describe(0x2310) == "OC: overcurrent"
+    assert (profile.display_name, profile.commands) == ("ACS580", get_profile("acs580").commands)
+    config = {
+        "modbus_tcp": {"host": "127.0.0.1", "port": 5020},
+        "buses": [{"name": "line1", "port": "/dev/null"}],
+        "drives": [
+            {"name": "fan7", "bus": "line1", "address": 1, "model": "acs580", "faults": {1: "x"}},
+            {
+                "name": "fan8", "bus": "line1", "address": 2, "model": "acs355",
+                "identification": ["01A0H"],
+            },
+        ],
+    }  # fmt: skip
+    path = tmp_path / "abb.yaml"
+    path.write_text(yaml.safe_dump(config))
+    result = run_cli("check-config", "--config", str(path))
+    assert result.returncode == 3
+    assert "drives[1] (fan8): identification: ACS355 has no 2103H code to correct" in result.stderr
+    assert "fan7" not in result.stderr

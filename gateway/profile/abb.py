@@ -25,11 +25,12 @@ import yaml
 
 from gateway.profile.addressing import format_register, parse_register
 from gateway.profile.faults import FaultTable
+from gateway.profile.overrides import FaultOverrides
 from gateway.profile.parameter_tables import ParameterTable
 from gateway.profile.parameters import Parameter
 from gateway.profile.point_types import TypedPoint, no_typed_points
 from gateway.profile.points import Point, Profile
-from gateway.profile.protocol import DriveProfile, Identified, PollGroup, Question, RegisterWrite
+from gateway.profile.protocol import Identified, PollGroup, Question, RegisterWrite
 from gateway.profile.registers import to_signed
 from gateway.profile.telemetry import Telemetry
 
@@ -119,7 +120,7 @@ class AbbPoint(Point):
 
 
 @dataclass(frozen=True)
-class AbbProfile:
+class AbbProfile(FaultOverrides):
     key: str
     display_name: str
     aliases: tuple[str, ...] = ()
@@ -147,22 +148,6 @@ class AbbProfile:
     @property
     def parameter_table(self) -> ParameterTable:
         return ParameterTable(self.key, ())
-
-    def with_overrides(
-        self,
-        *,
-        identification: tuple[int, ...] | None = None,
-        faults: Mapping[int, str] | None = None,
-        ready_bit_set_means_ready: bool | None = None,
-    ) -> DriveProfile:
-        if faults:
-            return AbbProfile(
-                self.key,
-                self.display_name,
-                self.aliases,
-                faults=self.faults.with_overrides(faults),
-            )
-        return self
 
     # -- register words ---------------------------------------------------------------------
     def telemetry(self, registers: Mapping[int, int]) -> Telemetry:
