@@ -87,7 +87,9 @@ def test_its_registers_are_named_by_the_manuals_numbers() -> None:
     profile = get_profile("acs355")
     point = profile.resolve("40004")
     assert (point.address, point.description) == (3, "status word")
-    assert point.show(0x0237, profile).startswith("0237H (running_forward: ready to switch on")
+    assert point.show(0x0237, profile).startswith(
+        "0237H (running, direction by reference 1: ready to switch on"
+    )
     assert profile.resolve("reference_1").show((-10000) & 0xFFFF, profile) == "-10000"
     assert profile.point(0x2100) is None  # INVT's state word is no ABB register
 
@@ -100,7 +102,8 @@ def test_the_traffic_monitor_reads_an_abb_status_word_in_the_manuals_words() -> 
     request = struct.pack(">BHH", READ_HOLDING_REGISTERS, 3, 1)
     line = describe(request, bytes((READ_HOLDING_REGISTERS, 2, 0x02, 0x37)), profile)
     assert line == (
-        "read 40004 status word → 0237H (running_forward: ready to switch on, ready to operate, "
+        "read 40004 status word → 0237H (running, direction by reference 1: ready to switch on, "
+        "ready to operate, "
         "operation enabled, OFF2 inactive, OFF3 inactive, remote)"
     )
 

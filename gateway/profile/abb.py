@@ -105,8 +105,14 @@ def state(status_word: int, reference_1: int | None) -> str:
 
 
 def show_status_word(raw: int) -> str:
-    """ "0637H (running_forward: ready to switch on, ready to operate, ...)"."""
-    return f"{raw:04X}H ({state(raw, None)}: {', '.join(status_words(raw)) or 'no bit set'})"
+    """ "0237H (running, direction by reference 1: ready to switch on, ...)", "0230H (stopped:
+    ...)": the status word read alone. A running drive's direction is reference 1's sign,
+    which `read` and the traffic monitor don't have here, so they don't guess it (the
+    telemetry, which has both, says running_forward or running_reverse)."""
+    said = state(raw, None)
+    if said.startswith("running_"):
+        said = "running, direction by reference 1"
+    return f"{raw:04X}H ({said}: {', '.join(status_words(raw)) or 'no bit set'})"
 
 
 @dataclass(frozen=True)
