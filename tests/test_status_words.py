@@ -260,9 +260,13 @@ def test_a_status_word_with_unused_bits_set_is_no_abb_drive_to_scan() -> None:
 
 @pytest.fixture
 def line() -> Iterator[SimulatedLine]:
-    # Opposite polarities side by side: a GD350 (1 = ready) and a GD300-LIFT (0 = ready).
+    # Opposite polarities side by side: a GD350 (1 = ready) and a GD300-LIFT (0 = ready); and
+    # an ABB drive, whose state comes from its status word.
     with SimulatedLine(
-        addresses=[1, 2], models={1: "gd350", 2: "gd300l"}, baudrate=115200, parity="E"
+        addresses=[1, 2, 3],
+        models={1: "gd350", 2: "gd300l", 3: "acs580"},
+        baudrate=115200,
+        parity="E",
     ) as simulated:
         yield simulated
 
@@ -276,6 +280,7 @@ def gateway_file(line: SimulatedLine, broker: Any, base: str, tcp: int, web: int
         "drives": [
             {"bus": "line1", "name": "pump1", "address": 1, "model": "gd350", "poll": fast},
             {"bus": "line1", "name": "lift2", "address": 2, "model": "gd300l", "poll": fast},
+            {"bus": "line1", "name": "fan3", "address": 3, "model": "acs580"},
         ],
         "mqtt": {"host": broker.host, "port": broker.port, "base_topic": base},
         "console": {
@@ -307,6 +312,7 @@ async def test_mqtt_read_and_the_console_agree_on_a_real_gateway(
                 if faulty:
                     line.inject_fault(1, 16)
                     line.inject_fault(2, 16)
+                    line.inject_fault(3, 1)
                 for name, unit, model in (("pump1", 1, None), ("lift2", 2, "gd300l")):
                     state = await probe.wait_for(
                         f"{base}/{name}",
@@ -326,6 +332,19 @@ async def test_mqtt_read_and_the_console_agree_on_a_real_gateway(
                     assert shown["ready"] is ready
                     assert shown["fault_description"] == state.json()["fault_description"]
                     assert f"({shown['fault_description']})" in result.stdout.splitlines()[1]
+                # The ABB drive: MQTT's state, `read 40004` and the console's, tripped or not.
+                abb = await probe.wait_for(
+                    f"{base}/fan3", lambda s, f=faulty: (s.get("state") == "fault") == f
+                )
+                said = abb.json()["state"]
+                assert said == ("fault" if faulty else "stopped")
+                result = await asyncio.to_thread(
+                    run_cli, "read", *via, "-a", "3", "--model", "acs580", "40004"
+                )
+                assert result.returncode == 0, result.stderr
+                assert f"({said}: " in result.stdout, result.stdout
+                async with session.get(f"http://127.0.0.1:{web}/api/drives/fan3") as reply:
+                    assert (await reply.json())["telemetry"]["state"] == said
             async with session.get(f"http://127.0.0.1:{web}/api/events?drive=pump1") as reply:
                 texts = [e["text"] for e in (await reply.json())["events"]]
     assert "OH2: inverter module overheat" in texts, texts
