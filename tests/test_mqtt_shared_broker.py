@@ -54,6 +54,24 @@ async def test_a_second_gateway_on_a_live_base_topic_is_refused(
                 assert all(m.json()["state"] == "online" for m in probe.messages[mark:])
 
 
+async def test_the_check_asks_the_next_server_when_the_first_is_down(
+    mosquitto: Mosquitto, tmp_path: Path
+) -> None:
+    """A cluster's first listed node down (nothing listens there): the broker behind the next
+    one is asked, and the copied configuration is still refused."""
+    base = unique_base_topic()
+    with simulated_line((1,)) as line_a, simulated_line((1,)) as line_b:
+        async with mqtt_probe(mosquitto, f"{base}/bridge/state") as probe:
+            with gateway_process(config("cabinet-a", line_a.path, mosquitto, base), tmp_path):
+                await probe.wait_for(f"{base}/bridge/state", lambda s: s["state"] == "online")
+                copied = config("cabinet-b", line_b.path, mosquitto, base)
+                live = f"{mosquitto.host}:{mosquitto.port}"
+                copied["mqtt"]["servers"] = [f"127.0.0.1:{free_port()}", live]
+                with gateway_process(copied, tmp_path) as second:
+                    assert await asyncio.to_thread(second.wait, 15.0) == EXIT_STARTUP
+                    assert "gateway 'cabinet-a'" in second.log.text
+
+
 async def test_the_same_gateway_started_again_before_its_last_will_starts(
     mosquitto: Mosquitto, tmp_path: Path
 ) -> None:

@@ -9,8 +9,10 @@ id is a live gateway that is not us: the start is refused (`BrokerShared`, exit 
 client id derives from the gateway id, so a copied one is caught with it. Our own gateway id
 there is our previous run (killed, its will not yet out): it is taken over as usual.
 
-A broker that doesn't answer within `CHECK_BUDGET_S` is not waited for: the gateway starts, and
-the bridge connects when it can (Modbus-TCP never waits for MQTT).
+The listed servers are asked in turn until one answers (a cluster's node that is down refuses at
+once). None answering within `CHECK_BUDGET_S` is not waited for: the gateway starts, and the
+bridge connects when it can (Modbus-TCP never waits for MQTT). A reload that would start the
+bridge again on other MQTT settings asks the same question first (`Application.reload`).
 """
 
 from __future__ import annotations
@@ -41,14 +43,13 @@ CHECK_BUDGET_S = 2.0
 
 async def check_alone(mqtt: MqttSettings, topics: Topics) -> None:
     """Raises BrokerShared when another gateway is live on our base topic."""
-    server = mqtt.servers[0]
     try:
         async with asyncio.timeout(CHECK_BUDGET_S):
-            state = await _retained_state(mqtt, topics, server)
+            server, state = await _first_answer(mqtt, topics)
     except (TimeoutError, aiomqtt.MqttError, TlsSettingsError) as exc:
         log.info(
             "MQTT: %s not checked for another gateway on %s: %s",
-            server_name(server),
+            ", ".join(server_name(server) for server in mqtt.servers),
             topics.base,
             str(exc) or type(exc).__name__,
         )
@@ -65,6 +66,21 @@ async def check_alone(mqtt: MqttSettings, topics: Topics) -> None:
         f"{state.get('server', server_name(server))} with mqtt.base_topic {topics.base!r}: "
         "give each gateway its own gateway_id and mqtt.base_topic"
     )
+
+
+async def _first_answer(
+    mqtt: MqttSettings, topics: Topics
+) -> tuple[tuple[str, int], dict[str, object] | None]:
+    """The retained `bridge/state` through the first of `mqtt.servers` that answers, and which
+    one: a cluster's node that is down refuses at once, and the next one is asked (a gateway
+    started again while its first node is dead is still checked). MqttError when none answers."""
+    failures = []
+    for server in mqtt.servers:
+        try:
+            return server, await _retained_state(mqtt, topics, server)
+        except aiomqtt.MqttError as exc:
+            failures.append(f"{server_name(server)}: {str(exc) or type(exc).__name__}")
+    raise aiomqtt.MqttError("; ".join(failures))
 
 
 async def _retained_state(
