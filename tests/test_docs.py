@@ -23,6 +23,7 @@ the one CI runs.
 from __future__ import annotations
 
 import argparse
+import html
 import importlib.util
 import os
 import re
@@ -36,10 +37,10 @@ from pathlib import Path
 
 import pytest
 import yaml
-from pydantic import BaseModel
+from pydantic import BaseModel, ConfigDict
 
 from gateway.cli import build_parser
-from gateway.config import GatewayConfig
+from gateway.config import GatewayConfig, reference
 from gateway.mqtt.kinds import BRIDGE_REQUESTS
 from gateway.mqtt.topics import Topics
 from gateway.profile.device_files import _DeviceSpec, device_profile
@@ -130,6 +131,44 @@ def test_every_configuration_key_is_shown_in_an_example() -> None:
     assert len(keys) > 100  # the walk found the models' keys, nested ones included
     missing = [key for key in keys if key not in shown]
     assert not missing, f"configuration keys in no YAML example of docs/pages/: {missing}"
+
+
+def test_every_configuration_key_has_a_description() -> None:
+    """The Configuration page's tables are generated from the models' field docstrings: a key
+    without one would show an empty description. The message names each key and the line of the
+    model to write it under."""
+    keys = list(reference.config_keys())
+    assert [key.path for key in keys] == list(config_keys(GatewayConfig))  # the same walk
+    missing = reference.undocumented()
+    assert not missing, "configuration keys without a description:\n" + "\n".join(missing)
+
+
+class _Spindle(BaseModel):
+    model_config = ConfigDict(use_attribute_docstrings=True)
+    warmup_s: float = 2.0
+    """How long it turns slowly after a start."""
+    brake: bool = False
+
+
+class _Machine(BaseModel):
+    model_config = ConfigDict(use_attribute_docstrings=True)
+    spindles: tuple[_Spindle, ...] = ()
+    """The spindles."""
+
+
+def test_a_key_without_a_description_is_named_with_the_line_to_fix() -> None:
+    line = next(
+        number
+        for number, text in enumerate(Path(__file__).read_text().splitlines(), 1)
+        if text.strip() == "brake: bool = False"
+    )
+    assert reference.undocumented(_Machine) == [
+        f"spindles[].brake: no description; write a docstring under _Spindle.brake "
+        f"(tests/test_docs.py:{line})"
+    ]
+    table = reference.markdown(_Machine)
+    assert "| `warmup_s` | number | `2` | s | How long it turns slowly after a start. |" in table
+    assert "### `spindles[]`" in table
 
 
 def test_the_reference_example_is_a_valid_configuration() -> None:
@@ -344,20 +383,50 @@ def mkdocs_build(config: Path, site: Path) -> subprocess.CompletedProcess[str]:
     )
 
 
-def test_the_site_builds_strict_and_loads_nothing_from_the_internet(tmp_path: Path) -> None:
-    site = tmp_path / "site"
+@pytest.fixture(scope="module")
+def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The site as `mkdocs build --strict` makes it, once for the tests that read it."""
+    site = tmp_path_factory.mktemp("docs") / "site"
     built = mkdocs_build(DOCS / "mkdocs.yml", site)
     assert built.returncode == 0, built.stderr
+    return site
+
+
+def test_the_site_builds_strict_and_loads_nothing_from_the_internet(site: Path) -> None:
     pages = sorted(site.rglob("*.html"))
     assert len(pages) >= len(all_pages())
     external = []
-    for html in pages:
-        text = html.read_text(encoding="utf-8")
+    for built_page in pages:
+        text = built_page.read_text(encoding="utf-8")
         for tag in re.findall(r"<(?:script|link|img|iframe)\b[^>]*>", text):
             # rel=canonical and the like name an address; only what the browser fetches counts.
             if re.search(r'\b(src|href)="(https?:)?//', tag) and "canonical" not in tag:
-                external.append(f"{html.relative_to(site)}: {tag}")
+                external.append(f"{built_page.relative_to(site)}: {tag}")
     assert not external, external
+
+
+def built_sections(site: Path, name: str) -> dict[str, str]:
+    """A built page's sections by their heading's id (level 2 and 3), as HTML."""
+    text = (site / name / "index.html").read_text(encoding="utf-8")
+    assert "<!-- generated" not in text  # every generated part was put in
+    return dict(re.findall(r'<h[23] id="([^"]+)".*?</h[23]>(.*?)(?=<h[23] |$)', text, re.S))
+
+
+def cell_text(fragment: str) -> str:
+    return html.unescape(re.sub(r"<[^>]+>", "", fragment))
+
+
+def test_the_configuration_page_has_every_key_with_its_description(site: Path) -> None:
+    """Under its section's heading, each key has a row that carries its description."""
+    by_id = built_sections(site, "configuration")
+    missing = []
+    for key in reference.config_keys():
+        section = by_id.get(reference.anchor(key.path.rpartition(".")[0] or "Top level")[1:], "")
+        row = re.search(rf"<td><code>{re.escape(key.key)}</code>.*?</tr>", section, re.S)
+        text = cell_text(row.group(0)) if row else ""
+        if key.description.replace("`", "") not in " ".join(text.split()):
+            missing.append(key.path)
+    assert not missing, f"no row with its description on the built Configuration page: {missing}"
 
 
 def test_a_broken_link_fails_the_build(tmp_path: Path) -> None:

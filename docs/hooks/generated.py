@@ -1,0 +1,45 @@
+"""MkDocs hook: the pages' generated parts, made from the code and its data at every build.
+
+A page says where a part goes with an HTML comment alone on its line, `<!-- generated: NAME -->`;
+the build puts the part there (so the page can't drift from the code), and fails on a name it
+doesn't know, or when the code's facts are incomplete (a configuration key without a
+description). Registered in mkdocs.yml (`hooks:`).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from typing import Any
+
+from mkdocs.exceptions import PluginError
+
+from gateway.config import reference
+
+
+def configuration_keys() -> str:
+    missing = reference.undocumented()
+    if missing:
+        raise PluginError(
+            "configuration keys without a description (the Configuration page is generated "
+            "from the models' field docstrings):\n  " + "\n  ".join(missing)
+        )
+    return reference.markdown(heading="###")
+
+
+GENERATORS: dict[str, Callable[[], str]] = {
+    "configuration-keys": configuration_keys,
+}
+
+MARKER = re.compile(r"^<!-- generated: ([\w-]+) -->$", re.MULTILINE)
+
+
+def on_page_markdown(markdown: str, page: Any, **_: Any) -> str:
+    def part(match: re.Match[str]) -> str:
+        name = match.group(1)
+        if name not in GENERATORS:
+            known = ", ".join(GENERATORS)
+            raise PluginError(f"{page.file.src_uri}: no generated part {name!r} (known: {known})")
+        return GENERATORS[name]()
+
+    return MARKER.sub(part, markdown)
