@@ -43,7 +43,11 @@ from gateway.cli import build_parser
 from gateway.config import GatewayConfig, reference
 from gateway.mqtt.kinds import BRIDGE_REQUESTS
 from gateway.mqtt.topics import Topics
+from gateway.profile.addressing import format_register
 from gateway.profile.device_files import _DeviceSpec, device_profile
+from gateway.profile.models import PROFILES
+from gateway.profile.parameter_tables import sources, table_rows
+from gateway.profile.registers import COMMUNICATION_REGISTERS
 from gateway.store.records import EventType
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -440,3 +444,82 @@ def test_a_broken_link_fails_the_build(tmp_path: Path) -> None:
         built = mkdocs_build(copy / "mkdocs.yml", copy / "site")
         assert built.returncode != 0, f"{broken} built"
         assert "no-such" in built.stderr
+
+
+# --- drives and parameters, generated from the profiles -------------------------------------
+
+
+def table_rows_html(fragment: str) -> list[list[str]]:
+    """A built table's body rows, each as its cells' text."""
+    return [
+        [" ".join(cell_text(cell).split()) for cell in re.findall(r"<td>(.*?)</td>", row, re.S)]
+        for row in re.findall(r"<tr>(.*?)</tr>", fragment, re.S)
+        if "<td>" in row
+    ]
+
+
+def test_the_drives_page_has_every_model_register_and_fault(site: Path) -> None:
+    """Every model `model:` takes, with its 2103H code; every communication register; every
+    code of every fault table a model uses, with its keypad code and words."""
+    text = (site / "drives" / "index.html").read_text(encoding="utf-8")
+    rows = table_rows_html(text)
+    by_first = {row[0]: row for row in rows if row}
+    assert len(PROFILES) >= 15
+    for key, profile in PROFILES.items():
+        row = next((r for r in rows if r[0].split(" ")[0] == key), None)
+        assert row is not None, f"model {key} not in the models table"
+        for code in profile.identification:
+            assert format_register(code) in row[2], (key, row)
+    for register in COMMUNICATION_REGISTERS:
+        row = by_first.get(format_register(register.address))
+        assert row is not None, register.name
+        assert row[1] == register.name
+    by_id = built_sections(site, "drives")
+    for profile in PROFILES.values():
+        table = profile.faults
+        if not table.entries:
+            continue
+        section = next(
+            (
+                html
+                for id_, html in by_id.items()
+                if id_.endswith("fault-table") and f"<code>{profile.key}</code>" in html
+            ),
+            None,
+        )
+        assert section is not None, f"no fault table names {profile.key}"
+        shown = {row[0]: row for row in table_rows_html(section)}
+        for code, (short, words) in table.entries.items():
+            assert shown.get(str(code)) == [str(code), short, words], (profile.key, code)
+
+
+def test_the_parameters_page_has_every_row_of_every_table_with_its_source(site: Path) -> None:
+    by_id = built_sections(site, "parameters")
+    tables = sources()["tables"]
+    assert {"common", "gd200a"} <= set(tables)
+    for name, described in tables.items():
+        intro = cell_text(by_id[f"table-{name}"])
+        assert " ".join(described["document"].split()) in " ".join(intro.split())
+        rows = table_rows(name)
+        for parameter in rows:
+            section = by_id[f"{name}-{parameter.group.lower()}"]
+            if described.get("groups"):
+                assert described["groups"][parameter.group] in cell_text(section)
+            row = next((r for r in table_rows_html(section) if r[0] == parameter.name), None)
+            assert row is not None, f"{name} {parameter.name} not on the page"
+            assert row[1] == " ".join(parameter.description.split())
+            default = "depends on model" if not parameter.default_known else None
+            assert default is None or row[3] == default
+    # The GD200A manual's P00.03, as the CSV has it.
+    p0003 = next(r for r in table_rows_html(by_id["gd200a-p00"]) if r[0] == "P00.03")
+    assert p0003[2:5] == ["P00.04 ... 400.00 Hz", "50.00 Hz", "stopped only"]
+
+
+def test_every_parameter_table_file_is_described_in_the_sources() -> None:
+    """The page lists the tables `parameter_sources.yaml` names: a CSV table dropped beside it
+    without its entry (its document, its groups' pages) would be on no page and in no series."""
+    data = ROOT / "gateway" / "profile" / "data"
+    named = {t["file"] for t in sources()["tables"].values() if "file" in t}
+    files = {path.name for path in data.glob("*.csv")}
+    assert files, "no parameter table in gateway/profile/data/"
+    assert files <= named, f"tables in no entry of parameter_sources.yaml: {files - named}"

@@ -15,6 +15,7 @@ from typing import Any
 from mkdocs.exceptions import PluginError
 
 from gateway.config import reference
+from gateway.profile import reference as drives
 
 
 def configuration_keys() -> str:
@@ -29,6 +30,10 @@ def configuration_keys() -> str:
 
 GENERATORS: dict[str, Callable[[], str]] = {
     "configuration-keys": configuration_keys,
+    "drive-models": drives.series_markdown,
+    "communication-registers": drives.registers_markdown,
+    "fault-tables": drives.faults_markdown,
+    "parameter-tables": drives.parameters_markdown,
 }
 
 MARKER = re.compile(r"^<!-- generated: ([\w-]+) -->$", re.MULTILINE)
