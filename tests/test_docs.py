@@ -23,13 +23,8 @@ the one CI runs.
 from __future__ import annotations
 
 import argparse
-import html
-import importlib.util
-import os
 import re
 import shutil
-import subprocess
-import sys
 import types
 import typing
 from collections.abc import Iterator
@@ -49,12 +44,11 @@ from gateway.profile.models import PROFILES
 from gateway.profile.parameter_tables import sources, table_rows
 from gateway.profile.registers import COMMUNICATION_REGISTERS
 from gateway.store.records import EventType
+from tests.support.site import DOCS, cell_text, mkdocs_build, table_rows_html
 
 ROOT = Path(__file__).resolve().parent.parent
-DOCS = ROOT / "docs"
 PAGES = DOCS / "pages"
 METRIC_FAMILIES = Path(__file__).parent / "fixtures" / "metric_families.tsv"
-BUILD_TIMEOUT_S = 60
 
 
 def page(name: str) -> str:
@@ -372,21 +366,6 @@ def test_the_readmes_links_into_the_docs_lead_to_pages() -> None:
 # --- the site builds --------------------------------------------------------------------------
 
 
-def mkdocs_build(config: Path, site: Path) -> subprocess.CompletedProcess[str]:
-    if importlib.util.find_spec("mkdocs") is None or importlib.util.find_spec("material") is None:
-        pytest.fail(
-            "MkDocs or its Material theme is missing: pip install -e '.[docs]' (.ci/test does)"
-        )
-    return subprocess.run(
-        [sys.executable, "-m", "mkdocs", "build", "--strict", "-f", str(config), "-d", str(site)],
-        capture_output=True,
-        text=True,
-        timeout=BUILD_TIMEOUT_S,
-        check=False,
-        env={**os.environ, "NO_MKDOCS_2_WARNING": "1"},
-    )
-
-
 @pytest.fixture(scope="module")
 def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The site as `mkdocs build --strict` makes it, once for the tests that read it."""
@@ -416,10 +395,6 @@ def built_sections(site: Path, name: str) -> dict[str, str]:
     return dict(re.findall(r'<h[23] id="([^"]+)".*?</h[23]>(.*?)(?=<h[23] |$)', text, re.S))
 
 
-def cell_text(fragment: str) -> str:
-    return html.unescape(re.sub(r"<[^>]+>", "", fragment))
-
-
 def test_the_configuration_page_has_every_key_with_its_description(site: Path) -> None:
     """Under its section's heading, each key has a row that carries its description."""
     by_id = built_sections(site, "configuration")
@@ -447,15 +422,6 @@ def test_a_broken_link_fails_the_build(tmp_path: Path) -> None:
 
 
 # --- drives and parameters, generated from the profiles -------------------------------------
-
-
-def table_rows_html(fragment: str) -> list[list[str]]:
-    """A built table's body rows, each as its cells' text."""
-    return [
-        [" ".join(cell_text(cell).split()) for cell in re.findall(r"<td>(.*?)</td>", row, re.S)]
-        for row in re.findall(r"<tr>(.*?)</tr>", fragment, re.S)
-        if "<td>" in row
-    ]
 
 
 def test_the_drives_page_has_every_model_register_and_fault(site: Path) -> None:
@@ -523,3 +489,15 @@ def test_every_parameter_table_file_is_described_in_the_sources() -> None:
     files = {path.name for path in data.glob("*.csv")}
     assert files, "no parameter table in gateway/profile/data/"
     assert files <= named, f"tables in no entry of parameter_sources.yaml: {files - named}"
+
+
+def test_the_benchmark_page_shows_a_run_the_bench_wrote_with_todays_columns() -> None:
+    """docs/bench/run.md comes from `bench --page`, not a hand: its table has the columns the
+    bench prints now (a column added to the bench means running it again for the page)."""
+    from gateway.instruments.bench.page import WRITTEN_BY
+    from gateway.instruments.bench.report import header
+
+    run = (DOCS / "bench" / "run.md").read_text(encoding="utf-8")
+    assert run.startswith(WRITTEN_BY)
+    assert f"```text\n{header()}\n" in run
+    assert "<!-- generated: benchmark-run -->" in page("benchmark.md")

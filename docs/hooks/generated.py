@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from mkdocs.exceptions import PluginError
 
 from gateway.config import reference
+from gateway.instruments.bench import page
 from gateway.profile import reference as drives
 
 
@@ -28,12 +30,26 @@ def configuration_keys() -> str:
     return reference.markdown(heading="###")
 
 
+BENCH_RUN = Path(__file__).resolve().parent.parent / "bench" / "run.md"
+"""The run `invt-gateway bench --page docs/bench/run.md` wrote, which the Benchmark page shows."""
+
+
+def benchmark_run() -> str:
+    if not BENCH_RUN.is_file():
+        raise PluginError(f"{BENCH_RUN} is missing: run invt-gateway bench --page {BENCH_RUN}")
+    text = BENCH_RUN.read_text(encoding="utf-8")
+    if not text.startswith(page.WRITTEN_BY):
+        raise PluginError(f"{BENCH_RUN} was not written by invt-gateway bench --page")
+    return text
+
+
 GENERATORS: dict[str, Callable[[], str]] = {
     "configuration-keys": configuration_keys,
     "drive-models": drives.series_markdown,
     "communication-registers": drives.registers_markdown,
     "fault-tables": drives.faults_markdown,
     "parameter-tables": drives.parameters_markdown,
+    "benchmark-run": benchmark_run,
 }
 
 MARKER = re.compile(r"^<!-- generated: ([\w-]+) -->$", re.MULTILINE)
