@@ -54,3 +54,10 @@ def test_a_taken_port_names_the_option_that_changes_it(demo_without_mqtt: str) -
     assert result.returncode == EXIT_STARTUP, result.stderr
     assert f"port {port} is already in use" in result.stderr
     assert "change modbus_tcp.host/port (or the option --port)" in result.stderr
+
+
+def test_a_negative_burst_period_is_a_usage_error_not_a_traceback(demo_without_mqtt: str) -> None:
+    result = run_cli("demo", "-c", demo_without_mqtt, "--console-port", "0", "--burst-ms", "-5")
+    assert result.returncode == EXIT_USAGE
+    assert "argument --burst-ms: -5: must be 0 or more" in result.stderr
+    assert "Traceback" not in result.stderr

@@ -68,7 +68,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     adapter.add_argument(
         "--burst-ms",
-        type=float,
+        type=not_negative_ms,
         default=0.0,
         metavar="MS",
         help="the adapter hands replies over in bursts every MS ms (a USB latency timer)",
@@ -82,6 +82,17 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "--echo", action="store_true", help="the adapter echoes every request (echo: false)"
     )
     parser.set_defaults(handler=handle)
+
+
+def not_negative_ms(text: str) -> float:
+    """A duration option: argparse names the option when this refuses the value."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of milliseconds") from None
+    if not value >= 0:  # NaN too
+        raise argparse.ArgumentTypeError(f"{text}: must be 0 or more")
+    return value
 
 
 def demo_config_text(path: str | None) -> str:
