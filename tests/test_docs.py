@@ -478,7 +478,9 @@ def test_the_parameters_page_has_every_row_of_every_table_with_its_source(site: 
             assert default is None or row[3] == default
     # The GD200A manual's P00.03, as the CSV has it.
     p0003 = next(r for r in table_rows_html(by_id["gd200a-p00"]) if r[0] == "P00.03")
-    assert p0003[2:5] == ["P00.04 ... 400.00 Hz", "50.00 Hz", "stopped only"]
+    assert p0003[2:5] == ["0.00 ... 400.00 Hz, at least P00.04", "50.00 Hz", "stopped only"]
+    bar_code = next(r for r in table_rows_html(by_id["gd200a-p07"]) if r[0] == "P07.21")
+    assert "set by the factory: the drive's bar code, never restored" in bar_code[5]
 
 
 def test_every_parameter_table_file_is_described_in_the_sources() -> None:

@@ -11,7 +11,6 @@ models or tables by hand: a series added to a profile module, a table added to
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
-from dataclasses import replace
 
 from gateway.profile.addressing import format_register
 from gateway.profile.faults import FaultTable
@@ -171,27 +170,13 @@ def faults_markdown(heading: str = "###") -> str:
     return "\n".join(out)
 
 
-def _shown(parameter: Parameter, raw: int) -> str:
-    """A value as `params` and the console show it, without the choice's words."""
-    return replace(parameter, choices=()).show(raw)
-
-
-def _range(parameter: Parameter) -> str:
-    low = parameter.minimum_from or _shown(parameter, parameter.word(parameter.minimum))
-    high = parameter.maximum_from or _shown(parameter, parameter.word(parameter.maximum))
-    return f"{low} ... {high}"
-
-
-def _default(parameter: Parameter) -> str:
-    if not parameter.default_known:
-        return "depends on model"
-    return _shown(parameter, parameter.default)
-
-
 def _setting(parameter: Parameter) -> str:
     parts = [f"{value}: {words}" for value, words in parameter.choices]
     parts += [parameter.hint] if parameter.hint else []
     parts += [f"**writing it {parameter.action}**"] if parameter.action else []
+    parts += (
+        [f"set by the factory: {parameter.factory}, never restored"] if parameter.factory else []
+    )
     if parameter.reinitialises:
         parts.append("resets " + ", ".join(parameter.reinitialises))
     parts += [f"*{parameter.note}*"] if parameter.note else []
@@ -206,8 +191,8 @@ def parameter_rows(rows: Iterable[Parameter]) -> str:
             (
                 f"`{row.name}`",
                 row.description,
-                _range(row),
-                _default(row),
+                row.range_text(),
+                row.shown_default() or "depends on model",
                 CHANGE_MARKS["●" if row.read_only else "◎" if row.locked_while_running else "○"],
                 _setting(row),
             )
