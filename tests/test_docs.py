@@ -39,7 +39,7 @@ from gateway.config import GatewayConfig, reference
 from gateway.mqtt.kinds import BRIDGE_REQUESTS
 from gateway.mqtt.topics import Topics
 from gateway.profile.addressing import format_register
-from gateway.profile.device_files import _DeviceSpec, device_profile
+from gateway.profile.device_files import DEVICE_FILE, _DeviceSpec, device_profile
 from gateway.profile.models import PROFILES
 from gateway.profile.parameter_tables import sources, table_rows
 from gateway.profile.registers import COMMUNICATION_REGISTERS
@@ -131,13 +131,14 @@ def test_every_configuration_key_is_shown_in_an_example() -> None:
     assert not missing, f"configuration keys in no YAML example of docs/pages/: {missing}"
 
 
-def test_every_configuration_key_has_a_description() -> None:
-    """The Configuration page's tables are generated from the models' field docstrings: a key
-    without one would show an empty description. The message names each key and the line of the
-    model to write it under."""
-    keys = list(reference.config_keys())
-    assert [key.path for key in keys] == list(config_keys(GatewayConfig))  # the same walk
-    missing = reference.undocumented()
+@pytest.mark.parametrize("model", [GatewayConfig, DEVICE_FILE], ids=["config", "device-file"])
+def test_every_configuration_key_has_a_description(model: type[BaseModel]) -> None:
+    """The Configuration and Other Modbus devices pages' tables are generated from the models'
+    field docstrings: a key without one would show an empty description. The message names
+    each key and the line of the model to write it under."""
+    keys = list(reference.config_keys(model))
+    assert [key.path for key in keys] == list(config_keys(model))  # the same walk
+    missing = reference.undocumented(model)
     assert not missing, "configuration keys without a description:\n" + "\n".join(missing)
 
 
@@ -395,17 +396,24 @@ def built_sections(site: Path, name: str) -> dict[str, str]:
     return dict(re.findall(r'<h[23] id="([^"]+)".*?</h[23]>(.*?)(?=<h[23] |$)', text, re.S))
 
 
-def test_the_configuration_page_has_every_key_with_its_description(site: Path) -> None:
+@pytest.mark.parametrize(
+    ("model", "name"), [(GatewayConfig, "configuration"), (DEVICE_FILE, "devices")]
+)
+def test_the_reference_pages_have_every_key_with_its_description(
+    site: Path, model: type[BaseModel], name: str
+) -> None:
     """Under its section's heading, each key has a row that carries its description."""
-    by_id = built_sections(site, "configuration")
+    by_id = built_sections(site, name)
     missing = []
-    for key in reference.config_keys():
+    keys = list(reference.config_keys(model))
+    assert len(keys) > 30
+    for key in keys:
         section = by_id.get(reference.anchor(key.path.rpartition(".")[0] or "Top level")[1:], "")
         row = re.search(rf"<td><code>{re.escape(key.key)}</code>.*?</tr>", section, re.S)
         text = cell_text(row.group(0)) if row else ""
         if key.description.replace("`", "") not in " ".join(text.split()):
             missing.append(key.path)
-    assert not missing, f"no row with its description on the built Configuration page: {missing}"
+    assert not missing, f"no row with its description on the built {name} page: {missing}"
 
 
 def test_a_broken_link_fails_the_build(tmp_path: Path) -> None:

@@ -14,20 +14,30 @@ from pathlib import Path
 from typing import Any
 
 from mkdocs.exceptions import PluginError
+from pydantic import BaseModel
 
-from gateway.config import reference
+from gateway.config import GatewayConfig, reference
 from gateway.instruments.bench import page
 from gateway.profile import reference as drives
+from gateway.profile.device_files import DEVICE_FILE
 
 
 def configuration_keys() -> str:
-    missing = reference.undocumented()
+    return documented_keys(GatewayConfig, "configuration keys", "Configuration")
+
+
+def device_file_keys() -> str:
+    return documented_keys(DEVICE_FILE, "device-file keys", "Other Modbus devices")
+
+
+def documented_keys(model: type[BaseModel], what: str, page: str) -> str:
+    missing = reference.undocumented(model)
     if missing:
         raise PluginError(
-            "configuration keys without a description (the Configuration page is generated "
-            "from the models' field docstrings):\n  " + "\n  ".join(missing)
+            f"{what} without a description (the {page} page is generated from the models' "
+            "field docstrings):\n  " + "\n  ".join(missing)
         )
-    return reference.markdown(heading="###")
+    return reference.markdown(model, heading="###")
 
 
 BENCH_RUN = Path(__file__).resolve().parent.parent / "bench" / "run.md"
@@ -45,6 +55,7 @@ def benchmark_run() -> str:
 
 GENERATORS: dict[str, Callable[[], str]] = {
     "configuration-keys": configuration_keys,
+    "device-file-keys": device_file_keys,
     "drive-models": drives.series_markdown,
     "communication-registers": drives.registers_markdown,
     "fault-tables": drives.faults_markdown,

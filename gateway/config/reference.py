@@ -17,6 +17,7 @@ import types
 import typing
 from collections.abc import Iterator
 from dataclasses import dataclass
+from enum import Enum
 from functools import cache
 from pathlib import Path
 
@@ -193,6 +194,8 @@ def _type_text(annotation: object) -> str:
         return f"map of {_type_text(arguments[0])} → {_type_text(arguments[1])}"
     if isinstance(annotation, type) and issubclass(annotation, BaseModel):
         return "section"
+    if isinstance(annotation, type) and issubclass(annotation, Enum):
+        return " or ".join(f"`{member.value}`" for member in annotation)
     names = {
         bool: "boolean",
         int: "integer",
@@ -246,6 +249,10 @@ def _number(value: object) -> str:
 
 
 def _yaml_value(value: object) -> str:
+    if isinstance(value, Enum):
+        return _yaml_value(value.value)
+    if value == "":
+        return '""'
     if value is None:
         return "null"
     if isinstance(value, bool):
