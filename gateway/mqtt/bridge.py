@@ -19,6 +19,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import Awaitable, Sequence
+from typing import TYPE_CHECKING
 
 import aiomqtt
 
@@ -40,6 +41,9 @@ from gateway.routing import Router
 from gateway.settings import DriveSettings, MqttSettings
 from gateway.store import EventStore
 from gateway.tasks import ServiceTasks, side_by_side
+
+if TYPE_CHECKING:
+    from gateway.sparkplug.edge_node import SparkplugNode
 
 log = logging.getLogger(__name__)
 
@@ -91,6 +95,15 @@ class MqttBridge:
         self.settings = mqtt
         self.tasks = tasks
         self._discovery_cleaned = False
+        self.sparkplug: SparkplugNode | None = None
+        """The Sparkplug B edge node beside the JSON topics (`mqtt.sparkplug`), on its own
+        connection; it takes what the poller hands the bridge too."""
+        if mqtt.sparkplug is not None:
+            from gateway.sparkplug.edge_node import SparkplugNode  # protobuf only when asked
+
+            self.sparkplug = SparkplugNode(
+                mqtt, mqtt.sparkplug, served, router, poller, tasks, events
+            )
 
     @property
     def connected(self) -> asyncio.Event:
@@ -119,9 +132,13 @@ class MqttBridge:
 
     def state_updated(self, drive: str, telemetry: Telemetry) -> None:
         self.outbox.put_state(drive, telemetry)
+        if self.sparkplug is not None:
+            self.sparkplug.state_updated(drive, telemetry)
 
     def availability_changed(self, drive: str, online: bool) -> None:
         self.outbox.put_availability(drive, online)
+        if self.sparkplug is not None:
+            self.sparkplug.availability_changed(drive, online)
 
     def drive_event(self, event: DriveEvent) -> None:
         pass  # events reach the broker from the store, where the store's own listener put them
@@ -131,6 +148,8 @@ class MqttBridge:
     async def start(self) -> None:
         await check_alone(self.settings, self.topics)
         await self.session.start()
+        if self.sparkplug is not None:
+            await self.sparkplug.start()
 
     async def stop(self) -> None:
         await self.session.say_offline()
@@ -139,6 +158,8 @@ class MqttBridge:
             self.lanes.close(STOP_TASK_BUDGET_S),
             self.session.stop(STOP_TASK_BUDGET_S),
         ]
+        if self.sparkplug is not None:
+            stopping.append(self.sparkplug.stop())
         await asyncio.gather(*stopping)
 
     # -- one connection ----------------------------------------------------------------------
