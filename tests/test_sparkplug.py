@@ -5,6 +5,7 @@ Every payload is decoded, and every NCMD and DCMD encoded, by Eclipse Tahu's Jav
 
 from __future__ import annotations
 
+import asyncio
 import itertools
 import time
 import uuid
@@ -18,7 +19,7 @@ from gateway.instruments.simulator import SimulatedLine
 from gateway.profile.states import RunState
 from tests.support import eventually, running_gateway
 from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
-from tests.support.mqtt_setup import mqtt_config, simulated_line
+from tests.support.mqtt_setup import DRIVES, mqtt_config, simulated_line
 from tests.support.sparkplug import (
     Message,
     SparkplugHost,
@@ -207,3 +208,83 @@ async def test_dcmd_runs_the_drive_and_ddata_acknowledges(plant: Plant) -> None:
     stop = born["commands/stop"]["alias"]
     await host.command("DCMD", [{"alias": stop, "type": "Boolean", "value": True}], device="pump1")
     await eventually(lambda: plant.state(1) is RunState.STOPPED, within_s=10)
+
+
+RUN_FORWARD = [{"name": "commands/run_forward", "type": "Boolean", "value": True}]
+
+
+async def test_retained_dcmd_is_refused_and_cleared(plant: Plant, mosquitto: Mosquitto) -> None:
+    host = plant.host
+    await host.wait_for(host.topic("DBIRTH", "pump1"))
+    await host.command("DCMD", RUN_FORWARD, device="pump1", retain=True)
+    dcmd = host.topic("DCMD", "pump1")
+    await plant.events.wait_for(
+        f"{plant.base}/bridge/event",
+        lambda e: e["type"] == "retained_command_cleared" and e["data"]["topic"] == dcmd,
+    )
+    assert plant.state(1) is RunState.STOPPED
+    # Gone from the broker: a subscriber that comes now gets no retained command.
+    async with mqtt_probe(mosquitto, dcmd) as late:
+        await asyncio.sleep(0.3)
+        assert [m for m in late.messages if m.payload] == []
+    assert plant.state(1) is RunState.STOPPED
+
+
+async def test_stale_dcmd_is_refused(plant: Plant, caplog: pytest.LogCaptureFixture) -> None:
+    host = plant.host
+    await host.wait_for(host.topic("DBIRTH", "pump1"))
+    await host.command("DCMD", RUN_FORWARD, device="pump1", age_s=3600)
+    await eventually(lambda: "DCMD for pump1 refused (stale)" in caplog.text)
+    assert plant.state(1) is RunState.STOPPED
+
+
+async def test_dcmd_of_a_monitoring_only_gateway_is_refused(
+    mosquitto: Mosquitto, codec: TahuCodec, caplog: pytest.LogCaptureFixture
+) -> None:
+    group = unique_group()
+    with simulated_line() as line:
+        sparkplug = {"group_id": group, "edge_node_id": "watch"}
+        config = mqtt_config(
+            line.path, mosquitto, unique_base_topic(), sparkplug=sparkplug, commands_enabled=False
+        )
+        async with (
+            sparkplug_host(mosquitto, codec, group, "watch") as host,
+            running_gateway(config),
+        ):
+            born = metrics((await host.wait_for(host.topic("DBIRTH", "pump1"))).payload)
+            assert "commands/run_forward" not in born
+            assert born["set_frequency_hz"]["properties"]["readOnly"]["value"] is True
+            await host.command("DCMD", RUN_FORWARD, device="pump1")
+            await eventually(lambda: "refused (commands_disabled)" in caplog.text)
+            with line.lock:
+                assert line.drives[1].state(time.monotonic()) is RunState.STOPPED
+
+
+async def test_ddata_keeps_the_deadband(mosquitto: Mosquitto, codec: TahuCodec) -> None:
+    """`mqtt.report`'s deadband holds for DDATA too: a move inside it is not sent."""
+    group = unique_group()
+    with simulated_line() as line:
+        line.set_output_current(1, 7.0)
+        sparkplug = {"group_id": group, "edge_node_id": "banded"}
+        report = {"keys": {"output_current_a": {"deadband": 1.0}}}
+        drives = [{**DRIVES[0], "report": report}, DRIVES[1]]
+        config = mqtt_config(
+            line.path, mosquitto, unique_base_topic(), drives=drives, sparkplug=sparkplug
+        )
+        async with (
+            sparkplug_host(mosquitto, codec, group, "banded") as host,
+            running_gateway(config),
+        ):
+            born = metrics((await host.wait_for(host.topic("DBIRTH", "pump1"))).payload)
+            amps = born["output_current_a"]["alias"]
+            mark = host.mark
+            line.set_output_current(1, 7.6)  # inside the deadband of 1 A
+            await asyncio.sleep(1.0)  # three polls of the running values at least
+            line.set_output_current(1, 8.5)  # beyond it
+            data = await host.wait_for(
+                host.topic("DDATA", "pump1"),
+                lambda p: any(m["alias"] == amps for m in p["metrics"]),
+                after=mark,
+            )
+            sent = [m["value"] for m in data.payload["metrics"] if m["alias"] == amps]
+            assert sent == [8.5]

@@ -166,7 +166,9 @@ class SparkplugNode:
     async def _connected(self, client: aiomqtt.Client) -> None:
         subscriptions = [self.topics.node("NCMD"), self.topics.device_commands]
         if self.host is not None:
-            self.host.online = False  # until this broker's retained STATE says otherwise
+            # Offline until this broker's retained STATE says otherwise; its timestamps are
+            # compared with this broker's only (the host's birth and will share one).
+            self.host.online, self.host.timestamp = False, -1
             subscriptions.append(host_state(self.host.host_id))
         await self.session.subscribe(client, subscriptions)
         self.session.connected.set()

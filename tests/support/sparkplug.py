@@ -141,10 +141,16 @@ class SparkplugHost:
             await asyncio.sleep(0.02)
 
     async def command(
-        self, kind: str, metrics: list[dict[str, Any]], device: str | None = None, **publish: Any
+        self,
+        kind: str,
+        metrics: list[dict[str, Any]],
+        device: str | None = None,
+        age_s: float = 0.0,
+        **publish: Any,
     ) -> None:
-        """An NCMD or DCMD as Tahu's codec encodes it, stamped now."""
-        data = self.codec.encode({"timestamp": int(time.time() * 1000), "metrics": metrics})
+        """An NCMD or DCMD as Tahu's codec encodes it, stamped `age_s` ago."""
+        stamp = int((time.time() - age_s) * 1000)
+        data = self.codec.encode({"timestamp": stamp, "metrics": metrics})
         await self.probe.publish(self.topic(kind, device), data, **publish)
 
 
