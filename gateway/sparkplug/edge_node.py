@@ -105,9 +105,9 @@ class SparkplugNode:
         self.events = events
         self.gateway_id = mqtt.gateway_id
         self.host = PrimaryHost(sparkplug.primary_host_id) if sparkplug.primary_host_id else None
-        self.bd_seq = -1
-        """The `bdSeq` of the last CONNECT's will (-1: none yet); the NBIRTH repeats it."""
-        self._seq = 0
+        self.bd_seq = payload.SequenceNumber()
+        """The `bdSeq` of the last CONNECT's will; the NBIRTH repeats it."""
+        self.seq = payload.SequenceNumber()
         self._wake = asyncio.Event()
         """Something to publish, a rebirth asked for, or the primary host changed."""
         self._rebirth = False
@@ -140,12 +140,11 @@ class SparkplugNode:
 
     def will(self) -> aiomqtt.Will:
         """The NDEATH of the CONNECT about to be sent: the next `bdSeq`."""
-        self.bd_seq = (self.bd_seq + 1) % 256
-        death = payload.node_death(self.bd_seq, _now_ms())
+        death = payload.node_death(self.bd_seq.next(), _now_ms())
         return aiomqtt.Will(self.topics.node("NDEATH"), death, qos=QOS_DEATH, retain=False)
 
     async def farewell(self, client: aiomqtt.Client, timeout_s: float) -> None:
-        death = payload.node_death(self.bd_seq, _now_ms())
+        death = payload.node_death(self.bd_seq.value, _now_ms())
         await client.publish(
             self.topics.node("NDEATH"), death, qos=QOS_DEATH, retain=False, timeout=timeout_s
         )
@@ -217,12 +216,11 @@ class SparkplugNode:
         raise PrimaryHostOffline(f"primary host {self.host.host_id} went offline")
 
     async def _birth(self, client: aiomqtt.Client) -> None:
-        self._seq = 0
         self.outbox.take()  # the births carry the values of now
         for device in self.devices.values():
             device.forget()
-        now = _now_ms()
-        await self._send(client, self.topics.node("NBIRTH"), payload.birth(0, now, self._node()))
+        birth = payload.birth(self.seq.restart(), _now_ms(), self._node())
+        await self._send(client, self.topics.node("NBIRTH"), birth)
         self._born = True
         for drive, device in self.devices.items():
             telemetry = self.poller.telemetry(drive)
@@ -231,13 +229,13 @@ class SparkplugNode:
         log.info(
             "Sparkplug: born as %s (bdSeq %d, %d devices)",
             self.topics.node("NBIRTH"),
-            self.bd_seq,
+            self.bd_seq.value,
             sum(device.born for device in self.devices.values()),
         )
 
     def _node(self) -> list[BirthMetric]:
         return [
-            BirthMetric(payload.BD_SEQ, None, payload.INT64, self.bd_seq),
+            BirthMetric(payload.BD_SEQ, None, payload.INT64, self.bd_seq.value),
             BirthMetric(
                 REBIRTH, self.aliases.of(NODE, REBIRTH), payload.BOOLEAN, False, {"readOnly": False}
             ),
@@ -262,7 +260,7 @@ class SparkplugNode:
             device = self.devices[drive]
             if not online and device.born:
                 topic = self.topics.device("DDEATH", drive)
-                await self._send(client, topic, payload.device_death(self._next(), _now_ms()))
+                await self._send(client, topic, payload.device_death(self.seq.next(), _now_ms()))
                 device.forget()
             del pending.availability[drive]
         while pending.states:
@@ -279,19 +277,15 @@ class SparkplugNode:
         if changes is None:
             await self._device_birth(client, device, telemetry)
         elif changes:
-            data = payload.data(self._next(), _now_ms(), changes)
+            data = payload.data(self.seq.next(), _now_ms(), changes)
             await self._send(client, self.topics.device("DDATA", device.device), data)
 
     async def _device_birth(
         self, client: aiomqtt.Client, device: DeviceMetrics, telemetry: Telemetry
     ) -> None:
         metrics = device.birth(telemetry, time.monotonic())
-        birth = payload.birth(self._next(), _now_ms(), metrics)
+        birth = payload.birth(self.seq.next(), _now_ms(), metrics)
         await self._send(client, self.topics.device("DBIRTH", device.device), birth)
-
-    def _next(self) -> int:
-        self._seq = (self._seq + 1) % 256
-        return self._seq
 
     async def _send(self, client: aiomqtt.Client, topic: str, data: bytes) -> None:
         await client.publish(topic, data, qos=QOS_DATA, retain=False)

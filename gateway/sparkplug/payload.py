@@ -38,6 +38,27 @@ BD_SEQ: Final = "bdSeq"
 """The NBIRTH's and NDEATH's metric that pairs them (specification 3.0)."""
 
 
+SEQUENCE_MODULO: Final = 256
+"""`seq` and `bdSeq` run 0 to 255, then 0 again."""
+
+
+class SequenceNumber:
+    """A Sparkplug sequence number: `seq` of an edge node's messages, `bdSeq` of its CONNECTs."""
+
+    def __init__(self) -> None:
+        self.value = -1
+        """The last one handed out; -1: none yet."""
+
+    def next(self) -> int:
+        self.value = (self.value + 1) % SEQUENCE_MODULO
+        return self.value
+
+    def restart(self) -> int:
+        """An NBIRTH's: 0, and the next message counts on from it."""
+        self.value = 0
+        return 0
+
+
 def datatype_of(value: Value) -> int:
     if isinstance(value, bool):
         return BOOLEAN
