@@ -86,7 +86,8 @@ async def test_births_carry_the_simulated_drives_values(plant: Plant) -> None:
     node = metrics(nbirth.payload)
     assert node["bdSeq"]["type"] == "Int64"
     assert node["Node Control/Rebirth"] == {**node["Node Control/Rebirth"], "value": False}
-    assert "alias" in node["Node Control/Rebirth"]
+    assert "alias" not in node["Node Control/Rebirth"], "a rebirth needs no alias known"
+    assert "alias" in node["bdSeq"]
     assert not nbirth.retain
 
     pump = (await host.wait_for(host.topic("DBIRTH", "pump1"), after=nbirth.index)).payload

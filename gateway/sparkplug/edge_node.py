@@ -111,7 +111,9 @@ class SparkplugNode:
         self._wake = asyncio.Event()
         """Something to publish, a rebirth asked for, or the primary host changed."""
         self._rebirth = False
-        self._born = False
+        self._born = asyncio.Event()
+        """Set once this connection's NBIRTH is out: the birth comes before anything else the
+        node publishes (clearing a retained DCMD waits for it)."""
         own = dataclasses.replace(mqtt, client_id=f"{mqtt.client_id}-sparkplug")
         self.session = Session(
             own, Topics(mqtt.base_topic), self.stats, tasks, self._connected, self._lost, self
@@ -180,7 +182,7 @@ class SparkplugNode:
         )
 
     def _lost(self) -> None:
-        self._born = False
+        self._born.clear()
         self.lanes.drop_waiting()
 
     async def _publish(self, client: aiomqtt.Client) -> None:
@@ -221,7 +223,7 @@ class SparkplugNode:
             device.forget()
         birth = payload.birth(self.seq.restart(), _now_ms(), self._node())
         await self._send(client, self.topics.node("NBIRTH"), birth)
-        self._born = True
+        self._born.set()
         for drive, device in self.devices.items():
             telemetry = self.poller.telemetry(drive)
             if self.poller.availability(drive) is not False and "last_seen" in telemetry:
@@ -235,10 +237,15 @@ class SparkplugNode:
 
     def _node(self) -> list[BirthMetric]:
         return [
-            BirthMetric(payload.BD_SEQ, None, payload.INT64, self.bd_seq.value),
             BirthMetric(
-                REBIRTH, self.aliases.of(NODE, REBIRTH), payload.BOOLEAN, False, {"readOnly": False}
+                payload.BD_SEQ,
+                self.aliases.of(NODE, payload.BD_SEQ),
+                payload.INT64,
+                self.bd_seq.value,
             ),
+            # No alias for it: a host must be able to ask for a rebirth knowing nothing of this
+            # node's aliases (the specification forbids one).
+            BirthMetric(REBIRTH, None, payload.BOOLEAN, False, {"readOnly": False}),
             BirthMetric(
                 "Node Info/gateway_id",
                 self.aliases.of(NODE, "Node Info/gateway_id"),
@@ -339,9 +346,8 @@ class SparkplugNode:
         except ValueError as exc:
             log.warning("Sparkplug: NCMD ignored: %s", exc)
             return
-        rebirth_alias = self.aliases.of(NODE, REBIRTH)
         for metric in received.metrics:
-            if (metric.name == REBIRTH or metric.alias == rebirth_alias) and metric.value is True:
+            if metric.name == REBIRTH and metric.value is True:
                 self._rebirth = True
                 self._wake.set()
 
@@ -374,6 +380,7 @@ class SparkplugNode:
 
     async def _clear_retained(self, client: aiomqtt.Client, incoming: Incoming) -> None:
         """Left on the broker, a retained DCMD would come again to every subscriber."""
+        await self._born.wait()
         try:
             await client.publish(incoming.topic, b"", qos=QOS_DEATH, retain=True)
         except aiomqtt.MqttError:
