@@ -7,6 +7,9 @@ A feature of the application, put together from its jobs:
   events the store keeps until the broker acknowledged them;
 - `dispatcher`: each received message to its kind (`kinds`), run in its lane (`lanes`).
 
+With `mqtt.sparkplug`, the Sparkplug B edge node (`gateway.sparkplug`) runs beside it on its
+own connection: the bridge hands it what the poller hands the bridge, and starts and stops it.
+
 On every connection: online, info, subscriptions, discovery, every drive's availability and
 state, then the publisher and the dispatcher run side by side until the connection is lost; what
 had not started in the lanes is dropped with it (a command that came on a lost connection never

@@ -9,7 +9,11 @@
              once it is subscribed
     lost     any error ends the session; `on_lost`; wait (jittered, capped backoff), connect again
              to the next of `mqtt.servers` (a cluster's nodes, in turn)
-    stop     publish offline, end the loop
+    stop     say goodbye (`Presence.farewell`: the bridge's "offline", the Sparkplug edge
+             node's NDEATH), end the loop
+
+The last will is the `Presence`'s too, made anew for each attempt (Sparkplug's bdSeq counts
+CONNECTs).
 
 The session knows nothing of what is published or received: that is the publisher's and the
 dispatcher's.
