@@ -17,6 +17,7 @@ from typing import Any
 import pytest
 
 from gateway.config import MqttConfig
+from gateway.settings import runtime_settings
 from tests.support import free_port, running_gateway
 from tests.support.mosquitto import Mosquitto, mqtt_probe, running_mosquitto, unique_base_topic
 from tests.support.mqtt_setup import FAST_POLL, mqtt_config, simulated_line
@@ -132,3 +133,27 @@ async def test_primary_host_state_decides_where_and_when(tmp_path: Path, codec: 
 
 def _births(host: SparkplugHost, after: int) -> list[str]:
     return [m.topic for m in host.messages(after) if "BIRTH" in m.topic]
+
+
+async def test_a_reload_ends_the_session_with_an_ndeath_and_counts_bdseq_on(
+    mosquitto: Mosquitto, codec: TahuCodec
+) -> None:
+    group = f"plant-{uuid.uuid4().hex[:8]}"
+    with simulated_line() as line:
+        config = mqtt_config(
+            line.path, mosquitto, unique_base_topic(), sparkplug={"group_id": group}
+        )
+        async with (
+            sparkplug_host(mosquitto, codec, group, "test") as host,
+            running_gateway(config) as app,
+        ):
+            first = await host.wait_for(host.topic("NBIRTH"))
+            await host.wait_for(host.topic("DBIRTH", "fan2"), after=first.index)
+            assert config.mqtt is not None
+            changed = config.mqtt.model_copy(update={"publish_interval_s": 30.0})
+            await app.reload(runtime_settings(config.model_copy(update={"mqtt": changed})))
+            death = await host.wait_for(host.topic("NDEATH"), after=first.index)
+            bd_seq = values(first.payload)["bdSeq"]
+            assert values(death.payload) == {"bdSeq": bd_seq}
+            again = await host.wait_for(host.topic("NBIRTH"), after=death.index)
+            assert values(again.payload)["bdSeq"] == (bd_seq + 1) % 256

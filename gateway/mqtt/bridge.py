@@ -108,6 +108,12 @@ class MqttBridge:
                 mqtt, mqtt.sparkplug, served, router, poller, tasks, events
             )
 
+    def continue_from(self, old: MqttBridge) -> None:
+        """A reload's new bridge after `old`: the Sparkplug bdSeq counts on (it counts the
+        CONNECTs of the gateway's run, not of one bridge: a host pairs births and deaths by it)."""
+        if self.sparkplug is not None and old.sparkplug is not None:
+            self.sparkplug.bd_seq.value = old.sparkplug.bd_seq.value
+
     @property
     def connected(self) -> asyncio.Event:
         return self.session.connected

@@ -89,3 +89,25 @@ def test_dcmd_metrics_as_set_payloads() -> None:
         "output_current_a: not a writable metric of pump1",
         "commands/launch: pump1 has no such command",
     ]
+
+
+def test_a_device_files_writable_point() -> None:
+    """An SDM630's `demand_period` (writable in its file) takes a DCMD as `{"point", "value"}`;
+    its read-only points don't, and it has no commands to declare."""
+    meter = get_profile("sdm630")
+    report = ExceptionReport(meter.typed_points)
+    metrics = DeviceMetrics("meter1", meter, report, Aliases(), True)
+    born = {m.name: m for m in metrics.birth({"demand_period": 15.0, "frequency": 50.0}, 0.0)}
+    assert born["demand_period"].properties == {"readOnly": False, "engUnit": "min"}
+    assert born["frequency"].properties == {"readOnly": True, "engUnit": "Hz"}
+    assert not any(name.startswith("commands/") for name in born)
+    asked = Received(
+        None,
+        (
+            ReceivedMetric("demand_period", None, 10, 30.0),
+            ReceivedMetric("frequency", None, 10, 60.0),
+        ),
+    )
+    command = device_command(asked, metrics)
+    assert command.payloads == [{"point": "demand_period", "value": 30.0}]
+    assert command.problems == ["frequency: not a writable metric of meter1"]
