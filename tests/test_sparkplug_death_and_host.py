@@ -157,3 +157,37 @@ async def test_a_reload_ends_the_session_with_an_ndeath_and_counts_bdseq_on(
             assert values(death.payload) == {"bdSeq": bd_seq}
             again = await host.wait_for(host.topic("NBIRTH"), after=death.index)
             assert values(again.payload)["bdSeq"] == (bd_seq + 1) % 256
+
+
+async def test_next_server_on_request(tmp_path: Path, codec: TahuCodec) -> None:
+    """NCMD "Node Control/Next Server": NDEATH on this broker, then born on the next one."""
+    group = f"plant-{uuid.uuid4().hex[:8]}"
+    with (
+        running_mosquitto(tmp_path) as one,
+        running_mosquitto(tmp_path) as two,
+        simulated_line() as line,
+    ):
+        config = mqtt_config(line.path, one, unique_base_topic())
+        assert config.mqtt is not None
+        mqtt = MqttConfig.model_validate(
+            {
+                "servers": [f"{b.host}:{b.port}" for b in (one, two)],
+                "base_topic": config.mqtt.base_topic,
+                "reconnect_max_s": 1.0,
+                "sparkplug": {"group_id": group, "edge_node_id": "cabinet-a"},
+            }
+        )
+        async with (
+            sparkplug_host(one, codec, group, "cabinet-a") as on_one,
+            sparkplug_host(two, codec, group, "cabinet-a") as on_two,
+            running_gateway(config.model_copy(update={"mqtt": mqtt})),
+        ):
+            birth = await on_one.wait_for(on_one.topic("NBIRTH"))
+            assert values(birth.payload)["Node Control/Next Server"] is False
+            await on_one.command(
+                "NCMD", [{"name": "Node Control/Next Server", "type": "Boolean", "value": True}]
+            )
+            death = await on_one.wait_for(on_one.topic("NDEATH"), after=birth.index)
+            assert values(death.payload)["bdSeq"] == values(birth.payload)["bdSeq"]
+            there = await on_two.wait_for(on_two.topic("NBIRTH"), timeout_s=15)
+            assert values(there.payload)["bdSeq"] == values(birth.payload)["bdSeq"] + 1

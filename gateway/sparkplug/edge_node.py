@@ -14,7 +14,7 @@
               one is cleared from the broker; the new value is the acknowledgement, in DDATA
     host      the primary host's STATE going offline: NDEATH, disconnect, and the next of
               `mqtt.servers` (the specification's high availability); until it is online again
-              nothing is published
+              nothing is published. NCMD "Node Control/Next Server" = true does the same.
     stop      NDEATH ourselves (a clean disconnect sends no will), disconnect
 
 The connection loop (backoff, TLS, the server list, MQTT 5 with retain-as-published) is the JSON
@@ -64,14 +64,16 @@ QOS_DATA: Final = 0
 QOS_DEATH: Final = 1
 """NDEATH (the will, and our own at a clean stop) and the subscriptions: QoS 1."""
 REBIRTH: Final = "Node Control/Rebirth"
+NEXT_SERVER: Final = "Node Control/Next Server"
 NODE: Final = ""
 """The node's own metrics' "device" among the aliases."""
 STOP_TASK_BUDGET_S: Final = 0.6
 MAX_WAITING_PER_LANE: Final = 16
 
 
-class PrimaryHostOffline(aiomqtt.MqttError):
-    """The primary host said it went offline: this connection ends, the next server is tried."""
+class LeavingServer(aiomqtt.MqttError):
+    """This connection ends after an NDEATH of our own, and the next of `mqtt.servers` is
+    tried: the primary host is offline here, or a host asked for "Node Control/Next Server"."""
 
 
 class SparkplugNode:
@@ -111,6 +113,8 @@ class SparkplugNode:
         self._wake = asyncio.Event()
         """Something to publish, a rebirth asked for, or the primary host changed."""
         self._rebirth = False
+        self._leave: str | None = None
+        """Why this connection is to end for the next server (None: it isn't)."""
         self._born = asyncio.Event()
         """Set once this connection's NBIRTH is out: the birth comes before anything else the
         node publishes (clearing a retained DCMD waits for it)."""
@@ -165,6 +169,7 @@ class SparkplugNode:
     # -- one connection ---------------------------------------------------------------------
 
     async def _connected(self, client: aiomqtt.Client) -> None:
+        self._leave = None
         subscriptions = [self.topics.node("NCMD"), self.topics.device_commands]
         if self.host is not None:
             # Offline until this broker's retained STATE says otherwise; its timestamps are
@@ -194,7 +199,10 @@ class SparkplugNode:
                 await self._wake.wait()
                 self._wake.clear()
                 if self.host is not None and not self.host.online:
-                    await self._host_gone(client)
+                    self._leave = f"primary host {self.host.host_id} went offline"
+                if self._leave is not None:
+                    await self.farewell(client, STOP_TASK_BUDGET_S)
+                    raise LeavingServer(self._leave)
                 pending = self.outbox.take()
                 try:
                     await self._report(client, pending)
@@ -208,14 +216,11 @@ class SparkplugNode:
         brokers to try, the next one is tried (where the host may be)."""
         while self.host is not None and not self.host.online:
             if self.host.timestamp >= 0 and len(self.session.mqtt.servers) > 1:
-                raise PrimaryHostOffline(f"primary host {self.host.host_id} is offline here")
+                raise LeavingServer(f"primary host {self.host.host_id} is offline here")
+            if self._leave is not None:
+                raise LeavingServer(self._leave)
             await self._wake.wait()
             self._wake.clear()
-
-    async def _host_gone(self, client: aiomqtt.Client) -> None:
-        assert self.host is not None
-        await self.farewell(client, STOP_TASK_BUDGET_S)
-        raise PrimaryHostOffline(f"primary host {self.host.host_id} went offline")
 
     async def _birth(self, client: aiomqtt.Client) -> None:
         self.outbox.take()  # the births carry the values of now
@@ -246,6 +251,7 @@ class SparkplugNode:
             # No alias for it: a host must be able to ask for a rebirth knowing nothing of this
             # node's aliases (the specification forbids one).
             BirthMetric(REBIRTH, None, payload.BOOLEAN, False, {"readOnly": False}),
+            BirthMetric(NEXT_SERVER, None, payload.BOOLEAN, False, {"readOnly": False}),
             BirthMetric(
                 "Node Info/gateway_id",
                 self.aliases.of(NODE, "Node Info/gateway_id"),
@@ -347,9 +353,15 @@ class SparkplugNode:
             log.warning("Sparkplug: NCMD ignored: %s", exc)
             return
         for metric in received.metrics:
-            if metric.name == REBIRTH and metric.value is True:
+            if metric.value is not True:
+                continue
+            if metric.name == REBIRTH:
                 self._rebirth = True
-                self._wake.set()
+            elif metric.name == NEXT_SERVER:
+                self._leave = "a host asked for the next server (Node Control/Next Server)"
+            else:
+                log.warning("Sparkplug: NCMD for %s ignored: no such node metric", metric.name)
+            self._wake.set()
 
     async def _device_command(self, drive: str, incoming: Incoming) -> None:
         try:
