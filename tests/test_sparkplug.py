@@ -80,7 +80,7 @@ def assert_sequence(messages: list[Message]) -> None:
         assert after.payload["seq"] == (before.payload["seq"] + 1) % 256, (before, after)
 
 
-async def test_births_carry_the_simulated_drives_values(plant: Plant) -> None:
+async def test_births_carry_the_simulated_drives_values(plant: Plant, mosquitto: Mosquitto) -> None:
     host = plant.host
     nbirth = await host.wait_for(host.topic("NBIRTH"))
     node = metrics(nbirth.payload)
@@ -88,7 +88,7 @@ async def test_births_carry_the_simulated_drives_values(plant: Plant) -> None:
     assert node["Node Control/Rebirth"] == {**node["Node Control/Rebirth"], "value": False}
     assert "alias" not in node["Node Control/Rebirth"], "a rebirth needs no alias known"
     assert "alias" in node["bdSeq"]
-    assert not nbirth.retain
+    assert (nbirth.qos, nbirth.retain) == (0, False)
 
     pump = (await host.wait_for(host.topic("DBIRTH", "pump1"), after=nbirth.index)).payload
     fan = (await host.wait_for(host.topic("DBIRTH", "fan2"), after=nbirth.index)).payload
@@ -114,6 +114,9 @@ async def test_births_carry_the_simulated_drives_values(plant: Plant) -> None:
     ]
     assert len(aliases) == len(set(aliases)), "aliases are unique across the edge node"
     assert values(fan)["state"] == "stopped"
+    for birth in (nbirth.payload, pump, fan):
+        assert birth["timestamp"] > 0
+        assert all(metric["timestamp"] == birth["timestamp"] for metric in birth["metrics"])
 
     # Report by exception: a new current is one DDATA with that metric alone, by its alias.
     mark = host.mark
@@ -137,6 +140,13 @@ async def test_births_carry_the_simulated_drives_values(plant: Plant) -> None:
         after=mark,
     )
     assert_sequence(host.messages(nbirth.index))
+    for message in host.messages(nbirth.index):
+        assert message.qos == 0, message.topic
+        assert "timestamp" in message.payload
+    # Nothing of it is kept on the broker: a host that comes now finds nothing retained.
+    async with mqtt_probe(mosquitto, f"spBv1.0/{host.group}/#") as late:
+        await asyncio.sleep(0.3)  # asserting an absence
+        assert [m.topic for m in late.messages if m.retain] == []
 
 
 async def test_a_drive_offline_dies_and_is_born_again(plant: Plant) -> None:

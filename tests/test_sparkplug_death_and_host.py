@@ -75,6 +75,7 @@ async def test_sigkill_gives_the_ndeath_of_the_last_nbirth(
             death = await host.wait_for(host.topic("NDEATH"), after=birth.index)
             assert values(death.payload) == {"bdSeq": bd_seq}
             assert "seq" not in death.payload
+            assert (death.qos, death.retain) == (1, False)  # the will's QoS 1, not retained
 
 
 def state(online: bool, timestamp: int) -> str:

@@ -79,6 +79,8 @@ class Message:
     index: int
     topic: str
     retain: bool
+    qos: int
+    """As delivered to a QoS 1 subscription: the publisher's QoS where it was lower."""
     payload: Payload
 
 
@@ -114,7 +116,7 @@ class SparkplugHost:
         """Every Sparkplug message of this node (not STATE, not a cleared retained one)."""
         prefix = f"spBv1.0/{self.group}/"
         return [
-            Message(i, m.topic, m.retain, self.decoded(i))
+            Message(i, m.topic, m.retain, m.qos, self.decoded(i))
             for i, m in enumerate(self.probe.messages[after:], after)
             if m.topic.startswith(prefix) and m.payload
         ]
