@@ -71,11 +71,6 @@ STOP_TASK_BUDGET_S: Final = 0.6
 MAX_WAITING_PER_LANE: Final = 16
 
 
-class LeavingServer(aiomqtt.MqttError):
-    """This connection ends after an NDEATH of our own, and the next of `mqtt.servers` is
-    tried: the primary host is offline here, or a host asked for "Node Control/Next Server"."""
-
-
 class SparkplugNode:
     def __init__(
         self,
@@ -202,7 +197,7 @@ class SparkplugNode:
                     self._leave = f"primary host {self.host.host_id} went offline"
                 if self._leave is not None:
                     await self.farewell(client, STOP_TASK_BUDGET_S)
-                    raise LeavingServer(self._leave)
+                    raise _leaving_server(self._leave)
                 pending = self.outbox.take()
                 try:
                     await self._report(client, pending)
@@ -216,9 +211,9 @@ class SparkplugNode:
         brokers to try, the next one is tried (where the host may be)."""
         while self.host is not None and not self.host.online:
             if self.host.timestamp >= 0 and len(self.session.mqtt.servers) > 1:
-                raise LeavingServer(f"primary host {self.host.host_id} is offline here")
+                raise _leaving_server(f"primary host {self.host.host_id} is offline here")
             if self._leave is not None:
-                raise LeavingServer(self._leave)
+                raise _leaving_server(self._leave)
             await self._wake.wait()
             self._wake.clear()
 
@@ -405,3 +400,11 @@ class SparkplugNode:
 
 def _now_ms() -> int:
     return int(time.time() * 1000)
+
+
+def _leaving_server(why: str) -> aiomqtt.MqttError:
+    """Ends this connection the way a lost one ends: the session tries the next of
+    `mqtt.servers` after its backoff, and logs `why` (the primary host is offline here, or a host
+    asked for "Node Control/Next Server"). aiomqtt's own error, so the session needs no case of
+    its own for it."""
+    return aiomqtt.MqttError(why)
