@@ -192,3 +192,20 @@ async def test_next_server_on_request(tmp_path: Path, codec: TahuCodec) -> None:
             assert values(death.payload)["bdSeq"] == values(birth.payload)["bdSeq"]
             there = await on_two.wait_for(on_two.topic("NBIRTH"), timeout_s=15)
             assert values(there.payload)["bdSeq"] == values(birth.payload)["bdSeq"] + 1
+
+
+async def test_a_clean_stop_publishes_the_ndeath(mosquitto: Mosquitto, codec: TahuCodec) -> None:
+    group = f"plant-{uuid.uuid4().hex[:8]}"
+    with simulated_line() as line:
+        config = mqtt_config(
+            line.path, mosquitto, unique_base_topic(), sparkplug={"group_id": group}
+        )
+        async with sparkplug_host(mosquitto, codec, group, "test") as host:
+            async with running_gateway(config):
+                birth = await host.wait_for(host.topic("NBIRTH"))
+                await host.wait_for(host.topic("DBIRTH", "pump1"), after=birth.index)
+                stopping = time.monotonic()
+            stopped_s = time.monotonic() - stopping
+            death = await host.wait_for(host.topic("NDEATH"), after=birth.index)
+            assert values(death.payload) == {"bdSeq": values(birth.payload)["bdSeq"]}
+            assert stopped_s < 2.0, f"the gateway took {stopped_s:.1f} s to stop"

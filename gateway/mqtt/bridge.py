@@ -161,14 +161,20 @@ class MqttBridge:
             await self.sparkplug.start()
 
     async def stop(self) -> None:
-        await self.session.say_offline()
+        sparkplug = self.sparkplug
+        # Both goodbyes at once, then both connections' ends at once: the two fit in the time
+        # one has (each step is bounded).
+        offline: list[Awaitable[object]] = [self.session.say_offline()]
+        if sparkplug is not None:
+            offline.append(sparkplug.say_offline())
+        await asyncio.gather(*offline)
         # Commands being carried out are cut off: the buses are closed by now anyway.
         stopping: list[Awaitable[object]] = [
             self.lanes.close(STOP_TASK_BUDGET_S),
             self.session.stop(STOP_TASK_BUDGET_S),
         ]
-        if self.sparkplug is not None:
-            stopping.append(self.sparkplug.stop())
+        if sparkplug is not None:
+            stopping.append(sparkplug.end_tasks())
         await asyncio.gather(*stopping)
 
     # -- one connection ----------------------------------------------------------------------

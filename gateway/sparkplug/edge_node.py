@@ -156,7 +156,15 @@ class SparkplugNode:
         await self.session.start()
 
     async def stop(self) -> None:
+        await self.say_offline()
+        await self.end_tasks()
+
+    async def say_offline(self) -> None:
+        """Our NDEATH, if connected (a clean disconnect sends no will)."""
         await self.session.say_offline()
+
+    async def end_tasks(self) -> None:
+        """Cancel the connection and the commands under way, each within its budget."""
         await asyncio.gather(
             self.lanes.close(STOP_TASK_BUDGET_S), self.session.stop(STOP_TASK_BUDGET_S)
         )
