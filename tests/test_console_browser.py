@@ -21,7 +21,8 @@ from selenium.webdriver.support.ui import Select
 
 from gateway.app import Application
 from gateway.instruments.simulator import SimulatedLine
-from tests.support import TcpClient, running_gateway
+from gateway.profile import get_profile
+from tests.support import TcpClient, running_gateway, write_pdu
 from tests.support.browser import CHROMEDRIVER, CHROMIUM, Browser, showing
 from tests.support.console_support import (
     OPERATOR_PASSWORD,
@@ -319,3 +320,51 @@ async def test_the_events_page_filters_by_kind_and_downloads_what_it_shows(
     assert lines[0].startswith("id,time,kind,type,drive,bus,text,who,user,address")
     assert len(lines) == 2
     assert ",login," in lines[1]
+
+
+async def test_the_parameter_browser_shows_every_group_ranges_defaults_and_finds_a_parameter(
+    console: tuple[Application, Browser],
+) -> None:
+    """A technician on pump1's page: every group of its series as a tab, the manual's words for
+    a choice, the range with its unit, the default, and P00.03 found by its wire address once
+    a SCADA write has moved it off the factory's value."""
+    app, browser = console
+    await browser.open("/drives/pump1")
+    await browser.wait(showing("#parameters tbody", "P00.03"))
+    tabs = await browser.run(
+        lambda: [b.text for b in browser.driver.find_elements(By.CSS_SELECTOR, "#groups button")]
+    )
+    groups = sorted({row.group for row in get_profile("gd350").parameters})
+    assert tabs == [*groups, "2000H", "2100H", "3000H"]
+    top = "#parameters tr[data-name='P00.03']"
+    assert "0.00 ... 630.00 Hz, at least P00.04" in await browser.text(top)
+    assert "≠ default" not in await browser.text(top)
+    await browser.click("#groups button[data-group=P05]")
+    await browser.wait(showing("#parameters tr[data-name='P05.01']", "1 (forward rotation)"))
+
+    client = await TcpClient.connect(app.tcp.port)
+    try:
+        assert await client.request(1, write_pdu(0x0003, 6000)) == write_pdu(0x0003, 6000)
+    finally:
+        await client.close()
+    await browser.type("#parameter-find-text", "0003H")
+    await browser.click("#parameter-find-go")
+    await browser.wait(showing("#parameter-found", "1 found"))
+    await browser.wait(showing(top, "≠ default"))
+    shown = await browser.text(top)
+    assert "60.00 Hz" in shown
+    assert "50.00 Hz" in shown  # the default beside it
+    assert "differs" in str(
+        await browser.run(
+            lambda: browser.driver.find_element(By.CSS_SELECTOR, top).get_attribute("class")
+        )
+    )
+    await browser.type("#parameter-find-text", "acc time")
+    await browser.click("#parameter-find-go")
+    await browser.wait(showing("#parameters tr[data-name='P00.11']", "depends on model"))
+    assert "0.0 ... 3600.0 s" in await browser.text("#parameters tr[data-name='P00.11']")
+    await browser.run(
+        browser.driver.execute_script,
+        "document.getElementById('parameter-find').scrollIntoView()",
+    )
+    await browser.screenshot("parameters")

@@ -390,6 +390,12 @@ class DriveConfig(Section):
         return value
 
     @model_validator(mode="after")
+    def _overrides(self) -> DriveConfig:
+        """The corrections given apply to the model (an ABB drive has no 2103H code)."""
+        self.profile()  # ValueError naming the key that doesn't apply
+        return self
+
+    @model_validator(mode="after")
     def _telemetry_keys(self) -> DriveConfig:
         """`report` and `alarms` name telemetry keys the drive has; a device's are in its file."""
         if self.report is None and not self.alarms:
