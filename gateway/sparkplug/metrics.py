@@ -98,6 +98,8 @@ class DeviceMetrics:
         )
         self._declared: dict[str, int] = {}
         """Metric → its datatype, as the last birth declared it."""
+        self._sent: dict[str, Value] = {}
+        """Key → the value last published, for the keys no report-by-exception rule watches."""
 
     def birth(self, telemetry: Telemetry, now: float) -> list[BirthMetric]:
         """The DBIRTH's metrics for `telemetry`; what DDATA may carry from now on."""
@@ -115,6 +117,7 @@ class DeviceMetrics:
         ]
         self._declared = {m.name: m.datatype for m in metrics}
         self.report.published(reading, now)
+        self._sent = dict(reading)
         return metrics
 
     def changes(self, telemetry: Telemetry, now: float) -> list[DataMetric] | None:
@@ -129,7 +132,15 @@ class DeviceMetrics:
             ):
                 return None
         changed = self.report.changed(reading, now)
+        # A key no rule watches (a device file's limit alarm flag) goes out when it differs:
+        # DDATA is all a host gets, there is no whole state republished now and then.
+        changed += [
+            key
+            for key, value in reading.items()
+            if not self.report.watches(key) and self._sent.get(key) != value
+        ]
         self.report.published({key: reading[key] for key in changed}, now)
+        self._sent.update({key: reading[key] for key in changed})
         return [
             DataMetric(self.aliases.of(self.device, key), self._declared[key], reading[key])
             for key in changed

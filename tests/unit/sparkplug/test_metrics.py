@@ -111,3 +111,17 @@ def test_a_device_files_writable_point() -> None:
     command = device_command(asked, metrics)
     assert command.payloads == [{"point": "demand_period", "value": 30.0}]
     assert command.problems == ["frequency: not a writable metric of meter1"]
+
+
+def test_a_device_files_alarm_flag_goes_out_when_it_changes() -> None:
+    """A device file's points have their own rules; a limit alarm's flag beside them has none,
+    and still reaches the host the moment it turns."""
+    meter = get_profile("sdm630")
+    metrics = DeviceMetrics("meter1", meter, ExceptionReport(meter.typed_points), Aliases(), True)
+    reading: Telemetry = {"frequency": 50.0, "frequency_high_alarm": False}
+    born = {m.name: m.alias for m in metrics.birth(reading, 0.0)}
+    assert metrics.changes(reading, 1.0) == []
+    raised = metrics.changes({**reading, "frequency_high_alarm": True}, 2.0)
+    assert raised is not None
+    assert [(m.alias, m.value) for m in raised] == [(born["frequency_high_alarm"], True)]
+    assert metrics.changes({**reading, "frequency_high_alarm": True}, 3.0) == []
