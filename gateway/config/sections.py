@@ -460,6 +460,27 @@ def broker_address(value: str) -> tuple[str, int]:
     return host, int(port)
 
 
+SPARKPLUG_ID = r"^[A-Za-z0-9_-]+$"
+"""A Sparkplug group, edge node or host id: one topic level ('/', '+' and '#' can't be in one,
+and '.' would change on RabbitMQ), in the same letters as a drive's name (its device id)."""
+
+
+class SparkplugConfig(Section):
+    """`mqtt.sparkplug`: the gateway as a Sparkplug B edge node, its drives as devices, beside
+    the JSON topics (both run on one broker, each on its own connection)."""
+
+    enabled: bool = True
+    """False: the section stays in the file, and no Sparkplug (the JSON topics go on)."""
+    group_id: str = Field(min_length=1, max_length=64, pattern=SPARKPLUG_ID)
+    """The Sparkplug group the edge node is in: the second level of its topics
+    (`spBv1.0/<group_id>/...`)."""
+    edge_node_id: str | None = Field(None, min_length=1, max_length=64, pattern=SPARKPLUG_ID)
+    """Default: the gateway's `gateway_id`."""
+    primary_host_id: str | None = Field(None, min_length=1, max_length=64, pattern=SPARKPLUG_ID)
+    """The host application whose `spBv1.0/STATE/<id>` says when the edge node may publish;
+    None: publish whenever connected."""
+
+
 class MqttConfig(Section):
     enabled: bool = True
     """False: the section stays in the file, and no MQTT."""
@@ -505,6 +526,8 @@ class MqttConfig(Section):
     """Events (faults, offline...) waiting for the broker; past this the oldest are dropped."""
     reconnect_max_s: float = Field(30.0, gt=0, le=3600)
     """Longest wait between two attempts to reach the broker (the wait doubles up to it)."""
+    sparkplug: SparkplugConfig | None = None
+    """The drives as Sparkplug B devices too (`spBv1.0/<group_id>/...`)."""
 
     @field_validator("base_topic", "discovery_prefix")
     @classmethod
