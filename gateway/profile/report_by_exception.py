@@ -21,6 +21,9 @@ from dataclasses import dataclass
 
 from gateway.profile.point_types import Reporting, TypedPoint, Value
 
+ANY_CHANGE = Reporting()
+"""Every change is news (and `mqtt.publish_interval_s` republishes): no rule set anywhere."""
+
 
 @dataclass(slots=True)
 class _Published:
@@ -31,10 +34,12 @@ class _Published:
 class ExceptionReport:
     """What was last published of one device's points (or one drive's keys), and when."""
 
-    def __init__(self, points: Iterable[TypedPoint]) -> None:
-        self._rules = {point.name: point.reporting for point in points}
-        self._default: Reporting | None = None
-        """The rule of a key `_rules` doesn't name (None: such a key is not watched)."""
+    def __init__(self, points: Iterable[TypedPoint], under: Reporting = ANY_CHANGE) -> None:
+        """A device's: each point by its device file's rule over `under` (the gateway's
+        `mqtt.report.devices`); any other key of its state (an alarm's flag) on any change."""
+        self._rules = {point.name: point.report.resolved(under) for point in points}
+        self._default = ANY_CHANGE
+        """The rule of a key `_rules` doesn't name."""
         self._published: dict[str, _Published] = {}
 
     @classmethod
@@ -61,8 +66,7 @@ class ExceptionReport:
 
     def _watched(self, reading: Mapping[str, object]) -> list[tuple[str, Reporting]]:
         watched = list(self._rules.items())
-        if self._default is not None:
-            watched += [(name, self._default) for name in reading if name not in self._rules]
+        watched += [(name, self._default) for name in reading if name not in self._rules]
         return watched
 
     def _news(self, name: str, rule: Reporting, value: object, now: float) -> bool:

@@ -39,8 +39,10 @@ class MqttSettings:
     command_max_age_s: float
     commands_enabled: bool
     reporting: Mapping[str, DriveReporting] = field(default_factory=dict)
-    """Drive → its report by exception (`mqtt.report` under its own `report`); a device file's
-    points carry theirs."""
+    """Drive → its report by exception (`mqtt.report` under its own `report`)."""
+    device_reporting: Reporting = field(default_factory=Reporting)
+    """Every device's report by exception (`mqtt.report.devices`), under what its device file
+    and its points say."""
 
 
 def mqtt_settings(config: GatewayConfig) -> MqttSettings | None:
@@ -67,6 +69,7 @@ def mqtt_settings(config: GatewayConfig) -> MqttSettings | None:
         command_max_age_s=mqtt.command_max_age_s,
         commands_enabled=mqtt.commands_enabled,
         reporting={d.name: _drive_reporting(mqtt.report, d.report) for d in config.drives},
+        device_reporting=_rule(mqtt.report.devices),
     )
 
 
