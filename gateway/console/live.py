@@ -4,7 +4,9 @@ Drive state is the poller's: the same decoded state the MQTT bridge publishes (n
 This listens to the poller for charts and events only; the overview reads the poller's state when
 it is asked. Bus figures come from the counters the bus keeps anyway (`BusStats`, `DriveStats`),
 sampled once a second into a short window: rates are differences over it, so nothing is added to
-the bus's work.
+the bus's work. Each bus's and drive's measured share of the line (`utilisation`: polls, SCADA
+and MQTT alike) is shown beside what its polls were planned to take (`planned_utilisation`,
+from `gateway.poller.budget.line_plans`, the figure `check-config` prints).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from gateway.console.diagnostics import BusCounters
 from gateway.console.events import EventStore, GatewayEvent
 from gateway.modbus.functions import lookup
 from gateway.poller import Poller
+from gateway.poller.budget import LinePlan, line_plans
 from gateway.poller.drive_state import DriveEvent, EventKind, iso_time
 from gateway.profile import exception_name
 from gateway.profile.telemetry import Telemetry
@@ -44,6 +47,8 @@ class BusSample:
     bad_replies: int
     retries: int
     line_s: float
+    drives_line_s: Mapping[int, float] = field(default_factory=dict)
+    """Address → the line time its transactions took, since the bus started."""
 
 
 @dataclass(slots=True)
@@ -77,6 +82,9 @@ class LiveState:
         self._bus_states = {name: bus.state for name, bus in buses.items()}
         self._counters: dict[str, BusCounters] = {}
         self._by_address = {(d.bus, d.address): d.name for d in drives}
+        self._plans: dict[str, LinePlan] = {}
+        self._plan_basis: list[object] = []
+        """The bus and drive settings `_plans` was worked out from."""
 
     # -- poll listener ----------------------------------------------------------------------
 
@@ -133,6 +141,7 @@ class LiveState:
         now = time.monotonic()
         for name, bus in self.buses.items():
             stats = bus.stats
+            line_s = {address: d.line_s for address, d in list(bus.drive_stats.items())}
             self._samples[name].append(
                 BusSample(
                     now,
@@ -140,7 +149,8 @@ class LiveState:
                     stats.timeouts,
                     sum(stats.bad_replies.values()),
                     stats.retries,
-                    sum(d.line_s for d in list(bus.drive_stats.values())),
+                    sum(line_s.values()),
+                    line_s,
                 )
             )
             self._count(name, bus, now)
@@ -176,6 +186,20 @@ class LiveState:
             "store_problem": self.events.store_problem(),
         }
 
+    def line_plan(self, bus: str) -> LinePlan:
+        """What the drives polled now (a reload's included) were planned to take of `bus`, at
+        its settings now (a reload may have changed its baud rate). Worked out again only when
+        either changed: the overview asks for every drive twice a second."""
+        polled = [] if self.poller is None else [d.settings for d in self.poller.drives.values()]
+        basis: list[object] = [bus.settings for bus in self.buses.values()]
+        basis += polled
+        if len(basis) != len(self._plan_basis) or any(
+            a is not b for a, b in zip(basis, self._plan_basis, strict=False)
+        ):
+            self._plans = line_plans((bus.settings for bus in self.buses.values()), polled)
+            self._plan_basis = basis
+        return self._plans[bus]
+
     def bus_view(self, name: str) -> dict[str, Any]:
         bus = self.buses[name]
         line = self.lines[name]
@@ -189,6 +213,7 @@ class LiveState:
             "port": line.port,
             "format": f"{chars.baudrate} {chars.bytesize}{chars.parity}{chars.stopbits}",
             "utilisation": _rate(recent, "line_s"),
+            "planned_utilisation": _share(self.line_plan(name).total.busy_fraction),
             "transactions_per_s": _rate(recent, "transactions"),
             "timeouts_per_min": _delta(minute, "timeouts"),
             "bad_replies_per_min": _delta(minute, "bad_replies"),
@@ -222,6 +247,8 @@ class LiveState:
         telemetry = self.telemetry(name)
         online = None if self.poller is None else self.poller.availability(name)
         state = telemetry.get("state")
+        recent = _window(self._samples[drive.bus], RATE_WINDOW_S)
+        planned = self.line_plan(drive.bus).drives.get(name)
         return {
             "name": name,
             "unit_id": drive.unit_id,
@@ -235,6 +262,8 @@ class LiveState:
             "output_frequency_hz": telemetry.get("output_frequency_hz"),
             "output_current_a": telemetry.get("output_current_a"),
             "last_answer": telemetry.get("last_seen"),
+            "utilisation": _drive_rate(recent, drive.address),
+            "planned_utilisation": _share(0.0 if planned is None else planned.busy_fraction),
         }
 
     def telemetry(self, name: str) -> Telemetry:
@@ -268,6 +297,21 @@ def _rate(window: tuple[BusSample, BusSample] | None, key: str) -> float:
     elapsed = last.at - first.at
     change = float(getattr(last, key) - getattr(first, key))
     return round(change / elapsed, 3) if elapsed > 0 else 0.0
+
+
+def _drive_rate(window: tuple[BusSample, BusSample] | None, address: int) -> float:
+    """The share of the line one address's transactions took over the window."""
+    if window is None:
+        return 0.0
+    first, last = window
+    elapsed = last.at - first.at
+    change = last.drives_line_s.get(address, 0.0) - first.drives_line_s.get(address, 0.0)
+    return round(change / elapsed, 3) if elapsed > 0 else 0.0
+
+
+def _share(fraction: float) -> float:
+    """A planned share as the measured ones are given (a fraction, to a thousandth)."""
+    return round(fraction, 3)
 
 
 def _delta(window: tuple[BusSample, BusSample] | None, key: str) -> int:
