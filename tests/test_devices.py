@@ -8,6 +8,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import os
 import struct
 import subprocess
 import sys
@@ -19,11 +20,14 @@ from typing import Any
 import pytest
 
 from gateway.app import Application
+from gateway.config import GatewayConfig
 from tests.peers.pymodbus_meter import EXPECTED
 from tests.support import TcpClient, eventually, pty_cable, running_gateway
+from tests.support.console_support import OPERATOR_TOKEN, console_config
 from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
 from tests.support.mqtt_setup import mqtt_config
-from tests.support.processes import run_cli
+from tests.support.processes import entry_point, run_cli
+from tests.test_console_monitor import line_with
 
 ROOT = Path(__file__).resolve().parent.parent
 METER_FILE = ROOT / "tests" / "fixtures" / "devices" / "test_meter.yaml"
@@ -336,3 +340,33 @@ def test_a_point_named_like_another_points_alarm_flag_is_refused(tmp_path: Path)
         f"drives[0] (boiler).model: {device}: points.water_c_high_alarm: is the state's key of "
         "points.water_c's high alarm"
     ) in result.stderr
+
+
+async def test_the_traffic_monitor_shows_a_float_as_its_value(meter_line: str) -> None:
+    data = console_config(meter_line).model_dump(mode="json", exclude_none=True)
+    data["buses"][0].update(baudrate=19200, parity="N", timeout_ms=500)
+    data["drives"] = [
+        {"name": "meter1", "bus": "line1", "address": UNIT, "model": f"file:{METER_FILE}"}
+    ]
+    async with running_gateway(GatewayConfig.model_validate(data)) as app:
+        url = f"http://127.0.0.1:{app.console.port}"
+        process = await asyncio.create_subprocess_exec(
+            *(entry_point(), "monitor", "--url", url, "--bus", "line1", "--recent", "0"),
+            stdin=asyncio.subprocess.DEVNULL,
+            stdout=asyncio.subprocess.PIPE,
+            stderr=asyncio.subprocess.PIPE,
+            env={**os.environ, "INVT_GATEWAY_CONSOLE_TOKEN": OPERATOR_TOKEN},
+        )
+        try:
+            assert process.stderr is not None
+            assert process.stdout is not None
+            await line_with(process.stderr, "watching")
+            tcp = await TcpClient.connect(app.tcp.port)
+            await tcp.request(UNIT, bytes.fromhex("03 0000 0004"))  # setpoint, frequency
+            await tcp.close()
+            printed = await line_with(process.stdout, "tcp:127.0.0.1")
+            # f32 ABCD and CDAB, as MQTT publishes them: not 4366H 8000H ...
+            assert "→ setpoint 230.5 V, frequency 49.75 Hz  [ok," in printed
+        finally:
+            process.terminate()
+            await asyncio.wait_for(process.wait(), 5)

@@ -70,8 +70,8 @@ OVERVIEW = """
 <h2>Buses</h2>
 <div class="scroll"><table id="buses" class="grid cards">
 <thead><tr><th>Bus</th><th>State</th><th>Port</th><th>Format</th><th>Utilisation</th>
-<th>Planned (polls)</th><th>Transactions/s</th><th>Timeouts/min</th><th>Bad replies/min</th><th>Retries/min</th>
-<th>Queue</th><th></th></tr></thead>
+<th>Planned (polls)</th><th>Transactions/s</th><th>Timeouts/min</th><th>Bad replies/min</th>
+<th>Retries/min</th><th>Queue</th><th></th></tr></thead>
 <tbody></tbody>
 </table></div>
 </section>
