@@ -26,7 +26,7 @@ from tests.support import TcpClient, eventually, pty_cable, running_gateway
 from tests.support.console_support import OPERATOR_TOKEN, console_config
 from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
 from tests.support.mqtt_setup import mqtt_config
-from tests.support.processes import entry_point, run_cli
+from tests.support.processes import entry_point, gateway_process, run_cli
 from tests.test_console_monitor import line_with
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -370,3 +370,37 @@ async def test_the_traffic_monitor_shows_a_float_as_its_value(meter_line: str) -
         finally:
             process.terminate()
             await asyncio.wait_for(process.wait(), 5)
+
+
+async def test_a_reload_reads_an_edited_device_file_again(
+    mosquitto: Mosquitto, meter_line: str, tmp_path: Path
+) -> None:
+    """A site's device file is its drive's definition: `invt-gateway reload` after an edit
+    polls and publishes the points as the file says now, with no key of the configuration
+    changed."""
+    device = tmp_path / "meter.yaml"
+    original = METER_FILE.read_text()
+    device.write_text(original.replace("  mode: {address: 0x1D", "  # mode: {address: 0x1D"))
+    base = unique_base_topic()
+    config = mqtt_config(
+        meter_line,
+        mosquitto,
+        base,
+        drives=[{"name": "meter1", "address": UNIT, "model": f"file:{device}"}],
+        bus={"baudrate": 19200, "parity": "N", "timeout_ms": 500},
+    )
+    data = config.model_dump(mode="json", exclude_none=True)
+    async with mqtt_probe(mosquitto, f"{base}/#") as probe:
+        with gateway_process(data, tmp_path) as gateway:
+            await asyncio.to_thread(gateway.wait_ready)
+            state = (await probe.wait_for(f"{base}/meter1", lambda s: "serial" in s)).json()
+            assert "mode" not in state  # not in the file yet
+
+            device.write_text(original)  # the site adds the point
+            mark = len(probe.messages)
+            path = str(gateway.config_file)
+            result = await asyncio.to_thread(run_cli, "reload", "--config", path)
+            assert result.returncode == 0, result.stderr
+            assert "drives changed: meter1" in result.stdout
+            received = await probe.wait_for(f"{base}/meter1", lambda s: "mode" in s, after=mark)
+            assert received.json()["mode"] == "remote"  # what the meter holds at 001DH
