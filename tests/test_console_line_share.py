@@ -70,21 +70,37 @@ async def test_planned_shares_are_check_configs_and_polls_alone_take_about_that(
         assert (await web.login("victor", VIEWER_PASSWORD)).status == 200
         await asyncio.sleep(SETTLE_S)
         overview = await web.get_json("/api/overview")
-    bus = overview["buses"][0]
-    drives = {d["name"]: d for d in overview["drives"]}
-    assert round(bus["planned_utilisation"] * 100, 1) == pytest.approx(printed["line1"], abs=0.1)
-    for name in ("pump1", "fan2"):
-        planned = drives[name]["planned_utilisation"]
-        assert round(planned * 100, 1) == pytest.approx(printed[name], abs=0.1)
-        assert 0.05 < planned < 0.12  # the two poll groups of an INVT drive at 9600 baud
-        # Polls alone: the measured share is an exchange's time from its request's first byte
-        # to its reply's last (the drive's 1 ms answer delay in it), the planned one the frames
-        # and the silence before and after each (a quarter of it at 9600 baud, for 3 words).
-        measured = drives[name]["utilisation"]
-        assert planned * 0.7 <= measured <= planned * 1.6, (name, planned, measured)
-    assert bus["utilisation"] == pytest.approx(
-        sum(d["utilisation"] for d in drives.values()), abs=0.002
-    )
+        bus = overview["buses"][0]
+        drives = {d["name"]: d for d in overview["drives"]}
+        assert round(bus["planned_utilisation"] * 100, 1) == pytest.approx(
+            printed["line1"], abs=0.1
+        )
+        for name in ("pump1", "fan2"):
+            planned = drives[name]["planned_utilisation"]
+            assert round(planned * 100, 1) == pytest.approx(printed[name], abs=0.1)
+            assert 0.05 < planned < 0.12  # the two poll groups of an INVT drive at 9600 baud
+
+        seen: list[dict[str, Any]] = []
+
+        async def polls_alone_take_their_plan() -> bool:
+            # Polls alone: the measured share is an exchange's time from its request's first
+            # byte to its reply's last (the drive's 1 ms answer delay in it), the planned one
+            # the frames and the silence before and after each (a quarter of it at 9600 baud,
+            # for 3 words). A timeout on a loaded box holds the line 300 ms: that window is
+            # not polls alone, the next one is asked for.
+            overview = await web.get_json("/api/overview")
+            seen.append(overview)
+            drives = overview["drives"]
+            bus = overview["buses"][0]["utilisation"]
+            return all(
+                d["planned_utilisation"] * 0.7 <= d["utilisation"] <= d["planned_utilisation"] * 1.6
+                for d in drives
+            ) and bus == pytest.approx(sum(d["utilisation"] for d in drives), abs=0.002)
+
+        try:
+            await eventually(polls_alone_take_their_plan, within_s=3 * SETTLE_S, every_s=0.5)
+        except AssertionError:
+            pytest.fail(f"last seen: {seen[-1]['buses']} {seen[-1]['drives']}")
 
 
 async def test_scada_reads_show_as_a_drives_share_above_its_planned_one(
@@ -100,15 +116,16 @@ async def test_scada_reads_show_as_a_drives_share_above_its_planned_one(
                 # SCADA reads fan2's 12 running values back to back.
                 await client.request(2, bytes.fromhex("03 3000 000C"))
                 drives = (await web.get_json("/api/overview"))["drives"]
-                fan = next(d for d in drives if d["name"] == "fan2")
-                return bool(fan["utilisation"] > 3 * fan["planned_utilisation"])
+                fan, pump = (next(d for d in drives if d["name"] == n) for n in ("fan2", "pump1"))
+                # fan2's share beyond its polls' plan; pump1's its polls' still.
+                return bool(
+                    fan["utilisation"] > 3 * fan["planned_utilisation"]
+                    and pump["utilisation"] <= pump["planned_utilisation"] * 1.6
+                )
 
             await eventually(fan_busy, within_s=SETTLE_S * 2, every_s=0.0)
-            drives = {d["name"]: d for d in (await web.get_json("/api/overview"))["drives"]}
     finally:
         await client.close()
-    pump = drives["pump1"]
-    assert pump["utilisation"] <= pump["planned_utilisation"] * 1.6, pump  # its polls only
 
 
 @pytest.mark.skipif(
