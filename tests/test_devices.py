@@ -10,8 +10,6 @@ import contextlib
 import json
 import os
 import struct
-import subprocess
-import sys
 from collections.abc import AsyncIterator, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,11 +20,11 @@ import pytest
 from gateway.app import Application
 from gateway.config import GatewayConfig
 from tests.peers.pymodbus_meter import EXPECTED
-from tests.support import TcpClient, eventually, pty_cable, running_gateway
+from tests.support import TcpClient, eventually, running_gateway
 from tests.support.console_support import OPERATOR_TOKEN, console_config
 from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
 from tests.support.mqtt_setup import mqtt_config
-from tests.support.processes import entry_point, gateway_process, run_cli
+from tests.support.processes import entry_point, gateway_process, pymodbus_peer, run_cli
 from tests.test_console_monitor import line_with
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -37,21 +35,8 @@ UNIT = 7
 @pytest.fixture
 def meter_line() -> Iterator[str]:
     """The meter at the far end of a pty cable; yields the device path the gateway opens."""
-    with pty_cable() as (gateway_end, meter_end):
-        process = subprocess.Popen(
-            [sys.executable, "-m", "tests.peers.pymodbus_meter", meter_end, "19200", str(UNIT)],
-            cwd=ROOT,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.DEVNULL,  # pymodbus warns of its own deprecations there
-            text=True,
-        )
-        try:
-            assert process.stdout is not None
-            assert process.stdout.readline().strip() == "ready"
-            yield gateway_end
-        finally:
-            process.terminate()
-            process.communicate(timeout=10)
+    with pymodbus_peer("pymodbus_meter", "19200", str(UNIT)) as gateway_end:
+        yield gateway_end
 
 
 @dataclass
