@@ -21,9 +21,9 @@ from gateway.app import Application
 from gateway.config import GatewayConfig
 from gateway.instruments.simulator import SimulatedLine
 from tests.support import TcpClient, eventually, running_gateway
+from tests.support.browser import CHROMEDRIVER, CHROMIUM, Browser, showing
 from tests.support.console_support import VIEWER_PASSWORD, console_client, console_config
 from tests.support.processes import run_cli
-from tests.test_console_browser import CHROMEDRIVER, CHROMIUM, Browser, showing
 
 pytestmark = pytest.mark.line(
     addresses=(1, 2), models={1: "gd350", 2: "gd20"}, baudrate=9600, response_delay_ms=1.0
