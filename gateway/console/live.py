@@ -82,9 +82,6 @@ class LiveState:
         self._bus_states = {name: bus.state for name, bus in buses.items()}
         self._counters: dict[str, BusCounters] = {}
         self._by_address = {(d.bus, d.address): d.name for d in drives}
-        self._plans: dict[str, LinePlan] = {}
-        self._plan_basis: list[object] = []
-        """The bus and drive settings `_plans` was worked out from."""
 
     # -- poll listener ----------------------------------------------------------------------
 
@@ -179,28 +176,22 @@ class LiveState:
     # -- what the pages show ----------------------------------------------------------------
 
     def overview(self) -> dict[str, Any]:
+        plans = self.line_plans()  # once: every drive's row takes its share from it
         return {
             "time": iso_time(time.time()),
-            "buses": [self.bus_view(name) for name in self.buses],
-            "drives": [self.drive_view(name) for name in self.drives],
+            "buses": [self.bus_view(name, plans) for name in self.buses],
+            "drives": [self.drive_view(name, plans) for name in self.drives],
             "store_problem": self.events.store_problem(),
         }
 
-    def line_plan(self, bus: str) -> LinePlan:
-        """What the drives polled now (a reload's included) were planned to take of `bus`, at
-        its settings now (a reload may have changed its baud rate). Worked out again only when
-        either changed: the overview asks for every drive twice a second."""
+    def line_plans(self) -> dict[str, LinePlan]:
+        """Bus → what the drives polled now (a reload's included) were planned to take of it,
+        at its settings now (a reload may have changed its baud rate)."""
         polled = [] if self.poller is None else [d.settings for d in self.poller.drives.values()]
-        basis: list[object] = [bus.settings for bus in self.buses.values()]
-        basis += polled
-        if len(basis) != len(self._plan_basis) or any(
-            a is not b for a, b in zip(basis, self._plan_basis, strict=False)
-        ):
-            self._plans = line_plans((bus.settings for bus in self.buses.values()), polled)
-            self._plan_basis = basis
-        return self._plans[bus]
+        return line_plans((bus.settings for bus in self.buses.values()), polled)
 
-    def bus_view(self, name: str) -> dict[str, Any]:
+    def bus_view(self, name: str, plans: Mapping[str, LinePlan] | None = None) -> dict[str, Any]:
+        plan = (plans or self.line_plans())[name]
         bus = self.buses[name]
         line = self.lines[name]
         chars = line.char_format
@@ -213,7 +204,7 @@ class LiveState:
             "port": line.port,
             "format": f"{chars.baudrate} {chars.bytesize}{chars.parity}{chars.stopbits}",
             "utilisation": _rate(recent, "line_s"),
-            "planned_utilisation": _share(self.line_plan(name).total.busy_fraction),
+            "planned_utilisation": _share(plan.total.busy_fraction),
             "transactions_per_s": _rate(recent, "transactions"),
             "timeouts_per_min": _delta(minute, "timeouts"),
             "bad_replies_per_min": _delta(minute, "bad_replies"),
@@ -242,13 +233,13 @@ class LiveState:
             shown.append({**self.bus_view(name), **view, "line": hardware})
         return shown
 
-    def drive_view(self, name: str) -> dict[str, Any]:
+    def drive_view(self, name: str, plans: Mapping[str, LinePlan] | None = None) -> dict[str, Any]:
         drive = self.drives[name]
         telemetry = self.telemetry(name)
         online = None if self.poller is None else self.poller.availability(name)
         state = telemetry.get("state")
         recent = _window(self._samples[drive.bus], RATE_WINDOW_S)
-        planned = self.line_plan(drive.bus).drives.get(name)
+        planned = (plans or self.line_plans())[drive.bus].drives.get(name)
         return {
             "name": name,
             "unit_id": drive.unit_id,

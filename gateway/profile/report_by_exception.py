@@ -9,6 +9,10 @@ point has news:
     due        the point's `max_interval_s` has passed since it was last published
     new        the point was never published (or was unread then)
 
+A device's point goes by its device file's rule over the gateway's `mqtt.report.devices`
+(`ReportRule`), a drive's key by `mqtt.report` under its own `report`; a device's alarm flags
+are news at any change.
+
 Each point's reference is what the last publication carried: a slow drift is published once it
 adds up to the deadband, not lost step by step. The gateway's `mqtt.publish_interval_s` still
 republishes the whole state however quiet it is.
