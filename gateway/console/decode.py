@@ -8,7 +8,8 @@
 A register the drive's profile doesn't name (every register of a `generic` device) keeps its
 address and raw word. A device file's points are shown as MQTT publishes them (a float32 as
 230.5 V, not its two words), decoded by the device's profile from the words the frame carries
-(`device_values`); a point only partly in the frame keeps its raw words.
+(`device_values`), a coil's or discrete input's as on or off; a point only partly in the frame
+keeps its raw words.
 
 The status words are put in words by the drive's own profile, so the monitor says what the drive
 page and MQTT say: 0041H is "ready" on a GD350, "not ready" on a GD300-LIFT.
@@ -20,6 +21,8 @@ import struct
 
 from gateway.modbus.functions import (
     DIAGNOSTICS,
+    READ_COILS,
+    READ_DISCRETE_INPUTS,
     READ_HOLDING_REGISTERS,
     READ_INPUT_REGISTERS,
     WRITE_MULTIPLE_REGISTERS,
@@ -28,6 +31,8 @@ from gateway.modbus.functions import (
 from gateway.profile import DriveProfile, Point, exception_name, format_register, is_ram_address
 from gateway.profile.point_types import Table, word_key
 
+BIT_TABLES = {READ_COILS: Table.COIL, READ_DISCRETE_INPUTS: Table.DISCRETE_INPUT}
+"""The bit reads, by the table each reads: a device's coils and discrete inputs are points too."""
 MAX_VALUES_SHOWN = 4
 """A 12-word poll names its first values and says how many more: a line stays one line."""
 
@@ -54,6 +59,10 @@ def describe_request(pdu: bytes, profile: DriveProfile | None) -> str:
         )
         more = f", +{count - MAX_VALUES_SHOWN} more" if count > MAX_VALUES_SHOWN else ""
         return f"write {shown}{more}"
+    if function in BIT_TABLES and len(pdu) == 5:
+        start, count = struct.unpack(">HH", pdu[1:5])
+        table = BIT_TABLES[function].value.replace("_", " ")
+        return f"read {table} {format_register(start)} ({count} bits)"
     if function == DIAGNOSTICS:
         return "loop-back 08H"
     return f"function {function:02X}H"
@@ -84,6 +93,14 @@ def describe(pdu: bytes, reply: bytes | None, profile: DriveProfile | None) -> s
         )
         more = f", +{len(words) - MAX_VALUES_SHOWN} more" if len(words) > MAX_VALUES_SHOWN else ""
         return f"{request} → {shown}{more}"
+    if function in BIT_TABLES and len(pdu) == 5 and len(reply) >= 2:
+        start, count = struct.unpack(">HH", pdu[1:5])
+        # Bits from the first data byte's lowest on; a short reply shows what it holds.
+        held = min(count, 8 * (len(reply) - 2))
+        bits = [(reply[2 + i // 8] >> (i % 8)) & 1 for i in range(held)]
+        device = device_values(start, bits, profile, BIT_TABLES[function], " ")
+        raw = [f"{format_register(start + i)} {_text(bool(b))}" for i, b in enumerate(bits)]
+        return f"{request} → {_listed(raw if device is None else device)}"
     if function == DIAGNOSTICS:
         return f"{request} → echoed" if reply == pdu else f"{request} → {reply.hex(' ')}"
     return f"{request} → ok"
@@ -108,11 +125,15 @@ def device_values(
         shown.append((point.address, f"{point.name}{between}{_text(values[point.name])}{unit}"))
         covered.update(range(point.address, point.end))
     shown += [
-        (start + i, f"{format_register(start + i)}{between}{word:04X}H")
+        (start + i, f"{format_register(start + i)}{between}{_raw(word, table)}")
         for i, word in enumerate(words)
         if start + i not in covered
     ]
     return [text for _, text in sorted(shown, key=lambda item: item[0])]
+
+
+def _raw(word: int, table: Table) -> str:
+    return _text(bool(word)) if table.bits else f"{word:04X}H"
 
 
 def _text(value: object) -> str:

@@ -58,3 +58,20 @@ def test_a_write_of_a_float32_names_its_point_and_value() -> None:
     request = struct.pack(f">BHHB{len(words)}H", 0x10, point.address, 2, 4, *words)
     shown = describe(request, bytes.fromhex("10") + request[1:5], meter)
     assert shown == f"write {point.name} = 15.0{' ' + point.unit if point.unit else ''} → ok"
+
+
+def test_a_coil_read_names_the_devices_bool_points() -> None:
+    from gateway.profile.device_files import device_profile
+
+    io = device_profile(
+        "io",
+        "name: io\nsource: test\npoints:\n"
+        "  pump_on: {table: coil, address: 0, type: bool}\n"
+        "  valve_open: {table: coil, address: 2, type: bool}\n"
+        "  door_open: {table: discrete_input, address: 0, type: bool}\n",
+        "io.yaml",
+    )
+    coils = describe(bytes.fromhex("01 0000 0003"), bytes.fromhex("01 01 05"), io)
+    assert coils == "read coil 0000H (3 bits) → pump_on on, 0001H off, valve_open on"
+    inputs = describe(bytes.fromhex("02 0000 0001"), bytes.fromhex("02 01 00"), io)
+    assert inputs == "read discrete input 0000H (1 bits) → door_open off"
