@@ -75,6 +75,7 @@ async def test_planned_shares_are_check_configs_and_polls_alone_take_about_that(
         assert round(bus["planned_utilisation"] * 100, 1) == pytest.approx(
             printed["line1"], abs=0.1
         )
+        assert bus["over_budget"] is False  # 17 %: room left for SCADA
         for name in ("pump1", "fan2"):
             planned = drives[name]["planned_utilisation"]
             assert round(planned * 100, 1) == pytest.approx(printed[name], abs=0.1)

@@ -221,9 +221,16 @@ def test_check_config_warns_of_a_line_its_polls_would_fill(tmp_path: Path) -> No
     assert result.returncode == 0, result.stderr
     assert "line1: 2 polled" in result.stdout
     assert "buses[0] (line1): its polls alone need 1" in result.stderr  # more than 100 %
-    config.write_text(config.read_text().replace("1200", "19200"))
+    config.write_text(config.read_text().replace("1200", "2400"))
     result = run_cli("check-config", "--config", str(config))
     assert "polls alone" not in result.stderr
+    # 81 %: the polls fit, but past the budget that leaves the line room for SCADA.
+    assert "line1: 2 polled, 2.0 requests/s, 81.0% of the line" in result.stdout
+    assert "    meter1: 1.0 requests/s, 40.5%" in result.stdout
+    assert "buses[0] (line1): its polls take 81% of the line, more than 70%" in result.stderr
+    config.write_text(config.read_text().replace("2400", "19200"))
+    result = run_cli("check-config", "--config", str(config))
+    assert "warning" not in result.stderr
 
 
 async def test_a_writable_coil_is_switched(plant: Plant) -> None:

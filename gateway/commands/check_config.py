@@ -3,9 +3,10 @@
 Validates the file as `run` would (every key, its type and range, the cross-checks: unique unit
 ids, no two buses on one port, drives on defined buses), then prints which unit id reaches which
 drive on which line, and how much of each line its polls take (a line its polls alone would
-fill is a warning). Exit 0 when valid, 3 when not (the key and the reason are printed). A serial
-port that isn't there on this machine is a warning, not an error: the file may be checked on
-another machine than the gateway box, but on the box `run` would keep trying to open it.
+fill is a warning, and so is one they take more than 70 % of: too little left for SCADA). Exit
+0 when valid, 3 when not (the key and the reason are printed). A serial port that isn't there on
+this machine is a warning, not an error: the file may be checked on another machine than the
+gateway box, but on the box `run` would keep trying to open it.
 """
 
 from __future__ import annotations
@@ -89,7 +90,7 @@ def access_table(config: GatewayConfig) -> str:
 def line_budget(config: GatewayConfig) -> tuple[str, list[str]]:
     """Each line's poll load (of the drives `run` would poll), and a warning for each line the
     polls would fill."""
-    from gateway.poller.budget import line_plans
+    from gateway.poller.budget import POLL_BUDGET, line_plans
     from gateway.settings import runtime_settings
 
     settings = runtime_settings(config)
@@ -112,6 +113,12 @@ def line_budget(config: GatewayConfig) -> tuple[str, list[str]]:
                 f"buses[{index}] ({bus.name}): its polls alone need {load.busy_fraction:.0%} of "
                 "the line: polls will fall behind; lengthen intervals (interval_ms) or raise "
                 "the baud rate"
+            )
+        elif plan.over_budget:
+            overloaded.append(
+                f"buses[{index}] ({bus.name}): its polls take {load.busy_fraction:.0%} of the "
+                f"line, more than {POLL_BUDGET:.0%}: little is left for SCADA's requests, "
+                "commands and retries; lengthen intervals (interval_ms) or raise the baud rate"
             )
     return "\n".join(lines), overloaded
 

@@ -205,6 +205,7 @@ class LiveState:
             "format": f"{chars.baudrate} {chars.bytesize}{chars.parity}{chars.stopbits}",
             "utilisation": _rate(recent, "line_s"),
             "planned_utilisation": _share(plan.total.busy_fraction),
+            "over_budget": plan.over_budget,
             "transactions_per_s": _rate(recent, "transactions"),
             "timeouts_per_min": _delta(minute, "timeouts"),
             "bad_replies_per_min": _delta(minute, "bad_replies"),

@@ -22,6 +22,10 @@ from gateway.settings import DriveSettings
 
 REQUEST_BYTES: Final = 8
 REPLY_OVERHEAD_BYTES: Final = 5
+POLL_BUDGET: Final = 0.7
+"""The most of a line's time its planned polls should take: the rest is SCADA's requests, MQTT's
+and the console's commands, and the retries of a noisy line. Past it `check-config` warns and
+the console marks the line."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -51,6 +55,10 @@ class LinePlan:
 
     total: PollLoad
     drives: Mapping[str, PollLoad]
+
+    @property
+    def over_budget(self) -> bool:
+        return self.total.busy_fraction > POLL_BUDGET
 
 
 def line_plans(

@@ -129,7 +129,9 @@ function busRow(bus) {
     el("td", { class: "mono" }, bus.port),
     el("td", {}, bus.format),
     el("td", { class: "utilisation num" }, fmt(bus.utilisation * 100, 1, "%")),
-    el("td", { class: "planned num" }, fmt(bus.planned_utilisation * 100, 1, "%")),
+    // Past the poll budget: little of the line is left for SCADA (check-config warns too).
+    el("td", { class: `planned num${bus.over_budget ? " warn" : ""}` },
+      fmt(bus.planned_utilisation * 100, 1, "%")),
     el("td", {}, fmt(bus.transactions_per_s, 1)),
     el("td", { class: bus.timeouts_per_min ? "warn" : "" }, bus.timeouts_per_min),
     el("td", { class: bus.bad_replies_per_min ? "warn" : "" }, bus.bad_replies_per_min),
