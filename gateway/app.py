@@ -120,7 +120,10 @@ class Application:
     async def reload(self, new: GatewaySettings) -> ReloadPlan:
         """Apply a new, valid configuration in place (`gateway.settings.reload`); what changed."""
         poller: Poller | None = getattr(self, "poller", None)
-        plan = plan_reload(self.settings.source, new.source, mqtt_running=hasattr(self, "mqtt"))
+        profiles = {d.name: d.profile for d in self.settings.drives}
+        plan = plan_reload(
+            self.settings.source, new.source, mqtt_running=hasattr(self, "mqtt"), profiles=profiles
+        )
         running = self.settings = plan.settings
         if poller is None and any(running.polled(d) for d in plan.added):
             plan.restart_needed.append("polling (no drive was polled at start)")

@@ -319,7 +319,8 @@ class PollGroupConfig(Section):
 class ReportConfig(Section):
     """Report by exception: when a drive's state is worth publishing. A key left out takes the
     next level's (a telemetry key's → its drive's `report` → `mqtt.report` → publish on any
-    change, and every `mqtt.publish_interval_s`: the behaviour before these keys existed)."""
+    change, and every `mqtt.publish_interval_s`: the behaviour before these keys existed; a
+    device's point's → its device file's → `mqtt.report.devices` → the same)."""
 
     deadband: float | None = Field(None, ge=0)
     """A number must move by more than this (in its unit) since it was last published."""
@@ -336,6 +337,16 @@ class DriveReportConfig(ReportConfig):
 
     keys: dict[str, ReportConfig] = Field(default_factory=dict)
     """Telemetry key (`output_current_a`) → its own rule, over the drive's."""
+
+
+class GatewayReportConfig(ReportConfig):
+    """`mqtt.report`: every drive's defaults, and `devices`, every device's (a device file's
+    own keys, and its points', override them; its points' units differ from a drive's, so a
+    drive's deadband is not theirs)."""
+
+    devices: ReportConfig = ReportConfig()
+    """Every device's report by exception, unless its device file or point says otherwise (a
+    drive's deadbands are not a meter's)."""
 
 
 class AlarmConfig(Section):
@@ -514,8 +525,9 @@ class MqttConfig(Section):
     """The topic prefix Home Assistant listens on for discovery."""
     publish_interval_s: float = Field(60.0, gt=0)
     """A drive's state is published on change and at least this often."""
-    report: ReportConfig = ReportConfig()
-    """Every drive's report by exception unless its own `report` says otherwise."""
+    report: GatewayReportConfig = GatewayReportConfig()
+    """Every drive's report by exception unless its own `report` says otherwise; `devices`:
+    every device's, unless its device file says otherwise."""
     command_max_age_s: float = Field(10.0, gt=0)
     """A command whose `time` is older than this is refused (it sat in a queue somewhere), and
     so is one that waited longer than this in the gateway before its turn came."""

@@ -70,8 +70,8 @@ OVERVIEW = """
 <h2>Buses</h2>
 <div class="scroll"><table id="buses" class="grid cards">
 <thead><tr><th>Bus</th><th>State</th><th>Port</th><th>Format</th><th>Utilisation</th>
-<th>Transactions/s</th><th>Timeouts/min</th><th>Bad replies/min</th><th>Retries/min</th>
-<th>Queue</th><th></th></tr></thead>
+<th>Planned (polls)</th><th>Transactions/s</th><th>Timeouts/min</th><th>Bad replies/min</th>
+<th>Retries/min</th><th>Queue</th><th></th></tr></thead>
 <tbody></tbody>
 </table></div>
 </section>
@@ -79,7 +79,8 @@ OVERVIEW = """
 <h2>Drives</h2>
 <div class="scroll"><table id="drives" class="grid cards">
 <thead><tr><th>Drive</th><th>Unit id</th><th>Bus / address</th><th>Model</th><th>Online</th>
-<th>State</th><th>Fault</th><th>Output frequency</th><th>Current</th><th>Last answer</th></tr>
+<th>State</th><th>Fault</th><th>Output frequency</th><th>Current</th><th>Line use</th>
+<th>Last answer</th></tr>
 </thead>
 <tbody></tbody>
 </table></div>

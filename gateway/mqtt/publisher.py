@@ -7,7 +7,8 @@ acknowledged it (QoS 1), so an outage or a restart loses none.
 
 A drive's state is published when it has news by its report-by-exception rules
 (`gateway.profile.report_by_exception`; a drive's from `mqtt.report` and its own `report`, by
-default any change but `last_seen`'s; a device file's points by theirs) or every
+default any change but `last_seen`'s; a device's points by their device file's rules over
+`mqtt.report.devices`, its alarm flags on any change) or every
 `publish_interval_s`, retained, so a dashboard that subscribes late still gets it at once; an
 availability is published once per connection and change. What a broken connection kept from
 being published goes back to the outbox, to go out after the next connect.
@@ -46,10 +47,11 @@ EVENT_BATCH = 100
 
 
 def exception_report(mqtt: MqttSettings, drive: DriveSettings) -> ExceptionReport:
-    """A drive's report by exception: a device file's points by their own rules, a drive's keys
-    by `mqtt.report` and its own `report` (the JSON state's and Sparkplug's DDATA alike)."""
+    """A drive's report by exception: a device file's points by their own rules over
+    `mqtt.report.devices`, a drive's keys by `mqtt.report` and its own `report` (the JSON state's
+    and Sparkplug's DDATA alike)."""
     if drive.profile.typed_points:
-        return ExceptionReport(drive.profile.typed_points)
+        return ExceptionReport(drive.profile.typed_points, mqtt.device_reporting)
     rules = mqtt.reporting.get(drive.name, DriveReporting())
     return ExceptionReport.of_keys(rules.default, rules.keys)
 

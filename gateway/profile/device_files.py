@@ -23,12 +23,13 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from gateway.errors import DeviceFileError
 from gateway.profile.addressing import format_register, parse_register
+from gateway.profile.limit_alarms import alarm_name, limit_sides
 from gateway.profile.point_types import (
     REGISTERS,
     Kind,
     Limit,
     Order,
-    Reporting,
+    ReportRule,
     Table,
     TypedPoint,
 )
@@ -146,12 +147,12 @@ class _DeviceSpec(_Section):
     """The points' order unless a point says otherwise."""
     unconfirmed: tuple[str, ...] = ()
     """What the manual didn't settle, in words, said where the device's facts show."""
-    deadband: float = Field(0.0, ge=0)
+    deadband: float | None = Field(None, ge=0)
     """Report by exception, every point's unless it sets its own: a number must move by more
-    than this (in its unit)."""
-    deadband_percent: float = Field(0.0, ge=0)
+    than this (in its unit); what neither sets, the gateway's `mqtt.report.devices` does."""
+    deadband_percent: float | None = Field(None, ge=0)
     """... and by more than this share of the value last published."""
-    min_interval_ms: float = Field(0.0, ge=0)
+    min_interval_ms: float | None = Field(None, ge=0)
     """A change is published no sooner than this after the point was last published."""
     max_interval_ms: float | None = Field(None, gt=0)
     """Every point is published at least this often, changed or not (default:
@@ -202,6 +203,7 @@ def device_profile(key: str, text: str, where: str) -> DeviceProfile:
         raise DeviceFileError(f"{where}: {path}: {first['msg']}{more}") from None
     points = tuple(_typed(name, point, spec, where) for name, point in spec.points.items())
     _check_overlaps(points, where)
+    _check_alarm_flags(points, where)
     limits = Limits(spec.max_registers, spec.max_bits, spec.max_gap, spec.interval_ms / 1000)
     for point in points:
         most = limits.most(point.table)
@@ -271,22 +273,25 @@ def _typed(name: str, spec: _PointSpec, device: _DeviceSpec, where: str) -> Type
         interval_s=None if spec.interval_ms is None else spec.interval_ms / 1000,
         decimals=spec.decimals,
         description=spec.description,
-        reporting=_reporting(spec, device),
+        report=_report(spec, device),
         limit=Limit(spec.high, spec.low, spec.hysteresis, spec.alarm_delay_ms / 1000),
     )
 
 
-def _reporting(spec: _PointSpec, device: _DeviceSpec) -> Reporting:
-    def own_or_device(own: float | None, default: float | None) -> float | None:
-        return default if own is None else own
+def _report(spec: _PointSpec, device: _DeviceSpec) -> ReportRule:
+    """The point's own report-by-exception keys over its file's defaults."""
+    return _rule(spec).over(_rule(device))
 
-    min_ms = own_or_device(spec.min_interval_ms, device.min_interval_ms) or 0.0
-    max_ms = own_or_device(spec.max_interval_ms, device.max_interval_ms)
-    return Reporting(
-        deadband=own_or_device(spec.deadband, device.deadband) or 0.0,
-        deadband_percent=own_or_device(spec.deadband_percent, device.deadband_percent) or 0.0,
-        min_interval_s=min_ms / 1000,
-        max_interval_s=None if max_ms is None else max_ms / 1000,
+
+def _rule(level: _PointSpec | _DeviceSpec) -> ReportRule:
+    def seconds(ms: float | None) -> float | None:
+        return None if ms is None else ms / 1000
+
+    return ReportRule(
+        level.deadband,
+        level.deadband_percent,
+        seconds(level.min_interval_ms),
+        seconds(level.max_interval_ms),
     )
 
 
@@ -321,4 +326,18 @@ def _check_overlaps(points: tuple[TypedPoint, ...], where: str) -> None:
                 raise DeviceFileError(
                     f"{where}: points.{point.name}: overlaps points.{other.name} at "
                     f"{point.table.value} register {format_register(address)}"
+                )
+
+
+def _check_alarm_flags(points: tuple[TypedPoint, ...], where: str) -> None:
+    """A limit alarm's flag is a key of the device's state beside its points (`alarm_name`): a
+    point of that name would be overwritten by it."""
+    names = {point.name for point in points}
+    for point in points:
+        for side, _ in limit_sides(point.limit):
+            flag = alarm_name(point.name, side)
+            if flag in names:
+                raise DeviceFileError(
+                    f"{where}: points.{flag}: is the state's key of points.{point.name}'s "
+                    f"{side} alarm; give the point another name"
                 )

@@ -56,6 +56,9 @@ class MqttSettings:
     reporting: Mapping[str, DriveReporting] = field(default_factory=dict)
     """Drive → its report by exception (`mqtt.report` under its own `report`); a device file's
     points carry theirs."""
+    device_reporting: Reporting = field(default_factory=Reporting)
+    """Every device's report by exception (`mqtt.report.devices`), under what its device file
+    and its points say."""
     sparkplug: SparkplugSettings | None = None
     """The Sparkplug B edge node beside the JSON topics; None: not enabled."""
 
@@ -84,6 +87,7 @@ def mqtt_settings(config: GatewayConfig) -> MqttSettings | None:
         command_max_age_s=mqtt.command_max_age_s,
         commands_enabled=mqtt.commands_enabled,
         reporting={d.name: _drive_reporting(mqtt.report, d.report) for d in config.drives},
+        device_reporting=_rule(mqtt.report.devices),
         sparkplug=_sparkplug(mqtt.sparkplug, config.gateway_id),
     )
 

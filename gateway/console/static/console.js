@@ -128,7 +128,10 @@ function busRow(bus) {
     el("td", {}, el("span", { class: `badge ${bus.state}` }, bus.state)),
     el("td", { class: "mono" }, bus.port),
     el("td", {}, bus.format),
-    el("td", {}, fmt(bus.utilisation * 100, 1, "%")),
+    el("td", { class: "utilisation num" }, fmt(bus.utilisation * 100, 1, "%")),
+    // Past the poll budget: little of the line is left for SCADA (check-config warns too).
+    el("td", { class: `planned num${bus.over_budget ? " warn" : ""}` },
+      fmt(bus.planned_utilisation * 100, 1, "%")),
     el("td", {}, fmt(bus.transactions_per_s, 1)),
     el("td", { class: bus.timeouts_per_min ? "warn" : "" }, bus.timeouts_per_min),
     el("td", { class: bus.bad_replies_per_min ? "warn" : "" }, bus.bad_replies_per_min),
@@ -151,6 +154,9 @@ function driveRow(drive) {
     el("td", { class: "fault" }, fault),
     el("td", { class: "frequency num" }, fmt(drive.output_frequency_hz, 2, "Hz")),
     el("td", { class: "current num" }, fmt(drive.output_current_a, 1, "A")),
+    // What it took of its line lately (polls, SCADA, MQTT) beside what its polls were planned to.
+    el("td", { class: "line num" }, `${fmt(drive.utilisation * 100, 1, "%")} ` +
+      `(planned ${fmt(drive.planned_utilisation * 100, 1, "%")})`),
     timeCell(drive.last_answer));
 }
 
