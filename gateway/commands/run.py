@@ -117,6 +117,7 @@ async def serve(
     for signum in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(signum, on_signal, signum)
     reloader = Reloader(app, config_path, notifier)
+    _edit_from_console(app, config_path, reloader)
     reload_asked = asyncio.Event()
     loop.add_signal_handler(signal.SIGHUP, reload_asked.set)
     control = await listen_for_control(config_path, reloader)
@@ -163,6 +164,22 @@ async def serve(
             await control.stop()
         notifier.close()
     return EXIT_OK
+
+
+def _edit_from_console(app: Application, path: str | None, reloader: Reloader) -> None:
+    """The console's admins edit the file the gateway runs with, applied by the same reload."""
+    console = getattr(app, "console", None)
+    if console is None or path is None:
+        return
+    from gateway.console.config_editor import ConfigEditor
+
+    console.config_editor = ConfigEditor(
+        path,
+        reloader.reload,
+        app.events,
+        lambda: app.settings.source,
+        lambda: hasattr(app, "mqtt"),
+    )
 
 
 async def listen_for_control(path: str | None, reloader: Reloader) -> ControlServer | None:

@@ -16,7 +16,7 @@ import hmac
 import json
 import logging
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import replace
 from datetime import datetime
 from importlib import resources
@@ -291,16 +291,25 @@ def _status_class(status: int) -> type[web.HTTPException]:
 # -- pages ----------------------------------------------------------------------------------
 
 
-def _html(request: web.Request, title: str, body: str, data: dict[str, str]) -> web.Response:
+def _html(
+    request: web.Request,
+    title: str,
+    body: str,
+    data: dict[str, str],
+    scripts: Sequence[str] | None = None,
+) -> web.Response:
+    """A page; `scripts`: what it loads before console.js (uPlot for a drive's page)."""
     console = request.app[CONSOLE]
     who = request.get(IDENTITY)
+    if scripts is None:
+        scripts = ["uPlot.iife.min.js"] if data.get("page") == "drive" else ()
     html = pages.page(
         title,
         body,
         who=who,
         buses=list(console.live.buses),
         data={**data, "commands": "on" if console.commands_enabled else "off"},
-        scripts=["uPlot.iife.min.js"] if data.get("page") == "drive" else (),
+        scripts=scripts,
     )
     return web.Response(text=html, content_type="text/html")
 
@@ -414,6 +423,7 @@ async def session_info(request: web.Request) -> web.StreamResponse:
             "via": str(who.via),
             "csrf_token": csrf,
             "may_write": who.may_write and console.commands_enabled,
+            "may_configure": who.may_configure,
             "commands_enabled": console.commands_enabled,
         }
     )
@@ -600,8 +610,8 @@ async def live_stream(request: web.Request) -> web.StreamResponse:
 
 
 async def traffic_stream(request: web.Request) -> web.StreamResponse:
-    """Every transaction on the bus from now on (`?recent=N`: the last N first), as `traffic`
-    events; the bus records only while at least one such stream is open."""
+    """Every transaction on the bus from now on (`?recent=N`: the last N first, kept at all
+    times), as `traffic` events."""
     console = request.app[CONSOLE]
     bus = request.match_info["bus"]
     if bus not in console.live.buses:
@@ -626,7 +636,7 @@ async def traffic_stream(request: web.Request) -> web.StreamResponse:
             await _send_event(response, "traffic", traffic.to_json(record))
         return response
     except ConnectionError:
-        return response  # the monitor was closed: it stops recording (below), nothing to log
+        return response  # the monitor was closed: nothing to log
     finally:
         traffic.leave(watcher)
 
