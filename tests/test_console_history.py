@@ -47,6 +47,7 @@ async def test_the_history_survives_a_restart_and_is_charted_and_downloaded(
         await eventually(
             lambda: (app.poller.telemetry("pump1").get("output_frequency_hz") or 0) > 0, 10.0
         )
+
         async def three_steps() -> bool:
             return await _steps(app) >= 3
 
