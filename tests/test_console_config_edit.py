@@ -127,8 +127,10 @@ async def test_an_admin_edits_checks_applies_and_rolls_back_an_operator_cannot(
 
             events = (await admin.get_json("/api/events?kind=config_changed"))["events"]
         texts = [(e["user"], e["text"], e["result"]) for e in reversed(events)]
-        assert texts[0][0] == "olga" and texts[0][2].startswith("refused: olga (operator)")
-        assert texts[1][0] == "ada" and texts[1][2].startswith("refused: the configuration")
+        assert texts[0][0] == "olga"
+        assert texts[0][2].startswith("refused: olga (operator)")
+        assert texts[1][0] == "ada"
+        assert texts[1][2].startswith("refused: the configuration")
         assert texts[2] == (
             "ada",
             "configuration version 2 applied (longer cable): buses reopened: line1",

@@ -13,7 +13,7 @@ from pathlib import Path
 from gateway.config import StorageConfig
 from gateway.settings.local import StoreSettings
 from gateway.store import EventStore
-from gateway.store.history import HistoryRecorder, series
+from gateway.store.history import HistoryRecorder, Value, series
 from gateway.store.records import HistoryPoint
 from gateway.tasks import ServiceTasks
 
@@ -65,7 +65,9 @@ def test_a_step_averages_numbers_keeps_the_last_text_and_closes_with_the_next() 
 
 
 def test_more_points_than_asked_for_are_merged() -> None:
-    points = [(60.0 * n, {"hz": float(n), "state": f"s{n}"}) for n in range(10)]
+    points: list[tuple[float, dict[str, Value]]] = [
+        (60.0 * n, {"hz": float(n), "state": f"s{n}"}) for n in range(10)
+    ]
     shown = series(points, ["hz", "state", "missing"], 60.0, 5)
     assert shown.times == [0.0, 120.0, 240.0, 360.0, 480.0]
     assert shown.columns[0] == [0.5, 2.5, 4.5, 6.5, 8.5]
