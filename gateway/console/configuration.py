@@ -17,6 +17,7 @@ the console's guard first (CSRF token, same origin).
 from __future__ import annotations
 
 import json
+from html import escape
 from collections.abc import Awaitable
 from typing import Any, Final, TypeVar
 
@@ -80,7 +81,11 @@ def add_routes(app: web.Application, editor: ConfigEditor | None) -> None:
 
 
 async def configuration_page(request: web.Request) -> web.StreamResponse:
-    _admin(request)
+    who: Identity = request[IDENTITY]
+    if not who.may_configure:
+        refused = _html(request, "Configuration", _refused_page(who), {"page": "refused"})
+        refused.set_status(403)
+        return refused
     return _html(
         request, "Configuration", PAGE, {"page": "configuration"}, scripts=("configuration.js",)
     )
@@ -141,6 +146,14 @@ async def config_rollback(request: web.Request) -> web.StreamResponse:
 
 
 # -- helpers --------------------------------------------------------------------------------
+
+
+def _refused_page(who: Identity) -> str:
+    return (
+        "<h1>Configuration</h1>"
+        f'<p class="error">{escape(who.name)} ({escape(str(who.role))}) may not see or change '
+        "the configuration: admins only.</p>"
+    )
 
 
 def _admin(request: web.Request, audit: str | None = None) -> Identity:

@@ -22,13 +22,14 @@ function configurationPage() {
 
   const showChecked = (answer, headline) => {
     const problems = (answer.problems || []).map((p) => (p.key ? `${p.key}: ${p.reason}` : p.reason));
-    result.replaceChildren(
+    const parts = [
       el("p", { class: answer.ok ? "ok-text" : "error" }, headline),
       list("Problems", problems, "problems error"),
       list("Warnings", answer.warnings, "warnings warn"),
-      list("Applied at once", answer.changed, "changed"),
+      list(answer.version ? "Applied at once" : "Would be applied at once", answer.changed, "changed"),
       list("Waits for a restart", answer.restart_needed, "restart warn"),
-    );
+    ];
+    result.replaceChildren(...parts.filter(Boolean));
   };
 
   const loadFile = async () => {

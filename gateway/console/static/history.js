@@ -82,7 +82,7 @@ function historyPage() {
           { size: 60 },
         ],
         legend: { show: false },
-        cursor: { drag: { x: true, y: false } },
+        cursor: { drag: { x: true, y: false, setScale: false } },
         hooks: {
           setSelect: [(u) => {
             if (u.select.width < 5) return;
