@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import re
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
@@ -68,6 +68,17 @@ async def downloads_to(browser: Browser, directory: Path) -> None:
     )
 
 
+async def attribute(browser: Browser, selector: str, name: str) -> str:
+    found = await browser.run(
+        lambda: browser.driver.find_element(By.CSS_SELECTOR, selector).get_attribute(name)
+    )
+    return str(found or "")
+
+
+def present(selector: str) -> Callable[[Any], bool]:
+    return lambda driver: bool(driver.find_elements(By.CSS_SELECTOR, selector))
+
+
 def charts(driver: Any) -> list[str]:
     found = driver.find_elements(By.CSS_SELECTOR, "#h-charts .chart")
     return [c.get_attribute("data-key") for c in found if c.find_elements(By.TAG_NAME, "canvas")]
@@ -104,17 +115,22 @@ async def test_any_value_is_charted_zoomed_and_downloaded(
 
     await browser.run(drag)
     await browser.wait(lambda d: d.find_element(By.ID, "h-reset").is_enabled())
-    href = await browser.run(
-        lambda: browser.driver.find_element(By.ID, "h-csv").get_attribute("href")
-    )
-    assert "since=" in href and "until=" in href and "format=csv" in href
+    href = await attribute(browser, "#h-csv", "href")
+    asked = parse_qs(urlsplit(href).query)
+    assert asked["format"] == ["csv"]
+    assert set(asked) >= {"since", "until"}
     await browser.click("#h-csv")
-    await browser.wait(lambda _: any(tmp_path.glob("pump1-*.csv")))
-    (csv_file,) = tmp_path.glob("pump1-*.csv")
-    await browser.wait(lambda _: csv_file.stat().st_size > 0)
+    csv_file = tmp_path / _csv_name(href)
+    await browser.wait(lambda _: csv_file.exists() and csv_file.stat().st_size > 0)
     lines = csv_file.read_text(encoding="utf-8").splitlines()
     assert lines[0] == "time,output_frequency_hz,output_current_a"
     assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z,[-\d.]+,[-\d.]+", lines[1])
+
+
+def _csv_name(href: str) -> str:
+    """The file the history's CSV link names: pump1-<since, to the minute>.csv."""
+    since = parse_qs(urlsplit(href).query)["since"][0]
+    return f"pump1-{since[:16].replace(':', '')}.csv"
 
 
 ADMIN_PAGES = {
@@ -133,7 +149,7 @@ async def test_the_new_pages_fit_a_phone_a_tablet_and_a_desktop(
         await browser.resize(width, height)
         for page, (path, filled) in ADMIN_PAGES.items():
             await browser.open(path)
-            await browser.wait(lambda d, f=filled: d.find_elements(By.CSS_SELECTOR, f))
+            await browser.wait(present(filled))
             fits = await browser.run(browser.driver.execute_script, FITS)
             assert fits["page"] <= width, f"{page} at {size}: {fits['page']} px wide"
             await browser.screenshot(f"{page}-{size}")
@@ -155,9 +171,7 @@ async def test_an_admin_checks_applies_and_sees_the_diff_an_operator_is_refused(
     await browser.wait(showing("#who", "ada (admin)"))
     await browser.click("nav a[href='/configuration']")
     await browser.wait(showing("#live", "ready"))
-    text = await browser.run(
-        lambda: browser.driver.find_element(By.ID, "c-text").get_attribute("value")
-    )
+    text = await attribute(browser, "#c-text", "value")
     assert "password_hash: ***" in text
     assert "scrypt$" not in text
 

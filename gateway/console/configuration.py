@@ -17,8 +17,8 @@ the console's guard first (CSRF token, same origin).
 from __future__ import annotations
 
 import json
-from html import escape
 from collections.abc import Awaitable
+from html import escape
 from typing import Any, Final, TypeVar
 
 from aiohttp import web
