@@ -177,7 +177,7 @@ def _edit_from_console(app: Application, path: str | None, reloader: Reloader) -
         path,
         reloader.reload,
         app.events,
-        lambda: app.settings.source,
+        lambda: app.settings,
         lambda: hasattr(app, "mqtt"),
     )
 

@@ -27,13 +27,12 @@ import os
 import re
 import tempfile
 from collections.abc import Awaitable, Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final, Protocol
 
-from gateway.config import GatewayConfig, parse_config
-from gateway.errors import ConfigError, StoreError
-from gateway.settings.reload import plan as plan_reload
+from gateway.errors import StoreError
+from gateway.settings import GatewaySettings
+from gateway.settings.editing import Checked, check_text
 from gateway.settings.shown import MASK, SECRET_WORDS
 from gateway.store.records import ConfigVersion
 
@@ -53,28 +52,6 @@ class VersionStore(Protocol):
     async def config_versions(self) -> list[ConfigVersion]: ...
 
 
-@dataclass(frozen=True, slots=True)
-class Checked:
-    problems: list[tuple[str, str]] = field(default_factory=list)
-    """(key path, reason), as `check-config` prints them; empty: valid."""
-    warnings: list[str] = field(default_factory=list)
-    changed: list[str] = field(default_factory=list)
-    restart_needed: list[str] = field(default_factory=list)
-
-    @property
-    def ok(self) -> bool:
-        return not self.problems
-
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "ok": self.ok,
-            "problems": [{"key": key, "reason": reason} for key, reason in self.problems],
-            "warnings": self.warnings,
-            "changed": self.changed,
-            "restart_needed": self.restart_needed,
-        }
-
-
 class EditRefused(Exception):
     """The edit was not applied; `status` the HTTP status that says why."""
 
@@ -90,7 +67,7 @@ class ConfigEditor:
         path: str,
         reload: Callable[[], Awaitable[list[str]]],
         versions: VersionStore,
-        running: Callable[[], GatewayConfig],
+        running: Callable[[], GatewaySettings],
         mqtt_running: Callable[[], bool],
     ) -> None:
         self.path = path
@@ -156,15 +133,7 @@ class ConfigEditor:
     def _check(self, text: str) -> Checked:
         if len(text.encode()) > MAX_TEXT:
             return Checked([("", f"the text is longer than {MAX_TEXT // 1024} kB")])
-        try:
-            config = parse_config(text, self.path)
-        except ConfigError as exc:
-            return Checked(list(exc.problems))
-        from gateway.commands.check_config import line_budget, missing_ports
-
-        warnings = missing_ports(config) + line_budget(config)[1]
-        planned = plan_reload(self.running(), config, mqtt_running=self.mqtt_running())
-        return Checked([], warnings, planned.changed, planned.restart_needed)
+        return check_text(text, self.path, self.running(), self.mqtt_running())
 
     async def _keep(self, user: str, text: str, note: str, current: str) -> int:
         try:

@@ -139,18 +139,20 @@ class EventStore:
         self._drops_unlogged = 0
 
     def update_bounds(self, settings: StoreSettings) -> None:
-        """A reload: max_mb and max_age_days from now on (the path, forwarding and the memory
-        queue stay until a restart)."""
+        """A reload: max_mb, max_age_days and the history's from now on (the path, forwarding
+        and the memory queue stay until a restart)."""
         self.settings = replace(
             self.settings,
             max_mb=settings.max_mb,
             max_age_days=settings.max_age_days,
             history_days=settings.history_days,
+            history_step_s=settings.history_step_s,
         )
         self._db.max_bytes = int(settings.max_mb * 1024 * 1024)
         self._db.max_age_s = settings.max_age_days * 86400
         self._db.history_max_age_s = settings.history_days * 86400
         self.history.enabled = settings.history_days > 0
+        self.history.step_s = settings.history_step_s
 
     @property
     def persistent(self) -> bool:

@@ -135,15 +135,26 @@ def series(
     max_points: int,
 ) -> Series:
     """`points` (oldest first, each `step_s` apart at least) for `keys`, at most `max_points`:
-    when there are more, neighbouring points are merged (numbers averaged, texts the last)."""
+    when there are more, the points within each span of a few steps (spans aligned to the
+    clock, so the same window gives the same points) are merged: numbers averaged, texts the
+    last."""
     factor = max(1, math.ceil(len(points) / max(1, max_points)))
-    span = step_s * factor
+    while True:
+        shown = _merged(points, keys, step_s * factor if factor > 1 else 0.0)
+        if len(shown.times) <= max(1, max_points):
+            return Series(shown.keys, shown.times, shown.columns, step_s * factor)
+        factor += max(1, factor // 4)  # a gap split a span: wider ones
+
+
+def _merged(
+    points: Sequence[tuple[float, Mapping[str, Value]]], keys: Sequence[str], span_s: float
+) -> Series:
     times: list[float] = []
     columns: list[list[Value | None]] = [[] for _ in keys]
     bucket: list[Mapping[str, Value]] = []
     bucket_start: float | None = None
     for at, found in points:
-        start = at - at % span if factor > 1 else at
+        start = at - at % span_s if span_s else at
         if bucket_start is not None and start != bucket_start:
             _merge(bucket_start, bucket, keys, times, columns)
             bucket = []
@@ -151,7 +162,7 @@ def series(
         bucket.append(found)
     if bucket_start is not None:
         _merge(bucket_start, bucket, keys, times, columns)
-    return Series(tuple(keys), times, columns, span)
+    return Series(tuple(keys), times, columns, span_s)
 
 
 def _merge(

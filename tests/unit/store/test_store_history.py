@@ -122,3 +122,14 @@ async def test_history_days_0_keeps_no_history(tmp_path: Path) -> None:
         store.history.finish()
         await store.flush()
         assert await store.history_rows() == 0
+
+
+def test_never_more_points_than_asked_for_whatever_the_gaps() -> None:
+    # A drive polled, offline, polled again: points a step apart, then a gap, unaligned.
+    points: list[tuple[float, dict[str, Value]]] = [
+        (start + 60.0 * n, {"hz": 1.0}) for start in (30.0, 4000.0, 9070.0) for n in range(7)
+    ]
+    for asked in (1, 2, 3, 5, 8, 20, 100):
+        shown = series(points, ["hz"], 60.0, asked)
+        assert 1 <= len(shown.times) <= asked
+        assert shown.times == sorted(shown.times)
