@@ -261,6 +261,7 @@ function makeCharts(columns) {
 function drivePage() {
   const name = body.dataset.drive;
   document.getElementById("drive-name").textContent = name;
+  document.getElementById("history-link").href = `/history?drive=${encodeURIComponent(name)}`;
   let columns = [[], [], [], []];
   let charts = null;
   let lastPoint = 0;
