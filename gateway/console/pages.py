@@ -123,7 +123,8 @@ DRIVE = """
 </section>
 </div>
 <section>
-<h2>Last 15 minutes <a class="more" id="history-link" href="/history">any value, up to 7 days</a></h2>
+<h2>Last 15 minutes
+<a class="more" id="history-link" href="/history">any value, up to 7 days</a></h2>
 <div class="charts">
 <div class="chart" id="chart-frequency"></div>
 <div class="chart" id="chart-current"></div>
