@@ -50,7 +50,8 @@ install_debian_packages() {
   DEBIAN_FRONTEND=noninteractive as_root apt-get install -y -qq --no-install-recommends "$@" >/dev/null
 }
 
-# .venv with the package installed (editable: the clone is the code), extras as $1 (e.g. test).
+# .venv with the package installed (editable: the clone is the code), extras as $1 (e.g. test,
+# or test,docs: several comma-separated).
 # pip runs again only when pyproject.toml changed or other extras are asked for.
 setup_venv() {
   local extras=${1:-} python hash stamp have_hash have_extras
