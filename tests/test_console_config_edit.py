@@ -76,30 +76,31 @@ async def test_an_admin_edits_checks_applies_and_rolls_back_an_operator_cannot(
             shown = await admin.get_json("/api/config/file")
             assert shown["path"] == str(gateway.config_file)
             assert "scrypt$" not in shown["text"]  # no password hash leaves the gateway
-            assert "password_hash: ***" in shown["text"]
+            base = shown["base"]
+            assert 'password_hash: "***1"' in shown["text"]
 
             # A mistake: checked as check-config checks a file, the key and the reason given.
             wrong = shown["text"].replace("address: 2", "address: 300")
-            status, checked = await admin.post("/api/config/check", {"text": wrong})
+            status, checked = await admin.post("/api/config/check", {"text": wrong, "base": base})
             assert status == 200
             assert checked["ok"] is False
             (problem,) = checked["problems"]
             assert problem["key"] == "drives[1] (fan2).address"
             assert "247" in problem["reason"]
-            status, refused = await admin.post("/api/config/apply", {"text": wrong})
+            status, refused = await admin.post("/api/config/apply", {"text": wrong, "base": base})
             assert status == 400
             assert refused["problems"] == checked["problems"]
             assert gateway.config_file.read_text(encoding="utf-8") == original
 
             # What would change, and what would wait for a restart, before applying.
             moved = shown["text"].replace(f"port: {port}", f"port: {free_port()}")
-            status, checked = await admin.post("/api/config/check", {"text": moved})
+            status, checked = await admin.post("/api/config/check", {"text": moved, "base": base})
             assert checked["ok"] is True
             assert checked["restart_needed"] == ["console.port"]
 
             longer = shown["text"].replace("timeout_ms: 100", "timeout_ms: 150")
             status, applied = await admin.post(
-                "/api/config/apply", {"text": longer, "note": "longer cable"}
+                "/api/config/apply", {"text": longer, "note": "longer cable", "base": base}
             )
             assert status == 200, applied
             assert applied["version"] == 2  # 1: the file as it was found
@@ -117,6 +118,11 @@ async def test_an_admin_edits_checks_applies_and_rolls_back_an_operator_cannot(
             assert versions[0]["note"] == "longer cable"
             assert "-  timeout_ms: 100\n+  timeout_ms: 150\n" in versions[0]["diff"]
             assert "scrypt$" not in versions[1]["diff"]
+
+            # The text loaded before the apply is stale now: refused, nothing changed.
+            status, stale = await admin.post("/api/config/apply", {"text": longer, "base": base})
+            assert status == 409
+            assert "changed since this text was loaded" in stale["error"]
 
             status, rolled = await admin.post("/api/config/versions/1/rollback", {})
             assert status == 200, rolled
@@ -136,11 +142,13 @@ async def test_an_admin_edits_checks_applies_and_rolls_back_an_operator_cannot(
             "configuration version 2 applied (longer cable): buses reopened: line1",
             "ok",
         )
-        assert texts[3] == (
+        assert texts[3][0] == "ada"
+        assert "changed since this text was loaded" in texts[3][2]
+        assert texts[4] == (
             "ada",
             "configuration rolled back to version 1 (now version 3): buses reopened: line1",
             "ok",
         )
         assert all(e["category"] == "configuration" for e in events)
-        assert len(texts) == 4
+        assert len(texts) == 5
         assert gateway.log.count("config reloaded") == 2

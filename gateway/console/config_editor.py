@@ -14,19 +14,24 @@ The file is the truth a restart reads, so it is written before the reload reads 
 version is kept first, so the store always holds the text the file has. Before the first edit
 the file as found is kept as version 1 ("as found"), so the first change can be rolled back too.
 
-Secrets are not sent to the browser: a value of a key named like a secret (`password`,
-`token`...) shows as `***`; a `***` sent back stands for the value the file has at that place
-(the same key, counted from the top), so an edit elsewhere keeps the secrets as they are.
+Secrets are not sent to the browser: the value of a key named like a secret (`password`,
+`token`...) shows as `"***N"`, the file's N-th secret; a `"***N"` sent back stands for that
+value, wherever its line went (a user removed above another leaves the other's hash with it).
+The text carries the file's fingerprint (`base`): an edit of a file changed meanwhile is
+refused (409) rather than numbered against the wrong secrets.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import difflib
+import hashlib
 import os
 import re
 import tempfile
 from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final, Protocol
 
@@ -39,15 +44,26 @@ from gateway.store.records import ConfigVersion
 MAX_TEXT: Final = 256 * 1024
 """A configuration of a few hundred drives is tens of kB."""
 FOUND: Final = "as found in the file before the first edit from the console"
-_LINE: Final = re.compile(
-    r"^(?P<lead>\s*(?:-\s+)?)(?P<key>[A-Za-z_][A-Za-z0-9_]*)(?P<colon>\s*:[ \t]+)(?P<value>\S.*)$"
+_BLOCK: Final = re.compile(
+    r"^(?P<lead>\s*(?:-\s+)?)(?P<key>[A-Za-z_][A-Za-z0-9_]*)[ \t]*:[ \t]+"
+    r"(?P<value>\"(?:[^\"\\]|\\.)*\"|'(?:[^']|'')*'|[^\s#](?:[^#]*?[^\s#])?)"
+    r"(?:[ \t]+#.*)?[ \t]*$"
 )
+"""A line's own key and its value (quoted, or plain up to a comment)."""
+_FLOW: Final = re.compile(
+    r"(?<![A-Za-z0-9_])(?P<key>[A-Za-z_][A-Za-z0-9_]*)[ \t]*:[ \t]+"
+    r"(?P<value>\"(?:[^\"\\]|\\.)*\"|'(?:[^']|'')*'|[^\s,{}\[\]#][^,{}\[\]#]*)"
+)
+"""A key and its value inside a flow mapping (up to `,` or `}`)."""
+_TOKEN: Final = re.compile(r"""(?P<quote>["']?)\*\*\*(?P<number>\d+)(?P=quote)""")
 
 
 class VersionStore(Protocol):
     """The store's side (`gateway.store.EventStore`)."""
 
     async def add_config_version(self, user: str, text: str, note: str) -> int: ...
+
+    async def remove_config_version(self, number: int) -> None: ...
 
     async def config_versions(self) -> list[ConfigVersion]: ...
 
@@ -81,7 +97,7 @@ class ConfigEditor:
 
     async def current(self) -> dict[str, Any]:
         text = await self._read_file()
-        return {"path": self.path, "text": masked(text)}
+        return {"path": self.path, "text": masked(text), "base": fingerprint(text)}
 
     async def history(self) -> list[dict[str, Any]]:
         """Every version kept, newest first, each with its diff from the one before."""
@@ -100,25 +116,38 @@ class ConfigEditor:
 
     # -- checking and applying ---------------------------------------------------------------
 
-    async def check(self, text: str) -> Checked:
-        """`text` (with `***` for the secrets kept) checked as `check-config` checks a file."""
-        full = unmasked(text, await self._read_file())
-        return await asyncio.to_thread(self._check, full)
+    async def check(self, text: str, base: str | None = None) -> Checked:
+        """`text` (with `"***N"` for the secrets kept) checked as `check-config` checks a file;
+        `base`: the file's `fingerprint` when the text was loaded."""
+        current = await self._read_file()
+        _same_file(current, base, self.path)
+        return await asyncio.to_thread(self._check, unmasked(text, current))
 
-    async def apply(self, text: str, user: str, note: str) -> dict[str, Any]:
+    async def apply(
+        self, text: str, user: str, note: str, base: str | None = None
+    ) -> dict[str, Any]:
         async with self._one_at_a_time:
             current = await self._read_file()
+            _same_file(current, base, self.path)
             full = unmasked(text, current)
             checked = await asyncio.to_thread(self._check, full)
             if not checked.ok:
                 raise EditRefused(400, "the configuration does not check out", checked)
             number = await self._keep(user, full, note, current)
-            await self._write_file(full)
+            try:
+                await self._write_file(full)
+            except EditRefused:
+                with contextlib.suppress(StoreError):
+                    await self.versions.remove_config_version(number)
+                raise
             outcome = await self.reload()
             applied = bool(outcome) and all(line.startswith("applied:") for line in outcome)
             if not applied:
-                # The running configuration stayed: the file says so again.
+                # The running configuration stayed: the file says so again, and the version
+                # goes (only what was applied is kept).
                 await self._write_file(current)
+                with contextlib.suppress(StoreError):
+                    await self.versions.remove_config_version(number)
                 raise EditRefused(409, "; ".join(outcome) or "the reload did not answer", checked)
             return {"version": number, "outcome": outcome, **checked.to_json()}
 
@@ -166,6 +195,20 @@ class ConfigEditor:
             ) from None
 
 
+def fingerprint(text: str) -> str:
+    """What a text loaded in the page was edited from: the secrets' numbers refer to it."""
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _same_file(current: str, base: str | None, path: str) -> None:
+    if base is not None and base != fingerprint(current):
+        raise EditRefused(
+            409,
+            f"{path} changed since this text was loaded (another edit, or by hand): load it "
+            "again and redo the change",
+        )
+
+
 def _replace_file(path: str, text: str) -> None:
     """A new file beside it, synced, renamed over it: a crash leaves the old or the new."""
     target = Path(path)
@@ -186,8 +229,8 @@ def _replace_file(path: str, text: str) -> None:
 def diff(before: str, after: str, number: int) -> str:
     """A unified diff, secrets masked on both sides."""
     lines = difflib.unified_diff(
-        masked(before).splitlines(keepends=True),
-        masked(after).splitlines(keepends=True),
+        masked(before, numbered=False).splitlines(keepends=True),
+        masked(after, numbered=False).splitlines(keepends=True),
         fromfile=f"version {number - 1}" if before else "(nothing)",
         tofile=f"version {number}",
     )
@@ -198,38 +241,59 @@ def _secret(key: str) -> bool:
     return any(word in key.lower() for word in SECRET_WORDS)
 
 
-def masked(text: str) -> str:
-    """`text` with the value of every key named like a secret shown as `***`."""
-    out = []
+@dataclass(frozen=True, slots=True)
+class _Found:
+    start: int
+    end: int
+    value: str
+
+
+def _secrets(text: str) -> list[_Found]:
+    """Where `text` gives a value to a key named like a secret, in order: a line's own key
+    (`password: ...`, `- password_hash: ...`, the value up to a comment) or a key inside a flow
+    mapping (`{name: bob, password_hash: ...}`, the value up to `,` or `}`)."""
+    found: list[_Found] = []
+    offset = 0
     for line in text.splitlines(keepends=True):
-        match = _LINE.match(line.rstrip("\r\n"))
-        if match and _secret(match["key"]) and match["value"] not in ("null", "~"):
-            ending = line[len(line.rstrip("\r\n")) :]
-            line = f"{match['lead']}{match['key']}{match['colon']}{MASK}{ending}"
-        out.append(line)
+        bare = line.rstrip("\r\n")
+        block = _BLOCK.match(bare)
+        if block is not None and not block["value"].startswith(("{", "[")):
+            if _secret(block["key"]) and block["value"] not in ("null", "~", "''", '""'):
+                found.append(
+                    _Found(
+                        offset + block.start("value"), offset + block.end("value"), block["value"]
+                    )
+                )
+        else:
+            for flow in _FLOW.finditer(bare):
+                value = flow["value"].rstrip()
+                if _secret(flow["key"]) and value not in ("null", "~", "''", '""'):
+                    start = offset + flow.start("value")
+                    found.append(_Found(start, start + len(value), value))
+        offset += len(line)
+    return found
+
+
+def masked(text: str, numbered: bool = True) -> str:
+    """`text` with the value of every key named like a secret shown as `"***N"`: the file's
+    N-th secret (`numbered`; a diff shows `"***"`, the same on both sides)."""
+    out, last = [], 0
+    for number, secret in enumerate(_secrets(text), start=1):
+        out.append(text[last : secret.start])
+        out.append(f'"{MASK}{number}"' if numbered else f'"{MASK}"')
+        last = secret.end
+    out.append(text[last:])
     return "".join(out)
 
 
 def unmasked(text: str, original: str) -> str:
-    """`text` with each `***` value of a secret key replaced by the value `original` has for
-    that key at the same place (its n-th occurrence). A `***` with nothing to stand for is left
-    as it is: the check then says the key's value is wrong."""
-    kept: dict[str, list[str]] = {}
-    for line in original.splitlines():
-        match = _LINE.match(line)
-        if match and _secret(match["key"]):
-            kept.setdefault(match["key"], []).append(match["value"])
-    seen: dict[str, int] = {}
-    out = []
-    for line in text.splitlines(keepends=True):
-        bare = line.rstrip("\r\n")
-        match = _LINE.match(bare)
-        if match and _secret(match["key"]):
-            index = seen.get(match["key"], 0)
-            seen[match["key"]] = index + 1
-            values = kept.get(match["key"], [])
-            if match["value"].strip() in (MASK, f'"{MASK}"', f"'{MASK}'") and index < len(values):
-                ending = line[len(bare) :]
-                line = f"{match['lead']}{match['key']}{match['colon']}{values[index]}{ending}"
-        out.append(line)
-    return "".join(out)
+    """`text` with each `"***N"` replaced by the N-th secret of `original`, as the file has it
+    (wherever the line went: a user removed above another keeps the other's hash). A number
+    `original` doesn't have is left as it is: the check then names its key."""
+    secrets = [secret.value for secret in _secrets(original)]
+
+    def secret(match: re.Match[str]) -> str:
+        number = int(match["number"])
+        return secrets[number - 1] if 1 <= number <= len(secrets) else match[0]
+
+    return _TOKEN.sub(secret, text)

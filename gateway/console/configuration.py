@@ -1,10 +1,10 @@
 """The configuration page and its JSON API: for the admin role only (`ConfigEditor` does the work).
 
     GET  /configuration                         the page: edit, check, apply, versions, rollback
-    GET  /api/config/file                       the file's text, secrets as ***
-    POST /api/config/check      {"text"}        problems (key, reason), warnings, what would
+    GET  /api/config/file                       the file's text, secrets as "***N", its `base`
+    POST /api/config/check      {"text","base"} problems (key, reason), warnings, what would
                                                 change now and what waits for a restart
-    POST /api/config/apply      {"text","note"} kept as a new version, written, reloaded
+    POST /api/config/apply      {"text","note","base"}  kept as a new version, written, reloaded
     GET  /api/config/versions                   every version kept, newest first, with its diff
     GET  /api/config/versions/{id}              one version's text
     POST /api/config/versions/{id}/rollback     that version applied again (a new version)
@@ -39,9 +39,9 @@ PAGE: Final = """
 <p id="c-path" class="muted"></p>
 <section>
 <h2>Edit</h2>
-<p class="muted">Secrets show as ***: leave them so to keep them. Check says what applying would
-change now and what waits for a restart; Apply keeps this as a new version, writes the file and
-reloads it live.</p>
+<p class="muted">Secrets show as "***1", "***2"...: leave them so to keep them. Check says
+what applying would change now and what waits for a restart; Apply keeps this as a new
+version, writes the file and reloads it live.</p>
 <textarea id="c-text" class="mono config" spellcheck="false" autocomplete="off"></textarea>
 <form id="c-form" class="filters">
 <label>Note <input id="c-note" maxlength="200" placeholder="why (kept with the version)"></label>
@@ -98,8 +98,9 @@ async def config_file(request: web.Request) -> web.StreamResponse:
 
 async def config_check(request: web.Request) -> web.StreamResponse:
     editor = _editor(request, _admin(request))
-    text = await _text(request)
-    checked = await _done(editor.check(text))
+    body = await _body(request)
+    text, base = _text(body), _base(body)
+    checked = await _done(editor.check(text, base))
     return web.json_response(checked.to_json())
 
 
@@ -108,11 +109,11 @@ async def config_apply(request: web.Request) -> web.StreamResponse:
     who = _admin(request, audit="apply the configuration")
     editor = _editor(request, who)
     body = await _body(request)
-    text, note = body.get("text"), body.get("note", "")
-    if not isinstance(text, str) or not isinstance(note, str):
-        raise _error(400, 'text and note: strings, e.g. {"text": "buses: ...", "note": "why"}')
+    text, note, base = _text(body), body.get("note", ""), _base(body)
+    if not isinstance(note, str):
+        raise _error(400, 'note: a string, e.g. {"text": "buses: ...", "note": "why"}')
     try:
-        result = await editor.apply(text, who.name, note[:MAX_NOTE])
+        result = await editor.apply(text, who.name, note[:MAX_NOTE], base)
     except EditRefused as exc:
         _audit(console, who, "configuration not applied", f"refused: {exc}")
         raise _refused(exc) from None
@@ -198,12 +199,18 @@ async def _body(request: web.Request) -> dict[str, Any]:
     return body
 
 
-async def _text(request: web.Request) -> str:
-    body = await _body(request)
+def _text(body: dict[str, Any]) -> str:
     text = body.get("text")
     if not isinstance(text, str):
         raise _error(400, 'text: the configuration as YAML text, e.g. {"text": "buses: ..."}')
     return text
+
+
+def _base(body: dict[str, Any]) -> str | None:
+    base = body.get("base")
+    if base is not None and not isinstance(base, str):
+        raise _error(400, "base: the file's fingerprint as GET /api/config/file gave it")
+    return base
 
 
 def _number(request: web.Request) -> int:

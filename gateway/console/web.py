@@ -64,6 +64,8 @@ log = logging.getLogger(__name__)
 LIVE_PERIOD_S: Final = 0.5
 """The overview and a drive's page are pushed this often: live within a second."""
 HEARTBEAT_S: Final = 15.0
+RECENT_BATCH: Final = 100
+"""Transactions kept that a new monitor gets between two turns of the event loop."""
 MAX_JSON: Final = 16 * 1024
 MAX_EVENTS: Final = 2000
 MAX_CSV_EVENTS: Final = 20000
@@ -622,8 +624,10 @@ async def traffic_stream(request: web.Request) -> web.StreamResponse:
         response = await _open_stream(request)
         recent = _limit(request, "recent", default=0)
         if recent:
-            for kept in traffic.recent(bus)[-recent:]:
+            for index, kept in enumerate(traffic.recent(bus)[-recent:]):
                 await _send_event(response, "traffic", traffic.to_json(kept))
+                if index % RECENT_BATCH == RECENT_BATCH - 1:
+                    await asyncio.sleep(0)  # 2000 decoded at once would hold the bus's loop
         await _send_event(response, "watching", {"bus": bus})
         while not console.closing.is_set():
             try:

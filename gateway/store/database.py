@@ -418,6 +418,11 @@ class EventDatabase:
             db.execute("DELETE FROM config_versions WHERE id <= ?", (number - MAX_CONFIG_VERSIONS,))
         return number
 
+    def remove_config_version(self, number: int) -> None:
+        """A version kept for an apply that did not happen (the reload refused it)."""
+        with _transaction(self.db):
+            self.db.execute("DELETE FROM config_versions WHERE id = ?", (number,))
+
     def config_versions(self) -> list[ConfigVersion]:
         """Every version kept, newest first."""
         rows = self.db.execute(

@@ -415,6 +415,9 @@ class EventStore:
         except Exception as exc:  # sqlite3.Error, OSError: a full or failing disk
             raise StoreError(f"storage.path {self.path}: {exc}") from exc
 
+    async def remove_config_version(self, number: int) -> None:
+        await self._call(self._db.remove_config_version, number)
+
     async def config_versions(self) -> list[ConfigVersion]:
         return await self._call(self._db.config_versions)
 

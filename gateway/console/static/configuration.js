@@ -10,6 +10,7 @@ function configurationPage() {
   const live = document.getElementById("live");
   const diffBox = document.getElementById("c-diff");
   let loaded = "";
+  let base = null; // the file's fingerprint: the secrets' numbers refer to it
 
   const say = (state, message) => {
     live.textContent = message;
@@ -34,9 +35,10 @@ function configurationPage() {
 
   const loadFile = async () => {
     const file = await api("/api/config/file");
-    document.getElementById("c-path").textContent = `${file.path} · secrets shown as ***`;
+    document.getElementById("c-path").textContent = `${file.path} · secrets shown as "***1", "***2"...`;
     text.value = file.text;
     loaded = file.text;
+    base = file.base;
   };
 
   const loadVersions = async () => {
@@ -69,7 +71,7 @@ function configurationPage() {
 
   const send = async (path, headline) => {
     try {
-      const answer = await api(path, { json: { text: text.value, note: note.value } });
+      const answer = await api(path, { json: { text: text.value, note: note.value, base } });
       showChecked(answer, headline(answer));
       return answer;
     } catch (e) {
