@@ -6,6 +6,7 @@ split into queue wait, wire and the drive's turnaround."""
 
 from __future__ import annotations
 
+import asyncio
 import csv
 import io
 import time
@@ -13,15 +14,26 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
+import aiohttp
+
 from gateway.config import GatewayConfig
 from gateway.instruments.simulator import SimulatedLine
-from tests.support import TcpClient, eventually, read_pdu, running_gateway, write_many
+from tests.support import (
+    TcpClient,
+    eventually,
+    free_port,
+    read_pdu,
+    running_gateway,
+    write_many,
+)
 from tests.support.console_support import (
     OPERATOR_TOKEN,
+    USERS,
     VIEWER_PASSWORD,
     console_client,
     console_config,
 )
+from tests.support.processes import gateway_process
 
 CONTROL_WORD = 0x2000
 RUN_FORWARD = 1
@@ -183,3 +195,45 @@ async def _until_watching(response: Any) -> list[dict[str, Any]]:
         elif line.startswith("data: ") and event == "watching":
             return records
     raise AssertionError("the stream ended before it said it was watching")
+
+
+async def test_the_history_survives_a_restart_of_the_service(
+    line: SimulatedLine, tmp_path: Path
+) -> None:
+    """`invt-gateway run` stopped by SIGTERM and started again on the same store: the second
+    process serves what the first one kept."""
+    port = free_port()
+    config = {
+        "modbus_tcp": {"host": "127.0.0.1", "port": free_port()},
+        "buses": [{"name": "line1", "port": line.path, "baudrate": 115200, "timeout_ms": 100}],
+        "drives": [{"name": "pump1", "bus": "line1", "address": 1}],
+        "storage": {"path": str(tmp_path / "events.db"), "history_step_s": 1},
+        "console": {
+            "enabled": True,
+            "host": "127.0.0.1",
+            "port": port,
+            "users": USERS,
+        },
+    }
+    with gateway_process(config, tmp_path) as first:
+        await asyncio.to_thread(first.wait_ready)
+        await asyncio.sleep(3.5)  # three history steps, a second each: the service's own pace
+        first.stop()
+    stopped_at = time.time()
+    assert first.process.returncode == 0
+    with gateway_process(config, tmp_path) as second:
+        await asyncio.to_thread(second.wait_ready)
+        headers = {"Authorization": f"Bearer {OPERATOR_TOKEN}"}
+        async with (
+            aiohttp.ClientSession() as session,
+            session.get(
+                f"http://127.0.0.1:{port}/api/drives/pump1/history?window=1h&keys=state",
+                headers=headers,
+            ) as response,
+        ):
+            assert response.status == 200
+            found = await response.json()
+    times, states = found["columns"]
+    kept = [state for at, state in zip(times, states, strict=True) if at < stopped_at]
+    assert len(kept) >= 2, found
+    assert set(kept) == {"stopped"}
