@@ -12,17 +12,19 @@ same values (`gateway.store.history.values`). Reading the store never waits on a
 
 from __future__ import annotations
 
+import asyncio
 import csv
 import io
 import re
 import time
-from collections.abc import Sequence
-from typing import Final, Protocol
+from collections.abc import Callable, Sequence
+from typing import Any, Final, Protocol, TypeVar
 
 from aiohttp import web
 
 from gateway.console.live import HISTORY_S
 from gateway.console.web import CONSOLE, _drive_name, _error, _html, _limit, _time_query
+from gateway.errors import StoreError
 from gateway.poller.drive_state import iso_time
 from gateway.store.history import Series, Value, series, values
 
@@ -31,6 +33,8 @@ DEFAULT_WINDOW: Final = "1h"
 DEFAULT_POINTS: Final = 600
 MAX_POINTS: Final = 5000
 MAX_WINDOW_S: Final = 3650 * 86400.0
+INLINE_POINTS: Final = 1000
+"""Up to this many points (the live 15 minutes) are merged on the event loop."""
 KEY: Final = re.compile(r"^[A-Za-z0-9_]{1,64}$")
 
 
@@ -46,6 +50,9 @@ class HistorySource(Protocol):
     async def history_points(
         self, drive: str, since: float, until: float
     ) -> list[tuple[float, dict[str, Value]]]: ...
+
+
+T = TypeVar("T")
 
 
 HISTORY_SOURCE: Final = web.AppKey("history_source", HistorySource)
@@ -105,11 +112,17 @@ async def drive_history(request: web.Request) -> web.StreamResponse:
         points = console.live.recent_values(name, since, until)
         origin, step_s = "live", 1.0
     else:
-        points = await source.history_points(name, since, until)
+        try:
+            points = await source.history_points(name, since, until)
+        except StoreError as exc:
+            raise _error(409, f"the history cannot be read now: {exc}") from None
         origin, step_s = "store", source.history_step_s
-    numbers, texts = _available(points, values(console.live.telemetry(name)))
+    now = values(console.live.telemetry(name))
+    # A week of a drive's minutes is ten thousand points: merged off the event loop (the
+    # buses' loop), like the store's own reading.
+    numbers, texts = await _off_the_loop(points, _available, points, now)
     keys = _keys(request, numbers + texts, name)
-    shown = series(points, keys, step_s, max_points)
+    shown = await _off_the_loop(points, series, points, keys, step_s, max_points)
     if request.query.get("format") == "csv":
         response = web.Response(text=history_csv(shown), content_type="text/csv", charset="utf-8")
         filename = f"{name}-{iso_time(since)[:16].replace(':', '')}.csv"
@@ -129,6 +142,13 @@ async def drive_history(request: web.Request) -> web.StreamResponse:
             "columns": [shown.times, *shown.columns],
         }
     )
+
+
+async def _off_the_loop(points: Sequence[object], work: Callable[..., T], *args: Any) -> T:
+    """`work(*args)` in a thread when there are many points; at once when there are few."""
+    if len(points) <= INLINE_POINTS:
+        return work(*args)
+    return await asyncio.to_thread(work, *args)
 
 
 def history_csv(shown: Series) -> str:
