@@ -17,6 +17,7 @@ import pytest
 import yaml
 from selenium.webdriver.common.action_chains import ActionChains
 from selenium.webdriver.common.by import By
+from selenium.webdriver.support import expected_conditions
 
 from gateway.app import Application
 from gateway.commands.run import Reloader, _edit_from_console
@@ -183,8 +184,17 @@ async def test_an_admin_checks_applies_and_sees_the_diff_an_operator_is_refused(
     await browser.click("#c-check")
     await browser.wait(showing("#c-result .problems", "drives[1] (fan2).address:"))
     await browser.click("#c-apply")
-    await browser.wait(showing("#c-result", "the configuration does not check out"))
+    await browser.wait(showing("#c-result", "Does not check out: nothing applied."))
     await browser.screenshot("configuration-problem")
+
+    # A change that waits for a restart is said so before anything is applied.
+    await edit(text.replace("anonymous_view: true", "anonymous_view: false"))
+    await browser.click("#c-apply")
+    alert = await browser.wait(expected_conditions.alert_is_present())
+    assert "console.anonymous_view" in alert.text
+    await browser.run(alert.dismiss)
+    assert app.settings.source.console.anonymous_view is True
+    await browser.wait(showing("#c-result .restart", "console.anonymous_view"))
 
     await edit(text.replace("timeout_ms: 100", "timeout_ms: 150"))
     await browser.type("#c-note", "longer cable")

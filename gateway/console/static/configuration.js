@@ -85,6 +85,13 @@ function configurationPage() {
   document.getElementById("c-check").addEventListener("click", () => send("/api/config/check",
     (a) => (a.ok ? "Checks out." : "Does not check out: nothing applied.")));
   document.getElementById("c-apply").addEventListener("click", async () => {
+    // What would wait for a restart is said before anything is applied.
+    const checked = await send("/api/config/check",
+      (a) => (a.ok ? "Checks out." : "Does not check out: nothing applied."));
+    if (!checked || !checked.ok) return;
+    if (checked.restart_needed.length && !confirm(
+      `These keep their running values until a restart: ${checked.restart_needed.join(", ")}. ` +
+      "Apply the rest now?")) return;
     const done = await send("/api/config/apply", (a) => `Applied as version ${a.version}. ${a.outcome.join(" ")}`);
     if (done) { note.value = ""; await loadFile(); await loadVersions(); }
   });
