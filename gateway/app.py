@@ -162,6 +162,7 @@ class Application:
         new = MqttBridge(
             running.mqtt, running.drives, self.router, self.poller, self.tasks, self.events
         )
+        new.continue_from(old)
         self.poller.add_listener(new)
         self.features[self.features.index(old)] = new
         self.mqtt = new

@@ -27,8 +27,9 @@ from gateway.passwords import hash_password
 from gateway.settings import runtime_settings
 from gateway.systemd import Notifier
 from tests.support import running_application
+from tests.support.browser import CHROMEDRIVER, CHROMIUM, Browser, showing
 from tests.support.console_support import OPERATOR_PASSWORD, console_config
-from tests.test_console_browser import CHROMEDRIVER, CHROMIUM, FITS, SIZES, Browser, showing
+from tests.test_console_browser import FITS, SIZES
 
 ADMIN_PASSWORD = "admin-secret-333"
 

@@ -8,8 +8,6 @@ from __future__ import annotations
 import asyncio
 import json
 import struct
-import subprocess
-import sys
 from collections.abc import AsyncIterator, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,10 +17,10 @@ import pytest
 
 from gateway.app import Application
 from tests.peers.pymodbus_meter import EXPECTED
-from tests.support import TcpClient, eventually, pty_cable, running_gateway
+from tests.support import TcpClient, eventually, running_gateway
 from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
 from tests.support.mqtt_setup import mqtt_config
-from tests.support.processes import run_cli
+from tests.support.processes import pymodbus_peer, run_cli
 
 ROOT = Path(__file__).resolve().parent.parent
 METER_FILE = ROOT / "tests" / "fixtures" / "devices" / "test_meter.yaml"
@@ -32,21 +30,8 @@ UNIT = 7
 @pytest.fixture
 def meter_line() -> Iterator[str]:
     """The meter at the far end of a pty cable; yields the device path the gateway opens."""
-    with pty_cable() as (gateway_end, meter_end):
-        process = subprocess.Popen(
-            [sys.executable, "-m", "tests.peers.pymodbus_meter", meter_end, "19200", str(UNIT)],
-            cwd=ROOT,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.DEVNULL,  # pymodbus warns of its own deprecations there
-            text=True,
-        )
-        try:
-            assert process.stdout is not None
-            assert process.stdout.readline().strip() == "ready"
-            yield gateway_end
-        finally:
-            process.terminate()
-            process.communicate(timeout=10)
+    with pymodbus_peer("pymodbus_meter", "19200", str(UNIT)) as gateway_end:
+        yield gateway_end
 
 
 @dataclass

@@ -390,6 +390,12 @@ class DriveConfig(Section):
         return value
 
     @model_validator(mode="after")
+    def _overrides(self) -> DriveConfig:
+        """The corrections given apply to the model (an ABB drive has no 2103H code)."""
+        self.profile()  # ValueError naming the key that doesn't apply
+        return self
+
+    @model_validator(mode="after")
     def _telemetry_keys(self) -> DriveConfig:
         """`report` and `alarms` name telemetry keys the drive has; a device's are in its file."""
         if self.report is None and not self.alarms:
@@ -424,6 +430,24 @@ def broker_address(value: str) -> tuple[str, int]:
     return host, int(port)
 
 
+SPARKPLUG_ID = r"^[A-Za-z0-9_-]+$"
+"""A Sparkplug group, edge node or host id: one topic level ('/', '+' and '#' can't be in one,
+and '.' would change on RabbitMQ), in the same letters as a drive's name (its device id)."""
+
+
+class SparkplugConfig(Section):
+    """`mqtt.sparkplug`: the gateway as a Sparkplug B edge node, its drives as devices, beside
+    the JSON topics (both run on one broker, each on its own connection)."""
+
+    enabled: bool = True
+    group_id: str = Field(min_length=1, max_length=64, pattern=SPARKPLUG_ID)
+    edge_node_id: str | None = Field(None, min_length=1, max_length=64, pattern=SPARKPLUG_ID)
+    """Default: the gateway's `gateway_id`."""
+    primary_host_id: str | None = Field(None, min_length=1, max_length=64, pattern=SPARKPLUG_ID)
+    """The host application whose `spBv1.0/STATE/<id>` says when the edge node may publish;
+    None: publish whenever connected."""
+
+
 class MqttConfig(Section):
     enabled: bool = True
     host: str = "127.0.0.1"
@@ -456,6 +480,8 @@ class MqttConfig(Section):
     """Events (faults, offline...) waiting for the broker; past this the oldest are dropped."""
     reconnect_max_s: float = Field(30.0, gt=0, le=3600)
     """Longest wait between two attempts to reach the broker (the wait doubles up to it)."""
+    sparkplug: SparkplugConfig | None = None
+    """The drives as Sparkplug B devices too (`spBv1.0/<group_id>/...`)."""
 
     @field_validator("base_topic", "discovery_prefix")
     @classmethod

@@ -147,9 +147,16 @@ DRIVE = """
 </section>
 <section>
 <h2>Parameters</h2>
+<form id="parameter-find" class="filters">
+<label>Find <input id="parameter-find-text" autocomplete="off"
+ placeholder="P00.03, 0003H or words of the name"></label>
+<button type="submit" id="parameter-find-go">Find</button>
+<span id="parameter-found" class="muted"></span>
+</form>
 <div id="groups" class="tabs"></div>
 <div class="scroll"><table id="parameters" class="grid cards small"><thead><tr>
-<th>Parameter</th><th>Address</th><th>Meaning</th><th>Value</th><th>Raw</th><th></th></tr></thead><tbody></tbody></table></div>
+<th>Parameter</th><th>Address</th><th>Meaning</th><th>Value</th><th>Default</th><th>Range</th>
+<th>Raw</th><th></th></tr></thead><tbody></tbody></table></div>
 </section>
 <dialog id="confirm">
 <form method="dialog">

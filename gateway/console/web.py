@@ -51,7 +51,6 @@ from gateway.console.live import LiveState
 from gateway.console.log_tail import MAX_LINES as LOG_LINES
 from gateway.console.log_tail import LogTail
 from gateway.console.operations import (
-    PARAMETER_GROUPS,
     REGISTER_BLOCKS,
     DriveOperations,
 )
@@ -324,11 +323,8 @@ async def drive_page(request: web.Request) -> web.StreamResponse:
     name = request.match_info["name"]
     if name not in request.app[CONSOLE].live.drives:
         raise web.HTTPNotFound(text=f"no drive named {name}")
-    data = {
-        "page": "drive",
-        "drive": name,
-        "groups": ",".join((*PARAMETER_GROUPS, *REGISTER_BLOCKS)),
-    }
+    groups = request.app[CONSOLE].operations.parameter_groups(name)
+    data = {"page": "drive", "drive": name, "groups": ",".join((*groups, *REGISTER_BLOCKS))}
     return _html(request, name, pages.DRIVE, data)
 
 
@@ -544,9 +540,14 @@ async def drive_faults(request: web.Request) -> web.StreamResponse:
 async def drive_parameters(request: web.Request) -> web.StreamResponse:
     console = request.app[CONSOLE]
     name = _drive_name(request)
-    group = request.query.get("group", "P00")
+    groups = [*console.operations.parameter_groups(name), *REGISTER_BLOCKS]
+    text = request.query.get("find")
+    if text is not None:
+        found = await _operation(console.operations.find_parameters(request[IDENTITY], name, text))
+        return web.json_response({"find": text, "groups": groups, "parameters": found})
+    group = request.query.get("group", groups[0])
     found = await _operation(console.operations.parameter_group(request[IDENTITY], name, group))
-    return web.json_response({"group": group, "parameters": found})
+    return web.json_response({"group": group, "groups": groups, "parameters": found})
 
 
 # -- writes ---------------------------------------------------------------------------------

@@ -45,6 +45,15 @@ EVENT_BATCH = 100
 """Events read from the store at a time; each is still published and acknowledged in turn."""
 
 
+def exception_report(mqtt: MqttSettings, drive: DriveSettings) -> ExceptionReport:
+    """A drive's report by exception: a device file's points by their own rules, a drive's keys
+    by `mqtt.report` and its own `report` (the JSON state's and Sparkplug's DDATA alike)."""
+    if drive.profile.typed_points:
+        return ExceptionReport(drive.profile.typed_points)
+    rules = mqtt.reporting.get(drive.name, DriveReporting())
+    return ExceptionReport.of_keys(rules.default, rules.keys)
+
+
 class Publisher:
     def __init__(
         self,
@@ -67,7 +76,7 @@ class Publisher:
         """Drive → the monotonic time its state was last published."""
         self._availability: dict[str, bool] = {}
         """Drive → the availability last published on this connection."""
-        self._reports = {d.name: self._report(d) for d in drives}
+        self._reports = {d.name: exception_report(mqtt, d) for d in drives}
         """Drive or device → what its keys (points) last published said."""
 
     # -- once per connection -------------------------------------------------------------------
@@ -191,12 +200,6 @@ class Publisher:
         payload = ONLINE if online else OFFLINE
         await self.publish(client, self.topics.availability(drive), payload, retain=True)
         self._availability[drive] = online
-
-    def _report(self, drive: DriveSettings) -> ExceptionReport:
-        if drive.profile.typed_points:
-            return ExceptionReport(drive.profile.typed_points)
-        rules = self.mqtt.reporting.get(drive.name, DriveReporting())
-        return ExceptionReport.of_keys(rules.default, rules.keys)
 
     def _info(self) -> str:
         return dump(

@@ -52,6 +52,20 @@ class ExceptionReport:
             self._news(name, rule, reading.get(name), now) for name, rule in self._watched(reading)
         )
 
+    def watches(self, name: str) -> bool:
+        """Whether `name` has a rule here (a device file's keys beside its points, such as a
+        limit alarm's flag, have none)."""
+        return name in self._rules or self._default is not None
+
+    def changed(self, reading: Mapping[str, object], now: float) -> list[str]:
+        """The points of `reading` with news at `now`: what a message of changes alone carries
+        (Sparkplug's DDATA), by the same rules as `news`."""
+        return [
+            name
+            for name, rule in self._watched(reading)
+            if self._news(name, rule, reading.get(name), now)
+        ]
+
     def published(self, reading: Mapping[str, object], now: float) -> None:
         """`reading` went out at `now`: each point's new reference."""
         for name, _ in self._watched(reading):

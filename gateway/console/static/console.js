@@ -381,28 +381,55 @@ function setupControls(name) {
 function setupParameters(name) {
   const groups = body.dataset.groups.split(",");
   const tabs = document.getElementById("groups");
+  const found = document.getElementById("parameter-found");
+  const columns = 8;
+  const note = (text, kind = "muted") =>
+    fill("parameters", [el("tr", {}, el("td", { colSpan: columns, class: kind }, text))]);
+  const row = (p, reload) => {
+    const edit = p.writable && session.mayWrite
+      ? el("button", { type: "button", class: "small", onclick: () => editParameter(name, p, reload) }, "Write…")
+      : null;
+    // Whether the value is the factory's: "depends on model" defaults can't say.
+    const differs = p.differs_from_default === true;
+    const fallback = p.default === null && p.range !== undefined && p.writable ? "depends on model" : "–";
+    const meaning = p.confirmed === false ? `${p.description} (unconfirmed for this series)` : p.description;
+    return el("tr", { class: differs ? "differs" : "", "data-name": p.name },
+      el("td", {}, p.name), el("td", { class: "mono" }, p.address),
+      el("td", {}, meaning),
+      el("td", { class: "num" }, p.value ?? "–", differs ? el("span", { class: "badge warn", title: "differs from the default" }, "≠ default") : null),
+      el("td", { class: "num" }, p.default ?? fallback),
+      el("td", {}, p.range ?? "–", p.change ? el("span", { class: "muted" }, ` (${p.change})`) : null),
+      el("td", { class: "mono" }, p.raw === null ? "–" : p.raw), el("td", {}, edit));
+  };
   const load = async (group) => {
+    found.textContent = "";
     tabs.querySelectorAll("button").forEach((b) => b.classList.toggle("active", b.dataset.group === group));
-    fill("parameters", [el("tr", {}, el("td", { colSpan: 6, class: "muted" }, `reading ${group}…`))]);
+    note(`reading ${group}…`);
     try {
       const data = await api(`/api/drives/${encodeURIComponent(name)}/parameters?group=${group}`);
-      if (!data.parameters.length) {
-        fill("parameters", [el("tr", {}, el("td", { colSpan: 6, class: "muted" },
-          `the profile names no parameter of ${group}`))]);
-        return;
-      }
-      fill("parameters", data.parameters.map((p) => {
-        const edit = p.writable && session.mayWrite
-          ? el("button", { type: "button", class: "small", onclick: () => editParameter(name, p, () => load(group)) }, "Write…")
-          : null;
-        return el("tr", {}, el("td", {}, p.name), el("td", { class: "mono" }, p.address),
-          el("td", {}, p.description), el("td", { class: "num" }, p.value ?? "–"),
-          el("td", { class: "mono" }, p.raw === null ? "–" : p.raw), el("td", {}, edit));
-      }));
+      if (!data.parameters.length) { note(`the profile names no parameter of ${group}`); return; }
+      fill("parameters", data.parameters.map((p) => row(p, () => load(group))));
     } catch (error) {
-      fill("parameters", [el("tr", {}, el("td", { colSpan: 6, class: "warn" }, error.message))]);
+      note(error.message, "warn");
     }
   };
+  const find = async (text) => {
+    tabs.querySelectorAll("button").forEach((b) => b.classList.remove("active"));
+    note(`finding ${text}…`);
+    try {
+      const data = await api(`/api/drives/${encodeURIComponent(name)}/parameters?find=${encodeURIComponent(text)}`);
+      found.textContent = `${data.parameters.length} found`;
+      if (!data.parameters.length) { note(`no parameter of ${name} is ${text} or named so`); return; }
+      fill("parameters", data.parameters.map((p) => row(p, () => find(text))));
+    } catch (error) {
+      note(error.message, "warn");
+    }
+  };
+  document.getElementById("parameter-find").addEventListener("submit", (event) => {
+    event.preventDefault();
+    const text = document.getElementById("parameter-find-text").value.trim();
+    if (text) find(text);
+  });
   for (const group of groups) {
     tabs.append(el("button", { type: "button", "data-group": group, onclick: () => load(group) }, group));
   }
