@@ -104,6 +104,7 @@ class Application:
             bus.add_listener(self.poller.on_drive_health)
         self.poller.add_listener(DriveEventLog())
         self.poller.add_listener(self.events)
+        self.poller.add_listener(self.events.history)  # the history of polled values
         self.poller.open_faults = self.events.open_faults  # no fault raised twice by a restart
         self.features.append(self.poller)
 
@@ -251,6 +252,7 @@ class Application:
             tcp=self.tcp,
             mqtt=getattr(self, "mqtt", None),
             configuration=lambda: self.settings.shown_configuration(),
+            history_source=self.events,
         )
         self.features.append(self.console)
 

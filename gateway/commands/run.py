@@ -122,6 +122,7 @@ async def serve(
     for signum in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(signum, on_signal, signum)
     reloader = Reloader(app, config_path, notifier)
+    _edit_from_console(app, config_path, reloader)
     reload_asked = asyncio.Event()
     loop.add_signal_handler(signal.SIGHUP, reload_asked.set)
     control = await listen_for_control(config_path, reloader)
@@ -175,6 +176,22 @@ def naming_flags(message: str, flags: Mapping[str, str] | None) -> str:
     "... change modbus_tcp.host/port (or the option --port)"."""
     named = [flag for key, flag in (flags or {}).items() if key in message]
     return f"{message} (or the option {', '.join(named)})" if named else message
+
+
+def _edit_from_console(app: Application, path: str | None, reloader: Reloader) -> None:
+    """The console's admins edit the file the gateway runs with, applied by the same reload."""
+    console = getattr(app, "console", None)
+    if console is None or path is None:
+        return
+    from gateway.console.config_editor import ConfigEditor
+
+    console.config_editor = ConfigEditor(
+        path,
+        reloader.reload,
+        app.events,
+        lambda: app.settings,
+        lambda: hasattr(app, "mqtt"),
+    )
 
 
 async def listen_for_control(path: str | None, reloader: Reloader) -> ControlServer | None:

@@ -624,6 +624,13 @@ class StorageConfig(Section):
     logged when they had not reached the broker yet)."""
     max_age_days: float = Field(90.0, gt=0, le=36500)
     """Events and faults older than this are removed."""
+    history_days: float = Field(7.0, ge=0, le=3650)
+    """How long the history of polled values is kept (one point a `history_step_s` per drive,
+    for the console's charts); 0: none kept. Within max_mb: past it the oldest history goes
+    before any event."""
+    history_step_s: float = Field(60.0, ge=1, le=3600)
+    """One history point per drive this often: the mean of each value over the step (a text
+    value, such as the state, as it was last)."""
 
     def resolved_path(self, environ: dict[str, str] | None = None) -> str:
         if self.path is not None:
@@ -638,8 +645,9 @@ class ConsoleUserConfig(Section):
     """The login name."""
     password_hash: str
     """`invt-gateway hash-password` makes it (salted scrypt); never the password itself."""
-    role: Literal["viewer", "operator"] = "viewer"
-    """viewer: sees everything; operator: also commands and writes (when commands_enabled)."""
+    role: Literal["viewer", "operator", "admin"] = "viewer"
+    """viewer: sees everything; operator: also commands and writes (when commands_enabled);
+    admin: what an operator may, and edits the configuration from the console."""
     token_hash: str | None = None
     """The user's API token, hashed (`invt-gateway hash-password --new-token` makes one):
     scripts and `invt-gateway monitor` send the token as `Authorization: Bearer TOKEN`."""

@@ -27,6 +27,7 @@ from gateway.poller.drive_state import DriveEvent, EventKind, iso_time
 from gateway.profile import exception_name
 from gateway.profile.telemetry import Telemetry
 from gateway.settings import DriveSettings
+from gateway.store.history import Value, values
 
 HISTORY_S: Final = 15 * 60.0
 CHART_STEP_S: Final = 1.0
@@ -53,7 +54,10 @@ class BusSample:
 
 @dataclass(slots=True)
 class DriveHistory:
-    points: deque[tuple[float, float | None, float | None, float | None]] = field(
+    """The last 15 minutes of a drive's values (`gateway.store.history.values`), a point a
+    second at most: the live charts, and the history page's shortest window."""
+
+    points: deque[tuple[float, dict[str, Value]]] = field(
         default_factory=lambda: deque(maxlen=int(HISTORY_S / CHART_STEP_S) + 1)
     )
     last_at: float = 0.0
@@ -93,8 +97,7 @@ class LiveState:
         if now - history.last_at < CHART_STEP_S:
             return
         history.last_at = now
-        hz, amps, volts = (_number(telemetry.get(key)) for key in CHART_KEYS)
-        history.points.append((now, hz, amps, volts))
+        history.points.append((now, values(telemetry)))
 
     def availability_changed(self, drive: str, online: bool) -> None:
         pass  # told again as a drive event
@@ -266,8 +269,16 @@ class LiveState:
     def chart(self, name: str) -> dict[str, Any]:
         """The last 15 minutes, as columns (what uPlot takes): time in epoch seconds."""
         points = list(self.history[name].points)
-        columns: list[list[float | None]] = [[p[i] for p in points] for i in range(4)]
+        columns: list[list[float | None]] = [[at for at, _ in points]]
+        columns += [[_number(found.get(key)) for _, found in points] for key in CHART_KEYS]
         return {"keys": ["time", *CHART_KEYS], "columns": columns}
+
+    def recent_values(
+        self, name: str, since: float, until: float
+    ) -> list[tuple[float, dict[str, Value]]]:
+        """The drive's values a second apart from `since` to before `until` (the last 15
+        minutes at most), oldest first."""
+        return [(at, found) for at, found in self.history[name].points if since <= at < until]
 
 
 def _number(value: object) -> float | None:

@@ -23,9 +23,12 @@ def page(
     scripts: Sequence[str] = (),
 ) -> str:
     attributes = " ".join(f'data-{k}="{escape(v)}"' for k, v in data.items())
-    monitor_links = '<a href="/events">Events</a><a href="/diagnostics">Diagnostics</a>' + "".join(
-        f'<a href="/monitor/{escape(bus)}">Monitor {escape(bus)}</a>' for bus in buses
-    )
+    monitor_links = (
+        '<a href="/events">Events</a><a href="/history">History</a>'
+        '<a href="/diagnostics">Diagnostics</a>'
+    ) + "".join(f'<a href="/monitor/{escape(bus)}">Monitor {escape(bus)}</a>' for bus in buses)
+    if who is not None and who.may_configure:
+        monitor_links += '<a href="/configuration">Configuration</a>'
     if who is None or who.via is Via.ANONYMOUS:
         user = '<a id="login-link" href="/login">Log in</a>'
         if who is not None:
@@ -121,7 +124,8 @@ DRIVE = """
 </section>
 </div>
 <section>
-<h2>Last 15 minutes</h2>
+<h2>Last 15 minutes
+<a class="more" id="history-link" href="/history">any value, up to 7 days</a></h2>
 <div class="charts">
 <div class="chart" id="chart-frequency"></div>
 <div class="chart" id="chart-current"></div>
