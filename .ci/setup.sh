@@ -88,3 +88,21 @@ setup_venv() {
   fi
   echo "$hash $extras" > "$stamp"
 }
+
+# The tests' npm peers (tests/peers/*/package.json with its package-lock.json): Eclipse Tahu's
+# JavaScript Sparkplug codec, the Sparkplug tests' independent decoder. `npm ci` again only when
+# the lock file changed; no install scripts (none is needed).
+setup_node_peers() {
+  local peer stamp hash
+  for peer in tests/peers/*/package-lock.json; do
+    peer=$(dirname "$peer")
+    stamp="$peer/node_modules/.invt-gateway-installed"
+    hash=$(sha256sum "$peer/package-lock.json" | cut -d' ' -f1)
+    if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$hash" ]; then
+      continue
+    fi
+    echo "invt-gateway: installing the npm packages of $peer (npm ci)" >&2
+    (cd "$peer" && npm ci --no-audit --no-fund --ignore-scripts --loglevel=error) || return 1
+    echo "$hash" > "$stamp"
+  done
+}

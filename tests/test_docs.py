@@ -23,12 +23,8 @@ the one CI runs.
 from __future__ import annotations
 
 import argparse
-import importlib.util
-import os
 import re
 import shutil
-import subprocess
-import sys
 import types
 import typing
 from collections.abc import Iterator
@@ -36,20 +32,23 @@ from pathlib import Path
 
 import pytest
 import yaml
-from pydantic import BaseModel
+from pydantic import BaseModel, ConfigDict
 
 from gateway.cli import build_parser
-from gateway.config import GatewayConfig
+from gateway.config import GatewayConfig, reference
 from gateway.mqtt.kinds import BRIDGE_REQUESTS
 from gateway.mqtt.topics import Topics
-from gateway.profile.device_files import _DeviceSpec, device_profile
+from gateway.profile.addressing import format_register
+from gateway.profile.device_files import DEVICE_FILE, _DeviceSpec, device_profile
+from gateway.profile.models import PROFILES
+from gateway.profile.parameter_tables import sources, table_rows
+from gateway.profile.registers import COMMUNICATION_REGISTERS
 from gateway.store.records import EventType
+from tests.support.site import DOCS, cell_text, mkdocs_build, table_rows_html
 
 ROOT = Path(__file__).resolve().parent.parent
-DOCS = ROOT / "docs"
 PAGES = DOCS / "pages"
 METRIC_FAMILIES = Path(__file__).parent / "fixtures" / "metric_families.tsv"
-BUILD_TIMEOUT_S = 60
 
 
 def page(name: str) -> str:
@@ -130,6 +129,45 @@ def test_every_configuration_key_is_shown_in_an_example() -> None:
     assert len(keys) > 100  # the walk found the models' keys, nested ones included
     missing = [key for key in keys if key not in shown]
     assert not missing, f"configuration keys in no YAML example of docs/pages/: {missing}"
+
+
+@pytest.mark.parametrize("model", [GatewayConfig, DEVICE_FILE], ids=["config", "device-file"])
+def test_every_configuration_key_has_a_description(model: type[BaseModel]) -> None:
+    """The Configuration and Other Modbus devices pages' tables are generated from the models'
+    field docstrings: a key without one would show an empty description. The message names
+    each key and the line of the model to write it under."""
+    keys = list(reference.config_keys(model))
+    assert [key.path for key in keys] == list(config_keys(model))  # the same walk
+    missing = reference.undocumented(model)
+    assert not missing, "configuration keys without a description:\n" + "\n".join(missing)
+
+
+class _Spindle(BaseModel):
+    model_config = ConfigDict(use_attribute_docstrings=True)
+    warmup_s: float = 2.0
+    """How long it turns slowly after a start."""
+    brake: bool = False
+
+
+class _Machine(BaseModel):
+    model_config = ConfigDict(use_attribute_docstrings=True)
+    spindles: tuple[_Spindle, ...] = ()
+    """The spindles."""
+
+
+def test_a_key_without_a_description_is_named_with_the_line_to_fix() -> None:
+    line = next(
+        number
+        for number, text in enumerate(Path(__file__).read_text().splitlines(), 1)
+        if text.strip() == "brake: bool = False"
+    )
+    assert reference.undocumented(_Machine) == [
+        f"spindles[].brake: no description; write a docstring under _Spindle.brake "
+        f"(tests/test_docs.py:{line})"
+    ]
+    table = reference.markdown(_Machine)
+    assert "| `warmup_s` | number | `2` | s | How long it turns slowly after a start. |" in table
+    assert "### `spindles[]`" in table
 
 
 def test_the_reference_example_is_a_valid_configuration() -> None:
@@ -329,35 +367,53 @@ def test_the_readmes_links_into_the_docs_lead_to_pages() -> None:
 # --- the site builds --------------------------------------------------------------------------
 
 
-def mkdocs_build(config: Path, site: Path) -> subprocess.CompletedProcess[str]:
-    if importlib.util.find_spec("mkdocs") is None or importlib.util.find_spec("material") is None:
-        pytest.fail(
-            "MkDocs or its Material theme is missing: pip install -e '.[docs]' (.ci/test does)"
-        )
-    return subprocess.run(
-        [sys.executable, "-m", "mkdocs", "build", "--strict", "-f", str(config), "-d", str(site)],
-        capture_output=True,
-        text=True,
-        timeout=BUILD_TIMEOUT_S,
-        check=False,
-        env={**os.environ, "NO_MKDOCS_2_WARNING": "1"},
-    )
-
-
-def test_the_site_builds_strict_and_loads_nothing_from_the_internet(tmp_path: Path) -> None:
-    site = tmp_path / "site"
+@pytest.fixture(scope="module")
+def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The site as `mkdocs build --strict` makes it, once for the tests that read it."""
+    site = tmp_path_factory.mktemp("docs") / "site"
     built = mkdocs_build(DOCS / "mkdocs.yml", site)
     assert built.returncode == 0, built.stderr
+    return site
+
+
+def test_the_site_builds_strict_and_loads_nothing_from_the_internet(site: Path) -> None:
     pages = sorted(site.rglob("*.html"))
     assert len(pages) >= len(all_pages())
     external = []
-    for html in pages:
-        text = html.read_text(encoding="utf-8")
+    for built_page in pages:
+        text = built_page.read_text(encoding="utf-8")
         for tag in re.findall(r"<(?:script|link|img|iframe)\b[^>]*>", text):
             # rel=canonical and the like name an address; only what the browser fetches counts.
             if re.search(r'\b(src|href)="(https?:)?//', tag) and "canonical" not in tag:
-                external.append(f"{html.relative_to(site)}: {tag}")
+                external.append(f"{built_page.relative_to(site)}: {tag}")
     assert not external, external
+
+
+def built_sections(site: Path, name: str) -> dict[str, str]:
+    """A built page's sections by their heading's id (level 2 and 3), as HTML."""
+    text = (site / name / "index.html").read_text(encoding="utf-8")
+    assert "<!-- generated" not in text  # every generated part was put in
+    return dict(re.findall(r'<h[23] id="([^"]+)".*?</h[23]>(.*?)(?=<h[23] |$)', text, re.S))
+
+
+@pytest.mark.parametrize(
+    ("model", "name"), [(GatewayConfig, "configuration"), (DEVICE_FILE, "devices")]
+)
+def test_the_reference_pages_have_every_key_with_its_description(
+    site: Path, model: type[BaseModel], name: str
+) -> None:
+    """Under its section's heading, each key has a row that carries its description."""
+    by_id = built_sections(site, name)
+    missing = []
+    keys = list(reference.config_keys(model))
+    assert len(keys) > 30
+    for key in keys:
+        section = by_id.get(reference.anchor(key.path.rpartition(".")[0] or "Top level")[1:], "")
+        row = re.search(rf"<td><code>{re.escape(key.key)}</code>.*?</tr>", section, re.S)
+        text = cell_text(row.group(0)) if row else ""
+        if key.description.replace("`", "") not in " ".join(text.split()):
+            missing.append(key.path)
+    assert not missing, f"no row with its description on the built {name} page: {missing}"
 
 
 def test_a_broken_link_fails_the_build(tmp_path: Path) -> None:
@@ -371,3 +427,87 @@ def test_a_broken_link_fails_the_build(tmp_path: Path) -> None:
         built = mkdocs_build(copy / "mkdocs.yml", copy / "site")
         assert built.returncode != 0, f"{broken} built"
         assert "no-such" in built.stderr
+
+
+# --- drives and parameters, generated from the profiles -------------------------------------
+
+
+def test_the_drives_page_has_every_model_register_and_fault(site: Path) -> None:
+    """Every model `model:` takes, with its 2103H code; every communication register; every
+    code of every fault table a model uses, with its keypad code and words."""
+    text = (site / "drives" / "index.html").read_text(encoding="utf-8")
+    rows = table_rows_html(text)
+    by_first = {row[0]: row for row in rows if row}
+    assert len(PROFILES) >= 15
+    for key, profile in PROFILES.items():
+        row = next((r for r in rows if r[0].split(" ")[0] == key), None)
+        assert row is not None, f"model {key} not in the models table"
+        for code in profile.identification:
+            assert format_register(code) in row[2], (key, row)
+    for register in COMMUNICATION_REGISTERS:
+        row = by_first.get(format_register(register.address))
+        assert row is not None, register.name
+        assert row[1] == register.name
+    by_id = built_sections(site, "drives")
+    for profile in PROFILES.values():
+        table = profile.faults
+        if not table.entries:
+            continue
+        section = next(
+            (
+                html
+                for id_, html in by_id.items()
+                if id_.endswith("fault-table") and f"<code>{profile.key}</code>" in html
+            ),
+            None,
+        )
+        assert section is not None, f"no fault table names {profile.key}"
+        shown = {row[0]: row for row in table_rows_html(section)}
+        for code, (short, words) in table.entries.items():
+            assert shown.get(str(code)) == [str(code), short, words], (profile.key, code)
+
+
+def test_the_parameters_page_has_every_row_of_every_table_with_its_source(site: Path) -> None:
+    by_id = built_sections(site, "parameters")
+    tables = sources()["tables"]
+    assert {"common", "gd200a"} <= set(tables)
+    for name, described in tables.items():
+        intro = cell_text(by_id[f"table-{name}"])
+        assert " ".join(described["document"].split()) in " ".join(intro.split())
+        rows = table_rows(name)
+        for parameter in rows:
+            section = by_id[f"{name}-{parameter.group.lower()}"]
+            if described.get("groups"):
+                assert described["groups"][parameter.group] in cell_text(section)
+            row = next((r for r in table_rows_html(section) if r[0] == parameter.name), None)
+            assert row is not None, f"{name} {parameter.name} not on the page"
+            assert row[1] == " ".join(parameter.description.split())
+            default = "depends on model" if not parameter.default_known else None
+            assert default is None or row[3] == default
+    # The GD200A manual's P00.03, as the CSV has it.
+    p0003 = next(r for r in table_rows_html(by_id["gd200a-p00"]) if r[0] == "P00.03")
+    assert p0003[2:5] == ["0.00 ... 400.00 Hz, at least P00.04", "50.00 Hz", "stopped only"]
+    bar_code = next(r for r in table_rows_html(by_id["gd200a-p07"]) if r[0] == "P07.21")
+    assert "set by the factory: the drive's bar code, never restored" in bar_code[5]
+
+
+def test_every_parameter_table_file_is_described_in_the_sources() -> None:
+    """The page lists the tables `parameter_sources.yaml` names: a CSV table dropped beside it
+    without its entry (its document, its groups' pages) would be on no page and in no series."""
+    data = ROOT / "gateway" / "profile" / "data"
+    named = {t["file"] for t in sources()["tables"].values() if "file" in t}
+    files = {path.name for path in data.glob("*.csv")}
+    assert files, "no parameter table in gateway/profile/data/"
+    assert files <= named, f"tables in no entry of parameter_sources.yaml: {files - named}"
+
+
+def test_the_benchmark_page_shows_a_run_the_bench_wrote_with_todays_columns() -> None:
+    """docs/bench/run.md comes from `bench --page`, not a hand: its table has the columns the
+    bench prints now (a column added to the bench means running it again for the page)."""
+    from gateway.instruments.bench.page import WRITTEN_BY
+    from gateway.instruments.bench.report import header
+
+    run = (DOCS / "bench" / "run.md").read_text(encoding="utf-8")
+    assert run.startswith(WRITTEN_BY)
+    assert f"```text\n{header()}\n" in run
+    assert "<!-- generated: benchmark-run -->" in page("benchmark.md")

@@ -25,7 +25,10 @@ from tests.support.processes import gateway_process
 from tests.support.store import running_store
 
 FIXTURES = Path(__file__).parent / "fixtures"
-RELEASED = {1: FIXTURES / "store_schema_1.sql"}
+RELEASED = {
+    1: FIXTURES / "store_schema_1.sql",
+    2: FIXTURES / "store_schema_2.sql",
+}
 """Every schema a release wrote, but the current one."""
 
 

@@ -273,6 +273,12 @@ def _table_rows(table: str) -> tuple[Parameter, ...]:
     return tuple(result)
 
 
+def table_rows(table: str) -> tuple[Parameter, ...]:
+    """One table of `parameter_sources.yaml` (`common`, `gd200a`), its rows with their sources,
+    before any series layers it."""
+    return _table_rows(table)
+
+
 def _simulated_default(row: Parameter) -> Parameter:
     """A "depends on model" default starts a simulated drive at the common table's value for
     that code when it fits (10.0 s ramps), else at the range's lower bound."""

@@ -25,8 +25,8 @@ def test_the_console_is_off_on_loopback_8080_unless_configured() -> None:
             "console.users[0] (a).password_hash: not a password hash",
         ),
         (
-            {"users": [{"name": "a", "password_hash": "x", "role": "admin"}]},
-            "console.users[0] (a).role: Input should be 'viewer' or 'operator'",
+            {"users": [{"name": "a", "password_hash": "x", "role": "superuser"}]},
+            "console.users[0] (a).role: Input should be 'viewer', 'operator' or 'admin'",
         ),
         ({"cert_file": "/etc/hosts"}, "cert_file and key_file go together"),
         ({"enabled": True}, "nobody could use it"),
