@@ -105,6 +105,17 @@ class Browser:
         self.driver.quit()
 
 
+def answered(selector: str) -> Callable[[Any], str | bool]:
+    """The text of the element matching `selector` once it holds any (False until then)."""
+
+    def check(driver: Any) -> str | bool:
+        elements = driver.find_elements(By.CSS_SELECTOR, selector)
+        text = str(elements[0].text) if elements else ""
+        return text or False
+
+    return check
+
+
 def showing(selector: str, text: str) -> Callable[[Any], bool]:
     """True once an element matching `selector` holds `text`."""
 
