@@ -30,6 +30,10 @@
     │                           the file and the key path (`points.flow.type`) and why
     ├── InstructionCountError   `bench --instructions`: the run is void (wrong reply, no count)
     ├── OperationError          a console request refused or failed, with its HTTP `status`
+    │   └── EditRefused         a configuration edit from the console not applied (`details`:
+    │                           each problem with its key, when the text didn't check out)
+    ├── OptionRefused           a command-line option's value the configuration refuses: names the
+    │                           option, the value and why (exit code 2)
     └── ModbusError             answered to the client as a Modbus exception (has `code`)
         ├── DriveException      the drive itself answered an exception (its code, byte-exact)
         ├── RequestRefused      this side refuses a request with `code` (the simulated drive)
@@ -52,6 +56,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from enum import IntEnum
+from typing import Any
 
 
 class ExceptionCode(IntEnum):
@@ -280,3 +285,17 @@ class OperationError(GatewayError):
     def __init__(self, status: int, message: str) -> None:
         super().__init__(message)
         self.status = status
+
+
+class EditRefused(OperationError):
+    """A configuration edit from the console was not applied; `details` is the check's findings
+    (`Checked.to_json()`) when the text didn't check out or the reload refused it."""
+
+    def __init__(self, status: int, message: str, details: dict[str, Any] | None = None) -> None:
+        super().__init__(status, message)
+        self.details = details
+
+
+class OptionRefused(GatewayError):
+    """A command-line option's value the configuration refuses (`--port 70000`): the message
+    names the option, the value and why."""

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final, Protocol
 
-from gateway.errors import StoreError
+from gateway.errors import EditRefused, StoreError
 from gateway.settings import GatewaySettings
 from gateway.settings.editing import Checked, check_text
 from gateway.settings.shown import MASK, SECRET_WORDS
@@ -66,15 +66,6 @@ class VersionStore(Protocol):
     async def remove_config_version(self, number: int) -> None: ...
 
     async def config_versions(self) -> list[ConfigVersion]: ...
-
-
-class EditRefused(Exception):
-    """The edit was not applied; `status` the HTTP status that says why."""
-
-    def __init__(self, status: int, message: str, checked: Checked | None = None) -> None:
-        super().__init__(message)
-        self.status = status
-        self.checked = checked
 
 
 class ConfigEditor:
@@ -132,7 +123,7 @@ class ConfigEditor:
             full = unmasked(text, current)
             checked = await asyncio.to_thread(self._check, full)
             if not checked.ok:
-                raise EditRefused(400, "the configuration does not check out", checked)
+                raise EditRefused(400, "the configuration does not check out", checked.to_json())
             number = await self._keep(user, full, note, current)
             try:
                 await self._write_file(full)
@@ -148,7 +139,9 @@ class ConfigEditor:
                 await self._write_file(current)
                 with contextlib.suppress(StoreError):
                     await self.versions.remove_config_version(number)
-                raise EditRefused(409, "; ".join(outcome) or "the reload did not answer", checked)
+                raise EditRefused(
+                    409, "; ".join(outcome) or "the reload did not answer", checked.to_json()
+                )
             return {"version": number, "outcome": outcome, **checked.to_json()}
 
     async def rollback(self, number: int, user: str) -> dict[str, Any]:

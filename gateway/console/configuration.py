@@ -24,9 +24,10 @@ from typing import Any, Final, TypeVar
 from aiohttp import web
 
 from gateway.console.auth import Identity
-from gateway.console.config_editor import ConfigEditor, EditRefused
+from gateway.console.config_editor import ConfigEditor
 from gateway.console.events import Category, GatewayEvent
 from gateway.console.web import CONSOLE, IDENTITY, Console, _error, _html, _status_class
+from gateway.errors import EditRefused
 
 T = TypeVar("T")
 EDITOR: Final = web.AppKey("config_editor", ConfigEditor)
@@ -223,8 +224,8 @@ def _number(request: web.Request) -> int:
 def _refused(exc: EditRefused) -> web.HTTPException:
     """The reason, and for a text that doesn't check out each problem with its key."""
     body: dict[str, Any] = {}
-    if exc.checked is not None:
-        body.update(exc.checked.to_json())
+    if exc.details is not None:
+        body.update(exc.details)
     body.update({"ok": False, "error": str(exc)})
     return _status_class(exc.status)(text=json.dumps(body), content_type="application/json")
 

@@ -24,7 +24,7 @@ from pydantic import ValidationError
 from gateway.app import Application
 from gateway.commands.run import event_loop_or_report, serve
 from gateway.config import GatewayConfig, MqttConfig, parse_config
-from gateway.errors import ConfigError
+from gateway.errors import ConfigError, OptionRefused
 from gateway.event_loop import run as run_on_loop
 from gateway.exit_codes import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from gateway.logs import setup_logging
@@ -112,7 +112,7 @@ def handle(args: argparse.Namespace) -> int:
         config = config.model_copy(update={"mqtt": one_broker(config.mqtt)})
     try:
         config = with_options(config, args)
-    except OptionError as exc:
+    except OptionRefused as exc:
         print(f"invt-gateway demo: {exc}", file=sys.stderr)
         return EXIT_USAGE
     loop = event_loop_or_report()
@@ -162,10 +162,6 @@ LISTEN_FLAGS = {"modbus_tcp.host/port": "--port", "console.host/port": "--consol
 """What an error at start names (`gateway.listen`), and the demo's option that changes it."""
 
 
-class OptionError(ValueError):
-    """An option's value the configuration refuses: says the option, the value and why."""
-
-
 def with_options(config: GatewayConfig, args: argparse.Namespace) -> GatewayConfig:
     """The configuration with the ports the options give, each checked as the file's key would
     be (`--port 70000` is refused, not wrapped around to 4464); the error names the option."""
@@ -176,14 +172,14 @@ def with_options(config: GatewayConfig, args: argparse.Namespace) -> GatewayConf
         if value is None:
             continue
         if section is None:
-            raise OptionError(f"{flag} {value}: this configuration has no {section_name} section")
+            raise OptionRefused(f"{flag} {value}: this configuration has no {section_name} section")
         try:
             checked = type(section).model_validate(
                 {**section.model_dump(exclude_unset=True), key: value}
             )
         except ValidationError as exc:
             reasons = "; ".join(error["msg"] for error in exc.errors())
-            raise OptionError(f"{flag} {value}: {reasons} ({section_name}.{key})") from None
+            raise OptionRefused(f"{flag} {value}: {reasons} ({section_name}.{key})") from None
         config = config.model_copy(update={section_name: checked})
     return config
 
