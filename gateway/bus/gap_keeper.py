@@ -43,6 +43,9 @@ class _Round:
     replied: Replied | None
     outcome: list[Sending | Exception | None]
     """Empty until a frame went out (its Sending), nothing was picked (None) or that failed."""
+    idle_for: Callable[[], float | None] | None = None
+    """When `pick` has nothing at a gap's end: how long the caller may stay held, idle, for a
+    request to come (`GapKeeper.kick`); None: return None to it at once."""
     picked: bytes | None = None
     """A frame chosen before the gap's end that could not go out then (bytes came in the last
     microseconds of the gap, which starts again): it goes at the next gap's end, as a frame
@@ -94,6 +97,8 @@ class GapKeeper:
         finds the reply missing or incomplete."""
         self._held: _Held | None = None
         """What the held caller sent, for the reader callback to finish the attempt itself."""
+        self._idle: _Round | None = None
+        """The round of a caller held while the line is idle: `kick` sends its next frame."""
         self.gap_lead = GapLead(settings.gap_s)
         """How long before the gap's end the timer wakes the line (`gateway.bus.gap_lead`)."""
         self._learns_lead = False
@@ -110,6 +115,7 @@ class GapKeeper:
     def closed(self) -> None:
         """The line's port is closed (its timer too): nobody is held any more."""
         self._held = None
+        self._idle = None
         self._timer = None
         if self._response_deadline is not None:
             self._response_deadline.close()
@@ -120,6 +126,7 @@ class GapKeeper:
         pick: Callable[[], bytes | None],
         reply_within: Callable[[], float | None] | None = None,
         replied: Replied | None = None,
+        idle_for: Callable[[], float | None] | None = None,
     ) -> Sending | None:
         """At the end of the inter-frame gap, ask `pick` for a frame and start writing it.
 
@@ -141,24 +148,38 @@ class GapKeeper:
         costs the loop no pass for the caller's coroutine. What the caller gets in the end is
         the attempt its own reading must finish (`finish`: a reply that is late, partial, bad
         or ended by a silence), or None once `pick` has nothing.
+
+        `idle_for`: when `pick` has nothing, how long the caller may stay held with the line
+        idle (None: not at all): a request queued meanwhile is sent by `kick`, in the callback
+        that queued it, and its reply read by the reader callback as above, with no pass of the
+        loop for the caller's coroutine; None is returned once that time has passed idle.
         """
         gap = self.settings.gap_s
-        this = _Round(pick, reply_within, replied, [])
+        this = _Round(pick, reply_within, replied, [], idle_for)
         while True:
             self._discard_pending()
             due = self.receiver.quiet_since + gap
             now = time.monotonic()
+            assert self._timer is not None  # _discard_pending raised if the port is closed
             if due <= now:
                 frame = this.take_pick()
-                return None if frame is None else self._send_frame(frame)
-            assert self._timer is not None  # _discard_pending raised if the port is closed
-            wake_at = self._wake_at(due)
-            if wake_at <= now:  # within the lead already: wait out the rest, then look again
-                self.gap_lead.wait_out(due)
-                continue
+                if frame is not None:
+                    return self._send_frame(frame)
+                idle_s = None if idle_for is None else idle_for()
+                if idle_s is None:
+                    return None
+                self._idle = this
+                wake_at, action = now + idle_s, partial(self._idle_over, this)
+            else:
+                wake_at = self._wake_at(due)
+                if wake_at <= now:  # within the lead already: wait out the rest, then look again
+                    self.gap_lead.wait_out(due)
+                    continue
+                action = partial(self._send_at_gap_end, this)
             try:
-                await self._timer.sleep_until(wake_at, partial(self._send_at_gap_end, this))
+                await self._timer.sleep_until(wake_at, action)
             finally:
+                self._idle = None
                 self._stop_holding()
             if this.outcome:
                 outcome = this.outcome[0]
@@ -200,6 +221,8 @@ class GapKeeper:
             this.outcome.append(exc)
             return False
         if frame is None:
+            if self._go_idle(this):
+                return True
             this.outcome.append(None)
             return False
         if timed and self._learns_lead:
@@ -224,6 +247,42 @@ class GapKeeper:
         if within_s is None:
             return False
         return self._hold_until_reply(sending, within_s, this)
+
+    def kick(self) -> None:
+        """A request was queued: a caller held with the line idle has its frame sent now, in
+        this very callback, once the gap is over (at its end if bytes came meanwhile)."""
+        this, timer = self._idle, self._timer
+        if this is None or timer is None:
+            return
+        self._idle = None
+        due = self.receiver.quiet_since + self.settings.gap_s
+        wake_at = self._wake_at(due)
+        if wake_at > time.monotonic():  # the line was heard while idle: its gap first
+            if timer.rearm(wake_at, partial(self._send_at_gap_end, this)):
+                return
+        elif timer.take_over() and self._send_at_gap_end(this, timed=False):
+            return
+        self._release_caller()  # the caller's loop takes it from here (`outcome` says what)
+
+    def _go_idle(self, this: _Round) -> bool:
+        """`pick` had nothing at a gap's end: hold the caller, idle, for `kick` (True), if
+        its round allows and the wait can be taken over."""
+        if this.idle_for is None or self._timer is None:
+            return False
+        idle_s = this.idle_for()
+        if idle_s is None:
+            return False
+        if not self._timer.rearm(time.monotonic() + idle_s, partial(self._idle_over, this)):
+            return False
+        self._idle = this
+        return True
+
+    def _idle_over(self, this: _Round) -> bool:
+        """The idle wait is over with nothing queued: the caller gets None (a last look first,
+        for a request queued without a `kick`)."""
+        self._idle = None
+        this.idle_for = None
+        return self._send_at_gap_end(this, timed=False)
 
     def _waits_for_reply_only(self, sending: Sending) -> bool:
         """Is all that `finish` would do for this attempt to wait for the reply? (The frame

@@ -164,10 +164,16 @@ class SerialLine:
         pick: Callable[[], bytes | None],
         reply_within: Callable[[], float | None] | None = None,
         replied: Replied | None = None,
+        idle_for: Callable[[], float | None] | None = None,
     ) -> Sending | None:
         """At the end of the inter-frame gap, ask `pick` for a frame and start writing it
-        (`GapKeeper.send_after_gap`: the gap, the lead, the caller held while replies come)."""
-        return await self._gap.send_after_gap(pick, reply_within, replied)
+        (`GapKeeper.send_after_gap`: the gap, the lead, the caller held while replies come
+        and while the line is idle)."""
+        return await self._gap.send_after_gap(pick, reply_within, replied, idle_for)
+
+    def kick(self) -> None:
+        """A request was queued: an idle line sends it now (`GapKeeper.kick`)."""
+        self._gap.kick()
 
     def _discard_pending(self) -> None:
         """Throw away bytes nobody asked for (noise, a reply later than every drain)."""
