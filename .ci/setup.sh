@@ -50,7 +50,8 @@ install_debian_packages() {
   DEBIAN_FRONTEND=noninteractive as_root apt-get install -y -qq --no-install-recommends "$@" >/dev/null
 }
 
-# .venv with the package installed (editable: the clone is the code), extras as $1 (e.g. test).
+# .venv with the package installed (editable: the clone is the code), extras as $1 (e.g. test,
+# or test,docs: several comma-separated).
 # pip runs again only when pyproject.toml changed or other extras are asked for.
 setup_venv() {
   local extras=${1:-} python hash stamp have_hash have_extras
@@ -86,4 +87,22 @@ setup_venv() {
     .venv/bin/python -m pip install -q --disable-pip-version-check -e ".${extras:+[$extras]}"
   fi
   echo "$hash $extras" > "$stamp"
+}
+
+# The tests' npm peers (tests/peers/*/package.json with its package-lock.json): Eclipse Tahu's
+# JavaScript Sparkplug codec, the Sparkplug tests' independent decoder. `npm ci` again only when
+# the lock file changed; no install scripts (none is needed).
+setup_node_peers() {
+  local peer stamp hash
+  for peer in tests/peers/*/package-lock.json; do
+    peer=$(dirname "$peer")
+    stamp="$peer/node_modules/.invt-gateway-installed"
+    hash=$(sha256sum "$peer/package-lock.json" | cut -d' ' -f1)
+    if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$hash" ]; then
+      continue
+    fi
+    echo "invt-gateway: installing the npm packages of $peer (npm ci)" >&2
+    (cd "$peer" && npm ci --no-audit --no-fund --ignore-scripts --loglevel=error) || return 1
+    echo "$hash" > "$stamp"
+  done
 }

@@ -104,6 +104,7 @@ class Application:
             bus.add_listener(self.poller.on_drive_health)
         self.poller.add_listener(DriveEventLog())
         self.poller.add_listener(self.events)
+        self.poller.add_listener(self.events.history)  # the history of polled values
         self.poller.open_faults = self.events.open_faults  # no fault raised twice by a restart
         self.features.append(self.poller)
 
@@ -120,7 +121,10 @@ class Application:
     async def reload(self, new: GatewaySettings) -> ReloadPlan:
         """Apply a new, valid configuration in place (`gateway.settings.reload`); what changed."""
         poller: Poller | None = getattr(self, "poller", None)
-        plan = plan_reload(self.settings.source, new.source, mqtt_running=hasattr(self, "mqtt"))
+        profiles = {d.name: d.profile for d in self.settings.drives}
+        plan = plan_reload(
+            self.settings.source, new.source, mqtt_running=hasattr(self, "mqtt"), profiles=profiles
+        )
         running = self.settings = plan.settings
         if poller is None and any(running.polled(d) for d in plan.added):
             plan.restart_needed.append("polling (no drive was polled at start)")
@@ -161,6 +165,7 @@ class Application:
         new = MqttBridge(
             running.mqtt, running.drives, self.router, self.poller, self.tasks, self.events
         )
+        new.continue_from(old)
         self.poller.add_listener(new)
         self.features[self.features.index(old)] = new
         self.mqtt = new
@@ -247,6 +252,7 @@ class Application:
             tcp=self.tcp,
             mqtt=getattr(self, "mqtt", None),
             configuration=lambda: self.settings.shown_configuration(),
+            history_source=self.events,
         )
         self.features.append(self.console)
 

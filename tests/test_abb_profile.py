@@ -5,8 +5,10 @@
 from __future__ import annotations
 
 import struct
+from pathlib import Path
 
 import pytest
+import yaml
 
 from gateway.config import GatewayConfig
 from gateway.console.decode import describe
@@ -85,7 +87,9 @@ def test_its_registers_are_named_by_the_manuals_numbers() -> None:
     profile = get_profile("acs355")
     point = profile.resolve("40004")
     assert (point.address, point.description) == (3, "status word")
-    assert point.show(0x0237, profile).startswith("0237H (running_forward: ready to switch on")
+    assert point.show(0x0237, profile).startswith(
+        "0237H (running, direction by reference 1: ready to switch on"
+    )
     assert profile.resolve("reference_1").show((-10000) & 0xFFFF, profile) == "-10000"
     assert profile.point(0x2100) is None  # INVT's state word is no ABB register
 
@@ -98,7 +102,8 @@ def test_the_traffic_monitor_reads_an_abb_status_word_in_the_manuals_words() -> 
     request = struct.pack(">BHH", READ_HOLDING_REGISTERS, 3, 1)
     line = describe(request, bytes((READ_HOLDING_REGISTERS, 2, 0x02, 0x37)), profile)
     assert line == (
-        "read 40004 status word → 0237H (running_forward: ready to switch on, ready to operate, "
+        "read 40004 status word → 0237H (running, direction by reference 1: ready to switch on, "
+        "ready to operate, "
         "operation enabled, OFF2 inactive, OFF3 inactive, remote)"
     )
 
@@ -188,3 +193,28 @@ async def test_the_console_starts_an_abb_drive_and_shows_it_running() -> None:
 
             await eventually(running)
             assert line.abb_drives[2].state(0.0) is RunState.RUNNING_FORWARD
+
+
+def test_a_site_names_an_abb_fault_and_is_told_what_doesnt_apply(tmp_path: Path) -> None:
+    """`drives[].faults` corrects an ABB drive's fault names as it does an INVT drive's (the
+    rest of the profile kept); the INVT-only corrections are refused by `check-config`."""
+    profile = get_profile("acs580").with_overrides(faults={0x2310: "OC: overcurrent"})
+    assert profile.faults.describe(0x2310) == "OC: overcurrent"
+    assert (profile.display_name, profile.commands) == ("ACS580", get_profile("acs580").commands)
+    config = {
+        "modbus_tcp": {"host": "127.0.0.1", "port": 5020},
+        "buses": [{"name": "line1", "port": "/dev/null"}],
+        "drives": [
+            {"name": "fan7", "bus": "line1", "address": 1, "model": "acs580", "faults": {1: "x"}},
+            {
+                "name": "fan8", "bus": "line1", "address": 2, "model": "acs355",
+                "identification": ["01A0H"],
+            },
+        ],
+    }  # fmt: skip
+    path = tmp_path / "abb.yaml"
+    path.write_text(yaml.safe_dump(config))
+    result = run_cli("check-config", "--config", str(path))
+    assert result.returncode == 3
+    assert "drives[1] (fan8): identification: ACS355 has no 2103H code to correct" in result.stderr
+    assert "fan7" not in result.stderr

@@ -17,11 +17,13 @@ import struct
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 
 import pytest
 
 from tests.support.processes import assert_ending_leaves_nothing_behind
+from tests.support.site import DOCS, mkdocs_build, table_rows_html
 
 
 def test_bench_prints_checked_figures_as_json() -> None:
@@ -318,3 +320,57 @@ def test_the_bench_runs_the_gateway_at_its_systemd_unit_s_priority() -> None:
     assert niceness == expected
     # As root (this machine, CI) the bench may and does.
     assert os.geteuid() != 0 or niceness == GATEWAY_NICENESS
+
+
+def test_bench_writes_its_run_as_the_page_the_documentation_site_shows(tmp_path: Path) -> None:
+    """`--page` writes what a reader needs to weigh the figures (when, on what, which command and
+    version) with the table the terminal showed; the site built with that page shows the run."""
+    from gateway.instruments.bench.report import header
+
+    written = tmp_path / "docs" / "bench" / "run.md"
+    shutil.copytree(DOCS, tmp_path / "docs", ignore=shutil.ignore_patterns("site", "run.md"))
+    started = time.strftime("%Y-%m-%d", time.gmtime())
+    result = subprocess.run(
+        [
+            *(sys.executable, "-m", "gateway", "bench", "--baud", "115200", "--case", "2w 1c"),
+            *("--duration", "0.5", "--warmup", "0.3", "--page", str(written)),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 0, result.stderr
+    assert f"wrote {written}" in result.stderr
+    page = written.read_text(encoding="utf-8")
+    table_lines = result.stdout.splitlines()[:2]  # the header and the one case's row
+    assert table_lines[0] == header()
+    assert "\n".join(table_lines) in page  # the figures are the run's, as the terminal showed
+    facts = dict(
+        line.strip("|").split("|", 1) for line in page.splitlines() if line.startswith("| ")
+    )
+    facts = {name.strip(): value.strip() for name, value in facts.items()}
+    assert facts["run"].startswith(started)
+    assert "--baud=115200 --duration=0.5 --warmup=0.3 --runs=1 '--case=2w 1c'" in facts["command"]
+    assert facts["gateway"].startswith("invt-gateway 0.")
+    assert f"{os.cpu_count()} cores" in facts["processor"]
+    assert "GiB" in facts["memory"]
+    assert "115200 baud, 2w 1c: bus at" in page  # the targets' sentence
+
+    built = mkdocs_build(tmp_path / "docs" / "mkdocs.yml", tmp_path / "site")
+    assert built.returncode == 0, built.stderr
+    html = (tmp_path / "site" / "benchmark" / "index.html").read_text(encoding="utf-8")
+    shown = {row[0]: row[1] for row in table_rows_html(html) if len(row) == 2}
+    assert shown["run"] == facts["run"]
+    assert table_lines[1] in html
+
+
+def test_bench_page_is_refused_with_instructions(tmp_path: Path) -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "gateway", "bench", "--instructions", "--page", str(tmp_path / "p")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode == 2, result.stderr
+    assert "--page" in result.stderr
+    assert not (tmp_path / "p").exists()

@@ -5,7 +5,7 @@ would load every other. The exit codes have their own module, `gateway.exit_code
 from __future__ import annotations
 
 from gateway import exit_codes
-from tests.test_settings_one_place import PACKAGE, imported_modules
+from tests.support.imports import PACKAGE, imported_modules
 
 ENTRY = "__main__.py"  # `python -m gateway`: the one module above the CLI
 

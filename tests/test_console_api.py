@@ -10,6 +10,7 @@ import struct
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
+from urllib.parse import quote
 
 import aiohttp
 import pytest
@@ -17,6 +18,7 @@ import pytest
 from gateway.app import Application
 from gateway.console.auth import MAX_FAILURES
 from gateway.instruments.simulator import SimulatedLine
+from gateway.profile import get_profile
 from tests.support import TcpClient, eventually, read_pdu, running_gateway
 from tests.support.console_support import (
     OPERATOR_PASSWORD,
@@ -222,6 +224,58 @@ async def test_every_group_of_the_series_table_shows_with_the_manuals_words(
         assert (torque["raw"], torque["value"]) == (0xFE0C, "-50.0 %")
 
 
+async def test_the_parameter_browser_gives_range_default_and_finds_by_number_or_name(
+    line: SimulatedLine,
+) -> None:
+    """What a technician asks of the browser: which groups, what a value may be, what the
+    factory set and whether it was changed, and where P00.03 (or "acc time") is."""
+    async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
+        await web.login("olga", OPERATOR_PASSWORD)
+        basic = await web.get_json("/api/drives/pump1/parameters?group=P00")
+        groups = sorted({row.group for row in get_profile("gd350").parameters})
+        assert basic["groups"] == [*groups, "2000H", "2100H", "3000H"]
+        assert "P24" in basic["groups"]  # water supply: a group the fixed P00-P17 tabs missed
+        rows = {p["name"]: p for p in basic["parameters"]}
+        top = rows["P00.03"]
+        assert (top["value"], top["default"], top["differs_from_default"]) == (
+            "50.00 Hz", "50.00 Hz", False,
+        )  # fmt: skip
+        assert top["range"] == "0.00 ... 630.00 Hz, at least P00.04"
+        assert top["change"] == "any time"
+        limit = rows["P00.04"]["range"]
+        assert limit == "0.00 ... 630.00 Hz, within P00.05 ... P00.03"
+        # "depends on model": no default to differ from, and the page says so.
+        accel = rows["P00.11"]
+        assert (accel["default"], accel["differs_from_default"]) == (None, None)
+        direction = rows["P00.13"]
+        assert direction["value"] == "0 (default)"
+        assert {"value": 2, "words": "reverse forbidden"} in direction["choices"]
+
+        status, body = await web.post(
+            "/api/drives/pump1/parameter", {"name": "P00.03", "value": "60Hz", "ram": False}
+        )
+        assert status == 200, body
+        for spelled in ("P00.03", "p0.3", "0003H", "0x0003"):
+            found = await web.get_json(f"/api/drives/pump1/parameters?find={quote(spelled)}")
+            assert [p["name"] for p in found["parameters"]] == ["P00.03"], spelled
+            top = found["parameters"][0]
+            assert (top["value"], top["default"], top["differs_from_default"]) == (
+                "60.00 Hz", "50.00 Hz", True,
+            )  # fmt: skip
+        named = await web.get_json(f"/api/drives/pump1/parameters?find={quote('ACC time')}")
+        names = [p["name"] for p in named["parameters"]]
+        assert "P00.11" in names  # "acceleration time 1"
+        assert all(
+            "acc" in p["description"].lower() and "time" in p["description"].lower()
+            for p in named["parameters"]
+        )
+        nothing = await web.get_json(f"/api/drives/pump1/parameters?find={quote('P99.99')}")
+        assert nothing["parameters"] == []
+        async with web.session.get(f"{web.base}/api/drives/pump1/parameters?group=P16") as got:
+            assert got.status == 404
+            assert "no group 'P16': one of P00, P01" in (await got.json())["error"]
+
+
 async def test_fault_history_is_decoded_with_the_drives_table(line: SimulatedLine) -> None:
     line.set_fault_history(1, [35, 0, 0, 0, 0, 0])
     async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
@@ -249,20 +303,20 @@ async def read_events(response: aiohttp.ClientResponse) -> AsyncIterator[tuple[s
             yield event, json.loads(line.removeprefix("data: "))
 
 
-async def test_the_monitor_records_nothing_until_someone_watches(
+async def test_the_monitor_records_at_all_times_and_streams_a_read_as_it_happens(
     traffic: tuple[Application, ConsoleClient],
 ) -> None:
     app, web = traffic
     bus = app.buses["line1"]
+    assert app.console.console is not None  # the console has started
+    monitor = app.console.console.traffic
     client = await TcpClient.connect(app.tcp.port)
     await client.request(1, read_pdu(STATE_WORD_1))
-    assert bus.tap is None
-    assert app.console.console is not None  # the console has started
-    assert app.console.console.traffic.recorded == 0
+    assert bus.tap is not None  # recording before anybody watches
+    assert any(r.client.startswith("tcp:") for r in monitor.recent("line1"))
     async with web.session.get(f"{web.base}/api/buses/line1/traffic") as response:
         events = read_events(response)
         assert await anext(events) == ("watching", {"bus": "line1"})
-        assert bus.tap is not None
         await client.request(1, read_pdu(STATE_WORD_1))
         async with asyncio.timeout(1.0):
             async for kind, record in events:
@@ -272,11 +326,10 @@ async def test_the_monitor_records_nothing_until_someone_watches(
         assert (record["unit_id"], record["drive"], record["outcome"]) == (1, "pump1", "ok")
         assert record["request_hex"].startswith("01 03 21 00 00 01")
     await client.close()
-
-    async def closed() -> bool:
-        return bus.tap is None
-
-    await eventually(closed)
+    # The watcher gone, the ring goes on: the next problem is kept for whoever looks next.
+    recorded = monitor.recorded
+    await eventually(lambda: monitor.recorded > recorded, 5.0, "polls recorded after the stream")
+    assert bus.tap is not None
 
 
 async def test_a_dead_drive_goes_offline_and_its_timeouts_show(

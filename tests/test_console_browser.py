@@ -8,23 +8,22 @@ Selenium's calls block, so they run in a thread while the gateway serves on this
 from __future__ import annotations
 
 import asyncio
-import os
 import re
 import shutil
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import pytest
-from selenium import webdriver
 from selenium.common.exceptions import StaleElementReferenceException
-from selenium.webdriver.chrome.service import Service
 from selenium.webdriver.common.by import By
-from selenium.webdriver.support.ui import Select, WebDriverWait
+from selenium.webdriver.support.ui import Select
 
 from gateway.app import Application
 from gateway.instruments.simulator import SimulatedLine
-from tests.support import TcpClient, running_gateway
+from gateway.profile import get_profile
+from tests.support import TcpClient, running_gateway, write_pdu
+from tests.support.browser import CHROMEDRIVER, CHROMIUM, Browser, showing
 from tests.support.console_support import (
     OPERATOR_PASSWORD,
     VIEWER_PASSWORD,
@@ -32,14 +31,6 @@ from tests.support.console_support import (
     state_word,
 )
 
-T = TypeVar("T")
-CHROMIUM = shutil.which("chromium")
-CHROMEDRIVER = shutil.which("chromedriver")
-ARTIFACTS = Path(
-    os.environ.get(
-        "INVT_GATEWAY_ARTIFACTS", Path(__file__).resolve().parent.parent / "test-artifacts"
-    )
-)
 STATE_WORD_1 = 0x2100
 RUNNING_FORWARD = 1
 STOPPED = 3
@@ -48,89 +39,6 @@ pytestmark = pytest.mark.skipif(
     CHROMIUM is None or CHROMEDRIVER is None,
     reason="Debian's chromium and chromium-driver are installed by .ci/test",
 )
-
-
-class Browser:
-    """A headless Chromium; every call in a thread so the gateway's loop keeps serving."""
-
-    def __init__(self, base: str) -> None:
-        options = webdriver.ChromeOptions()
-        options.binary_location = CHROMIUM or ""
-        for argument in (
-            "--headless=new",
-            "--no-sandbox",  # root in a container: Chromium's sandbox needs user namespaces
-            "--disable-gpu",
-            "--disable-dev-shm-usage",
-            "--window-size=1400,1000",
-            "--lang=en-GB",
-        ):
-            options.add_argument(argument)
-        self.driver = webdriver.Chrome(options=options, service=Service(CHROMEDRIVER or ""))
-        self.base = base
-
-    async def run(self, call: Callable[..., T], *args: Any) -> T:
-        def again_if_redrawn() -> T:
-            # The live pages redraw their tables every half second: an element found just
-            # before a redraw is gone when used. Find it again.
-            for _ in range(20):
-                try:
-                    return call(*args)
-                except StaleElementReferenceException:
-                    continue
-            return call(*args)
-
-        return await asyncio.to_thread(again_if_redrawn)
-
-    async def open(self, path: str) -> None:
-        await self.run(self.driver.get, f"{self.base}{path}")
-
-    async def wait(self, condition: Callable[[Any], Any], within_s: float = 5.0) -> Any:
-        waiter = WebDriverWait(self.driver, within_s, poll_frequency=0.05)
-        return await self.run(waiter.until, condition)
-
-    async def text(self, selector: str) -> str:
-        return str(await self.run(lambda: self.driver.find_element(By.CSS_SELECTOR, selector).text))
-
-    async def click(self, selector: str) -> None:
-        await self.run(lambda: self.driver.find_element(By.CSS_SELECTOR, selector).click())
-
-    async def type(self, selector: str, text: str) -> None:
-        def typing() -> None:
-            field = self.driver.find_element(By.CSS_SELECTOR, selector)
-            field.clear()
-            field.send_keys(text)
-
-        await self.run(typing)
-
-    async def login(self, name: str, password: str) -> None:
-        await self.open("/login")
-        await self.type("#login-name", name)
-        await self.type("#login-password", password)
-        await self.click("#login-submit")
-
-    async def resize(self, width: int, height: int) -> None:
-        """The page's viewport exactly this size, as on a phone or tablet of that size."""
-        metrics = {"width": width, "height": height, "deviceScaleFactor": 1, "mobile": False}
-        await self.run(self.driver.execute_cdp_cmd, "Emulation.setDeviceMetricsOverride", metrics)
-
-    async def screenshot(self, name: str) -> Path:
-        ARTIFACTS.joinpath("console").mkdir(parents=True, exist_ok=True)
-        path = ARTIFACTS / "console" / f"{name}.png"
-        await asyncio.sleep(0.3)  # a picture for a person: let the last update paint
-        assert await self.run(self.driver.save_screenshot, str(path))
-        return path
-
-    def close(self) -> None:
-        self.driver.quit()
-
-
-def showing(selector: str, text: str) -> Callable[[Any], bool]:
-    """True once an element matching `selector` holds `text`."""
-
-    def check(driver: Any) -> bool:
-        return any(text in e.text for e in driver.find_elements(By.CSS_SELECTOR, selector))
-
-    return check
 
 
 @pytest.fixture
@@ -412,3 +320,51 @@ async def test_the_events_page_filters_by_kind_and_downloads_what_it_shows(
     assert lines[0].startswith("id,time,kind,type,drive,bus,text,who,user,address")
     assert len(lines) == 2
     assert ",login," in lines[1]
+
+
+async def test_the_parameter_browser_shows_every_group_ranges_defaults_and_finds_a_parameter(
+    console: tuple[Application, Browser],
+) -> None:
+    """A technician on pump1's page: every group of its series as a tab, the manual's words for
+    a choice, the range with its unit, the default, and P00.03 found by its wire address once
+    a SCADA write has moved it off the factory's value."""
+    app, browser = console
+    await browser.open("/drives/pump1")
+    await browser.wait(showing("#parameters tbody", "P00.03"))
+    tabs = await browser.run(
+        lambda: [b.text for b in browser.driver.find_elements(By.CSS_SELECTOR, "#groups button")]
+    )
+    groups = sorted({row.group for row in get_profile("gd350").parameters})
+    assert tabs == [*groups, "2000H", "2100H", "3000H"]
+    top = "#parameters tr[data-name='P00.03']"
+    assert "0.00 ... 630.00 Hz, at least P00.04" in await browser.text(top)
+    assert "≠ default" not in await browser.text(top)
+    await browser.click("#groups button[data-group=P05]")
+    await browser.wait(showing("#parameters tr[data-name='P05.01']", "1 (forward rotation)"))
+
+    client = await TcpClient.connect(app.tcp.port)
+    try:
+        assert await client.request(1, write_pdu(0x0003, 6000)) == write_pdu(0x0003, 6000)
+    finally:
+        await client.close()
+    await browser.type("#parameter-find-text", "0003H")
+    await browser.click("#parameter-find-go")
+    await browser.wait(showing("#parameter-found", "1 found"))
+    await browser.wait(showing(top, "≠ default"))
+    shown = await browser.text(top)
+    assert "60.00 Hz" in shown
+    assert "50.00 Hz" in shown  # the default beside it
+    assert "differs" in str(
+        await browser.run(
+            lambda: browser.driver.find_element(By.CSS_SELECTOR, top).get_attribute("class")
+        )
+    )
+    await browser.type("#parameter-find-text", "acc time")
+    await browser.click("#parameter-find-go")
+    await browser.wait(showing("#parameters tr[data-name='P00.11']", "depends on model"))
+    assert "0.0 ... 3600.0 s" in await browser.text("#parameters tr[data-name='P00.11']")
+    await browser.run(
+        browser.driver.execute_script,
+        "document.getElementById('parameter-find').scrollIntoView()",
+    )
+    await browser.screenshot("parameters")

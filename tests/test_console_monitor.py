@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import re
 
 from gateway.instruments.simulator import SimulatedLine
 from tests.support import TcpClient, read_pdu, running_gateway
@@ -33,6 +34,7 @@ async def test_monitor_prints_a_scada_read_in_words(line: SimulatedLine) -> None
             printed = await line_with(process.stdout, "tcp:127.0.0.1")
             assert "unit   1 pump1" in printed
             assert "03H  read 2100H state word 1 → 0003H stopped  [ok," in printed
+            assert re.search(r"ms: queue [\d.]+, wire 1\.43, drive [\d.]+\]$", printed), printed
         finally:
             process.terminate()
             await asyncio.wait_for(process.wait(), 5)

@@ -16,7 +16,7 @@ from gateway.console.deadlines import HttpTimeouts
 from gateway.instruments.simulator import SimulatedLine
 from tests.support import RecordProperty, free_port, running_gateway
 from tests.support.console_support import VIEWER_PASSWORD, console_client, console_config
-from tests.test_ops_metrics import http_get
+from tests.support.http import http_get
 
 HALF_A_HEAD = b"GET /api/overview HTTP/1.1\r\nHost: 127.0.0.1\r\nAccept: applica"
 HALF_A_BODY = (

@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import asyncio
 import shutil
-import subprocess
-import sys
 from collections.abc import AsyncIterator, Iterator
 from pathlib import Path
 
@@ -15,7 +13,8 @@ from pymodbus.client import AsyncModbusTcpClient
 
 from gateway.app import Application
 from gateway.instruments.simulator import SimulatedLine
-from tests.support import TcpClient, eventually, gateway_config, pty_cable, running_gateway
+from tests.support import TcpClient, eventually, gateway_config, running_gateway
+from tests.support.processes import pymodbus_peer
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -25,21 +24,8 @@ def pymodbus_slave() -> Iterator[str]:
     """pymodbus's RTU server answering as units 1 and 2 at the far end of a pty cable; yields the
     device path the gateway opens. N81: a Linux pty refuses pyserial's re-configuration once a
     parity is set, which pymodbus's serial transport does after opening."""
-    with pty_cable() as (gateway_end, slave_end):
-        process = subprocess.Popen(
-            [sys.executable, "-m", "tests.peers.pymodbus_rtu_slave", slave_end, "19200", "1", "2"],
-            cwd=ROOT,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.DEVNULL,  # pymodbus 3.16 warns of its own deprecations there
-            text=True,
-        )
-        try:
-            assert process.stdout is not None
-            assert process.stdout.readline().strip() == "ready"
-            yield gateway_end
-        finally:
-            process.terminate()
-            process.communicate(timeout=10)
+    with pymodbus_peer("pymodbus_rtu_slave", "19200", "1", "2") as gateway_end:
+        yield gateway_end
 
 
 async def test_gateway_as_master_of_pymodbus_rtu_server(pymodbus_slave: str) -> None:

@@ -27,10 +27,10 @@ import aiomqtt
 import pytest
 
 from gateway.instruments.simulator import SimulatedLine
-from tests.nats import NatsNode, nats_cluster
 from tests.support import RecordProperty, free_port
 from tests.support.mosquitto import MqttProbe, mqtt_probe, unique_base_topic
 from tests.support.mqtt_setup import simulated_line
+from tests.support.nats import NatsNode, nats_cluster
 from tests.support.processes import GatewayProcess
 
 pytestmark = pytest.mark.cluster  # run with `pytest -m cluster` (pyproject says why)

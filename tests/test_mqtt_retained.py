@@ -129,7 +129,7 @@ async def test_entities_no_longer_offered_are_removed_from_home_assistant(
 
 async def test_mqtt_is_in_the_metrics(mosquitto: Mosquitto) -> None:
     from gateway.config import MetricsConfig
-    from tests.test_ops_metrics import Scrape, http_get
+    from tests.support.http import Scrape, http_get
 
     base = unique_base_topic()
     metrics_port = free_port()

@@ -5,7 +5,6 @@ the gateway moves to the next one and publishes there."""
 from __future__ import annotations
 
 import subprocess
-import sys
 from pathlib import Path
 
 from gateway.config import GatewayConfig, MqttConfig
@@ -13,6 +12,7 @@ from gateway.mqtt.metrics import MqttMetrics
 from tests.support import eventually, gateway_config, running_gateway
 from tests.support.mosquitto import Mosquitto, mqtt_probe, running_mosquitto, unique_base_topic
 from tests.support.mqtt_setup import DRIVES, simulated_line
+from tests.support.processes import check_config
 
 GOOD = """
 buses: [{name: line1, port: /dev/serial/by-id/usb-FTDI-line1}]
@@ -20,29 +20,27 @@ drives: [{name: pump1, bus: line1, address: 1}]
 """
 
 
-def check_config(tmp_path: Path, mqtt: str) -> subprocess.CompletedProcess[str]:
-    path = tmp_path / "config.yaml"
-    path.write_text(GOOD + f"mqtt: {mqtt}\n")
-    command = [sys.executable, "-m", "gateway", "check-config", "--config", str(path)]
-    return subprocess.run(command, capture_output=True, text=True, timeout=30)
+def check_mqtt(tmp_path: Path, mqtt: str) -> subprocess.CompletedProcess[str]:
+    """`check-config` of the file above with this `mqtt` section."""
+    return check_config(tmp_path, GOOD + f"mqtt: {mqtt}\n")
 
 
 def test_servers_and_host_both_given_is_refused_naming_the_keys(tmp_path: Path) -> None:
-    result = check_config(tmp_path, "{servers: ['127.0.0.1:1883'], host: 10.0.0.1}")
+    result = check_mqtt(tmp_path, "{servers: ['127.0.0.1:1883'], host: 10.0.0.1}")
     assert result.returncode == 3
     assert "servers and host both given" in result.stderr
 
 
 def test_a_server_that_is_not_host_port_is_refused(tmp_path: Path) -> None:
-    result = check_config(tmp_path, "{servers: ['10.0.0.1:1883', 'node2']}")
+    result = check_mqtt(tmp_path, "{servers: ['10.0.0.1:1883', 'node2']}")
     assert result.returncode == 3
     assert "mqtt.servers" in result.stderr
     assert "'node2' is not host:port" in result.stderr
 
 
 def test_the_one_server_form_and_a_list_both_load(tmp_path: Path) -> None:
-    assert check_config(tmp_path, "{host: 10.0.0.1, port: 1884}").returncode == 0
-    assert check_config(tmp_path, "{servers: ['10.0.0.1:1883', '[::1]:1884']}").returncode == 0
+    assert check_mqtt(tmp_path, "{host: 10.0.0.1, port: 1884}").returncode == 0
+    assert check_mqtt(tmp_path, "{servers: ['10.0.0.1:1883', '[::1]:1884']}").returncode == 0
 
 
 def servers_config(line_path: str, brokers: list[Mosquitto], base: str) -> GatewayConfig:

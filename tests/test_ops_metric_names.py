@@ -20,8 +20,8 @@ from prometheus_client.parser import text_string_to_metric_families
 from gateway.config import GatewayConfig
 from gateway.instruments.simulator import SimulatedLine
 from tests.support import TcpClient, free_port, read_pdu, running_gateway, write_pdu
+from tests.support.http import http_get
 from tests.support.mosquitto import Mosquitto, unique_base_topic
-from tests.test_ops_metrics import http_get
 
 PINNED = Path(__file__).parent / "fixtures" / "metric_families.tsv"
 STATE_WORD_1 = 0x2100

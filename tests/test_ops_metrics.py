@@ -6,11 +6,7 @@ from __future__ import annotations
 import asyncio
 import json
 import platform
-import urllib.error
-import urllib.request
 from typing import Any
-
-from prometheus_client.parser import text_string_to_metric_families
 
 from gateway import __version__
 from gateway.app import Application
@@ -19,6 +15,7 @@ from gateway.instruments.simulator import SimulatedLine
 from gateway.metrics import MetricsFeature
 from gateway.settings import runtime_settings
 from tests.support import TcpClient, free_port, read_pdu, running_gateway, write_pdu
+from tests.support.http import Scrape, http_get
 
 STATE_WORD_1 = 0x2100
 TIMEOUT_S = 0.1
@@ -48,36 +45,6 @@ def metrics_config(port: str, metrics_port: int) -> GatewayConfig:
             "metrics": {"enabled": True, "host": "127.0.0.1", "port": metrics_port},
         }
     )
-
-
-async def http_get(port: int, path: str) -> tuple[int, str, str]:
-    """(status, content type, body) of a real HTTP GET."""
-
-    def get() -> tuple[int, str, str]:
-        url = f"http://127.0.0.1:{port}{path}"
-        try:
-            with urllib.request.urlopen(url, timeout=5) as response:
-                return response.status, response.headers["Content-Type"], response.read().decode()
-        except urllib.error.HTTPError as error:
-            return error.code, error.headers["Content-Type"], error.read().decode()
-
-    return await asyncio.to_thread(get)
-
-
-class Scrape:
-    """Every sample of a Prometheus exposition; `scrape("requests_total", bus=...)` is one value
-    (names without the `invt_gateway_` prefix; other metrics by their full name)."""
-
-    def __init__(self, text: str) -> None:
-        self.samples = {
-            (sample.name, frozenset(sample.labels.items())): sample.value
-            for family in text_string_to_metric_families(text)
-            for sample in family.samples
-        }
-
-    def __call__(self, name: str, **labels: str) -> float:
-        full = name if name.startswith("process_") else f"invt_gateway_{name}"
-        return self.samples[(full, frozenset(labels.items()))]
 
 
 async def test_metrics_count_real_traffic_per_drive_source_and_code(line: SimulatedLine) -> None:

@@ -17,8 +17,6 @@ import json
 import shutil
 import signal
 import site
-import socket
-import struct
 import subprocess
 import sys
 from pathlib import Path
@@ -28,7 +26,7 @@ import pytest
 import yaml
 
 from gateway.instruments.simulator import SimulatedLine
-from tests.support import free_port
+from tests.support import free_port, read_state_word
 from tests.support.processes import LineCollector
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -200,12 +198,6 @@ def image_config(
     config["metrics"] = {**example["metrics"], "host": "127.0.0.1", "port": metrics}
     config["mqtt"] = {**example["mqtt"], "enabled": False}  # no broker in this test
     return yaml.safe_dump(config)
-
-
-def read_state_word(port: int, unit_id: int) -> bytes:
-    with socket.create_connection(("127.0.0.1", port), timeout=5) as connection:
-        connection.sendall(struct.pack(">HHHBBHH", 7, 0, 6, unit_id, 3, 0x2100, 1))
-        return connection.recv(256)[7:]
 
 
 def test_image_install_and_start_commands_work_in_a_fresh_virtualenv(tmp_path: Path) -> None:

@@ -13,9 +13,8 @@ from pathlib import Path
 import yaml
 
 from gateway.instruments.simulator import SimulatedLine
-from tests.support import free_port
+from tests.support import free_port, read_state_word
 from tests.support.processes import LineCollector
-from tests.test_ops_packaging import read_state_word
 
 
 def test_run_imports_nothing_of_the_instruments(tmp_path: Path) -> None:

@@ -4,13 +4,16 @@ running gateway with --via."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import re
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 import yaml
 
 from gateway.instruments.simulator import SimulatedLine
+from gateway.profile import Parameter
 from tests.support import free_port
 from tests.support.processes import SimulatorProcess, gateway_process, run_cli, simulator_process
 
@@ -77,31 +80,51 @@ def test_backup_change_by_hand_restore_then_no_difference(
     assert "0 difference(s)" in err
 
 
-def test_restore_skips_what_the_drive_cant_take_and_stops_at_its_first_exception(
+def test_restore_refuses_a_running_drive_then_skips_and_stops_at_the_first_exception(
     line: SimulatorProcess, tmp_path: Path
 ) -> None:
     backup = tmp_path / "drive1.yaml"
     assert params(line, "backup", str(backup), "--address", "1")[0] == 0
     document = yaml.safe_load(backup.read_text())
-    document["parameters"]["P00"]["P00.00"]["value"] = 1  # locked while running
+    document["parameters"]["P00"]["P00.00"]["value"] = 1  # "◎": locked while running
     document["parameters"]["P00"]["P00.04"]["value"] = 55.0  # above P00.03 = 50 Hz: refused
     document["parameters"]["P00"]["P00.12"]["value"] = 30.0
     document["parameters"]["P00"]["P00.18"] = {"value": 1}  # restore the defaults: never
+    document["parameters"]["P07"]["P07.21"] = {"value": 0x1234}  # another drive's bar code
     backup.write_text(yaml.safe_dump(document, sort_keys=False))
     started = run_cli("write", "--port", line.path, *LINE, "--address", "2", "2000H=run_forward")
     assert started.returncode == 0, started.stderr
 
+    code, out, err = params(line, "restore", str(backup), "--address", "2")
+    assert code == 0, err  # a dry run says what --apply would do, and that it would refuse
+    assert (
+        "the drive runs (2100H = 1 (running_forward)): --apply refuses until it is stopped" in out
+    )
     code, out, err = params(line, "restore", str(backup), "--address", "2", "--apply")
     assert code == 1
-    assert "skipped P00.00: can't change while the drive runs: stop it first" in out
+    assert (
+        "the drive at address 2 runs (2100H = 1 (running_forward)): stop it before a restore; "
+        "nothing was written"
+    ) in err
+    assert " <- " not in out
+    code, out, _ = params(line, "diff", str(backup), "--address", "2")
+    assert code == 1
+    assert "P00.12  deceleration time 1: drive 10.0 s, file 30.0 s" in out
+
+    stopped = run_cli("write", "--port", line.path, *LINE, "--address", "2", "2000H=coast_stop")
+    assert stopped.returncode == 0, stopped.stderr
+    code, out, err = params(line, "restore", str(backup), "--address", "2", "--apply")
+    assert code == 1
+    assert "skipped P07.21: set at the factory: the drive's bar code" in out
     assert (
         "skipped P00.18: a command, not a setting: it restores the default values, clears the "
         "fault records or locks the keypad"
     ) in out
+    assert "P00.00 <- 1" in out  # stopped, the "◎" code takes its value
     assert "P00.12 <- 30.0 s" in out  # what fits is written before what the drive refuses
     assert "writing P00.04" in err
     assert "04H operation failure" in err
-    assert "1 of 2 written before it" in err
+    assert "2 of 3 written before it" in err
 
 
 def test_a_file_of_another_series_is_refused_and_a_bad_value_named(
@@ -310,3 +333,91 @@ def test_an_unconfirmed_code_the_drive_lacks_is_listed_not_fatal() -> None:
                 read_parameters(master, 1, [*borrowed, confirmed], absent=[])
         finally:
             master.close()
+
+
+def _another_value(spec: Parameter, raw: int) -> int | None:
+    """A value other than `raw` within the spec's own range, or None where changing it would
+    also move another parameter's range (the bounds), the line's settings (P14: the restore
+    must keep talking) or where the range holds one value."""
+    if spec.minimum_from or spec.maximum_from or spec.group == "P14":
+        return None
+    number = spec.number(raw)
+    other = spec.minimum if number != spec.minimum else spec.minimum + 1
+    return spec.word(other) if other <= spec.maximum else None
+
+
+def _written(out: str) -> int:
+    found = re.search(r"^(\d+) parameter\(s\) written and verified in ", out, re.MULTILINE)
+    assert found is not None, out
+    return int(found[1])
+
+
+def test_a_whole_drive_cloned_at_19200_baud_leaves_no_difference(
+    tmp_path: Path, record_property: Callable[[str, object], None]
+) -> None:
+    """The figure the README quotes: a replacement drive given every parameter of the failed
+    one, at the baud rate most plants run, written and read back one by one."""
+    from gateway.profile import get_profile
+    from gateway.tools.params import saved_parameters
+
+    slow = ("--baud", "19200", "--parity", "N")
+    profile = get_profile("gd350a")
+    bounds = {
+        name for spec in profile.parameters for name in (spec.minimum_from, spec.maximum_from)
+    }
+    with simulator_process("--drive", "1=gd350a", "--drive", "2=gd350a", *slow) as sim:
+        factory = tmp_path / "factory.yaml"
+
+        def run(*args: str) -> tuple[int, str, str, float]:
+            started = time.monotonic()
+            result = run_cli("params", *args, "--port", sim.path, *slow, timeout_s=300)
+            return result.returncode, result.stdout, result.stderr, time.monotonic() - started
+
+        code, out, err, backup_s = run("backup", str(factory), "--address", "1")
+        assert code == 0, err
+        # The donor: every parameter it can hold otherwise set otherwise than the factory did.
+        document = yaml.safe_load(factory.read_text())
+        specs = {spec.name: spec for spec in saved_parameters(profile)}
+        changed = 0
+        for entries in document["parameters"].values():
+            for name, entry in entries.items():
+                spec = specs[name]
+                raw = spec.word(round(entry["value"] * 10**spec.decimals))
+                other = None if name in bounds else _another_value(spec, raw)
+                if other is not None:
+                    entries[name] = {"value": spec.number(other) / 10**spec.decimals}
+                    changed += 1
+        donor_settings = tmp_path / "donor-settings.yaml"
+        donor_settings.write_text(yaml.safe_dump(document, sort_keys=False))
+        code, out, err, _ = run("restore", str(donor_settings), "--address", "1", "--apply")
+        assert code == 0, err
+        assert _written(out) >= changed  # and those P02.01 re-initialised, written again
+
+        donor = tmp_path / "donor.yaml"
+        code, out, err, _ = run("backup", str(donor), "--address", "1")
+        assert code == 0, err
+        saved = len(specs)
+        assert f"{saved} parameters of GD350A at address 1" in out
+        code, out, err, _ = run("diff", str(donor), "--address", "2")
+        assert code == 1
+        assert len(out.splitlines()) == changed
+
+        code, out, err, restore_s = run("restore", str(donor), "--address", "2", "--apply")
+        assert code == 0, err
+        written = _written(out)
+        assert written >= changed
+        assert "read back" not in out
+        code, out, err, _ = run("diff", str(donor), "--address", "2")
+        assert (code, out) == (0, ""), out
+        assert f"0 difference(s) in {saved} parameters" in err
+        result = run_cli(
+            "params", "diff", "--from-address", "1", "--address", "2", "--port", sim.path, *slow
+        )
+        assert (result.returncode, result.stdout) == (0, "")
+    figure = (
+        f"GD350A at 19200 baud 8N1: backup of {saved} parameters in {backup_s:.1f} s; "
+        f"restore of the {changed} that differ ({written} writes, each read back, then all "
+        f"{saved} read back) in {restore_s:.1f} s; diff afterwards empty"
+    )
+    record_property("figure:params clone", figure)
+    print(figure)

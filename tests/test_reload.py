@@ -21,10 +21,9 @@ from gateway.config import GatewayConfig
 from gateway.instruments.simulator import SimulatedLine
 from gateway.profile.invt import STATE_WORD_1
 from gateway.settings.reload import plan
-from tests.support import TcpClient, free_port, read_pdu, write_pdu
+from tests.support import TcpClient, free_port, read_pdu, read_state_word, write_pdu
+from tests.support.http import Scrape, http_get
 from tests.support.processes import GatewayProcess, gateway_process, run_cli
-from tests.test_ops_metrics import Scrape, http_get
-from tests.test_ops_packaging import read_state_word
 
 FREQUENCY_SETPOINT = 0x2001
 

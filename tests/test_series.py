@@ -24,7 +24,7 @@ from tests.support.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
 from tests.support.mqtt_setup import FAST_POLL, mqtt_config
 from tests.support.processes import run_cli, simulator_process
 from tests.support.protocol_frames import PROTOCOL_EXCHANGES
-from tests.test_simulator import exchange
+from tests.support.serial_master import exchange
 
 FIVE_SERIES = ("gd30", "ipe300", "gd350a", "gd300l", "gd350ul")
 

@@ -23,9 +23,9 @@ import serial
 from gateway.instruments.simulator import SimulatedLine
 from gateway.instruments.simulator.control import USAGE, run_control_command
 from gateway.modbus.crc import crc_ok
-from gateway.modbus.functions import NEED_MORE, rtu_reply_length
 from gateway.modbus.rtu import build_frame
 from tests.support.protocol_frames import PROTOCOL_EXCHANGES
+from tests.support.serial_master import exchange, read_reply
 
 pytestmark = pytest.mark.line(addresses=[1, 2, 3], wire_time=False, response_delay_ms=0)
 
@@ -35,22 +35,6 @@ STOPPED_REPLY = "01 03 02 00 03 F8 45"
 
 def frame(address: int, pdu_hex: str) -> bytes:
     return build_frame(address, bytes.fromhex(pdu_hex))
-
-
-def read_reply(port: serial.Serial, request_length: int) -> bytes:
-    """One whole reply, its end found by its function code as the gateway finds it."""
-    reply = port.read(2)
-    length = rtu_reply_length(reply, request_length)
-    if length == NEED_MORE:
-        reply += port.read(1)
-        length = rtu_reply_length(reply, request_length)
-    assert length > 0, f"no reply, or one of no known length: {reply.hex(' ')}"
-    return reply + port.read(length - len(reply))
-
-
-def exchange(port: serial.Serial, request: bytes) -> bytes:
-    port.write(request)
-    return read_reply(port, len(request))
 
 
 def silent(port: serial.Serial, wait_s: float = 0.15) -> bool:

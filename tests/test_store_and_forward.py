@@ -21,10 +21,10 @@ from typing import Any
 from gateway.config import MetricsConfig, StorageConfig
 from gateway.store import EventType
 from tests.support import free_port, running_gateway
+from tests.support.http import Scrape, http_get
 from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
 from tests.support.mqtt_setup import FAST_POLL, mqtt_config, simulated_line
 from tests.support.processes import GatewayProcess, gateway_process
-from tests.test_ops_metrics import Scrape, http_get
 
 DASHBOARD = {"identifier": "dashboard", "clean_session": False}
 DRIVES = [

@@ -21,10 +21,10 @@ from gateway.config import ConsoleConfig, MetricsConfig, StorageConfig
 from gateway.store import EventType
 from tests.support import eventually, free_port, running_gateway
 from tests.support.console_support import console_client
+from tests.support.http import Scrape, http_get
 from tests.support.mosquitto import MqttProbe, mqtt_probe, running_mosquitto, unique_base_topic
 from tests.support.mqtt_setup import mqtt_config, simulated_line
 from tests.support.small_disk import fill, free_bytes, small_disk
-from tests.test_ops_metrics import Scrape, http_get
 
 BURST = 20
 

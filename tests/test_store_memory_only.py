@@ -17,11 +17,11 @@ from gateway.config import StorageConfig
 from gateway.instruments.simulator import SimulatedLine
 from gateway.store.database import EventDatabase
 from tests.support import free_port, running_gateway
+from tests.support.browser import CHROMEDRIVER, CHROMIUM, Browser, showing
 from tests.support.console_support import console_config
 from tests.support.mqtt_setup import simulated_line
 from tests.support.processes import gateway_process, run_cli
 from tests.support.small_disk import read_only, small_disk
-from tests.test_console_browser import CHROMEDRIVER, CHROMIUM, Browser, showing
 
 
 def restored_store(store: Path) -> None:

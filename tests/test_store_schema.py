@@ -22,10 +22,13 @@ from gateway.store.status import StoreState
 from tests.support import free_port
 from tests.support.mqtt_setup import simulated_line
 from tests.support.processes import gateway_process
-from tests.unit.store.test_store import running_store
+from tests.support.store import running_store
 
 FIXTURES = Path(__file__).parent / "fixtures"
-RELEASED = {1: FIXTURES / "store_schema_1.sql"}
+RELEASED = {
+    1: FIXTURES / "store_schema_1.sql",
+    2: FIXTURES / "store_schema_2.sql",
+}
 """Every schema a release wrote, but the current one."""
 
 

@@ -12,31 +12,23 @@ import contextlib
 import socket
 import struct
 import time
-from typing import Any
 
 import pytest
 
-from gateway.config import GatewayConfig
 from gateway.instruments.simulator import SimulatedLine
-from tests.support import RecordProperty, TcpClient, eventually, read_pdu, running_gateway
+from tests.support import (
+    RecordProperty,
+    TcpClient,
+    eventually,
+    protected_config,
+    read_pdu,
+    running_gateway,
+)
 
 STATE_WORD_1 = 0x2100
 STOPPED = 3
 SLOW_S = 0.25
 """A read slower than this while another client misbehaves means it was starved."""
-
-
-def protected_config(line_path: str, **tcp: Any) -> GatewayConfig:
-    return GatewayConfig.model_validate(
-        {
-            "modbus_tcp": {"host": "127.0.0.1", "port": 0, **tcp},
-            "buses": [{"name": "line1", "port": line_path, "baudrate": 115200}],
-            "drives": [
-                {"name": "pump1", "bus": "line1", "address": 1},
-                {"name": "fan2", "bus": "line1", "address": 2},
-            ],
-        }
-    )
 
 
 async def timed_reads(port: int, until: asyncio.Event, unit_id: int = 2) -> list[float]:

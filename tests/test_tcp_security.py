@@ -25,8 +25,8 @@ from gateway.instruments.simulator import SimulatedLine
 from gateway.profile.states import RunState
 from gateway.tcp.cert_roles import role_extension
 from tests.support import RecordProperty, TcpClient, eventually, free_port, running_gateway
+from tests.support.http import http_get
 from tests.support.tls import client_with_role, make_ca, make_signed
-from tests.test_ops_metrics import http_get
 
 pytestmark = pytest.mark.line(addresses=[1])
 

@@ -16,8 +16,14 @@ from collections.abc import AsyncIterator
 import pytest
 
 from gateway.instruments.simulator import SimulatedLine
-from tests.support import RecordProperty, TcpClient, eventually, running_gateway, write_pdu
-from tests.test_tcp_protection import protected_config
+from tests.support import (
+    RecordProperty,
+    TcpClient,
+    eventually,
+    protected_config,
+    running_gateway,
+    write_pdu,
+)
 
 STATE_WORD_1 = 0x2100
 STOPPED = 3

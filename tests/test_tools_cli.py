@@ -8,6 +8,7 @@ serial port has no such limit; the tools open the line once per run, so a test r
 
 from __future__ import annotations
 
+import re
 import subprocess
 from collections.abc import Iterator
 from pathlib import Path
@@ -48,6 +49,14 @@ def test_scan_finds_exactly_the_simulated_drives_with_one_try_per_silent_address
     assert f"3 drive(s) on {line.path} at 115200 baud 8N1" in result.stdout
     # 247 addresses, 244 of them silent: each costs one short timeout, no retry.
     assert ignored == 244
+    # Without a terminal (stderr is a pipe here) the scan still says what it does: a line at
+    # the start, one per drive found, and how far it got every 2 s (244 timeouts of 15 ms
+    # take at least 3.7 s, so at least one such line).
+    progress = result.stderr.splitlines()
+    assert progress[0] == f"scan: scanning {line.path} at 115200 baud 8N1: 247 addresses"
+    found = [text for text in progress if text.startswith("scan: a drive answers")]
+    assert found == [f"scan: a drive answers at address {address}" for address in SIMULATED]
+    assert any(re.match(r"scan: \d+ of 247 addresses probed, \d found, ", t) for t in progress)
 
 
 def test_scan_finding_nothing_says_what_to_check(simulator: SimulatorProcess) -> None:

@@ -3,9 +3,10 @@
 Validates the file as `run` would (every key, its type and range, the cross-checks: unique unit
 ids, no two buses on one port, drives on defined buses), then prints which unit id reaches which
 drive on which line, and how much of each line its polls take (a line its polls alone would
-fill is a warning). Exit 0 when valid, 3 when not (the key and the reason are printed). A serial
-port that isn't there on this machine is a warning, not an error: the file may be checked on
-another machine than the gateway box, but on the box `run` would keep trying to open it.
+fill is a warning, and so is one they take more than 70 % of: too little left for SCADA). Exit
+0 when valid, 3 when not (the key and the reason are printed). A serial port that isn't there on
+this machine is a warning, not an error: the file may be checked on another machine than the
+gateway box, but on the box `run` would keep trying to open it.
 """
 
 from __future__ import annotations
@@ -89,27 +90,35 @@ def access_table(config: GatewayConfig) -> str:
 def line_budget(config: GatewayConfig) -> tuple[str, list[str]]:
     """Each line's poll load (of the drives `run` would poll), and a warning for each line the
     polls would fill."""
-    from gateway.modbus.timing import CharacterFormat
-    from gateway.poller.budget import poll_load
-    from gateway.poller.plan import poll_schedules
+    from gateway.poller.budget import POLL_BUDGET, line_plans
     from gateway.settings import runtime_settings
 
     settings = runtime_settings(config)
+    plans = line_plans(settings.buses, (d for d in settings.drives if settings.polled(d)))
     lines = ["Poll load (wire time of every planned read; each device's answer delay on top):"]
     overloaded = []
     for index, bus in enumerate(config.buses):
-        line = CharacterFormat(bus.baudrate, bus.parity, bus.stopbits, bus.bytesize)
-        polled = [d for d in settings.drives if d.bus == bus.name and settings.polled(d)]
-        load = poll_load((s for d in polled for s in poll_schedules(d)), line)
+        plan = plans[bus.name]
+        load = plan.total
         lines.append(
-            f"  {bus.name}: {len(polled)} polled, {load.requests_per_s:.1f} requests/s, "
-            f"{load.busy_fraction:.0%} of the line"
+            f"  {bus.name}: {len(plan.drives)} polled, {load.requests_per_s:.1f} requests/s, "
+            f"{load.busy_fraction:.1%} of the line"
         )
+        lines += [
+            f"    {name}: {drive.requests_per_s:.1f} requests/s, {drive.busy_fraction:.1%}"
+            for name, drive in plan.drives.items()
+        ]
         if load.busy_fraction >= 1.0:
             overloaded.append(
                 f"buses[{index}] ({bus.name}): its polls alone need {load.busy_fraction:.0%} of "
                 "the line: polls will fall behind; lengthen intervals (interval_ms) or raise "
                 "the baud rate"
+            )
+        elif plan.over_budget:
+            overloaded.append(
+                f"buses[{index}] ({bus.name}): its polls take {load.busy_fraction:.0%} of the "
+                f"line, more than {POLL_BUDGET:.0%}: little is left for SCADA's requests, "
+                "commands and retries; lengthen intervals (interval_ms) or raise the baud rate"
             )
     return "\n".join(lines), overloaded
 

@@ -113,6 +113,16 @@ async def _events(response: Any) -> AsyncIterator[tuple[str, Any]]:
             yield event, json.loads(line.removeprefix("data: "))
 
 
+def _split(record: dict[str, Any]) -> str:
+    """ ": queue 0.1, wire 1.4, drive 5.2" (a gateway before the split: nothing)."""
+    parts = [
+        f"{label} {record[key]}"
+        for label, key in (("queue", "queue_ms"), ("wire", "wire_ms"), ("drive", "turnaround_ms"))
+        if record.get(key) is not None
+    ]
+    return f": {', '.join(parts)}" if parts else ""
+
+
 def format_line(record: dict[str, Any], hex_: bool) -> str:
     """ "23:09:43.664  tcp:127.0.0.1:40112  unit   1 pump1  03H  read 2100H … → …  ok  7.1 ms"."""
     at = datetime.fromisoformat(str(record["time"]).replace("Z", "+00:00")).astimezone()
@@ -121,7 +131,7 @@ def format_line(record: dict[str, Any], hex_: bool) -> str:
     drive = record.get("drive") or f"address {record['address']}"
     line = (
         f"{clock}  {record['client']:<22} unit {unit:>3} {drive:<10} {record['function']:<4} "
-        f"{record['meaning']}  [{record['outcome']}, {record['latency_ms']} ms]"
+        f"{record['meaning']}  [{record['outcome']}, {record['latency_ms']} ms{_split(record)}]"
     )
     if hex_:
         line += f"\n    -> {record['request_hex']}\n    <- {record['reply_hex'] or '(nothing)'}"

@@ -12,8 +12,9 @@ an unconfirmed table the drive does not have are listed, not fatal. `diff` lists
 with --apply (a dry run otherwise), each write read back afterwards; --ram writes RAM only
 (8xxxH, lost at power-off). With --from-address N instead of FILE, `diff` and `restore` take
 drive N on the same line for the file: a clone without a file. Read-only and
-can't-change-while-running parameters are skipped with the reason; the first exception the
-drive answers stops it, naming the parameter. `--via tcp://HOST:PORT` goes through a running
+factory-set parameters are skipped with the reason; a running drive is refused (stop it
+first: nothing is written); the first exception the drive answers stops it, naming the
+parameter. `--via tcp://HOST:PORT` goes through a running
 gateway (address = unit id).
 """
 
@@ -173,7 +174,14 @@ def _source(args: argparse.Namespace) -> str:
 
 def compare(master: Master, args: argparse.Namespace, wanted: ParameterSet) -> int:
     from gateway.errors import FieldError
-    from gateway.tools.params import differences, identify, is_running, plan, read_parameters
+    from gateway.tools.params import (
+        differences,
+        identify,
+        plan,
+        read_parameters,
+        refuse_if_running,
+        running_state,
+    )
 
     profile = wanted.profile
     code = identify(master, args.address)
@@ -194,13 +202,16 @@ def compare(master: Master, args: argparse.Namespace, wanted: ParameterSet) -> i
     if args.action == "diff":
         print(f"{len(changes)} difference(s) in {len(specs)} parameters", file=sys.stderr)
         return EXIT_OK if not changes else EXIT_FAILURE
-    running = is_running(master, args.address)
-    writes, skipped = plan(changes, actual, running, profile.parameter_table)
+    writes, skipped = plan(changes, actual, profile.parameter_table)
     for skip in skipped:
         print(f"skipped {skip.difference.spec.name}: {skip.reason}")
     if not args.apply:
         print(f"dry run: {len(writes)} parameter(s) to write; --apply writes them")
+        if writes and (state := running_state(master, args.address)) is not None:
+            print(f"the drive runs (2100H = {state}): --apply refuses until it is stopped")
         return EXIT_OK
+    if writes:
+        refuse_if_running(master, args.address)
     return write_all(master, args, writes, wanted, skipped)
 
 
@@ -212,24 +223,38 @@ def write_all(
     skipped: list[Skipped],
 ) -> int:
     from gateway.errors import FieldError
-    from gateway.tools.params import show, write_parameter
+    from gateway.tools.params import check_written, show, write_parameter
 
     done = 0
+    held_otherwise = 0
+    started = time.monotonic()
     with progress(f"writing address {args.address}", len(writes)) as step:
         for change in writes:
             try:
                 write_parameter(master, args.address, change.spec, change.file, args.ram)
+                # 8xxxH is write-only: a read gives the EEPROM's value, not the RAM's.
+                held = (
+                    None
+                    if args.ram
+                    else check_written(master, args.address, change.spec, change.file)
+                )
             except FieldError as exc:
                 exc.message += f" ({done} of {len(writes)} written before it; stopped here)"
                 raise
             done += 1
             step(change.spec.name)
             print(f"{change.spec.name} <- {show(change.spec, change.file)}", flush=True)
-    where = " to RAM only" if args.ram else ""
-    print(f"{done} parameter(s) written{where}")
+            if held is not None and held != change.file:
+                held_otherwise += 1
+                print(f"read back {change.spec.name}: the drive holds {show(change.spec, held)}")
+    took = time.monotonic() - started
+    # Verified: each read back at once (what is shown above where the drive holds another).
+    where = " to RAM only" if args.ram else " and verified"
+    print(f"{done} parameter(s) written{where} in {took:.1f} s")
     if args.ram:
-        return EXIT_OK  # 8xxxH is write-only: a read gives the EEPROM's value, not the RAM's
-    return verify(master, args, wanted, {skip.difference.spec.name for skip in skipped})
+        return EXIT_OK
+    checked = verify(master, args, wanted, {skip.difference.spec.name for skip in skipped})
+    return EXIT_FAILURE if held_otherwise else checked
 
 
 def verify(

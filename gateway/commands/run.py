@@ -8,7 +8,7 @@ import gc
 import logging
 import signal
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 from gateway.app import Application
 from gateway.config import GatewayConfig, load_config
@@ -94,6 +94,7 @@ async def serve(
     config: GatewayConfig,
     on_ready: Callable[[Application], None] | None = None,
     config_path: str | None = None,
+    flags: Mapping[str, str] | None = None,
 ) -> int:
     """Run the gateway until SIGTERM or SIGINT; the exit code.
 
@@ -102,6 +103,10 @@ async def serve(
     or `invt-gateway reload` on the control socket (`gateway.control`), reads `config_path`
     again and applies it in place (`Application.reload`); a file that doesn't validate changes
     nothing and is logged (and answered, on the socket) with each key path and reason.
+
+    `flags`: the configuration keys a command's own options set (`demo --port` sets
+    `modbus_tcp.port`): an error that names such a key names the option too, since the user
+    typed the option and may never have seen the key.
     """
     app = Application(runtime_settings(config))
     stop = asyncio.Event()
@@ -117,6 +122,7 @@ async def serve(
     for signum in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(signum, on_signal, signum)
     reloader = Reloader(app, config_path, notifier)
+    _edit_from_console(app, config_path, reloader)
     reload_asked = asyncio.Event()
     loop.add_signal_handler(signal.SIGHUP, reload_asked.set)
     control = await listen_for_control(config_path, reloader)
@@ -148,7 +154,7 @@ async def serve(
         if unbound is not None:
             # A port taken or a wrong address, a store of a newer release: one line that says
             # which and why, no traceback.
-            log.error("cannot start: %s", unbound.exceptions[0])
+            log.error("cannot start: %s", naming_flags(str(unbound.exceptions[0]), flags))
             return EXIT_STARTUP
         failed = group.subgroup((BusFailed, FeatureFailed))
         if failed is None:
@@ -163,6 +169,29 @@ async def serve(
             await control.stop()
         notifier.close()
     return EXIT_OK
+
+
+def naming_flags(message: str, flags: Mapping[str, str] | None) -> str:
+    """`message` with, after it, the option that sets each configuration key it names:
+    "... change modbus_tcp.host/port (or the option --port)"."""
+    named = [flag for key, flag in (flags or {}).items() if key in message]
+    return f"{message} (or the option {', '.join(named)})" if named else message
+
+
+def _edit_from_console(app: Application, path: str | None, reloader: Reloader) -> None:
+    """The console's admins edit the file the gateway runs with, applied by the same reload."""
+    console = getattr(app, "console", None)
+    if console is None or path is None:
+        return
+    from gateway.console.config_editor import ConfigEditor
+
+    console.config_editor = ConfigEditor(
+        path,
+        reloader.reload,
+        app.events,
+        lambda: app.settings,
+        lambda: hasattr(app, "mqtt"),
+    )
 
 
 async def listen_for_control(path: str | None, reloader: Reloader) -> ControlServer | None:

@@ -9,13 +9,24 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
+from typing import TYPE_CHECKING, TextIO
 
 from gateway.commands.line_options import add_serial_arguments
 from gateway.exit_codes import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
+from gateway.progress import duration_text
 from gateway.tools import SCAN_TIMEOUT_MS
+
+if TYPE_CHECKING:
+    from rich.console import Console
+
+    from gateway.tools.masters import Master
+    from gateway.tools.scan import FoundDrive, ScanResult
 
 FIRST_ADDRESS = 1
 LAST_ADDRESS = 247
+PLAIN_EVERY_S = 2.0
+"""Without a terminal, how often a line says how far the scan got."""
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -54,12 +65,11 @@ def address_ranges(text: str) -> list[int]:
 
 def handle(args: argparse.Namespace) -> int:
     from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
     from gateway.errors import FieldError
     from gateway.tools.open import open_serial, serial_options
     from gateway.tools.report import line_notes, no_drive_found, result_table
-    from gateway.tools.scan import FoundDrive, scan
+    from gateway.tools.scan import scan
 
     if args.timeout_ms <= 0:
         print("invt-gateway scan: --timeout-ms must be positive", file=sys.stderr)
@@ -73,26 +83,12 @@ def handle(args: argparse.Namespace) -> int:
         print(f"invt-gateway scan: {exc}", file=sys.stderr)
         return EXIT_FAILURE
     progress_console = Console(stderr=True)
+    what = f"scanning {options.describe()}"
     try:
-        with Progress(
-            TextColumn("[progress.description]{task.description}"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TextColumn("{task.fields[found]} found"),
-            console=progress_console,
-            transient=True,
-        ) as progress:
-            task = progress.add_task(
-                f"scanning {options.describe()}", total=len(args.addresses), found=0
-            )
-            count = 0
-
-            def advance(address: int, found: FoundDrive | None) -> None:
-                nonlocal count
-                count += found is not None
-                progress.update(task, advance=1, found=count)
-
-            result = scan(master, args.addresses, advance)
+        if progress_console.is_terminal:
+            result = scan_with_bar(master, args.addresses, what, progress_console)
+        else:
+            result = scan(master, args.addresses, PlainProgress(what, len(args.addresses)))
         notes = line_notes(master.line)
     finally:
         master.close()
@@ -106,3 +102,66 @@ def handle(args: argparse.Namespace) -> int:
     for note in notes:
         console.print(f"line: {note}", markup=False)
     return EXIT_OK
+
+
+def scan_with_bar(master: Master, addresses: list[int], what: str, console: Console) -> ScanResult:
+    """On a terminal: a bar redrawn in place, with the drives found and the time left."""
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeRemainingColumn,
+    )
+
+    from gateway.tools.scan import scan
+
+    with Progress(
+        TextColumn("[progress.description]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.fields[found]} found"),
+        TimeRemainingColumn(),
+        console=console,
+        transient=True,
+    ) as progress:
+        task = progress.add_task(what, total=len(addresses), found=0)
+        count = 0
+
+        def advance(address: int, found: FoundDrive | None) -> None:
+            nonlocal count
+            count += found is not None
+            progress.update(task, advance=1, found=count)
+
+        return scan(master, addresses, advance)
+
+
+class PlainProgress:
+    """Where stderr is no terminal (a script, a log, `ssh host invt-gateway scan | ...`): a line
+    when the scan starts, one per drive found, and one every `PLAIN_EVERY_S` with how far it
+    got, so a scan of 247 addresses (about 20 s at 19200 baud) is never silent."""
+
+    def __init__(self, what: str, total: int, out: TextIO | None = None) -> None:
+        self.total = total
+        self.out = out or sys.stderr
+        self.done = 0
+        self.found = 0
+        self.started = time.monotonic()
+        self.shown = self.started
+        self._print(f"{what}: {total} address{'es' if total != 1 else ''}")
+
+    def __call__(self, address: int, found: FoundDrive | None) -> None:
+        self.done += 1
+        if found is not None:
+            self.found += 1
+            self._print(f"a drive answers at address {address}")
+        now = time.monotonic()
+        if now - self.shown >= PLAIN_EVERY_S and self.done < self.total:
+            self.shown = now
+            self._print(
+                f"{self.done} of {self.total} addresses probed, {self.found} found, "
+                f"{duration_text(now - self.started)} elapsed"
+            )
+
+    def _print(self, text: str) -> None:
+        print(f"scan: {text}", file=self.out, flush=True)

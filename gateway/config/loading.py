@@ -158,6 +158,8 @@ def _cross_problems(
     A cross-field problem about a key already reported is left out.
     """
     failed = {tuple(error["loc"]) for error in exc.errors()}
+    if failed == {()}:
+        return []  # every field was valid: these checks ran in the model, and are reported
     modbus_tcp = data.get("modbus_tcp")
     problems = cross_field_problems(
         _construct_all(BusConfig, data.get("buses"), ("buses",), failed),

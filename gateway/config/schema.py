@@ -23,14 +23,24 @@ class GatewayConfig(Section):
     version: int | None = None
     """The file format's version (see `CONFIG_VERSIONS`); a file without it is read as version 1."""
     gateway_id: str = Field("invt-gateway", min_length=1, pattern=r"^[A-Za-z0-9_-]+$")
+    """Unique per gateway: the MQTT client id's and Home Assistant's ids are made from it."""
     modbus_tcp: ModbusTcpConfig = ModbusTcpConfig()
+    """The Modbus-TCP server SCADA connects to."""
     buses: tuple[BusConfig, ...]
+    """One per RS-485 line; each has its own queue, coroutine and port."""
     drives: tuple[DriveConfig, ...] = ()
+    """The drives (and other Modbus devices) on the lines."""
     mqtt: MqttConfig | None = None
+    """The broker connection; left out, no MQTT (Modbus-TCP works either way)."""
     metrics: MetricsConfig = MetricsConfig()
+    """`/metrics` (Prometheus) and `/health`, on one port."""
     console: ConsoleConfig = ConsoleConfig()
+    """The operator's web console (see Console); off unless enabled."""
     logging: LoggingConfig = LoggingConfig()
+    """What the log says and in which form."""
     storage: StorageConfig = StorageConfig()
+    """The store: events until the broker has them, and the fault history (see Events & fault
+    history)."""
 
     @model_validator(mode="after")
     def _cross_checks(self) -> GatewayConfig:

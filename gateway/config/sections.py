@@ -44,7 +44,9 @@ def readable_file(value: str | None) -> str | None:
 
 class Section(BaseModel):
     # An unknown key is almost always a typo that would silently do nothing: refuse it.
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # The docstring under each field is its description (`Field.description`): the
+    # configuration reference (docs/) is generated from it, so it is what a user reads.
+    model_config = ConfigDict(extra="forbid", frozen=True, use_attribute_docstrings=True)
 
 
 @dataclass(frozen=True, slots=True)
@@ -159,12 +161,15 @@ class ModbusTlsConfig(Section):
     clients prove who they are with a certificate, and their role limits what they may do."""
 
     enabled: bool = False
+    """Start the TLS listener (it needs `cert_file`, `key_file` and `ca_file`)."""
     host: str | None = None
     """Bind address; default `modbus_tcp.host`."""
     port: int = Field(802, ge=0, le=65535)
     """802 is the profile's port (needs root or CAP_NET_BIND_SERVICE); 0 picks a free one."""
     cert_file: str | None = None
+    """The gateway's certificate (PEM)."""
     key_file: str | None = None
+    """The key of `cert_file` (PEM)."""
     ca_file: str | None = None
     """The CA that signs client certificates: only clients it vouches for get a connection."""
     role_map: dict[str, str] = {}
@@ -182,11 +187,13 @@ class ModbusTlsConfig(Section):
 
 class ModbusTcpConfig(Section):
     host: str = "0.0.0.0"
+    """Bind address (`0.0.0.0`: every interface)."""
     port: int = Field(5020, ge=0, le=65535)
     """502 is Modbus's port (needs root or CAP_NET_BIND_SERVICE); 0 picks a free one."""
     max_connections: int = Field(64, ge=1, le=10000)
     """Two SCADA hosts, each with one connection per drive of a full 32-drive line."""
     idle_timeout_s: float = Field(300.0, gt=0)
+    """A client silent this long is disconnected."""
     max_requests_per_connection: int = Field(16, ge=1, le=1024)
     """Outstanding (pipelined) requests one connection may have; more wait in its socket."""
     max_connections_per_client: int | None = Field(None, ge=1, le=10000)
@@ -204,6 +211,7 @@ class ModbusTcpConfig(Section):
     plain: bool = True
     """The plain (unencrypted) listener; false leaves only the TLS one."""
     tls: ModbusTlsConfig = ModbusTlsConfig()
+    """Modbus/TCP Security, a second listener for clients with certificates (see Security)."""
     read_only: bool = False
     """Refuse every write function code with exception 01H."""
     access: tuple[AccessRuleConfig, ...] = ()
@@ -247,15 +255,23 @@ class Rs485Config(Section):
 
 class BusConfig(Section):
     name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
+    """The line's name, which each drive's `bus` names."""
     port: str = Field(min_length=1)
     """A device path (prefer /dev/serial/by-id/...) or a pyserial URL (socket://host:port)."""
-    baudrate: int = 19200
+    baudrate: int = Field(19200, json_schema_extra={"unit": "bit/s"})
+    """One of 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200: the drives' own (INVT
+    P14.01)."""
     parity: Literal["N", "E", "O"] = "E"
+    """`N`, `E` or `O`, as the drives' (INVT P14.02, default E81: even parity, 8 data bits, 1
+    stop bit)."""
     stopbits: Literal[1, 2] = 1
+    """Stop bits, as the drives' (INVT P14.02)."""
     bytesize: Literal[7, 8] = 8
+    """Data bits, as the drives' (INVT P14.02)."""
     timeout_ms: float = Field(300.0, gt=0, le=60000)
     """Response timeout per attempt: end of request to first byte of the reply."""
     retries: int = Field(2, ge=0, le=10)
+    """Further attempts after a timeout or a bad reply (never after an exception reply)."""
     char_timeout_ms: float = Field(20.0, gt=0, le=5000)
     """Silence inside a reply that ends it (USB adapters deliver bytes in bursts)."""
     drain_ms: float = Field(50.0, ge=0, le=60000)
@@ -265,6 +281,8 @@ class BusConfig(Section):
     turnaround_ms: float = Field(100.0, ge=0, le=10000)
     """Silence after a broadcast, while every drive acts on it."""
     queue_size: int = Field(256, ge=1, le=100000)
+    """Requests waiting for the line; beyond it a SCADA request is answered exception 0AH (and
+    counted)."""
     offline_after: int = Field(3, ge=1, le=1000)
     """Consecutive failed requests after which a drive is offline (answered 0x0B at once)."""
     probe_max_s: float = Field(30.0, gt=0, le=3600)
@@ -289,15 +307,20 @@ class BusConfig(Section):
 
 class PollGroupConfig(Section):
     name: str = Field(min_length=1)
+    """The group's name (in logs and metrics)."""
     start: int = Field(ge=0, le=0xFFFF)
+    """The first register read (`0x2100`)."""
     count: int = Field(ge=1, le=125)
+    """How many registers from `start` one read takes."""
     interval_ms: float = Field(gt=0)
+    """How often the group is read."""
 
 
 class ReportConfig(Section):
     """Report by exception: when a drive's state is worth publishing. A key left out takes the
     next level's (a telemetry key's → its drive's `report` → `mqtt.report` → publish on any
-    change, and every `mqtt.publish_interval_s`: the behaviour before these keys existed)."""
+    change, and every `mqtt.publish_interval_s`: the behaviour before these keys existed; a
+    device's point's → its device file's → `mqtt.report.devices` → the same)."""
 
     deadband: float | None = Field(None, ge=0)
     """A number must move by more than this (in its unit) since it was last published."""
@@ -313,6 +336,17 @@ class DriveReportConfig(ReportConfig):
     """A drive's `report`: its defaults, and `keys` (telemetry key → its own rule)."""
 
     keys: dict[str, ReportConfig] = Field(default_factory=dict)
+    """Telemetry key (`output_current_a`) → its own rule, over the drive's."""
+
+
+class GatewayReportConfig(ReportConfig):
+    """`mqtt.report`: every drive's defaults, and `devices`, every device's (a device file's
+    own keys, and its points', override them; its points' units differ from a drive's, so a
+    drive's deadband is not theirs)."""
+
+    devices: ReportConfig = ReportConfig()
+    """Every device's report by exception, unless its device file or point says otherwise (a
+    drive's deadbands are not a meter's)."""
 
 
 class AlarmConfig(Section):
@@ -340,12 +374,19 @@ class DriveConfig(Section):
     name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_-]+$")
     """Also the drive's MQTT topic, so no spaces, slashes or wildcards."""
     bus: str
+    """The `name` of the bus the drive is on."""
     address: int = Field(ge=1, le=247)
+    """The drive's Modbus address on its line, 1..247 (INVT P14.00)."""
     unit_id: int | None = Field(None, ge=1, le=255)
     """The Modbus-TCP unit id SCADA uses; defaults to the address."""
     model: str = "gd20"
+    """The drive's series or device (see Drive series): gd20 gd200a gd300 gd300l gd30 ipe300
+    gd350 gd350ul gd350a gd10 gd35 gd100 acs355 acs580 generic, a shipped device file (sdm630,
+    analog_input_4_20ma) or `file:PATH` for a site's own (see Other Modbus devices)."""
     timeout_ms: float | None = Field(None, gt=0, le=60000)
+    """This drive's response timeout, over its bus's `timeout_ms`; default the bus's."""
     retries: int | None = Field(None, ge=0, le=10)
+    """This drive's retries, over its bus's `retries`; default the bus's."""
     split: bool | None = None
     """Split reads and writes over the model's word limit (16 on INVT); default per model."""
     ram_writes: bool = False
@@ -390,6 +431,12 @@ class DriveConfig(Section):
         return value
 
     @model_validator(mode="after")
+    def _overrides(self) -> DriveConfig:
+        """The corrections given apply to the model (an ABB drive has no 2103H code)."""
+        self.profile()  # ValueError naming the key that doesn't apply
+        return self
+
+    @model_validator(mode="after")
     def _telemetry_keys(self) -> DriveConfig:
         """`report` and `alarms` name telemetry keys the drive has; a device's are in its file."""
         if self.report is None and not self.alarms:
@@ -424,28 +471,63 @@ def broker_address(value: str) -> tuple[str, int]:
     return host, int(port)
 
 
+SPARKPLUG_ID = r"^[A-Za-z0-9_-]+$"
+"""A Sparkplug group, edge node or host id: one topic level ('/', '+' and '#' can't be in one,
+and '.' would change on RabbitMQ), in the same letters as a drive's name (its device id)."""
+
+
+class SparkplugConfig(Section):
+    """`mqtt.sparkplug`: the gateway as a Sparkplug B edge node, its drives as devices, beside
+    the JSON topics (both run on one broker, each on its own connection)."""
+
+    enabled: bool = True
+    """False: the section stays in the file, and no Sparkplug (the JSON topics go on)."""
+    group_id: str = Field(min_length=1, max_length=64, pattern=SPARKPLUG_ID)
+    """The Sparkplug group the edge node is in: the second level of its topics
+    (`spBv1.0/<group_id>/...`)."""
+    edge_node_id: str | None = Field(None, min_length=1, max_length=64, pattern=SPARKPLUG_ID)
+    """Default: the gateway's `gateway_id`."""
+    primary_host_id: str | None = Field(None, min_length=1, max_length=64, pattern=SPARKPLUG_ID)
+    """The host application whose `spBv1.0/STATE/<id>` says when the edge node may publish;
+    None: publish whenever connected."""
+
+
 class MqttConfig(Section):
     enabled: bool = True
+    """False: the section stays in the file, and no MQTT."""
     host: str = "127.0.0.1"
+    """The broker's address (or `servers` for several)."""
     port: int = Field(1883, ge=1, le=65535)
+    """The broker's port (8883 is usual with TLS)."""
     servers: tuple[str, ...] | None = None
     """`host:port` of each broker (a cluster's nodes), tried in turn; instead of host/port."""
     username: str | None = None
+    """Or the environment variable INVT_GATEWAY_MQTT_USERNAME."""
     password: str | None = None
     """Better from the environment variable INVT_GATEWAY_MQTT_PASSWORD than in the file."""
     tls: bool = False
+    """Connect to the broker over TLS."""
     ca_file: str | None = None
+    """The CA that signs the broker's certificate; default the system's (needs `tls: true`)."""
     cert_file: str | None = None
+    """The gateway's client certificate, where the broker asks for one (needs `tls: true`)."""
     key_file: str | None = None
+    """The key of `cert_file`."""
     client_id: str | None = None
+    """The MQTT client id; default `invt-gateway-<gateway_id>`."""
     base_topic: str = Field("invt", min_length=1)
+    """The first level of every topic (`invt/pump1/state`); no `+`, `#`, `.` or empty level."""
     keepalive_s: int = Field(30, ge=5, le=3600)
+    """MQTT keep-alive: the broker drops a gateway silent for 1.5 times this."""
     homeassistant_discovery: bool = True
+    """Publish Home Assistant discovery messages for every drive."""
     discovery_prefix: str = "homeassistant"
+    """The topic prefix Home Assistant listens on for discovery."""
     publish_interval_s: float = Field(60.0, gt=0)
     """A drive's state is published on change and at least this often."""
-    report: ReportConfig = ReportConfig()
-    """Every drive's report by exception unless its own `report` says otherwise."""
+    report: GatewayReportConfig = GatewayReportConfig()
+    """Every drive's report by exception unless its own `report` says otherwise; `devices`:
+    every device's, unless its device file says otherwise."""
     command_max_age_s: float = Field(10.0, gt=0)
     """A command whose `time` is older than this is refused (it sat in a queue somewhere), and
     so is one that waited longer than this in the gateway before its turn came."""
@@ -456,6 +538,8 @@ class MqttConfig(Section):
     """Events (faults, offline...) waiting for the broker; past this the oldest are dropped."""
     reconnect_max_s: float = Field(30.0, gt=0, le=3600)
     """Longest wait between two attempts to reach the broker (the wait doubles up to it)."""
+    sparkplug: SparkplugConfig | None = None
+    """The drives as Sparkplug B devices too (`spBv1.0/<group_id>/...`)."""
 
     @field_validator("base_topic", "discovery_prefix")
     @classmethod
@@ -517,8 +601,11 @@ class MqttConfig(Section):
 
 class MetricsConfig(Section):
     enabled: bool = False
+    """Serve `/metrics` (Prometheus) and `/health`."""
     host: str = "127.0.0.1"
+    """Bind address; loopback by default."""
     port: int = Field(9102, ge=1, le=65535)
+    """`/metrics` and `/health` on the same port."""
 
 
 DEFAULT_STATE_DIRECTORY = "/var/lib/invt-gateway"
@@ -537,6 +624,13 @@ class StorageConfig(Section):
     logged when they had not reached the broker yet)."""
     max_age_days: float = Field(90.0, gt=0, le=36500)
     """Events and faults older than this are removed."""
+    history_days: float = Field(7.0, ge=0, le=3650)
+    """How long the history of polled values is kept (one point a `history_step_s` per drive,
+    for the console's charts); 0: none kept. Within max_mb: past it the oldest history goes
+    before any event."""
+    history_step_s: float = Field(60.0, ge=1, le=3600)
+    """One history point per drive this often: the mean of each value over the step (a text
+    value, such as the state, as it was last)."""
 
     def resolved_path(self, environ: dict[str, str] | None = None) -> str:
         if self.path is not None:
@@ -548,10 +642,12 @@ class StorageConfig(Section):
 
 class ConsoleUserConfig(Section):
     name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.@-]+$")
+    """The login name."""
     password_hash: str
     """`invt-gateway hash-password` makes it (salted scrypt); never the password itself."""
-    role: Literal["viewer", "operator"] = "viewer"
-    """viewer: sees everything; operator: also commands and writes (when commands_enabled)."""
+    role: Literal["viewer", "operator", "admin"] = "viewer"
+    """viewer: sees everything; operator: also commands and writes (when commands_enabled);
+    admin: what an operator may, and edits the configuration from the console."""
     token_hash: str | None = None
     """The user's API token, hashed (`invt-gateway hash-password --new-token` makes one):
     scripts and `invt-gateway monitor` send the token as `Authorization: Bearer TOKEN`."""
@@ -576,15 +672,19 @@ class ConsoleUserConfig(Section):
 
 class ConsoleConfig(Section):
     enabled: bool = False
+    """Start the console (it needs `users`, or `anonymous_view: true`)."""
     host: str = "127.0.0.1"
     """Loopback by default: a console on the plant network is a decision, not an accident."""
     port: int = Field(8080, ge=0, le=65535)
+    """0 picks a free one."""
     users: tuple[ConsoleUserConfig, ...] = ()
+    """Who may log in, each with a role."""
     commands_enabled: bool = True
     """False: the console only shows; every command and write from it is refused."""
     anonymous_view: bool = False
     """True: pages and the read API without a login (as a viewer); writes always need one."""
     cert_file: str | None = None
+    """With `key_file`: HTTPS only, and the session cookie Secure."""
     key_file: str | None = None
     """Both given: the console speaks HTTPS only."""
     request_timeout_s: float = Field(10.0, gt=0, le=3600)
@@ -611,4 +711,6 @@ class ConsoleConfig(Section):
 
 class LoggingConfig(Section):
     level: Literal["debug", "info", "warning", "error"] = "info"
+    """`debug` also hex-dumps every frame on the wire."""
     format: Literal["text", "json"] = "text"
+    """`text`, or `json` (one object a line, for journald or Loki)."""

@@ -44,6 +44,8 @@ _DUMMY_HASH: Final = "scrypt$16384$8$1$" + "A" * 22 + "$" + "A" * 43
 class Role(StrEnum):
     VIEWER = "viewer"
     OPERATOR = "operator"
+    ADMIN = "admin"
+    """What an operator may, and the configuration's editing (`gateway.console.configuration`)."""
 
 
 class Via(StrEnum):
@@ -67,7 +69,11 @@ class Identity:
 
     @property
     def may_write(self) -> bool:
-        return self.role is Role.OPERATOR and self.via is not Via.ANONYMOUS
+        return self.role in (Role.OPERATOR, Role.ADMIN) and self.via is not Via.ANONYMOUS
+
+    @property
+    def may_configure(self) -> bool:
+        return self.role is Role.ADMIN and self.via is not Via.ANONYMOUS
 
 
 ANONYMOUS: Final = Identity("anonymous", Role.VIEWER, Via.ANONYMOUS)

@@ -6,9 +6,13 @@
     loop-back 08H (probe) → echoed
 
 A register the drive's profile doesn't name (every register of a `generic` device) keeps its
-address and raw word. The status words are put in words by the drive's own profile, so the
-monitor says what the drive page and MQTT say: 0041H is "ready" on a GD350, "not ready" on a
-GD300-LIFT.
+address and raw word. A device file's points are shown as MQTT publishes them (a float32 as
+230.5 V, not its two words), decoded by the device's profile from the words the frame carries
+(`device_values`), a coil's or discrete input's as on or off; a point only partly in the frame
+keeps its raw words.
+
+The status words are put in words by the drive's own profile, so the monitor says what the drive
+page and MQTT say: 0041H is "ready" on a GD350, "not ready" on a GD300-LIFT.
 """
 
 from __future__ import annotations
@@ -17,6 +21,8 @@ import struct
 
 from gateway.modbus.functions import (
     DIAGNOSTICS,
+    READ_COILS,
+    READ_DISCRETE_INPUTS,
     READ_HOLDING_REGISTERS,
     READ_INPUT_REGISTERS,
     WRITE_MULTIPLE_REGISTERS,
@@ -25,6 +31,8 @@ from gateway.modbus.functions import (
 from gateway.profile import DriveProfile, Point, exception_name, format_register, is_ram_address
 from gateway.profile.point_types import Table, word_key
 
+BIT_TABLES = {READ_COILS: Table.COIL, READ_DISCRETE_INPUTS: Table.DISCRETE_INPUT}
+"""The bit reads, by the table each reads: a device's coils and discrete inputs are points too."""
 MAX_VALUES_SHOWN = 4
 """A 12-word poll names its first values and says how many more: a line stays one line."""
 
@@ -43,11 +51,18 @@ def describe_request(pdu: bytes, profile: DriveProfile | None) -> str:
     if function == WRITE_MULTIPLE_REGISTERS and len(pdu) >= 6:
         start, count = struct.unpack(">HH", pdu[1:5])
         words = _words(pdu[6:])
+        device = device_values(start, words, profile, Table.HOLDING, " = ")
+        if device is not None:
+            return f"write {_listed(device)}"
         shown = ", ".join(
             _assignment(start + i, w, profile) for i, w in enumerate(words[:MAX_VALUES_SHOWN])
         )
         more = f", +{count - MAX_VALUES_SHOWN} more" if count > MAX_VALUES_SHOWN else ""
         return f"write {shown}{more}"
+    if function in BIT_TABLES and len(pdu) == 5:
+        start, count = struct.unpack(">HH", pdu[1:5])
+        table = BIT_TABLES[function].value.replace("_", " ")
+        return f"read {table} {format_register(start)} ({count} bits)"
     if function == DIAGNOSTICS:
         return "loop-back 08H"
     return f"function {function:02X}H"
@@ -67,6 +82,10 @@ def describe(pdu: bytes, reply: bytes | None, profile: DriveProfile | None) -> s
     if function in (READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS) and len(pdu) == 5:
         (start,) = struct.unpack(">H", pdu[1:3])
         words = _words(reply[2:])
+        table = Table.INPUT if function == READ_INPUT_REGISTERS else Table.HOLDING
+        device = device_values(start, words, profile, table, " ")
+        if device is not None:
+            return f"{request} → {_listed(device)}"
         base = _base(function, profile)
         shown = ", ".join(
             _value(start + i, w, profile, base, named=len(words) > 1)
@@ -74,9 +93,59 @@ def describe(pdu: bytes, reply: bytes | None, profile: DriveProfile | None) -> s
         )
         more = f", +{len(words) - MAX_VALUES_SHOWN} more" if len(words) > MAX_VALUES_SHOWN else ""
         return f"{request} → {shown}{more}"
+    if function in BIT_TABLES and len(pdu) == 5 and len(reply) >= 2:
+        start, count = struct.unpack(">HH", pdu[1:5])
+        # Bits from the first data byte's lowest on; a short reply shows what it holds.
+        held = min(count, 8 * (len(reply) - 2))
+        bits = [(reply[2 + i // 8] >> (i % 8)) & 1 for i in range(held)]
+        device = device_values(start, bits, profile, BIT_TABLES[function], " ")
+        raw = [f"{format_register(start + i)} {_text(bool(b))}" for i, b in enumerate(bits)]
+        return f"{request} → {_listed(raw if device is None else device)}"
     if function == DIAGNOSTICS:
         return f"{request} → echoed" if reply == pdu else f"{request} → {reply.hex(' ')}"
     return f"{request} → ok"
+
+
+def device_values(
+    start: int, words: list[int], profile: DriveProfile | None, table: Table, between: str
+) -> list[str] | None:
+    """A device's words from `start` of `table` as its points' values, by address: each point
+    the words hold whole decoded as MQTT publishes it (the profile's `telemetry`, the one
+    decoder), any other word raw. None: not a device described by points."""
+    if profile is None or not profile.typed_points:
+        return None
+    registers = {word_key(table, start + i): word for i, word in enumerate(words)}
+    values = profile.telemetry(registers)
+    shown: list[tuple[int, str]] = []
+    covered: set[int] = set()
+    for point in profile.typed_points:
+        if point.table is not table or point.name not in values:
+            continue
+        unit = f" {point.unit}" if point.unit else ""
+        shown.append((point.address, f"{point.name}{between}{_text(values[point.name])}{unit}"))
+        covered.update(range(point.address, point.end))
+    shown += [
+        (start + i, f"{format_register(start + i)}{between}{_raw(word, table)}")
+        for i, word in enumerate(words)
+        if start + i not in covered
+    ]
+    return [text for _, text in sorted(shown, key=lambda item: item[0])]
+
+
+def _raw(word: int, table: Table) -> str:
+    return _text(bool(word)) if table.bits else f"{word:04X}H"
+
+
+def _text(value: object) -> str:
+    """A point's value as its MQTT state has it: on/off for a bool, a string as it is."""
+    if isinstance(value, bool):
+        return "on" if value else "off"
+    return str(value)
+
+
+def _listed(values: list[str]) -> str:
+    more = len(values) - MAX_VALUES_SHOWN
+    return ", ".join(values[:MAX_VALUES_SHOWN]) + (f", +{more} more" if more > 0 else "")
 
 
 def _base(function: int, profile: DriveProfile | None) -> int:

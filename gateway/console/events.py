@@ -46,6 +46,7 @@ AUDIT_KINDS: Final = {
     "login": Category.AUTHENTICATION,
     "login_failed": Category.AUTHENTICATION,
     "logout": Category.AUTHENTICATION,
+    "config_changed": Category.CONFIGURATION,
 }
 """The console's own audit events beside its writes, stored under the same type."""
 
@@ -217,7 +218,10 @@ class ConsoleEventsRecorded(MemoryEventStore):
             }
             self._store.record("command", data, drive=event.drive)
         elif event.kind in AUDIT_KINDS:
-            self._store.record(event.kind, _source(event))
+            data = _source(event)
+            if event.kind == "config_changed":
+                data["what"] = event.text
+            self._store.record(event.kind, data)
 
     async def history(self, query: EventQuery, limit: int = 200) -> list[GatewayEvent]:
         found = await self._store.recent_events(
@@ -301,8 +305,10 @@ def _source(event: GatewayEvent) -> dict[str, Any]:
 
 
 def audit_text(kind: str, data: dict[str, Any]) -> str:
-    """A login, failed login or logout in words."""
+    """A login, failed login or logout, a change of the configuration, in words."""
     user, address = data.get("user"), data.get("address")
+    if kind == "config_changed":
+        return str(data.get("what", "configuration changed"))
     return {
         "login": f"{user} logged in from {address}",
         "login_failed": f"failed login for {user!r} from {address}",

@@ -17,7 +17,9 @@ from typing import Any
 from aiohttp import web
 
 from gateway.bus import Bus, BusSettings
+from gateway.console import configuration, history
 from gateway.console.auth import Users
+from gateway.console.config_editor import ConfigEditor
 from gateway.console.deadlines import KEEP_ALIVE_S, DeadlinedSite, RequestDeadlines
 from gateway.console.diagnostics import MqttSession, TcpClients
 from gateway.console.events import EventStore, MemoryEventStore
@@ -57,6 +59,7 @@ class ConsoleFeature:
         tcp: TcpClients | None = None,
         mqtt: MqttSession | None = None,
         configuration: Callable[[], dict[str, Any]] | None = None,
+        history_source: history.HistorySource | None = None,
     ) -> None:
         self.settings = settings
         self.lines = lines
@@ -73,6 +76,10 @@ class ConsoleFeature:
         """What the diagnostics page reads of the Modbus-TCP server and the MQTT bridge."""
         self.configuration = configuration
         """The running configuration, secrets masked, as of now (after the last reload)."""
+        self.history_source = history_source
+        """The store's history of polled values (None: the live 15 minutes only)."""
+        self.config_editor: ConfigEditor | None = None
+        """Editing the configuration file (`invt-gateway run` sets it: it knows the file)."""
         self.console: Console | None = None
         self._runner: web.AppRunner | None = None
         self._site: DeadlinedSite | None = None
@@ -120,9 +127,13 @@ class ConsoleFeature:
             log=self.log_tail,
             configuration=self.configuration,
         )
+        self.console.traffic.record_always()
         self.log_tail.attach()
+        app = build_app(self.console)
+        history.add_routes(app, self.history_source)
+        configuration.add_routes(app, self.config_editor)
         self._runner = web.AppRunner(
-            build_app(self.console),
+            app,
             access_log=None,
             shutdown_timeout=SHUTDOWN_S,
             keepalive_timeout=KEEP_ALIVE_S,

@@ -4,7 +4,9 @@ Drive state is the poller's: the same decoded state the MQTT bridge publishes (n
 This listens to the poller for charts and events only; the overview reads the poller's state when
 it is asked. Bus figures come from the counters the bus keeps anyway (`BusStats`, `DriveStats`),
 sampled once a second into a short window: rates are differences over it, so nothing is added to
-the bus's work.
+the bus's work. Each bus's and drive's measured share of the line (`utilisation`: polls, SCADA
+and MQTT alike) is shown beside what its polls were planned to take (`planned_utilisation`,
+from `gateway.poller.budget.line_plans`, the figure `check-config` prints).
 """
 
 from __future__ import annotations
@@ -20,10 +22,12 @@ from gateway.console.diagnostics import BusCounters
 from gateway.console.events import EventStore, GatewayEvent
 from gateway.modbus.functions import lookup
 from gateway.poller import Poller
+from gateway.poller.budget import LinePlan, line_plans
 from gateway.poller.drive_state import DriveEvent, EventKind, iso_time
 from gateway.profile import exception_name
 from gateway.profile.telemetry import Telemetry
 from gateway.settings import DriveSettings
+from gateway.store.history import Value, values
 
 HISTORY_S: Final = 15 * 60.0
 CHART_STEP_S: Final = 1.0
@@ -44,11 +48,16 @@ class BusSample:
     bad_replies: int
     retries: int
     line_s: float
+    drives_line_s: Mapping[int, float] = field(default_factory=dict)
+    """Address → the line time its transactions took, since the bus started."""
 
 
 @dataclass(slots=True)
 class DriveHistory:
-    points: deque[tuple[float, float | None, float | None, float | None]] = field(
+    """The last 15 minutes of a drive's values (`gateway.store.history.values`), a point a
+    second at most: the live charts, and the history page's shortest window."""
+
+    points: deque[tuple[float, dict[str, Value]]] = field(
         default_factory=lambda: deque(maxlen=int(HISTORY_S / CHART_STEP_S) + 1)
     )
     last_at: float = 0.0
@@ -88,8 +97,7 @@ class LiveState:
         if now - history.last_at < CHART_STEP_S:
             return
         history.last_at = now
-        hz, amps, volts = (_number(telemetry.get(key)) for key in CHART_KEYS)
-        history.points.append((now, hz, amps, volts))
+        history.points.append((now, values(telemetry)))
 
     def availability_changed(self, drive: str, online: bool) -> None:
         pass  # told again as a drive event
@@ -133,6 +141,7 @@ class LiveState:
         now = time.monotonic()
         for name, bus in self.buses.items():
             stats = bus.stats
+            line_s = {address: d.line_s for address, d in list(bus.drive_stats.items())}
             self._samples[name].append(
                 BusSample(
                     now,
@@ -140,7 +149,8 @@ class LiveState:
                     stats.timeouts,
                     sum(stats.bad_replies.values()),
                     stats.retries,
-                    sum(d.line_s for d in list(bus.drive_stats.values())),
+                    sum(line_s.values()),
+                    line_s,
                 )
             )
             self._count(name, bus, now)
@@ -169,14 +179,22 @@ class LiveState:
     # -- what the pages show ----------------------------------------------------------------
 
     def overview(self) -> dict[str, Any]:
+        plans = self.line_plans()  # once: every drive's row takes its share from it
         return {
             "time": iso_time(time.time()),
-            "buses": [self.bus_view(name) for name in self.buses],
-            "drives": [self.drive_view(name) for name in self.drives],
+            "buses": [self.bus_view(name, plans) for name in self.buses],
+            "drives": [self.drive_view(name, plans) for name in self.drives],
             "store_problem": self.events.store_problem(),
         }
 
-    def bus_view(self, name: str) -> dict[str, Any]:
+    def line_plans(self) -> dict[str, LinePlan]:
+        """Bus → what the drives polled now (a reload's included) were planned to take of it,
+        at its settings now (a reload may have changed its baud rate)."""
+        polled = [] if self.poller is None else [d.settings for d in self.poller.drives.values()]
+        return line_plans((bus.settings for bus in self.buses.values()), polled)
+
+    def bus_view(self, name: str, plans: Mapping[str, LinePlan] | None = None) -> dict[str, Any]:
+        plan = (plans or self.line_plans())[name]
         bus = self.buses[name]
         line = self.lines[name]
         chars = line.char_format
@@ -189,6 +207,8 @@ class LiveState:
             "port": line.port,
             "format": f"{chars.baudrate} {chars.bytesize}{chars.parity}{chars.stopbits}",
             "utilisation": _rate(recent, "line_s"),
+            "planned_utilisation": _share(plan.total.busy_fraction),
+            "over_budget": plan.over_budget,
             "transactions_per_s": _rate(recent, "transactions"),
             "timeouts_per_min": _delta(minute, "timeouts"),
             "bad_replies_per_min": _delta(minute, "bad_replies"),
@@ -217,11 +237,13 @@ class LiveState:
             shown.append({**self.bus_view(name), **view, "line": hardware})
         return shown
 
-    def drive_view(self, name: str) -> dict[str, Any]:
+    def drive_view(self, name: str, plans: Mapping[str, LinePlan] | None = None) -> dict[str, Any]:
         drive = self.drives[name]
         telemetry = self.telemetry(name)
         online = None if self.poller is None else self.poller.availability(name)
         state = telemetry.get("state")
+        recent = _window(self._samples[drive.bus], RATE_WINDOW_S)
+        planned = (plans or self.line_plans())[drive.bus].drives.get(name)
         return {
             "name": name,
             "unit_id": drive.unit_id,
@@ -235,6 +257,8 @@ class LiveState:
             "output_frequency_hz": telemetry.get("output_frequency_hz"),
             "output_current_a": telemetry.get("output_current_a"),
             "last_answer": telemetry.get("last_seen"),
+            "utilisation": _drive_rate(recent, drive.address),
+            "planned_utilisation": _share(0.0 if planned is None else planned.busy_fraction),
         }
 
     def telemetry(self, name: str) -> Telemetry:
@@ -245,8 +269,16 @@ class LiveState:
     def chart(self, name: str) -> dict[str, Any]:
         """The last 15 minutes, as columns (what uPlot takes): time in epoch seconds."""
         points = list(self.history[name].points)
-        columns: list[list[float | None]] = [[p[i] for p in points] for i in range(4)]
+        columns: list[list[float | None]] = [[at for at, _ in points]]
+        columns += [[_number(found.get(key)) for _, found in points] for key in CHART_KEYS]
         return {"keys": ["time", *CHART_KEYS], "columns": columns}
+
+    def recent_values(
+        self, name: str, since: float, until: float
+    ) -> list[tuple[float, dict[str, Value]]]:
+        """The drive's values a second apart from `since` to before `until` (the last 15
+        minutes at most), oldest first."""
+        return [(at, found) for at, found in self.history[name].points if since <= at < until]
 
 
 def _number(value: object) -> float | None:
@@ -268,6 +300,21 @@ def _rate(window: tuple[BusSample, BusSample] | None, key: str) -> float:
     elapsed = last.at - first.at
     change = float(getattr(last, key) - getattr(first, key))
     return round(change / elapsed, 3) if elapsed > 0 else 0.0
+
+
+def _drive_rate(window: tuple[BusSample, BusSample] | None, address: int) -> float:
+    """The share of the line one address's transactions took over the window."""
+    if window is None:
+        return 0.0
+    first, last = window
+    elapsed = last.at - first.at
+    change = last.drives_line_s.get(address, 0.0) - first.drives_line_s.get(address, 0.0)
+    return round(change / elapsed, 3) if elapsed > 0 else 0.0
+
+
+def _share(fraction: float) -> float:
+    """A planned share as the measured ones are given (a fraction, to a thousandth)."""
+    return round(fraction, 3)
 
 
 def _delta(window: tuple[BusSample, BusSample] | None, key: str) -> int:

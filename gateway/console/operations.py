@@ -35,6 +35,7 @@ from gateway.profile import (
     parse_parameter,
     resolve,
 )
+from gateway.profile.parameter_tables import CHANGE_MARKS
 from gateway.profile.parameters import FAULT_HISTORY, Parameter, parameter_groups
 from gateway.profile.points import for_series
 from gateway.profile.ram_writes import ram_write_address
@@ -45,7 +46,8 @@ from gateway.tcp.access import AccessPolicy
 MAX_BLOCK: Final = 16
 """INVT drives answer at most 16 words per read."""
 REGISTER_BLOCKS: Final = ("2000H", "2100H", "3000H")
-PARAMETER_GROUPS: Final = tuple(f"P{group:02d}" for group in range(18))
+MAX_FOUND: Final = 60
+"""Rows a search answers at most: more say the words were too few."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -123,9 +125,14 @@ class DriveOperations:
                 return f"{raw} ({profile.faults.describe(raw)})"
             return row.show(raw)
 
+        def differs(row: Parameter) -> bool | None:
+            raw = values.get(row.address)
+            return None if raw is None or not row.default_known else raw != row.default
+
         return [
             {
                 "name": row.name,
+                "group": row.group,
                 "address": f"{row.address:04X}H",
                 "description": row.description,
                 "unit": row.unit,
@@ -133,11 +140,26 @@ class DriveOperations:
                 "raw": values.get(row.address),
                 "value": None if row.address not in values else shown(row, values[row.address]),
                 "writable": not row.read_only,
+                "change": CHANGE_MARKS[_mark(row)],
+                "range": row.range_text(),
+                "default": row.shown_default(),
+                "differs_from_default": differs(row),
                 "choices": [{"value": value, "words": text} for value, text in row.choices],
+                "hint": row.hint,
                 "confirmed": row.confirmed,
+                "source": row.source,
             }
             for row in rows
         ]
+
+    def parameter_groups(self, drive: str) -> tuple[str, ...]:
+        """The groups of the drive's series table: the browser's tabs."""
+        return self._drive(drive).profile.parameter_table.groups
+
+    async def find_parameters(self, who: Identity, drive: str, text: str) -> list[dict[str, Any]]:
+        """The drive's parameters `text` names (P00.03, 0003H, or words of the name), read."""
+        found = self._drive(drive).profile.parameter_table.find(text)
+        return await self._parameter_rows(who, drive, found[:MAX_FOUND])
 
     async def fault_history(self, who: Identity, drive: str) -> list[dict[str, Any]]:
         """P07.27 (the current fault) … P07.32, decoded with the drive's own fault table."""
@@ -306,10 +328,18 @@ def _group_points(group: str) -> list[Point]:
 
 
 def _series_group(settings: DriveSettings, group: str) -> tuple[Parameter, ...]:
-    if group not in PARAMETER_GROUPS:
-        known = ", ".join((*PARAMETER_GROUPS, *REGISTER_BLOCKS))
+    groups = parameter_groups(settings.profile.parameters)
+    if group not in groups:
+        known = ", ".join((*groups, *REGISTER_BLOCKS))
         raise OperationError(404, f"no group {group!r}: one of {known}")
-    return parameter_groups(settings.profile.parameters).get(group, ())
+    return groups[group]
+
+
+def _mark(row: Parameter) -> str:
+    """The manual's change mark of a row: ● read-only, ◎ stopped only, ○ any time."""
+    if row.read_only:
+        return "●"
+    return "◎" if row.locked_while_running else "○"
 
 
 def _writable(settings: DriveSettings, point: Point) -> bool:

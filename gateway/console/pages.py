@@ -23,9 +23,12 @@ def page(
     scripts: Sequence[str] = (),
 ) -> str:
     attributes = " ".join(f'data-{k}="{escape(v)}"' for k, v in data.items())
-    monitor_links = '<a href="/events">Events</a><a href="/diagnostics">Diagnostics</a>' + "".join(
-        f'<a href="/monitor/{escape(bus)}">Monitor {escape(bus)}</a>' for bus in buses
-    )
+    monitor_links = (
+        '<a href="/events">Events</a><a href="/history">History</a>'
+        '<a href="/diagnostics">Diagnostics</a>'
+    ) + "".join(f'<a href="/monitor/{escape(bus)}">Monitor {escape(bus)}</a>' for bus in buses)
+    if who is not None and who.may_configure:
+        monitor_links += '<a href="/configuration">Configuration</a>'
     if who is None or who.via is Via.ANONYMOUS:
         user = '<a id="login-link" href="/login">Log in</a>'
         if who is not None:
@@ -70,8 +73,8 @@ OVERVIEW = """
 <h2>Buses</h2>
 <div class="scroll"><table id="buses" class="grid cards">
 <thead><tr><th>Bus</th><th>State</th><th>Port</th><th>Format</th><th>Utilisation</th>
-<th>Transactions/s</th><th>Timeouts/min</th><th>Bad replies/min</th><th>Retries/min</th>
-<th>Queue</th><th></th></tr></thead>
+<th>Planned (polls)</th><th>Transactions/s</th><th>Timeouts/min</th><th>Bad replies/min</th>
+<th>Retries/min</th><th>Queue</th><th></th></tr></thead>
 <tbody></tbody>
 </table></div>
 </section>
@@ -79,7 +82,8 @@ OVERVIEW = """
 <h2>Drives</h2>
 <div class="scroll"><table id="drives" class="grid cards">
 <thead><tr><th>Drive</th><th>Unit id</th><th>Bus / address</th><th>Model</th><th>Online</th>
-<th>State</th><th>Fault</th><th>Output frequency</th><th>Current</th><th>Last answer</th></tr>
+<th>State</th><th>Fault</th><th>Output frequency</th><th>Current</th><th>Line use</th>
+<th>Last answer</th></tr>
 </thead>
 <tbody></tbody>
 </table></div>
@@ -120,7 +124,8 @@ DRIVE = """
 </section>
 </div>
 <section>
-<h2>Last 15 minutes</h2>
+<h2>Last 15 minutes
+<a class="more" id="history-link" href="/history">any value, up to 7 days</a></h2>
 <div class="charts">
 <div class="chart" id="chart-frequency"></div>
 <div class="chart" id="chart-current"></div>
@@ -143,9 +148,16 @@ DRIVE = """
 </section>
 <section>
 <h2>Parameters</h2>
+<form id="parameter-find" class="filters">
+<label>Find <input id="parameter-find-text" autocomplete="off"
+ placeholder="P00.03, 0003H or words of the name"></label>
+<button type="submit" id="parameter-find-go">Find</button>
+<span id="parameter-found" class="muted"></span>
+</form>
 <div id="groups" class="tabs"></div>
 <div class="scroll"><table id="parameters" class="grid cards small"><thead><tr>
-<th>Parameter</th><th>Address</th><th>Meaning</th><th>Value</th><th>Raw</th><th></th></tr></thead><tbody></tbody></table></div>
+<th>Parameter</th><th>Address</th><th>Meaning</th><th>Value</th><th>Default</th><th>Range</th>
+<th>Raw</th><th></th></tr></thead><tbody></tbody></table></div>
 </section>
 <dialog id="confirm">
 <form method="dialog">

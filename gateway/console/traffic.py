@@ -1,10 +1,17 @@
-"""The traffic monitor: every attempt on a bus's wire, as it happens, while someone watches.
+"""The traffic monitor: every attempt on a bus's wire, recorded at all times.
 
-Nothing is recorded while nobody watches: the bus's `tap` is None then, which costs the bus one
-attribute test per attempt. The first watcher of a bus sets the tap, the last one to leave clears
-it. The tap itself only appends a small record to a bounded ring (the last `RING_SIZE` per bus)
-and hands it to each watcher's bounded queue; decoding it into words (`gateway.console.decode`)
-happens later, in the watcher's own coroutine, never on the bus's time.
+The console sets each bus's `tap` at start (`record_always`): the last `RING_SIZE` attempts per
+bus are always kept, so what happened before a trip is there when someone opens the monitor.
+The tap only appends a small record (the request, the reply, four times) to that bounded ring
+and hands it to each watcher's bounded queue: a few microseconds of the bus's time, some 200
+bytes a record (about 0.4 MB per bus). Decoding it into words (`gateway.console.decode`) and
+splitting its time happen later, in the reader's own coroutine, never on the bus's time.
+
+Each attempt's time, split (`timing`):
+    queue_ms       waiting in the bus's queue before its first attempt (0 for a retry)
+    wire_ms        the request's and the reply's bytes on the wire at the line's baud rate
+    turnaround_ms  the drive's own answer delay: the line busy with the exchange, less the bytes
+    latency_ms     the attempt from its start (the gap before it included) to its end
 """
 
 from __future__ import annotations
@@ -59,6 +66,10 @@ class Record:
     """ok, broadcast, exception, timeout, port_lost, or the bad reply's kind (crc, truncated...)."""
     reply: bytes | None
     """The reply PDU when one passed its CRC; for a bad reply, the bytes that came."""
+    queue_s: float = 0.0
+    """In the bus's queue before the first attempt (0.0 for a retry)."""
+    busy_s: float | None = None
+    """The line busy with the exchange (request, the drive's delay, reply); None: no reply."""
 
 
 @dataclass(slots=True)
@@ -80,6 +91,12 @@ class TrafficMonitor:
         self._seq = itertools.count(1)
         self.recorded = 0
 
+    def record_always(self) -> None:
+        """Keep the last `RING_SIZE` attempts of every bus from now on (a bus reopened by a
+        reload keeps its tap: `Application._replace_buses`)."""
+        for bus in self.buses.values():
+            bus.tap = self._tap
+
     def watching(self, bus: str) -> bool:
         return bool(self._watchers[bus])
 
@@ -88,16 +105,12 @@ class TrafficMonitor:
         watchers = self._watchers[bus]
         watcher = Watcher(bus)
         watchers.append(watcher)
-        if len(watchers) == 1:
-            self.buses[bus].tap = self._tap
         return watcher
 
     def leave(self, watcher: Watcher) -> None:
         watchers = self._watchers[watcher.bus]
         if watcher in watchers:
             watchers.remove(watcher)
-        if not watchers:
-            self.buses[watcher.bus].tap = None
 
     def close(self) -> None:
         """Stop recording and tell every watcher it is over (None in its queue)."""
@@ -152,9 +165,38 @@ class TrafficMonitor:
             "outcome": _outcome_words(record),
             "attempt": record.attempt,
             "latency_ms": round(record.latency_s * 1000, 1),
+            **self.timing(record),
             "request_hex": build_frame(record.address, record.pdu).hex(" "),
             "reply_hex": _reply_hex(record),
         }
+
+    def timing(self, record: Record) -> dict[str, float | None]:
+        """The attempt's time split: queue wait, bytes on the wire, the drive's turnaround
+        (None without a reply: a timeout, a broadcast)."""
+        bus = self.buses.get(record.bus)
+        if bus is None:
+            return {"queue_ms": _ms(record.queue_s), "wire_ms": None, "turnaround_ms": None}
+        char = bus.settings.line.char_format
+        wire = char.wire_time_s(len(record.pdu) + 3)  # address, PDU, CRC
+        turnaround = None
+        if record.reply is not None:
+            reply = (
+                len(record.reply) + 3
+                if record.outcome in ("ok", "exception")
+                else len(record.reply)
+            )
+            wire += char.wire_time_s(reply)
+            if record.busy_s is not None:
+                turnaround = max(0.0, record.busy_s - wire)
+        return {
+            "queue_ms": _ms(record.queue_s),
+            "wire_ms": _ms(wire),
+            "turnaround_ms": None if turnaround is None else _ms(turnaround),
+        }
+
+
+def _ms(seconds: float) -> float:
+    return round(seconds * 1000, 2)
 
 
 def _record(
@@ -166,8 +208,10 @@ def _record(
     result: Exchange | LineError,
 ) -> Record:
     reply: bytes | None
+    busy: float | None = None
     if isinstance(result, Exchange):
         reply = result.reply_pdu
+        busy = result.busy_s if reply is not None else None
         if reply is None:
             outcome = "broadcast"
         else:
@@ -191,7 +235,17 @@ def _record(
         latency_s=time.monotonic() - started,
         outcome=outcome,
         reply=reply,
+        queue_s=_queued_for(transaction, attempt, started),
+        busy_s=busy,
     )
+
+
+def _queued_for(transaction: Transaction, attempt: int, started: float) -> float:
+    """In the queue before the first attempt; a retry (or a transaction built without the
+    queue's time) waited none."""
+    if attempt or not transaction.queued_at:
+        return 0.0
+    return max(0.0, started - transaction.queued_at)
 
 
 def _outcome_words(record: Record) -> str:

@@ -16,7 +16,7 @@ import hmac
 import json
 import logging
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import replace
 from datetime import datetime
 from importlib import resources
@@ -51,7 +51,6 @@ from gateway.console.live import LiveState
 from gateway.console.log_tail import MAX_LINES as LOG_LINES
 from gateway.console.log_tail import LogTail
 from gateway.console.operations import (
-    PARAMETER_GROUPS,
     REGISTER_BLOCKS,
     DriveOperations,
 )
@@ -64,6 +63,8 @@ log = logging.getLogger(__name__)
 LIVE_PERIOD_S: Final = 0.5
 """The overview and a drive's page are pushed this often: live within a second."""
 HEARTBEAT_S: Final = 15.0
+RECENT_BATCH: Final = 100
+"""Transactions kept that a new monitor gets between two turns of the event loop."""
 MAX_JSON: Final = 16 * 1024
 MAX_EVENTS: Final = 2000
 MAX_CSV_EVENTS: Final = 20000
@@ -291,16 +292,25 @@ def _status_class(status: int) -> type[web.HTTPException]:
 # -- pages ----------------------------------------------------------------------------------
 
 
-def _html(request: web.Request, title: str, body: str, data: dict[str, str]) -> web.Response:
+def _html(
+    request: web.Request,
+    title: str,
+    body: str,
+    data: dict[str, str],
+    scripts: Sequence[str] | None = None,
+) -> web.Response:
+    """A page; `scripts`: what it loads before console.js (uPlot for a drive's page)."""
     console = request.app[CONSOLE]
     who = request.get(IDENTITY)
+    if scripts is None:
+        scripts = ["uPlot.iife.min.js"] if data.get("page") == "drive" else ()
     html = pages.page(
         title,
         body,
         who=who,
         buses=list(console.live.buses),
         data={**data, "commands": "on" if console.commands_enabled else "off"},
-        scripts=["uPlot.iife.min.js"] if data.get("page") == "drive" else (),
+        scripts=scripts,
     )
     return web.Response(text=html, content_type="text/html")
 
@@ -313,11 +323,8 @@ async def drive_page(request: web.Request) -> web.StreamResponse:
     name = request.match_info["name"]
     if name not in request.app[CONSOLE].live.drives:
         raise web.HTTPNotFound(text=f"no drive named {name}")
-    data = {
-        "page": "drive",
-        "drive": name,
-        "groups": ",".join((*PARAMETER_GROUPS, *REGISTER_BLOCKS)),
-    }
+    groups = request.app[CONSOLE].operations.parameter_groups(name)
+    data = {"page": "drive", "drive": name, "groups": ",".join((*groups, *REGISTER_BLOCKS))}
     return _html(request, name, pages.DRIVE, data)
 
 
@@ -414,6 +421,7 @@ async def session_info(request: web.Request) -> web.StreamResponse:
             "via": str(who.via),
             "csrf_token": csrf,
             "may_write": who.may_write and console.commands_enabled,
+            "may_configure": who.may_configure,
             "commands_enabled": console.commands_enabled,
         }
     )
@@ -532,9 +540,14 @@ async def drive_faults(request: web.Request) -> web.StreamResponse:
 async def drive_parameters(request: web.Request) -> web.StreamResponse:
     console = request.app[CONSOLE]
     name = _drive_name(request)
-    group = request.query.get("group", "P00")
+    groups = [*console.operations.parameter_groups(name), *REGISTER_BLOCKS]
+    text = request.query.get("find")
+    if text is not None:
+        found = await _operation(console.operations.find_parameters(request[IDENTITY], name, text))
+        return web.json_response({"find": text, "groups": groups, "parameters": found})
+    group = request.query.get("group", groups[0])
     found = await _operation(console.operations.parameter_group(request[IDENTITY], name, group))
-    return web.json_response({"group": group, "parameters": found})
+    return web.json_response({"group": group, "groups": groups, "parameters": found})
 
 
 # -- writes ---------------------------------------------------------------------------------
@@ -600,8 +613,8 @@ async def live_stream(request: web.Request) -> web.StreamResponse:
 
 
 async def traffic_stream(request: web.Request) -> web.StreamResponse:
-    """Every transaction on the bus from now on (`?recent=N`: the last N first), as `traffic`
-    events; the bus records only while at least one such stream is open."""
+    """Every transaction on the bus from now on (`?recent=N`: the last N first, kept at all
+    times), as `traffic` events."""
     console = request.app[CONSOLE]
     bus = request.match_info["bus"]
     if bus not in console.live.buses:
@@ -612,8 +625,10 @@ async def traffic_stream(request: web.Request) -> web.StreamResponse:
         response = await _open_stream(request)
         recent = _limit(request, "recent", default=0)
         if recent:
-            for kept in traffic.recent(bus)[-recent:]:
+            for index, kept in enumerate(traffic.recent(bus)[-recent:]):
                 await _send_event(response, "traffic", traffic.to_json(kept))
+                if index % RECENT_BATCH == RECENT_BATCH - 1:
+                    await asyncio.sleep(0)  # 2000 decoded at once would hold the bus's loop
         await _send_event(response, "watching", {"bus": bus})
         while not console.closing.is_set():
             try:
@@ -626,7 +641,7 @@ async def traffic_stream(request: web.Request) -> web.StreamResponse:
             await _send_event(response, "traffic", traffic.to_json(record))
         return response
     except ConnectionError:
-        return response  # the monitor was closed: it stops recording (below), nothing to log
+        return response  # the monitor was closed: nothing to log
     finally:
         traffic.leave(watcher)
 

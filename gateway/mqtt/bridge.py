@@ -7,6 +7,9 @@ A feature of the application, put together from its jobs:
   events the store keeps until the broker acknowledged them;
 - `dispatcher`: each received message to its kind (`kinds`), run in its lane (`lanes`).
 
+With `mqtt.sparkplug`, the Sparkplug B edge node (`gateway.sparkplug`) runs beside it on its
+own connection: the bridge hands it what the poller hands the bridge, and starts and stops it.
+
 On every connection: online, info, subscriptions, discovery, every drive's availability and
 state, then the publisher and the dispatcher run side by side until the connection is lost; what
 had not started in the lanes is dropped with it (a command that came on a lost connection never
@@ -19,6 +22,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import Awaitable, Sequence
+from typing import TYPE_CHECKING
 
 import aiomqtt
 
@@ -40,6 +44,9 @@ from gateway.routing import Router
 from gateway.settings import DriveSettings, MqttSettings
 from gateway.store import EventStore
 from gateway.tasks import ServiceTasks, side_by_side
+
+if TYPE_CHECKING:
+    from gateway.sparkplug.edge_node import SparkplugNode
 
 log = logging.getLogger(__name__)
 
@@ -91,6 +98,21 @@ class MqttBridge:
         self.settings = mqtt
         self.tasks = tasks
         self._discovery_cleaned = False
+        self.sparkplug: SparkplugNode | None = None
+        """The Sparkplug B edge node beside the JSON topics (`mqtt.sparkplug`), on its own
+        connection; it takes what the poller hands the bridge too."""
+        if mqtt.sparkplug is not None:
+            from gateway.sparkplug.edge_node import SparkplugNode  # protobuf only when asked
+
+            self.sparkplug = SparkplugNode(
+                mqtt, mqtt.sparkplug, served, router, poller, tasks, events
+            )
+
+    def continue_from(self, old: MqttBridge) -> None:
+        """A reload's new bridge after `old`: the Sparkplug bdSeq counts on (it counts the
+        CONNECTs of the gateway's run, not of one bridge: a host pairs births and deaths by it)."""
+        if self.sparkplug is not None and old.sparkplug is not None:
+            self.sparkplug.bd_seq.value = old.sparkplug.bd_seq.value
 
     @property
     def connected(self) -> asyncio.Event:
@@ -119,9 +141,13 @@ class MqttBridge:
 
     def state_updated(self, drive: str, telemetry: Telemetry) -> None:
         self.outbox.put_state(drive, telemetry)
+        if self.sparkplug is not None:
+            self.sparkplug.state_updated(drive, telemetry)
 
     def availability_changed(self, drive: str, online: bool) -> None:
         self.outbox.put_availability(drive, online)
+        if self.sparkplug is not None:
+            self.sparkplug.availability_changed(drive, online)
 
     def drive_event(self, event: DriveEvent) -> None:
         pass  # events reach the broker from the store, where the store's own listener put them
@@ -131,14 +157,24 @@ class MqttBridge:
     async def start(self) -> None:
         await check_alone(self.settings, self.topics)
         await self.session.start()
+        if self.sparkplug is not None:
+            await self.sparkplug.start()
 
     async def stop(self) -> None:
-        await self.session.say_offline()
+        sparkplug = self.sparkplug
+        # Both goodbyes at once, then both connections' ends at once: the two fit in the time
+        # one has (each step is bounded).
+        offline: list[Awaitable[object]] = [self.session.say_offline()]
+        if sparkplug is not None:
+            offline.append(sparkplug.say_offline())
+        await asyncio.gather(*offline)
         # Commands being carried out are cut off: the buses are closed by now anyway.
         stopping: list[Awaitable[object]] = [
             self.lanes.close(STOP_TASK_BUDGET_S),
             self.session.stop(STOP_TASK_BUDGET_S),
         ]
+        if sparkplug is not None:
+            stopping.append(sparkplug.end_tasks())
         await asyncio.gather(*stopping)
 
     # -- one connection ----------------------------------------------------------------------

@@ -42,6 +42,7 @@ from gateway.mqtt.requests import (
     error_response,
     ok_response,
     parse_object,
+    parse_set,
     transaction_of,
 )
 from gateway.poller import Poller
@@ -81,8 +82,12 @@ class Commands:
         poller: Poller,
         drives: Mapping[str, CommandDrive],
         events: EventStore,
+        source: str = "mqtt",
     ) -> None:
+        """`source`: what a `command` event names as where the command came from (the JSON
+        topics' `mqtt`, Sparkplug's `sparkplug`)."""
         self.settings = settings
+        self.source = source
         self.router = router
         self.poller = poller
         self.drives = drives
@@ -139,6 +144,13 @@ class Commands:
             raise CommandRefused("unknown_drive", f"drive must be one of: {known}")
         return drive
 
+    async def set(self, drive: CommandDrive, payload: Json) -> Json:
+        """A `/set` payload carried out (a command, set-point, parameter or point write); what
+        the acknowledgement repeats of it. Raises CommandRefused or a ModbusError."""
+        write = parse_set(payload, drive.profile)
+        await self.write(drive, write)
+        return write.echo
+
     async def write(self, drive: CommandDrive, write: RegisterWrite) -> None:
         """Carry a command or parameter write to the drive; a `command` event says what came of
         it (who changed what on a drive, and when, is what a plant asks after an incident)."""
@@ -160,7 +172,7 @@ class Commands:
         return list(struct.unpack(f">{read.count}H", reply[2 : 2 + 2 * read.count]))
 
     def _record(self, drive: CommandDrive, write: RegisterWrite, outcome: Json) -> None:
-        data = {"drive": drive.name, "source": "mqtt", **write.echo, **outcome}
+        data = {"drive": drive.name, "source": self.source, **write.echo, **outcome}
         self.events.record(EventType.COMMAND, data, drive=drive.name)
 
     def _check_allowed(self, payload: Json, retained: bool, writes: bool) -> None:

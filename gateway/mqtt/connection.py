@@ -97,14 +97,18 @@ def make_client(
     protocol: aiomqtt.ProtocolVersion = MQTT_3_1_1,
     identifier: str | None = None,
     will: bool = True,
+    last_will: aiomqtt.Will | None = None,
 ) -> aiomqtt.Client:
     """A fresh client for one connection attempt to `server` (one of `mqtt.servers`); `tls`
     from `tls_context`, built once, for every server alike.
 
     MQTT 5 where the broker speaks it: only there does a subscription keep the retain flag of a
     message delivered live (retain-as-published), so a retained command can always be refused.
+    `last_will`: another will than the bridge's "offline" (the Sparkplug edge node's NDEATH).
     """
     five = protocol == MQTT_5
+    if will and last_will is None:
+        last_will = aiomqtt.Will(topics.bridge_state, OFFLINE, qos=1, retain=True)
     return aiomqtt.Client(
         server[0],
         server[1],
@@ -113,7 +117,7 @@ def make_client(
         identifier=identifier or mqtt.client_id,
         # The broker says "offline" for us if we vanish (power cut, kill -9, cable). A side
         # connection (`will=False`) must not: the gateway is still there.
-        will=aiomqtt.Will(topics.bridge_state, OFFLINE, qos=1, retain=True) if will else None,
+        will=last_will if will else None,
         # No session kept on the broker: commands sent while we were away are not delivered
         # later, when the plant may be in another state. (MQTT 5: a clean start, and a
         # session that ends with the connection, the default expiry of 0.)

@@ -3,11 +3,11 @@
 Each drive is a device with sensors (state, fault, frequency, current, voltages, power, speed:
 those its profile's telemetry holds; a device file's points with their units and classes, a
 binary sensor for each bool or bit point, and a number for each writable numeric point and a
-switch for each writable coil when commands are enabled; a problem binary sensor per limit alarm
-of `drives[].alarms`), buttons for the run and stop commands its profile takes and a number for
-the frequency set-point (those two only when commands are enabled). The gateway itself is a
-device too (its connection state), the one drives are reached "via".
-Entities are available when both the gateway and the drive are.
+switch for each writable coil when commands are enabled; a problem binary sensor per limit
+alarm, a drive's `drives[].alarms` and a device's points' `high`/`low`), buttons for the run and
+stop commands its profile takes and a number for the frequency set-point (those two only when
+commands are enabled). The gateway itself is a device too (its connection state), the one
+drives are reached "via". Entities are available when both the gateway and the drive are.
 
 Ids are built from `gateway_id` and the drive's name, so two gateways on one broker never claim
 each other's entities.
@@ -23,7 +23,7 @@ from typing import Any, Final
 from gateway import __version__
 from gateway.mqtt.topics import Topics
 from gateway.profile import DriveProfile
-from gateway.profile.limit_alarms import Side, alarm_name
+from gateway.profile.limit_alarms import alarm_name, limit_sides
 from gateway.profile.point_types import Kind, TypedPoint
 from gateway.settings import DriveSettings, MqttSettings
 
@@ -99,172 +99,193 @@ def discovery_messages(
             ),
         )
     ]
-    commands = mqtt.commands_enabled
     for drive in drives:
-        profile = drive.profile
-        sensors = [sensor for sensor in SENSORS if sensor.key in profile.telemetry_keys]
-        sensors += [_point_sensor(p) for p in profile.typed_points if p.kind not in TWO_STATE]
-        if not sensors:
-            continue  # nothing decoded to show (a generic device)
-        common = {
-            "availability": [
-                {"topic": topics.bridge_state, "value_template": ON_STATE},
-                {"topic": topics.availability(drive.name), "value_template": ON_STATE},
-            ],
-            "availability_mode": "all",
-            "device": {
-                "identifiers": [f"{node}_{drive.name}"],
-                "name": drive.name,
-                "manufacturer": profile.manufacturer,
-                "model": profile.display_name,
-                "via_device": node,
-            },
-            "origin": origin,
+        messages += _drive_entities(mqtt, drive, topics, node, origin, read)
+    return messages
+
+
+@dataclass(frozen=True, slots=True)
+class _Entities:
+    """One drive's entities: where their configs go and what every one of them shares."""
+
+    prefix: str
+    node: str
+    drive: str
+    common: dict[str, Any]
+    topics: Topics
+
+    @property
+    def state_topic(self) -> str:
+        return self.topics.drive_state(self.drive)
+
+    def config(
+        self, component: str, key: str, fields: dict[str, Any], unique: str | None = None
+    ) -> tuple[str, str]:
+        """The one shape of every entity's config: the shared keys, its unique id (`key`
+        unless `unique` says otherwise), its own `fields`."""
+        payload = {**self.common, "unique_id": f"{self.node}_{self.drive}_{unique or key}"}
+        payload.update(fields)
+        return f"{self.prefix}/{component}/{self.node}/{self.drive}_{key}/config", _dump(payload)
+
+    def binary_sensor(
+        self, key: str, device_class: str | None, name: str | None = None
+    ) -> tuple[str, str]:
+        """A binary sensor on a true/false key of the state: a two-state point, an alarm."""
+        fields: dict[str, Any] = {
+            "name": name or _named(key),
+            "state_topic": self.state_topic,
+            "value_template": _on_off(key),
         }
-        entity = f"{node}_{drive.name}"
-        for sensor in sensors:
-            payload: dict[str, Any] = {
-                **common,
-                "name": sensor.name,
-                "unique_id": f"{entity}_{sensor.key}",
-                "state_topic": topics.drive_state(drive.name),
-                "value_template": f"{{{{ value_json.{sensor.key} }}}}",
-            }
-            if sensor.unit is not None:
-                payload["unit_of_measurement"] = sensor.unit
-                payload["state_class"] = sensor.state_class
-            elif sensor.state_class is not None:
-                payload["state_class"] = sensor.state_class
-            if sensor.device_class is not None:
-                payload["device_class"] = sensor.device_class
-            if sensor.icon is not None:
-                payload["icon"] = sensor.icon
-            messages.append(
-                (f"{prefix}/sensor/{node}/{drive.name}_{sensor.key}/config", _dump(payload))
-            )
-        messages += _alarm_sensors(prefix, node, drive, common, topics)
-        messages += _point_binary_sensors(prefix, node, drive.name, common, topics, profile)
-        if commands:
-            messages += _point_numbers(prefix, node, drive.name, common, topics, profile)
-        if not commands or not profile.commands:
-            continue
-        for command, name, icon in BUTTONS:
-            if command not in profile.commands:
-                continue
-            payload = {
-                **common,
+        if device_class is not None:
+            fields["device_class"] = device_class
+        return self.config("binary_sensor", key, fields)
+
+
+def _drive_entities(
+    mqtt: MqttSettings,
+    drive: DriveSettings,
+    topics: Topics,
+    node: str,
+    origin: dict[str, Any],
+    read: Mapping[str, float],
+) -> list[tuple[str, str]]:
+    profile = drive.profile
+    sensors = [sensor for sensor in SENSORS if sensor.key in profile.telemetry_keys]
+    sensors += [_point_sensor(p) for p in profile.typed_points if p.kind not in TWO_STATE]
+    if not sensors:
+        return []  # nothing decoded to show (a generic device)
+    common = {
+        "availability": [
+            {"topic": topics.bridge_state, "value_template": ON_STATE},
+            {"topic": topics.availability(drive.name), "value_template": ON_STATE},
+        ],
+        "availability_mode": "all",
+        "device": {
+            "identifiers": [f"{node}_{drive.name}"],
+            "name": drive.name,
+            "manufacturer": profile.manufacturer,
+            "model": profile.display_name,
+            "via_device": node,
+        },
+        "origin": origin,
+    }
+    entities = _Entities(mqtt.discovery_prefix, node, drive.name, common, topics)
+    messages = [_sensor(entities, sensor) for sensor in sensors]
+    messages += _alarm_sensors(entities, drive)
+    messages += [
+        entities.binary_sensor(point.name, point.device_class)
+        for point in profile.typed_points
+        if point.kind in TWO_STATE  # a sensor would show True and False
+    ]
+    if not mqtt.commands_enabled:
+        return messages
+    messages += _point_numbers(entities, profile)
+    if profile.commands:
+        messages += _commands(entities, profile, read.get(drive.name, profile.max_frequency_hz))
+    return messages
+
+
+def _sensor(entities: _Entities, sensor: Sensor) -> tuple[str, str]:
+    fields: dict[str, Any] = {
+        "name": sensor.name,
+        "state_topic": entities.state_topic,
+        "value_template": f"{{{{ value_json.{sensor.key} }}}}",
+    }
+    if sensor.unit is not None:
+        fields["unit_of_measurement"] = sensor.unit
+    if sensor.unit is not None or sensor.state_class is not None:
+        fields["state_class"] = sensor.state_class
+    if sensor.device_class is not None:
+        fields["device_class"] = sensor.device_class
+    if sensor.icon is not None:
+        fields["icon"] = sensor.icon
+    return entities.config("sensor", sensor.key, fields)
+
+
+def _alarm_sensors(entities: _Entities, drive: DriveSettings) -> list[tuple[str, str]]:
+    """A problem binary sensor per limit alarm, on its flag in the state: a drive's
+    (`drives[].alarms`) and a device's (its points' `high`/`low`) alike."""
+    return [
+        entities.binary_sensor(alarm_name(key, side), "problem", name=f"Alarm {key} {side}")
+        for key, limit in drive.alarms.items()
+        for side, _ in limit_sides(limit)
+    ]
+
+
+def _commands(
+    entities: _Entities, profile: DriveProfile, max_frequency_hz: float
+) -> list[tuple[str, str]]:
+    """The buttons of the commands the profile takes, and the frequency set-point."""
+    command_topic = entities.topics.set(entities.drive)
+    messages = [
+        entities.config(
+            "button",
+            command,
+            {
                 "name": name,
-                "unique_id": f"{entity}_{command}",
-                "command_topic": topics.set(drive.name),
+                "command_topic": command_topic,
                 "payload_press": json.dumps({"command": command}),
                 "icon": icon,
-            }
-            messages.append(
-                (f"{prefix}/button/{node}/{drive.name}_{command}/config", _dump(payload))
-            )
-        setpoint = {
-            **common,
-            "name": "Frequency set-point",
-            "unique_id": f"{entity}_frequency_setpoint",
-            "command_topic": topics.set(drive.name),
-            "command_template": '{"frequency_hz": {{ value }}}',
-            "state_topic": topics.drive_state(drive.name),
-            "value_template": "{{ value_json.set_frequency_hz }}",
-            "min": 0,
-            "max": min(read.get(drive.name, profile.max_frequency_hz), MAX_SETPOINT_HZ),
-            "step": 0.01,
-            "mode": "box",
-            "unit_of_measurement": "Hz",
-            "device_class": "frequency",
-        }
-        messages.append(
-            (f"{prefix}/number/{node}/{drive.name}_frequency_setpoint/config", _dump(setpoint))
+            },
         )
-    return messages
-
-
-def _point_binary_sensors(
-    prefix: str,
-    node: str,
-    drive: str,
-    common: dict[str, Any],
-    topics: Topics,
-    profile: DriveProfile,
-) -> list[tuple[str, str]]:
-    """A binary sensor for each bool or bit point (a sensor would show True and False)."""
-    messages = []
-    for point in profile.typed_points:
-        if point.kind not in TWO_STATE:
-            continue
-        payload = {
-            **common,
-            "name": point.name.replace("_", " ").capitalize(),
-            "unique_id": f"{node}_{drive}_{point.name}",
-            "state_topic": topics.drive_state(drive),
-            "value_template": f"{{{{ 'ON' if value_json.{point.name} else 'OFF' }}}}",
-        }
-        if point.device_class is not None:
-            payload["device_class"] = point.device_class
-        topic = f"{prefix}/binary_sensor/{node}/{drive}_{point.name}/config"
-        messages.append((topic, _dump(payload)))
-    return messages
-
-
-def _alarm_sensors(
-    prefix: str, node: str, drive: DriveSettings, common: dict[str, Any], topics: Topics
-) -> list[tuple[str, str]]:
-    """A problem binary sensor per limit alarm of a drive (`drives[].alarms`), on its flag."""
-    messages = []
-    for key, limit in drive.alarms.items():
-        sides: tuple[tuple[Side, float | None], ...] = (("high", limit.high), ("low", limit.low))
-        for side, at in sides:
-            if at is None:
-                continue
-            flag = alarm_name(key, side)
-            payload = {
-                **common,
-                "name": f"Alarm {key} {side}",
-                "unique_id": f"{node}_{drive.name}_{flag}",
-                "device_class": "problem",
-                "state_topic": topics.drive_state(drive.name),
-                "value_template": f"{{{{ 'ON' if value_json.{flag} else 'OFF' }}}}",
-            }
-            topic = f"{prefix}/binary_sensor/{node}/{drive.name}_{flag}/config"
-            messages.append((topic, _dump(payload)))
+        for command, name, icon in BUTTONS
+        if command in profile.commands
+    ]
+    setpoint = {
+        "name": "Frequency set-point",
+        "command_topic": command_topic,
+        "command_template": '{"frequency_hz": {{ value }}}',
+        "state_topic": entities.state_topic,
+        "value_template": "{{ value_json.set_frequency_hz }}",
+        "min": 0,
+        "max": min(max_frequency_hz, MAX_SETPOINT_HZ),
+        "step": 0.01,
+        "mode": "box",
+        "unit_of_measurement": "Hz",
+        "device_class": "frequency",
+    }
+    messages.append(entities.config("number", "frequency_setpoint", setpoint))
     return messages
 
 
 def _point_sensor(point: TypedPoint) -> Sensor:
     """A device file's point as a sensor: its unit and classes as the file gives them."""
-    name = point.name.replace("_", " ").capitalize()
     return Sensor(
-        point.name, name, point.unit or None, point.device_class, state_class=point.state_class
+        point.name,
+        _named(point.name),
+        point.unit or None,
+        point.device_class,
+        state_class=point.state_class,
     )
 
 
-def _point_numbers(
-    prefix: str,
-    node: str,
-    drive: str,
-    common: dict[str, Any],
-    topics: Topics,
-    profile: DriveProfile,
-) -> list[tuple[str, str]]:
+def _point_numbers(entities: _Entities, profile: DriveProfile) -> list[tuple[str, str]]:
     """A number entity for each writable numeric point, a switch for each writable coil,
     written through `<drive>/set`."""
     messages = []
+    command_topic = entities.topics.set(entities.drive)
     for point in profile.typed_points:
-        if point.writable and point.kind is Kind.BOOL:
-            messages.append(_switch(prefix, node, drive, common, topics, point))
-        if not point.writable or point.kind in (Kind.STRING, Kind.ENUM, Kind.BOOL):
+        if not point.writable or point.kind in (Kind.STRING, Kind.ENUM):
             continue
-        payload = {
-            **common,
-            "name": point.name.replace("_", " ").capitalize(),
-            "unique_id": f"{node}_{drive}_{point.name}_set",
-            "command_topic": topics.set(drive),
+        unique = f"{point.name}_set"
+        if point.kind is Kind.BOOL:
+            switch = {
+                "name": _named(point.name),
+                "command_topic": command_topic,
+                "payload_on": json.dumps({"point": point.name, "value": True}),
+                "payload_off": json.dumps({"point": point.name, "value": False}),
+                "state_topic": entities.state_topic,
+                "value_template": _on_off(point.name),
+                "state_on": "ON",
+                "state_off": "OFF",
+            }
+            messages.append(entities.config("switch", point.name, switch, unique))
+            continue
+        number: dict[str, Any] = {
+            "name": _named(point.name),
+            "command_topic": command_topic,
             "command_template": f'{{"point": "{point.name}", "value": {{{{ value }}}}}}',
-            "state_topic": topics.drive_state(drive),
+            "state_topic": entities.state_topic,
             "value_template": f"{{{{ value_json.{point.name} }}}}",
             "mode": "box",
             "min": -1e9,
@@ -272,27 +293,19 @@ def _point_numbers(
             "step": "any",
         }
         if point.unit:
-            payload["unit_of_measurement"] = point.unit
-        messages.append((f"{prefix}/number/{node}/{drive}_{point.name}/config", _dump(payload)))
+            number["unit_of_measurement"] = point.unit
+        messages.append(entities.config("number", point.name, number, unique))
     return messages
 
 
-def _switch(
-    prefix: str, node: str, drive: str, common: dict[str, Any], topics: Topics, point: TypedPoint
-) -> tuple[str, str]:
-    payload = {
-        **common,
-        "name": point.name.replace("_", " ").capitalize(),
-        "unique_id": f"{node}_{drive}_{point.name}_set",
-        "command_topic": topics.set(drive),
-        "payload_on": json.dumps({"point": point.name, "value": True}),
-        "payload_off": json.dumps({"point": point.name, "value": False}),
-        "state_topic": topics.drive_state(drive),
-        "value_template": f"{{{{ 'ON' if value_json.{point.name} else 'OFF' }}}}",
-        "state_on": "ON",
-        "state_off": "OFF",
-    }
-    return f"{prefix}/switch/{node}/{drive}_{point.name}/config", _dump(payload)
+def _named(key: str) -> str:
+    """A key as Home Assistant shows it: `output_current_a_high_alarm` → `Output current a...`."""
+    return key.replace("_", " ").capitalize()
+
+
+def _on_off(key: str) -> str:
+    """Home Assistant's template for a true/false key of the state: ON or OFF."""
+    return f"{{{{ 'ON' if value_json.{key} else 'OFF' }}}}"
 
 
 def _bridge_device(node: str, gateway_id: str) -> dict[str, Any]:

@@ -39,7 +39,6 @@ from gateway.mqtt.requests import (
     dump,
     parse_object,
     parse_read,
-    parse_set,
     parse_write,
 )
 from gateway.mqtt.stats import BridgeStats
@@ -91,9 +90,7 @@ class DriveCommand:
         await self.context.publisher.publish(client, self.response_topic, dump(response))
 
     async def _set(self, payload: Json) -> Json:
-        write = parse_set(payload, self.drive.profile)
-        await self.context.commands.write(self.drive, write)
-        return write.echo
+        return await self.context.commands.set(self.drive, payload)
 
 
 class DriveRefresh:

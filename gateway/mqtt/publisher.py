@@ -7,7 +7,8 @@ acknowledged it (QoS 1), so an outage or a restart loses none.
 
 A drive's state is published when it has news by its report-by-exception rules
 (`gateway.profile.report_by_exception`; a drive's from `mqtt.report` and its own `report`, by
-default any change but `last_seen`'s; a device file's points by theirs) or every
+default any change but `last_seen`'s; a device's points by their device file's rules over
+`mqtt.report.devices`, its alarm flags on any change) or every
 `publish_interval_s`, retained, so a dashboard that subscribes late still gets it at once; an
 availability is published once per connection and change. What a broken connection kept from
 being published goes back to the outbox, to go out after the next connect.
@@ -45,6 +46,16 @@ EVENT_BATCH = 100
 """Events read from the store at a time; each is still published and acknowledged in turn."""
 
 
+def exception_report(mqtt: MqttSettings, drive: DriveSettings) -> ExceptionReport:
+    """A drive's report by exception: a device file's points by their own rules over
+    `mqtt.report.devices`, a drive's keys by `mqtt.report` and its own `report` (the JSON state's
+    and Sparkplug's DDATA alike)."""
+    if drive.profile.typed_points:
+        return ExceptionReport(drive.profile.typed_points, mqtt.device_reporting)
+    rules = mqtt.reporting.get(drive.name, DriveReporting())
+    return ExceptionReport.of_keys(rules.default, rules.keys)
+
+
 class Publisher:
     def __init__(
         self,
@@ -67,7 +78,7 @@ class Publisher:
         """Drive → the monotonic time its state was last published."""
         self._availability: dict[str, bool] = {}
         """Drive → the availability last published on this connection."""
-        self._reports = {d.name: self._report(d) for d in drives}
+        self._reports = {d.name: exception_report(mqtt, d) for d in drives}
         """Drive or device → what its keys (points) last published said."""
 
     # -- once per connection -------------------------------------------------------------------
@@ -191,12 +202,6 @@ class Publisher:
         payload = ONLINE if online else OFFLINE
         await self.publish(client, self.topics.availability(drive), payload, retain=True)
         self._availability[drive] = online
-
-    def _report(self, drive: DriveSettings) -> ExceptionReport:
-        if drive.profile.typed_points:
-            return ExceptionReport(drive.profile.typed_points)
-        rules = self.mqtt.reporting.get(drive.name, DriveReporting())
-        return ExceptionReport.of_keys(rules.default, rules.keys)
 
     def _info(self) -> str:
         return dump(

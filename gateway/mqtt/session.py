@@ -9,7 +9,11 @@
              once it is subscribed
     lost     any error ends the session; `on_lost`; wait (jittered, capped backoff), connect again
              to the next of `mqtt.servers` (a cluster's nodes, in turn)
-    stop     publish offline, end the loop
+    stop     say goodbye (`Presence.farewell`: the bridge's "offline", the Sparkplug edge
+             node's NDEATH), end the loop
+
+The last will is the `Presence`'s too, made anew for each attempt (Sparkplug's bdSeq counts
+CONNECTs).
 
 The session knows nothing of what is published or received: that is the publisher's and the
 dispatcher's.
@@ -23,6 +27,8 @@ import logging
 import ssl
 import time
 from collections.abc import Awaitable, Callable, Iterable
+from dataclasses import dataclass
+from typing import Protocol
 
 import aiomqtt
 from paho.mqtt.reasoncodes import ReasonCode
@@ -55,6 +61,30 @@ STOP_PUBLISH_TIMEOUT_S = 0.3
 OnConnect = Callable[[aiomqtt.Client], Awaitable[None]]
 
 
+class Presence(Protocol):
+    """How the connection tells the broker it is there, and gone: its last will (made anew for
+    each attempt) and what it publishes itself at a clean stop (which sends no will)."""
+
+    def will(self) -> aiomqtt.Will: ...
+
+    async def farewell(self, client: aiomqtt.Client, timeout_s: float) -> None: ...
+
+
+@dataclass(frozen=True, slots=True)
+class BridgeState:
+    """The JSON bridge's presence: `<base>/bridge/state` "offline", retained."""
+
+    topics: Topics
+
+    def will(self) -> aiomqtt.Will:
+        return aiomqtt.Will(self.topics.bridge_state, OFFLINE, qos=QOS, retain=True)
+
+    async def farewell(self, client: aiomqtt.Client, timeout_s: float) -> None:
+        await client.publish(
+            self.topics.bridge_state, OFFLINE, qos=QOS, retain=True, timeout=timeout_s
+        )
+
+
 class Session:
     def __init__(
         self,
@@ -64,8 +94,10 @@ class Session:
         tasks: ServiceTasks,
         on_connect: OnConnect,
         on_lost: Callable[[], None],
+        presence: Presence | None = None,
     ) -> None:
         self.mqtt = mqtt
+        self.presence: Presence = presence or BridgeState(topics)
         self.topics = topics
         self.stats = stats
         self.tasks = tasks
@@ -111,13 +143,7 @@ class Session:
         client = self._client
         if client is not None:  # connected, maybe still setting up: online may be out
             with contextlib.suppress(aiomqtt.MqttError):
-                await client.publish(
-                    self.topics.bridge_state,
-                    OFFLINE,
-                    qos=QOS,
-                    retain=True,
-                    timeout=STOP_PUBLISH_TIMEOUT_S,
-                )
+                await self.presence.farewell(client, STOP_PUBLISH_TIMEOUT_S)
 
     async def stop(self, budget_s: float) -> None:
         # Cancelling alone is not enough: when the connection breaks as the cancellation arrives,
@@ -160,7 +186,14 @@ class Session:
             try:
                 # Inside the try: whatever building a client raises is one more failed attempt,
                 # never the end of the loop.
-                client = make_client(self.mqtt, self.topics, tls, self.server, self.protocol)
+                client = make_client(
+                    self.mqtt,
+                    self.topics,
+                    tls,
+                    self.server,
+                    self.protocol,
+                    last_will=self.presence.will(),
+                )
                 async with client:
                     self._client = client
                     if failures:

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 
 from gateway.profile import DriveProfile
-from gateway.profile.limit_alarms import LimitAlarms
+from gateway.profile.limit_alarms import LimitAlarms, point_limits
 from gateway.profile.point_types import Limit
 from gateway.profile.telemetry import Telemetry
 
@@ -51,13 +51,11 @@ class DriveState:
         """None until the first poll has answered or failed."""
         self.last_seen: float | None = None
         """Wall-clock time of the last poll the drive answered."""
-        self.alarms = (
-            LimitAlarms(profile.typed_points)
-            if profile.typed_points
-            else LimitAlarms.of_keys(limits or {})
+        self.alarms = LimitAlarms.of_keys(
+            point_limits(profile.typed_points) if limits is None else limits
         )
-        self._alarm_flags = not profile.typed_points and bool(limits)
-        """A drive's state carries its alarms' flags (a device's points are its whole state)."""
+        """A drive's on its telemetry keys (`drives[].alarms`), a device's on its points; the
+        state carries each one's flag (Home Assistant's binary sensor)."""
         self.fault_before_start: int | None = None
         """The fault the last run left open for this drive (from the store): its first poll
         compares with it, so a fault still there after a restart is not raised again, and one
@@ -95,7 +93,7 @@ class DriveState:
 
     def telemetry(self) -> Telemetry:
         telemetry = self.profile.telemetry(self.registers)
-        if self._alarm_flags:
+        if self.alarms.watching:
             telemetry.update(self.alarms.active(telemetry))
         if self.last_seen is not None:
             telemetry["last_seen"] = iso_time(self.last_seen)

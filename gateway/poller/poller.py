@@ -10,9 +10,11 @@ Whether a drive is online is the bus's call, not the poller's: the bus counts ev
 transaction to the drive (SCADA's too) against its `offline_after` and tells its listeners
 (`on_drive_health`); /health reads the same tracker, so MQTT availability and /health always
 agree. A failed poll the bus doesn't count as the drive going offline changes nothing here; an
-answered poll marks the drive online. An offline drive's polls back off, doubling up to
-`OFFLINE_POLL_MAX_S` (they cost no bus time: the bus answers 0x0B at once), and it is polled at
-once when the bus's probe finds it back.
+answered poll marks the drive online. An offline drive's polls back off (`gateway.backoff`, as
+the bus's probes and the MQTT connection do): each group's interval doubled as the drive goes
+offline and again after each poll, up to `OFFLINE_POLL_MAX_S` (such polls cost no bus time, the
+bus answers 0x0B at once, but there is no point asking often). When the bus's probe finds the
+drive back it is polled at once, and at its groups' own intervals from then on.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from collections.abc import Awaitable, Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Final, Protocol
 
+from gateway.backoff import Backoff
 from gateway.errors import BusClosed, DriveOffline, GatewayPathUnavailable, GatewayTargetFailed
 from gateway.modbus.functions import is_exception
 from gateway.poller.drive_state import DriveEvent, DriveState
@@ -56,7 +59,15 @@ class PollListener(Protocol):
 @dataclass(slots=True)
 class _GroupTimer:
     schedule: PollSchedule
+    offline_waits: Backoff
+    """The waits between this group's polls while the drive is offline: twice its interval,
+    doubling, up to `OFFLINE_POLL_MAX_S` (or the interval, when that is longer)."""
     next_at: float = 0.0
+
+
+def _group_timer(schedule: PollSchedule) -> _GroupTimer:
+    cap_s = max(schedule.interval_s, OFFLINE_POLL_MAX_S)
+    return _GroupTimer(schedule, Backoff(min(2 * schedule.interval_s, cap_s), cap_s))
 
 
 @dataclass(slots=True)
@@ -70,10 +81,20 @@ class PolledDrive:
     polls: int = 0
     failed_polls: int = 0
     """In a row, for diagnostics: whether the drive is offline is its bus's call."""
-    offline_backoff: int = 0
     reported_exceptions: set[tuple[int, int]] = field(default_factory=set)
     removed: bool = False
     """A reload removed it: its loop ends."""
+
+    @property
+    def offline_backoff(self) -> int:
+        """How far its polls have backed off while offline: the most doublings of a group."""
+        return max((timer.offline_waits.doublings for timer in self.timers), default=0)
+
+    def back_to_normal(self) -> None:
+        """It answered (or is about to be asked at once): its groups' next waits are their own
+        intervals again."""
+        for timer in self.timers:
+            timer.offline_waits.reset()
 
 
 class Poller:
@@ -100,7 +121,7 @@ class Poller:
         """Asked once at start: each drive's fault the last run left open (the store's)."""
 
     def _polled(self, settings: DriveSettings) -> PolledDrive:
-        timers = [_GroupTimer(s) for s in poll_schedules(settings)]
+        timers = [_group_timer(s) for s in poll_schedules(settings)]
         route = self.router.route_for_drive(settings.name)
         state = DriveState(settings.name, settings.profile, settings.alarms)
         drive = PolledDrive(settings, route, state, timers)
@@ -225,19 +246,15 @@ class Poller:
             drive.wake.clear()
 
     def _next_poll_at(self, drive: PolledDrive, timer: _GroupTimer, now: float) -> float:
-        interval = timer.schedule.interval_s
         if drive.state.online is False:
-            # Costs no bus time (the bus answers 0x0B at once), but no point asking often.
-            interval = min(
-                interval * (1 << drive.offline_backoff), max(interval, OFFLINE_POLL_MAX_S)
-            )
-            return now + interval
+            return now + timer.offline_waits.next_delay()
+        interval = timer.schedule.interval_s
         # Keep the rhythm; when behind it (a busy bus, a poll asked for now), restart from now.
         scheduled = timer.next_at + interval
         return scheduled if scheduled > now else now + interval
 
     def _poll_soon(self, drive: PolledDrive) -> None:
-        drive.offline_backoff = 0
+        drive.back_to_normal()
         for timer in drive.timers:
             timer.next_at = 0.0
         drive.wake.set()
@@ -276,7 +293,7 @@ class Poller:
 
     def _answered(self, drive: PolledDrive, start: int, words: list[int]) -> None:
         drive.failed_polls = 0
-        drive.offline_backoff = 0
+        drive.back_to_normal()
         was_online = drive.state.online
         events = drive.state.record_poll(start, words, time.time())
         if was_online is not True:
@@ -289,9 +306,7 @@ class Poller:
     def _poll_failed(self, drive: PolledDrive, *, offline_on_bus: bool) -> None:
         self.poll_failures += 1
         drive.failed_polls += 1
-        if drive.state.online is False:
-            drive.offline_backoff = min(drive.offline_backoff + 1, 16)
-        elif offline_on_bus:
+        if offline_on_bus and drive.state.online is not False:
             # The bus has isolated it (its listener call usually came first): agree with it.
             # A poll that merely failed is one of the bus's `offline_after`, not a verdict.
             self._set_online(drive, False)

@@ -25,11 +25,12 @@ import yaml
 
 from gateway.profile.addressing import format_register, parse_register
 from gateway.profile.faults import FaultTable
+from gateway.profile.overrides import FaultOverrides
 from gateway.profile.parameter_tables import ParameterTable
 from gateway.profile.parameters import Parameter
 from gateway.profile.point_types import TypedPoint, no_typed_points
 from gateway.profile.points import Point, Profile
-from gateway.profile.protocol import DriveProfile, Identified, PollGroup, Question, RegisterWrite
+from gateway.profile.protocol import Identified, PollGroup, Question, RegisterWrite
 from gateway.profile.registers import to_signed
 from gateway.profile.telemetry import Telemetry
 
@@ -104,8 +105,14 @@ def state(status_word: int, reference_1: int | None) -> str:
 
 
 def show_status_word(raw: int) -> str:
-    """ "0637H (running_forward: ready to switch on, ready to operate, ...)"."""
-    return f"{raw:04X}H ({state(raw, None)}: {', '.join(status_words(raw)) or 'no bit set'})"
+    """ "0237H (running, direction by reference 1: ready to switch on, ...)", "0230H (stopped:
+    ...)": the status word read alone. A running drive's direction is reference 1's sign,
+    which `read` and the traffic monitor don't have here, so they don't guess it (the
+    telemetry, which has both, says running_forward or running_reverse)."""
+    said = state(raw, None)
+    if said.startswith("running_"):
+        said = "running, direction by reference 1"
+    return f"{raw:04X}H ({said}: {', '.join(status_words(raw)) or 'no bit set'})"
 
 
 @dataclass(frozen=True)
@@ -119,7 +126,7 @@ class AbbPoint(Point):
 
 
 @dataclass(frozen=True)
-class AbbProfile:
+class AbbProfile(FaultOverrides):
     key: str
     display_name: str
     aliases: tuple[str, ...] = ()
@@ -147,22 +154,6 @@ class AbbProfile:
     @property
     def parameter_table(self) -> ParameterTable:
         return ParameterTable(self.key, ())
-
-    def with_overrides(
-        self,
-        *,
-        identification: tuple[int, ...] | None = None,
-        faults: Mapping[int, str] | None = None,
-        ready_bit_set_means_ready: bool | None = None,
-    ) -> DriveProfile:
-        if faults:
-            return AbbProfile(
-                self.key,
-                self.display_name,
-                self.aliases,
-                faults=self.faults.with_overrides(faults),
-            )
-        return self
 
     # -- register words ---------------------------------------------------------------------
     def telemetry(self, registers: Mapping[int, int]) -> Telemetry:

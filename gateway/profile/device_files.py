@@ -23,12 +23,13 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from gateway.errors import DeviceFileError
 from gateway.profile.addressing import format_register, parse_register
+from gateway.profile.limit_alarms import alarm_name, limit_sides
 from gateway.profile.point_types import (
     REGISTERS,
     Kind,
     Limit,
     Order,
-    Reporting,
+    ReportRule,
     Table,
     TypedPoint,
 )
@@ -46,39 +47,68 @@ _NAME = r"^[a-z][a-z0-9_]*$"
 
 
 class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # The docstring under each field is its description: the Other Modbus devices page's table
+    # of a device file's keys is generated from it.
+    model_config = ConfigDict(extra="forbid", frozen=True, use_attribute_docstrings=True)
 
 
 class _PointSpec(_Section):
     table: Table = Table.HOLDING
+    """Which table the point is in: `holding` (03H), `input` (04H), `coil` (01H) or
+    `discrete_input` (02H)."""
     address: int | str
     """The address on the wire (from 0): 16, "0x0010" or "0010H"."""
     type: Kind = Kind.U16
+    """How the registers read: `string` needs `registers`, `bit` needs `bit`, `enum` needs
+    `values`; `bool` is for coils and discrete inputs."""
     registers: int | None = Field(None, ge=1, le=MODBUS_MAX_REGISTERS)
     """A string's length in registers (other types know their own)."""
     bit: int | None = None
+    """With `type: bit`: which bit of the register, 0..15."""
     order: Order | None = None
+    """Word and byte order of a multi-register value: ABCD, CDAB (word swap), BADC or DCBA;
+    default the file's `order`."""
     scale: float = 1.0
+    """The value published is `raw * scale + offset`; not 0."""
     offset: float = 0.0
+    """Added after `scale`."""
     values: dict[int, str] | None = None
+    """With `type: enum`: raw value → its name (`{0: "off", 1: local}`)."""
     unit: str = ""
+    """The value's unit, shown by Home Assistant and the console."""
     device_class: str | None = None
+    """Home Assistant's device class (`energy`, `door`, `running`, `problem`...)."""
     state_class: Literal["measurement", "total", "total_increasing"] | None = None
+    """Home Assistant's state class: `measurement`, `total` or `total_increasing`."""
     writable: bool = False
+    """`<base>/<drive>/set` may write it (holding registers: 06H or one 10H; coils: 05H; never a
+    bit of a register); Home Assistant gets a number or a switch."""
     interval_ms: float | None = Field(None, gt=0)
+    """This point's poll interval; default the file's `interval_ms`."""
     decimals: int | None = Field(None, ge=0, le=9)
     """Published rounded to this many decimals (a scaled count: 12.5, not 12.500000001)."""
     description: str = ""
+    """What the point is, in words (shown in the console)."""
     deadband: float | None = Field(None, ge=0)
+    """Report by exception: the value must move by more than this (in its unit) since last
+    published; default the file's."""
     deadband_percent: float | None = Field(None, ge=0)
+    """... and by more than this share of the value last published; default the file's."""
     min_interval_ms: float | None = Field(None, ge=0)
+    """A change is published no sooner than this after the point was last published; default the
+    file's."""
     max_interval_ms: float | None = Field(None, gt=0)
-    """Report by exception (`report_by_exception`); None: the device file's default."""
+    """Published at least this often, changed or not; default the file's (report by exception,
+    `report_by_exception`)."""
     high: float | None = None
+    """Limit alarm: `alarm_raised` when the value stays above this for `alarm_delay_ms`."""
     low: float | None = None
+    """Limit alarm: `alarm_raised` when the value stays below this for `alarm_delay_ms`."""
     hysteresis: float = Field(0.0, ge=0)
+    """How far back inside the limit the value must come for the alarm to clear."""
     alarm_delay_ms: float = Field(0.0, ge=0)
-    """Limit alarms (`limit_alarms`): `alarm_raised` beyond high or low, cleared back inside."""
+    """How long beyond `high` or `low` (or back inside) before the alarm is raised (or cleared):
+    `alarm_raised` and `alarm_cleared` events (`limit_alarms`)."""
 
     @field_validator("address")
     @classmethod
@@ -98,23 +128,41 @@ class _PointSpec(_Section):
 
 class _DeviceSpec(_Section):
     name: str = Field(min_length=1)
+    """The device's name, shown in Home Assistant and the console."""
     manufacturer: str = ""
+    """Who makes it (Home Assistant's manufacturer)."""
     source: str = Field(min_length=1)
     """Where the register map comes from (a manual's page): every device file says."""
     aliases: tuple[str, ...] = ()
+    """Other names `model:` takes for a shipped file."""
     max_registers: int = Field(MODBUS_MAX_REGISTERS, ge=1, le=MODBUS_MAX_REGISTERS)
+    """The most registers one request may ask for."""
     max_bits: int = Field(MODBUS_MAX_BITS, ge=1, le=MODBUS_MAX_BITS)
+    """The most coils or discrete inputs one request may ask for."""
     max_gap: int = Field(0, ge=0, le=MODBUS_MAX_REGISTERS)
+    """Unused registers a request may read across to join two points' reads."""
     interval_ms: float = Field(1000, gt=0)
+    """The poll interval of every point that doesn't set its own."""
     order: Order = Order.ABCD
     """The points' order unless a point says otherwise."""
     unconfirmed: tuple[str, ...] = ()
-    deadband: float = Field(0.0, ge=0)
-    deadband_percent: float = Field(0.0, ge=0)
-    min_interval_ms: float = Field(0.0, ge=0)
+    """What the manual didn't settle, in words, said where the device's facts show."""
+    deadband: float | None = Field(None, ge=0)
+    """Report by exception, every point's unless it sets its own: a number must move by more
+    than this (in its unit); what neither sets, the gateway's `mqtt.report.devices` does."""
+    deadband_percent: float | None = Field(None, ge=0)
+    """... and by more than this share of the value last published."""
+    min_interval_ms: float | None = Field(None, ge=0)
+    """A change is published no sooner than this after the point was last published."""
     max_interval_ms: float | None = Field(None, gt=0)
-    """Report by exception: every point's unless it sets its own."""
+    """Every point is published at least this often, changed or not (default:
+    `mqtt.publish_interval_s`)."""
     points: dict[Annotated[str, Field(pattern=_NAME)], _PointSpec] = Field(min_length=1)
+    """The device's points by name (lower case, digits, `_`): each a key of its MQTT state."""
+
+
+DEVICE_FILE: Final[type[BaseModel]] = _DeviceSpec
+"""The model of a device file, for its reference (`gateway.config.reference`)."""
 
 
 # -- loading ---------------------------------------------------------------------------------------
@@ -155,6 +203,7 @@ def device_profile(key: str, text: str, where: str) -> DeviceProfile:
         raise DeviceFileError(f"{where}: {path}: {first['msg']}{more}") from None
     points = tuple(_typed(name, point, spec, where) for name, point in spec.points.items())
     _check_overlaps(points, where)
+    _check_alarm_flags(points, where)
     limits = Limits(spec.max_registers, spec.max_bits, spec.max_gap, spec.interval_ms / 1000)
     for point in points:
         most = limits.most(point.table)
@@ -224,22 +273,25 @@ def _typed(name: str, spec: _PointSpec, device: _DeviceSpec, where: str) -> Type
         interval_s=None if spec.interval_ms is None else spec.interval_ms / 1000,
         decimals=spec.decimals,
         description=spec.description,
-        reporting=_reporting(spec, device),
+        report=_report(spec, device),
         limit=Limit(spec.high, spec.low, spec.hysteresis, spec.alarm_delay_ms / 1000),
     )
 
 
-def _reporting(spec: _PointSpec, device: _DeviceSpec) -> Reporting:
-    def own_or_device(own: float | None, default: float | None) -> float | None:
-        return default if own is None else own
+def _report(spec: _PointSpec, device: _DeviceSpec) -> ReportRule:
+    """The point's own report-by-exception keys over its file's defaults."""
+    return _rule(spec).over(_rule(device))
 
-    min_ms = own_or_device(spec.min_interval_ms, device.min_interval_ms) or 0.0
-    max_ms = own_or_device(spec.max_interval_ms, device.max_interval_ms)
-    return Reporting(
-        deadband=own_or_device(spec.deadband, device.deadband) or 0.0,
-        deadband_percent=own_or_device(spec.deadband_percent, device.deadband_percent) or 0.0,
-        min_interval_s=min_ms / 1000,
-        max_interval_s=None if max_ms is None else max_ms / 1000,
+
+def _rule(level: _PointSpec | _DeviceSpec) -> ReportRule:
+    def seconds(ms: float | None) -> float | None:
+        return None if ms is None else ms / 1000
+
+    return ReportRule(
+        level.deadband,
+        level.deadband_percent,
+        seconds(level.min_interval_ms),
+        seconds(level.max_interval_ms),
     )
 
 
@@ -274,4 +326,18 @@ def _check_overlaps(points: tuple[TypedPoint, ...], where: str) -> None:
                 raise DeviceFileError(
                     f"{where}: points.{point.name}: overlaps points.{other.name} at "
                     f"{point.table.value} register {format_register(address)}"
+                )
+
+
+def _check_alarm_flags(points: tuple[TypedPoint, ...], where: str) -> None:
+    """A limit alarm's flag is a key of the device's state beside its points (`alarm_name`): a
+    point of that name would be overwritten by it."""
+    names = {point.name for point in points}
+    for point in points:
+        for side, _ in limit_sides(point.limit):
+            flag = alarm_name(point.name, side)
+            if flag in names:
+                raise DeviceFileError(
+                    f"{where}: points.{flag}: is the state's key of points.{point.name}'s "
+                    f"{side} alarm; give the point another name"
                 )

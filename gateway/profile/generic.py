@@ -16,7 +16,7 @@ from gateway.profile.not_a_drive import NotADrive
 from gateway.profile.parameters import Parameter
 from gateway.profile.point_types import TypedPoint, no_typed_points
 from gateway.profile.points import Point
-from gateway.profile.protocol import DriveProfile, PollGroup, RegisterWrite
+from gateway.profile.protocol import PollGroup, RegisterWrite
 from gateway.profile.telemetry import Telemetry
 
 NO_FAULTS: Final = FaultTable("no fault table", {})
@@ -43,15 +43,6 @@ class GenericProfile(NotADrive):
     max_frequency_parameter: Parameter | None = None
     telemetry_keys: frozenset[str] = frozenset()
     typed_points: tuple[TypedPoint, ...] = ()
-
-    def with_overrides(
-        self,
-        *,
-        identification: tuple[int, ...] | None = None,
-        faults: Mapping[int, str] | None = None,
-        ready_bit_set_means_ready: bool | None = None,
-    ) -> DriveProfile:
-        return self  # nothing here is a fact a site could correct
 
     def telemetry(self, registers: Mapping[int, int]) -> Telemetry:
         """Nothing to decode: each word under its address."""

@@ -4,8 +4,8 @@ A point's alarm is raised when its value has stayed beyond the limit (above `hig
 for `delay_s`, and cleared when it has stayed back inside by more than `hysteresis` for as long:
 a value hovering at the limit raises one alarm, not one per poll. Each change comes back as an
 `AlarmChange` for the poller to turn into an `alarm_raised` / `alarm_cleared` event. A drive's
-alarms are on its telemetry keys (`drives[].alarms`); its state carries each one's flag
-(`alarm_name`), for Home Assistant's binary sensor.
+alarms are on its telemetry keys (`drives[].alarms`), a device's on its points (`point_limits`);
+the state of either carries each alarm's flag (`alarm_name`), for Home Assistant's binary sensor.
 """
 
 from __future__ import annotations
@@ -76,8 +76,8 @@ class LimitAlarms:
 
     def __init__(self, points: Iterable[TypedPoint]) -> None:
         self._watches: list[_Watch] = []
-        for point in points:
-            self._watch(point.name, point.limit)
+        for name, limit in point_limits(points).items():
+            self._watch(name, limit)
 
     @classmethod
     def of_keys(cls, limits: Mapping[str, Limit]) -> LimitAlarms:
@@ -101,11 +101,8 @@ class LimitAlarms:
         }
 
     def _watch(self, name: str, limit: Limit) -> None:
-        sides: tuple[tuple[Side, float | None], ...] = (("high", limit.high), ("low", limit.low))
-        for side, threshold in sides:
-            if threshold is not None:
-                watch = _Watch(name, side, threshold, limit.hysteresis, limit.delay_s)
-                self._watches.append(watch)
+        for side, threshold in limit_sides(limit):
+            self._watches.append(_Watch(name, side, threshold, limit.hysteresis, limit.delay_s))
 
     def check(self, reading: Mapping[str, object], now: float) -> list[AlarmChange]:
         """The alarms `reading` (point name → value) raises or clears at monotonic `now`."""
@@ -118,6 +115,18 @@ class LimitAlarms:
             if change is not None:
                 changes.append(change)
         return changes
+
+
+def point_limits(points: Iterable[TypedPoint]) -> dict[str, Limit]:
+    """A device's alarms as a drive's are given: point name → its limits, for the points that
+    have a high or a low limit."""
+    return {p.name: p.limit for p in points if p.limit.high is not None or p.limit.low is not None}
+
+
+def limit_sides(limit: Limit) -> list[tuple[Side, float]]:
+    """The sides of an alarm that have a limit, each with its threshold."""
+    sides: tuple[tuple[Side, float | None], ...] = (("high", limit.high), ("low", limit.low))
+    return [(side, at) for side, at in sides if at is not None]
 
 
 def alarm_name(point: str, side: Side) -> str:

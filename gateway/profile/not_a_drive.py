@@ -7,6 +7,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, ClassVar
 
+from gateway.profile.overrides import FaultOverrides
 from gateway.profile.parameter_tables import ParameterTable
 
 if TYPE_CHECKING:
@@ -14,8 +15,8 @@ if TYPE_CHECKING:
     from gateway.profile.telemetry import Telemetry
 
 
-class NotADrive:
-    """Mixed into a profile dataclass that has a `display_name`."""
+class NotADrive(FaultOverrides):
+    """Mixed into a profile dataclass that has a `display_name` and a (empty) `faults` table."""
 
     key: str
     display_name: str

@@ -36,7 +36,7 @@ from typing import Any, Final
 import yaml
 
 from gateway.errors import TableError
-from gateway.profile.addressing import format_parameter, parse_parameter
+from gateway.profile.addressing import RAM_BIT, format_parameter, parse_parameter, parse_register
 from gateway.profile.parameters import PARAMETERS, Parameter
 
 COLUMNS: Final = (
@@ -47,6 +47,8 @@ CHANGE_MARKS: Final = {"○": "any time", "◎": "stopped only", "●": "read-on
 COMMON: Final = "common"
 """The gateway's earlier table of 27 parameters (`parameters.PARAMETERS`), kept as a layer."""
 _CHOICE: Final = re.compile(r"^(\d+)(?:-(\d+))?: (.+)$")
+_NUMBER: Final = re.compile(r"P\d{1,2}\.\d{1,2}|\d[0-9A-F]{0,3}H|0x[0-9A-F]{1,4}", re.IGNORECASE)
+"""How a parameter's number is written: P00.03 (the manual), 0003H or 0x0003 (the wire)."""
 _MAX_EXPANDED: Final = 32
 """A choice range ("9-11: reserved") is listed value by value up to this many values; a longer
 one ("100-150: braking coefficient") is a span of settings, kept as a hint."""
@@ -76,6 +78,31 @@ class ParameterTable:
             return self.at(parse_parameter(name))
         except ValueError:
             return None
+
+    @property
+    def groups(self) -> tuple[str, ...]:
+        """Every group the table has a row of ("P00", "P01" ... "P24"), in order."""
+        return tuple(dict.fromkeys(row.group for row in self.rows))
+
+    def find(self, text: str) -> tuple[Parameter, ...]:
+        """The rows a person means by `text`: a number as the manual or the wire writes it
+        ("P00.03", "p0.3", "0003H", "0x0003") gives that row; other words give every row whose
+        name holds them all, in any order and letter case ("acc time", "Max. output")."""
+        spelled = text.strip()
+        if not spelled:
+            return ()
+        if _NUMBER.fullmatch(spelled):
+            try:
+                found = self.at(parse_register(spelled) & ~RAM_BIT)
+            except ValueError:
+                return ()
+            return () if found is None else (found,)
+        wanted = spelled.casefold().split()
+        return tuple(
+            row
+            for row in self.rows
+            if all(word in f"{row.name} {row.description}".casefold() for word in wanted)
+        )
 
     @property
     def unconfirmed_groups(self) -> tuple[str, ...]:
@@ -220,6 +247,7 @@ def _table_rows(table: str) -> tuple[Parameter, ...]:
     groups: Mapping[str, str] = described.get("groups", {})
     actions: Mapping[str, str] = described.get("actions", {})
     resets: Mapping[str, list[str]] = described.get("reinitialises", {})
+    factory: Mapping[str, str] = described.get("factory", {})
     document = described["document"]
     result = []
     for row in rows:
@@ -229,13 +257,26 @@ def _table_rows(table: str) -> tuple[Parameter, ...]:
         source = f"{document}, {pages}" if pages else document
         reset = tuple(format_parameter(parse_parameter(name)) for name in resets.get(row.name, ()))
         result.append(
-            replace(row, source=source, action=actions.get(row.name, ""), reinitialises=reset)
+            replace(
+                row,
+                source=source,
+                action=actions.get(row.name, ""),
+                reinitialises=reset,
+                factory=factory.get(row.name, ""),
+            )
         )
     names = {row.name for row in result}
-    unknown = (set(actions) | set(resets) | {n for ns in resets.values() for n in ns}) - names
+    named = set(actions) | set(resets) | set(factory) | {n for ns in resets.values() for n in ns}
+    unknown = named - names
     if unknown:
         raise TableError(f"parameter_sources.yaml: {table}: no such rows: {sorted(unknown)}")
     return tuple(result)
+
+
+def table_rows(table: str) -> tuple[Parameter, ...]:
+    """One table of `parameter_sources.yaml` (`common`, `gd200a`), its rows with their sources,
+    before any series layers it."""
+    return _table_rows(table)
 
 
 def _simulated_default(row: Parameter) -> Parameter:

@@ -4,9 +4,10 @@
 with but the Goodrive200A's, whose manual was read whole (`parameter_tables` loads each series'
 table from `data/`); `read`, `write` and the MQTT bridge scale by it when the series is not
 known. Its ranges and factory defaults follow the Goodrive manuals; "depends on model" defaults
-(P00.11, P00.12, P08.07, P08.08) are given a typical 10.0 s. A range bound may be another
-parameter's value (P00.04, the upper limit, lies within P00.05 ... P00.03): `minimum_from` and
-`maximum_from`.
+(P00.11, P00.12, P08.07, P08.08) are given a typical 10.0 s for a simulated drive to start
+with (`default_known` False: the console doesn't call it the factory's). A range bound may be
+another parameter's value (P00.04, the upper limit, lies within P00.05 ... P00.03):
+`minimum_from` and `maximum_from`.
 
 Marks as in the manual: `read_only` ("●", e.g. the fault history P07.27-P07.32) and
 `locked_while_running` ("◎": writable only when the drive is stopped; exception 08H otherwise).
@@ -59,6 +60,9 @@ class Parameter:
     reinitialises: tuple[str, ...] = ()
     """Parameters the drive sets back to their defaults when this one is written (P02.01, the
     motor's rated power, re-initialises P02.02-P02.10)."""
+    factory: str = ""
+    """What the factory set here, when the manual says it did (the bar codes P07.21-P07.26):
+    one drive's own, never copied to another."""
 
     @property
     def address(self) -> int:
@@ -86,6 +90,29 @@ class Parameter:
         """The manual's words for a value, or None when the manual gives none for it."""
         return next((words for value, words in self.choices if value == raw), None)
 
+    def show_number(self, number: int) -> str:
+        """A number of the range's scale without its unit ("-300.0", "400.00", "0x01FF")."""
+        if self.hexadecimal and not self.decimals:
+            return f"0x{number & 0xFFFF:04X}"
+        return f"{number / 10**self.decimals:.{self.decimals}f}" if self.decimals else str(number)
+
+    def range_text(self) -> str:
+        """The manual's range with its unit, and the parameters that bound it at run time:
+        "0.00 ... 400.00 Hz, within P00.05 ... P00.03"."""
+        text = f"{self.show_number(self.minimum)} ... {self.show_number(self.maximum)}"
+        text = f"{text} {self.unit}".rstrip()
+        low, high = self.minimum_from, self.maximum_from
+        if low and high:
+            return f"{text}, within {low} ... {high}"
+        if low or high:
+            return f"{text}, {'at least' if low else 'at most'} {low or high}"
+        return text
+
+    def shown_default(self) -> str | None:
+        """The factory's value as `show` writes it; None where the manual says it "depends on
+        model" (then whether a value differs from it can't be told)."""
+        return self.show(self.default) if self.default_known else None
+
     def show(self, raw: int) -> str:
         """ "50.00 Hz", "-50.0 %", "0x01FF", "2 (SVPWM (V/F) control)"."""
         if self.hexadecimal and not self.decimals:
@@ -98,6 +125,9 @@ class Parameter:
 
 
 _P = Parameter
+_MAX_HZ: Final = 63000
+"""P00.03's upper end, 630.00 Hz; the frequencies it bounds (P00.04, P00.05, P00.10, P08.06)
+can't go beyond it either, so it is their outer range too."""
 PARAMETERS: Final[tuple[Parameter, ...]] = (
     _P("P00.00", "speed control mode", default=2, maximum=3, locked_while_running=True),
     _P(
@@ -113,7 +143,7 @@ PARAMETERS: Final[tuple[Parameter, ...]] = (
         2,
         "Hz",
         default=5000,
-        maximum=63000,
+        maximum=_MAX_HZ,
         minimum_from="P00.04",
     ),
     _P(
@@ -122,6 +152,7 @@ PARAMETERS: Final[tuple[Parameter, ...]] = (
         2,
         "Hz",
         default=5000,
+        maximum=_MAX_HZ,
         minimum_from="P00.05",
         maximum_from="P00.03",
     ),
@@ -130,13 +161,22 @@ PARAMETERS: Final[tuple[Parameter, ...]] = (
         "lower limit of the running frequency",
         2,
         "Hz",
+        maximum=_MAX_HZ,
         maximum_from="P00.04",
     ),
     _P("P00.06", "frequency command A: 0 keypad, 8 Modbus", maximum=15),
     _P("P00.07", "frequency command B", default=15, maximum=15),
-    _P("P00.10", "keypad set frequency", 2, "Hz", default=5000, maximum_from="P00.03"),
-    _P("P00.11", "acceleration time 1", 1, "s", default=100, maximum=36000),
-    _P("P00.12", "deceleration time 1", 1, "s", default=100, maximum=36000),
+    _P(
+        "P00.10",
+        "keypad set frequency",
+        2,
+        "Hz",
+        default=5000,
+        maximum=_MAX_HZ,
+        maximum_from="P00.03",
+    ),
+    _P("P00.11", "acceleration time 1", 1, "s", default=100, maximum=36000, default_known=False),
+    _P("P00.12", "deceleration time 1", 1, "s", default=100, maximum=36000, default_known=False),
     _P(
         "P00.13",
         "running direction: 0 default, 1 reverse, 2 reverse forbidden",
@@ -150,16 +190,24 @@ PARAMETERS: Final[tuple[Parameter, ...]] = (
     _P("P07.30", "type of last but two fault", read_only=True),
     _P("P07.31", "type of last but three fault", read_only=True),
     _P("P07.32", "type of last but four fault", read_only=True),
-    _P("P08.06", "jog running frequency", 2, "Hz", default=500, maximum_from="P00.03"),
-    _P("P08.07", "jog acceleration time", 1, "s", default=100, maximum=36000),
-    _P("P08.08", "jog deceleration time", 1, "s", default=100, maximum=36000),
+    _P(
+        "P08.06",
+        "jog running frequency",
+        2,
+        "Hz",
+        default=500,
+        maximum=_MAX_HZ,
+        maximum_from="P00.03",
+    ),
+    _P("P08.07", "jog acceleration time", 1, "s", default=100, maximum=36000, default_known=False),
+    _P("P08.08", "jog deceleration time", 1, "s", default=100, maximum=36000, default_known=False),
     _P("P14.00", "local communication address", default=1, minimum=1, maximum=247),
     _P("P14.01", "baud rate: 0-7 = 1200...115200", default=4, maximum=7),
     _P("P14.02", "data format: 0-5 = N81, E81, O81, N82, E82, O82", default=1, maximum=5),
     _P("P14.03", "communication response delay", 0, "ms", default=5, maximum=200),
     _P("P14.04", "communication timeout fault time (0.0 = off)", 1, "s", maximum=600),
 )
-del _P
+del _P, _MAX_HZ
 
 FAULT_HISTORY: Final = ("P07.27", "P07.28", "P07.29", "P07.30", "P07.31", "P07.32")
 """Newest first: the current fault, then the five before it."""

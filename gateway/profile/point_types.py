@@ -19,7 +19,7 @@ import struct
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import Final
+from typing import Final, TypeVar
 
 
 class Table(StrEnum):
@@ -129,6 +129,43 @@ class Reporting:
     `mqtt.publish_interval_s` only)."""
 
 
+_Under = TypeVar("_Under", float, float | None)
+
+
+@dataclass(frozen=True, slots=True)
+class ReportRule:
+    """What one level says of report by exception (a point in its device file, the file's
+    defaults, the gateway's `mqtt.report.devices`): None where it leaves a key to the level
+    under it."""
+
+    deadband: float | None = None
+    deadband_percent: float | None = None
+    min_interval_s: float | None = None
+    max_interval_s: float | None = None
+
+    def over(self, under: ReportRule) -> ReportRule:
+        """This level's keys where it sets them, `under`'s elsewhere."""
+        return ReportRule(
+            _own_or(self.deadband, under.deadband),
+            _own_or(self.deadband_percent, under.deadband_percent),
+            _own_or(self.min_interval_s, under.min_interval_s),
+            _own_or(self.max_interval_s, under.max_interval_s),
+        )
+
+    def resolved(self, under: Reporting) -> Reporting:
+        """The rule a point goes by: this level's keys over `under`'s (the gateway's)."""
+        return Reporting(
+            _own_or(self.deadband, under.deadband),
+            _own_or(self.deadband_percent, under.deadband_percent),
+            _own_or(self.min_interval_s, under.min_interval_s),
+            _own_or(self.max_interval_s, under.max_interval_s),
+        )
+
+
+def _own_or(own: float | None, under: _Under) -> float | _Under:
+    return under if own is None else own
+
+
 @dataclass(frozen=True)
 class TypedPoint:
     """One value of a device: where it is, how it is held, what it means."""
@@ -153,7 +190,9 @@ class TypedPoint:
     """Its own poll interval (None: the device's)."""
     decimals: int | None = None
     """Published rounded to this many decimals (None: as decoded)."""
-    reporting: Reporting = Reporting()
+    report: ReportRule = ReportRule()
+    """Its report by exception as its device file says (its own keys over the file's
+    defaults); the gateway's `mqtt.report.devices` fills what neither sets."""
     limit: Limit = Limit()
     description: str = ""
 

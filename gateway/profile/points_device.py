@@ -19,7 +19,7 @@ from gateway.profile.not_a_drive import NotADrive
 from gateway.profile.parameters import Parameter
 from gateway.profile.point_types import Kind, Table, TypedPoint, Value, table_of, word_key
 from gateway.profile.points import Point
-from gateway.profile.protocol import DriveProfile, PollGroup, RegisterWrite
+from gateway.profile.protocol import PollGroup, RegisterWrite
 from gateway.profile.read_plan import Limits, plan_reads
 from gateway.profile.telemetry import Telemetry
 
@@ -62,15 +62,6 @@ class DeviceProfile(NotADrive):
     @property
     def telemetry_keys(self) -> frozenset[str]:
         return frozenset(self._by_name)
-
-    def with_overrides(
-        self,
-        *,
-        identification: tuple[int, ...] | None = None,
-        faults: Mapping[int, str] | None = None,
-        ready_bit_set_means_ready: bool | None = None,
-    ) -> DriveProfile:
-        return self  # a device file is the site's to change
 
     def telemetry(self, registers: Mapping[int, int]) -> Telemetry:
         """Each point whose registers have all been read, decoded."""

@@ -9,6 +9,10 @@ point has news:
     due        the point's `max_interval_s` has passed since it was last published
     new        the point was never published (or was unread then)
 
+A device's point goes by its device file's rule over the gateway's `mqtt.report.devices`
+(`ReportRule`), a drive's key by `mqtt.report` under its own `report`; a device's alarm flags
+are news at any change.
+
 Each point's reference is what the last publication carried: a slow drift is published once it
 adds up to the deadband, not lost step by step. The gateway's `mqtt.publish_interval_s` still
 republishes the whole state however quiet it is.
@@ -21,6 +25,9 @@ from dataclasses import dataclass
 
 from gateway.profile.point_types import Reporting, TypedPoint, Value
 
+ANY_CHANGE = Reporting()
+"""Every change is news (and `mqtt.publish_interval_s` republishes): no rule set anywhere."""
+
 
 @dataclass(slots=True)
 class _Published:
@@ -31,10 +38,12 @@ class _Published:
 class ExceptionReport:
     """What was last published of one device's points (or one drive's keys), and when."""
 
-    def __init__(self, points: Iterable[TypedPoint]) -> None:
-        self._rules = {point.name: point.reporting for point in points}
-        self._default: Reporting | None = None
-        """The rule of a key `_rules` doesn't name (None: such a key is not watched)."""
+    def __init__(self, points: Iterable[TypedPoint], under: Reporting = ANY_CHANGE) -> None:
+        """A device's: each point by its device file's rule over `under` (the gateway's
+        `mqtt.report.devices`); any other key of its state (an alarm's flag) on any change."""
+        self._rules = {point.name: point.report.resolved(under) for point in points}
+        self._default = ANY_CHANGE
+        """The rule of a key `_rules` doesn't name."""
         self._published: dict[str, _Published] = {}
 
     @classmethod
@@ -52,6 +61,20 @@ class ExceptionReport:
             self._news(name, rule, reading.get(name), now) for name, rule in self._watched(reading)
         )
 
+    def watches(self, name: str) -> bool:
+        """Whether `name` has a rule here (a device file's keys beside its points, such as a
+        limit alarm's flag, have none)."""
+        return name in self._rules or self._default is not None
+
+    def changed(self, reading: Mapping[str, object], now: float) -> list[str]:
+        """The points of `reading` with news at `now`: what a message of changes alone carries
+        (Sparkplug's DDATA), by the same rules as `news`."""
+        return [
+            name
+            for name, rule in self._watched(reading)
+            if self._news(name, rule, reading.get(name), now)
+        ]
+
     def published(self, reading: Mapping[str, object], now: float) -> None:
         """`reading` went out at `now`: each point's new reference."""
         for name, _ in self._watched(reading):
@@ -61,8 +84,7 @@ class ExceptionReport:
 
     def _watched(self, reading: Mapping[str, object]) -> list[tuple[str, Reporting]]:
         watched = list(self._rules.items())
-        if self._default is not None:
-            watched += [(name, self._default) for name in reading if name not in self._rules]
+        watched += [(name, self._default) for name in reading if name not in self._rules]
         return watched
 
     def _news(self, name: str, rule: Reporting, value: object, now: float) -> bool:

@@ -13,6 +13,7 @@ from gateway.bus.line_share import LineShares
 from gateway.config import BusConfig, DriveConfig, Rs485Config
 from gateway.modbus.timing import CharacterFormat
 from gateway.profile import DriveProfile, PollGroup
+from gateway.profile.limit_alarms import point_limits
 from gateway.profile.point_types import Limit
 from gateway.profile.ram_writes import ram_write_address
 from gateway.routing import Route
@@ -78,7 +79,8 @@ class DriveSettings:
     asks_for_polls: bool
     """Configured poll groups or a cache age: polled even without MQTT or the console."""
     alarms: Mapping[str, Limit] = field(default_factory=dict)
-    """Limit alarms on its telemetry keys (a device's points carry theirs)."""
+    """Limit alarms: a drive's on its telemetry keys (`drives[].alarms`), a device's on its
+    points (its device file's `high`/`low`)."""
 
 
 def drive_settings(config: DriveConfig) -> DriveSettings:
@@ -104,7 +106,9 @@ def drive_settings(config: DriveConfig) -> DriveSettings:
         cache_max_age_s=None if config.cache_max_age_ms is None else config.cache_max_age_ms / 1000,
         poll_groups=groups,
         asks_for_polls=config.poll is not None or config.cache_max_age_ms is not None,
-        alarms={
+        alarms=point_limits(profile.typed_points)
+        if profile.typed_points
+        else {
             key: Limit(a.high, a.low, a.hysteresis, a.delay_ms / 1000)
             for key, a in config.alarms.items()
         },

@@ -20,6 +20,10 @@ class StoreSettings:
     """Events wait for the broker too (MQTT enabled)."""
     max_waiting: int
     """Events waiting in memory for the disk."""
+    history_days: float = 7.0
+    """How long the history of polled values is kept; 0: none."""
+    history_step_s: float = 60.0
+    """One history point per drive this often."""
 
 
 def store_settings(config: GatewayConfig) -> StoreSettings:
@@ -31,6 +35,8 @@ def store_settings(config: GatewayConfig) -> StoreSettings:
         max_age_days=storage.max_age_days,
         forwarding=mqtt is not None and mqtt.enabled,
         max_waiting=mqtt.queue_size if mqtt is not None else EVENTS_WAITING,
+        history_days=storage.history_days,
+        history_step_s=storage.history_step_s,
     )
 
 
@@ -50,7 +56,7 @@ class ConsoleUser:
     name: str
     password_hash: str
     role: str
-    """"viewer" or "operator"."""
+    """"viewer", "operator" or "admin"."""
     token_hash: str | None
 
 

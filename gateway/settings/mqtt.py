@@ -5,7 +5,13 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-from gateway.config import DriveReportConfig, GatewayConfig, MqttConfig, ReportConfig
+from gateway.config import (
+    DriveReportConfig,
+    GatewayConfig,
+    MqttConfig,
+    ReportConfig,
+    SparkplugConfig,
+)
 from gateway.profile.point_types import Reporting
 
 
@@ -15,6 +21,15 @@ class DriveReporting:
 
     default: Reporting = field(default_factory=Reporting)
     keys: Mapping[str, Reporting] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, slots=True)
+class SparkplugSettings:
+    """The edge node's names in the `spBv1.0` namespace (`mqtt.sparkplug`)."""
+
+    group_id: str
+    edge_node_id: str
+    primary_host_id: str | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -41,6 +56,11 @@ class MqttSettings:
     reporting: Mapping[str, DriveReporting] = field(default_factory=dict)
     """Drive → its report by exception (`mqtt.report` under its own `report`); a device file's
     points carry theirs."""
+    device_reporting: Reporting = field(default_factory=Reporting)
+    """Every device's report by exception (`mqtt.report.devices`), under what its device file
+    and its points say."""
+    sparkplug: SparkplugSettings | None = None
+    """The Sparkplug B edge node beside the JSON topics; None: not enabled."""
 
 
 def mqtt_settings(config: GatewayConfig) -> MqttSettings | None:
@@ -67,6 +87,18 @@ def mqtt_settings(config: GatewayConfig) -> MqttSettings | None:
         command_max_age_s=mqtt.command_max_age_s,
         commands_enabled=mqtt.commands_enabled,
         reporting={d.name: _drive_reporting(mqtt.report, d.report) for d in config.drives},
+        device_reporting=_rule(mqtt.report.devices),
+        sparkplug=_sparkplug(mqtt.sparkplug, config.gateway_id),
+    )
+
+
+def _sparkplug(config: SparkplugConfig | None, gateway_id: str) -> SparkplugSettings | None:
+    if config is None or not config.enabled:
+        return None
+    return SparkplugSettings(
+        group_id=config.group_id,
+        edge_node_id=config.edge_node_id or gateway_id,
+        primary_host_id=config.primary_host_id,
     )
 
 

@@ -19,7 +19,8 @@ What keeps its running value until a restart, named in the log and the `config_r
 ("restart needed for: ..."): the listeners (`modbus_tcp.host`, `port`, `plain`, `tls`),
 `gateway_id`, `storage.path`, the console (its listener and, in this version, its other keys),
 and in this version buses added or removed (with the drives that would move onto or off them),
-`metrics.enabled` and `mqtt.enabled`.
+`metrics.enabled` and `mqtt.enabled`. A site's device file (`model: file:PATH`) is read again:
+edited, its drive is changed as if its keys had been (its points polled and published anew).
 
     mqtt          any other key of the section, or drives added or removed: the bridge is
                   started again with the new settings (it says offline and online again; a
@@ -33,9 +34,12 @@ the application (`Application.reload`) carries it out.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
 from gateway.config import BusConfig, DriveConfig, GatewayConfig, MetricsConfig, ModbusTcpConfig
+from gateway.profile import DriveProfile
+from gateway.profile.device_files import FILE_PREFIX
 from gateway.settings import DriveSettings, GatewaySettings, runtime_settings
 from gateway.settings.local import metrics_settings
 
@@ -78,7 +82,15 @@ class ReloadPlan:
         return applied
 
 
-def plan(old: GatewayConfig, new: GatewayConfig, mqtt_running: bool) -> ReloadPlan:
+def plan(
+    old: GatewayConfig,
+    new: GatewayConfig,
+    mqtt_running: bool,
+    profiles: Mapping[str, DriveProfile] | None = None,
+) -> ReloadPlan:
+    """What to do to go from `old` to `new`. `profiles`: each running drive's profile, as its
+    device file (`model: file:PATH`) was read at the last start or reload; a file edited since
+    is a drive changed, though its key in the configuration is the same."""
     restart: list[str] = []
     changed: list[str] = []
     for key in ("gateway_id",):
@@ -111,7 +123,7 @@ def plan(old: GatewayConfig, new: GatewayConfig, mqtt_running: bool) -> ReloadPl
     # Buses added or removed wait for a restart, and so do the drives that would move onto or
     # off them; on every other bus (reopened or not) drives change now.
     steady = {b.name for b in old.buses} & {b.name for b in new.buses}
-    drives, added, removed = _drives(old, new, steady, changed, restart)
+    drives, added, removed = _drives(old, new, steady, changed, restart, profiles or {})
     restart_bridge = mqtt_running and ("mqtt" in changed or bool(added or removed))
     if (added or removed) and mqtt_running:
         changed.append("MQTT topics of drives added or removed")
@@ -196,6 +208,7 @@ def _drives(
     steady: set[str],
     changed: list[str],
     restart: list[str],
+    profiles: Mapping[str, DriveProfile],
 ) -> tuple[tuple[DriveConfig, ...], list[DriveConfig], list[str]]:
     """The drives to run with: new ones on steady buses (there before and after, reopened or
     not), the old ones elsewhere."""
@@ -215,7 +228,7 @@ def _drives(
         running[name] = drive
         if was is None:
             added.append(drive)
-        elif was != drive:
+        elif was != drive or _device_file_changed(drive, profiles.get(name)):
             removed.append(name)  # replaced: out with the old, in with the new
             added.append(drive)
     for name, was in before.items():
@@ -237,3 +250,11 @@ def _drives(
     order = [d.name for d in new.drives] + [n for n in before if n not in after]
     drives = tuple(running[name] for name in order if name in running)
     return drives, added, removed
+
+
+def _device_file_changed(drive: DriveConfig, running: DriveProfile | None) -> bool:
+    """A site's device file edited since the running profile was read from it: the same
+    `model: file:PATH`, other points (read again now; the configuration's check read it too)."""
+    if running is None or not drive.model.strip().startswith(FILE_PREFIX):
+        return False
+    return drive.profile() != running

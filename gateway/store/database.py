@@ -11,10 +11,15 @@ disk. Tables (their migrations in `gateway.store.schema`):
     tallies  counts still growing (a minute's SCADA writes), one row each, rewritten as they
              grow; each becomes an event once complete, in the same transaction (or at the next
              start, after a kill)
+    history  polled values, one row per drive and history step (data: JSON of the values);
+             rows older than `history_max_age_s` go at the hourly expiry
+    config_versions  each configuration applied from the console: its text, who, when; the
+             newest `MAX_CONFIG_VERSIONS` kept
 
 Bounds, checked after every write: the store's files (with the write-ahead log) stay within
 `max_bytes` and within what the disk has, leaving a reserve free (`gateway.store.space`). Past
-the bound the oldest events go first (then, with no event left, the oldest faults); rows older
+the bound the oldest history goes first (a chart's past is worth less than the plant's record),
+then the oldest events (then, with no event left, the oldest faults); rows older
 than `max_age_s` go at the hourly expiry. Events that go before the broker had them are counted
 as dropped; the caller logs them. Freed pages are given back to the file system (incremental
 vacuum), and the write-ahead log is checkpointed within an eighth of the bound (truncated after
@@ -37,7 +42,14 @@ from typing import Any, Final
 
 from gateway.errors import DiskFull, StoreError
 from gateway.store import schema
-from gateway.store.records import EventType, FaultRecord, NewEvent, StoredEvent
+from gateway.store.records import (
+    ConfigVersion,
+    EventType,
+    FaultRecord,
+    HistoryPoint,
+    NewEvent,
+    StoredEvent,
+)
 from gateway.store.space import Room, room
 
 MEMORY: Final = ":memory:"
@@ -47,6 +59,8 @@ MIN_WAL_PAGES: Final = 4
 MAX_WAL_PAGES: Final = 1000
 WAL_FRACTION: Final = 8
 """Between two writes, SQLite checkpoints the write-ahead log past this fraction of the budget."""
+MAX_CONFIG_VERSIONS: Final = 200
+"""Configuration versions kept (a few kB each): years of commissioning."""
 HEADROOM_FRACTION: Final = 4
 """The database keeps this fraction of the budget free for a write's log: the new events, the
 trim and the vacuum that follow them, before the checkpoint gives it back."""
@@ -61,6 +75,8 @@ class Batch:
     """Ids of `events` the broker has already (published from memory): stored as delivered."""
     tallies: Mapping[str, NewEvent] = field(default_factory=dict)
     """Tallies to keep as they are now, by key."""
+    history: Sequence[HistoryPoint] = ()
+    """History points (a point of a drive and step written again replaces the first)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -72,10 +88,18 @@ class Appended:
 
 
 class EventDatabase:
-    def __init__(self, path: str, max_bytes: int, max_age_s: float, forwarding: bool) -> None:
+    def __init__(
+        self,
+        path: str,
+        max_bytes: int,
+        max_age_s: float,
+        forwarding: bool,
+        history_max_age_s: float = 7 * 86400.0,
+    ) -> None:
         self.path = path
         self.max_bytes = max_bytes
         self.max_age_s = max_age_s
+        self.history_max_age_s = history_max_age_s
         self.forwarding = forwarding
         """False without MQTT: events are kept for their history, nobody waits for them."""
         self._db: sqlite3.Connection | None = None
@@ -181,6 +205,10 @@ class EventDatabase:
                 if event.settles is not None:
                     db.execute("DELETE FROM tallies WHERE key = ?", (event.settles,))
                 self._fault_history(event)
+            db.executemany(
+                "INSERT OR REPLACE INTO history (drive, time, data) VALUES (?, ?, ?)",
+                ((p.drive, p.time, _dump(p.values)) for p in batch.history),
+            )
         bound = space.budget - space.budget // HEADROOM_FRACTION
         dropped = self._hold_size(bound)
         self._checkpoint(space)
@@ -218,6 +246,7 @@ class EventDatabase:
             dropped = _count(db, undelivered, cutoff)
             db.execute("DELETE FROM events WHERE time < ?", (cutoff,))
             db.execute("DELETE FROM faults WHERE raised < ? AND cleared IS NOT NULL", (cutoff,))
+            db.execute("DELETE FROM history WHERE time < ?", (now - self.history_max_age_s,))
         db.execute("PRAGMA incremental_vacuum").fetchall()  # one page per step
         return dropped
 
@@ -284,9 +313,13 @@ class EventDatabase:
                 db.execute("PRAGMA incremental_vacuum").fetchall()  # one page per step
                 if _count(db, "PRAGMA freelist_count") < free:
                     continue
+            first, last = db.execute("SELECT min(id), max(id) FROM history").fetchone()
             oldest, newest = db.execute("SELECT min(id), max(id) FROM events").fetchone()
             with _transaction(db):
-                if oldest is not None:
+                if first is not None:
+                    below = first + max(1, (last - first + 1) // TRIM_FRACTION)
+                    db.execute("DELETE FROM history WHERE id < ?", (below,))
+                elif oldest is not None:
                     below = oldest + max(1, (newest - oldest + 1) // TRIM_FRACTION)
                     dropped += _count(
                         db, "SELECT count(*) FROM events WHERE delivered = 0 AND id < ?", below
@@ -357,6 +390,45 @@ class EventDatabase:
             "SELECT drive, code FROM faults WHERE cleared IS NULL ORDER BY id"
         ).fetchall()
         return {drive: code for drive, code in rows}  # the newest per drive wins
+
+    def history(
+        self, drive: str, since: float, until: float
+    ) -> list[tuple[float, dict[str, float | str]]]:
+        """`drive`'s history points from `since` to before `until`, oldest first."""
+        rows = self.db.execute(
+            "SELECT time, data FROM history WHERE drive = ? AND time >= ? AND time < ? "
+            "ORDER BY time",
+            (drive, since, until),
+        ).fetchall()
+        return [(row[0], json.loads(row[1])) for row in rows]
+
+    def history_rows(self) -> int:
+        return _count(self.db, "SELECT count(*) FROM history")
+
+    def add_config_version(self, at: float, user: str, text: str, note: str) -> int:
+        """Keep a configuration's text; its version number. The oldest past
+        `MAX_CONFIG_VERSIONS` go."""
+        db = self.db
+        with _transaction(db):
+            cursor = db.execute(
+                "INSERT INTO config_versions (time, user, text, note) VALUES (?, ?, ?, ?)",
+                (at, user, text, note),
+            )
+            number = int(cursor.lastrowid or 0)
+            db.execute("DELETE FROM config_versions WHERE id <= ?", (number - MAX_CONFIG_VERSIONS,))
+        return number
+
+    def remove_config_version(self, number: int) -> None:
+        """A version kept for an apply that did not happen (the reload refused it)."""
+        with _transaction(self.db):
+            self.db.execute("DELETE FROM config_versions WHERE id = ?", (number,))
+
+    def config_versions(self) -> list[ConfigVersion]:
+        """Every version kept, newest first."""
+        rows = self.db.execute(
+            "SELECT id, time, user, text, note FROM config_versions ORDER BY id DESC"
+        ).fetchall()
+        return [ConfigVersion(*row) for row in rows]
 
     def file_bytes(self) -> int:
         """The database's size (what the file holds once the WAL is checkpointed)."""

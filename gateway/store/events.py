@@ -11,6 +11,11 @@
     tallies    `keep_tally`: a count still growing, written as it grows; the event that
                completes it (`record(..., settles=key)`) replaces it in the same transaction
     reading    `recent_events` and `fault_history`, for MQTT requests and the console
+    history    `history`: a poll listener averaging each drive's values over a step; each
+               finished step's point is written with the next write (`gateway.store.history`);
+               `history_points` reads them back for the console's charts
+    versions   `add_config_version`, `config_versions`: the configurations applied from the
+               console, kept for their diff and a rollback
 
 A disk that is full or failing must not cost the plant its events: what can't be written waits
 in memory (at most `max_waiting`, the oldest dropped and counted past it) and goes to the broker
@@ -39,7 +44,16 @@ from gateway.poller.drive_state import DriveEvent, EventKind, iso_time
 from gateway.profile.telemetry import Telemetry
 from gateway.settings import StoreSettings
 from gateway.store.database import MEMORY, Batch, EventDatabase
-from gateway.store.records import EventType, FaultRecord, Json, NewEvent, StoredEvent
+from gateway.store.history import MAX_WAITING_POINTS, HistoryRecorder
+from gateway.store.records import (
+    ConfigVersion,
+    EventType,
+    FaultRecord,
+    HistoryPoint,
+    Json,
+    NewEvent,
+    StoredEvent,
+)
 from gateway.store.status import StoreState, StoreStatus
 from gateway.tasks import ServiceTasks, cancel_and_wait
 
@@ -90,7 +104,13 @@ class EventStore:
             int(settings.max_mb * 1024 * 1024),
             settings.max_age_days * 86400,
             settings.forwarding,
+            settings.history_days * 86400,
         )
+        self.history = HistoryRecorder(self._keep_history, settings.history_step_s)
+        """The poller's listener for the history of polled values (the application adds it)."""
+        self.history.enabled = settings.history_days > 0
+        self._history: deque[HistoryPoint] = deque(maxlen=MAX_WAITING_POINTS)
+        """History points not in the file yet, oldest first."""
         self._waiting: deque[NewEvent] = deque()
         """Recorded, not in the file yet: oldest first, ids increasing."""
         self._sent_from_memory: set[int] = set()
@@ -119,17 +139,32 @@ class EventStore:
         self._drops_unlogged = 0
 
     def update_bounds(self, settings: StoreSettings) -> None:
-        """A reload: max_mb and max_age_days from now on (the path, forwarding and the memory
-        queue stay until a restart)."""
+        """A reload: max_mb, max_age_days and the history's from now on (the path, forwarding
+        and the memory queue stay until a restart)."""
         self.settings = replace(
-            self.settings, max_mb=settings.max_mb, max_age_days=settings.max_age_days
+            self.settings,
+            max_mb=settings.max_mb,
+            max_age_days=settings.max_age_days,
+            history_days=settings.history_days,
+            history_step_s=settings.history_step_s,
         )
         self._db.max_bytes = int(settings.max_mb * 1024 * 1024)
         self._db.max_age_s = settings.max_age_days * 86400
+        self._db.history_max_age_s = settings.history_days * 86400
+        self.history.enabled = settings.history_days > 0
+        self.history.step_s = settings.history_step_s
 
     @property
     def persistent(self) -> bool:
         return self._db.persistent
+
+    @property
+    def history_step_s(self) -> float:
+        return self.history.step_s
+
+    @property
+    def history_days(self) -> float:
+        return self.settings.history_days
 
     def status(self) -> StoreStatus:
         if self._memory_only is not None:
@@ -178,6 +213,12 @@ class EventStore:
             self._tallies_since = time.monotonic()
             self._queued.set()  # the writer wakes when it is due
         self._tallies[key] = NewEvent(str(type), at, data, drive)
+
+    def _keep_history(self, point: HistoryPoint) -> None:
+        """A finished history step: written with the next write (the oldest dropped past
+        `MAX_WAITING_POINTS` while the disk can't take them)."""
+        self._history.append(point)
+        self._queued.set()
 
     def record_drive_event(self, event: DriveEvent, snapshot: Telemetry | None = None) -> None:
         data: Json = {"drive": event.drive, **event.data, "time": iso_time(event.at)}
@@ -248,6 +289,7 @@ class EventStore:
 
     async def stop(self) -> None:
         """Write what waits, then close the database (a clean close checkpoints the WAL)."""
+        self.history.finish()
         self._closing = True
         self._queued.set()
         if self._writer is not None:
@@ -269,7 +311,10 @@ class EventStore:
             self._queued.set()
         async with self._written:
             await self._written.wait_for(
-                lambda: not (self._waiting or self._tallies) or self._cannot_write is not None
+                lambda: (
+                    not (self._waiting or self._tallies or self._history)
+                    or self._cannot_write is not None
+                )
             )
 
     # -- forwarding: the MQTT bridge's side ----------------------------------------------------
@@ -343,6 +388,39 @@ class EventStore:
         except StoreError:
             return {}
 
+    async def history_points(
+        self, drive: str, since: float, until: float
+    ) -> list[tuple[float, dict[str, float | str]]]:
+        """`drive`'s history points from `since` to before `until` (epoch s), oldest first;
+        those still waiting for the disk included."""
+        stored = await self._call(self._db.history, drive, since, until)
+        kept = {at for at, _ in stored}
+        waiting = [
+            (p.time, p.values)
+            for p in list(self._history)
+            if p.drive == drive and since <= p.time < until and p.time not in kept
+        ]
+        return sorted(stored + waiting, key=lambda point: point[0])
+
+    async def history_rows(self) -> int:
+        return await self._call(self._db.history_rows)
+
+    async def add_config_version(self, user: str, text: str, note: str) -> int:
+        """Keep a configuration's text at once (not through the writer: the caller must know it
+        is kept before applying it); its version number. `StoreError` if it can't be."""
+        try:
+            return await self._call(self._db.add_config_version, time.time(), user, text, note)
+        except StoreError:
+            raise
+        except Exception as exc:  # sqlite3.Error, OSError: a full or failing disk
+            raise StoreError(f"storage.path {self.path}: {exc}") from exc
+
+    async def remove_config_version(self, number: int) -> None:
+        await self._call(self._db.remove_config_version, number)
+
+    async def config_versions(self) -> list[ConfigVersion]:
+        return await self._call(self._db.config_versions)
+
     async def size_bytes(self) -> int:
         return await self._call(self._db.file_bytes)
 
@@ -383,7 +461,8 @@ class EventStore:
     async def _write(self) -> bool:
         """Write what waits in one transaction; False if the disk didn't take it."""
         events = tuple(itertools.islice(self._waiting, WRITE_BATCH))
-        batch = Batch(events, frozenset(self._sent_from_memory), dict(self._tallies))
+        history = tuple(self._history)
+        batch = Batch(events, frozenset(self._sent_from_memory), dict(self._tallies), history)
         try:
             appended = await self._call(self._db.append, batch)
         except Exception as exc:  # DiskFull, sqlite3.Error, OSError: a full or failing disk
@@ -391,6 +470,9 @@ class EventStore:
             async with self._written:
                 self._written.notify_all()  # a flush waits no longer
             return False
+        written = {id(point) for point in history}
+        while self._history and id(self._history[0]) in written:
+            self._history.popleft()
         last = batch.events[-1].id if batch.events else 0
         while self._waiting and self._waiting[0].id <= last:
             self._sent_from_memory.discard(self._waiting.popleft().id)
@@ -435,7 +517,7 @@ class EventStore:
 
     def _due_in(self) -> float | None:
         """Seconds until something is to be written (0.0: now), None with nothing to write."""
-        if self._waiting or (self._tallies and self._closing):
+        if self._waiting or self._history or (self._tallies and self._closing):
             return 0.0
         if self._tallies_since is None or not self._tallies:
             return None

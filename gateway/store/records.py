@@ -32,6 +32,8 @@ class EventType(StrEnum):
     LOGIN_FAILED = "login_failed"
     """A wrong name or password, or an attempt refused while its name and address wait."""
     LOGOUT = "logout"
+    CONFIG_CHANGED = "config_changed"
+    """The configuration edited from the console: applied, rolled back, or refused (the audit)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,6 +55,30 @@ class NewEvent:
     def stored(self) -> StoredEvent:
         """As the broker gets it (from memory, before the file has it)."""
         return StoredEvent(self.id, self.type, self.time, self.data)
+
+
+@dataclass(frozen=True, slots=True)
+class HistoryPoint:
+    """One drive's polled values over one history step (`gateway.store.history`)."""
+
+    drive: str
+    time: float
+    """The step's start (epoch seconds)."""
+    values: dict[str, float | str]
+
+
+@dataclass(frozen=True, slots=True)
+class ConfigVersion:
+    """A configuration as it was applied from the console (or found before the first edit)."""
+
+    id: int
+    time: float
+    user: str
+    text: str
+    note: str
+
+    def summary(self) -> Json:
+        return {"id": self.id, "time": iso_time(self.time), "user": self.user, "note": self.note}
 
 
 @dataclass(frozen=True, slots=True)

@@ -10,6 +10,8 @@ the file with an older version would have the newer release skip its own migrati
     1  events and faults, with their indexes (the first store)
     2  tallies: counts still growing (a minute's SCADA writes), kept as they grow so that a
        killed gateway loses none; each becomes an event once complete
+    3  history: polled values, one row per drive and step (`gateway.store.history`);
+       config_versions: each configuration applied from the console, with who and when
 """
 
 from __future__ import annotations
@@ -55,6 +57,23 @@ MIGRATIONS: Final[tuple[str, ...]] = (
         data TEXT NOT NULL
     );
     """,
+    # 3: the history of polled values, and the configuration's versions.
+    """
+    CREATE TABLE IF NOT EXISTS history (
+        id INTEGER PRIMARY KEY,
+        drive TEXT NOT NULL,
+        time REAL NOT NULL,
+        data TEXT NOT NULL
+    );
+    CREATE UNIQUE INDEX IF NOT EXISTS history_by_drive ON history (drive, time);
+    CREATE TABLE IF NOT EXISTS config_versions (
+        id INTEGER PRIMARY KEY AUTOINCREMENT,
+        time REAL NOT NULL,
+        user TEXT NOT NULL,
+        text TEXT NOT NULL,
+        note TEXT NOT NULL
+    );
+    """,
 )
 LATEST: Final = len(MIGRATIONS)
 
@@ -64,6 +83,8 @@ COLUMNS: Final[dict[str, frozenset[str]]] = {
         {"id", "drive", "code", "name", "description", "raised", "cleared", "snapshot"}
     ),
     "tallies": frozenset({"key", "type", "time", "drive", "data"}),
+    "history": frozenset({"id", "drive", "time", "data"}),
+    "config_versions": frozenset({"id", "time", "user", "text", "note"}),
 }
 """What the code reads and writes, after the last migration: checked at every open."""
 

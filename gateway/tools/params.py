@@ -23,11 +23,16 @@ a code the drive answers with exception 02H is passed over and listed under `abs
 file lists the `unconfirmed` groups; their values are kept exactly but their ranges are not
 held against the file.
 
-A restore skips, with the reason, a read-only parameter and one that can't change while the
-drive runs (when it runs); it stops at the first exception the drive answers, naming the
-parameter. Writes are ordered: the motor's type and rated power first (writing P02.01
-re-initialises the motor's other rated and model data), then each bound (P00.03, max.
-frequency) before the parameters it bounds need it. Each write is checked by reading it back.
+A restore refuses while the drive runs (state word 1 says running or pre-exciting): the
+manual's "◎" codes can't change then (exception 08H), and a drive that runs on half its new
+settings is not what a technician restoring a backup wants. It skips, with the reason, a
+read-only parameter and one the manual says is set at the factory (the bar codes P07.21-P07.26:
+`Parameter.factory`); it stops at the first exception the drive answers, naming the parameter.
+Writes are ordered: the motor's type and rated power first (the Goodrive200A manual, page 46:
+"Resetting the rated motor power (P02.01) will initialize P02.02-P02.10", which are written
+again after it), then each bound (P00.03, max. frequency) before the parameters it bounds need
+it, the communication group last. Each write is read back at once (`check_written`), and the
+whole file once more at the end, where what a later write re-initialised would show.
 """
 
 from __future__ import annotations
@@ -48,6 +53,7 @@ from gateway.profile.exception_codes import ILLEGAL_DATA_ADDRESS
 from gateway.profile.invt import IDENTIFICATION, STATE_WORD_1, describe_identification
 from gateway.profile.parameter_tables import ParameterTable
 from gateway.profile.states import RunState
+from gateway.profile.words import show_state_word_1
 from gateway.tools.access import ask
 from gateway.tools.advice import GARBLED
 from gateway.tools.masters import Master
@@ -73,13 +79,9 @@ def _nothing(name: str) -> None:
 
 
 def saved_parameters(profile: DriveProfile) -> list[Parameter]:
-    """What a backup holds: every writable parameter the profile knows but the line settings and
-    the codes that set something off (P00.18, restore the defaults)."""
-    return [
-        p
-        for p in profile.parameters
-        if not p.read_only and not p.action and p.name not in LINE_SETTINGS
-    ]
+    """What a backup holds: every writable parameter the profile knows but the line settings,
+    the factory's and the codes that set something off (P00.18, restore the defaults)."""
+    return [p for p in profile.parameters if not skip_reason(p)]
 
 
 # ------------------------------------------------------------------------------ the drive
@@ -179,8 +181,25 @@ def _runs(specs: list[Parameter], max_words: int = 16) -> list[list[Parameter]]:
 
 
 def is_running(master: Master, address: int) -> bool:
+    return running_state(master, address) is not None
+
+
+def running_state(master: Master, address: int) -> str | None:
+    """ "1 (running_forward)" when the drive runs or pre-excites (state word 1, decoded as
+    every surface decodes it), None when it does not."""
     state = read_word(master, address, STATE_WORD_1, f"reading 2100H at address {address}")
-    return state in RUNNING_STATES
+    return show_state_word_1(state) if state in RUNNING_STATES else None
+
+
+def refuse_if_running(master: Master, address: int) -> None:
+    """A restore's first check: a running drive is stopped by its operator, not by us."""
+    state = running_state(master, address)
+    if state is not None:
+        raise FieldError(
+            f"the drive at address {address} runs (2100H = {state}): stop it before a "
+            f"restore; nothing was written",
+            ("stop the drive (keypad, terminal or `invt-gateway write 2000H=stop`), then restore",),
+        )
 
 
 def write_parameter(master: Master, address: int, spec: Parameter, raw: int, ram: bool) -> None:
@@ -191,6 +210,12 @@ def write_parameter(master: Master, address: int, spec: Parameter, raw: int, ram
     reply = ask(master, address, pdu, what)
     if reply != pdu:
         raise FieldError(f"{what}: the echo {reply.hex(' ')} differs from the request", GARBLED)
+
+
+def check_written(master: Master, address: int, spec: Parameter, raw: int) -> int:
+    """What the drive holds at `spec` just after `raw` was written there (a drive may round or
+    clamp a value and still echo the request)."""
+    return read_word(master, address, spec.address, f"reading back {spec.name} at {address}")
 
 
 # ------------------------------------------------------------------------------ the file
@@ -329,6 +354,19 @@ def differences(wanted: ParameterSet, actual: Mapping[str, int]) -> list[Differe
     ]
 
 
+def skip_reason(spec: Parameter) -> str:
+    """Why a restore never writes `spec`, or "" when it may."""
+    if spec.factory:
+        return f"set at the factory: {spec.factory}"
+    if spec.read_only:
+        return "read-only"
+    if spec.action:
+        return f"a command, not a setting: it {spec.action}"
+    if spec.name in LINE_SETTINGS:
+        return "the line's own setting: set it on the keypad"
+    return ""
+
+
 @dataclass(frozen=True)
 class Skipped:
     difference: Difference
@@ -338,21 +376,15 @@ class Skipped:
 def plan(
     changes: Iterable[Difference],
     actual: Mapping[str, int],
-    running: bool,
     table: ParameterTable | None = None,
 ) -> tuple[list[Difference], list[Skipped]]:
-    """What to write, in an order the drive accepts, and what to skip and why."""
+    """What to write to a stopped drive, in an order it accepts, and what to skip and why."""
     writes: list[Difference] = []
     skipped: list[Skipped] = []
     for change in changes:
-        if change.spec.read_only:
-            skipped.append(Skipped(change, "read-only"))
-        elif change.spec.action:
-            skipped.append(Skipped(change, f"a command, not a setting: it {change.spec.action}"))
-        elif change.spec.name in LINE_SETTINGS:
-            skipped.append(Skipped(change, "the line's own setting: set it on the keypad"))
-        elif change.spec.locked_while_running and running:
-            skipped.append(Skipped(change, "can't change while the drive runs: stop it first"))
+        reason = skip_reason(change.spec)
+        if reason:
+            skipped.append(Skipped(change, reason))
         else:
             writes.append(change)
     writes += _rewritten(writes, skipped, actual, table)

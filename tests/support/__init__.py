@@ -8,6 +8,7 @@ import inspect
 import os
 import re
 import select
+import socket
 import struct
 import threading
 import time
@@ -245,3 +246,26 @@ class Swallower:
                     self.swallowed += 1
         finally:
             self.ended = True
+
+
+def read_state_word(port: int, unit_id: int) -> bytes:
+    """State word 1 of `unit_id` read over a plain blocking socket, as a probe from another
+    process would: the reply's PDU."""
+    with socket.create_connection(("127.0.0.1", port), timeout=5) as connection:
+        connection.sendall(struct.pack(">HHHBBHH", 7, 0, 6, unit_id, 3, 0x2100, 1))
+        return connection.recv(256)[7:]
+
+
+def protected_config(line_path: str, **tcp: Any) -> GatewayConfig:
+    """Two drives (pump1 at 1, fan2 at 2) and Modbus-TCP on a free loopback port with the
+    server's options `tcp` (its limits and protections)."""
+    return GatewayConfig.model_validate(
+        {
+            "modbus_tcp": {"host": "127.0.0.1", "port": 0, **tcp},
+            "buses": [{"name": "line1", "port": line_path, "baudrate": 115200}],
+            "drives": [
+                {"name": "pump1", "bus": "line1", "address": 1},
+                {"name": "fan2", "bus": "line1", "address": 2},
+            ],
+        }
+    )

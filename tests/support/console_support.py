@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import aiohttp
+import yaml
 
 from gateway.app import Application
 from gateway.config import GatewayConfig
@@ -109,3 +110,11 @@ async def state_word(app: Application, unit_id: int) -> int:
         return (await client.read(unit_id, STATE_WORD_1))[0]
     finally:
         await client.close()
+
+
+BASE = {"buses": [{"name": "line1", "port": "/dev/ttyUSB0"}]}
+
+
+def config_with(console: dict[str, object]) -> str:
+    """A file of one bus and this `console:` section, as YAML."""
+    return yaml.safe_dump({**BASE, "console": console})

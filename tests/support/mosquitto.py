@@ -161,6 +161,8 @@ class Received:
     payload: bytes
     retain: bool
     at: float
+    qos: int = 1
+    """The QoS it came with: the lower of the publisher's and the subscription's."""
 
     def json(self) -> Any:
         return json.loads(self.payload)
@@ -178,7 +180,9 @@ class MqttProbe:
         async for message in self.client.messages:
             payload = message.payload
             data = payload if isinstance(payload, bytes) else str(payload or "").encode()
-            received = Received(str(message.topic), data, bool(message.retain), time.monotonic())
+            received = Received(
+                str(message.topic), data, bool(message.retain), time.monotonic(), message.qos
+            )
             async with self._changed:
                 self.messages.append(received)
                 self._changed.notify_all()

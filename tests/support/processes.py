@@ -21,8 +21,13 @@ from typing import Any
 import yaml
 
 from gateway.instruments.die_with_parent import die_with_parent
+from tests.support import pty_cable
 
 START_TIMEOUT_S = 15.0
+
+
+ROOT = Path(__file__).resolve().parents[2]
+"""The checkout: where `python -m tests.peers...` finds the peers."""
 
 
 def entry_point() -> str:
@@ -51,6 +56,39 @@ def run_cli(
         env=None if env is None else {**os.environ, **env},
         check=False,
     )
+
+
+def check_config(folder: Path, text: str) -> subprocess.CompletedProcess[str]:
+    """`check-config` run on `text`, written as `config.yaml` in `folder`."""
+    path = folder / "config.yaml"
+    path.write_text(text)
+    return subprocess.run(
+        [sys.executable, "-m", "gateway", "check-config", "--config", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+
+
+@contextlib.contextmanager
+def pymodbus_peer(module: str, *args: str) -> Iterator[str]:
+    """pymodbus's RTU server as `tests.peers.<module>` plays it (`args` after its device path),
+    at the far end of a pty cable; yields the device path the gateway opens."""
+    with pty_cable() as (gateway_end, peer_end):
+        process = subprocess.Popen(
+            [sys.executable, "-m", f"tests.peers.{module}", peer_end, *args],
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,  # pymodbus warns of its own deprecations there
+            text=True,
+        )
+        try:
+            assert process.stdout is not None
+            assert process.stdout.readline().strip() == "ready"
+            yield gateway_end
+        finally:
+            process.terminate()
+            process.communicate(timeout=10)
 
 
 class LineCollector:

@@ -79,6 +79,7 @@ async function api(path, options) {
     const message = (data && data.error) || `${response.status} ${response.statusText}`;
     const error = new Error(message);
     error.status = response.status;
+    error.detail = data;
     throw error;
   }
   return data;
@@ -128,7 +129,10 @@ function busRow(bus) {
     el("td", {}, el("span", { class: `badge ${bus.state}` }, bus.state)),
     el("td", { class: "mono" }, bus.port),
     el("td", {}, bus.format),
-    el("td", {}, fmt(bus.utilisation * 100, 1, "%")),
+    el("td", { class: "utilisation num" }, fmt(bus.utilisation * 100, 1, "%")),
+    // Past the poll budget: little of the line is left for SCADA (check-config warns too).
+    el("td", { class: `planned num${bus.over_budget ? " warn" : ""}` },
+      fmt(bus.planned_utilisation * 100, 1, "%")),
     el("td", {}, fmt(bus.transactions_per_s, 1)),
     el("td", { class: bus.timeouts_per_min ? "warn" : "" }, bus.timeouts_per_min),
     el("td", { class: bus.bad_replies_per_min ? "warn" : "" }, bus.bad_replies_per_min),
@@ -151,6 +155,9 @@ function driveRow(drive) {
     el("td", { class: "fault" }, fault),
     el("td", { class: "frequency num" }, fmt(drive.output_frequency_hz, 2, "Hz")),
     el("td", { class: "current num" }, fmt(drive.output_current_a, 1, "A")),
+    // What it took of its line lately (polls, SCADA, MQTT) beside what its polls were planned to.
+    el("td", { class: "line num" }, `${fmt(drive.utilisation * 100, 1, "%")} ` +
+      `(planned ${fmt(drive.planned_utilisation * 100, 1, "%")})`),
     timeCell(drive.last_answer));
 }
 
@@ -260,6 +267,7 @@ function makeCharts(columns) {
 function drivePage() {
   const name = body.dataset.drive;
   document.getElementById("drive-name").textContent = name;
+  document.getElementById("history-link").href = `/history?drive=${encodeURIComponent(name)}`;
   let columns = [[], [], [], []];
   let charts = null;
   let lastPoint = 0;
@@ -379,28 +387,55 @@ function setupControls(name) {
 function setupParameters(name) {
   const groups = body.dataset.groups.split(",");
   const tabs = document.getElementById("groups");
+  const found = document.getElementById("parameter-found");
+  const columns = 8;
+  const note = (text, kind = "muted") =>
+    fill("parameters", [el("tr", {}, el("td", { colSpan: columns, class: kind }, text))]);
+  const row = (p, reload) => {
+    const edit = p.writable && session.mayWrite
+      ? el("button", { type: "button", class: "small", onclick: () => editParameter(name, p, reload) }, "Write…")
+      : null;
+    // Whether the value is the factory's: "depends on model" defaults can't say.
+    const differs = p.differs_from_default === true;
+    const fallback = p.default === null && p.range !== undefined && p.writable ? "depends on model" : "–";
+    const meaning = p.confirmed === false ? `${p.description} (unconfirmed for this series)` : p.description;
+    return el("tr", { class: differs ? "differs" : "", "data-name": p.name },
+      el("td", {}, p.name), el("td", { class: "mono" }, p.address),
+      el("td", {}, meaning),
+      el("td", { class: "num" }, p.value ?? "–", differs ? el("span", { class: "badge warn", title: "differs from the default" }, "≠ default") : null),
+      el("td", { class: "num" }, p.default ?? fallback),
+      el("td", {}, p.range ?? "–", p.change ? el("span", { class: "muted" }, ` (${p.change})`) : null),
+      el("td", { class: "mono" }, p.raw === null ? "–" : p.raw), el("td", {}, edit));
+  };
   const load = async (group) => {
+    found.textContent = "";
     tabs.querySelectorAll("button").forEach((b) => b.classList.toggle("active", b.dataset.group === group));
-    fill("parameters", [el("tr", {}, el("td", { colSpan: 6, class: "muted" }, `reading ${group}…`))]);
+    note(`reading ${group}…`);
     try {
       const data = await api(`/api/drives/${encodeURIComponent(name)}/parameters?group=${group}`);
-      if (!data.parameters.length) {
-        fill("parameters", [el("tr", {}, el("td", { colSpan: 6, class: "muted" },
-          `the profile names no parameter of ${group}`))]);
-        return;
-      }
-      fill("parameters", data.parameters.map((p) => {
-        const edit = p.writable && session.mayWrite
-          ? el("button", { type: "button", class: "small", onclick: () => editParameter(name, p, () => load(group)) }, "Write…")
-          : null;
-        return el("tr", {}, el("td", {}, p.name), el("td", { class: "mono" }, p.address),
-          el("td", {}, p.description), el("td", { class: "num" }, p.value ?? "–"),
-          el("td", { class: "mono" }, p.raw === null ? "–" : p.raw), el("td", {}, edit));
-      }));
+      if (!data.parameters.length) { note(`the profile names no parameter of ${group}`); return; }
+      fill("parameters", data.parameters.map((p) => row(p, () => load(group))));
     } catch (error) {
-      fill("parameters", [el("tr", {}, el("td", { colSpan: 6, class: "warn" }, error.message))]);
+      note(error.message, "warn");
     }
   };
+  const find = async (text) => {
+    tabs.querySelectorAll("button").forEach((b) => b.classList.remove("active"));
+    note(`finding ${text}…`);
+    try {
+      const data = await api(`/api/drives/${encodeURIComponent(name)}/parameters?find=${encodeURIComponent(text)}`);
+      found.textContent = `${data.parameters.length} found`;
+      if (!data.parameters.length) { note(`no parameter of ${name} is ${text} or named so`); return; }
+      fill("parameters", data.parameters.map((p) => row(p, () => find(text))));
+    } catch (error) {
+      note(error.message, "warn");
+    }
+  };
+  document.getElementById("parameter-find").addEventListener("submit", (event) => {
+    event.preventDefault();
+    const text = document.getElementById("parameter-find-text").value.trim();
+    if (text) find(text);
+  });
   for (const group of groups) {
     tabs.append(el("button", { type: "button", "data-group": group, onclick: () => load(group) }, group));
   }
@@ -420,6 +455,15 @@ async function editParameter(name, parameter, reload) {
 }
 
 // -- the traffic monitor ---------------------------------------------------------------------
+
+// An attempt's time, split: in the queue, bytes on the wire, the drive's own answer delay.
+function latencyCell(r) {
+  const part = (label, ms) => (ms === null || ms === undefined ? null : `${label} ${ms}`);
+  const parts = [part("queue", r.queue_ms), part("wire", r.wire_ms), part("drive", r.turnaround_ms)]
+    .filter(Boolean);
+  return el("td", { class: "num latency" }, `${r.latency_ms} ms`,
+    parts.length ? el("div", { class: "split" }, `${parts.join(" · ")} ms`) : null);
+}
 
 function monitorPage() {
   const bus = body.dataset.bus;
@@ -458,7 +502,7 @@ function monitorPage() {
       timeCell(r.time, true), el("td", {}, r.client),
       el("td", {}, `${r.unit_id ?? "–"} / ${r.address}${r.drive ? ` ${r.drive}` : ""}`),
       el("td", {}, r.function), meaning,
-      el("td", { class: "outcome" }, r.outcome), el("td", { class: "num" }, `${r.latency_ms} ms`));
+      el("td", { class: "outcome" }, r.outcome), latencyCell(r));
   };
   const shown = () => rows.filter(matches);
   const render = () => {
@@ -484,7 +528,7 @@ function monitorPage() {
     pending = true;
     requestAnimationFrame(() => { pending = false; render(); });
   };
-  stream(`/api/buses/${encodeURIComponent(bus)}/traffic?recent=200`, {
+  stream(`/api/buses/${encodeURIComponent(bus)}/traffic?recent=2000`, {
     traffic: (r) => {
       if (paused) { held.push(r); } else { take(r); }
       schedule();
@@ -505,7 +549,7 @@ function monitorPage() {
     link.remove();
   };
   const columns = ["time", "client", "unit_id", "address", "drive", "function", "meaning",
-    "outcome", "latency_ms", "request_hex", "reply_hex"];
+    "outcome", "latency_ms", "queue_ms", "wire_ms", "turnaround_ms", "request_hex", "reply_hex"];
   document.getElementById("download-csv").addEventListener("click", () => {
     const quote = (v) => `"${String(v ?? "").replace(/"/g, '""')}"`;
     const lines = [columns.join(",")].concat(shown().map((r) => columns.map((c) => quote(r[c])).join(",")));
@@ -514,7 +558,8 @@ function monitorPage() {
   document.getElementById("download-text").addEventListener("click", () => {
     const lines = shown().map((r) =>
       `${r.time}  ${r.client.padEnd(22)} unit ${String(r.unit_id ?? "-").padStart(3)}  ${r.function}  ` +
-      `${r.meaning}  [${r.outcome}, ${r.latency_ms} ms]` +
+      `${r.meaning}  [${r.outcome}, ${r.latency_ms} ms: queue ${r.queue_ms}, wire ${r.wire_ms}, ` +
+      `drive ${r.turnaround_ms ?? "–"} ms]` +
       (filters.hex.checked ? `\n    → ${r.request_hex}\n    ← ${r.reply_hex}` : ""));
     download(`traffic-${bus}.txt`, "text/plain", lines.join("\n") + "\n");
   });
@@ -529,7 +574,7 @@ const EVENT_KINDS = [
   ["fault_cleared", "fault cleared"], ["drive_offline", "drive offline"],
   ["drive_online", "drive online"], ["port_lost", "port lost"], ["port_back", "port back"],
   ["login", "login"], ["login_failed", "failed login"], ["logout", "logout"],
-  ["config_reloaded", "configuration reloaded"],
+  ["config_reloaded", "configuration reloaded"], ["config_changed", "configuration edited"],
 ];
 
 function parseStamp(text) {

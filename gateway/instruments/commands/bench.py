@@ -6,6 +6,7 @@ import argparse
 import json
 import shutil
 import sys
+from datetime import UTC, datetime
 from pathlib import Path
 
 from gateway.errors import ConfigError
@@ -71,6 +72,14 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "--json", action="store_true", help="one JSON document instead of the table"
     )
     parser.add_argument(
+        "--page",
+        metavar="PATH",
+        type=Path,
+        help="also write the run as a Markdown page to PATH (date, machine, command, version, "
+        "the targets, every case): the documentation site's Benchmark page includes "
+        "docs/bench/run.md",
+    )
+    parser.add_argument(
         "--instructions",
         action="store_true",
         help="instead of the cases: count the user-space instructions the gateway process "
@@ -102,7 +111,14 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 def handle(args: argparse.Namespace) -> int:
     stop_on_terminate()  # a bench ended by SIGTERM stops its gateway and drives too
     if args.instructions:
+        if args.page is not None:
+            print(
+                "invt-gateway bench: --page writes the cases' run, not --instructions",
+                file=sys.stderr,
+            )
+            return EXIT_USAGE
         return count_instructions(args)
+    from gateway.instruments.bench import page
     from gateway.instruments.bench.cases import CaseResult, extra_cases, matrix, run_case
     from gateway.instruments.bench.processes import gateway_niceness
     from gateway.instruments.bench.report import format_row, header, row, summary
@@ -115,6 +131,7 @@ def handle(args: argparse.Namespace) -> int:
     loop = gateway_event_loop()
     if loop is None:
         return EXIT_USAGE
+    started, machine = datetime.now(UTC), page.Machine.here()
     if not args.json:
         print(header(), flush=True)
     # Isolating a dead drive takes a few timeouts: measure the steady state after it.
@@ -146,7 +163,21 @@ def handle(args: argparse.Namespace) -> int:
         print(f"the gateway ran on {loop}, {gateway_niceness()}")
         for line in summary(results):
             print(line)
+    if args.page is not None:
+        text = page.markdown(
+            results, machine, started, page_arguments(args), loop, gateway_niceness()
+        )
+        page.write_page(args.page, text)
+        print(f"invt-gateway bench: wrote {args.page}", file=sys.stderr)
     return EXIT_OK
+
+
+def page_arguments(args: argparse.Namespace) -> list[str]:
+    """The options this run was given, as the page shows its command."""
+    given = [f"--baud={baud}" for baud in args.baud or ()]
+    given += [f"--duration={args.duration:g}", f"--warmup={args.warmup:g}", f"--runs={args.runs}"]
+    given += [f"--case={args.case}"] if args.case else []
+    return [*given, f"--page={args.page}"]
 
 
 def gateway_event_loop() -> str | None:

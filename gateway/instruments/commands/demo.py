@@ -19,12 +19,14 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from pydantic import ValidationError
+
 from gateway.app import Application
 from gateway.commands.run import event_loop_or_report, serve
 from gateway.config import GatewayConfig, parse_config
 from gateway.errors import ConfigError
 from gateway.event_loop import run as run_on_loop
-from gateway.exit_codes import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
+from gateway.exit_codes import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from gateway.logs import setup_logging
 
 DEMO_OPERATOR = "operator"
@@ -66,7 +68,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     adapter.add_argument(
         "--burst-ms",
-        type=float,
+        type=not_negative_ms,
         default=0.0,
         metavar="MS",
         help="the adapter hands replies over in bursts every MS ms (a USB latency timer)",
@@ -82,6 +84,17 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.set_defaults(handler=handle)
 
 
+def not_negative_ms(text: str) -> float:
+    """A duration option: argparse names the option when this refuses the value."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of milliseconds") from None
+    if not value >= 0:  # NaN too
+        raise argparse.ArgumentTypeError(f"{text}: must be 0 or more")
+    return value
+
+
 def demo_config_text(path: str | None) -> str:
     if path is not None:
         return Path(path).read_text(encoding="utf-8")
@@ -94,18 +107,11 @@ def handle(args: argparse.Namespace) -> int:
     except (ConfigError, OSError) as exc:
         print(f"invt-gateway: {exc}", file=sys.stderr)
         return EXIT_CONFIG
-    if args.port is not None:
-        config = config.model_copy(
-            update={"modbus_tcp": config.modbus_tcp.model_copy(update={"port": args.port})}
-        )
-    if args.mqtt_port is not None and config.mqtt is not None:
-        config = config.model_copy(
-            update={"mqtt": config.mqtt.model_copy(update={"port": args.mqtt_port})}
-        )
-    if args.console_port is not None:
-        config = config.model_copy(
-            update={"console": config.console.model_copy(update={"port": args.console_port})}
-        )
+    try:
+        config = with_options(config, args)
+    except OptionError as exc:
+        print(f"invt-gateway demo: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     loop = event_loop_or_report()
     if loop is None:
         return EXIT_CONFIG
@@ -127,6 +133,39 @@ def handle(args: argparse.Namespace) -> int:
         config, password = with_demo_operator(config)
         log.info("event loop: %s", loop.describe())
         return run_on_loop(serve_demo(config, args.config, password), loop)
+
+
+OPTIONS = {"port": ("modbus_tcp", "port"), "mqtt_port": ("mqtt", "port"),
+           "console_port": ("console", "port")}  # fmt: skip
+"""Each of the demo's options that sets a configuration key: its section and key."""
+LISTEN_FLAGS = {"modbus_tcp.host/port": "--port", "console.host/port": "--console-port"}
+"""What an error at start names (`gateway.listen`), and the demo's option that changes it."""
+
+
+class OptionError(ValueError):
+    """An option's value the configuration refuses: says the option, the value and why."""
+
+
+def with_options(config: GatewayConfig, args: argparse.Namespace) -> GatewayConfig:
+    """The configuration with the ports the options give, each checked as the file's key would
+    be (`--port 70000` is refused, not wrapped around to 4464); the error names the option."""
+    for option, (section_name, key) in OPTIONS.items():
+        value = getattr(args, option)
+        section = getattr(config, section_name)
+        flag = "--" + option.replace("_", "-")
+        if value is None:
+            continue
+        if section is None:
+            raise OptionError(f"{flag} {value}: this configuration has no {section_name} section")
+        try:
+            checked = type(section).model_validate(
+                {**section.model_dump(exclude_unset=True), key: value}
+            )
+        except ValidationError as exc:
+            reasons = "; ".join(error["msg"] for error in exc.errors())
+            raise OptionError(f"{flag} {value}: {reasons} ({section_name}.{key})") from None
+        config = config.model_copy(update={section_name: checked})
+    return config
 
 
 async def watch_demo(config: GatewayConfig) -> int:
@@ -166,7 +205,11 @@ async def serve_demo(
     """Serve the demo; with MQTT configured, against a broker even on a machine that has none."""
     mqtt = config.mqtt
     if mqtt is None or not mqtt.enabled:
-        return await serve(config, on_ready=lambda app: print_banner(app, config, None, password))
+        return await serve(
+            config,
+            on_ready=lambda app: print_banner(app, config, None, password),
+            flags=LISTEN_FLAGS,
+        )
     from gateway.instruments.demo_broker import broker_for_demo, clear_discovery
 
     broker = await broker_for_demo(mqtt)
@@ -183,6 +226,7 @@ async def serve_demo(
         return await serve(
             config,
             on_ready=lambda app: print_banner(app, config, (broker.note, watch), password),
+            flags=LISTEN_FLAGS,
         )
     finally:
         if broker.embedded is not None:

@@ -224,12 +224,13 @@ class SimulatedLine:
             (self._dead.add if dead else self._dead.discard)(address)
 
     def inject_fault(self, address: int, code: int) -> None:
+        """The drive trips with `code` (an ABB drive's status word shows TRIPPED)."""
         with self._lock:
-            self._drive(address).inject_fault(code, time.monotonic())
+            self._any_drive(address).inject_fault(code, time.monotonic())
 
     def clear_fault(self, address: int) -> None:
         with self._lock:
-            self._drive(address).clear_fault(time.monotonic())
+            self._any_drive(address).clear_fault(time.monotonic())
 
     def set_output_current(self, address: int, amps: float | None, jitter_a: float = 0.0) -> None:
         """One drive's output current (3004H), jittering by up to ±`jitter_a` per read."""
@@ -313,6 +314,11 @@ class SimulatedLine:
     def lock(self) -> threading.Lock:
         """Hold it to look at `drives` while the line is serving."""
         return self._lock
+
+    def _any_drive(self, address: int) -> SimulatedDrive | SimulatedAbbDrive:
+        """An INVT or an ABB drive: for what both simulate (a fault)."""
+        abb = self.abb_drives.get(address)
+        return abb if abb is not None else self._drive(address)
 
     def _drive(self, address: int) -> SimulatedDrive:
         try:

@@ -108,3 +108,31 @@ def test_codes_out_of_order_are_refused() -> None:
     text = f"{HEADER}\nP00.02,B,,0,0,1,0,○,,,,\nP00.01,A,,0,0,1,0,○,,,,\n"
     with pytest.raises(TableError, match=r"t\.csv:3: P00\.01 is not after P00\.02"):
         read_rows(text, "t.csv")
+
+
+def test_a_parameter_is_found_by_its_number_as_the_manual_or_the_wire_writes_it() -> None:
+    table = series_table("gd200a")
+    for spelled in ("P00.03", "p0.3", "0003H", "0x0003", " P00.03 "):
+        assert [row.name for row in table.find(spelled)] == ["P00.03"], spelled
+    assert table.find("P99.99") == ()
+    assert table.find("") == ()
+
+
+def test_a_parameter_is_found_by_the_words_of_its_name_in_any_order() -> None:
+    table = series_table("gd200a")
+    found = [row.name for row in table.find("time ACC")]
+    assert found[:2] == ["P00.11", "P01.06"]
+    assert all("acc" in row.description.lower() for row in table.find("time ACC"))
+    # Words that happen to be hex with an H ("each", "ach") are words, not addresses.
+    assert all("each" in row.description.lower() for row in table.find("each"))
+
+
+def test_the_range_says_its_unit_and_the_parameters_bounding_it() -> None:
+    table = series_table("gd200a")
+    limit = table.named("P00.04")
+    assert limit is not None
+    assert limit.range_text() == "0.00 ... 400.00 Hz, within P00.05 ... P00.03"
+    p0510 = table.named("P05.10")
+    assert p0510 is not None
+    assert p0510.range_text().startswith("0x0000 ... ")
+    assert table.groups[-2:] == ("P17", "P24")

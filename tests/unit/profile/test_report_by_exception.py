@@ -3,12 +3,12 @@ no sooner than its minimum interval, or its maximum interval passed."""
 
 from __future__ import annotations
 
-from gateway.profile.point_types import Kind, Reporting, Table, TypedPoint
+from gateway.profile.point_types import Kind, ReportRule, Table, TypedPoint
 from gateway.profile.report_by_exception import ExceptionReport
 
 
 def report(**rule: float) -> ExceptionReport:
-    level = TypedPoint("level", Table.INPUT, 0, Kind.F32, 2, reporting=Reporting(**rule))
+    level = TypedPoint("level", Table.INPUT, 0, Kind.F32, 2, report=ReportRule(**rule))
     mode = TypedPoint("mode", Table.HOLDING, 0, Kind.ENUM, values={0: "off", 1: "on"})
     return ExceptionReport([level, mode])
 

@@ -3,12 +3,10 @@ and a store that can't be opened."""
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import logging
 import sqlite3
 import time
-from collections.abc import AsyncIterator
 from pathlib import Path
 
 import pytest
@@ -16,27 +14,7 @@ import pytest
 from gateway.config import StorageConfig
 from gateway.poller.drive_state import DriveEvent, EventKind, iso_time
 from gateway.profile.telemetry import Telemetry
-from gateway.settings import StoreSettings
-from gateway.store import EventStore
-from gateway.tasks import ServiceTasks
-
-
-@contextlib.asynccontextmanager
-async def running_store(
-    config: StorageConfig, forwarding: bool = True
-) -> AsyncIterator[EventStore]:
-    tasks = ServiceTasks()
-    async with asyncio.TaskGroup() as group:
-        tasks.bind(group)
-        settings = StoreSettings(
-            config.resolved_path(), config.max_mb, config.max_age_days, forwarding, 100_000
-        )
-        store = EventStore(settings, tasks)
-        await store.start()
-        try:
-            yield store
-        finally:
-            await store.stop()
+from tests.support.store import running_store
 
 
 def fault(drive: str, code: int, at: float, raised: bool = True) -> DriveEvent:

@@ -16,7 +16,7 @@ from pydantic import BaseModel
 
 from gateway.config import GatewayConfig, load_config
 
-EXAMPLE = Path(__file__).resolve().parent.parent / "config" / "config.example.yaml"
+EXAMPLE = Path(__file__).resolve().parents[3] / "config" / "config.example.yaml"
 
 
 def key_paths(model: type[BaseModel], prefix: str = "") -> set[str]:

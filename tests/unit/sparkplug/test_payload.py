@@ -1,0 +1,74 @@
+"""Sparkplug B payloads: what we encode reads back with the specification's field numbers and
+datatypes; sequence numbers wrap at 255. (What another codec makes of them: tests/test_sparkplug.py,
+with Eclipse Tahu's JavaScript codec.)"""
+
+from __future__ import annotations
+
+import pytest
+
+from gateway.sparkplug import payload
+from gateway.sparkplug import sparkplug_b_pb2 as pb
+
+
+def test_sequence_numbers_run_0_to_255_then_0() -> None:
+    seq = payload.SequenceNumber()
+    handed = [seq.next() for _ in range(600)]
+    assert handed[:3] == [0, 1, 2]
+    assert handed[255:258] == [255, 0, 1]
+    assert max(handed) == 255
+    assert seq.restart() == 0
+    assert seq.next() == 1
+
+
+@pytest.mark.parametrize(
+    ("value", "datatype", "field", "wire"),
+    [
+        (True, pb.Boolean, "boolean_value", True),
+        (-5, pb.Int32, "int_value", 2**32 - 5),
+        (65535, pb.Int32, "int_value", 65535),
+        (2**40, pb.Int64, "long_value", 2**40),
+        (-(2**40), pb.Int64, "long_value", 2**64 - 2**40),
+        (50.12, pb.Double, "double_value", 50.12),
+        ("running_forward", pb.String, "string_value", "running_forward"),
+    ],
+)
+def test_values_travel_in_their_datatype_field(
+    value: payload.Value, datatype: int, field: str, wire: object
+) -> None:
+    metric = payload.BirthMetric("m", 7, payload.datatype_of(value), value, {"engUnit": "Hz"})
+    decoded = pb.Payload.FromString(payload.birth(3, 1_700_000_000_000, [metric]))
+    assert decoded.seq == 3
+    assert decoded.timestamp == 1_700_000_000_000
+    (out,) = decoded.metrics
+    assert (out.name, out.alias, out.datatype) == ("m", 7, datatype)
+    assert out.WhichOneof("value") == field
+    assert getattr(out, field) == wire
+    assert list(out.properties.keys) == ["engUnit"]
+    assert out.properties.values[0].string_value == "Hz"
+    # And back, as a DCMD carrying it would be read.
+    (back,) = payload.received(decoded.SerializeToString()).metrics
+    assert back.value == value
+
+
+def test_a_metric_not_read_yet_is_null() -> None:
+    metric = payload.BirthMetric("m", 1, payload.DOUBLE, None)
+    (out,) = pb.Payload.FromString(payload.birth(0, 1, [metric])).metrics
+    assert out.is_null
+    assert out.WhichOneof("value") is None
+
+
+def test_data_by_alias_only_and_death_certificates() -> None:
+    data = pb.Payload.FromString(payload.data(9, 5, [payload.DataMetric(4, payload.DOUBLE, 1.5)]))
+    (metric,) = data.metrics
+    assert not metric.HasField("name")
+    assert (metric.alias, metric.double_value, data.seq) == (4, 1.5, 9)
+    death = pb.Payload.FromString(payload.node_death(12, 5))
+    assert not death.HasField("seq")
+    assert [(m.name, m.datatype, m.long_value) for m in death.metrics] == [("bdSeq", pb.Int64, 12)]
+    device = pb.Payload.FromString(payload.device_death(10, 5))
+    assert (device.seq, len(device.metrics)) == (10, 0)
+
+
+def test_what_is_not_a_payload_is_refused() -> None:
+    with pytest.raises(ValueError, match="not a Sparkplug B payload"):
+        payload.received(b"\xff\xff\xff")
