@@ -282,7 +282,13 @@ class GapKeeper:
         for a request queued without a `kick`)."""
         self._idle = None
         this.idle_for = None
-        return self._send_at_gap_end(this, timed=False)
+        if self._send_at_gap_end(this, timed=False):
+            return True
+        if not this.outcome:
+            # Not sent (a URL port, whose bytes only its own reading sees; noise heard): the
+            # caller still gets None, so the bus looks at its probes and its port now.
+            this.outcome.append(None)
+        return False
 
     def _waits_for_reply_only(self, sending: Sending) -> bool:
         """Is all that `finish` would do for this attempt to wait for the reply? (The frame
