@@ -86,3 +86,38 @@ async def test_drives_behind_a_serial_device_server(line: SimulatedLine) -> None
             await client.close()
     finally:
         stop_process(server)
+
+
+async def test_an_idle_line_behind_a_device_server_probes_a_drive_back(
+    line: SimulatedLine,
+) -> None:
+    """No client asks anything: the bus's own probe still finds a drive that is back (the line
+    is read only when the gateway reads it, so the idle wait must end for the probe to go)."""
+    port = free_port()
+    server = device_server(line.path, port)
+    try:
+        drives = [{"name": "pump1", "address": 1}, {"name": "fan2", "address": 2}]
+        config = gateway_config(
+            f"socket://127.0.0.1:{port}",
+            drives,
+            baudrate=19200,
+            parity="N",
+            timeout_ms=100,
+            retries=0,
+            offline_after=1,
+        )
+        line.set_dead(2, True)
+        async with running_gateway(config) as app:
+            bus = app.buses["line1"]
+            client = await TcpClient.connect(app.tcp.port)
+            assert await client.request(2, bytes.fromhex("03 21 00 00 01")) == bytes.fromhex(
+                "83 0B"
+            )
+            assert bus.health.is_offline(2)
+            line.set_dead(2, False)
+            await eventually(
+                lambda: not bus.health.is_offline(2), within_s=10.0, what="fan2 probed back"
+            )
+            await client.close()
+    finally:
+        stop_process(server)

@@ -350,12 +350,12 @@ class Bus:
         except GatewayError:
             self.stats.queue_full += 1
             raise
-        self._wake()
         if carrier is transaction:
             # Framed now, while the line may be busy: no CRC work in the gap.
             transaction.frame = build_frame(transaction.address, transaction.pdu)
         else:
             self.stats.coalesced += 1
+        self._wake()
 
     def _report(
         self, address: int, pdu: bytes, client: str, started: float, code: int | None
@@ -475,7 +475,7 @@ class Bus:
         while not self.closing:
             try:
                 sending = await self.line.send_after_gap(
-                    self._pick, self._reply_within, self._replied
+                    self._pick, self._reply_within, self._replied, self._idle_for
                 )
             except PortError as exc:
                 picked = self._carrying
@@ -500,9 +500,8 @@ class Bus:
                 # Queued after the gap's end found nothing, before this coroutine resumed: its
                 # wake-up found nobody waiting, so look again rather than sleep on it.
                 continue
-            next_probe = self.health.next_probe_at()
-            wait = IDLE_WAKE_S if next_probe is None else next_probe - time.monotonic()
-            await self._wait_for_work(min(max(wait, 0.001), IDLE_WAKE_S))
+            # The line has been idle for `_idle_for` (the caller held while it was: a request
+            # queued meanwhile went out at once, `_wake`).
             if not self.line.is_open or self.line.failed:
                 return None  # the port went while idle: reopen it first
             self._queue_due_probes()
@@ -543,6 +542,15 @@ class Bus:
             return transaction.frame or build_frame(address, transaction.pdu)
         return None
 
+    def _idle_for(self) -> float | None:
+        """With nothing queued at a gap's end: how long the line may wait, idle, for a request
+        (`_wake` sends one queued meanwhile at once); None once the bus is closing."""
+        if self.closing:
+            return None
+        next_probe = self.health.next_probe_at()
+        wait = IDLE_WAKE_S if next_probe is None else next_probe - time.monotonic()
+        return min(max(wait, 0.001), IDLE_WAKE_S)
+
     def _reply_within(self) -> float | None:
         """For the transaction `_pick` just sent: how long its drive has to answer (None: a
         broadcast, which has no reply)."""
@@ -565,6 +573,9 @@ class Bus:
         work = self._work
         if work is not None and not work.done():
             work.set_result(None)
+        # An idle line sends a request queued now in this very callback (`GapKeeper.kick`);
+        # a lost port or shutdown releases it to the bus's loop.
+        self.line.kick()
 
     async def _open_with_backoff(self) -> None:
         backoff = Backoff(self.settings.reopen_initial_s, self.settings.reopen_max_s)

@@ -6,18 +6,18 @@ The line is made of parts, each with one job:
 - `gateway.bus.receiver`: the bytes heard and when, the reply found among them (a glitch or the
   adapter's echo before it skipped and counted), what the hardware does to replies;
 - `gateway.bus.rts`: RTS switched around each request, for UARTs whose driver can't;
+- `gateway.bus.gap_keeper`: the inter-frame gap before every frame, and the caller held through
+  back-to-back transactions while the port's reader callback finishes each one;
 - `gateway.bus.line_timer` with `gateway.bus.gap_lead`: the exact wake-up that ends a gap;
 - `gateway.bus.reply_reader`: the rest of an attempt that its caller reads itself (a reply late,
   bad or partial, an echo, the drain after a timeout, a resynchronisation).
 
-This module keeps the gap and starts each attempt. The gap is kept with an exact timer, not with
-asyncio's millisecond timeouts, from the line's last sound (`Receiver.quiet_since`). Nothing here
-blocks the loop but the end of a gap, waited out on the clock after a wake-up that came a learnt
-lead early (up to a few hundred microseconds, never more than 400), and no thread is involved: a
+This module puts them together for the bus: it opens and closes the port with its timer, starts
+each attempt (`send_after_gap`, `transact`) and has its rest read (`finish`). Nothing blocks the
+loop but the end of a gap, waited out on the clock after a wake-up that came a learnt lead early
+(up to a few hundred microseconds, never more than 400), and no thread is involved: a
 transaction costs the loop a wake-up when the reply arrives and one when the gap ends, which is
-all the CPU it needs. While requests keep coming, the port's reader callback finishes each
-attempt whose reply is whole and valid, keeps the gap and sends the next frame, the caller held
-all along (`send_after_gap`).
+all the CPU it needs.
 
 Timeouts, and which is which:
 - `timeout_s` (response timeout): from the end of the request on the wire to the first byte of the
@@ -37,15 +37,12 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
-from functools import partial
-from typing import NamedTuple
 
 from gateway.bus.direction import DirectionMode
 from gateway.bus.exchange import Exchange as Exchange
 from gateway.bus.exchange import Resynchronised as Resynchronised
 from gateway.bus.exchange import Sending as Sending
-from gateway.bus.gap_lead import GapLead, loop_spin_budget
+from gateway.bus.gap_keeper import GapKeeper, Replied
 from gateway.bus.line_settings import LineSettings as LineSettings
 from gateway.bus.line_timer import LineTimer
 from gateway.bus.port import Port, open_port
@@ -53,45 +50,7 @@ from gateway.bus.receiver import BURSTS_FROM_S as BURSTS_FROM_S
 from gateway.bus.receiver import Receiver
 from gateway.bus.reply_reader import ReplyReader
 from gateway.bus.rts import RtsSwitch
-from gateway.bus.wakeup import MovingDeadline, settle
-from gateway.errors import BadReply, PortError
-from gateway.modbus.reply_search import Found, search_reply
-from gateway.modbus.rtu import check_reply
-
-Replied = Callable[[Sending, Exchange], None]
-"""Told, in the port's reader callback, of an attempt whose whole and valid reply is there."""
-
-
-@dataclass(slots=True)
-class _Round:
-    """One `send_after_gap` call: how it picks and sends, and what came of it for its caller."""
-
-    pick: Callable[[], bytes | None]
-    reply_within: Callable[[], float | None] | None
-    replied: Replied | None
-    outcome: list[Sending | Exception | None]
-    """Empty until a frame went out (its Sending), nothing was picked (None) or that failed."""
-    picked: bytes | None = None
-    """A frame chosen before the gap's end that could not go out then (bytes came in the last
-    microseconds of the gap, which starts again): it goes at the next gap's end, as a frame
-    already on its way would, its transaction out of the queue meanwhile (a write queued then
-    waits behind it; closing the bus answers it as the transaction being carried)."""
-
-    def take_pick(self) -> bytes | None:
-        """The frame to send now: the one chosen earlier, if any, else `pick`'s."""
-        picked, self.picked = self.picked, None
-        return picked if picked is not None else self.pick()
-
-
-# A NamedTuple for the reason given at `Sending`.
-class _Held(NamedTuple):
-    """A caller held until its reply (`_hold_until_reply`): the attempt the reply is for."""
-
-    sending: Sending
-    round: _Round
-    echo_by: float
-    """A copy of the request complete before this is the adapter's echo
-    (`Receiver.echo_deadline`)."""
+from gateway.errors import PortError
 
 
 class SerialLine:
@@ -106,19 +65,9 @@ class SerialLine:
         self._timer: LineTimer | None = None
         self._rts: RtsSwitch | None = None
         self._reader: ReplyReader | None = None
-        self._holding = False
-        """`send_after_gap`'s caller is held until the reply's first bytes, or the response
-        timeout (`_response_deadline`)."""
-        self._response_deadline: MovingDeadline | None = None
-        """The held caller's response timeout: it wakes the caller, whose own reading then
-        finds the reply missing or incomplete."""
-        self._held: _Held | None = None
-        """What the held caller sent, for the reader callback to finish the attempt itself."""
-        self.gap_lead = GapLead(settings.gap_s)
+        self._gap = GapKeeper(settings, self.receiver, self._send_frame, self._discard_pending)
+        self.gap_lead = self._gap.gap_lead
         """How long before the gap's end the timer wakes the line (`gateway.bus.gap_lead`)."""
-        self._learns_lead = False
-        """The timer's wake-ups are exact (timerfd): the lead is learnt from them. Without a
-        timerfd the loop's timer never fires early, and the lead stays 0."""
 
     # What the receiver has seen, as metrics and the field tools read it off the line.
 
@@ -163,29 +112,23 @@ class SerialLine:
     def open(self) -> None:
         """Open the port and start listening to it; call with the event loop running."""
         self.close()  # what a port that failed left behind: its timers
-        port = open_port(self.settings, self.receiver, self._heard, self._port_failed)
-        loop = port.loop
+        port = open_port(self.settings, self.receiver, self._gap.heard, self._port_failed)
         self._port = port
-        self._timer = timer = LineTimer(loop)
-        self._response_deadline = MovingDeadline(loop, port.wake)
-        self._learns_lead = timer.exact
-        self.gap_lead.budget = loop_spin_budget(loop)
+        self._timer = timer = LineTimer(port.loop)
         control = self.settings.direction
         if control is not None and control.mode is DirectionMode.RTS:
             self._rts = RtsSwitch(control, port, timer)
+        self._gap.opened(port, timer, self._rts is not None)
         self._reader = ReplyReader(self.settings, self.receiver, port, self._rts)
         self.receiver.opened(port.virtual)  # quiet from now: the first gap ends a gap later
 
     def close(self) -> None:
-        self._held = None
         self._rts = None
         self._reader = None
         if self._timer is not None:
             self._timer.close()
             self._timer = None
-        if self._response_deadline is not None:
-            self._response_deadline.close()
-            self._response_deadline = None
+        self._gap.closed()
         if self._port is not None:
             self._port.close()
 
@@ -205,7 +148,7 @@ class SerialLine:
         if self.on_port_error is not None:
             self.on_port_error()
 
-    # -- the gap, and the caller held through back-to-back transactions ----------------------
+    # -- the gap, and the caller held through back-to-back transactions (`GapKeeper`) -------
 
     async def transact(self, frame: bytes, *, expect_reply: bool, timeout_s: float) -> Exchange:
         """Send `frame` after the inter-frame gap and, unless a broadcast, read and check its reply.
@@ -221,241 +164,16 @@ class SerialLine:
         pick: Callable[[], bytes | None],
         reply_within: Callable[[], float | None] | None = None,
         replied: Replied | None = None,
+        idle_for: Callable[[], float | None] | None = None,
     ) -> Sending | None:
-        """At the end of the inter-frame gap, ask `pick` for a frame and start writing it.
+        """At the end of the inter-frame gap, ask `pick` for a frame and start writing it
+        (`GapKeeper.send_after_gap`: the gap, the lead, the caller held while replies come
+        and while the line is idle)."""
+        return await self._gap.send_after_gap(pick, reply_within, replied, idle_for)
 
-        `pick` runs in the wake-up that ends the gap (inside the gap timer's callback), so the
-        gap is not stretched by another pass of the event loop; that wake-up comes a learnt
-        lead before the gap's end (`gateway.bus.gap_lead`, up to a few hundred microseconds),
-        and the rest of the gap is waited out on the clock, so the frame goes out as the gap
-        ends. None from `pick`: nothing to send now (returned as None). Bytes arriving during the
-        gap restart it; a frame already chosen then goes at the new gap's end.
-
-        `reply_within`, asked right after `pick`: how long the drive has to answer the frame
-        just picked (None: no reply, or none to wait for here). The caller then resumes when
-        the reply's first bytes come (or that time passes) instead of as the frame goes out:
-        nothing is left to do between the two, and it saves the loop a pass per transaction.
-
-        `replied`, with `reply_within`: when the reply is all there and valid as it comes in,
-        the port's reader callback finishes the attempt itself and tells `replied`, keeps the
-        gap and sends the next frame `pick` gives, the caller held all along: a busy line
-        costs the loop no pass for the caller's coroutine. What the caller gets in the end is
-        the attempt its own reading must finish (`finish`: a reply that is late, partial, bad
-        or ended by a silence), or None once `pick` has nothing.
-        """
-        gap = self.settings.gap_s
-        this = _Round(pick, reply_within, replied, [])
-        while True:
-            self._discard_pending()
-            due = self.receiver.quiet_since + gap
-            now = time.monotonic()
-            if due <= now:
-                frame = this.take_pick()
-                return None if frame is None else self._send_frame(frame)
-            assert self._timer is not None  # _discard_pending raised if the port is closed
-            wake_at = self._wake_at(due)
-            if wake_at <= now:  # within the lead already: wait out the rest, then look again
-                self.gap_lead.wait_out(due)
-                continue
-            try:
-                await self._timer.sleep_until(wake_at, partial(self._send_at_gap_end, this))
-            finally:
-                self._stop_holding()
-            if this.outcome:
-                outcome = this.outcome[0]
-                if isinstance(outcome, Exception):
-                    raise outcome  # in the caller's coroutine, not lost in a loop callback
-                return outcome
-
-    def _wake_at(self, gap_end: float) -> float:
-        """When the timer should wake the line for a gap ending at `gap_end`: early by the
-        learnt lead (which stays 0 where the timer has no timerfd: nothing is learnt there)."""
-        return gap_end - self.gap_lead.lead_s
-
-    def _send_at_gap_end(self, this: _Round, timed: bool = True) -> bool:
-        """The gap timer's action: send as the gap ends, if the line is still quiet and usable.
-        True: the caller stays held (`LineTimer.sleep_until`) while the reply comes
-        (`_answer_held`).
-
-        `timed`: called by the timer's wake-up (or `fire_due`), a lead before the gap's end
-        (`gateway.bus.gap_lead`): the next frame is chosen now and the rest of the gap is
-        waited out on the clock, and how early or late that was teaches the lead.
-        """
-        port, receiver = self._port, self.receiver
-        if port is None or not port.usable or receiver.received:
-            return False  # closed, failed or not quiet after all: `send_after_gap` looks again
-        if not port.watched:
-            return False  # a URL port: only its `discard_pending` can tell if bytes came
-        if port.bytes_waiting():
-            receiver.quiet_since = time.monotonic()
-            return False
-        gap_end = receiver.quiet_since + self.settings.gap_s
-        now = time.monotonic()
-        lead = self.gap_lead
-        if gap_end - lead.lead_s > now:
-            return False  # woken before the lead (the timer's rounding slack): look again
-        early = gap_end > now  # the line was seen quiet before the gap ended: look once more
-        try:
-            frame = this.take_pick()
-        except Exception as exc:
-            this.outcome.append(exc)
-            return False
-        if frame is None:
-            this.outcome.append(None)
-            return False
-        if timed and self._learns_lead:
-            lead.ready(gap_end)
-        elif early:
-            lead.wait_out(gap_end)
-        if early and port.bytes_waiting():
-            # Bytes came while the frame was chosen and the gap waited out: the line was not
-            # quiet, so the gap starts again, and the frame goes at its end.
-            receiver.quiet_since = time.monotonic()
-            this.picked = frame
-            return False
-        try:
-            sending = self._send_frame(frame)
-        except Exception as exc:
-            this.outcome.append(exc)
-            return False
-        this.outcome.append(sending)
-        if this.reply_within is None or not self._waits_for_reply_only(sending):
-            return False
-        within_s = this.reply_within()
-        if within_s is None:
-            return False
-        return self._hold_until_reply(sending, within_s, this)
-
-    def _waits_for_reply_only(self, sending: Sending) -> bool:
-        """Is all that `finish` would do for this attempt to wait for the reply? (The frame
-        is out whole, no RTS to switch back, no echo to read first.)"""
-        return (
-            sending.written == len(sending.frame) and not self.settings.echo and self._rts is None
-        )
-
-    def _hold_until_reply(self, sending: Sending, within_s: float, this: _Round) -> bool:
-        assert self._timer is not None
-        assert self._port is not None
-        port = self._port
-        waiting = self._timer.waiting
-        if waiting is None or port.waiter is not None:
-            return False
-        # The reader callback wakes whoever waits on the port (the held caller) when its reply
-        # needs the caller's own reading; the response timeout does too, so a silent drive
-        # still times out on time.
-        port.waiter = waiting
-        sent = sending.started + self.settings.char_format.wire_time_s(len(sending.frame))
-        self._holding = True
-        # Not on the gap timer: a timerfd write per transaction for a deadline that is almost
-        # never reached costs more than the float stores of a moving deadline.
-        assert self._response_deadline is not None
-        self._response_deadline.set(sent + within_s)
-        receiver = self.receiver
-        # What came, when: for echoes and bursts.
-        receiver.arrivals = [(len(receiver.received), sent)]
-        if this.replied is not None:
-            self._held = _Held(sending, this, receiver.echo_deadline(sending.frame, sent))
-        return True
-
-    def _stop_holding(self) -> None:
-        self._held = None
-        if not self._holding:
-            return
-        self._holding = False
-        # `arrivals` stays: the caller's own reading goes on with the record the hold began (an
-        # echo seen then is known for one by its time; a reply's silences are all measured).
-        self._clear_response_deadline()
-        port = self._port
-        if port is not None and port.waiter is not None and port.waiter.done():
-            port.waiter = None
-
-    def _heard(self) -> None:
-        """The port's reader callback has taken bytes in: a held caller's reply, or news for
-        whoever waits."""
-        held = self._held
-        if held is None or not self._answer_held(held):
-            self._held = None  # the caller's own reading takes it from here
-            assert self._port is not None
-            self._port.wake()
-        self.fire_due()  # another line's gap that ended while this pass ran
-
-    def _answer_held(self, held: _Held) -> bool:
-        """The reader callback, while a caller is held until its reply: finish the attempt here
-        if the reply is all there and valid. True: dealt with, the caller stays held (also
-        while the reply is still coming); False: wake the caller, whose own reading decides
-        (`ReplyReader`: a corrupt reply, one ended by a silence), going on with the record
-        of arrivals the hold began.
-        """
-        frame = held.sending.frame
-        receiver = self.receiver
-        # `Receiver.search`, written out: this runs for every reply on a busy line.
-        echoes = receiver.echoes > 0 or receiver.arrived_by(len(frame), held.echo_by)
-        search = search_reply(receiver.received, frame, adapter_echoes=echoes)
-        found = search.found
-        if found is Found.PARTIAL or found is Found.NOTHING:
-            # Still coming (adapters deliver in bursts), or so far only a glitch: the hold's
-            # deadline, the response timeout, wakes the caller if it never completes.
-            return True
-        if found is not Found.COMPLETE:
-            return False
-        try:
-            reply = bytes(receiver.received[search.start : search.end])
-            pdu = check_reply(frame, reply, crc_checked=True)
-        except BadReply:
-            return False  # the caller finds it too, counts it and drains the line
-        receiver.take_reply(search, search.end)
-        self._end_hold()
-        sending, this = held.sending, held.round
-        this.outcome.clear()
-        heard_at = receiver.quiet_since
-        exchange = Exchange(pdu, sending.gap_s, heard_at - sending.started, heard_at)
-        try:
-            assert this.replied is not None
-            this.replied(sending, exchange)
-            self._keep_gap(this)
-        except Exception as exc:  # in the caller's coroutine, not lost in the reader callback
-            this.outcome[:] = [exc]
-            self._release_caller()
-        return True
-
-    def _end_hold(self) -> None:
-        """The held attempt is over: its caller stays held, now only by the gap timer."""
-        self._held = None
-        self.receiver.arrivals = None
-        self._holding = False
-        self._clear_response_deadline()
-        assert self._port is not None
-        self._port.waiter = None
-
-    def _clear_response_deadline(self) -> None:
-        if self._response_deadline is not None:
-            self._response_deadline.clear()
-
-    def _keep_gap(self, this: _Round) -> None:
-        """What `send_after_gap`'s loop does next, done here for a caller that stays held:
-        keep the gap after the reply just taken and send the next frame at its end."""
-        receiver = self.receiver
-        # What came after the reply: nobody asked for it. Not `_discard_pending`: the port was
-        # read this very callback, and bytes that come during the gap are seen at its end
-        # (`_send_at_gap_end`), which starts it again.
-        if receiver.received:
-            receiver.discard()
-        timer, port = self._timer, self._port
-        if port is None or not port.usable or timer is None:
-            self._release_caller()  # its own loop finds out what became of the port
-            return
-        due = receiver.quiet_since + self.settings.gap_s
-        wake_at = self._wake_at(due)
-        if wake_at > time.monotonic():
-            if timer.rearm(wake_at, partial(self._send_at_gap_end, this)):
-                return
-        elif self._send_at_gap_end(this, timed=False):
-            return
-        self._release_caller()  # the caller's loop takes it from here (`outcome` says what)
-
-    def _release_caller(self) -> None:
-        if self._timer is not None and self._timer.waiting is not None:
-            settle(self._timer.waiting)
+    def kick(self) -> None:
+        """A request was queued: an idle line sends it now (`GapKeeper.kick`)."""
+        self._gap.kick()
 
     def _discard_pending(self) -> None:
         """Throw away bytes nobody asked for (noise, a reply later than every drain)."""

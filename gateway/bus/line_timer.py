@@ -169,6 +169,19 @@ class LineTimer:
         self._armed.add(self)
         return True
 
+    def take_over(self) -> bool:
+        """Take the pending wait's action over now, before its deadline (the waiting coroutine
+        held still): it won't run. False when there is no such wait. Like an action that
+        returns True, whoever takes it over settles `waiting` or `rearm`s it. The timerfd
+        stays armed: its wake-up, if it still comes, finds nothing to do."""
+        waiter = self._waiter
+        if waiter is None or waiter.done() or self._deadline == math.inf:
+            return False
+        self._deadline = math.inf
+        self._armed.discard(self)
+        self._at_deadline = None
+        return True
+
     def close(self) -> None:
         self._armed.discard(self)
         fd, self._fd = self._fd, -1
