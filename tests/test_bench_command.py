@@ -53,6 +53,7 @@ def test_bench_prints_checked_figures_as_json() -> None:
     assert names == [
         "2w 8c",
         "2w 8c fast drives",  # answering 1 ms after t3.5, not 5 ms
+        "2w 8c fast drives, relay 0.25 ms",  # behind a relay delaying 0.25 ms each way
         "2w 8c same registers",
         "2w 8c one dead of 4",
         "2w 8c same regs, cache",
@@ -90,12 +91,82 @@ def test_bench_prints_checked_figures_as_json() -> None:
         assert 0 < row["worst line"] == row["bus util"]  # one line: it is the worst
         # 115200 8E1, 8 + 9 bytes, t3.5 1.75 ms, the drive's 5 ms (or 1 ms after its own t3.5).
         delay = 0.00175 + 0.001 if "fast" in row["case"] else 0.005
-        assert abs(row["wire max/s"] - 1 / (17 * 11 / 115200 + 0.00175 + delay)) < 0.1
+        relay = 2 * 0.00025 if "relay" in row["case"] else 0.0
+        assert abs(row["wire max/s"] - 1 / (17 * 11 / 115200 + 0.00175 + delay + relay)) < 0.1
     assert any("served by coalescing alone" in line for line in report["summary"])
     # Overall progress on stderr, plain lines when not on a terminal: one per case.
     steps = [line for line in result.stderr.splitlines() if line.startswith("bench: case")]
-    assert [step.split(" (")[0] for step in steps] == [f"bench: case {n} of 8" for n in range(1, 9)]
+    cases = [f"bench: case {n} of 9" for n in range(1, 10)]
+    assert [step.split(" (")[0] for step in steps] == cases
     assert all(re.search(r"% done, .* ends ~\d\d:\d\d:\d\d \(in ", step) for step in steps)
+
+
+def test_bench_counts_the_relays_delay_each_way_in_the_wire_maximum() -> None:
+    """A relay between the gateway's port and the drives (a USB adapter's timer, a device
+    server) makes every transaction longer by its delay twice: the maximum counts it, so the
+    share left is the gateway's to lose."""
+    arguments = ["--baud", "115200", "--duration", "1", "--warmup", "0.3", "--json"]
+    arguments += ["--case", "relay", "--relay-ms", "0.5"]
+    result = subprocess.run(
+        [sys.executable, "-m", "gateway", "bench", *arguments],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout)
+    (row,) = report["cases"]
+    assert row["case"] == "2w 8c fast drives, relay 0.5 ms"
+    assert row["errors"] == row["wrong"] == row["t3.5 viol"] == 0
+    # 115200 8E1, 8 + 9 bytes, t3.5 1.75 ms, the fast drive's t3.5 + 1 ms, 0.5 ms each way.
+    transaction_s = 17 * 11 / 115200 + 0.00175 + 0.00275 + 2 * 0.0005
+    assert abs(row["wire max/s"] - 1 / transaction_s) < 0.1
+    assert 0 < row["bus tx/s"] < row["wire max/s"]
+    assert row["of max"] == pytest.approx(row["client tx/s"] / row["wire max/s"])
+    # The relay is really in the path: after each reply, the drives hear silence for the
+    # reply's trip to the gateway and the next request's trip back, beyond the gateway's t3.5.
+    assert row["heard+ p50 us"] >= 1000
+    (line,) = report["summary"]
+    assert "of what the wire and the relay allow (0.5 ms each way counted" in line
+
+
+def test_bench_relay_delay_is_checked() -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "gateway", "bench", "--relay-ms", "-1"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode == 2
+    assert "--relay-ms: relay delay -1 ms is outside 0..100" in result.stderr
+
+
+def test_bench_measures_what_the_poller_costs_a_scadas_reads() -> None:
+    """The same eight readers without and with the poller polling every drive at its
+    profile's default plan: their latency both ways, and the ratio, in the summary."""
+    arguments = ["--baud", "19200", "--duration", "1.5", "--warmup", "0.5", "--json"]
+    result = subprocess.run(
+        [sys.executable, "-m", "gateway", "bench", *arguments, "--case", "scada"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout)
+    alone, polled = report["cases"]
+    assert alone["case"] == "scada: 8 readers alone"
+    assert polled["case"] == "scada: 8 readers + poller"
+    for row in (alone, polled):
+        assert row["errors"] == row["wrong"] == row["t3.5 viol"] == 0
+        assert 0 < row["p50 ms"] <= row["p99 ms"]
+    # Alone, every transaction is a reader's; with the poller, some are polls.
+    assert alone["bus tx/s"] == pytest.approx(alone["client tx/s"], rel=0.05)
+    assert polled["bus tx/s"] > polled["client tx/s"]
+    (line,) = report["summary"]
+    p50 = polled["p50 ms"] / alone["p50 ms"]
+    assert f"{p50:.2f}x at p50 (target <= 1.1x)" in line
+    assert "at p99 (target <= 1.2x)" in line
+    assert f"without the poller {alone['p50 ms']:.1f}/{alone['p99 ms']:.1f} ms" in line
 
 
 def test_bench_runs_several_lines_in_one_gateway_when_asked() -> None:

@@ -50,8 +50,21 @@ def set_point_values(address: int) -> tuple[int, ...]:
 ADAPTER_BAUD = 19200  # where the real-adapter cases run: the factory setting of P14.01
 
 
-def matrix(baudrates: tuple[int, ...]) -> list[Case]:
-    """Every case the issue asks for, per baud rate; then the cache and the scale cases."""
+SCADA_BAUDS = (19200, 115200)
+"""Where the SCADA-with-poller cases run: P14.01's factory setting and the fastest."""
+SCADA_ALONE = "scada: 8 readers alone"
+SCADA_POLLED = "scada: 8 readers + poller"
+"""The same readers while the poller polls every drive at its profile's default plan: what
+the polls cost a SCADA's reads, against `SCADA_ALONE`."""
+
+
+def relay_case_name(relay_ms: float) -> str:
+    return f"2w 8c fast drives, relay {relay_ms:g} ms"
+
+
+def matrix(baudrates: tuple[int, ...], relay_ms: float = 0.0) -> list[Case]:
+    """Every case the issue asks for, per baud rate; then the cache and the scale cases.
+    `relay_ms`: the relay cases' delay each way (0: none)."""
     cases = []
     for baud in baudrates:
         for words in (2, 16):
@@ -60,8 +73,15 @@ def matrix(baudrates: tuple[int, ...]) -> list[Case]:
         # Fast drives: the gateway's own share is no longer hidden in a 5 ms response delay.
         cases.append(Case("2w 8c fast drives", baud, 2, 8, fast=True))
         cases.append(Case("16w 8c fast drives", baud, 16, 8, fast=True))
+        # A relay between the gateway's port and the wire, as the plant's path has one: the
+        # wire maximum counts its delay each way, so what is lost beyond it is the gateway's.
+        if relay_ms:
+            cases.append(Case(relay_case_name(relay_ms), baud, 2, 8, fast=True, relay_ms=relay_ms))
         cases.append(Case("2w 8c same registers", baud, 2, 8, same_registers=True))
         cases.append(Case("2w 8c one dead of 4", baud, 2, 8, dead=1))
+        if baud in SCADA_BAUDS:
+            cases.append(Case(SCADA_ALONE, baud, 2, 8))
+            cases.append(Case(SCADA_POLLED, baud, 2, 8, polled=True))
         if baud == ADAPTER_BAUD:
             # Real adapters: bursts cutting every reply, a glitch byte before every reply, an
             # echo nobody configured; the wire maximum counts what the bursts hold back.
@@ -124,6 +144,9 @@ class Case:
     """Buses in the one gateway process, each with `drives` drives and `clients` clients."""
     flood: str = ""
     """"writes" or "broadcasts": one more client keeps `FLOOD_WINDOW` of them in flight."""
+    relay_ms: float = 0.0
+    """A relay between the gateway's port and the drives' wire, delaying every byte this long
+    each way (a USB adapter's timer, a serial device server)."""
     no_wire: bool = False
     """Bytes take no time on the virtual line and the drives answer at once: what is left per
     transaction is the gap the gateway keeps, and its own work."""
@@ -158,6 +181,7 @@ class Case:
     @property
     def simulator_args(self) -> list[str]:
         args = self.adapter_args + (["--no-wire-time"] if self.no_wire else [])
+        args += ["--relay-ms", f"{self.relay_ms:g}"] if self.relay_ms else []
         return [*args, "--wake-early-us", f"{self.drive_spin_us:g}"]
 
     def baseline(self) -> Case:
@@ -172,6 +196,7 @@ class Case:
             self.response_delay_s,
             burst_s=self.burst_ms / 1000,
             wire=not self.no_wire,
+            relay_s=self.relay_ms / 1000,
         )
 
 

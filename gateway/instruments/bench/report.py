@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from gateway.instruments.bench.cases import CaseResult
+from gateway.instruments.bench.cases import SCADA_ALONE, SCADA_POLLED, CaseResult
 from gateway.instruments.simulator.line import WAKE_EARLY_S
 
 COLUMNS = (
@@ -90,7 +90,12 @@ def summary(results: list[CaseResult]) -> list[str]:
     lines = []
     by_case = {r.case: r for r in results}
     alone = {r.case.baudrate: r for r in results if r.case.name == "flood: 8 readers alone"}
-    single = {(r.case.baudrate, r.case.fast): r for r in results if r.case.name.startswith("2w 8c")}
+    unpolled = {r.case.baudrate: r for r in results if r.case.name == SCADA_ALONE}
+    single = {
+        (r.case.baudrate, r.case.fast): r
+        for r in results
+        if r.case.name.startswith("2w 8c") and not r.case.relay_ms
+    }
     for result in results:
         case = result.case
         share = result.bus_per_s / result.wire_max_per_s
@@ -103,7 +108,11 @@ def summary(results: list[CaseResult]) -> list[str]:
                 else ""
             )
         )
-        if case.flood:
+        if case.name == SCADA_POLLED:
+            lines.append(scada_sentence(result, unpolled.get(case.baudrate)))
+        elif case.name == SCADA_ALONE:
+            continue  # said with the polled case
+        elif case.flood:
             base = alone.get(case.baudrate)
             was = f"{base.latency_ms(0.99):.1f} ms" if base else "not measured"
             lines.append(
@@ -131,6 +140,12 @@ def summary(results: list[CaseResult]) -> list[str]:
                 f"{result.cpu_per_transaction_us:.0f} us per bus transaction (target <= 300 us), "
                 f"{result.bus_per_s:.0f} transactions/s ({share:.1%} of what the t3.5 gap alone "
                 f"allows), {result.gap_violations} t3.5 violations"
+            )
+        elif case.relay_ms:
+            lines.append(
+                f"{case.baudrate} baud, {case.name}: bus at {share:.1%} of what the wire and "
+                f"the relay allow ({case.relay_ms:g} ms each way counted in the maximum; target "
+                f">= 96 %), {result.gap_violations} t3.5 violations; {gaps}"
             )
         elif case.fast:
             lines.append(
@@ -174,3 +189,19 @@ def summary(results: list[CaseResult]) -> list[str]:
                 "(target <= 60 MB)"
             )
     return lines
+
+
+def scada_sentence(polled: CaseResult, alone: CaseResult | None) -> str:
+    """What the poller costs the SCADA's reads: their latency with it against without it."""
+    with_it = f"{polled.latency_ms(0.5):.1f}/{polled.latency_ms(0.99):.1f} ms"
+    head = f"{polled.case.baudrate} baud, {polled.case.name}: the readers' p50/p99 {with_it}"
+    if alone is None:
+        return f"{head} (without the poller: not measured)"
+    p50 = polled.latency_ms(0.5) / alone.latency_ms(0.5)
+    p99 = polled.latency_ms(0.99) / alone.latency_ms(0.99)
+    return (
+        f"{head}, without the poller {alone.latency_ms(0.5):.1f}/{alone.latency_ms(0.99):.1f} ms: "
+        f"{p50:.2f}x at p50 (target <= 1.1x), {p99:.2f}x at p99 (target <= 1.2x); "
+        f"the bus carried {polled.bus_per_s:.1f} transactions/s with the poller, "
+        f"{polled.client_per_s:.1f} of them the readers'"
+    )

@@ -16,6 +16,9 @@ from gateway.instruments.stop_on_terminate import stop_on_terminate
 from gateway.progress import Progress
 
 BAUDRATES = (9600, 19200, 115200)
+RELAY_MS = 0.25
+"""The relay cases' delay each way by default: a serial device server's, or a USB adapter's
+with its latency timer at its lowest (the simulator's `--relay-ms`)."""
 CASE_START_S = 1.0
 """About what starting and stopping a case's processes takes here, for the first estimate of
 the end (later ones go by the pace of the cases done)."""
@@ -67,6 +70,15 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "'lines' (4, 8 and 16 buses in one process, 5 ms and fast drives; 16 simulator "
         "processes share the machine) and 'flood' (readers while one client pipelines writes or "
         "broadcasts)",
+    )
+    parser.add_argument(
+        "--relay-ms",
+        type=relay_ms,
+        default=RELAY_MS,
+        metavar="MS",
+        help="the relay cases' delay each way between the gateway's port and the simulated "
+        "drives' wire, as a USB adapter's timer or a serial device server adds it; their wire "
+        "maximum counts it (default %(default)g; 0 leaves those cases out)",
     )
     parser.add_argument(
         "--json", action="store_true", help="one JSON document instead of the table"
@@ -124,7 +136,7 @@ def handle(args: argparse.Namespace) -> int:
     from gateway.instruments.bench.report import format_row, header, row, summary
 
     baudrates = tuple(args.baud or BAUDRATES)
-    cases = matrix(baudrates)
+    cases = matrix(baudrates, args.relay_ms)
     if args.case:
         cases = [c for c in cases + extra_cases(baudrates) if args.case in c.name]
     results: list[CaseResult] = []
@@ -177,7 +189,18 @@ def page_arguments(args: argparse.Namespace) -> list[str]:
     given = [f"--baud={baud}" for baud in args.baud or ()]
     given += [f"--duration={args.duration:g}", f"--warmup={args.warmup:g}", f"--runs={args.runs}"]
     given += [f"--case={args.case}"] if args.case else []
+    given += [f"--relay-ms={args.relay_ms:g}"] if args.relay_ms != RELAY_MS else []
     return [*given, f"--page={args.page}"]
+
+
+def relay_ms(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"relay delay {text!r} is no number of ms") from None
+    if not 0.0 <= value <= 100.0:
+        raise argparse.ArgumentTypeError(f"relay delay {value:g} ms is outside 0..100")
+    return value
 
 
 def gateway_event_loop() -> str | None:

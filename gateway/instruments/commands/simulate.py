@@ -168,6 +168,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "direction puts on the line",
     )
     adapter.add_argument(
+        "--relay-ms",
+        type=_relay_ms,
+        default=0.0,
+        metavar="MS",
+        help="a relay between the gateway's port and the drives' wire, delaying every byte MS "
+        "ms each way, as a USB adapter's timer or a serial device server does (default 0: none)",
+    )
+    adapter.add_argument(
         "--echo",
         action="store_true",
         help="hand every request back as it arrives, as a 2-wire adapter without echo "
@@ -190,6 +198,8 @@ def handle(args: argparse.Namespace) -> int:
             adapter = (
                 "" if line.adapter.describe() == "none" else f"; adapter: {line.adapter.describe()}"
             )
+            if line.relay_s:
+                adapter += f"; relay {line.relay_s * 1000:g} ms each way"
             print(
                 f"simulating {describe_drives(line)} on "
                 f"{line.path} ({args.baud} baud 8{args.parity}{args.stopbits}){adapter}",
@@ -252,6 +262,7 @@ def build_line(args: argparse.Namespace) -> SimulatedLine:
         link=args.link,
         fault_history=dict(args.fault_history),
         wake_early_s=args.wake_early_us / 1e6,
+        relay_s=args.relay_ms / 1000,
     )
     for address, code in args.fault:
         line.inject_fault(address, code)
@@ -339,6 +350,16 @@ def _wake_early_us(text: str) -> float:
     value = float(text)
     if not 0.0 <= value <= 10_000.0:
         raise argparse.ArgumentTypeError(f"wake-early {value:g} us is outside 0..10000")
+    return value
+
+
+def _relay_ms(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"relay delay {text!r} is no number of ms") from None
+    if not 0.0 <= value <= 1000.0:
+        raise argparse.ArgumentTypeError(f"relay delay {value:g} ms is outside 0..1000")
     return value
 
 

@@ -18,6 +18,12 @@ each reply went out after the moment it was due (the drives' own lateness: this 
 on a busy machine), and the silence beyond t3.5 the drives heard between a reply and the request
 after it (the master's share, its reading of the reply and the relay between the pty ends: all
 that the line waits for besides the drives).
+
+With `relay_s`, a relay sits between the master's port and the drives' wire, as a USB adapter's
+timer or a serial device server does: every byte reaches the wire `relay_s` after the master
+wrote it, and every reply reaches the master `relay_s` after it left the wire. Times the line
+keeps (frames, gaps, the histograms) are the wire's, on the drives' side of the relay; only
+when a reply is handed to the master is the master's.
 """
 
 from __future__ import annotations
@@ -78,7 +84,10 @@ class SimulatedLine:
         models: Mapping[int, str] | None = None,
         fault_history: Mapping[int, Sequence[int]] | None = None,
         wake_early_s: float = WAKE_EARLY_S,
+        relay_s: float = 0.0,
     ) -> None:
+        if relay_s < 0:
+            raise ValueError(f"relay delay {relay_s * 1000:g} ms is negative")
         models = models or {}
         histories = fault_history or {}
         addresses = list(addresses)
@@ -105,6 +114,8 @@ class SimulatedLine:
         self.device = device
         self.link = link
         self.wake_early_s = wake_early_s
+        self.relay_s = relay_s
+        """The relay's delay each way between the master's port and the wire."""
         char_format = CharacterFormat(baudrate, self.parity, stopbits)
         self.character_s = char_format.char_time_s
         self.t35_s = char_format.t35_s
@@ -136,7 +147,8 @@ class SimulatedLine:
         self._wake_read = self._wake_write = -1
         self._calls: deque[_Call] = deque()
         self._assembler = RequestAssembler(self.t35_s)
-        # (due, sequence, bytes, ends a reply): a heap. A reply delivered in bursts is several.
+        # (due, sequence, bytes, ends a reply): a heap, due when the master gets the bytes (the
+        # relay's delay after they left the wire). A reply delivered in bursts is several.
         self._pending: list[tuple[float, int, bytes, bool]] = []
         self._sequence = itertools.count()
         self._answered_by: dict[int, float] = {}
@@ -351,7 +363,7 @@ class SimulatedLine:
         if endpoint is not None and endpoint is self._endpoint and endpoint.fd in readable:
             self._receive(endpoint, time.monotonic())
         with self._lock:
-            for frame in self._assembler.on_silence(time.monotonic()):
+            for frame in self._assembler.on_silence(time.monotonic() + self.relay_s):
                 self._on_frame(frame)
 
     def _next_wakeup(self) -> float | None:
@@ -361,7 +373,7 @@ class SimulatedLine:
         deadlines = [self._pending[0][0] - self.wake_early_s] if self._pending else []
         silence = self._assembler.silence_deadline()
         if silence is not None:
-            deadlines.append(silence)
+            deadlines.append(silence - self.relay_s)  # the wire's time, the relay's delay ahead
         if not deadlines:
             return None
         return max(0.0, min(deadlines) - time.monotonic())
@@ -380,7 +392,8 @@ class SimulatedLine:
             self._unplug()
             return
         with self._lock:
-            for frame in self._assembler.feed(data, now):
+            # The bytes reach the drives' wire the relay's delay after the master wrote them.
+            for frame in self._assembler.feed(data, now + self.relay_s):
                 self._on_frame(frame)
             if self._adapter.echo:
                 self._echo(data, now)
@@ -441,7 +454,8 @@ class SimulatedLine:
         due = wire_end + delay_s + len(reply) * character_s
         due = max(due, self._answered_by.get(address, 0.0) + len(reply) * character_s)
         self._answered_by[address] = due
-        parts = self._adapter.deliveries(reply, due, character_s)
+        # The master gets it the relay's delay after it left the wire.
+        parts = self._adapter.deliveries(reply, due + self.relay_s, character_s)
         # The adapter hands bytes over in the order they crossed the wire: a reply right behind
         # one whose last part is held back for a burst comes after that part, never into it.
         in_order = due >= self._last_reply_due
@@ -467,7 +481,8 @@ class SimulatedLine:
         gaps = []
         if self._last_frame_end is not None:
             gaps.append(first_byte_at - self._last_frame_end)
-        for due, _, reply, _ in self._pending:
+        for handed_over, _, reply, _ in self._pending:
+            due = handed_over - self.relay_s  # when it leaves the wire
             reply_starts = due - len(reply) * character_s
             if first_byte_at + request_wire_s + self.t35_s > reply_starts:
                 gaps.append(first_byte_at - due)  # collides with a reply still to go out
@@ -493,11 +508,12 @@ class SimulatedLine:
             due, _, reply, ends_reply = heapq.heappop(self._pending)
             written_at = time.monotonic()
             if self._write(reply) and ends_reply:
+                left_wire_at = written_at - self.relay_s  # the relay held it this long
                 with self._lock:
                     self._stats["replies"] += 1
-                    self._frame_ended(written_at)
+                    self._frame_ended(left_wire_at)
                     self._reply_late.observe(written_at - due)
-                    self._reply_ended_at = written_at
+                    self._reply_ended_at = left_wire_at
 
     def _write(self, data: bytes) -> bool:
         endpoint = self._endpoint
