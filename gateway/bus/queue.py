@@ -2,8 +2,11 @@
 
 Order of service:
 1. priority: writes first (a stop command never waits behind polls), then client reads, then polls,
-   except that polls get one turn in `POLL_SHARE` while reads are waiting too (telemetry and
-   dead-drive probes must not starve under a SCADA that reads without pause), and that writes
+   except that polls get a turn while reads are waiting too (telemetry and dead-drive probes must
+   not starve under a SCADA that reads without pause): one in `POLL_SHARE` at most, and only
+   once every client waiting to read has had a read since the last poll, so that a poll holds a
+   waiting client for one poll transaction at most (not one per POLL_SHARE - 1 reads of the
+   others: eight SCADA connections were held for two polls a round); and that writes
    take at most their share of the line's time while reads wait, broadcasts theirs while
    anything else waits (`gateway.bus.line_share`): one client's flood of writes can't freeze
    the others' reads;
@@ -97,6 +100,8 @@ class RequestQueue:
         self._coalescing: dict[tuple[int, bytes, Priority], Transaction] = {}
         self._size = 0
         self._reads_while_polls_wait = 0
+        self._read_since_poll: set[str] = set()
+        """Clients served a read since the last poll, while polls waited."""
         self.coalesced = 0
 
     def __len__(self) -> int:
@@ -139,6 +144,11 @@ class RequestQueue:
         if clients is None:
             return None
         client, waiting = next(iter(clients.items()))
+        levels = self._levels
+        if clients is levels[Priority.POLL]:
+            self._read_since_poll.clear()
+        elif levels[Priority.POLL] and clients is levels[Priority.READ]:
+            self._read_since_poll.add(client)
         transaction = waiting.popleft()
         del clients[client]
         if waiting:
@@ -172,13 +182,21 @@ class RequestQueue:
         return self._broadcasts or None
 
     def _next_level(self) -> Priority | None:
-        """Reads, then polls; but polls get every POLL_SHARE-th turn while reads wait, so
-        telemetry never stops under a SCADA that reads without pause."""
+        """Reads, then polls; but polls get a turn while reads wait, so telemetry never stops
+        under a SCADA that reads without pause: after POLL_SHARE - 1 reads, once every client
+        waiting to read has had a read since the last poll (no waiting client held by two
+        polls: with eight SCADA connections reading without pause, a poll every ninth
+        transaction instead of every fourth)."""
         levels = self._levels
+        reads = levels[Priority.READ]
         if not levels[Priority.POLL]:
             self._reads_while_polls_wait = 0
-            return Priority.READ if levels[Priority.READ] else None
-        if not levels[Priority.READ] or self._reads_while_polls_wait >= POLL_SHARE - 1:
+            self._read_since_poll.clear()
+            return Priority.READ if reads else None
+        if not reads or (
+            self._reads_while_polls_wait >= POLL_SHARE - 1
+            and self._read_since_poll.issuperset(reads)
+        ):
             self._reads_while_polls_wait = 0
             return Priority.POLL
         self._reads_while_polls_wait += 1

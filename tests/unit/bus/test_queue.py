@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import itertools
 
 import pytest
 
@@ -104,3 +105,30 @@ async def test_polls_get_a_share_while_reads_keep_coming() -> None:
     assert served[0] == "write"  # writes still go first
     # One poll in every POLL_SHARE (4) while reads wait: polls at picks 4, 8, 12 after the write.
     assert [i for i, c in enumerate(served[1:], 1) if c == "poll"] == [4, 8, 12]
+
+
+async def test_a_poll_holds_a_waiting_client_for_one_poll_transaction_at_most() -> None:
+    """Eight SCADA connections reading without pause (each asks again while the next
+    transaction is on the wire) and polls always waiting: a poll goes once every client had
+    its turn, so between two of a client's reads at most one poll; and polls still go."""
+    queue = RequestQueue(100)
+    clients = [f"scada{n}" for n in range(8)]
+    for client in clients:
+        queue.put(txn(client))
+    for _ in range(20):
+        queue.put(txn("poll", Priority.POLL))
+    served: list[str] = []
+    in_transit: str | None = None  # answered, its next read not yet queued
+    for _ in range(60):
+        taken = queue.get_nowait()
+        assert taken is not None
+        served.append(taken.client)
+        if in_transit is not None:
+            queue.put(txn(in_transit))
+        in_transit = taken.client if taken.client != "poll" else None
+    polls = served.count("poll")
+    assert polls >= 5  # telemetry goes on under the SCADA's load
+    for client in clients:
+        turns = [i for i, c in enumerate(served) if c == client]
+        for before, after in itertools.pairwise(turns):
+            assert served[before + 1 : after].count("poll") <= 1, (client, served)
