@@ -119,6 +119,16 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
             terminalreporter.write_line(f"{name}: {value}")
 
 
+@pytest.fixture(autouse=True, scope="session")
+def session_state_directory(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """A store for the gateways that module- and session-scoped fixtures start, which come
+    before `own_state_directory` sets each test's: never the machine's /var/lib/invt-gateway
+    (a store there, left by another release, refused such a gateway's start)."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv(ENV_STATE_DIRECTORY, str(tmp_path_factory.mktemp("session-state")))
+        yield
+
+
 @pytest.fixture(autouse=True)
 def own_state_directory(
     tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch
