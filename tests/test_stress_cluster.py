@@ -101,7 +101,7 @@ def test_a_command_run_twice_a_lost_event_and_a_gateway_not_back_each_fail_the_r
         commands=CommandCount(sent=20, unacknowledged=1, ran=19, ran_twice=(), unsent_ran=0),
     )
     assert problems(result) == []
-    assert table(result).rstrip().endswith("verdict  pass")
+    assert table(result).splitlines()[-1].split() == ["verdict", "pass"]
 
     result.commands = CommandCount(20, 1, 19, (5.07,), 0)
     result.deliveries = [Delivery("g1", 40, 39, 39, (17,))]
