@@ -69,6 +69,10 @@ def test_a_short_cluster_stress_run_passes_and_reports_every_figure(
     assert ("g2", "SIGKILLed and restarted") in causes
     assert {r["cause"] for r in resumes} >= {f"its node n{n} SIGKILLed" for n in range(3)}
     assert all(0 < r["seconds"] < RESUME_LIMIT_S for r in resumes), resumes
+    # With every node up, the dashboard's session has the restarted gateway's "online" too (with
+    # a node down NATS 2.9 may hold its deliveries until the node is back: printed, not judged).
+    restart = next(r for r in resumes if r["cause"] == "SIGKILLed and restarted")
+    assert restart["dashboard_s"] is not None, restart
     record_property(
         "figure:stress --cluster back to back",
         "; ".join(f"{r['gateway']} back {r['seconds']:.1f} s after {r['cause']}" for r in resumes)
@@ -95,7 +99,7 @@ def test_a_command_run_twice_a_lost_event_and_a_gateway_not_back_each_fail_the_r
         elapsed_s=10,
         node_kills=3,
         gateway_kills=1,
-        resumes=[Resume("g1", "its node n0 SIGKILLed", 8.5, "127.0.0.1:4001")],
+        resumes=[Resume("g1", "its node n0 SIGKILLed", 8.1, 8.5, "127.0.0.1:4001")],
         retained=[RetainedRead("n0 down", "n1", 1.2)],
         deliveries=[Delivery("g1", 40, 42, 40, ())],
         commands=CommandCount(sent=20, unacknowledged=1, ran=19, ran_twice=(), unsent_ran=0),
@@ -105,7 +109,7 @@ def test_a_command_run_twice_a_lost_event_and_a_gateway_not_back_each_fail_the_r
 
     result.commands = CommandCount(20, 1, 19, (5.07,), 0)
     result.deliveries = [Delivery("g1", 40, 39, 39, (17,))]
-    result.resumes.append(Resume("g2", "SIGKILLed and restarted", None, None))
+    result.resumes.append(Resume("g2", "SIGKILLed and restarted", None, None, None))
     result.retained.append(RetainedRead("n0 down", "n2", None, ("site/g1/drive3",)))
     found = " | ".join(problems(result))
     assert "commands ran twice: [5.07] Hz" in found

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import json
 import sqlite3
 import tempfile
@@ -36,7 +37,13 @@ from typing import Any, Final
 
 from gateway.instruments.bench.processes import SimulatorProcess, free_port, stop_process
 from gateway.instruments.nats_cluster import NatsNode, nats_cluster
-from gateway.instruments.stress.cluster_clients import Dashboard, Operator, SetPoint, read_retained
+from gateway.instruments.stress.cluster_clients import (
+    Dashboard,
+    Operator,
+    SetPoint,
+    StateWatch,
+    read_retained,
+)
 from gateway.instruments.stress.processes import Gateway, launch_simulator, simulator_started
 
 RETAINED_WITHIN_S: Final = 5.0
@@ -75,7 +82,12 @@ class Resume:
     gateway: str
     cause: str
     seconds: float | None
-    """From the SIGKILL to its "online" at the dashboard; None: not within RESUME_LIMIT_S."""
+    """From the SIGKILL to its "online", seen first through any live node (`StateWatch`);
+    None: not within RESUME_LIMIT_S."""
+    dashboard_s: float | None
+    """... and at the dashboard's persistent QoS 1 session; None: not before the gateway's
+    next kill or the run's end (NATS 2.9 may hold a session's deliveries until a dead node
+    is back)."""
     server: str | None
     """The node it came back through."""
 
@@ -196,7 +208,11 @@ async def run_cluster_stress(
         # Started here, on the loop's thread (`die_with_parent`), and held at once.
         launched = [launch_simulator(line.simulator_arguments(settings.drives)) for line in lines]
         dashboard = Dashboard(nodes, site)
-        watching = asyncio.create_task(dashboard.run(), name="stress:dashboard")
+        watch = StateWatch(nodes, site)
+        watching = [
+            asyncio.create_task(dashboard.run(), name="stress:dashboard"),
+            asyncio.create_task(watch.run(), name="stress:watch"),
+        ]
         try:
             for line, process in zip(lines, launched, strict=True):
                 line.simulator = await asyncio.to_thread(simulator_started, process)
@@ -210,13 +226,14 @@ async def run_cluster_stress(
                 assert line.gateway is not None
                 await asyncio.to_thread(line.gateway.wait_listening)
             for line in lines:
-                if await _online_after(dashboard, line, 0.0, live=False) is None:
+                if await _online_after(dashboard, line, 0.0) is None:
                     raise RuntimeError(f"gateway {line.name} never came online on the cluster")
-            await Run(settings, nodes, lines, dashboard, result, progress).run()
+            await Run(settings, nodes, lines, dashboard, watch, result, progress).run()
         finally:
-            watching.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await watching
+            for task in watching:
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
             for line in lines:
                 if line.gateway is not None:
                     result.logs[line.name] = line.gateway.log_tail()
@@ -228,13 +245,12 @@ async def run_cluster_stress(
 
 
 async def _online_after(
-    dashboard: Dashboard, line: Line, moment: float, live: bool = True
+    dashboard: Dashboard, line: Line, moment: float
 ) -> tuple[float, str] | None:
-    """(seconds from `moment`, through which node) of the gateway's next "online", or None.
-    `live`: as it published it (not a retained copy); at the start, either."""
+    """(seconds from `moment`, through which node) of the gateway's next "online", or None."""
     deadline = time.monotonic() + RESUME_LIMIT_S
     while time.monotonic() < deadline:
-        online = dashboard.online_after(line.base, moment, live)
+        online = dashboard.online_after(line.base, moment)
         if online is not None:
             return online.at - moment, str(online.data.get("server"))
         await asyncio.sleep(0.02)
@@ -248,6 +264,7 @@ class Run:
         nodes: list[NatsNode],
         lines: list[Line],
         dashboard: Dashboard,
+        watch: StateWatch,
         result: ClusterResult,
         progress: Callable[[str], None],
     ) -> None:
@@ -255,49 +272,62 @@ class Run:
         self.nodes = nodes
         self.lines = lines
         self.dashboard = dashboard
+        self.watch = watch
         self.result = result
         self.progress = progress
         self.operator = Operator(nodes)
         self.line_lock = asyncio.Lock()
         """Held while the simulators are talked to: the toggling and a read's changes."""
         self.reads = 0
+        self._killed: list[tuple[Line, float, int, str | None]] = []
+        """(gateway, when killed, its `Resume`'s index, the dead node's address) of each kill."""
 
     async def run(self) -> None:
         started = time.monotonic()
         duration = self.settings.duration_s
         stop = asyncio.Event()
-        async with asyncio.TaskGroup() as tasks:
-            tasks.create_task(self._toggle(stop), name="stress:toggle")
-            tasks.create_task(self._command(stop), name="stress:operator")
-            try:
-                await self._read_retained("all nodes up")
-                for index, at in enumerate(NODE_KILL_AT[: len(self.lines)]):
-                    await _sleep_until(started + at * duration)
-                    await self._kill_node_of(self.lines[index])
-                await _sleep_until(started + GATEWAY_KILL_AT * duration)
-                await self._kill_gateway(self.lines[KILLED_GATEWAY % len(self.lines)])
-                await _sleep_until(started + duration)
-            finally:
-                stop.set()
+        # Not a TaskGroup: a step's RuntimeError comes out as itself, for the command to print.
+        tasks = [
+            asyncio.create_task(self._toggle(stop), name="stress:toggle"),
+            asyncio.create_task(self._command(stop), name="stress:operator"),
+        ]
+        try:
+            await self._read_retained("all nodes up")
+            for index, at in enumerate(NODE_KILL_AT[: len(self.lines)]):
+                await _sleep_until(started + at * duration)
+                await self._kill_node_of(self.lines[index])
+            await _sleep_until(started + GATEWAY_KILL_AT * duration)
+            await self._kill_gateway(self.lines[KILLED_GATEWAY % len(self.lines)])
+            await _sleep_until(started + duration)
+        finally:
+            stop.set()
+            ended = await asyncio.gather(*tasks, return_exceptions=True)
+        failed = [each for each in ended if isinstance(each, Exception)]
+        if failed:
+            raise RuntimeError(f"the drives' faults or the set-points stopped: {failed[0]!r}")
         await self.operator.close()
         self.result.elapsed_s = time.monotonic() - started
         self.progress("run over; waiting for events still under way")
         await self._count_deliveries()
         self._count_commands()
+        self._dashboard_times()
+
+    def _server_of(self, line: Line) -> str | None:
+        return self.watch.server_of(line.base) or self.dashboard.server_of(line.base)
 
     async def _kill_node_of(self, line: Line) -> None:
-        server = self.dashboard.server_of(line.base)
+        server = self._server_of(line)
         node = next((n for n in self.nodes if n.address == server), None)
         if node is None:
             raise RuntimeError(f"gateway {line.name} says it is on {server!r}, not a node of ours")
         await self.dashboard.move_off(node)
-        on_it = [each for each in self.lines if self.dashboard.server_of(each.base) == server]
+        on_it = [each for each in self.lines if self._server_of(each) == server]
         killed = time.monotonic()
         node.kill()
         self.result.node_kills += 1
         self.progress(f"node {node.name} SIGKILLed ({', '.join(e.name for e in on_it)} on it)")
         cause = f"its node {node.name} SIGKILLed"
-        await asyncio.gather(*(self._resumed(each, killed, cause) for each in on_it))
+        await asyncio.gather(*(self._resumed(each, killed, cause, server) for each in on_it))
         await self._read_retained(f"{node.name} down")
         node.start()
         await asyncio.to_thread(node.wait_listening)
@@ -315,15 +345,33 @@ class Run:
         await self._resumed(line, killed, "SIGKILLed and restarted")
         await self._read_retained(f"gateway {line.name} restarted")
 
-    async def _resumed(self, line: Line, killed: float, cause: str) -> None:
-        back = await _online_after(self.dashboard, line, killed)
-        seconds, server = back if back is not None else (None, None)
-        resume = Resume(line.name, cause, seconds, server)
-        self.result.resumes.append(resume)
+    async def _resumed(
+        self, line: Line, killed: float, cause: str, dead: str | None = None
+    ) -> None:
+        """`dead`: the address of the node that died, if one did."""
+        deadline = killed + RESUME_LIMIT_S
+        while (back := self.watch.online_after(line.base, killed)) is None:
+            if time.monotonic() > deadline:
+                break
+            await asyncio.sleep(0.02)
+        seconds, server = (None, None) if back is None else (back[0] - killed, back[1])
+        self._killed.append((line, killed, len(self.result.resumes), dead))
+        self.result.resumes.append(Resume(line.name, cause, seconds, None, server))
         if seconds is None:
             self.progress(f"{line.name}: NOT back within {RESUME_LIMIT_S:.0f} s ({cause})")
         else:
             self.progress(f"{line.name}: online through {server} {seconds:.2f} s after {cause}")
+
+    def _dashboard_times(self) -> None:
+        """When the dashboard's session got each "online": before the gateway's next kill."""
+        for line, killed, index, dead in self._killed:
+            later = [at for each, at, _, _ in self._killed if each is line and at > killed]
+            online = self.dashboard.online_after(line.base, killed, not_via=dead)
+            if online is not None and (not later or online.at < min(later)):
+                resume = self.result.resumes[index]
+                self.result.resumes[index] = dataclasses.replace(
+                    resume, dashboard_s=online.at - killed
+                )
 
     async def _read_retained(self, moment: str) -> None:
         """A new fault code on every drive, then its retained state through every live node."""

@@ -91,17 +91,18 @@ class Dashboard:
             if m.topic == topic and isinstance(m.data, dict) and isinstance(m.data.get("id"), int)
         ]
 
-    def online_after(self, base: str, moment: float, live: bool = True) -> Received | None:
-        """The gateway's first "online" received after `moment`; `live`: as it published it,
-        not the retained copy that a subscription made after `moment` brings again."""
+    def online_after(self, base: str, moment: float, not_via: str | None = None) -> Received | None:
+        """The gateway's first "online" received after `moment`, not naming node `not_via`
+        (the retained copy a subscription brings again names the node it was on then: the
+        retain flag can't tell it, as NATS may keep it on a queued message)."""
         topic = f"{base}/bridge/state"
         for message in self.messages:
             if (
                 message.at > moment
-                and not (live and message.retained)
                 and message.topic == topic
                 and isinstance(message.data, dict)
                 and message.data.get("state") == "online"
+                and (not_via is None or message.data.get("server") != not_via)
             ):
                 return message
         return None
@@ -190,6 +191,62 @@ class Dashboard:
                     bool(message.retain),
                 )
             )
+
+
+class StateWatch:
+    """`<site>/+/bridge/state` at QoS 0 through every running node: when each gateway said
+    "online", as early as any node can tell. A QoS 0 subscription is plain NATS, with no
+    JetStream consumer behind it, so the cluster's elections after a node's death delay it not
+    (the dashboard's QoS 1 session they may)."""
+
+    def __init__(self, nodes: Sequence[NatsNode], site: str) -> None:
+        self.nodes = nodes
+        self.site = site
+        self.online: list[tuple[float, str, str]] = []
+        """(monotonic() when seen, topic, the node it names) of every live "online"."""
+
+    def server_of(self, base: str) -> str | None:
+        """The node the gateway's latest "online" named, if one was seen."""
+        topic = f"{base}/bridge/state"
+        return next((server for _, seen, server in reversed(self.online) if seen == topic), None)
+
+    def online_after(self, base: str, moment: float) -> tuple[float, str] | None:
+        """(when, through which node) of the gateway's first "online" after `moment`."""
+        topic = f"{base}/bridge/state"
+        return next(
+            ((at, server) for at, seen, server in self.online if at > moment and seen == topic),
+            None,
+        )
+
+    async def run(self) -> None:
+        async with asyncio.TaskGroup() as tasks:
+            for node in self.nodes:
+                tasks.create_task(self._watch(node), name=f"stress:watch-{node.name}")
+
+    async def _watch(self, node: NatsNode) -> None:
+        while True:
+            if node.running:
+                client = aiomqtt.Client(
+                    node.host,
+                    node.port,
+                    identifier=f"stress-watch-{uuid.uuid4().hex[:8]}",
+                    timeout=2,
+                    keepalive=5,
+                )
+                try:
+                    async with client:
+                        await client.subscribe(f"{self.site}/+/bridge/state", qos=0)
+                        async for message in client.messages:
+                            data = _json(message.payload)
+                            online = isinstance(data, dict) and data.get("state") == "online"
+                            if online and not message.retain:
+                                server = str(data.get("server"))
+                                self.online.append((time.monotonic(), str(message.topic), server))
+                except aiomqtt.MqttError as exc:
+                    log.info("watch on %s: %s", node.name, exc)
+                finally:
+                    _forget_loss(client)
+            await asyncio.sleep(RETRY_S)
 
 
 @dataclass(frozen=True, slots=True)
