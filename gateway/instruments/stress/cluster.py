@@ -42,6 +42,7 @@ from gateway.instruments.stress.cluster_clients import (
     Operator,
     SetPoint,
     StateWatch,
+    quiet_lost_connections,
     read_retained,
 )
 from gateway.instruments.stress.processes import Gateway, launch_simulator, simulator_started
@@ -89,7 +90,7 @@ class Resume:
     next kill or the run's end (NATS 2.9 may hold a session's deliveries until a dead node
     is back)."""
     server: str | None
-    """The node it came back through."""
+    """The node it came back through (its name, n0..n2)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -199,6 +200,7 @@ async def run_cluster_stress(
 ) -> ClusterResult:
     """RuntimeError when the cluster, a line or a gateway does not start."""
     result = ClusterResult(settings)
+    quiet_lost_connections(asyncio.get_running_loop())
     site = f"invt-cluster-{uuid.uuid4().hex[:8]}"
     with (
         tempfile.TemporaryDirectory(prefix="invt-stress-cluster-") as folder,
@@ -355,6 +357,7 @@ class Run:
                 break
             await asyncio.sleep(0.02)
         seconds, server = (None, None) if back is None else (back[0] - killed, back[1])
+        server = next((node.name for node in self.nodes if node.address == server), server)
         self._killed.append((line, killed, len(self.result.resumes), dead))
         self.result.resumes.append(Resume(line.name, cause, seconds, None, server))
         if seconds is None:

@@ -49,17 +49,23 @@ def _json(payload: object) -> Any:
         return None
 
 
-def _forget_loss(client: aiomqtt.Client) -> None:
-    """aiomqtt keeps a lost connection's error in a future that nothing reads once the client is
-    left (asyncio then prints "Future exception was never retrieved"); the loss is handled here,
-    by connecting again, so it is read and dropped."""
-    disconnected = getattr(client, "_disconnected", None)
-    if (
-        isinstance(disconnected, asyncio.Future)
-        and disconnected.done()
-        and not disconnected.cancelled()
-    ):
-        disconnected.exception()
+def quiet_lost_connections(loop: asyncio.AbstractEventLoop) -> None:
+    """aiomqtt keeps a lost connection's error in a future that nothing reads once its client is
+    left, and asyncio prints "Future exception was never retrieved" for each: here every loss is
+    expected (nodes are killed) and handled (the client connects again), so those are dropped.
+    Anything else goes to the handler there was."""
+    previous = loop.get_exception_handler()
+
+    def handler(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
+        lost = isinstance(context.get("exception"), aiomqtt.MqttError)
+        if lost and "never retrieved" in str(context.get("message", "")):
+            return
+        if previous is None:
+            loop.default_exception_handler(context)
+        else:
+            previous(loop, context)
+
+    loop.set_exception_handler(handler)
 
 
 def _live(nodes: Sequence[NatsNode], avoid: NatsNode | None) -> list[NatsNode]:
@@ -156,7 +162,6 @@ class Dashboard:
             await self._session(client, node)
         finally:
             self._on(None)
-            _forget_loss(client)
 
     async def _session(self, client: aiomqtt.Client, node: NatsNode) -> None:
         async with client:
@@ -244,8 +249,6 @@ class StateWatch:
                                 self.online.append((time.monotonic(), str(message.topic), server))
                 except aiomqtt.MqttError as exc:
                     log.info("watch on %s: %s", node.name, exc)
-                finally:
-                    _forget_loss(client)
             await asyncio.sleep(RETRY_S)
 
 
@@ -303,7 +306,6 @@ class Operator:
         if client is not None:
             with contextlib.suppress(Exception):
                 await client.__aexit__(None, None, None)
-            _forget_loss(client)
 
 
 async def read_retained(node: NatsNode, topics: set[str], site: str) -> dict[str, Any]:
@@ -330,6 +332,4 @@ async def read_retained(node: NatsNode, topics: set[str], site: str) -> dict[str
                 await asyncio.wait_for(collect(), READ_WINDOW_S)
     except aiomqtt.MqttError as exc:
         log.info("reader on %s: %s", node.name, exc)
-    finally:
-        _forget_loss(client)
     return found
