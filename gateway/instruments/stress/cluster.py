@@ -14,9 +14,10 @@ other command has. Drive 1 of every line trips and resets all along: a steady st
     100 %           every event id the gateways stored looked for at the dashboard; every
                     command event counted by its frequency
 
-Each retained read puts a new fault code on every drive of every line first, and measures from
-there: a drive's state is read fresh (a new client, its retained messages) through each live
-node until every drive shows its new code, or `RETAINED_WITHIN_S` has passed.
+Each retained read waits until every live node takes an MQTT client, puts a new fault code on
+every drive of every line, and measures from there: a drive's state is read fresh (a new
+client, its retained messages) through each live node until every drive shows its new code, or
+`RETAINED_WITHIN_S` has passed.
 """
 
 from __future__ import annotations
@@ -381,6 +382,11 @@ class Run:
         code = FAULT_CODES[self.reads % len(FAULT_CODES)]
         self.reads += 1
         drives = self.settings.drives
+        live = [node for node in self.nodes if node.running]
+        # The change is made once every live node takes a client again: right after a node's
+        # death the others may refuse any for seconds while they elect leaders (what the
+        # resume times measure); what is timed here is a change reaching every node.
+        await asyncio.gather(*(node.wait_serving() for node in live))
         async with self.line_lock:
             for line in self.lines:
                 assert line.simulator is not None
@@ -388,7 +394,6 @@ class Run:
                     await asyncio.to_thread(line.simulator.command, f"fault {address} {code}")
             changed = time.monotonic()
             topics = {topic for line in self.lines for topic in line.drive_topics(drives)}
-            live = [node for node in self.nodes if node.running]
             reads = await asyncio.gather(
                 *(self._read_through(node, topics, code, changed, moment) for node in live)
             )
