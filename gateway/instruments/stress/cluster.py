@@ -14,10 +14,10 @@ other command has. Drive 1 of every line trips and resets all along: a steady st
     100 %           every event id the gateways stored looked for at the dashboard; every
                     command event counted by its frequency
 
-Each retained read waits until every live node takes an MQTT client and keeps a retained
-message (a probe's), puts a new fault code on every drive of every line, and measures from
-there: a drive's state is read fresh (a new client, its retained messages) through each live
-node until every drive shows its new code, or `RETAINED_WITHIN_S` has passed.
+Each retained read waits until every live node takes an MQTT client, puts a new fault code on
+every drive of every line, and measures from there: a drive's state is read fresh (a new
+client, its retained messages) through each live node until every drive shows its new code, or
+`RETAINED_WITHIN_S` has passed.
 """
 
 from __future__ import annotations
@@ -45,7 +45,6 @@ from gateway.instruments.stress.cluster_clients import (
     StateWatch,
     quiet_lost_connections,
     read_retained,
-    wait_storing_retained,
 )
 from gateway.instruments.stress.processes import Gateway, launch_simulator, simulator_started
 
@@ -384,12 +383,10 @@ class Run:
         self.reads += 1
         drives = self.settings.drives
         live = [node for node in self.nodes if node.running]
-        # The change is made once every live node takes a client and keeps a retained message
-        # again: right after a node's death the others refuse both for seconds while they elect
-        # leaders (what the resume times measure); what is timed here is a change reaching
-        # every node.
+        # The change is made once every live node takes a client again: right after a node's
+        # death the others may refuse any for seconds while they elect leaders (what the
+        # resume times measure); what is timed here is a change reaching every node.
         await asyncio.gather(*(node.wait_serving() for node in live))
-        await asyncio.gather(*(wait_storing_retained(node, self.dashboard.site) for node in live))
         async with self.line_lock:
             for line in self.lines:
                 assert line.simulator is not None

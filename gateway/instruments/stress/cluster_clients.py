@@ -308,26 +308,6 @@ class Operator:
                 await client.__aexit__(None, None, None)
 
 
-async def wait_storing_retained(node: NatsNode, site: str, timeout_s: float = 30.0) -> None:
-    """Until a retained QoS 1 publish through `node` is acknowledged: the cluster has a leader
-    for its retained messages' stream again (after a node's death it elects one, for seconds,
-    and no retained message is kept meanwhile). Cleared after (an empty retained publish)."""
-    deadline = time.monotonic() + timeout_s
-    topic = f"{site}/stress-probe/{node.name}"
-    while time.monotonic() < deadline:
-        client = aiomqtt.Client(
-            node.host, node.port, identifier=f"stress-probe-{uuid.uuid4().hex[:8]}", timeout=5
-        )
-        try:
-            async with client:
-                await client.publish(topic, b"1", qos=1, retain=True)
-                await client.publish(topic, b"", qos=1, retain=True)
-                return
-        except aiomqtt.MqttError as exc:
-            log.info("probe on %s: %s", node.name, exc)
-        await asyncio.sleep(RETRY_S)
-
-
 async def read_retained(node: NatsNode, topics: set[str], site: str) -> dict[str, Any]:
     """The retained states as a dashboard connecting to `node` now reads them: topic → payload,
     for those of `topics` that came within `READ_WINDOW_S`. At QoS 0: a QoS 1 subscription is a
