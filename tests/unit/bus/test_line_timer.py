@@ -138,7 +138,9 @@ async def test_a_wait_taken_over_can_be_rearmed_without_waking_its_coroutine() -
         acted.append(("second", time.monotonic()))
         return False  # nothing more to send: the coroutine goes on
 
-    deadlines.append(time.monotonic() + 0.002)
+    # Far enough ahead that the wait is still to come when wait_for's task first runs (a
+    # deadline already passed is the caller's to act on, and nothing is run: sleep_until).
+    deadlines.append(time.monotonic() + 0.05)
     try:
         await asyncio.wait_for(timer.sleep_until(deadlines[0], first_gap), 1.0)
         assert [name for name, _ in acted] == ["first", "second"]
