@@ -249,7 +249,13 @@ def test_bench_and_stress_help_show_the_defaults() -> None:
     stress = subprocess.run(
         [sys.executable, "-m", "gateway", "stress", "--help"], capture_output=True, text=True
     ).stdout
-    for default in ("(default 60)", "(default 0.05)", "default 8)", "(default 115200)"):
+    for default in (
+        "(default 60;",
+        "--cluster 120",
+        "(default 0.05)",
+        "default 8)",
+        "(default 115200)",
+    ):
         assert default in " ".join(stress.split()), stress
 
 
