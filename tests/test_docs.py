@@ -25,8 +25,6 @@ from __future__ import annotations
 import argparse
 import re
 import shutil
-import types
-import typing
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -36,6 +34,7 @@ from pydantic import BaseModel, ConfigDict
 
 from gateway.cli import build_parser
 from gateway.config import GatewayConfig, reference
+from gateway.config.reference import models_in
 from gateway.mqtt.kinds import BRIDGE_REQUESTS
 from gateway.mqtt.topics import Topics
 from gateway.profile.addressing import format_register
@@ -60,27 +59,6 @@ def all_pages() -> dict[str, str]:
 
 
 # --- configuration keys ---------------------------------------------------------------------
-
-
-def models_in(annotation: object) -> Iterator[tuple[type[BaseModel], str]]:
-    """The models a field's type holds, each with how its keys hang below the field's: `[]` for
-    an item of a list, `.*` for a value of a mapping whose keys the user names."""
-    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
-        yield annotation, ""
-        return
-    origin = typing.get_origin(annotation)
-    arguments = typing.get_args(annotation)
-    if origin in (tuple, list):
-        for argument in arguments:
-            if argument is not Ellipsis:
-                for model, suffix in models_in(argument):
-                    yield model, "[]" + suffix
-    elif origin is dict:
-        for model, suffix in models_in(arguments[1]):
-            yield model, ".*" + suffix
-    elif origin in (typing.Union, types.UnionType, typing.Annotated):
-        for argument in arguments:
-            yield from models_in(argument)
 
 
 def config_keys(model: type[BaseModel], prefix: str = "") -> Iterator[str]:
