@@ -50,7 +50,7 @@ from gateway.errors import (
 )
 from gateway.logs import dump_frame, frame_dump_enabled
 from gateway.modbus.functions import is_exception, lookup
-from gateway.modbus.rtu import BROADCAST_ADDRESS, build_frame
+from gateway.modbus.rtu import BROADCAST_ADDRESS, build_frame, request_frame
 from gateway.tasks import cancel_and_wait
 
 log = logging.getLogger(__name__)
@@ -352,7 +352,7 @@ class Bus:
             raise
         if carrier is transaction:
             # Framed now, while the line may be busy: no CRC work in the gap.
-            transaction.frame = build_frame(transaction.address, transaction.pdu)
+            transaction.frame = request_frame(transaction.address, transaction.pdu)
         else:
             self.stats.coalesced += 1
         self._wake()

@@ -295,8 +295,13 @@ UNKNOWN_FUNCTION: Final = Function(
 """The one path for codes the registry doesn't know: passed on as they are, ended on silence."""
 
 
+_BY_CODE: Final[dict[int, Function]] = dict(FUNCTIONS)
+"""`FUNCTIONS` as a plain dict: looked up several times per transaction, and a read-only
+proxy's `get` goes through the proxy first."""
+
+
 def lookup(code: int) -> Function:
-    return FUNCTIONS.get(code, UNKNOWN_FUNCTION)
+    return _BY_CODE.get(code, UNKNOWN_FUNCTION)
 
 
 def check_request(pdu: bytes) -> Malformed | None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 from gateway.errors import BadReply
 from gateway.modbus.crc import crc16, crc_bytes
 from gateway.modbus.functions import EXCEPTION_BIT, lookup
@@ -14,6 +16,14 @@ def build_frame(address: int, pdu: bytes) -> bytes:
     """address + PDU + CRC."""
     body = bytes((address,)) + pdu
     return body + crc_bytes(body)
+
+
+@lru_cache(maxsize=1024)
+def request_frame(address: int, pdu: bytes) -> bytes:
+    """`build_frame` for requests, remembered: a SCADA client and the poller ask the same
+    questions over and over, and a hit (a hash of bytes, in C) costs a small part of working
+    the CRC out in Python again. Bounded: a client sending ever new requests evicts the oldest."""
+    return build_frame(address, pdu)
 
 
 def check_reply(request: bytes, reply: bytes, *, crc_checked: bool = False) -> bytes:

@@ -42,7 +42,7 @@ from gateway.errors import ExceptionCode, MalformedFrame, ModbusError
 from gateway.listen import cannot_listen
 from gateway.logs import repeated
 from gateway.modbus.functions import changes_nothing, check_request, exception_pdu, lookup
-from gateway.modbus.mbap import HEADER_LENGTH, build_adu, parse_header
+from gateway.modbus.mbap import HEADER_LENGTH, build_adu, frame_header
 from gateway.tcp.access import AccessPolicy, AccessRule
 from gateway.tcp.cert_roles import client_role
 from gateway.tcp.handshakes import HandshakeWatch
@@ -500,7 +500,7 @@ class Connection(asyncio.Protocol):
         buffer = self._buffer
         while len(buffer) >= HEADER_LENGTH and not self._paused:
             try:
-                header = parse_header(bytes(buffer[:HEADER_LENGTH]))
+                transaction_id, unit_id, pdu_length = frame_header(buffer)
             except MalformedFrame as exc:
                 self.server.stats.malformed += 1
                 log.warning(
@@ -512,7 +512,7 @@ class Connection(asyncio.Protocol):
                 self.close()
                 buffer.clear()
                 return
-            end = HEADER_LENGTH + header.pdu_length
+            end = HEADER_LENGTH + pdu_length
             if len(buffer) < end:
                 return
             pdu = bytes(buffer[HEADER_LENGTH:end])
@@ -526,14 +526,14 @@ class Connection(asyncio.Protocol):
             checked = False
             if write:
                 if self._writes_waiting >= settings.max_queued_writes_per_client:
-                    self._refuse_write(header.transaction_id, header.unit_id, pdu)
+                    self._refuse_write(transaction_id, unit_id, pdu)
                     continue
                 self._writes_waiting += 1
             elif self.server.submit is not None:
-                if self._answer_fast(header.transaction_id, header.unit_id, pdu):
+                if self._answer_fast(transaction_id, unit_id, pdu):
                     continue  # answered, or on its way without a task
                 checked = True  # the front door has let it pass: the handler's way, in a task
-            self._start_task(header.transaction_id, header.unit_id, pdu, write, checked)
+            self._start_task(transaction_id, unit_id, pdu, write, checked)
 
     def _start_task(
         self, transaction_id: int, unit_id: int, pdu: bytes, write: bool, checked: bool
