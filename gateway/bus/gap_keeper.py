@@ -313,7 +313,8 @@ class GapKeeper:
         # needs the caller's own reading; the response timeout does too, so a silent drive
         # still times out on time.
         port.waiter = waiting
-        sent = sending.started + self.settings.char_format.wire_time_s(len(sending.frame))
+        frame = sending.frame
+        sent = sending.started + self.settings.char_format.wire_time_s(len(frame))
         self._holding = True
         # Not on the gap timer: a timerfd write per transaction for a deadline that is almost
         # never reached costs more than the float stores of a moving deadline.
@@ -323,7 +324,6 @@ class GapKeeper:
         # What came, when: for echoes and bursts.
         receiver.arrivals = [(len(receiver.received), sent)]
         if this.replied is not None:
-            frame = sending.frame
             self._held = _Held(
                 sending,
                 this,

@@ -42,12 +42,12 @@ TFD_TIMER_ABSTIME = 1
 EXPIRY_SLACK_S = 1e-6
 
 
-class _Timespec(ctypes.Structure):
-    _fields_ = [("tv_sec", ctypes.c_long), ("tv_nsec", ctypes.c_long)]
-
-
-class _Itimerspec(ctypes.Structure):
-    _fields_ = [("it_interval", _Timespec), ("it_value", _Timespec)]
+_Itimerspec = ctypes.c_long * 4
+"""struct itimerspec as four longs: it_interval (seconds, nanoseconds), then it_value. A flat
+array rather than nested Structures: `spec.it_value.tv_sec = ...` builds a view object of the
+inner struct on every access, and the timer is armed once per transaction."""
+_VALUE_SECONDS = 2
+_VALUE_NANOSECONDS = 3
 
 
 def _libc() -> ctypes.CDLL | None:
@@ -200,9 +200,10 @@ class LineTimer:
     def _settime(self, seconds: int, nanoseconds: int, flags: int) -> bool:
         """The one timerfd write (all zero: disarm), counted in `_arms` for `_expired`."""
         assert self._libc is not None
-        self._spec.it_value.tv_sec = seconds
-        self._spec.it_value.tv_nsec = nanoseconds
-        done = self._libc.timerfd_settime(self._fd, flags, ctypes.byref(self._spec), None)
+        spec = self._spec
+        spec[_VALUE_SECONDS] = seconds
+        spec[_VALUE_NANOSECONDS] = nanoseconds
+        done = self._libc.timerfd_settime(self._fd, flags, spec, None)  # an array: its address
         self._arms += 1
         return int(done) == 0
 

@@ -44,6 +44,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 from types import MappingProxyType
 from typing import Final
 
@@ -304,8 +305,11 @@ def lookup(code: int) -> Function:
     return _BY_CODE.get(code, UNKNOWN_FUNCTION)
 
 
+@lru_cache(maxsize=1024)
 def check_request(pdu: bytes) -> Malformed | None:
-    """None for a well-formed request PDU; else why not, and so which exception it earns."""
+    """None for a well-formed request PDU; else why not, and so which exception it earns.
+    Remembered (a pure function of the bytes): clients repeat their requests, and a hit is a
+    hash lookup in C where the checks are several Python calls."""
     return checks.function_code(pdu) or lookup(pdu[0]).check(pdu)
 
 

@@ -26,10 +26,12 @@ def request_frame(address: int, pdu: bytes) -> bytes:
     return build_frame(address, pdu)
 
 
+@lru_cache(maxsize=1024)
 def plain_read_reply_length(request: bytes) -> int:
     """The length of a normal reply to the RTU `request` when it is a plain read (03H or 04H,
     8 bytes): address, function, byte count, the words, CRC. 0 for any other request, whose
-    reply only the reply search (`gateway.modbus.reply_search`) may size."""
+    reply only the reply search (`gateway.modbus.reply_search`) may size. Remembered, as
+    `request_frame` is: the same frames come back, and a hit is a hash lookup in C."""
     if len(request) != 8 or request[1] not in (3, 4):
         return 0
     count = (request[4] << 8) | request[5]
