@@ -313,8 +313,10 @@ def check_request(pdu: bytes) -> Malformed | None:
     return checks.function_code(pdu) or lookup(pdu[0]).check(pdu)
 
 
+@lru_cache(maxsize=1024)
 def changes_nothing(pdu: bytes) -> bool:
-    """True for a request that only reads; an allow-list, so vendor codes count as writes."""
+    """True for a request that only reads; an allow-list, so vendor codes count as writes.
+    Remembered, as `check_request` is."""
     return lookup(pdu[0]).changes_nothing(pdu)
 
 
