@@ -84,7 +84,11 @@ class LineTimer:
         """The loop's timer for the pending sleep where there is no timerfd."""
         self._fd = -1
         self._libc = _libc()
+        self._timerfd_settime: Callable[..., int] | None = None
+        """libc's, looked up once: a CDLL's attributes go through its `__getattr__` hook on
+        every access, and the timer is armed once per transaction."""
         if self._libc is not None:
+            self._timerfd_settime = self._libc.timerfd_settime
             fd = int(self._libc.timerfd_create(CLOCK_MONOTONIC, TFD_NONBLOCK | TFD_CLOEXEC))
             if fd >= 0:
                 self._fd = fd
@@ -199,11 +203,11 @@ class LineTimer:
 
     def _settime(self, seconds: int, nanoseconds: int, flags: int) -> bool:
         """The one timerfd write (all zero: disarm), counted in `_arms` for `_expired`."""
-        assert self._libc is not None
+        assert self._timerfd_settime is not None
         spec = self._spec
         spec[_VALUE_SECONDS] = seconds
         spec[_VALUE_NANOSECONDS] = nanoseconds
-        done = self._libc.timerfd_settime(self._fd, flags, spec, None)  # an array: its address
+        done = self._timerfd_settime(self._fd, flags, spec, None)  # an array: its address
         self._arms += 1
         return int(done) == 0
 
