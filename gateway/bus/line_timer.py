@@ -19,7 +19,6 @@ not a pass's.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import ctypes
 import ctypes.util
 import logging
@@ -234,9 +233,12 @@ class LineTimer:
             self._deadline_reached()
         if self._arms == arms and self._fd >= 0:
             # Nobody armed the timer again (which clears its expiry), nor closed it: read the
-            # expiry count, or the loop would find it readable on every pass.
-            with contextlib.suppress(BlockingIOError):
+            # expiry count, or the loop would find it readable on every pass. (try, not
+            # contextlib.suppress: three Python calls less on every wake-up.)
+            try:  # noqa: SIM105 - see above
                 os.read(self._fd, 8)
+            except BlockingIOError:
+                pass
 
     def _deadline_reached(self) -> None:
         waiter, action = self._waiter, self._at_deadline

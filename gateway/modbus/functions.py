@@ -346,6 +346,13 @@ def split_request(pdu: bytes, max_words: int, *, checked: bool = False) -> list[
     return split.parts(pdu, max_words)
 
 
+@lru_cache(maxsize=1024)
+def needs_split(pdu: bytes, max_words: int) -> bool:
+    """Does the request `pdu`, which has passed `check_request`, go out in parts for a drive
+    taking at most `max_words` words? Remembered: asked of every read a client sends."""
+    return split_request(pdu, max_words, checked=True) is not None
+
+
 def join_replies(pdu: bytes, parts: Sequence[bytes]) -> bytes:
     """The reply to `pdu` made of its parts' normal replies, in order."""
     split = lookup(pdu[0]).split
