@@ -52,6 +52,10 @@ class _Round:
     already on its way would, its transaction out of the queue meanwhile (a write queued then
     waits behind it; closing the bus answers it as the transaction being carried)."""
 
+    at_gap_end: Callable[[], bool] | None = None
+    """`GapKeeper._send_at_gap_end` for this round, made once: the timer is given it for every
+    gap of the round (a transaction each on a busy line), not a new partial each time."""
+
     def take_pick(self) -> bytes | None:
         """The frame to send now: the one chosen earlier, if any, else `pick`'s."""
         picked, self.picked = self.picked, None
@@ -159,6 +163,7 @@ class GapKeeper:
         """
         gap = self.settings.gap_s
         this = _Round(pick, reply_within, replied, [], idle_for)
+        this.at_gap_end = at_gap_end = partial(self._send_at_gap_end, this)
         while True:
             self._discard_pending()
             due = self.receiver.quiet_since + gap
@@ -178,7 +183,7 @@ class GapKeeper:
                 if wake_at <= now:  # within the lead already: wait out the rest, then look again
                     self.gap_lead.wait_out(due)
                     continue
-                action = partial(self._send_at_gap_end, this)
+                action = at_gap_end
             try:
                 await self._timer.sleep_until(wake_at, action)
             finally:
@@ -261,7 +266,8 @@ class GapKeeper:
         due = self.receiver.quiet_since + self.settings.gap_s
         wake_at = self._wake_at(due)
         if wake_at > time.monotonic():  # the line was heard while idle: its gap first
-            if timer.rearm(wake_at, partial(self._send_at_gap_end, this)):
+            assert this.at_gap_end is not None  # set as the round began
+            if timer.rearm(wake_at, this.at_gap_end):
                 return
         elif timer.take_over() and self._send_at_gap_end(this, timed=False):
             return
@@ -434,7 +440,8 @@ class GapKeeper:
         due = receiver.quiet_since + self.settings.gap_s
         wake_at = self._wake_at(due)
         if wake_at > time.monotonic():
-            if timer.rearm(wake_at, partial(self._send_at_gap_end, this)):
+            assert this.at_gap_end is not None  # set as the round began
+            if timer.rearm(wake_at, this.at_gap_end):
                 return
         elif self._send_at_gap_end(this, timed=False):
             return
