@@ -84,7 +84,7 @@ class Publisher:
     # -- once per connection -------------------------------------------------------------------
 
     async def info(self, client: aiomqtt.Client) -> None:
-        await self.publish(client, self.topics.bridge_info, self._info(), retain=True)
+        await self.keep(client, self.topics.bridge_info, self._info())
 
     async def catch_up(self, client: aiomqtt.Client) -> None:
         """After (re)connecting: discovery, every drive's availability and last state."""
@@ -111,7 +111,7 @@ class Publisher:
             self.mqtt, self.drives, self.topics, self.poller.max_frequency_hz
         )
         for topic, payload in messages:
-            await self.publish(client, topic, payload, retain=True)
+            await self.keep(client, topic, payload)
         log.info("MQTT: Home Assistant discovery published (%d entities)", len(messages))
 
     # -- while connected -----------------------------------------------------------------------
@@ -157,7 +157,7 @@ class Publisher:
             quiet = report is not None and not report.news(reading, now)
             if quiet and now - last < self.mqtt.publish_interval_s:
                 return
-        await self.publish(client, self.topics.drive_state(drive), dump(telemetry), retain=True)
+        await self.keep(client, self.topics.drive_state(drive), dump(telemetry))
         self._published[drive] = now
         if report is not None:
             report.published(reading, now)
@@ -177,10 +177,20 @@ class Publisher:
         data: Json = {"drive": drive or "bridge", "topic": topic}
         self.events.record(EventType.RETAINED_COMMAND_CLEARED, data, drive=drive)
 
+    async def keep(self, client: aiomqtt.Client, topic: str, payload: str) -> None:
+        """A retained message the gateway publishes again on every connection (and a state
+        every `publish_interval_s`): at `mqtt.retained_qos`, the latest one wins."""
+        await self.publish(client, topic, payload, retain=True, qos=self.mqtt.retained_qos)
+
     async def publish(
-        self, client: aiomqtt.Client, topic: str, payload: str, retain: bool = False
+        self,
+        client: aiomqtt.Client,
+        topic: str,
+        payload: str,
+        retain: bool = False,
+        qos: int = QOS,
     ) -> None:
-        await client.publish(topic, payload, qos=QOS, retain=retain)
+        await client.publish(topic, payload, qos=qos, retain=retain)
         self.stats.published += 1
 
     # -- inside ----------------------------------------------------------------------------------
@@ -200,7 +210,7 @@ class Publisher:
         if self._availability.get(drive) is online:
             return  # already said, on this connection
         payload = ONLINE if online else OFFLINE
-        await self.publish(client, self.topics.availability(drive), payload, retain=True)
+        await self.keep(client, self.topics.availability(drive), payload)
         self._availability[drive] = online
 
     def _info(self) -> str:

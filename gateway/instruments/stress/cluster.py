@@ -173,6 +173,10 @@ class Line:
                 "reconnect_max_s": 1.0,
                 "publish_interval_s": 0.5,
                 "keepalive_s": 5,
+                # What the Operations page advises on a NATS cluster: a QoS 1 message NATS
+                # can't store yet (a stream electing its leader) closes its connection.
+                "retained_qos": 0,
+                "own_events_connection": True,
             },
             "storage": {"path": str(self.store)},
             "logging": {"level": "warning"},
