@@ -23,11 +23,14 @@ from gateway.backoff import Backoff
 from gateway.mqtt.connection import read_loss
 from gateway.mqtt.publisher import Publisher
 from gateway.mqtt.session import RECONNECT_INITIAL_S, Session
+from gateway.tasks import side_by_side
 
 log = logging.getLogger(__name__)
 
 PURPOSE = "events"
 """The own connection's client id is `<client_id>-events`."""
+STOP_BUDGET_S = 0.3
+"""For the forwarding to end once its connection is lost (within the bridge's budget)."""
 
 
 class EventLink:
@@ -50,13 +53,31 @@ class EventLink:
                 async with own:
                     failures = 0
                     backoff.reset()
-                    await self.publisher.forward_events(own)
-            except aiomqtt.MqttError as exc:
+                    await side_by_side(
+                        {
+                            "mqtt:events:forward": self.publisher.forward_events(own),
+                            "mqtt:events:watch": until_lost(own),
+                        },
+                        STOP_BUDGET_S,
+                    )
+            except* aiomqtt.MqttError as group:
                 self.losses += 1
                 failures += 1
                 # Loudly once, then quietly: the session's own log says when its broker is gone.
                 level = logging.WARNING if failures == 1 else logging.DEBUG
-                log.log(level, "MQTT: the events' own connection: %s; again with backoff", exc)
+                log.log(
+                    level,
+                    "MQTT: the events' own connection: %s; again with backoff",
+                    group.exceptions[0],
+                )
             finally:
                 read_loss(own)
             await asyncio.sleep(backoff.next_delay())
+
+
+async def until_lost(client: aiomqtt.Client) -> None:
+    """Raise MqttError as soon as `client`'s connection is lost: aiomqtt's message iterator is
+    what sees that (a publish waiting for its PUBACK would wait out its timeout). Nothing is
+    subscribed on the events' connection, so nothing comes."""
+    async for _ in client.messages:
+        pass

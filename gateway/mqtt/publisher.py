@@ -165,13 +165,18 @@ class Publisher:
     async def answer(self, client: aiomqtt.Client, topic: str, response: Json) -> None:
         """A command's answer; when the connection is gone, there is nobody to tell."""
         with contextlib.suppress(aiomqtt.MqttError):
-            await self.publish(client, topic, dump(response))
+            await self.respond(client, topic, response)
+
+    async def respond(self, client: aiomqtt.Client, topic: str, response: Json) -> None:
+        """A command's answer, at `mqtt.publish_qos`: it is never sent again after a lost
+        connection, so an acknowledgement would tell nobody anything."""
+        await self.publish(client, topic, dump(response), qos=self.mqtt.publish_qos)
 
     async def clear_retained(self, client: aiomqtt.Client, topic: str) -> None:
         """Remove a retained command from the broker (an empty retained publish), and say so in
         an event: left there, it would run for the next subscriber."""
         with contextlib.suppress(aiomqtt.MqttError):
-            await self.publish(client, topic, "", retain=True)
+            await self.publish(client, topic, "", retain=True, qos=self.mqtt.publish_qos)
         log.warning("MQTT: a retained command on %s was refused and cleared from the broker", topic)
         drive = self.topics.drive_of(topic)
         data: Json = {"drive": drive or "bridge", "topic": topic}
@@ -179,8 +184,8 @@ class Publisher:
 
     async def keep(self, client: aiomqtt.Client, topic: str, payload: str) -> None:
         """A retained message the gateway publishes again on every connection (and a state
-        every `publish_interval_s`): at `mqtt.retained_qos`, the latest one wins."""
-        await self.publish(client, topic, payload, retain=True, qos=self.mqtt.retained_qos)
+        every `publish_interval_s`): at `mqtt.publish_qos`, the latest one wins."""
+        await self.publish(client, topic, payload, retain=True, qos=self.mqtt.publish_qos)
 
     async def publish(
         self,

@@ -294,7 +294,7 @@ class Session:
         request topics, so a client that acts on "online" is heard."""
         online = online_payload(self.mqtt, self.server)
         await client.publish(
-            self.topics.bridge_state, online, qos=self.mqtt.retained_qos, retain=True
+            self.topics.bridge_state, online, qos=self.mqtt.publish_qos, retain=True
         )
         self.stats.published += 1
 

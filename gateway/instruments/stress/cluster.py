@@ -175,7 +175,7 @@ class Line:
                 "keepalive_s": 5,
                 # What the Operations page advises on a NATS cluster: a QoS 1 message NATS
                 # can't store yet (a stream electing its leader) closes its connection.
-                "retained_qos": 0,
+                "publish_qos": 0,
                 "own_events_connection": True,
             },
             "storage": {"path": str(self.store)},
