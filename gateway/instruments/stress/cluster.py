@@ -14,7 +14,9 @@ other command has. Drive 1 of every line trips and resets all along: a steady st
     100 %           every event id the gateways stored looked for at the dashboard; every
                     command event counted by its frequency
 
-Each retained read waits until every live node takes an MQTT client, puts a new fault code on
+Each retained read waits until every live node takes an MQTT client and the nodes carry retained
+messages between them again (a probe published through each is read through every other: NATS's
+own recovery after a node's death, its time printed beside the read), puts a new fault code on
 every drive of every line, and measures from there: a drive's state is read fresh (a new
 client, its retained messages) through each live node until every drive shows its new code, or
 `RETAINED_WITHIN_S` has passed.
@@ -45,6 +47,7 @@ from gateway.instruments.stress.cluster_clients import (
     StateWatch,
     quiet_lost_connections,
     read_retained,
+    wait_carrying_retained,
 )
 from gateway.instruments.stress.processes import Gateway, launch_simulator, simulator_started
 
@@ -102,6 +105,8 @@ class RetainedRead:
     """From the change to a read showing every drive's new state; None: not within 5 s."""
     stale: tuple[str, ...] = ()
     """The drives' topics not showing it at the last read."""
+    cluster_wait_s: float = 0.0
+    """Before the change: until the live nodes carried retained messages between them again."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -391,6 +396,7 @@ class Run:
         # death the others may refuse any for seconds while they elect leaders (what the
         # resume times measure); what is timed here is a change reaching every node.
         await asyncio.gather(*(node.wait_serving() for node in live))
+        cluster_wait = await wait_carrying_retained(live, self.dashboard.site)
         async with self.line_lock:
             for line in self.lines:
                 assert line.simulator is not None
@@ -401,12 +407,15 @@ class Run:
             reads = await asyncio.gather(
                 *(self._read_through(node, topics, code, changed, moment) for node in live)
             )
-        self.result.retained.extend(reads)
+        self.result.retained.extend(
+            dataclasses.replace(read, cluster_wait_s=cluster_wait) for read in reads
+        )
         slowest = max((r.seconds for r in reads if r.seconds is not None), default=0.0)
         late = [r.node for r in reads if r.seconds is None]
         self.progress(
             f"retained ({moment}): {len(topics)} drives through {len(live)} nodes, "
             + (f"NOT within 5 s through {', '.join(late)}" if late else f"{slowest:.2f} s")
+            + f" (the nodes shared retained messages after {cluster_wait:.2f} s)"
         )
 
     async def _read_through(

@@ -76,7 +76,10 @@ def table(result: ClusterResult) -> str:
     )
     for read in reads:
         seconds = "NOT within 5 s" if read.seconds is None else f"{read.seconds:.2f} s"
-        rows.append((f"  {read.moment}, via {read.node}", seconds))
+        waited = (
+            f" (change made once the nodes shared retained messages: {read.cluster_wait_s:.2f} s)"
+        )
+        rows.append((f"  {read.moment}, via {read.node}", seconds + waited))
     commands = result.commands
     rows.append(
         (
@@ -137,7 +140,13 @@ def document(result: ClusterResult) -> dict[str, Any]:
             for d in result.deliveries
         ],
         "retained": [
-            {"moment": r.moment, "node": r.node, "seconds": r.seconds, "stale": list(r.stale)}
+            {
+                "moment": r.moment,
+                "node": r.node,
+                "seconds": r.seconds,
+                "stale": list(r.stale),
+                "cluster_wait_s": round(r.cluster_wait_s, 3),
+            }
             for r in result.retained
         ],
         "commands": {
