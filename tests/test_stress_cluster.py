@@ -65,7 +65,7 @@ def test_a_short_cluster_stress_run_passes_and_reports_every_figure(
     assert {r["node"] for r in reads if r["moment"] == "n1 down"} == {"n0", "n2"}
     # Each change waited for the nodes to share retained messages again (NATS's own recovery),
     # and says how long.
-    assert all(r["cluster_wait_s"] >= 0 for r in reads)
+    assert all(r["cluster_wait_s"] is not None and r["cluster_wait_s"] >= 0 for r in reads)
 
     commands = report["commands"]
     assert commands["ran"] > 10, commands
@@ -128,3 +128,8 @@ def test_a_command_run_twice_a_lost_event_and_a_gateway_not_back_each_fail_the_r
     assert "g2 not back within" in found
     assert "retained states through n2 (n0 down)" in found
     assert "FAIL" in table(result)
+
+    # A cluster whose nodes never shared retained messages again: the read fails, saying so.
+    result.retained.append(RetainedRead("n1 back", "n0", None, ("site/g2/drive1",), None))
+    assert "did not share retained messages within 30 s" in " | ".join(problems(result))
+    assert "NOT within 5 s (the nodes did not share" in table(result)

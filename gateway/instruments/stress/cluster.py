@@ -52,6 +52,8 @@ from gateway.instruments.stress.cluster_clients import (
 from gateway.instruments.stress.processes import Gateway, launch_simulator, simulator_started
 
 RETAINED_WITHIN_S: Final = 5.0
+CLUSTER_WAIT_S: Final = 30.0
+"""How long a retained read's change waits for the live nodes to share retained messages."""
 RESUME_LIMIT_S: Final = 30.0
 """From a node's (or a gateway's) SIGKILL to the gateway's "online": what is "not back"."""
 DELIVERY_WAIT_S: Final = 20.0
@@ -105,8 +107,9 @@ class RetainedRead:
     """From the change to a read showing every drive's new state; None: not within 5 s."""
     stale: tuple[str, ...] = ()
     """The drives' topics not showing it at the last read."""
-    cluster_wait_s: float = 0.0
-    """Before the change: until the live nodes carried retained messages between them again."""
+    cluster_wait_s: float | None = 0.0
+    """Before the change: until the live nodes carried retained messages between them again;
+    None: not within `CLUSTER_WAIT_S` (the change was made anyway)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -396,7 +399,7 @@ class Run:
         # death the others may refuse any for seconds while they elect leaders (what the
         # resume times measure); what is timed here is a change reaching every node.
         await asyncio.gather(*(node.wait_serving() for node in live))
-        cluster_wait = await wait_carrying_retained(live, self.dashboard.site)
+        cluster_wait = await wait_carrying_retained(live, self.dashboard.site, CLUSTER_WAIT_S)
         async with self.line_lock:
             for line in self.lines:
                 assert line.simulator is not None
@@ -415,7 +418,11 @@ class Run:
         self.progress(
             f"retained ({moment}): {len(topics)} drives through {len(live)} nodes, "
             + (f"NOT within 5 s through {', '.join(late)}" if late else f"{slowest:.2f} s")
-            + f" (the nodes shared retained messages after {cluster_wait:.2f} s)"
+            + (
+                f" (the nodes shared retained messages after {cluster_wait:.2f} s)"
+                if cluster_wait is not None
+                else f" (the nodes did NOT share retained messages within {CLUSTER_WAIT_S:g} s)"
+            )
         )
 
     async def _read_through(

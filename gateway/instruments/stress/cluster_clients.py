@@ -336,10 +336,12 @@ async def read_retained(node: NatsNode, topics: set[str], site: str) -> dict[str
 
 
 async def wait_carrying_retained(
-    nodes: Sequence[NatsNode], site: str, timeout_s: float = 30.0
-) -> float:
+    nodes: Sequence[NatsNode], site: str, timeout_s: float
+) -> float | None:
     """Until a retained message published through each of `nodes` is read through every other
-    one: the cluster carries retained messages between its nodes again. Seconds waited.
+    one: the cluster carries retained messages between its nodes again. Seconds waited; None
+    when that did not come within `timeout_s` (NATS 2.9.10 was seen to leave a node's consumer
+    "with NO quorum, stalled" for good after a few SIGKILLs, with every node up).
 
     After a node's death NATS 2.9 may not for several seconds: each node learns what was
     published through the others from its own consumer of the retained messages' stream, and a
@@ -357,9 +359,7 @@ async def wait_carrying_retained(
         if all(all(found.get(t) == token for t in topics) for found in seen):
             return time.monotonic() - started
         if time.monotonic() - started > timeout_s:
-            raise RuntimeError(
-                f"the cluster's nodes did not share retained messages in {timeout_s:g} s"
-            )
+            return None
         await asyncio.sleep(RETRY_S)
 
 
