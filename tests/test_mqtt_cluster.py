@@ -9,6 +9,9 @@ What that bound is made of: NATS elects new leaders for the JetStream streams th
 (MQTT sessions, QoS 1 messages, retained messages; 6-12 s measured here, most of it the raft
 election timeouts), during which a node can't finish a QoS 1 publish; then one connection
 attempt (at most `CONNECT_TIMEOUT_S`, 5 s) and the backoff (`reconnect_max_s`, 1 s here).
+The gateways publish all but their events at QoS 0 and the events on a connection of their own
+(`mqtt.publish_qos`, `mqtt.own_events_connection`): at QoS 1 a gateway on a live node was
+thrown off by its node as well, 4 s after the death, and its states went stale meanwhile.
 It holds because the gateway subscribes at QoS 0 (`SUBSCRIBE_QOS`): a QoS 1 subscription is a
 replicated JetStream consumer, and with a node down creating a dozen of them outlasted every
 attempt, so the gateway came back only with the node. The dashboards reading retained state
@@ -74,6 +77,10 @@ def gateway_config(name: str, line: str, servers: list[NatsNode], base: str, sto
             "reconnect_max_s": 1.0,
             "publish_interval_s": 0.5,
             "keepalive_s": 5,
+            # What the Operations page advises on NATS: a QoS 1 message the cluster can't store
+            # yet (a stream electing its leader) makes the node close the connection it came on.
+            "publish_qos": 0,
+            "own_events_connection": True,
         },
         "storage": {"path": str(store)},
     }

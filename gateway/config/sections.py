@@ -525,6 +525,20 @@ class MqttConfig(Section):
     """The topic prefix Home Assistant listens on for discovery."""
     publish_interval_s: float = Field(60.0, gt=0)
     """A drive's state is published on change and at least this often."""
+    publish_qos: Literal[0, 1] = 1
+    """QoS of everything the gateway publishes but events (those are QoS 1 always, from the
+    store): the retained messages it keeps up to date itself (drive states and availabilities,
+    `bridge/info`, `bridge/state`'s "online", discovery), published again on every connection,
+    a state at least every `publish_interval_s`, the latest winning; and command answers, never
+    sent again after a lost connection anyway. Set 0 on a NATS cluster: there a QoS 1 message
+    is also stored in a replicated stream, and for seconds after a node's death (the stream
+    elects a leader) NATS holds each such publish 4 s, then closes the connection."""
+    own_events_connection: bool = False
+    """Forward the event log on a connection of its own to the same broker (client id
+    `<client_id>-events`, no last will; made again after each loss). Events stay QoS 1,
+    marked delivered once acknowledged. Set it on a NATS cluster with `publish_qos: 0`: an
+    event the cluster can't store yet after a node's death makes the node close the
+    connection it came on, and apart it takes only itself, not the drives' states."""
     report: GatewayReportConfig = GatewayReportConfig()
     """Every drive's report by exception unless its own `report` says otherwise; `devices`:
     every device's, unless its device file says otherwise."""

@@ -9,6 +9,7 @@
 - `connection`: client id, TLS, last will, reconnect backoff.
 - `session`: the connection loop: connect, back off, TLS retry, subscribe, online/offline.
 - `publisher`: info, discovery, states, availability and events out, de-duplicated.
+- `event_link`: the events on the session's connection, or on one of their own.
 - `dispatcher`: received messages to their command kind, in lanes; busy and internal errors.
 - `kinds`: the kinds of message (`/set`, `/get`, `bridge/request/<op>`, ...), a registry.
 - `lanes`: received messages handled off the receive loop, in order per drive, bounded.

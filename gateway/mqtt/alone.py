@@ -29,6 +29,7 @@ from gateway.mqtt.connection import (
     MQTT_3_1_1,
     SUBSCRIBE_QOS,
     make_client,
+    read_loss,
     server_name,
     tls_context,
 )
@@ -91,17 +92,20 @@ async def _retained_state(
     tls = tls_context(mqtt)
     identifier = f"{mqtt.client_id}-check"
     client = make_client(mqtt, topics, tls, server, MQTT_3_1_1, identifier=identifier, will=False)
-    async with client:
-        await client.subscribe(topics.bridge_state, qos=SUBSCRIBE_QOS)
-        try:
-            async with asyncio.timeout(CHECK_BUDGET_S / 2):
-                async for message in client.messages:
-                    payload = message.payload
-                    if isinstance(payload, bytes | bytearray):
-                        with contextlib.suppress(ValueError):
-                            state = json.loads(payload)
-                            return state if isinstance(state, dict) else None
-                    return None
-        except TimeoutError:
-            return None  # nothing retained: the broker has sent what it keeps at once
+    try:
+        async with client:
+            await client.subscribe(topics.bridge_state, qos=SUBSCRIBE_QOS)
+            try:
+                async with asyncio.timeout(CHECK_BUDGET_S / 2):
+                    async for message in client.messages:
+                        payload = message.payload
+                        if isinstance(payload, bytes | bytearray):
+                            with contextlib.suppress(ValueError):
+                                state = json.loads(payload)
+                                return state if isinstance(state, dict) else None
+                        return None
+            except TimeoutError:
+                return None  # nothing retained: the broker has sent what it keeps at once
+    finally:
+        read_loss(client)
     return None

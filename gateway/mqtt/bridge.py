@@ -5,6 +5,7 @@ A feature of the application, put together from its jobs:
 - `session`: the connection (connect, backoff, TLS, subscriptions, online and offline);
 - `publisher`: info, discovery, what the poller hands the `outbox` (de-duplicated), and the
   events the store keeps until the broker acknowledged them;
+- `event_link`: the connection the events go out on (the session's, or one of their own);
 - `dispatcher`: each received message to its kind (`kinds`), run in its lane (`lanes`).
 
 With `mqtt.sparkplug`, the Sparkplug B edge node (`gateway.sparkplug`) runs beside it on its
@@ -31,6 +32,7 @@ from gateway.mqtt.commands import CommandDrive, Commands
 from gateway.mqtt.connection import MQTT_5
 from gateway.mqtt.discovery_cleanup import own_discovery_topics, remove_stale_entities
 from gateway.mqtt.dispatcher import Dispatcher
+from gateway.mqtt.event_link import EventLink
 from gateway.mqtt.kinds import Context, command_kinds
 from gateway.mqtt.lanes import Lanes
 from gateway.mqtt.outbox import Outbox
@@ -95,6 +97,7 @@ class MqttBridge:
             kinds, self.lanes, self.publisher.answer, self.stats, self.publisher.clear_retained
         )
         self.session = Session(mqtt, self.topics, self.stats, tasks, self._connected, self._lost)
+        self.event_link = EventLink(self.session, self.publisher)
         self.settings = mqtt
         self.tasks = tasks
         self._discovery_cleaned = False
@@ -195,7 +198,7 @@ class MqttBridge:
         await side_by_side(
             {
                 "mqtt:publish": self.publisher.run(client),
-                "mqtt:events": self.publisher.forward_events(client),
+                "mqtt:events": self.event_link.run(client),
                 "mqtt:receive": self.dispatcher.run(client),
             },
             STOP_TASK_BUDGET_S,

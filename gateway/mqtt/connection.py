@@ -14,6 +14,7 @@ so a certificate put right on disk is picked up without a restart.
 
 from __future__ import annotations
 
+import asyncio
 import json
 import ssl
 
@@ -142,3 +143,20 @@ def make_client(
         timeout=CONNECT_TIMEOUT_S,
         tls_context=tls,
     )
+
+
+def read_loss(client: aiomqtt.Client) -> None:
+    """Read the error of a connection that was lost (the broker closed it, or died) out of the
+    future aiomqtt keeps it in: call once the client's `async with` is left.
+
+    aiomqtt reads it only where something awaited the loss (its message iterator); a client
+    lost while it waited for a PUBACK or a SUBACK (a cluster's node that died, or closed the
+    connection because it could not store a QoS 1 message) leaves it there, and asyncio then
+    prints "Future exception was never retrieved ... MqttCodeError" when the client is
+    dropped. The loss is handled already (the connection is made again): reading it is all
+    that is left to do. `_disconnected` is aiomqtt's (2.x); if it goes, this does nothing, and
+    `tests/test_mqtt_lost_connection.py` says so.
+    """
+    lost = getattr(client, "_disconnected", None)
+    if isinstance(lost, asyncio.Future) and lost.done() and not lost.cancelled():
+        lost.exception()

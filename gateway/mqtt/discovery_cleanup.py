@@ -17,7 +17,7 @@ from collections.abc import Collection
 
 import aiomqtt
 
-from gateway.mqtt.connection import SUBSCRIBE_QOS
+from gateway.mqtt.connection import SUBSCRIBE_QOS, read_loss
 
 log = logging.getLogger(__name__)
 
@@ -35,23 +35,26 @@ async def remove_stale_entities(
 ) -> list[str]:
     """Clear the retained configs under `pattern` that are not in `offered`; which were."""
     found: set[str] = set()
-    async with client:
-        await client.subscribe(pattern, qos=SUBSCRIBE_QOS)
-        try:
-            async with asyncio.timeout(collect_s):
-                async for message in client.messages:
-                    if message.payload:  # an empty one is a config already cleared
-                        found.add(str(message.topic))
-        except TimeoutError:
-            pass
-        stale = sorted(found - set(offered))
-        # Our own clearings would come back to us on the pattern (at QoS 0, which we don't
-        # answer): Mosquitto sent each just before the clearing's PUBACK, and the PUBACK came
-        # about 40 ms late (a delayed TCP acknowledgement, measured), a clearing each; a test
-        # that stopped the gateway after one found the rest still there. Nothing more to hear.
-        await client.unsubscribe(pattern)
-        for topic in stale:
-            await client.publish(topic, b"", qos=1, retain=True)
+    try:
+        async with client:
+            await client.subscribe(pattern, qos=SUBSCRIBE_QOS)
+            try:
+                async with asyncio.timeout(collect_s):
+                    async for message in client.messages:
+                        if message.payload:  # an empty one is a config already cleared
+                            found.add(str(message.topic))
+            except TimeoutError:
+                pass
+            stale = sorted(found - set(offered))
+            # Our own clearings would come back to us on the pattern (at QoS 0, which we don't
+            # answer): Mosquitto sent each just before the clearing's PUBACK, and the PUBACK came
+            # about 40 ms late (a delayed TCP acknowledgement, measured), a clearing each; a test
+            # that stopped the gateway after one found the rest still there. Nothing more to hear.
+            await client.unsubscribe(pattern)
+            for topic in stale:
+                await client.publish(topic, b"", qos=1, retain=True)
+    finally:
+        read_loss(client)
     if stale:
         log.info(
             "MQTT: removed %d Home Assistant entities this gateway no longer offers", len(stale)

@@ -36,7 +36,6 @@ from gateway.mqtt.requests import (
     COMMON_KEYS,
     Json,
     check_keys,
-    dump,
     parse_object,
     parse_read,
     parse_write,
@@ -87,7 +86,7 @@ class DriveCommand:
 
     async def run(self, client: aiomqtt.Client, message: Incoming) -> None:
         response = await self.context.commands.acknowledge(message, True, self._set)
-        await self.context.publisher.publish(client, self.response_topic, dump(response))
+        await self.context.publisher.respond(client, self.response_topic, response)
 
     async def _set(self, payload: Json) -> Json:
         return await self.context.commands.set(self.drive, payload)
@@ -141,7 +140,7 @@ class BridgeRequest:
 
     async def run(self, client: aiomqtt.Client, message: Incoming) -> None:
         response = await self.context.commands.acknowledge(message, self.writes, self.execute)
-        await self.context.publisher.publish(client, self.response_topic, dump(response))
+        await self.context.publisher.respond(client, self.response_topic, response)
 
     async def execute(self, payload: Json) -> Json:
         """The request's `data` once done; raises CommandRefused or a ModbusError."""

@@ -84,7 +84,7 @@ class Publisher:
     # -- once per connection -------------------------------------------------------------------
 
     async def info(self, client: aiomqtt.Client) -> None:
-        await self.publish(client, self.topics.bridge_info, self._info(), retain=True)
+        await self.keep(client, self.topics.bridge_info, self._info())
 
     async def catch_up(self, client: aiomqtt.Client) -> None:
         """After (re)connecting: discovery, every drive's availability and last state."""
@@ -111,7 +111,7 @@ class Publisher:
             self.mqtt, self.drives, self.topics, self.poller.max_frequency_hz
         )
         for topic, payload in messages:
-            await self.publish(client, topic, payload, retain=True)
+            await self.keep(client, topic, payload)
         log.info("MQTT: Home Assistant discovery published (%d entities)", len(messages))
 
     # -- while connected -----------------------------------------------------------------------
@@ -157,7 +157,7 @@ class Publisher:
             quiet = report is not None and not report.news(reading, now)
             if quiet and now - last < self.mqtt.publish_interval_s:
                 return
-        await self.publish(client, self.topics.drive_state(drive), dump(telemetry), retain=True)
+        await self.keep(client, self.topics.drive_state(drive), dump(telemetry))
         self._published[drive] = now
         if report is not None:
             report.published(reading, now)
@@ -165,22 +165,37 @@ class Publisher:
     async def answer(self, client: aiomqtt.Client, topic: str, response: Json) -> None:
         """A command's answer; when the connection is gone, there is nobody to tell."""
         with contextlib.suppress(aiomqtt.MqttError):
-            await self.publish(client, topic, dump(response))
+            await self.respond(client, topic, response)
+
+    async def respond(self, client: aiomqtt.Client, topic: str, response: Json) -> None:
+        """A command's answer, at `mqtt.publish_qos`: it is never sent again after a lost
+        connection, so an acknowledgement would tell nobody anything."""
+        await self.publish(client, topic, dump(response), qos=self.mqtt.publish_qos)
 
     async def clear_retained(self, client: aiomqtt.Client, topic: str) -> None:
         """Remove a retained command from the broker (an empty retained publish), and say so in
         an event: left there, it would run for the next subscriber."""
         with contextlib.suppress(aiomqtt.MqttError):
-            await self.publish(client, topic, "", retain=True)
+            await self.publish(client, topic, "", retain=True, qos=self.mqtt.publish_qos)
         log.warning("MQTT: a retained command on %s was refused and cleared from the broker", topic)
         drive = self.topics.drive_of(topic)
         data: Json = {"drive": drive or "bridge", "topic": topic}
         self.events.record(EventType.RETAINED_COMMAND_CLEARED, data, drive=drive)
 
+    async def keep(self, client: aiomqtt.Client, topic: str, payload: str) -> None:
+        """A retained message the gateway publishes again on every connection (and a state
+        every `publish_interval_s`): at `mqtt.publish_qos`, the latest one wins."""
+        await self.publish(client, topic, payload, retain=True, qos=self.mqtt.publish_qos)
+
     async def publish(
-        self, client: aiomqtt.Client, topic: str, payload: str, retain: bool = False
+        self,
+        client: aiomqtt.Client,
+        topic: str,
+        payload: str,
+        retain: bool = False,
+        qos: int = QOS,
     ) -> None:
-        await client.publish(topic, payload, qos=QOS, retain=retain)
+        await client.publish(topic, payload, qos=qos, retain=retain)
         self.stats.published += 1
 
     # -- inside ----------------------------------------------------------------------------------
@@ -200,7 +215,7 @@ class Publisher:
         if self._availability.get(drive) is online:
             return  # already said, on this connection
         payload = ONLINE if online else OFFLINE
-        await self.publish(client, self.topics.availability(drive), payload, retain=True)
+        await self.keep(client, self.topics.availability(drive), payload)
         self._availability[drive] = online
 
     def _info(self) -> str:

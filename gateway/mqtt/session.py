@@ -43,6 +43,7 @@ from gateway.mqtt.connection import (
     SUBSCRIBE_QOS,
     make_client,
     online_payload,
+    read_loss,
     server_name,
     tls_context,
 )
@@ -187,6 +188,7 @@ class Session:
         failures = 0
         retry_at_once = False
         while not self._stopping:
+            client: aiomqtt.Client | None = None
             try:
                 # Inside the try: whatever building a client raises is one more failed attempt,
                 # never the end of the loop.
@@ -224,6 +226,8 @@ class Session:
                 else:
                     log.debug("MQTT bridge failed again (attempt %d)", failures, exc_info=True)
             finally:
+                if client is not None:
+                    read_loss(client)
                 self._client = None
                 self.connected_since = None
                 self.connected.clear()
@@ -289,7 +293,9 @@ class Session:
         """Retained "online" on `bridge/state`: for `on_connect` to send once it listens to the
         request topics, so a client that acts on "online" is heard."""
         online = online_payload(self.mqtt, self.server)
-        await client.publish(self.topics.bridge_state, online, qos=QOS, retain=True)
+        await client.publish(
+            self.topics.bridge_state, online, qos=self.mqtt.publish_qos, retain=True
+        )
         self.stats.published += 1
 
     async def _tls_context(self, backoff: Backoff) -> ssl.SSLContext | None:

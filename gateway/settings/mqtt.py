@@ -53,6 +53,10 @@ class MqttSettings:
     publish_interval_s: float
     command_max_age_s: float
     commands_enabled: bool
+    publish_qos: int = 1
+    """QoS of all but events: states, availabilities, info, answers (`mqtt.publish_qos`)."""
+    own_events_connection: bool = False
+    """The event log forwarded on a connection of its own (`mqtt.own_events_connection`)."""
     reporting: Mapping[str, DriveReporting] = field(default_factory=dict)
     """Drive → its report by exception (`mqtt.report` under its own `report`); a device file's
     points carry theirs."""
@@ -86,6 +90,8 @@ def mqtt_settings(config: GatewayConfig) -> MqttSettings | None:
         publish_interval_s=mqtt.publish_interval_s,
         command_max_age_s=mqtt.command_max_age_s,
         commands_enabled=mqtt.commands_enabled,
+        publish_qos=mqtt.publish_qos,
+        own_events_connection=mqtt.own_events_connection,
         reporting={d.name: _drive_reporting(mqtt.report, d.report) for d in config.drives},
         device_reporting=_rule(mqtt.report.devices),
         sparkplug=_sparkplug(mqtt.sparkplug, config.gateway_id),

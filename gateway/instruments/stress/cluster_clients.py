@@ -333,3 +333,44 @@ async def read_retained(node: NatsNode, topics: set[str], site: str) -> dict[str
     except aiomqtt.MqttError as exc:
         log.info("reader on %s: %s", node.name, exc)
     return found
+
+
+async def wait_carrying_retained(
+    nodes: Sequence[NatsNode], site: str, timeout_s: float
+) -> float | None:
+    """Until a retained message published through each of `nodes` is read through every other
+    one: the cluster carries retained messages between its nodes again. Seconds waited; None
+    when that did not come within `timeout_s` (NATS 2.9.10 was seen to leave a node's consumer
+    "with NO quorum, stalled" for good after a few SIGKILLs, with every node up).
+
+    After a node's death NATS 2.9 may not for several seconds: each node learns what was
+    published through the others from its own consumer of the retained messages' stream, and a
+    consumer whose leader was the dead node hears nothing until it has elected another (4-9 s,
+    the raft election timeouts). Nothing a client does changes that; a retained read timed from
+    a change made meanwhile would time NATS's election, not the gateways.
+    """
+    started = time.monotonic()
+    token = uuid.uuid4().hex[:8]
+    topics = {f"{site}/stress-probe/{node.name}": node for node in nodes}
+    while True:
+        for topic, node in topics.items():
+            await _publish_retained(node, topic, token)
+        seen = await asyncio.gather(*(read_retained(node, set(topics), site) for node in nodes))
+        if all(all(found.get(t) == token for t in topics) for found in seen):
+            return time.monotonic() - started
+        if time.monotonic() - started > timeout_s:
+            return None
+        await asyncio.sleep(RETRY_S)
+
+
+async def _publish_retained(node: NatsNode, topic: str, token: str) -> None:
+    """At QoS 0: at QoS 1 NATS also stores it in a stream that may be electing its leader, and
+    closes the connection when that times out (what `mqtt.publish_qos` is about)."""
+    client = aiomqtt.Client(
+        node.host, node.port, identifier=f"stress-probe-{uuid.uuid4().hex[:8]}", timeout=2
+    )
+    try:
+        async with client:
+            await client.publish(topic, json.dumps(token), qos=0, retain=True)
+    except aiomqtt.MqttError as exc:
+        log.info("probe on %s: %s", node.name, exc)

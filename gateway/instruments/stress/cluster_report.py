@@ -14,9 +14,11 @@ from __future__ import annotations
 from typing import Any
 
 from gateway.instruments.stress.cluster import (
+    CLUSTER_WAIT_S,
     RESUME_LIMIT_S,
     RETAINED_WITHIN_S,
     ClusterResult,
+    RetainedRead,
 )
 
 
@@ -35,6 +37,7 @@ def problems(result: ClusterResult) -> list[str]:
             found.append(
                 f"retained states through {read.node} ({read.moment}) not all new within "
                 f"{RETAINED_WITHIN_S:g} s: {len(read.stale)} stale, e.g. {list(read.stale[:3])}"
+                + ("" if read.cluster_wait_s is not None else f"{_waited(read)}")
             )
     if result.commands.ran_twice:
         found.append(f"commands ran twice: {list(result.commands.ran_twice[:10])} Hz")
@@ -76,7 +79,7 @@ def table(result: ClusterResult) -> str:
     )
     for read in reads:
         seconds = "NOT within 5 s" if read.seconds is None else f"{read.seconds:.2f} s"
-        rows.append((f"  {read.moment}, via {read.node}", seconds))
+        rows.append((f"  {read.moment}, via {read.node}", seconds + _waited(read)))
     commands = result.commands
     rows.append(
         (
@@ -137,7 +140,15 @@ def document(result: ClusterResult) -> dict[str, Any]:
             for d in result.deliveries
         ],
         "retained": [
-            {"moment": r.moment, "node": r.node, "seconds": r.seconds, "stale": list(r.stale)}
+            {
+                "moment": r.moment,
+                "node": r.node,
+                "seconds": r.seconds,
+                "stale": list(r.stale),
+                "cluster_wait_s": (
+                    None if r.cluster_wait_s is None else round(r.cluster_wait_s, 3)
+                ),
+            }
             for r in result.retained
         ],
         "commands": {
@@ -161,3 +172,12 @@ def document(result: ClusterResult) -> dict[str, Any]:
         "problems": problems(result),
         "passed": not problems(result),
     }
+
+
+def _waited(read: RetainedRead) -> str:
+    if read.cluster_wait_s is None:
+        return (
+            f" (the nodes did not share retained messages within {CLUSTER_WAIT_S:g} s: NATS's, "
+            "e.g. a node's consumer of them 'has NO quorum, stalled' in its log)"
+        )
+    return f" (nodes sharing retained messages after {read.cluster_wait_s:.2f} s)"
