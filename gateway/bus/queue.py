@@ -3,12 +3,13 @@
 Order of service:
 1. priority: writes first (a stop command never waits behind polls), then client reads, then polls,
    except that polls get a turn while reads are waiting too (telemetry and dead-drive probes must
-   not starve under a SCADA that reads without pause): while their time on the line is under
-   `poll_share` of it (`gateway.bus.line_share`; every second a full line gives polls is one its
-   readers wait), and only once every client waiting to read has had a read since the last poll,
-   so that a poll holds a waiting client for one poll transaction at most; and writes
-   take at most their share of the line's time while reads wait, broadcasts theirs while
-   anything else waits: one client's flood of writes can't freeze the others' reads;
+   not starve under a SCADA that reads without pause): one in `POLL_SHARE` at most, while their
+   time on the line is under `poll_share` of it (`gateway.bus.line_share`: every second a full
+   line gives polls is one its readers wait), and only once every client waiting to read has
+   had a read since the last poll, so that a poll holds a waiting client for one poll
+   transaction at most; and writes take at most their share of the line's time while reads
+   wait, broadcasts theirs while anything else waits: one client's flood of writes can't
+   freeze the others' reads;
 2. within a priority, round-robin between clients (one busy SCADA can't starve another);
 3. within a client, first come first served.
 
@@ -29,6 +30,8 @@ from gateway.errors import QueueFull
 
 BROADCAST = 0
 """Address 0: every drive, no reply."""
+POLL_SHARE = 4
+"""While reads and polls both wait, one transaction in this many at most goes to a poll."""
 
 
 class Waiter(Protocol):
@@ -96,6 +99,7 @@ class RequestQueue:
         self._meter = ShareMeter(shares or LineShares())
         self._coalescing: dict[tuple[int, bytes, Priority], Transaction] = {}
         self._size = 0
+        self._reads_while_polls_wait = 0
         self._read_since_poll: set[str] = set()
         """Clients served a read since the last poll, while polls waited."""
         self.coalesced = 0
@@ -181,16 +185,23 @@ class RequestQueue:
 
     def _next_level(self, now: float) -> Priority | None:
         """Reads, then polls; but polls get a turn while reads wait, so telemetry never stops
-        under a SCADA that reads without pause: within their share of the line's time, once
-        every client waiting to read has had a read since the last poll (no waiting client
-        held by two polls)."""
+        under a SCADA that reads without pause: after POLL_SHARE - 1 reads, within their share
+        of the line's time, once every client waiting to read has had a read since the last
+        poll (no waiting client held by two polls)."""
         levels = self._levels
         reads = levels[Priority.READ]
         if not levels[Priority.POLL]:
+            self._reads_while_polls_wait = 0
             self._read_since_poll.clear()
             return Priority.READ if reads else None
-        if not reads or (self._read_since_poll.issuperset(reads) and self._meter.polls_may_go(now)):
+        if not reads or (
+            self._reads_while_polls_wait >= POLL_SHARE - 1
+            and self._read_since_poll.issuperset(reads)
+            and self._meter.polls_may_go(now)
+        ):
+            self._reads_while_polls_wait = 0
             return Priority.POLL
+        self._reads_while_polls_wait += 1
         return Priority.READ
 
     def take_all(self) -> list[Transaction]:
