@@ -49,8 +49,8 @@ from gateway.errors import (
     ReplyTimeout,
 )
 from gateway.logs import dump_frame, frame_dump_enabled
-from gateway.modbus.functions import is_exception, lookup
-from gateway.modbus.rtu import BROADCAST_ADDRESS, build_frame
+from gateway.modbus.functions import lookup
+from gateway.modbus.rtu import BROADCAST_ADDRESS, build_frame, request_frame
 from gateway.tasks import cancel_and_wait
 
 log = logging.getLogger(__name__)
@@ -352,7 +352,7 @@ class Bus:
             raise
         if carrier is transaction:
             # Framed now, while the line may be busy: no CRC work in the gap.
-            transaction.frame = build_frame(transaction.address, transaction.pdu)
+            transaction.frame = request_frame(transaction.address, transaction.pdu)
         else:
             self.stats.coalesced += 1
         self._wake()
@@ -903,10 +903,9 @@ class _Observed:
         return self._waiter.done()
 
     def set_result(self, result: bytes | None, /) -> None:
-        code = (
-            result[1] if result is not None and is_exception(result) and len(result) > 1 else None
-        )
-        self.report(code)
+        # Once per request: the exception test and `report` written out.
+        code = result[1] if result is not None and len(result) > 1 and result[0] & 0x80 else None
+        self._bus._report(self._address, self._pdu, self._client, self._started, code)
         self._waiter.set_result(result)
 
     def set_exception(self, exception: BaseException, /) -> None:

@@ -28,7 +28,7 @@ from gateway.bus.receiver import Receiver
 from gateway.bus.wakeup import MovingDeadline, settle
 from gateway.errors import BadReply
 from gateway.modbus.reply_search import Found, search_reply
-from gateway.modbus.rtu import check_reply
+from gateway.modbus.rtu import check_reply, plain_read_reply, plain_read_reply_length
 
 Replied = Callable[[Sending, Exchange], None]
 """Told, in the port's reader callback, of an attempt whose whole and valid reply is there."""
@@ -67,6 +67,9 @@ class _Held(NamedTuple):
     echo_by: float
     """A copy of the request complete before this is the adapter's echo
     (`Receiver.echo_deadline`)."""
+    plain_read_length: int
+    """The length of the normal reply when the request is a plain read, else 0
+    (`gateway.modbus.rtu.plain_read_reply_length`)."""
 
 
 class GapKeeper:
@@ -310,7 +313,8 @@ class GapKeeper:
         # needs the caller's own reading; the response timeout does too, so a silent drive
         # still times out on time.
         port.waiter = waiting
-        sent = sending.started + self.settings.char_format.wire_time_s(len(sending.frame))
+        frame = sending.frame
+        sent = sending.started + self.settings.char_format.wire_time_s(len(frame))
         self._holding = True
         # Not on the gap timer: a timerfd write per transaction for a deadline that is almost
         # never reached costs more than the float stores of a moving deadline.
@@ -320,7 +324,12 @@ class GapKeeper:
         # What came, when: for echoes and bursts.
         receiver.arrivals = [(len(receiver.received), sent)]
         if this.replied is not None:
-            self._held = _Held(sending, this, receiver.echo_deadline(sending.frame, sent))
+            self._held = _Held(
+                sending,
+                this,
+                receiver.echo_deadline(frame, sent),
+                plain_read_reply_length(frame),
+            )
         return True
 
     def _stop_holding(self) -> None:
@@ -356,22 +365,32 @@ class GapKeeper:
         """
         frame = held.sending.frame
         receiver = self.receiver
-        # `Receiver.search`, written out: this runs for every reply on a busy line.
-        echoes = receiver.echoes > 0 or receiver.arrived_by(len(frame), held.echo_by)
-        search = search_reply(receiver.received, frame, adapter_echoes=echoes)
-        found = search.found
-        if found is Found.PARTIAL or found is Found.NOTHING:
-            # Still coming (adapters deliver in bursts), or so far only a glitch: the hold's
-            # deadline, the response timeout, wakes the caller if it never completes.
-            return True
-        if found is not Found.COMPLETE:
-            return False
-        try:
-            reply = bytes(receiver.received[search.start : search.end])
-            pdu = check_reply(frame, reply, crc_checked=True)
-        except BadReply:
-            return False  # the caller finds it too, counts it and drains the line
-        receiver.take_reply(search, search.end)
+        received = receiver.received
+        arrivals = receiver.arrivals
+        pdu = None
+        if held.plain_read_length and arrivals is not None and len(arrivals) == 2:
+            # The common case, checked directly: a read's reply, alone and in one piece
+            # (no glitch before it, no pause inside it to measure), as the search would find it.
+            pdu = plain_read_reply(received, frame, held.plain_read_length)
+        if pdu is not None:
+            received.clear()
+        else:
+            # `Receiver.search`, written out: this runs for every reply on a busy line.
+            echoes = receiver.echoes > 0 or receiver.arrived_by(len(frame), held.echo_by)
+            search = search_reply(received, frame, adapter_echoes=echoes)
+            found = search.found
+            if found is Found.PARTIAL or found is Found.NOTHING:
+                # Still coming (adapters deliver in bursts), or so far only a glitch: the
+                # hold's deadline, the response timeout, wakes the caller if it never completes.
+                return True
+            if found is not Found.COMPLETE:
+                return False
+            try:
+                reply = bytes(received[search.start : search.end])
+                pdu = check_reply(frame, reply, crc_checked=True)
+            except BadReply:
+                return False  # the caller finds it too, counts it and drains the line
+            receiver.take_reply(search, search.end)
         self._end_hold()
         sending, this = held.sending, held.round
         this.outcome.clear()

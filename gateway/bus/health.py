@@ -67,6 +67,16 @@ class HealthTracker:
 
     def record_answer(self, address: int) -> bool:
         """The drive answered (any valid frame, exceptions too). True if it was offline."""
+        health = self._drives.get(address)
+        if (
+            health is not None
+            and not health.consecutive_failures
+            and not health.offline
+            and not health.lost_with_line
+        ):
+            # Nearly every answer: the drive answered last time too, and nothing is to be reset
+            # (its probes' backoff was reset when it last came back, or never moved).
+            return False
         health = self._get(address)
         was_offline = health.offline
         if was_offline:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
+from functools import lru_cache
 from typing import TypeVar
 
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, HistogramMetricFamily
@@ -26,6 +27,7 @@ LATENCY_BUCKETS = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0)
 queue behind a dead drive seconds."""
 
 
+@lru_cache(maxsize=4096)
 def request_source(client: str) -> str:
     """ "tcp:10.0.0.5:51234" → "tcp"; anything unforeseen → "other" (bounded label values)."""
     head = client.split(":", 1)[0]

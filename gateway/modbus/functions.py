@@ -44,6 +44,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 from types import MappingProxyType
 from typing import Final
 
@@ -295,17 +296,27 @@ UNKNOWN_FUNCTION: Final = Function(
 """The one path for codes the registry doesn't know: passed on as they are, ended on silence."""
 
 
+_BY_CODE: Final[dict[int, Function]] = dict(FUNCTIONS)
+"""`FUNCTIONS` as a plain dict: looked up several times per transaction, and a read-only
+proxy's `get` goes through the proxy first."""
+
+
 def lookup(code: int) -> Function:
-    return FUNCTIONS.get(code, UNKNOWN_FUNCTION)
+    return _BY_CODE.get(code, UNKNOWN_FUNCTION)
 
 
+@lru_cache(maxsize=1024)
 def check_request(pdu: bytes) -> Malformed | None:
-    """None for a well-formed request PDU; else why not, and so which exception it earns."""
+    """None for a well-formed request PDU; else why not, and so which exception it earns.
+    Remembered (a pure function of the bytes): clients repeat their requests, and a hit is a
+    hash lookup in C where the checks are several Python calls."""
     return checks.function_code(pdu) or lookup(pdu[0]).check(pdu)
 
 
+@lru_cache(maxsize=1024)
 def changes_nothing(pdu: bytes) -> bool:
-    """True for a request that only reads; an allow-list, so vendor codes count as writes."""
+    """True for a request that only reads; an allow-list, so vendor codes count as writes.
+    Remembered, as `check_request` is."""
     return lookup(pdu[0]).changes_nothing(pdu)
 
 
@@ -333,6 +344,13 @@ def split_request(pdu: bytes, max_words: int, *, checked: bool = False) -> list[
     if split is None or (not checked and check_request(pdu) is not None):
         return None
     return split.parts(pdu, max_words)
+
+
+@lru_cache(maxsize=1024)
+def needs_split(pdu: bytes, max_words: int) -> bool:
+    """Does the request `pdu`, which has passed `check_request`, go out in parts for a drive
+    taking at most `max_words` words? Remembered: asked of every read a client sends."""
+    return split_request(pdu, max_words, checked=True) is not None
 
 
 def join_replies(pdu: bytes, parts: Sequence[bytes]) -> bytes:

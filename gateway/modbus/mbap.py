@@ -44,6 +44,17 @@ def parse_header(data: bytes) -> MbapHeader:
     return header
 
 
+def frame_header(buffer: bytes | bytearray) -> tuple[int, int, int]:
+    """`parse_header` for a server reading a stream: the header at the front of `buffer` (at
+    least `HEADER_LENGTH` bytes) as (transaction id, unit id, PDU length), read in place.
+    Once per request: no header object, no copy of the bytes; the same checks, the same errors.
+    """
+    transaction_id, protocol_id, length, unit_id = _HEADER.unpack_from(buffer)
+    if protocol_id or not MIN_LENGTH <= length <= MAX_LENGTH:
+        parse_header(bytes(buffer[:HEADER_LENGTH]))  # raises, saying which field and why
+    return transaction_id, unit_id, length - 1
+
+
 def build_adu(transaction_id: int, unit_id: int, pdu: bytes) -> bytes:
     """MBAP header + PDU."""
     return _HEADER.pack(transaction_id, 0, len(pdu) + 1, unit_id) + pdu

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 from gateway.errors import BadReply
 from gateway.modbus.crc import crc16, crc_bytes
 from gateway.modbus.functions import EXCEPTION_BIT, lookup
@@ -14,6 +16,48 @@ def build_frame(address: int, pdu: bytes) -> bytes:
     """address + PDU + CRC."""
     body = bytes((address,)) + pdu
     return body + crc_bytes(body)
+
+
+@lru_cache(maxsize=1024)
+def request_frame(address: int, pdu: bytes) -> bytes:
+    """`build_frame` for requests, remembered: a SCADA client and the poller ask the same
+    questions over and over, and a hit (a hash of bytes, in C) costs a small part of working
+    the CRC out in Python again. Bounded: a client sending ever new requests evicts the oldest."""
+    return build_frame(address, pdu)
+
+
+@lru_cache(maxsize=1024)
+def plain_read_reply_length(request: bytes) -> int:
+    """The length of a normal reply to the RTU `request` when it is a plain read (03H or 04H,
+    8 bytes): address, function, byte count, the words, CRC. 0 for any other request, whose
+    reply only the reply search (`gateway.modbus.reply_search`) may size. Remembered, as
+    `request_frame` is: the same frames come back, and a hit is a hash lookup in C."""
+    if len(request) != 8 or request[1] not in (3, 4):
+        return 0
+    count = (request[4] << 8) | request[5]
+    return 5 + 2 * count if 0 < count <= 125 else 0
+
+
+def plain_read_reply(received: bytes | bytearray, request: bytes, length: int) -> bytes | None:
+    """The PDU of the normal reply to the plain read `request` when `received` is exactly that
+    reply (`length` from `plain_read_reply_length`) and its CRC is right; else None, and the
+    reply search decides.
+
+    What the search would find at offset 0 for such bytes, checked directly: the search also
+    takes the first candidate with the expected address, function and byte count whose CRC is
+    right, and `check_reply` then asks no more of a read's reply than its byte count. Bytes
+    that begin with the request itself are left to the search (an adapter's echo).
+    """
+    if (
+        len(received) == length
+        and received[0] == request[0]
+        and received[1] == request[1]
+        and received[2] == length - 5
+        and received[: len(request)] != request
+        and crc16(received) == 0
+    ):
+        return bytes(received[1:-2])
+    return None
 
 
 def check_reply(request: bytes, reply: bytes, *, crc_checked: bool = False) -> bytes:

@@ -37,6 +37,7 @@ from gateway.modbus.functions import (
     is_exception,
     join_replies,
     lookup,
+    needs_split,
     split_request,
 )
 from gateway.modbus.rtu import BROADCAST_ADDRESS
@@ -134,7 +135,7 @@ class Router:
             return False
         route = self.route(unit_id)
         max_words = route.max_words
-        if max_words is not None and split_request(pdu, max_words, checked=True) is not None:
+        if max_words is not None and needs_split(pdu, max_words):
             return False
         if route.cache_max_age_s is not None:
             cached = self._from_cache(route, pdu)

@@ -42,7 +42,7 @@ from gateway.errors import ExceptionCode, MalformedFrame, ModbusError
 from gateway.listen import cannot_listen
 from gateway.logs import repeated
 from gateway.modbus.functions import changes_nothing, check_request, exception_pdu, lookup
-from gateway.modbus.mbap import HEADER_LENGTH, build_adu, parse_header
+from gateway.modbus.mbap import HEADER_LENGTH, build_adu, frame_header
 from gateway.tcp.access import AccessPolicy, AccessRule
 from gateway.tcp.cert_roles import client_role
 from gateway.tcp.handshakes import HandshakeWatch
@@ -64,6 +64,12 @@ PARTIAL_FRAME_TIMEOUT_S = 5.0
 # stopped reading, answers to a client that doesn't read. A Modbus client has a few hundred bytes
 # in flight; these limits keep what a hostile one can make us hold small.
 SOCKET_BUFFER_BYTES = 32 * 1024
+FRAMES_PER_PASS = 32
+"""Requests taken from one client in one pass of the event loop; the rest of what it sent waits
+for the next pass (its socket not read meanwhile). A client that sends thousands at once (each
+answered at once: an unknown unit id, a cached read) would otherwise hold the loop for tens of
+milliseconds, and every other client and the line's gap timer with it. 32 of the cheapest
+answers take a few milliseconds."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -410,6 +416,9 @@ class Connection(asyncio.Protocol):
         self._transport: asyncio.Transport | None = None
         self._buffer = bytearray()
         self._paused = False
+        self._deferred = False
+        """Frames are left in the buffer for the next pass of the loop (`FRAMES_PER_PASS`):
+        reading the socket waits for them."""
         self._write_blocked = False
         self._loop = asyncio.get_running_loop()
         self._last_data = self.connected_at = self._loop.time()
@@ -498,9 +507,14 @@ class Connection(asyncio.Protocol):
     def _take_frames(self) -> None:
         settings = self.server.settings
         buffer = self._buffer
+        budget = FRAMES_PER_PASS
         while len(buffer) >= HEADER_LENGTH and not self._paused:
+            if not budget:
+                self._defer_frames()
+                return
+            budget -= 1
             try:
-                header = parse_header(bytes(buffer[:HEADER_LENGTH]))
+                transaction_id, unit_id, pdu_length = frame_header(buffer)
             except MalformedFrame as exc:
                 self.server.stats.malformed += 1
                 log.warning(
@@ -512,7 +526,7 @@ class Connection(asyncio.Protocol):
                 self.close()
                 buffer.clear()
                 return
-            end = HEADER_LENGTH + header.pdu_length
+            end = HEADER_LENGTH + pdu_length
             if len(buffer) < end:
                 return
             pdu = bytes(buffer[HEADER_LENGTH:end])
@@ -526,14 +540,34 @@ class Connection(asyncio.Protocol):
             checked = False
             if write:
                 if self._writes_waiting >= settings.max_queued_writes_per_client:
-                    self._refuse_write(header.transaction_id, header.unit_id, pdu)
+                    self._refuse_write(transaction_id, unit_id, pdu)
                     continue
                 self._writes_waiting += 1
             elif self.server.submit is not None:
-                if self._answer_fast(header.transaction_id, header.unit_id, pdu):
+                if self._answer_fast(transaction_id, unit_id, pdu):
                     continue  # answered, or on its way without a task
                 checked = True  # the front door has let it pass: the handler's way, in a task
-            self._start_task(header.transaction_id, header.unit_id, pdu, write, checked)
+            self._start_task(transaction_id, unit_id, pdu, write, checked)
+
+    def _defer_frames(self) -> None:
+        """The pass's budget is spent: take the rest in the next pass, reading nothing more
+        from the socket until then (the kernel holds it, and TCP slows the client down)."""
+        if self._deferred:
+            return
+        self._deferred = True
+        transport = self._transport
+        if transport is not None and not transport.is_closing() and not self._paused:
+            transport.pause_reading()
+        self._loop.call_soon(self._take_deferred)
+
+    def _take_deferred(self) -> None:
+        self._deferred = False
+        transport = self._transport
+        if transport is None or transport.is_closing():
+            return
+        self._take_frames()
+        if not self._deferred and not self._paused:
+            transport.resume_reading()
 
     def _start_task(
         self, transaction_id: int, unit_id: int, pdu: bytes, write: bool, checked: bool
@@ -628,6 +662,8 @@ class Connection(asyncio.Protocol):
         if self.in_flight >= self.server.settings.max_requests_per_connection:
             return
         self._paused = False
+        if self._deferred:
+            return  # `_take_deferred` goes on in the next pass, and resumes reading then
         if self._transport is not None and not self._transport.is_closing():
             self._transport.resume_reading()
             self._take_frames()

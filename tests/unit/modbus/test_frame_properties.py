@@ -28,8 +28,22 @@ from gateway.bus.line import Exchange, LineSettings, SerialLine
 from gateway.errors import BadReply, MalformedFrame, ReplyTimeout
 from gateway.modbus.crc import crc_bytes
 from gateway.modbus.functions import NEED_MORE, UNKNOWN_LENGTH, rtu_reply_length
-from gateway.modbus.mbap import HEADER_LENGTH, MAX_LENGTH, MIN_LENGTH, build_adu, parse_header
-from gateway.modbus.rtu import build_frame, check_reply
+from gateway.modbus.mbap import (
+    HEADER_LENGTH,
+    MAX_LENGTH,
+    MIN_LENGTH,
+    build_adu,
+    frame_header,
+    parse_header,
+)
+from gateway.modbus.reply_search import Found, search_reply
+from gateway.modbus.rtu import (
+    build_frame,
+    check_reply,
+    plain_read_reply,
+    plain_read_reply_length,
+    request_frame,
+)
 from gateway.modbus.timing import CharacterFormat
 
 PURE = settings(max_examples=500, deadline=None, database=None)
@@ -263,3 +277,86 @@ def test_bytes_arriving_between_two_exchanges_are_never_taken_for_the_next_reply
     drive.script = [[build_frame(ADDRESS, good_pdu)]]
     assert line.transact(READ_REQUEST, timeout_s=0.2).reply_pdu == good_pdu
     assert not drive.script
+
+
+# -- the hot path's shortcuts agree with the general parsers ---------------------------------
+
+
+@PURE
+@given(st.binary(min_size=HEADER_LENGTH, max_size=HEADER_LENGTH + 4))
+def test_the_servers_header_read_agrees_with_parse_header(data: bytes) -> None:
+    try:
+        header = parse_header(data[:HEADER_LENGTH])
+    except MalformedFrame as expected:
+        with pytest.raises(MalformedFrame, match=str(expected)):
+            frame_header(bytearray(data))
+        return
+    assert frame_header(bytearray(data)) == (
+        header.transaction_id,
+        header.unit_id,
+        header.pdu_length,
+    )
+
+
+def _general_verdict(received: bytes, request: bytes) -> bytes | None:
+    """What the reply search and the reply check make of `received`, whole: the PDU, or None."""
+    search = search_reply(received, request)
+    if search.found is not Found.COMPLETE or search.start or search.end != len(received):
+        return None
+    try:
+        return check_reply(request, received[search.start : search.end], crc_checked=True)
+    except BadReply:
+        return None
+
+
+_plain_reads = st.builds(
+    lambda address, function, start, count: build_frame(
+        address, struct.pack(">BHH", function, start, count)
+    ),
+    st.integers(1, 247),
+    st.sampled_from([3, 4]),
+    st.integers(0, 0xFFFF),
+    st.integers(1, 125),
+)
+
+
+@PURE
+@given(_plain_reads, st.data())
+def test_a_plain_reads_reply_is_taken_only_where_the_search_would_take_it(
+    request: bytes, data: st.DataObject
+) -> None:
+    length = plain_read_reply_length(request)
+    assert length == 5 + 2 * struct.unpack(">H", request[4:6])[0]
+    good = build_frame(request[0], bytes((request[1], length - 5)) + bytes(length - 5))
+    received = data.draw(
+        st.one_of(
+            st.just(good),
+            st.binary(min_size=length, max_size=length),  # noise of the right length
+            st.builds(  # the good reply with one byte changed
+                lambda i, b: good[:i] + bytes((b,)) + good[i + 1 :],
+                st.integers(0, length - 1),
+                st.integers(0, 255),
+            ),
+            st.just(request[:length]),  # the adapter's echo, so far
+            st.just(good[:-1]),  # still coming
+        )
+    )
+    fast = plain_read_reply(received, request, length)
+    if fast is not None:
+        assert fast == _general_verdict(received, request) == received[1:-2]
+    if received == good:
+        assert fast == good[1:-2]
+
+
+@pytest.mark.parametrize(
+    "request_hex",
+    ["01 06 20 00 00 01", "01 10 20 00 00 01 02 00 01", "01 03 21 00 00 00", "01 03 21 00 00 7E"],
+)
+def test_requests_other_than_plain_reads_have_no_shortcut(request_hex: str) -> None:
+    assert plain_read_reply_length(build_frame(1, bytes.fromhex(request_hex)[1:])) == 0
+
+
+@PURE
+@given(st.integers(0, 247), st.binary(min_size=1, max_size=20))
+def test_a_remembered_request_frame_is_the_frame(address: int, pdu: bytes) -> None:
+    assert request_frame(address, pdu) == build_frame(address, pdu) == request_frame(address, pdu)

@@ -21,6 +21,7 @@ from gateway.modbus.functions import (
     check_request,
     join_replies,
     lookup,
+    needs_split,
     rtu_reply_length,
     split_request,
 )
@@ -385,3 +386,19 @@ def test_a_split_covers_the_request_and_joins_to_its_reply(
         assert join_replies(request, replies) == struct.pack(
             f">BB{count}H", function, 2 * count, *values
         )
+
+
+@given(
+    st.sampled_from([0x03, 0x04]),
+    st.integers(0, 0xFFFF),
+    st.integers(1, 125),
+    st.integers(1, 125),
+)
+def test_a_remembered_split_verdict_is_the_splits(
+    function: int, start: int, count: int, max_words: int
+) -> None:
+    pdu = struct.pack(">BHH", function, start, count)
+    expected = split_request(pdu, max_words) is not None
+    assert needs_split(pdu, max_words) is expected
+    assert needs_split(pdu, max_words) is expected  # the remembered answer too
+    assert expected == (count > max_words and start + count <= 0x10000)
