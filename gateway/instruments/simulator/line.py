@@ -510,9 +510,11 @@ class SimulatedLine:
         while self._pending and self._pending[0][0] <= now:
             due, _, reply, ends_reply = heapq.heappop(self._pending)
             written_at = time.monotonic()
-            if self._write(reply) and ends_reply:
-                left_wire_at = written_at - self.relay_s  # the relay held it this long
-                with self._lock:
+            # Written and counted under the lock: a master that reads the stats once it has
+            # the reply finds it counted (it read them before this thread counted it, at times).
+            with self._lock:
+                if self._write(reply) and ends_reply:
+                    left_wire_at = written_at - self.relay_s  # the relay held it this long
                     self._stats["replies"] += 1
                     self._frame_ended(left_wire_at)
                     self._reply_late.observe(written_at - due)
