@@ -121,13 +121,15 @@ def test_bench_counts_the_relays_delay_each_way_in_the_wire_maximum() -> None:
     # 115200 8E1, 8 + 9 bytes, t3.5 1.75 ms, the fast drive's t3.5 + 1 ms, 0.5 ms each way.
     transaction_s = 17 * 11 / 115200 + 0.00175 + 0.00275 + 2 * 0.0005
     assert abs(row["wire max/s"] - 1 / transaction_s) < 0.1
+    # The relay is really in the path: without its delays the line would carry more.
     assert 0 < row["bus tx/s"] < row["wire max/s"]
     assert row["of max"] == pytest.approx(row["client tx/s"] / row["wire max/s"])
-    # The relay is really in the path: after each reply, the drives hear silence for the
-    # reply's trip to the gateway and the next request's trip back, beyond the gateway's t3.5.
-    assert row["heard+ p50 us"] >= 1000
+    # What the drives heard beyond t3.5 leaves the relay's two delays out (they are in the
+    # maximum): what is left is at least the gateway's own share, and the summary says it.
+    assert row["heard+ p50 us"] >= row["gap+ p50 us"]
     (line,) = report["summary"]
     assert "of what the wire and the relay allow (0.5 ms each way counted" in line
+    assert "beyond t3.5 and the relay before each request" in line
 
 
 def test_bench_relay_delay_is_checked() -> None:

@@ -7,6 +7,7 @@ the figures are `invt-gateway bench`'s job.
 from __future__ import annotations
 
 import asyncio
+import itertools
 import struct
 import time
 from collections.abc import Iterator
@@ -18,6 +19,7 @@ from gateway.bus import Priority
 from gateway.errors import GatewayTargetFailed
 from gateway.instruments.simulator import SimulatedLine
 from gateway.modbus.timing import CharacterFormat
+from gateway.routing import POLL_CLIENT
 from tests.support import (
     TcpClient,
     eventually,
@@ -305,6 +307,54 @@ async def test_a_drive_comes_back_and_polls_run_while_scada_reads_without_pause(
             await asyncio.gather(*load)
             for client in clients:
                 await client.close()
+
+
+async def test_polls_yield_to_clients_reading_without_pause_and_fill_an_idle_line() -> None:
+    """SCADA connections keeping the line full: a poll never holds one of them for more than
+    one poll transaction, and polls take a small share of the line (`poll_share`, 5 % of its
+    time by default; before it, one transaction in five here); once the clients stop, the
+    poller gets every poll its plan asks for."""
+    with SimulatedLine(addresses=[1, 2], baudrate=115200) as line:
+        state = {"name": "state", "start": 0x2100, "count": 3, "interval_ms": 20}
+        drives = [{"name": "pump1", "address": 1, "poll": [state]}, {"name": "fan2", "address": 2}]
+        async with running_gateway(gateway_config(line.path, drives, timeout_ms=1000)) as app:
+            served: list[str] = []  # who each transaction on the line was for, in order
+            answered: set[int] = set()  # the clients that had a read answered
+            stop = asyncio.Event()
+
+            async def scada(client: TcpClient, register: int) -> None:
+                # Two requests in flight: this client always has one waiting for the line.
+                while not stop.is_set():
+                    client.send(2, read_pdu(register))
+                    client.send(2, read_pdu(register))
+                    for _ in range(2):
+                        assert (await client.receive()).pdu[0] == 3
+                    answered.add(register)
+
+            clients = [await TcpClient.connect(app.tcp.port) for _ in range(4)]
+            load = [asyncio.create_task(scada(c, 0x3000 + i)) for i, c in enumerate(clients)]
+            bus = app.buses["line1"]
+            # From the moment every client has a read answered: the line is full from then on.
+            await eventually(lambda: len(answered) == len(clients), what="the clients reading")
+            bus.add_request_observer(lambda done: served.append(done.client))
+            await eventually(
+                lambda: served.count(POLL_CLIENT) >= 6, within_s=30.0, what="polls under the load"
+            )
+            under_load = list(served)
+            stop.set()
+            await asyncio.gather(*load)
+            for client in clients:
+                await client.close()
+            polls = under_load.count(POLL_CLIENT)
+            assert polls / len(under_load) <= 0.1, under_load
+            for reader in set(under_load) - {POLL_CLIENT}:
+                turns = [n for n, who in enumerate(under_load) if who == reader]
+                for before, after in itertools.pairwise(turns):
+                    assert under_load[before + 1 : after].count(POLL_CLIENT) <= 1, under_load
+            # The line idle: the polls take it all, one every 20 ms (ten asked for in 0.2 s,
+            # given a few seconds on a loaded machine).
+            polled = app.poller.polls
+            await eventually(lambda: app.poller.polls >= polled + 10, what="polls on an idle line")
 
 
 async def test_reads_of_a_client_that_left_cost_no_bus_time(slow_line: SimulatedLine) -> None:

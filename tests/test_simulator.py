@@ -350,6 +350,23 @@ def test_the_line_tells_how_late_its_drives_answered_and_what_silence_they_heard
     assert heard[-1][0] == "+Inf"
 
 
+def test_a_relays_delays_are_silence_on_the_wire_and_left_out_of_what_the_drives_heard() -> None:
+    """A relay of 20 ms each way: a master that asks again at once after a reply still leaves
+    the wire silent for the two delays (no gap violation), and the silence the drives heard
+    beyond t3.5 leaves those configured delays out (the bench counts them in the maximum)."""
+    with (
+        SimulatedLine([1], baudrate=9600, wire_time=True, relay_s=0.02) as line,
+        serial.Serial(line.path, 9600, parity="E", timeout=1) as port,
+    ):
+        exchange(port, bytes.fromhex(READ_STATE_WORD_1))
+        exchange(port, bytes.fromhex(READ_STATE_WORD_1))  # at once after the reply
+        stats = line.stats
+    assert stats["gap_violations"] == 0
+    heard = stats["heard_gap_buckets"]
+    assert _counted(heard) == 1
+    assert _counted(heard, 0.01) == 1  # not the 40 ms of the relay
+
+
 # ---------------------------------------------------------------- the port itself
 
 

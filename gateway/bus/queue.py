@@ -3,13 +3,13 @@
 Order of service:
 1. priority: writes first (a stop command never waits behind polls), then client reads, then polls,
    except that polls get a turn while reads are waiting too (telemetry and dead-drive probes must
-   not starve under a SCADA that reads without pause): one in `POLL_SHARE` at most, and only
-   once every client waiting to read has had a read since the last poll, so that a poll holds a
-   waiting client for one poll transaction at most (not one per POLL_SHARE - 1 reads of the
-   others: eight SCADA connections were held for two polls a round); and that writes
-   take at most their share of the line's time while reads wait, broadcasts theirs while
-   anything else waits (`gateway.bus.line_share`): one client's flood of writes can't freeze
-   the others' reads;
+   not starve under a SCADA that reads without pause): one in `POLL_SHARE` at most, while their
+   time on the line is under `poll_share` of it (`gateway.bus.line_share`: every second a full
+   line gives polls is one its readers wait), and only once every client waiting to read has
+   had a read since the last poll, so that a poll holds a waiting client for one poll
+   transaction at most; and writes take at most their share of the line's time while reads
+   wait, broadcasts theirs while anything else waits: one client's flood of writes can't
+   freeze the others' reads;
 2. within a priority, round-robin between clients (one busy SCADA can't starve another);
 3. within a client, first come first served.
 
@@ -31,7 +31,7 @@ from gateway.errors import QueueFull
 BROADCAST = 0
 """Address 0: every drive, no reply."""
 POLL_SHARE = 4
-"""While reads and polls both wait, one transaction in this many goes to a poll."""
+"""While reads and polls both wait, one transaction in this many at most goes to a poll."""
 
 
 class Waiter(Protocol):
@@ -134,6 +134,8 @@ class RequestQueue:
             use = LineUse.BROADCAST
         elif transaction.priority is Priority.WRITE:
             use = LineUse.WRITE
+        elif transaction.priority is Priority.POLL:
+            use = LineUse.POLL
         else:
             use = LineUse.OTHER
         self._meter.charge(use, seconds, now)
@@ -175,18 +177,17 @@ class RequestQueue:
             return self._broadcasts
         if levels[Priority.WRITE] and (not reads_wait or self._meter.writes_may_go(now)):
             return levels[Priority.WRITE]
-        level = self._next_level()
+        level = self._next_level(now)
         if level is not None:
             return levels[level]
         # Only writes wait, over their share: the share is for sharing, not for idling.
         return self._broadcasts or None
 
-    def _next_level(self) -> Priority | None:
+    def _next_level(self, now: float) -> Priority | None:
         """Reads, then polls; but polls get a turn while reads wait, so telemetry never stops
-        under a SCADA that reads without pause: after POLL_SHARE - 1 reads, once every client
-        waiting to read has had a read since the last poll (no waiting client held by two
-        polls: with eight SCADA connections reading without pause, a poll every ninth
-        transaction instead of every fourth)."""
+        under a SCADA that reads without pause: after POLL_SHARE - 1 reads, within their share
+        of the line's time, once every client waiting to read has had a read since the last
+        poll (no waiting client held by two polls)."""
         levels = self._levels
         reads = levels[Priority.READ]
         if not levels[Priority.POLL]:
@@ -196,6 +197,7 @@ class RequestQueue:
         if not reads or (
             self._reads_while_polls_wait >= POLL_SHARE - 1
             and self._read_since_poll.issuperset(reads)
+            and self._meter.polls_may_go(now)
         ):
             self._reads_while_polls_wait = 0
             return Priority.POLL

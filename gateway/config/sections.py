@@ -296,6 +296,11 @@ class BusConfig(Section):
     broadcast_share: float = Field(0.1, gt=0, le=1)
     """While other requests wait, the most of the line's time broadcasts (and their turnaround)
     may take."""
+    poll_share: float = Field(0.05, gt=0, le=1)
+    """While client reads wait, the most of the line's time the poller's reads may take (with
+    no client read waiting they take all of it): every second a full line gives the polls is
+    one the clients wait longer. Raise it for fresher telemetry under a SCADA that keeps the
+    line busy."""
 
     @field_validator("baudrate")
     @classmethod

@@ -40,7 +40,7 @@ def bus_settings(config: BusConfig) -> BusSettings:
         queue_size=config.queue_size,
         offline_after=config.offline_after,
         probe_max_s=config.probe_max_s,
-        shares=LineShares(config.write_share, config.broadcast_share),
+        shares=LineShares(config.write_share, config.broadcast_share, config.poll_share),
     )
 
 

@@ -145,7 +145,10 @@ def summary(results: list[CaseResult]) -> list[str]:
             lines.append(
                 f"{case.baudrate} baud, {case.name}: bus at {share:.1%} of what the wire and "
                 f"the relay allow ({case.relay_ms:g} ms each way counted in the maximum; target "
-                f">= 96 %), {result.gap_violations} t3.5 violations; {gaps}"
+                f">= 96 %), {result.gap_violations} t3.5 violations; {gaps}; the drives heard "
+                f"{result.heard_gap_us(0.5):.0f} us beyond t3.5 and the relay before each "
+                f"request at the median (the gateway's excess gap, its reading of the reply "
+                f"and the pty's two hops) and answered {result.drive_late_us(0.5):.0f} us late"
             )
         elif case.fast:
             lines.append(

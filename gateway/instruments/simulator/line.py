@@ -17,7 +17,9 @@ Two histograms say where a transaction's time goes besides the wire and the mast
 each reply went out after the moment it was due (the drives' own lateness: this thread woken late
 on a busy machine), and the silence beyond t3.5 the drives heard between a reply and the request
 after it (the master's share, its reading of the reply and the relay between the pty ends: all
-that the line waits for besides the drives).
+that the line waits for besides the drives; with `relay_s`, beyond the relay's two delays too,
+which are the configured path's and not the master's: so its buckets, the same as the master's
+excess gap's, resolve what is left rather than the relay's half-millisecond or so).
 
 With `relay_s`, a relay sits between the master's port and the drives' wire, as a USB adapter's
 timer or a serial device server does: every byte reaches the wire `relay_s` after the master
@@ -418,7 +420,8 @@ class SimulatedLine:
             return
         self._stats["requests"] += 1
         if self._reply_ended_at is not None:  # the master's turn after a reply
-            self._heard_gap.observe(frame.first_byte_at - self._reply_ended_at - self.t35_s)
+            heard = frame.first_byte_at - self._reply_ended_at
+            self._heard_gap.observe(heard - self.t35_s - 2 * self.relay_s)
             self._reply_ended_at = None
         character_s = self.character_s if self.wire_time else 0.0
         request_wire_s = len(frame.data) * character_s
@@ -507,9 +510,11 @@ class SimulatedLine:
         while self._pending and self._pending[0][0] <= now:
             due, _, reply, ends_reply = heapq.heappop(self._pending)
             written_at = time.monotonic()
-            if self._write(reply) and ends_reply:
-                left_wire_at = written_at - self.relay_s  # the relay held it this long
-                with self._lock:
+            # Written and counted under the lock: a master that reads the stats once it has
+            # the reply finds it counted (it read them before this thread counted it, at times).
+            with self._lock:
+                if self._write(reply) and ends_reply:
+                    left_wire_at = written_at - self.relay_s  # the relay held it this long
                     self._stats["replies"] += 1
                     self._frame_ended(left_wire_at)
                     self._reply_late.observe(written_at - due)

@@ -7,6 +7,7 @@ import itertools
 
 import pytest
 
+from gateway.bus.line_share import LineShares
 from gateway.bus.queue import Priority, RequestQueue, Transaction
 from gateway.errors import GatewayPathUnavailable, QueueFull
 
@@ -95,6 +96,8 @@ async def test_a_request_whose_callers_left_is_not_wanted() -> None:
 
 
 async def test_polls_get_a_share_while_reads_keep_coming() -> None:
+    """Without line time charged yet, the share is not reached: a poll goes once every client
+    waiting to read had its read."""
     queue = RequestQueue(100)
     for i in range(12):
         queue.put(txn(f"scada{i % 3}"))
@@ -103,8 +106,49 @@ async def test_polls_get_a_share_while_reads_keep_coming() -> None:
     queue.put(txn("write", Priority.WRITE))
     served = order(queue)
     assert served[0] == "write"  # writes still go first
-    # One poll in every POLL_SHARE (4) while reads wait: polls at picks 4, 8, 12 after the write.
     assert [i for i, c in enumerate(served[1:], 1) if c == "poll"] == [4, 8, 12]
+
+
+def serve_a_full_line(
+    queue: RequestQueue, clients: list[str], transactions: int, poll_s: float = 0.01
+) -> tuple[list[str], float]:
+    """Clients reading without pause (each asks again once answered) and polls always
+    waiting, each transaction charged its line time (reads 10 ms, polls `poll_s`): the order
+    served, and the polls' share of the line's time."""
+    for client in clients:
+        queue.put(txn(client))
+    now = poll_time = 0.0
+    served: list[str] = []
+    for _ in range(transactions):
+        if len(queue) == len(clients):  # no poll waiting: the poller's next, always due
+            queue.put(txn("poll", Priority.POLL))
+        taken = queue.get_nowait(now)
+        assert taken is not None
+        seconds = poll_s if taken.client == "poll" else 0.01
+        now += seconds
+        queue.charge(taken, seconds, now)
+        served.append(taken.client)
+        if taken.client == "poll":
+            poll_time += seconds
+        else:
+            queue.put(txn(taken.client))
+    return served, poll_time / now
+
+
+async def test_polls_take_at_most_their_share_of_a_full_line() -> None:
+    """A full line's readers wait for every second the polls take: while reads wait, polls
+    get `poll_share` of the line (5 % by default), longer polls fewer turns, and still go."""
+    clients = [f"scada{n}" for n in range(8)]
+    served, share = serve_a_full_line(RequestQueue(100), clients, 2000)
+    assert 0.03 < share <= 0.055
+    long_polls, long_share = serve_a_full_line(RequestQueue(100), clients, 2000, poll_s=0.03)
+    assert 0.03 < long_share <= 0.055
+    assert long_polls.count("poll") < served.count("poll") / 2
+    # A larger share: then the other rule binds, a poll once every waiting client had its
+    # read (one transaction in nine with eight readers).
+    shares = LineShares(poll_share=0.5)
+    _, more = serve_a_full_line(RequestQueue(100, shares), clients, 2000)
+    assert 0.1 < more <= 1 / 9 + 0.001
 
 
 async def test_a_poll_holds_a_waiting_client_for_one_poll_transaction_at_most() -> None:
