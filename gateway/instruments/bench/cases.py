@@ -27,7 +27,7 @@ from gateway.modbus.timing import CharacterFormat
 RESPONSE_DELAY_MS = 5.0  # INVT P14.03's default
 FAST_TURNAROUND_S = 0.001
 """A fast drive (P14.03 = 0) answers about 1 ms after the t3.5 that ends the request."""
-LINE_COUNTS = (4, 8, 16)  # the multi-line cases, at the fastest baud rate
+LINE_COUNTS = (4, 8, 16, 32)  # the multi-line cases, at the fastest baud rate
 FLOOD_WINDOW = 8
 """Requests the flooding client keeps in flight (below max_queued_writes_per_client's 16)."""
 SET_POINT = 0x2001  # 2001H..2008H: set-points and limits, written per drive (set_point_values)
@@ -334,9 +334,17 @@ def gateway_config(
     if case.polled:
         for drive in drives:
             drive["poll"] = POLL_GROUPS
+    # Every client of every line, the flooding client and the one that prepares the reads.
+    max_connections = max(256, case.clients * case.lines + 16)
     config: dict[str, Any] = {
         "gateway_id": "bench",
-        "modbus_tcp": {"host": "127.0.0.1", "port": port, "max_connections": 256},
+        "modbus_tcp": {
+            "host": "127.0.0.1",
+            "port": port,
+            "max_connections": max_connections,
+            # All the bench's clients come from 127.0.0.1: one client address holds them all.
+            "max_connections_per_client": max_connections,
+        },
         "buses": [
             {"name": f"line{n}", "port": path, "baudrate": case.baudrate, "parity": "E"}
             for n, path in enumerate(line_paths, 1)
