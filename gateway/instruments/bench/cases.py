@@ -13,7 +13,7 @@ from gateway.bus.gap_excess import quantile
 from gateway.instruments.bench.load import LoadResult, Target, flood, run_clients
 from gateway.instruments.bench.processes import (
     GatewayProcess,
-    SimulatorProcess,
+    SimulatorLine,
     free_port,
     gateway,
     simulator,
@@ -28,6 +28,10 @@ RESPONSE_DELAY_MS = 5.0  # INVT P14.03's default
 FAST_TURNAROUND_S = 0.001
 """A fast drive (P14.03 = 0) answers about 1 ms after the t3.5 that ends the request."""
 LINE_COUNTS = (4, 8, 16, 32)  # the multi-line cases, at the fastest baud rate
+LINES_PER_SIMULATOR = 32
+"""Lines one simulator process serves (from one thread): one process for every lines case,
+so that the harness is not what limits the gateway (one process per line took more of the
+cores than the gateway measured)."""
 FLOOD_WINDOW = 8
 """Requests the flooding client keeps in flight (below max_queued_writes_per_client's 16)."""
 SET_POINT = 0x2001  # 2001H..2008H: set-points and limits, written per drive (set_point_values)
@@ -106,18 +110,41 @@ def matrix(baudrates: tuple[int, ...], relay_ms: float = 0.0) -> list[Case]:
 def extra_cases(baudrates: tuple[int, ...]) -> list[Case]:
     """Cases run only when `--case` names them: several lines in one process, and floods."""
     fastest = max(baudrates)
-    cases = []
+    cases = [lines_reference(fastest, fast) for fast in (False, True)]
     for lines in LINE_COUNTS:
         for fast in (False, True):
-            speed = "fast drives" if fast else "5 ms drives"
-            name = f"{lines} lines, 4 drives, 8c each, {speed}"
-            cases.append(Case(name, fastest, 2, 8, lines=lines, fast=fast))
+            name = f"{lines} lines, 4 drives, 8c each, {_speed(fast)}"
+            cases.append(Case(name, fastest, 2, 8, lines=lines, fast=fast, many_lines=True))
     # Readers on a line flooded by one client's pipelined writes, or broadcasts: what is left
     # for them (against "2w 8c" unloaded) is the fair share at work.
     cases.append(Case("flood: 8 readers alone", fastest, 2, 8))
     cases.append(Case("flood: 8 readers + pipelined writes", fastest, 2, 8, flood="writes"))
     cases.append(Case("flood: 8 readers + pipelined broadcasts", fastest, 2, 8, flood="broadcasts"))
     return cases
+
+
+def _speed(fast: bool) -> str:
+    return "fast drives" if fast else "5 ms drives"
+
+
+def lines_reference(baudrate: int, fast: bool) -> Case:
+    """One line, as each line of the lines cases has it, served the same way: what each of
+    them is compared with."""
+    name = f"lines ref: 1 line, 4 drives, 8c each, {_speed(fast)}"
+    return Case(name, baudrate, 2, 8, fast=fast, many_lines=True)
+
+
+def with_references(cases: list[Case]) -> list[Case]:
+    """`cases` with the 1-line reference of every lines case chosen, each before the first
+    case it is the reference of (its figure is in their rows)."""
+    chosen: list[Case] = []
+    for case in cases:
+        reference = lines_reference(case.baudrate, case.fast)
+        if case.many_lines and case.lines > 1 and reference not in chosen:
+            chosen.append(reference)
+        if case not in chosen:
+            chosen.append(case)
+    return chosen
 
 
 @dataclass(frozen=True, slots=True)
@@ -142,6 +169,8 @@ class Case:
     """Drives answering 1 ms after the request's t3.5 (P14.03 = 0) instead of after 5 ms."""
     lines: int = 1
     """Buses in the one gateway process, each with `drives` drives and `clients` clients."""
+    many_lines: bool = False
+    """One of the lines cases (their 1-line reference too): compared line for line."""
     flood: str = ""
     """"writes" or "broadcasts": one more client keeps `FLOOD_WINDOW` of them in flight."""
     relay_ms: float = 0.0
@@ -210,6 +239,11 @@ class CaseResult:
     gap_violations: int
     cpu_s: float
     peak_rss_mb: float
+    rss_mb: float = float("nan")
+    """The gateway's resident memory (MiB) at the end of the measured time."""
+    single_line_share: float = float("nan")
+    """Lines cases: the share of the wire one line carried in their 1-line reference, when
+    it ran (`with_references`)."""
     excess_gap: list[tuple[float, int]] = field(default_factory=list)
     """The gateway's `bus_excess_gap_seconds` buckets over the measured time, all lines."""
     line_transactions: list[int] = field(default_factory=list)
@@ -271,6 +305,12 @@ class CaseResult:
         """Of one line (the mean over the lines)."""
         lines = max(self.case.lines, 1)
         return self.bus_transactions * self.case.budget.transaction_s / self.elapsed_s / lines
+
+    @property
+    def points_from_one_line(self) -> float:
+        """Lines cases: the mean line's share of the wire minus one line's alone, in percentage
+        points (negative: each line carries less than one alone)."""
+        return 100 * (self.utilisation - self.single_line_share)
 
     @property
     def cpu_per_transaction_us(self) -> float:
@@ -370,10 +410,18 @@ def run_case(case: Case, duration_s: float, warmup_s: float) -> CaseResult:
     delay_ms = 1000 * case.response_delay_s
     with contextlib.ExitStack() as stack:
         lines = [
-            stack.enter_context(
-                simulator(addresses, case.baudrate, dead, delay_ms, case.simulator_args)
-            )
-            for n in range(case.lines)
+            line
+            for first in range(0, case.lines, LINES_PER_SIMULATOR)
+            for line in stack.enter_context(
+                simulator(
+                    addresses,
+                    case.baudrate,
+                    dead,
+                    delay_ms,
+                    case.simulator_args,
+                    min(LINES_PER_SIMULATOR, case.lines - first),
+                )
+            ).lines
         ]
         port, console_port, metrics_port = free_port(), free_port(), free_port()
         config = gateway_config(
@@ -394,7 +442,7 @@ def run_case(case: Case, duration_s: float, warmup_s: float) -> CaseResult:
 
 async def _measure(
     case: Case,
-    lines: list[SimulatorProcess],
+    lines: list[SimulatorLine],
     process: GatewayProcess,
     dead: list[int],
     duration_s: float,
@@ -448,6 +496,7 @@ async def _measure(
         ),
         cpu_s=cpu,
         peak_rss_mb=process.peak_rss_mb(),
+        rss_mb=process.rss_mb(),
         excess_gap=[(le, n - gaps_before.get(le, 0)) for le, n in sorted(gaps_after.items())],
         line_transactions=per_line,
         drive_late=_histogram_change("reply_late_buckets", before, after),

@@ -55,7 +55,13 @@ def gateway_command() -> list[str]:
 @dataclass
 class SimulatorProcess:
     process: subprocess.Popen[str]
-    path: str
+    paths: list[str]
+    """One per line it serves."""
+
+    @property
+    def path(self) -> str:
+        """Its first line's."""
+        return self.paths[0]
 
     def command(self, text: str) -> str:
         assert self.process.stdin is not None
@@ -64,10 +70,29 @@ class SimulatorProcess:
         self.process.stdin.flush()
         return self.process.stdout.readline().strip()
 
-    def stats(self) -> dict[str, Any]:
-        answer = self.command("stats")
+    def stats(self, line: int = 1) -> dict[str, Any]:
+        """The counters of its `line`-th line (from 1)."""
+        answer = self.command(f"line {line} stats")
+        if not answer.startswith("ok"):
+            raise RuntimeError(f"simulator refused stats of line {line}: {answer}")
         result: dict[str, Any] = json.loads(answer.removeprefix("ok").strip())
         return result
+
+    @property
+    def lines(self) -> list[SimulatorLine]:
+        return [SimulatorLine(self, number, path) for number, path in enumerate(self.paths, 1)]
+
+
+@dataclass(frozen=True)
+class SimulatorLine:
+    """One of the lines a simulator process serves."""
+
+    simulator: SimulatorProcess
+    number: int
+    path: str
+
+    def stats(self) -> dict[str, Any]:
+        return self.simulator.stats(self.number)
 
 
 @contextlib.contextmanager
@@ -77,9 +102,11 @@ def simulator(
     dead: list[int],
     response_delay_ms: float,
     extra_args: Sequence[str] = (),
+    lines: int = 1,
 ) -> Iterator[SimulatorProcess]:
+    """`simulate` serving `lines` lines alike (each with `addresses`), in one process."""
     args = [*gateway_command(), "simulate", "--pty", "--baud", str(baudrate), *extra_args]
-    args += ["--response-delay-ms", str(response_delay_ms)]
+    args += ["--response-delay-ms", str(response_delay_ms), "--lines", str(lines)]
     for address in addresses:
         args += ["--address", str(address)]
     for address in dead:
@@ -94,10 +121,10 @@ def simulator(
     )
     try:
         assert process.stdout is not None
-        path = process.stdout.readline().strip()
-        if not path.startswith("/"):
-            raise RuntimeError(f"simulator did not start: {path!r}")
-        yield SimulatorProcess(process, path)
+        paths = [process.stdout.readline().strip() for _ in range(lines)]
+        if not all(path.startswith("/") for path in paths):
+            raise RuntimeError(f"simulator did not start: {paths!r}")
+        yield SimulatorProcess(process, paths)
     finally:
         stop_process(process)
 
@@ -113,8 +140,16 @@ class GatewayProcess:
         return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
 
     def peak_rss_mb(self) -> float:
+        """The most resident memory it has had, in MiB."""
+        return self._status_mib("VmHWM:")
+
+    def rss_mb(self) -> float:
+        """Its resident memory now, in MiB."""
+        return self._status_mib("VmRSS:")
+
+    def _status_mib(self, field: str) -> float:
         for line in Path(f"/proc/{self.process.pid}/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
+            if line.startswith(field):
                 return int(line.split()[1]) / 1024
         return 0.0
 
