@@ -241,6 +241,8 @@ class CaseResult:
     peak_rss_mb: float
     rss_mb: float = float("nan")
     """The gateway's resident memory (MiB) at the end of the measured time."""
+    simulator_cpu_s: float = float("nan")
+    """The simulated drives' processes' CPU time over the measured time, all together."""
     single_line_share: float = float("nan")
     """Lines cases: the share of the wire one line carried in their 1-line reference, when
     it ran (`with_references`)."""
@@ -325,6 +327,12 @@ class CaseResult:
     def cpu_share(self) -> float:
         """The gateway's CPU time over wall time: 1.0 is one core kept busy."""
         return self.cpu_s / self.elapsed_s
+
+    @property
+    def simulator_cpu_share(self) -> float:
+        """The simulated drives' (the harness's): a line served from one thread can't have
+        more than 1.0, and well below it answers on time."""
+        return self.simulator_cpu_s / self.elapsed_s
 
     def latency_ms(self, quantile: float) -> float:
         latencies = sorted(self.load.latencies_s)
@@ -471,6 +479,8 @@ async def _measure(
     gaps_before = await excess_gap_buckets(metrics_port)
     before = [line.stats() for line in lines]
     cpu_before = process.cpu_s()
+    simulators = list({id(line.simulator): line.simulator for line in lines}.values())
+    simulators_before = sum(each.cpu_s() for each in simulators)
     started = time.perf_counter()
     measuring.set()
     await asyncio.sleep(duration_s)
@@ -478,6 +488,7 @@ async def _measure(
     elapsed = time.perf_counter() - started
     after = [line.stats() for line in lines]
     cpu = process.cpu_s() - cpu_before
+    simulators_cpu = sum(each.cpu_s() for each in simulators) - simulators_before
     gaps_after = await excess_gap_buckets(metrics_port)
     stop.set()
     result = LoadResult.merged([await load for load in loads])
@@ -497,6 +508,7 @@ async def _measure(
         cpu_s=cpu,
         peak_rss_mb=process.peak_rss_mb(),
         rss_mb=process.rss_mb(),
+        simulator_cpu_s=simulators_cpu,
         excess_gap=[(le, n - gaps_before.get(le, 0)) for le, n in sorted(gaps_after.items())],
         line_transactions=per_line,
         drive_late=_histogram_change("reply_late_buckets", before, after),

@@ -70,6 +70,9 @@ class SimulatorProcess:
         self.process.stdin.flush()
         return self.process.stdout.readline().strip()
 
+    def cpu_s(self) -> float:
+        return cpu_s(self.process.pid)
+
     def stats(self, line: int = 1) -> dict[str, Any]:
         """The counters of its `line`-th line (from 1)."""
         answer = self.command(f"line {line} stats")
@@ -129,15 +132,20 @@ def simulator(
         stop_process(process)
 
 
+def cpu_s(pid: int) -> float:
+    """The CPU time (user and system) the process `pid` has had."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    # utime and stime are fields 14 and 15 of stat; index 11 and 12 after the ")".
+    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
+
+
 @dataclass
 class GatewayProcess:
     process: subprocess.Popen[bytes]
     port: int
 
     def cpu_s(self) -> float:
-        fields = Path(f"/proc/{self.process.pid}/stat").read_text().rsplit(")", 1)[1].split()
-        # utime and stime are fields 14 and 15 of stat; index 11 and 12 after the ")".
-        return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
+        return cpu_s(self.process.pid)
 
     def peak_rss_mb(self) -> float:
         """The most resident memory it has had, in MiB."""

@@ -503,13 +503,16 @@ class SimulatedLine:
         while self._pending and self._pending[0][0] <= now:
             due, _, reply, ends_reply = heapq.heappop(self._pending)
             written_at = time.monotonic()
-            if self._write(reply) and ends_reply:
+            # Counted before the master can ask: whoever reads `stats` once it has the reply
+            # waits for the lock, held from the write until the reply is counted.
+            with self._lock:
+                if not (self._write(reply) and ends_reply):
+                    continue
                 left_wire_at = written_at - self.relay_s  # the relay held it this long
-                with self._lock:
-                    self._stats["replies"] += 1
-                    self._frame_ended(left_wire_at)
-                    self._reply_late.observe(written_at - due)
-                    self._reply_ended_at = left_wire_at
+                self._stats["replies"] += 1
+                self._frame_ended(left_wire_at)
+                self._reply_late.observe(written_at - due)
+                self._reply_ended_at = left_wire_at
 
     def _write(self, data: bytes) -> bool:
         endpoint = self._endpoint

@@ -8,8 +8,10 @@ spinning wait) per line, so a bench of 32 lines leaves the cores to the gateway 
 
 from __future__ import annotations
 
+import contextlib
 import logging
-import select
+import math
+import selectors
 import sys
 import threading
 import time
@@ -24,6 +26,8 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 STOP_TIMEOUT_S: Final = 1.0
+_NOT_YET: Final = object()
+"""A line's port before the serving thread first looks at it (its port may be None)."""
 GIL_SWITCH_INTERVAL_S: Final = 0.0002
 
 
@@ -36,6 +40,10 @@ class LineServer:
         self.lines = tuple(lines)
         self._thread: threading.Thread | None = None
         self._stopping = False
+        # The serving thread's own (see `_serve`).
+        self._watched: list[tuple[int, ...]] = []
+        self._endpoints: list[object] = []
+        self._deadlines: list[float] = []
 
     def start(self) -> None:
         """Open every line's port, then serve them all."""
@@ -56,7 +64,10 @@ class LineServer:
         sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
         self._stopping = False
         name = "simulated-line" if len(self.lines) == 1 else "simulated-lines"
-        self._thread = threading.Thread(target=self._serve, name=name, daemon=True)
+        selector = selectors.DefaultSelector()
+        self._thread = threading.Thread(
+            target=self._serve, args=(selector,), name=name, daemon=True
+        )
         for line in self.lines:
             line._thread = self._thread
         self._thread.start()
@@ -77,28 +88,50 @@ class LineServer:
         for line in self.lines:
             line._close()
 
-    def _serve(self) -> None:
+    def _serve(self, selector: selectors.BaseSelector) -> None:
         tighten_timer_slack()  # a drive answers on time, not when the kernel batches wake-ups
-        while not self._stopping:
-            try:
-                self._serve_once()
-            except Exception:  # the lines must outlive a bug in one exchange; the log shows it
-                log.exception("simulated line: error while serving")
+        # What the thread waits on, by line: its descriptors (in the selector, the line's
+        # index as data), its port (a new one after a replug, maybe under a reused number) and
+        # its deadline (inf: none). A line's change only while it is served (control calls
+        # run then too), so each pass looks again at the lines it served, not at every line.
+        self._watched = [() for _ in self.lines]
+        self._endpoints = [_NOT_YET for _ in self.lines]
+        self._deadlines = [math.inf for _ in self.lines]
+        try:
+            for index in range(len(self.lines)):
+                self._look_again(selector, index)
+            while not self._stopping:
+                try:
+                    self._serve_once(selector)
+                except Exception:  # the lines must outlive a bug in one exchange; the log shows it
+                    log.exception("simulated line: error while serving")
+        finally:
+            selector.close()
 
-    def _serve_once(self) -> None:
-        watched: list[int] = []
-        deadlines: list[float | None] = []
-        for line in self.lines:
-            watched += line._watched()
-            deadlines.append(line._deadline())
-        due = [deadline for deadline in deadlines if deadline is not None]
-        timeout = max(0.0, min(due) - time.monotonic()) if due else None
-        readable, _, _ = select.select(watched, [], [], timeout)
-        ready = set(readable)
+    def _serve_once(self, selector: selectors.BaseSelector) -> None:
+        soonest = min(self._deadlines)
+        timeout = None if soonest == math.inf else max(0.0, soonest - time.monotonic())
+        events = selector.select(timeout)
         now = time.monotonic()
-        for line, deadline in zip(self.lines, deadlines, strict=True):
-            # A line with nothing to read and nothing due has nothing to do this pass.
-            if (deadline is not None and deadline <= now) or any(
-                fd in ready for fd in line._watched()
-            ):
-                line._serve_ready(ready)
+        ready = {key.fd for key, _ in events}
+        # A line with nothing to read and nothing due has nothing to do this pass.
+        serving = {index for index, deadline in enumerate(self._deadlines) if deadline <= now}
+        serving.update(key.data for key, _ in events)
+        for index in sorted(serving):
+            self.lines[index]._serve_ready(ready)
+            self._look_again(selector, index)
+
+    def _look_again(self, selector: selectors.BaseSelector, index: int) -> None:
+        """After serving the line at `index`: what to wait on for it next."""
+        line = self.lines[index]
+        endpoint = line._endpoint
+        if endpoint is not self._endpoints[index]:
+            for fd in self._watched[index]:
+                with contextlib.suppress(KeyError):
+                    selector.unregister(fd)
+            self._watched[index] = tuple(line._watched())
+            for fd in self._watched[index]:
+                selector.register(fd, selectors.EVENT_READ, index)
+            self._endpoints[index] = endpoint
+        deadline = line._deadline()
+        self._deadlines[index] = math.inf if deadline is None else deadline
