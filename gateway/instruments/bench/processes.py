@@ -107,8 +107,18 @@ def simulator(
     extra_args: Sequence[str] = (),
     lines: int = 1,
 ) -> Iterator[SimulatorProcess]:
-    """`simulate` serving `lines` lines alike (each with `addresses`), in one process."""
-    args = [*gateway_command(), "simulate", "--pty", "--baud", str(baudrate), *extra_args]
+    """`simulate` serving `lines` lines alike (each with `addresses`), in one process, at the
+    gateway's priority: the drives it stands for have processors of their own, and a machine
+    busy with other work must not make them answer late."""
+    args = [
+        *niceness_prefix(),
+        *gateway_command(),
+        "simulate",
+        "--pty",
+        "--baud",
+        str(baudrate),
+        *extra_args,
+    ]
     args += ["--response-delay-ms", str(response_delay_ms), "--lines", str(lines)]
     for address in addresses:
         args += ["--address", str(address)]

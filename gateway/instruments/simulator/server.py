@@ -64,7 +64,9 @@ class LineServer:
         sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
         self._stopping = False
         name = "simulated-line" if len(self.lines) == 1 else "simulated-lines"
-        selector = selectors.DefaultSelector()
+        # select(2), not epoll or poll: their timeouts are whole milliseconds, and a reply
+        # due in the middle of one would go out up to a millisecond late.
+        selector = selectors.SelectSelector()
         self._thread = threading.Thread(
             target=self._serve, args=(selector,), name=name, daemon=True
         )
