@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.support.processes import assert_ending_leaves_nothing_behind
+from tests.support.processes import assert_ending_leaves_nothing_behind, command_of, descendants
 from tests.support.site import DOCS, mkdocs_build, table_rows_html
 
 
@@ -170,32 +170,46 @@ def test_bench_measures_what_the_poller_costs_a_scadas_reads() -> None:
 
 
 def test_bench_runs_several_lines_in_one_gateway_when_asked() -> None:
-    """Left out of the default run; `--case lines` picks the cases with 4, 8 and 16 buses."""
+    """Left out of the default run; `--case lines` picks the cases with 4, 8, 16 and 32 buses.
+    A lines case runs after its 1-line reference (added when not chosen), all its lines served
+    by one simulator process, and says how far each line is from one line alone."""
     arguments = ["--baud", "115200", "--duration", "1", "--warmup", "0.3", "--json"]
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "gateway",
-            "bench",
-            *arguments,
-            "--case",
-            "4 lines, 4 drives, 8c each, fast",
-        ],
-        capture_output=True,
+    arguments += ["--case", "4 lines, 4 drives, 8c each, fast"]
+    bench = subprocess.Popen(
+        [sys.executable, "-m", "gateway", "bench", *arguments],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
         text=True,
-        timeout=120,
     )
-    assert result.returncode == 0, result.stderr
-    (row,) = json.loads(result.stdout)["cases"]
-    assert row["wrong"] == 0
-    assert row["t3.5 viol"] == 0
+    simulators: set[int] = set()
+    while bench.poll() is None:  # which simulator processes it starts, while it runs
+        simulators |= {pid for pid in descendants(bench.pid) if "simulate" in command_of(pid)}
+        time.sleep(0.1)
+    stdout, stderr = bench.communicate(timeout=120)
+    assert bench.returncode == 0, stderr
+    # One for the reference's line, one for the four lines: not one per line.
+    assert len(simulators) == 2
+    report = json.loads(stdout)
+    reference, row = report["cases"]
+    assert reference["case"] == "lines ref: 1 line, 4 drives, 8c each, fast drives"
+    assert row["case"] == "4 lines, 4 drives, 8c each, fast drives"
+    for each in (reference, row):
+        assert each["wrong"] == 0
+        assert each["t3.5 viol"] == 0
+        assert each["RSS MiB"] > 0
+        assert 0 < each["CPU"] < 2  # of one core
+        assert each["drives CPU"] > 0  # the simulated drives', apart from the gateway's
     # Every one of the four lines carried traffic; the worst is at most the mean.
     assert 0 < row["worst line"] <= row["bus util"]
+    # The mean line against one line alone, in percentage points.
+    assert row["vs 1 line"] == pytest.approx(100 * (row["bus util"] - reference["bus util"]))
+    assert reference["vs 1 line"] == 0
     assert row["gap+ p50 us"] >= 0
-    (line,) = json.loads(result.stdout)["summary"]
-    assert "worst line at" in line
-    assert "of a core" in line
+    single, line = report["summary"]
+    assert "the reference of the lines cases" in single
+    assert "points from one line alone (target within 2)" in line
+    assert "of a core (target below 100 %" in line
+    assert "RSS" in line
     assert "the simulated drives answered" in line  # where the rest of the overhead goes
     # The four lines' drives share one line's spin, so that they don't take the gateway's cores.
     assert "each line's drives spun at most 75 us before a reply" in line

@@ -4,6 +4,7 @@ while one thread serves them all."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import subprocess
 import sys
@@ -77,27 +78,29 @@ def test_each_line_has_its_own_pty_and_its_own_drives() -> None:
         assert all(p.startswith("/dev/") for p in paths)
         # pymodbus's serial client, a master nobody here wrote, on each line: a write of its
         # own to each line's drive 1, then every line read back.
-        clients = [
-            ModbusSerialClient(p, baudrate=BAUD, parity="N", timeout=0.3, retries=0) for p in paths
-        ]
-        for client in clients:
-            assert client.connect()
-        for number, client in enumerate(clients, 1):
-            assert not client.write_register(SET_POINT, 1000 * number, device_id=1).isError()
-        for number, client in enumerate(clients, 1):
-            read = client.read_holding_registers(SET_POINT, count=1, device_id=1)
-            assert read.registers == [1000 * number]
-        # A control command reaches the line it names, and only that one.
-        assert simulator.command("line 2 dead 1") == "ok dead 1"
-        answered = []
-        for client in clients:
-            try:
-                answered.append(not client.read_holding_registers(0x2100, device_id=1).isError())
-            except ModbusIOException:  # no reply at all
-                answered.append(False)
-        assert answered == [True, False, True]
-        for client in clients:
-            client.close()
+        with contextlib.ExitStack() as stack:
+            clients = [
+                stack.enter_context(
+                    ModbusSerialClient(path, baudrate=BAUD, parity="N", timeout=0.3, retries=0)
+                )
+                for path in paths
+            ]
+            assert all(client.connected for client in clients)
+            for number, client in enumerate(clients, 1):
+                assert not client.write_register(SET_POINT, 1000 * number, device_id=1).isError()
+            for number, client in enumerate(clients, 1):
+                read = client.read_holding_registers(SET_POINT, count=1, device_id=1)
+                assert read.registers == [1000 * number]
+            # A control command reaches the line it names, and only that one.
+            assert simulator.command("line 2 dead 1") == "ok dead 1"
+            answered = []
+            for client in clients:
+                try:
+                    reply = client.read_holding_registers(0x2100, device_id=1)
+                    answered.append(not reply.isError())
+                except ModbusIOException:  # no reply at all
+                    answered.append(False)
+            assert answered == [True, False, True]
         assert [simulator.stats(n)["ignored"] for n in (1, 2, 3)] == [0, 1, 0]
         assert simulator.command("line 4 stats") == f"error no line 4: there are {LINES}"
         assert simulator.command("stats").startswith("ok {")  # no `line K`: the first line

@@ -30,8 +30,9 @@ FAST_TURNAROUND_S = 0.001
 LINE_COUNTS = (4, 8, 16, 32)  # the multi-line cases, at the fastest baud rate
 LINES_PER_SIMULATOR = 32
 """Lines one simulator process serves (from one thread): one process for every lines case,
-so that the harness is not what limits the gateway (one process per line took more of the
-cores than the gateway measured)."""
+so that the harness is not what limits the gateway. One process per line took more of the
+cores than the gateway measured, and at 32 lines four processes of eight lines did no better
+than one (the one thread used under half a core)."""
 FLOOD_WINDOW = 8
 """Requests the flooding client keeps in flight (below max_queued_writes_per_client's 16)."""
 SET_POINT = 0x2001  # 2001H..2008H: set-points and limits, written per drive (set_point_values)
