@@ -181,14 +181,17 @@ def test_bench_runs_several_lines_in_one_gateway_when_asked() -> None:
         stderr=subprocess.PIPE,
         text=True,
     )
-    simulators: set[int] = set()
+    served: set[int] = set()  # the simulator processes' --lines
     while bench.poll() is None:  # which simulator processes it starts, while it runs
-        simulators |= {pid for pid in descendants(bench.pid) if "simulate" in command_of(pid)}
+        for pid in descendants(bench.pid):
+            command = command_of(pid).split()
+            if "simulate" in command and "--lines" in command:
+                served.add(int(command[command.index("--lines") + 1]))
         time.sleep(0.1)
     stdout, stderr = bench.communicate(timeout=120)
     assert bench.returncode == 0, stderr
     # One for the reference's line, one for the four lines: not one per line.
-    assert len(simulators) == 2
+    assert served == {1, 4}
     report = json.loads(stdout)
     reference, row = report["cases"]
     assert reference["case"] == "lines ref: 1 line, 4 drives, 8c each, fast drives"
