@@ -169,12 +169,12 @@ def test_bench_measures_what_the_poller_costs_a_scadas_reads() -> None:
     assert f"without the poller {alone['p50 ms']:.1f}/{alone['p99 ms']:.1f} ms" in line
 
 
-def test_bench_runs_several_lines_in_one_gateway_when_asked() -> None:
+def test_bench_runs_several_lines_in_one_gateway_when_asked(tmp_path: Path) -> None:
     """Left out of the default run; `--case lines` picks the cases with 4, 8, 16 and 32 buses.
     A lines case runs after its 1-line reference (added when not chosen), all its lines served
     by one simulator process, and says how far each line is from one line alone."""
     arguments = ["--baud", "115200", "--duration", "1", "--warmup", "0.3", "--json"]
-    arguments += ["--case", "4 lines, 4 drives, 8c each, fast"]
+    arguments += ["--case", "4 lines, 4 drives, 8c each, fast", "--page", str(tmp_path / "b.md")]
     bench = subprocess.Popen(
         [sys.executable, "-m", "gateway", "bench", *arguments],
         stdout=subprocess.PIPE,
@@ -217,6 +217,16 @@ def test_bench_runs_several_lines_in_one_gateway_when_asked() -> None:
     # The four lines' drives share one line's spin, so that they don't take the gateway's cores.
     assert "each line's drives spun at most 75 us before a reply" in line
     assert row["drive late p50 us"] >= 0
+    # The page has the lines cases side by side, as the targets read them.
+    page = (tmp_path / "b.md").read_text()
+    assert (
+        "| lines | drives | each line, of the wire maximum | worst line | vs 1 line, points "
+        in page
+    )
+    one, four = [r for r in page.splitlines() if r.startswith(("| 1 | fast |", "| 4 | fast |"))]
+    assert one.split(" | ")[4] == ""  # the reference itself
+    assert four.split(" | ")[4] == f"{row['vs 1 line']:+.1f}"
+    assert four.split(" | ")[6] == f"{row['RSS MiB']:.1f}"
 
 
 def test_bench_on_a_terminal_redraws_one_progress_line_under_the_table() -> None:
