@@ -68,8 +68,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "--case",
         help="only cases whose name contains this text (default: the main matrix, about 4 "
         "minutes at the default duration). Also selects the cases left out by default: "
-        "'lines' (4, 8 and 16 buses in one process, 5 ms and fast drives; 16 simulator "
-        "processes share the machine) and 'flood' (readers while one client pipelines writes or "
+        "'lines' (4, 8, 16 and 32 buses in one process, 5 ms and fast drives, each against "
+        "its 1-line reference, which a chosen lines case brings along; one simulator process "
+        "serves all the lines) and 'flood' (readers while one client pipelines writes or "
         "broadcasts)",
     )
     parser.add_argument(
