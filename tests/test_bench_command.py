@@ -202,6 +202,9 @@ def test_bench_runs_several_lines_in_one_gateway_when_asked(tmp_path: Path) -> N
         assert each["RSS MiB"] > 0
         assert 0 < each["CPU"] < 2  # of one core
         assert each["drives CPU"] > 0  # the simulated drives', apart from the gateway's
+        # How long each waited for a core: the machine's share of what the line lost.
+        assert 0 <= each["CPU waited"] < 1
+        assert 0 <= each["drives waited"] < 1
     # Every one of the four lines carried traffic; the worst is at most the mean.
     assert 0 < row["worst line"] <= row["bus util"]
     # The mean line against one line alone, in percentage points.
@@ -213,6 +216,7 @@ def test_bench_runs_several_lines_in_one_gateway_when_asked(tmp_path: Path) -> N
     assert "points from one line alone (target within 2)" in line
     assert "of a core (target below 100 %" in line
     assert "RSS" in line
+    assert "waiting for a core" in line
     assert "the simulated drives answered" in line  # where the rest of the overhead goes
     # The four lines' drives share one line's spin, so that they don't take the gateway's cores.
     assert "each line's drives spun at most 75 us before a reply" in line
@@ -226,7 +230,8 @@ def test_bench_runs_several_lines_in_one_gateway_when_asked(tmp_path: Path) -> N
     one, four = [r for r in page.splitlines() if r.startswith(("| 1 | fast |", "| 4 | fast |"))]
     assert one.split(" | ")[4] == ""  # the reference itself
     assert four.split(" | ")[4] == f"{row['vs 1 line']:+.1f}"
-    assert four.split(" | ")[6] == f"{row['RSS MiB']:.1f}"
+    assert four.split(" | ")[6] == f"{row['CPU waited']:.0%}"
+    assert four.split(" | ")[7] == f"{row['RSS MiB']:.1f}"
 
 
 def test_bench_on_a_terminal_redraws_one_progress_line_under_the_table() -> None:

@@ -244,6 +244,11 @@ class CaseResult:
     """The gateway's resident memory (MiB) at the end of the measured time."""
     simulator_cpu_s: float = float("nan")
     """The simulated drives' processes' CPU time over the measured time, all together."""
+    run_queue_s: float = float("nan")
+    """How long the gateway waited for a core over the measured time, runnable but not
+    running: the machine's other work (the drives, the clients, whatever else runs)."""
+    simulator_run_queue_s: float = float("nan")
+    """The same for the simulated drives' processes, all together."""
     single_line_share: float = float("nan")
     """Lines cases: the share of the wire one line carried in their 1-line reference, when
     it ran (`with_references`)."""
@@ -482,6 +487,8 @@ async def _measure(
     cpu_before = process.cpu_s()
     simulators = list({id(line.simulator): line.simulator for line in lines}.values())
     simulators_before = sum(each.cpu_s() for each in simulators)
+    waited_before = process.run_queue_s()
+    simulators_waited_before = sum(each.run_queue_s() for each in simulators)
     started = time.perf_counter()
     measuring.set()
     await asyncio.sleep(duration_s)
@@ -490,6 +497,8 @@ async def _measure(
     after = [line.stats() for line in lines]
     cpu = process.cpu_s() - cpu_before
     simulators_cpu = sum(each.cpu_s() for each in simulators) - simulators_before
+    waited = process.run_queue_s() - waited_before
+    simulators_waited = sum(each.run_queue_s() for each in simulators) - simulators_waited_before
     gaps_after = await excess_gap_buckets(metrics_port)
     stop.set()
     result = LoadResult.merged([await load for load in loads])
@@ -510,6 +519,8 @@ async def _measure(
         peak_rss_mb=process.peak_rss_mb(),
         rss_mb=process.rss_mb(),
         simulator_cpu_s=simulators_cpu,
+        run_queue_s=waited,
+        simulator_run_queue_s=simulators_waited,
         excess_gap=[(le, n - gaps_before.get(le, 0)) for le, n in sorted(gaps_after.items())],
         line_transactions=per_line,
         drive_late=_histogram_change("reply_late_buckets", before, after),

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import json
+import math
 import os
 import shutil
 import socket
@@ -72,6 +73,9 @@ class SimulatorProcess:
 
     def cpu_s(self) -> float:
         return cpu_s(self.process.pid)
+
+    def run_queue_s(self) -> float:
+        return run_queue_s(self.process.pid)
 
     def stats(self, line: int = 1) -> dict[str, Any]:
         """The counters of its `line`-th line (from 1)."""
@@ -149,6 +153,19 @@ def cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
 
 
+def run_queue_s(pid: int) -> float:
+    """How long the threads of `pid` have waited on a run queue, runnable but not running (a
+    machine busy with other work): nan where the kernel doesn't keep schedstat."""
+    waited = 0
+    try:
+        for task in Path(f"/proc/{pid}/task").iterdir():
+            # schedstat: time on the CPU, time waiting on a run queue (ns), timeslices.
+            waited += int((task / "schedstat").read_text().split()[1])
+    except (OSError, IndexError, ValueError):
+        return math.nan
+    return waited / 1e9
+
+
 @dataclass
 class GatewayProcess:
     process: subprocess.Popen[bytes]
@@ -156,6 +173,9 @@ class GatewayProcess:
 
     def cpu_s(self) -> float:
         return cpu_s(self.process.pid)
+
+    def run_queue_s(self) -> float:
+        return run_queue_s(self.process.pid)
 
     def peak_rss_mb(self) -> float:
         """The most resident memory it has had, in MiB."""

@@ -37,6 +37,8 @@ COLUMNS = (
     ("peak RSS MB", "{:>11.1f}"),
     ("RSS MiB", "{:>7.1f}"),
     ("drives CPU", "{:>10.1%}"),
+    ("CPU waited", "{:>10.1%}"),
+    ("drives waited", "{:>13.1%}"),
 )
 POINTS_FROM_ONE_LINE = 2.0
 """The lines cases' target: each line within this many percentage points of one line alone."""
@@ -82,6 +84,10 @@ def row(result: CaseResult) -> dict[str, Any]:
         # The simulated drives' processes (the harness, not the gateway): near 100 % of a
         # core, one thread serving every line no longer answers on time.
         "drives CPU": result.simulator_cpu_share,
+        # How long each waited for a core, runnable but not running, over the measured time:
+        # well above nothing, the machine (its other work) was what held the line back.
+        "CPU waited": result.run_queue_s / result.elapsed_s,
+        "drives waited": result.simulator_run_queue_s / result.elapsed_s,
     }
 
 
@@ -205,7 +211,9 @@ def lines_sentence(result: CaseResult, gaps: str) -> str:
         f"{head}each line at {result.utilisation:.1%} of the wire maximum (worst line "
         f"{min(result.line_shares):.1%}), {compared}; gateway CPU {result.cpu_share:.0%} of a "
         f"core (target below 100 %; {result.cpu_per_transaction_us:.0f} us per transaction); "
-        f"RSS {result.rss_mb:.1f} MiB (peak {result.peak_rss_mb:.1f}); {gaps}; the simulated "
+        f"RSS {result.rss_mb:.1f} MiB (peak {result.peak_rss_mb:.1f}); waiting for a core "
+        f"{result.run_queue_s / result.elapsed_s:.0%} of the time (the simulated drives "
+        f"{result.simulator_run_queue_s / result.elapsed_s:.0%}); {gaps}; the simulated "
         f"drives answered {result.drive_late_us(0.5):.0f} us late at the median "
         f"(p90 {result.drive_late_us(0.9):.0f} us) and heard "
         f"{result.heard_gap_us(0.5):.0f} us beyond t3.5 before each request "
