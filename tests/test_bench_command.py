@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.support.processes import assert_ending_leaves_nothing_behind
+from tests.support.processes import assert_ending_leaves_nothing_behind, command_of, descendants
 from tests.support.site import DOCS, mkdocs_build, table_rows_html
 
 
@@ -171,37 +171,69 @@ def test_bench_measures_what_the_poller_costs_a_scadas_reads() -> None:
     assert f"without the poller {alone['p50 ms']:.1f}/{alone['p99 ms']:.1f} ms" in line
 
 
-def test_bench_runs_several_lines_in_one_gateway_when_asked() -> None:
-    """Left out of the default run; `--case lines` picks the cases with 4, 8 and 16 buses."""
+def test_bench_runs_several_lines_in_one_gateway_when_asked(tmp_path: Path) -> None:
+    """Left out of the default run; `--case lines` picks the cases with 4, 8, 16 and 32 buses.
+    A lines case runs after its 1-line reference (added when not chosen), all its lines served
+    by one simulator process, and says how far each line is from one line alone."""
     arguments = ["--baud", "115200", "--duration", "1", "--warmup", "0.3", "--json"]
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "gateway",
-            "bench",
-            *arguments,
-            "--case",
-            "4 lines, 4 drives, 8c each, fast",
-        ],
-        capture_output=True,
+    arguments += ["--case", "4 lines, 4 drives, 8c each, fast", "--page", str(tmp_path / "b.md")]
+    bench = subprocess.Popen(
+        [sys.executable, "-m", "gateway", "bench", *arguments],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
         text=True,
-        timeout=120,
     )
-    assert result.returncode == 0, result.stderr
-    (row,) = json.loads(result.stdout)["cases"]
-    assert row["wrong"] == 0
-    assert row["t3.5 viol"] == 0
+    served: set[int] = set()  # the simulator processes' --lines
+    while bench.poll() is None:  # which simulator processes it starts, while it runs
+        for pid in descendants(bench.pid):
+            command = command_of(pid).split()
+            if "simulate" in command and "--lines" in command:
+                served.add(int(command[command.index("--lines") + 1]))
+        time.sleep(0.1)
+    stdout, stderr = bench.communicate(timeout=120)
+    assert bench.returncode == 0, stderr
+    # One for the reference's line, one for the four lines: not one per line.
+    assert served == {1, 4}
+    report = json.loads(stdout)
+    reference, row = report["cases"]
+    assert reference["case"] == "lines ref: 1 line, 4 drives, 8c each, fast drives"
+    assert row["case"] == "4 lines, 4 drives, 8c each, fast drives"
+    for each in (reference, row):
+        assert each["wrong"] == 0
+        assert each["t3.5 viol"] == 0
+        assert each["RSS MiB"] > 0
+        assert 0 < each["CPU"] < 2  # of one core
+        assert each["drives CPU"] > 0  # the simulated drives', apart from the gateway's
+        # How long each waited for a core: the machine's share of what the line lost.
+        assert 0 <= each["CPU waited"] < 1
+        assert 0 <= each["drives waited"] < 1
     # Every one of the four lines carried traffic; the worst is at most the mean.
     assert 0 < row["worst line"] <= row["bus util"]
+    # The mean line against one line alone, in percentage points.
+    assert row["vs 1 line"] == pytest.approx(100 * (row["bus util"] - reference["bus util"]))
+    assert reference["vs 1 line"] == 0
     assert row["gap+ p50 us"] >= 0
-    (line,) = json.loads(result.stdout)["summary"]
-    assert "worst line at" in line
-    assert "of a core" in line
+    single, line = report["summary"]
+    assert "the reference of the lines cases" in single
+    assert "points from one line alone (target within 2)" in line
+    assert "of a core (target below 100 %" in line
+    assert "RSS" in line
+    assert "waiting for a core" in line
     assert "the simulated drives answered" in line  # where the rest of the overhead goes
     # The four lines' drives share one line's spin, so that they don't take the gateway's cores.
     assert "each line's drives spun at most 75 us before a reply" in line
     assert row["drive late p50 us"] >= 0
+    # The page has the lines cases side by side, as the targets read them.
+    page = (tmp_path / "b.md").read_text()
+    assert (
+        "| lines | drives | each line, of the wire maximum | worst line | vs 1 line, points "
+        in page
+    )
+    one, four = [r for r in page.splitlines() if r.startswith(("| 1 | fast |", "| 4 | fast |"))]
+    assert one.split(" | ")[4] == ""  # the reference itself
+    assert four.split(" | ")[4] == f"{row['vs 1 line']:+.1f}"
+    assert four.split(" | ")[6] == f"{row['CPU waited']:.0%}"
+    assert four.split(" | ")[7] == f"{row['RSS MiB']:.1f}"
 
 
 def test_bench_on_a_terminal_redraws_one_progress_line_under_the_table() -> None:

@@ -249,13 +249,13 @@ def simulator_process(*args: str) -> Iterator[SimulatorProcess]:
         simulator.stop()
 
 
-def _descendants(pid: int) -> set[int]:
+def descendants(pid: int) -> set[int]:
     """The processes `pid` started, and theirs, from /proc."""
     found: set[int] = set()
     for task in Path(f"/proc/{pid}/task").glob("*"):
         with contextlib.suppress(OSError):
             for child in (task / "children").read_text().split():
-                found |= {int(child)} | _descendants(int(child))
+                found |= {int(child)} | descendants(int(child))
     return found
 
 
@@ -280,7 +280,7 @@ def assert_ending_leaves_nothing_behind(
         deadline = time.monotonic() + 60
         while len(started) < children and time.monotonic() < deadline:
             time.sleep(0.2)  # waiting for processes another process starts: nothing to await
-            started = _descendants(process.pid)
+            started = descendants(process.pid)
         assert len(started) >= children, f"it started {len(started)} of {children} processes"
         process.send_signal(signum)
         assert process.wait(timeout=30) != 0
@@ -296,9 +296,12 @@ def assert_ending_leaves_nothing_behind(
     assert not left, f"still running after it ended: {_commands(left)}"
 
 
+def command_of(pid: int) -> str:
+    """Its command line, "" once it has gone."""
+    with contextlib.suppress(OSError):
+        return Path(f"/proc/{pid}/cmdline").read_text().replace("\0", " ").strip()
+    return ""
+
+
 def _commands(pids: set[int]) -> list[str]:
-    found = []
-    for pid in sorted(pids):
-        with contextlib.suppress(OSError):
-            found.append(Path(f"/proc/{pid}/cmdline").read_text().replace("\0", " ").strip())
-    return found
+    return [command for command in map(command_of, sorted(pids)) if command]

@@ -13,7 +13,7 @@ from gateway.bus.gap_excess import quantile
 from gateway.instruments.bench.load import LoadResult, Target, flood, run_clients
 from gateway.instruments.bench.processes import (
     GatewayProcess,
-    SimulatorProcess,
+    SimulatorLine,
     free_port,
     gateway,
     simulator,
@@ -27,7 +27,12 @@ from gateway.modbus.timing import CharacterFormat
 RESPONSE_DELAY_MS = 5.0  # INVT P14.03's default
 FAST_TURNAROUND_S = 0.001
 """A fast drive (P14.03 = 0) answers about 1 ms after the t3.5 that ends the request."""
-LINE_COUNTS = (4, 8, 16)  # the multi-line cases, at the fastest baud rate
+LINE_COUNTS = (4, 8, 16, 32)  # the multi-line cases, at the fastest baud rate
+LINES_PER_SIMULATOR = 32
+"""Lines one simulator process serves (from one thread): one process for every lines case,
+so that the harness is not what limits the gateway. One process per line took more of the
+cores than the gateway measured, and at 32 lines four processes of eight lines did no better
+than one (the one thread used under half a core)."""
 FLOOD_WINDOW = 8
 """Requests the flooding client keeps in flight (below max_queued_writes_per_client's 16)."""
 SET_POINT = 0x2001  # 2001H..2008H: set-points and limits, written per drive (set_point_values)
@@ -106,18 +111,41 @@ def matrix(baudrates: tuple[int, ...], relay_ms: float = 0.0) -> list[Case]:
 def extra_cases(baudrates: tuple[int, ...]) -> list[Case]:
     """Cases run only when `--case` names them: several lines in one process, and floods."""
     fastest = max(baudrates)
-    cases = []
+    cases = [lines_reference(fastest, fast) for fast in (False, True)]
     for lines in LINE_COUNTS:
         for fast in (False, True):
-            speed = "fast drives" if fast else "5 ms drives"
-            name = f"{lines} lines, 4 drives, 8c each, {speed}"
-            cases.append(Case(name, fastest, 2, 8, lines=lines, fast=fast))
+            name = f"{lines} lines, 4 drives, 8c each, {_speed(fast)}"
+            cases.append(Case(name, fastest, 2, 8, lines=lines, fast=fast, many_lines=True))
     # Readers on a line flooded by one client's pipelined writes, or broadcasts: what is left
     # for them (against "2w 8c" unloaded) is the fair share at work.
     cases.append(Case("flood: 8 readers alone", fastest, 2, 8))
     cases.append(Case("flood: 8 readers + pipelined writes", fastest, 2, 8, flood="writes"))
     cases.append(Case("flood: 8 readers + pipelined broadcasts", fastest, 2, 8, flood="broadcasts"))
     return cases
+
+
+def _speed(fast: bool) -> str:
+    return "fast drives" if fast else "5 ms drives"
+
+
+def lines_reference(baudrate: int, fast: bool) -> Case:
+    """One line, as each line of the lines cases has it, served the same way: what each of
+    them is compared with."""
+    name = f"lines ref: 1 line, 4 drives, 8c each, {_speed(fast)}"
+    return Case(name, baudrate, 2, 8, fast=fast, many_lines=True)
+
+
+def with_references(cases: list[Case]) -> list[Case]:
+    """`cases` with the 1-line reference of every lines case chosen, each before the first
+    case it is the reference of (its figure is in their rows)."""
+    chosen: list[Case] = []
+    for case in cases:
+        reference = lines_reference(case.baudrate, case.fast)
+        if case.many_lines and case.lines > 1 and reference not in chosen:
+            chosen.append(reference)
+        if case not in chosen:
+            chosen.append(case)
+    return chosen
 
 
 @dataclass(frozen=True, slots=True)
@@ -142,6 +170,8 @@ class Case:
     """Drives answering 1 ms after the request's t3.5 (P14.03 = 0) instead of after 5 ms."""
     lines: int = 1
     """Buses in the one gateway process, each with `drives` drives and `clients` clients."""
+    many_lines: bool = False
+    """One of the lines cases (their 1-line reference too): compared line for line."""
     flood: str = ""
     """"writes" or "broadcasts": one more client keeps `FLOOD_WINDOW` of them in flight."""
     relay_ms: float = 0.0
@@ -210,6 +240,18 @@ class CaseResult:
     gap_violations: int
     cpu_s: float
     peak_rss_mb: float
+    rss_mb: float = float("nan")
+    """The gateway's resident memory (MiB) at the end of the measured time."""
+    simulator_cpu_s: float = float("nan")
+    """The simulated drives' processes' CPU time over the measured time, all together."""
+    run_queue_s: float = float("nan")
+    """How long the gateway waited for a core over the measured time, runnable but not
+    running: the machine's other work (the drives, the clients, whatever else runs)."""
+    simulator_run_queue_s: float = float("nan")
+    """The same for the simulated drives' processes, all together."""
+    single_line_share: float = float("nan")
+    """Lines cases: the share of the wire one line carried in their 1-line reference, when
+    it ran (`with_references`)."""
     excess_gap: list[tuple[float, int]] = field(default_factory=list)
     """The gateway's `bus_excess_gap_seconds` buckets over the measured time, all lines."""
     line_transactions: list[int] = field(default_factory=list)
@@ -273,6 +315,12 @@ class CaseResult:
         return self.bus_transactions * self.case.budget.transaction_s / self.elapsed_s / lines
 
     @property
+    def points_from_one_line(self) -> float:
+        """Lines cases: the mean line's share of the wire minus one line's alone, in percentage
+        points (negative: each line carries less than one alone)."""
+        return 100 * (self.utilisation - self.single_line_share)
+
+    @property
     def cpu_per_transaction_us(self) -> float:
         return 1e6 * self.cpu_s / max(self.bus_transactions, 1)
 
@@ -285,6 +333,12 @@ class CaseResult:
     def cpu_share(self) -> float:
         """The gateway's CPU time over wall time: 1.0 is one core kept busy."""
         return self.cpu_s / self.elapsed_s
+
+    @property
+    def simulator_cpu_share(self) -> float:
+        """The simulated drives' (the harness's): a line served from one thread can't have
+        more than 1.0, and well below it answers on time."""
+        return self.simulator_cpu_s / self.elapsed_s
 
     def latency_ms(self, quantile: float) -> float:
         latencies = sorted(self.load.latencies_s)
@@ -334,9 +388,17 @@ def gateway_config(
     if case.polled:
         for drive in drives:
             drive["poll"] = POLL_GROUPS
+    # Every client of every line, the flooding client and the one that prepares the reads.
+    max_connections = max(256, case.clients * case.lines + 16)
     config: dict[str, Any] = {
         "gateway_id": "bench",
-        "modbus_tcp": {"host": "127.0.0.1", "port": port, "max_connections": 256},
+        "modbus_tcp": {
+            "host": "127.0.0.1",
+            "port": port,
+            "max_connections": max_connections,
+            # All the bench's clients come from 127.0.0.1: one client address holds them all.
+            "max_connections_per_client": max_connections,
+        },
         "buses": [
             {"name": f"line{n}", "port": path, "baudrate": case.baudrate, "parity": "E"}
             for n, path in enumerate(line_paths, 1)
@@ -362,10 +424,18 @@ def run_case(case: Case, duration_s: float, warmup_s: float) -> CaseResult:
     delay_ms = 1000 * case.response_delay_s
     with contextlib.ExitStack() as stack:
         lines = [
-            stack.enter_context(
-                simulator(addresses, case.baudrate, dead, delay_ms, case.simulator_args)
-            )
-            for n in range(case.lines)
+            line
+            for first in range(0, case.lines, LINES_PER_SIMULATOR)
+            for line in stack.enter_context(
+                simulator(
+                    addresses,
+                    case.baudrate,
+                    dead,
+                    delay_ms,
+                    case.simulator_args,
+                    min(LINES_PER_SIMULATOR, case.lines - first),
+                )
+            ).lines
         ]
         port, console_port, metrics_port = free_port(), free_port(), free_port()
         config = gateway_config(
@@ -386,7 +456,7 @@ def run_case(case: Case, duration_s: float, warmup_s: float) -> CaseResult:
 
 async def _measure(
     case: Case,
-    lines: list[SimulatorProcess],
+    lines: list[SimulatorLine],
     process: GatewayProcess,
     dead: list[int],
     duration_s: float,
@@ -415,6 +485,10 @@ async def _measure(
     gaps_before = await excess_gap_buckets(metrics_port)
     before = [line.stats() for line in lines]
     cpu_before = process.cpu_s()
+    simulators = list({id(line.simulator): line.simulator for line in lines}.values())
+    simulators_before = sum(each.cpu_s() for each in simulators)
+    waited_before = process.run_queue_s()
+    simulators_waited_before = sum(each.run_queue_s() for each in simulators)
     started = time.perf_counter()
     measuring.set()
     await asyncio.sleep(duration_s)
@@ -422,6 +496,9 @@ async def _measure(
     elapsed = time.perf_counter() - started
     after = [line.stats() for line in lines]
     cpu = process.cpu_s() - cpu_before
+    simulators_cpu = sum(each.cpu_s() for each in simulators) - simulators_before
+    waited = process.run_queue_s() - waited_before
+    simulators_waited = sum(each.run_queue_s() for each in simulators) - simulators_waited_before
     gaps_after = await excess_gap_buckets(metrics_port)
     stop.set()
     result = LoadResult.merged([await load for load in loads])
@@ -440,6 +517,10 @@ async def _measure(
         ),
         cpu_s=cpu,
         peak_rss_mb=process.peak_rss_mb(),
+        rss_mb=process.rss_mb(),
+        simulator_cpu_s=simulators_cpu,
+        run_queue_s=waited,
+        simulator_run_queue_s=simulators_waited,
         excess_gap=[(le, n - gaps_before.get(le, 0)) for le, n in sorted(gaps_after.items())],
         line_transactions=per_line,
         drive_late=_histogram_change("reply_late_buckets", before, after),

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import json
+import math
 import os
 import shutil
 import socket
@@ -55,7 +56,13 @@ def gateway_command() -> list[str]:
 @dataclass
 class SimulatorProcess:
     process: subprocess.Popen[str]
-    path: str
+    paths: list[str]
+    """One per line it serves."""
+
+    @property
+    def path(self) -> str:
+        """Its first line's."""
+        return self.paths[0]
 
     def command(self, text: str) -> str:
         assert self.process.stdin is not None
@@ -64,10 +71,35 @@ class SimulatorProcess:
         self.process.stdin.flush()
         return self.process.stdout.readline().strip()
 
-    def stats(self) -> dict[str, Any]:
-        answer = self.command("stats")
+    def cpu_s(self) -> float:
+        return cpu_s(self.process.pid)
+
+    def run_queue_s(self) -> float:
+        return run_queue_s(self.process.pid)
+
+    def stats(self, line: int = 1) -> dict[str, Any]:
+        """The counters of its `line`-th line (from 1)."""
+        answer = self.command(f"line {line} stats")
+        if not answer.startswith("ok"):
+            raise RuntimeError(f"simulator refused stats of line {line}: {answer}")
         result: dict[str, Any] = json.loads(answer.removeprefix("ok").strip())
         return result
+
+    @property
+    def lines(self) -> list[SimulatorLine]:
+        return [SimulatorLine(self, number, path) for number, path in enumerate(self.paths, 1)]
+
+
+@dataclass(frozen=True)
+class SimulatorLine:
+    """One of the lines a simulator process serves."""
+
+    simulator: SimulatorProcess
+    number: int
+    path: str
+
+    def stats(self) -> dict[str, Any]:
+        return self.simulator.stats(self.number)
 
 
 @contextlib.contextmanager
@@ -77,14 +109,16 @@ def simulator(
     dead: list[int],
     response_delay_ms: float,
     extra_args: Sequence[str] = (),
+    lines: int = 1,
 ) -> Iterator[SimulatorProcess]:
-    # The drives at the gateway's priority: on a machine shared with other work they were
-    # woken late for replies and requests at the default one (115200, fast drives behind a
-    # relay: replies 135-277 us late on average, against 47-212 us), and the bench counted
-    # that lateness of the harness against the gateway.
+    """`simulate` serving `lines` lines alike (each with `addresses`), in one process, at the
+    gateway's priority: the drives it stands for have processors of their own, and a machine
+    busy with other work must not make them answer late (115200, fast drives behind a relay:
+    replies 135-277 us late on average at the default priority, 47-212 us at the gateway's;
+    the bench counted that lateness of the harness against the gateway)."""
     simulate = ["simulate", "--pty", "--baud", str(baudrate), *extra_args]
     args = [*niceness_prefix(), *gateway_command(), *simulate]
-    args += ["--response-delay-ms", str(response_delay_ms)]
+    args += ["--response-delay-ms", str(response_delay_ms), "--lines", str(lines)]
     for address in addresses:
         args += ["--address", str(address)]
     for address in dead:
@@ -99,12 +133,32 @@ def simulator(
     )
     try:
         assert process.stdout is not None
-        path = process.stdout.readline().strip()
-        if not path.startswith("/"):
-            raise RuntimeError(f"simulator did not start: {path!r}")
-        yield SimulatorProcess(process, path)
+        paths = [process.stdout.readline().strip() for _ in range(lines)]
+        if not all(path.startswith("/") for path in paths):
+            raise RuntimeError(f"simulator did not start: {paths!r}")
+        yield SimulatorProcess(process, paths)
     finally:
         stop_process(process)
+
+
+def cpu_s(pid: int) -> float:
+    """The CPU time (user and system) the process `pid` has had."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    # utime and stime are fields 14 and 15 of stat; index 11 and 12 after the ")".
+    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
+
+
+def run_queue_s(pid: int) -> float:
+    """How long the threads of `pid` have waited on a run queue, runnable but not running (a
+    machine busy with other work): nan where the kernel doesn't keep schedstat."""
+    waited = 0
+    try:
+        for task in Path(f"/proc/{pid}/task").iterdir():
+            # schedstat: time on the CPU, time waiting on a run queue (ns), timeslices.
+            waited += int((task / "schedstat").read_text().split()[1])
+    except (OSError, IndexError, ValueError):
+        return math.nan
+    return waited / 1e9
 
 
 @dataclass
@@ -113,13 +167,22 @@ class GatewayProcess:
     port: int
 
     def cpu_s(self) -> float:
-        fields = Path(f"/proc/{self.process.pid}/stat").read_text().rsplit(")", 1)[1].split()
-        # utime and stime are fields 14 and 15 of stat; index 11 and 12 after the ")".
-        return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
+        return cpu_s(self.process.pid)
+
+    def run_queue_s(self) -> float:
+        return run_queue_s(self.process.pid)
 
     def peak_rss_mb(self) -> float:
+        """The most resident memory it has had, in MiB."""
+        return self._status_mib("VmHWM:")
+
+    def rss_mb(self) -> float:
+        """Its resident memory now, in MiB."""
+        return self._status_mib("VmRSS:")
+
+    def _status_mib(self, field: str) -> float:
         for line in Path(f"/proc/{self.process.pid}/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
+            if line.startswith(field):
                 return int(line.split()[1]) / 1024
         return 0.0
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from gateway.instruments.bench.cases import SCADA_ALONE, SCADA_POLLED, CaseResult
@@ -29,11 +30,18 @@ COLUMNS = (
     ("heard+ p50 us", "{:>13.0f}"),
     ("drive late p50 us", "{:>17.0f}"),
     ("worst line", "{:>10.1%}"),
+    ("vs 1 line", "{:>9.1f}"),
     ("CPU us/tx", "{:>9.0f}"),
     ("CPU us/ans", "{:>10.0f}"),
     ("CPU", "{:>6.1%}"),
     ("peak RSS MB", "{:>11.1f}"),
+    ("RSS MiB", "{:>7.1f}"),
+    ("drives CPU", "{:>10.1%}"),
+    ("CPU waited", "{:>10.1%}"),
+    ("drives waited", "{:>13.1%}"),
 )
+POINTS_FROM_ONE_LINE = 2.0
+"""The lines cases' target: each line within this many percentage points of one line alone."""
 
 
 def row(result: CaseResult) -> dict[str, Any]:
@@ -66,10 +74,20 @@ def row(result: CaseResult) -> dict[str, Any]:
         "heard+ p50 us": result.heard_gap_us(0.50),
         "drive late p50 us": result.drive_late_us(0.50),
         "worst line": min(result.line_shares, default=float("nan")),
+        # Lines cases: the mean line's share of the wire minus one line's alone, in points.
+        "vs 1 line": result.points_from_one_line,
         "CPU us/tx": result.cpu_per_transaction_us,
         "CPU us/ans": result.cpu_per_answer_us,
         "CPU": result.cpu_share,
-        "peak RSS MB": result.peak_rss_mb,
+        "peak RSS MB": result.peak_rss_mb,  # in MiB, as "RSS MiB"
+        "RSS MiB": result.rss_mb,  # at the end of the measured time
+        # The simulated drives' processes (the harness, not the gateway): near 100 % of a
+        # core, one thread serving every line no longer answers on time.
+        "drives CPU": result.simulator_cpu_share,
+        # How long each waited for a core, runnable but not running, over the measured time:
+        # well above nothing, the machine (its other work) was what held the line back.
+        "CPU waited": result.run_queue_s / result.elapsed_s,
+        "drives waited": result.simulator_run_queue_s / result.elapsed_s,
     }
 
 
@@ -91,11 +109,6 @@ def summary(results: list[CaseResult]) -> list[str]:
     by_case = {r.case: r for r in results}
     alone = {r.case.baudrate: r for r in results if r.case.name == "flood: 8 readers alone"}
     unpolled = {r.case.baudrate: r for r in results if r.case.name == SCADA_ALONE}
-    single = {
-        (r.case.baudrate, r.case.fast): r
-        for r in results
-        if r.case.name.startswith("2w 8c") and not r.case.relay_ms
-    }
     for result in results:
         case = result.case
         share = result.bus_per_s / result.wire_max_per_s
@@ -119,21 +132,8 @@ def summary(results: list[CaseResult]) -> list[str]:
                 f"{case.baudrate} baud, {case.name}: the readers' p99 {result.latency_ms(0.99):.1f}"
                 f" ms (alone: {was}), {result.client_per_s:.1f} reads/s answered"
             )
-        elif case.lines > 1:
-            one = single.get((case.baudrate, case.fast))
-            worst = min(result.line_shares)
-            than = f", single line {one.bus_per_s / one.wire_max_per_s:.1%}" if one else ""
-            lines.append(
-                f"{case.baudrate} baud, {case.name}: worst line at {worst:.1%} of the wire "
-                f"maximum{than}; gateway CPU {result.cpu_share:.0%} of a core "
-                f"({result.cpu_per_transaction_us:.0f} us per transaction); {gaps}; "
-                f"peak RSS {result.peak_rss_mb:.1f} MB; the simulated drives answered "
-                f"{result.drive_late_us(0.5):.0f} us late at the median "
-                f"(p90 {result.drive_late_us(0.9):.0f} us) and heard "
-                f"{result.heard_gap_us(0.5):.0f} us beyond t3.5 before each request "
-                f"(each line's drives spun at most {case.drive_spin_us:g} us before a reply, "
-                f"one line's {WAKE_EARLY_S * 1e6:g} us shared among {case.lines})"
-            )
+        elif case.many_lines:
+            lines.append(lines_sentence(result, gaps))
         elif case.no_wire:
             lines.append(
                 f"{case.baudrate} baud, {case.name}: gateway CPU "
@@ -192,6 +192,37 @@ def summary(results: list[CaseResult]) -> list[str]:
                 "(target <= 60 MB)"
             )
     return lines
+
+
+def lines_sentence(result: CaseResult, gaps: str) -> str:
+    """A lines case against its targets: each line within two points of one line alone, the
+    gateway below one core; its memory; where the rest of the time goes."""
+    case = result.case
+    head = f"{case.baudrate} baud, {case.name}: "
+    if case.lines == 1:
+        return (
+            f"{head}the reference of the lines cases, {result.utilisation:.1%} of the wire "
+            f"maximum; gateway CPU {result.cpu_share:.0%} of a core, RSS {result.rss_mb:.1f} MiB"
+        )
+    points = result.points_from_one_line
+    compared = (
+        f"{points:+.1f} points from one line alone (target within {POINTS_FROM_ONE_LINE:g})"
+        if not math.isnan(points)  # the reference ran
+        else "one line alone not measured"
+    )
+    return (
+        f"{head}each line at {result.utilisation:.1%} of the wire maximum (worst line "
+        f"{min(result.line_shares):.1%}), {compared}; gateway CPU {result.cpu_share:.0%} of a "
+        f"core (target below 100 %; {result.cpu_per_transaction_us:.0f} us per transaction); "
+        f"RSS {result.rss_mb:.1f} MiB (peak {result.peak_rss_mb:.1f}); waiting for a core "
+        f"{result.run_queue_s / result.elapsed_s:.0%} of the time (the simulated drives "
+        f"{result.simulator_run_queue_s / result.elapsed_s:.0%}); {gaps}; the simulated "
+        f"drives answered {result.drive_late_us(0.5):.0f} us late at the median "
+        f"(p90 {result.drive_late_us(0.9):.0f} us) and heard "
+        f"{result.heard_gap_us(0.5):.0f} us beyond t3.5 before each request "
+        f"(each line's drives spun at most {case.drive_spin_us:g} us before a reply, "
+        f"one line's {WAKE_EARLY_S * 1e6:g} us shared among {case.lines})"
+    )
 
 
 def scada_sentence(polled: CaseResult, alone: CaseResult | None) -> str:

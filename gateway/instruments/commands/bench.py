@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import shutil
 import sys
 from datetime import UTC, datetime
@@ -67,8 +68,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "--case",
         help="only cases whose name contains this text (default: the main matrix, about 4 "
         "minutes at the default duration). Also selects the cases left out by default: "
-        "'lines' (4, 8 and 16 buses in one process, 5 ms and fast drives; 16 simulator "
-        "processes share the machine) and 'flood' (readers while one client pipelines writes or "
+        "'lines' (4, 8, 16 and 32 buses in one process, 5 ms and fast drives, each against "
+        "its 1-line reference, which a chosen lines case brings along; one simulator process "
+        "serves all the lines) and 'flood' (readers while one client pipelines writes or "
         "broadcasts)",
     )
     parser.add_argument(
@@ -131,7 +133,13 @@ def handle(args: argparse.Namespace) -> int:
             return EXIT_USAGE
         return count_instructions(args)
     from gateway.instruments.bench import page
-    from gateway.instruments.bench.cases import CaseResult, extra_cases, matrix, run_case
+    from gateway.instruments.bench.cases import (
+        CaseResult,
+        extra_cases,
+        matrix,
+        run_case,
+        with_references,
+    )
     from gateway.instruments.bench.processes import gateway_niceness
     from gateway.instruments.bench.report import format_row, header, row, summary
 
@@ -139,7 +147,10 @@ def handle(args: argparse.Namespace) -> int:
     cases = matrix(baudrates, args.relay_ms)
     if args.case:
         cases = [c for c in cases + extra_cases(baudrates) if args.case in c.name]
+        cases = with_references(cases)  # a lines case's row compares it with one line
     results: list[CaseResult] = []
+    # The lines cases' 1-line reference: its share of the wire, by baud rate and drive speed.
+    one_line: dict[tuple[int, bool], float] = {}
     loop = gateway_event_loop()
     if loop is None:
         return EXIT_USAGE
@@ -155,6 +166,10 @@ def handle(args: argparse.Namespace) -> int:
             runs = [run_case(case, args.duration, warmup) for _ in range(args.runs)]
             progress.advance(plan)
             result = sorted(runs, key=lambda r: r.client_per_s)[len(runs) // 2]
+            if case.many_lines:
+                if case.lines == 1:
+                    one_line[case.baudrate, case.fast] = result.utilisation
+                result.single_line_share = one_line.get((case.baudrate, case.fast), math.nan)
             results.append(result)
             if not args.json:
                 progress.print(format_row(row(result)), sys.stdout)

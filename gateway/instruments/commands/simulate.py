@@ -4,10 +4,13 @@
     invt-gateway simulate --pty --address 1 --line-faults 0.05 --late-reply-ms 100
     invt-gateway simulate --pty --address 1 --burst-ms 40 --glitch FF --echo
     invt-gateway simulate --pty --drive 1=gd30 --drive 2=ipe300 --drive 3=acs580  (a mixed line)
+    invt-gateway simulate --pty --lines 32 --address 1 --address 2  (32 lines, one process)
 
-The first line on stdout is the device path to point the gateway at. It serves until SIGTERM or
-SIGINT (exit 0). When stdin is not a terminal, it takes control commands there, one per line
-(`fault 1 35`, `dead 2`, `stats`, ...: see `gateway.instruments.simulator.control`), each
+The first line on stdout is the device path to point the gateway at (with --lines N, the first
+N lines: one path per line, each line with the same drives, its own pty and its own timing, all
+served from one thread). It serves until SIGTERM or SIGINT (exit 0). When stdin is not a
+terminal, it takes control commands there, one per line (`fault 1 35`, `dead 2`, `stats`, ...:
+see `gateway.instruments.simulator.control`; `line K ...` for the K-th of several lines), each
 answered by one line on stdout.
 """
 
@@ -22,15 +25,18 @@ import sys
 from collections.abc import Iterator, Sequence
 from types import FrameType
 
-from gateway.exit_codes import EXIT_FAILURE, EXIT_OK
+from gateway.exit_codes import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from gateway.instruments.simulator.abb_drive import ABB_MODELS
-from gateway.instruments.simulator.control import run_control_command
+from gateway.instruments.simulator.control import run_line_command
 from gateway.instruments.simulator.line import WAKE_EARLY_S, SimulatedLine
 from gateway.instruments.simulator.line_faults import KINDS, late_range
+from gateway.instruments.simulator.server import LineServer
 from gateway.profile.invt import INVT_PROFILES
 from gateway.profile.models import get_profile
 
 PARITIES = ("N", "E", "O")
+MAX_LINES = 64
+"""Lines one simulator process serves: beyond, one thread no longer keeps every reply on time."""
 INVT_MODELS = tuple(INVT_PROFILES)
 MODELS = (*INVT_MODELS, *sorted(ABB_MODELS))
 """What the simulator can play: every INVT series, and ABB drives on the ABB Drives profile."""
@@ -52,6 +58,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     where.add_argument("--pty", action="store_true", help="create a pty and print its path")
     where.add_argument("--device", metavar="PATH", help="serve on an existing serial device")
     parser.add_argument("--link", metavar="PATH", help="a symlink to keep pointed at the port")
+    parser.add_argument(
+        "--lines",
+        type=_lines,
+        default=1,
+        metavar="N",
+        help="serve N lines alike from one thread, each on a pty of its own with its own wire "
+        "timing; their paths are the first N lines on stdout, `line K COMMAND` controls the "
+        "K-th (default 1; with --pty only, no --link)",
+    )
     parser.add_argument(
         "--address",
         type=_address,
@@ -184,31 +199,38 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def handle(args: argparse.Namespace) -> int:
+    if args.lines > 1 and (args.device or args.link):
+        print("invt-gateway simulate: --lines takes --pty and no --link", file=sys.stderr)
+        return EXIT_USAGE
     # Signal handlers first: whoever reads the path may signal at once, and must get a clean
     # stop (the link removed, exit 0) rather than the default death.
     with _signal_pipe() as signalled:
         try:
-            line = build_line(args)
-            line.start()
+            lines = [build_line(args) for _ in range(args.lines)]
+            server = LineServer(lines)
+            server.start()
         except (ValueError, OSError) as error:
             print(f"invt-gateway simulate: {error}", file=sys.stderr)
             return EXIT_FAILURE
         try:
-            print(line.path, flush=True)
+            for line in lines:
+                print(line.path, flush=True)
+            line = lines[0]
             adapter = (
                 "" if line.adapter.describe() == "none" else f"; adapter: {line.adapter.describe()}"
             )
             if line.relay_s:
                 adapter += f"; relay {line.relay_s * 1000:g} ms each way"
+            where = ", ".join(each.path for each in lines)
             print(
                 f"simulating {describe_drives(line)} on "
-                f"{line.path} ({args.baud} baud 8{args.parity}{args.stopbits}){adapter}",
+                f"{where} ({args.baud} baud 8{args.parity}{args.stopbits}){adapter}",
                 file=sys.stderr,
                 flush=True,
             )
-            serve_until_signal(line, signalled)
+            serve_until_signal(lines, signalled)
         finally:
-            line.stop()
+            server.stop()
     return EXIT_OK
 
 
@@ -280,7 +302,7 @@ def build_line(args: argparse.Namespace) -> SimulatedLine:
     return line
 
 
-def serve_until_signal(line: SimulatedLine, signalled: int) -> None:
+def serve_until_signal(lines: Sequence[SimulatedLine], signalled: int) -> None:
     """Answer control commands from stdin (unless it is a terminal) until `signalled` is
     readable (SIGTERM or SIGINT arrived)."""
     commands = _command_fd()
@@ -299,7 +321,7 @@ def serve_until_signal(line: SimulatedLine, signalled: int) -> None:
             *complete, pending = pending.split(b"\n")
             for raw in complete:
                 if raw.strip():
-                    answer = run_control_command(line, raw.decode(errors="replace"))
+                    answer = run_line_command(lines, raw.decode(errors="replace"))
                     print(answer, flush=True)
 
 
@@ -343,6 +365,13 @@ def _address(text: str) -> int:
     value = int(text)
     if not 1 <= value <= 247:
         raise argparse.ArgumentTypeError(f"drive address {value} is outside 1..247")
+    return value
+
+
+def _lines(text: str) -> int:
+    value = int(text)
+    if not 1 <= value <= MAX_LINES:
+        raise argparse.ArgumentTypeError(f"{value} lines is outside 1..{MAX_LINES}")
     return value
 
 

@@ -13,13 +13,17 @@
     replug              a new port, the link re-pointed      → ok replug /dev/pts/7
     stats               the line's counters                  → ok {"requests": 3, ...}
 
+With several lines in one process (`simulate --lines N`), `line K COMMAND` carries COMMAND
+out on the K-th line (from 1): `line 3 stats`, `line 2 dead 1`. A command without it goes to
+the first line.
+
 Anything else, or a command that fails, is answered `error <reason>`.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Final
 
 from gateway.instruments.simulator.line import SimulatedLine
@@ -28,6 +32,20 @@ USAGE: Final = (
     "commands: fault ADDR CODE, clear ADDR, dead ADDR, alive ADDR, delay ADDR MS, noise HEX, "
     "bursts MS, glitch HEX|off, echo on|off, unplug, replug, stats"
 )
+
+
+def run_line_command(lines: Sequence[SimulatedLine], text: str) -> str:
+    """Carry out one command on the line it names (`line K ...`), else on the first."""
+    words = text.split()
+    if len(words) < 2 or words[0].lower() != "line":
+        return run_control_command(lines[0], text)
+    try:
+        number = int(words[1])
+    except ValueError:
+        return f"error line takes a line number, not {words[1]!r}"
+    if not 1 <= number <= len(lines):
+        return f"error no line {number}: there are {len(lines)}"
+    return run_control_command(lines[number - 1], " ".join(words[2:]))
 
 
 def run_control_command(line: SimulatedLine, text: str) -> str:

@@ -1,7 +1,8 @@
-"""A simulated RS-485 line of INVT drives, served from its own thread with blocking I/O.
+"""A simulated RS-485 line of INVT drives, served from a thread with blocking I/O.
 
-Timing is the point of this class, so it runs on a thread of its own with `select` and precise
-deadlines rather than on an event loop shared with the code under test.
+Timing is the point of this class, so it runs on a thread with `select` and precise deadlines
+rather than on an event loop shared with the code under test: a thread of its own, or one
+`LineServer` thread serving several lines (a bench of many lines in one process).
 
 A pty has no baud rate: bytes the gateway writes arrive at once. With `wire_time`, the line acts
 as the wire would: a request of n bytes ends n character times after its first byte arrived; the
@@ -36,12 +37,10 @@ import itertools
 import logging
 import os
 import random
-import select
-import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Container, Iterable, Mapping, Sequence
 from types import TracebackType
 from typing import Any, Final
 
@@ -53,20 +52,19 @@ from gateway.instruments.simulator.drive import SimulatedDrive
 from gateway.instruments.simulator.endpoint import Endpoint, point_link, remove_link
 from gateway.instruments.simulator.framing import ReceivedFrame, RequestAssembler
 from gateway.instruments.simulator.line_faults import LineFaults
+from gateway.instruments.simulator.server import LineServer
 from gateway.modbus.rtu import BROADCAST_ADDRESS, build_frame
 from gateway.modbus.timing import CharacterFormat
-from gateway.timer_slack import tighten_timer_slack
 
 log = logging.getLogger(__name__)
 
-STOP_TIMEOUT_S: Final = 1.0
 CALL_TIMEOUT_S: Final = 5.0
 READ_SIZE: Final = 4096
-GIL_SWITCH_INTERVAL_S: Final = 0.0002
 # How long before a reply is due the line wakes and spins out the rest: a timer wake-up is late
 # by up to a few hundred microseconds on a quiet machine. Several simulated lines on one
 # machine should share it (`bench` gives each of N lines WAKE_EARLY_S / N): sixteen lines
-# spinning 300 us before every reply took most of a core from the gateway they measured.
+# spinning 300 us before every reply took most of a core from the gateway they measured, and
+# lines served from one thread wait while it spins for another's reply.
 WAKE_EARLY_S: Final = 0.0003
 
 
@@ -144,7 +142,9 @@ class SimulatedLine:
 
         self._endpoint: Endpoint | None = None
         self._path: str | None = None
+        self._server: LineServer | None = None
         self._thread: threading.Thread | None = None
+        """The thread serving the line, set by its `LineServer` once it runs."""
         self._stopping = False
         self._wake_read = self._wake_write = -1
         self._calls: deque[_Call] = deque()
@@ -170,9 +170,21 @@ class SimulatedLine:
     # ----------------------------------------------------------------- lifecycle
 
     def start(self) -> None:
-        """Open the pty (or the device), point `link` at it, start serving."""
-        if self._thread is not None:
+        """Open the pty (or the device), point `link` at it, start serving from a thread of
+        its own (`LineServer` serves several lines from one)."""
+        if self._server is not None:
             raise RuntimeError("the simulated line is already started")
+        LineServer([self]).start()
+
+    def stop(self) -> None:
+        """Stop serving (promptly), close the port, remove the link. Safe to call twice. A line
+        served with others from one thread stops them too: they share the thread."""
+        server = self._server
+        if server is not None:
+            server.stop()
+
+    def _open(self, server: LineServer) -> None:
+        """Before `server`'s thread serves this line: the wake-up pipe and the port."""
         self._wake_read, self._wake_write = os.pipe()
         try:
             self._plug()
@@ -180,24 +192,11 @@ class SimulatedLine:
             self._close_wake_pipe()
             raise
         self._stopping = False
-        # The simulated drives may share a process with an event loop (the demo, the tests):
-        # with Python's default 5 ms switch interval a busy loop would hold the GIL, and the
-        # drives' answers, that long.
-        sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
-        self._thread = threading.Thread(target=self._serve, name="simulated-line", daemon=True)
-        self._thread.start()
+        self._server = server
 
-    def stop(self) -> None:
-        """Stop serving (promptly), close the port, remove the link. Safe to call twice."""
-        thread = self._thread
-        if thread is None:
-            return
-        self._stopping = True
-        self._wake()
-        thread.join(STOP_TIMEOUT_S)
-        if thread.is_alive():
-            log.error("simulated line thread did not stop within %.1f s", STOP_TIMEOUT_S)
-        self._thread = None
+    def _close(self) -> None:
+        """After `server`'s thread stopped: the port and the wake-up pipe closed."""
+        self._thread = self._server = None
         self._unplug()
         self._close_wake_pipe()
 
@@ -208,7 +207,7 @@ class SimulatedLine:
         self._wake_read = self._wake_write = -1
 
     def __enter__(self) -> SimulatedLine:
-        if self._thread is None:
+        if self._server is None:
             self.start()
         return self
 
@@ -344,22 +343,19 @@ class SimulatedLine:
 
     # ----------------------------------------------------------------- the thread
 
-    def _serve(self) -> None:
-        tighten_timer_slack()  # a drive answers on time, not when the kernel batches wake-ups
-        while not self._stopping:
-            try:
-                self._serve_once()
-            except Exception:  # the line must outlive a bug in one exchange; the log shows it
-                log.exception("simulated line: error while serving")
-
-    def _serve_once(self) -> None:
+    def _watched(self) -> list[int]:
+        """The descriptors the serving thread waits on for this line."""
         endpoint = self._endpoint
-        watched = [self._wake_read] if endpoint is None else [self._wake_read, endpoint.fd]
-        readable, _, _ = select.select(watched, [], [], self._next_wakeup())
+        return [self._wake_read] if endpoint is None else [self._wake_read, endpoint.fd]
+
+    def _serve_ready(self, readable: Container[int]) -> None:
+        """One pass of the serving thread for this line: `readable` are the descriptors its
+        wait found ready (this line's among others)."""
         if self._wake_read in readable:
             os.read(self._wake_read, READ_SIZE)
         if self._stopping:
             return
+        endpoint = self._endpoint
         self._run_calls()
         self._send_due(time.monotonic())
         if endpoint is not None and endpoint is self._endpoint and endpoint.fd in readable:
@@ -368,17 +364,17 @@ class SimulatedLine:
             for frame in self._assembler.on_silence(time.monotonic() + self.relay_s):
                 self._on_frame(frame)
 
-    def _next_wakeup(self) -> float | None:
-        # Wake a little before a reply is due and wait out the rest in `_send_due`: a timer
-        # wake-up is late by up to a few hundred microseconds, and a drive that answers late
-        # would make the gateway look slower than the line allows.
-        deadlines = [self._pending[0][0] - self.wake_early_s] if self._pending else []
+    def _deadline(self) -> float | None:
+        """When the serving thread must next serve this line with nothing to read: a little
+        before a reply is due (`_send_due` waits out the rest: a timer wake-up is late by up
+        to a few hundred microseconds, and a drive that answers late would make the gateway
+        look slower than the line allows), or when the silence that ends a request is over."""
+        deadline = self._pending[0][0] - self.wake_early_s if self._pending else None
         silence = self._assembler.silence_deadline()
         if silence is not None:
-            deadlines.append(silence - self.relay_s)  # the wire's time, the relay's delay ahead
-        if not deadlines:
-            return None
-        return max(0.0, min(deadlines) - time.monotonic())
+            silence -= self.relay_s  # the wire's time, the relay's delay ahead
+            deadline = silence if deadline is None else min(deadline, silence)
+        return deadline
 
     def _receive(self, endpoint: Endpoint, now: float) -> None:
         try:
@@ -510,15 +506,16 @@ class SimulatedLine:
         while self._pending and self._pending[0][0] <= now:
             due, _, reply, ends_reply = heapq.heappop(self._pending)
             written_at = time.monotonic()
-            # Written and counted under the lock: a master that reads the stats once it has
-            # the reply finds it counted (it read them before this thread counted it, at times).
+            # Counted before the master can ask: whoever reads `stats` once it has the reply
+            # waits for the lock, held from the write until the reply is counted.
             with self._lock:
-                if self._write(reply) and ends_reply:
-                    left_wire_at = written_at - self.relay_s  # the relay held it this long
-                    self._stats["replies"] += 1
-                    self._frame_ended(left_wire_at)
-                    self._reply_late.observe(written_at - due)
-                    self._reply_ended_at = left_wire_at
+                if not (self._write(reply) and ends_reply):
+                    continue
+                left_wire_at = written_at - self.relay_s  # the relay held it this long
+                self._stats["replies"] += 1
+                self._frame_ended(left_wire_at)
+                self._reply_late.observe(written_at - due)
+                self._reply_ended_at = left_wire_at
 
     def _write(self, data: bytes) -> bool:
         endpoint = self._endpoint

@@ -45,7 +45,7 @@ def simulator_started(process: subprocess.Popen[str]) -> SimulatorProcess:
     if not path.startswith("/"):
         stop_process(process)
         raise RuntimeError(f"the simulator did not start: {path!r}")
-    return SimulatorProcess(process, path)
+    return SimulatorProcess(process, [path])
 
 
 class Gateway:

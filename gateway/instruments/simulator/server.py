@@ -1,0 +1,141 @@
+"""`LineServer`: one thread serving one or several simulated lines.
+
+Each line keeps its own port, drives, clock of frames and gaps; the thread only waits for
+whichever of them has something to do: bytes from its master, a reply due, the silence that
+ends a request. Many lines in one thread cost one wake-up per event, not one thread (and one
+spinning wait) per line, so a bench of 32 lines leaves the cores to the gateway it measures.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import selectors
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Final
+
+from gateway.timer_slack import tighten_timer_slack
+
+if TYPE_CHECKING:
+    from gateway.instruments.simulator.line import SimulatedLine
+
+log = logging.getLogger(__name__)
+
+STOP_TIMEOUT_S: Final = 1.0
+_NOT_YET: Final = object()
+"""A line's port before the serving thread first looks at it (its port may be None)."""
+GIL_SWITCH_INTERVAL_S: Final = 0.0002
+
+
+class LineServer:
+    """Serves `lines` from one thread, from `start()` to `stop()`."""
+
+    def __init__(self, lines: Sequence[SimulatedLine]) -> None:
+        if not lines:
+            raise ValueError("a line server needs at least one line")
+        self.lines = tuple(lines)
+        self._thread: threading.Thread | None = None
+        self._stopping = False
+        # The serving thread's own (see `_serve`).
+        self._watched: list[tuple[int, ...]] = []
+        self._endpoints: list[object] = []
+        self._deadlines: list[float] = []
+
+    def start(self) -> None:
+        """Open every line's port, then serve them all."""
+        if self._thread is not None:
+            raise RuntimeError("the line server is already started")
+        opened: list[SimulatedLine] = []
+        try:
+            for line in self.lines:
+                line._open(self)
+                opened.append(line)
+        except BaseException:
+            for line in opened:
+                line._close()
+            raise
+        # The simulated drives may share a process with an event loop (the demo, the tests):
+        # with Python's default 5 ms switch interval a busy loop would hold the GIL, and the
+        # drives' answers, that long.
+        sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
+        self._stopping = False
+        name = "simulated-line" if len(self.lines) == 1 else "simulated-lines"
+        # select(2), not epoll or poll: their timeouts are whole milliseconds, and a reply
+        # due in the middle of one would go out up to a millisecond late.
+        selector = selectors.SelectSelector()
+        self._thread = threading.Thread(
+            target=self._serve, args=(selector,), name=name, daemon=True
+        )
+        for line in self.lines:
+            line._thread = self._thread
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop serving (promptly), close every line's port. Safe to call twice."""
+        thread = self._thread
+        if thread is None:
+            return
+        self._stopping = True
+        for line in self.lines:
+            line._stopping = True
+            line._wake()
+        thread.join(STOP_TIMEOUT_S)
+        if thread.is_alive():
+            log.error("simulated line thread did not stop within %.1f s", STOP_TIMEOUT_S)
+        self._thread = None
+        for line in self.lines:
+            line._close()
+
+    def _serve(self, selector: selectors.BaseSelector) -> None:
+        tighten_timer_slack()  # a drive answers on time, not when the kernel batches wake-ups
+        # What the thread waits on, by line: its descriptors (in the selector, the line's
+        # index as data), its port (a new one after a replug, maybe under a reused number) and
+        # its deadline (inf: none). A line's change only while it is served (control calls
+        # run then too), so each pass looks again at the lines it served, not at every line.
+        self._watched = [() for _ in self.lines]
+        self._endpoints = [_NOT_YET for _ in self.lines]
+        self._deadlines = [math.inf for _ in self.lines]
+        try:
+            for index in range(len(self.lines)):
+                self._look_again(selector, index)
+            while not self._stopping:
+                try:
+                    self._serve_once(selector)
+                except Exception:  # the lines must outlive a bug in one exchange; the log shows it
+                    log.exception("simulated line: error while serving")
+        finally:
+            selector.close()
+
+    def _serve_once(self, selector: selectors.BaseSelector) -> None:
+        soonest = min(self._deadlines)
+        timeout = None if soonest == math.inf else max(0.0, soonest - time.monotonic())
+        events = selector.select(timeout)
+        now = time.monotonic()
+        ready = {key.fd for key, _ in events}
+        # A line with nothing to read and nothing due has nothing to do this pass.
+        serving = {index for index, deadline in enumerate(self._deadlines) if deadline <= now}
+        serving.update(key.data for key, _ in events)
+        # The soonest due first: a line waiting out its reply's last microseconds on the clock
+        # holds up the others, which are due after it so.
+        for index in sorted(serving, key=self._deadlines.__getitem__):
+            self.lines[index]._serve_ready(ready)
+            self._look_again(selector, index)
+
+    def _look_again(self, selector: selectors.BaseSelector, index: int) -> None:
+        """After serving the line at `index`: what to wait on for it next."""
+        line = self.lines[index]
+        endpoint = line._endpoint
+        if endpoint is not self._endpoints[index]:
+            for fd in self._watched[index]:
+                with contextlib.suppress(KeyError):
+                    selector.unregister(fd)
+            self._watched[index] = tuple(line._watched())
+            for fd in self._watched[index]:
+                selector.register(fd, selectors.EVENT_READ, index)
+            self._endpoints[index] = endpoint
+        deadline = line._deadline()
+        self._deadlines[index] = math.inf if deadline is None else deadline
