@@ -99,6 +99,11 @@ class RequestQueue:
         self._meter = ShareMeter(shares or LineShares())
         self._coalescing: dict[tuple[int, bytes, Priority], Transaction] = {}
         self._size = 0
+        self._alone: dict[str, deque[Transaction]] | None = None
+        """Where the one transaction waiting is, when it was queued into an empty queue and is
+        still the only one; else None. It goes next whatever the rules (a share is for sharing,
+        not for idling): `get_nowait` takes it without weighing the levels, as it does once per
+        transaction on a line whose clients ask one at a time."""
         self._reads_while_polls_wait = 0
         self._read_since_poll: set[str] = set()
         """Clients served a read since the last poll, while polls waited."""
@@ -125,6 +130,7 @@ class RequestQueue:
         clients.setdefault(transaction.client, deque()).append(transaction)
         if key is not None:
             self._coalescing[key] = transaction
+        self._alone = clients if not self._size else None
         self._size += 1
         return transaction
 
@@ -142,11 +148,20 @@ class RequestQueue:
 
     def get_nowait(self, now: float = 0.0) -> Transaction | None:
         """The next transaction to serve; `now` (monotonic) for the line-time shares."""
-        clients = self._next_clients(now)
-        if clients is None:
-            return None
-        client, waiting = next(iter(clients.items()))
         levels = self._levels
+        clients = self._alone
+        if clients is not None:
+            # The only one waiting: what the rules would choose, with what choosing a read or a
+            # poll alone does to the polls' turn (nothing waits behind it to take turns with).
+            self._alone = None
+            if clients is levels[Priority.READ] or clients is levels[Priority.POLL]:
+                self._reads_while_polls_wait = 0
+                self._read_since_poll.clear()
+        else:
+            clients = self._next_clients(now)
+            if clients is None:
+                return None
+        client, waiting = next(iter(clients.items()))
         if clients is levels[Priority.POLL]:
             self._read_since_poll.clear()
         elif levels[Priority.POLL] and clients is levels[Priority.READ]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+import random
 
 import pytest
 
@@ -176,3 +177,49 @@ async def test_a_poll_holds_a_waiting_client_for_one_poll_transaction_at_most() 
         turns = [i for i, c in enumerate(served) if c == client]
         for before, after in itertools.pairwise(turns):
             assert served[before + 1 : after].count("poll") <= 1, (client, served)
+
+
+class _WeighedAlways(RequestQueue):
+    """The queue without its shortcut for a transaction waiting alone: every choice weighed by
+    the rules, as before the shortcut existed."""
+
+    def put(self, transaction: Transaction) -> Transaction:
+        carrier = super().put(transaction)
+        self._alone = None
+        return carrier
+
+
+async def test_a_transaction_waiting_alone_is_served_as_the_rules_would_serve_it() -> None:
+    """Random mixes of reads, polls, writes and broadcasts from a few clients, arriving one by
+    one or in bursts between services: the queue with its shortcut serves them in the same
+    order, with the same polls' turns, as the queue that weighs every choice."""
+    rng = random.Random(7)
+    kinds = [
+        ("scada", Priority.READ, 1),
+        ("hmi", Priority.READ, 2),
+        ("poll", Priority.POLL, 1),
+        ("mqtt", Priority.WRITE, 1),
+        ("plc", Priority.WRITE, 0),  # a broadcast
+    ]
+    alone = 0
+    for _ in range(50):
+        shortcut, weighed = RequestQueue(1000), _WeighedAlways(1000)
+        served: tuple[list[str], list[str]] = ([], [])
+        now = 0.0
+        for _ in range(rng.randint(5, 60)):
+            for _ in range(rng.choice([0, 0, 0, 1, 1, 1, 1, 2, 3])):
+                client, priority, address = rng.choice(kinds)
+                pdu = bytes((rng.choice([3, 6]), 0x21, 0, 0, rng.randint(1, 3)))
+                for queue in (shortcut, weighed):
+                    queue.put(txn(client, priority, pdu, address))
+            now += rng.uniform(0.001, 0.05)
+            held_s = rng.uniform(0.002, 0.03)  # the same line time in both
+            alone += shortcut._alone is not None
+            for queue, names in zip((shortcut, weighed), served, strict=True):
+                taken = queue.get_nowait(now)
+                if taken is not None:
+                    queue.charge(taken, held_s, now)
+                    names.append(f"{taken.client}:{taken.pdu.hex()}")
+        assert served[0] == served[1]
+        assert order(shortcut) == order(weighed)
+    assert alone > 200  # the shortcut was taken, often
