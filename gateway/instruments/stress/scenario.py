@@ -208,9 +208,12 @@ async def _run(
 
 async def _kill_gateway(gateway: Gateway, load: CheckedLoad, hostile: HostileClient) -> Recovery:
     load.phase = "gateway SIGKILL"
-    hostile.kills += 1  # its connection open now is closed by the kill, not by the gateway
+    # Its connections open now, or opened until the old process is gone, are closed by the kill,
+    # not by the gateway.
+    hostile.kills += 1
     killed_at = time.monotonic()
     await asyncio.to_thread(gateway.kill)
+    hostile.kills += 1
     gateway.start()
     seconds = await first_answer_after(load, killed_at, new_connection=True)
     return Recovery("gateway SIGKILL", "killed", seconds)
