@@ -310,20 +310,19 @@ class Bus:
         observed = None
         if self._request_observers:
             waiter = observed = _Observed(self, waiter, address, pdu, client, time.monotonic())
+        settings = self.settings
         try:
             self._admit(address)
             self._put(
                 Transaction(
-                    address=address,
-                    pdu=pdu,
-                    priority=priority,
-                    client=client,
-                    timeout_s=self.settings.timeout_s if timeout_s is None else timeout_s,
-                    retries=self.settings.retries if retries is None else retries,
-                    coalescable=address != BROADCAST_ADDRESS
-                    and bool(pdu)
-                    and lookup(pdu[0]).coalescable,
-                    waiters=[waiter],
+                    address,
+                    pdu,
+                    priority,
+                    client,
+                    settings.timeout_s if timeout_s is None else timeout_s,
+                    settings.retries if retries is None else retries,
+                    address != BROADCAST_ADDRESS and bool(pdu) and lookup(pdu[0]).coalescable,
+                    [waiter],
                 )
             )
         except ModbusError as exc:
@@ -331,6 +330,75 @@ class Bus:
                 observed.report(exc.code)
             raise
         self.line.fire_due()  # a gap that ended while this loop pass ran: act on it now
+
+    def submit_read(
+        self,
+        address: int,
+        pdu: bytes,
+        waiter: Waiter,
+        client: str,
+        timeout_s: float | None,
+        retries: int | None,
+        coalescable: bool,
+    ) -> None:
+        """`submit` of a client's read (READ priority) in one call, for the Modbus-TCP fast
+        path (`Router.submit`): `coalescable` is the caller's `lookup(pdu[0]).coalescable`.
+
+        The common case is written out here: the bus open, its port not being reopened, the
+        drive not offline, not a broadcast. Anything else takes `submit`, which refuses it or
+        queues it the same way."""
+        if (
+            self.state is not BusState.OPEN
+            or self._work is not None
+            or address == BROADCAST_ADDRESS
+            or self.health.is_offline(address)
+        ):
+            self.submit(
+                address,
+                pdu,
+                waiter,
+                priority=Priority.READ,
+                client=client,
+                timeout_s=timeout_s,
+                retries=retries,
+            )
+            return
+        stats = self.stats
+        stats.requests += 1
+        # One clock read: the request's start for the observers is when it was queued.
+        now = time.monotonic()
+        observed = None
+        if self._request_observers:
+            waiter = observed = _Observed(self, waiter, address, pdu, client, now)
+        settings = self.settings
+        transaction = Transaction(
+            address,
+            pdu,
+            Priority.READ,
+            client,
+            settings.timeout_s if timeout_s is None else timeout_s,
+            settings.retries if retries is None else retries,
+            coalescable,
+            [waiter],
+            False,
+            b"",
+            now,
+        )
+        try:
+            carrier = self._queue.put(transaction)
+        except ModbusError as exc:  # the queue is full (QueueFull, as `_put` counts it)
+            stats.queue_full += 1
+            if observed is not None:
+                observed.report(exc.code)
+            raise
+        if carrier is transaction:
+            # Framed now, while the line may be busy: no CRC work in the gap.
+            transaction.frame = request_frame(address, pdu)
+        else:
+            stats.coalesced += 1
+        # `_wake` without a `_work` to resolve (tested above), then `fire_due`: an idle line
+        # sends it now, and a gap that ended while this loop pass ran is acted on now.
+        self.line.queued()
 
     def _admit(self, address: int) -> None:
         """Raise the refusal a request to `address` gets before it is queued, if any."""

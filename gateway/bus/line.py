@@ -175,6 +175,13 @@ class SerialLine:
         """A request was queued: an idle line sends it now (`GapKeeper.kick`)."""
         self._gap.kick()
 
+    def queued(self) -> None:
+        """A request was queued: `kick`, then `fire_due`, in one call (once per request)."""
+        self._gap.kick()
+        timer = self._timer
+        if timer is not None:
+            timer.fire_due()
+
     def _discard_pending(self) -> None:
         """Throw away bytes nobody asked for (noise, a reply later than every drain)."""
         port = self._require_port()

@@ -21,7 +21,6 @@ answers both. Reads only: writing twice is not the same as writing once.
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import Protocol
 
@@ -51,28 +50,67 @@ class Priority(IntEnum):
     POLL = 2
 
 
-@dataclass(eq=False, slots=True)
 class Transaction:
-    """One request for the wire and everyone waiting for its reply."""
+    """One request for the wire and everyone waiting for its reply.
 
-    address: int
-    pdu: bytes
-    priority: Priority
-    client: str
-    timeout_s: float
-    retries: int
-    coalescable: bool = False
-    waiters: list[Waiter] = field(default_factory=list)
-    probe: bool = False
-    """A bus's own check of an offline drive: nobody waits for it, it is always wanted."""
-    frame: bytes = b""
-    """The RTU frame, built when queued: CRC work done while the line is busy, not in the gap."""
-    queued_at: float = 0.0
-    """When it was queued (`time.monotonic()`): did it wait for the gap, or the gap for it?"""
+    A plain class rather than a dataclass: one is made per request, and its `__init__` takes
+    its fields by position (a keyword call costs a name match per argument) and works the
+    coalescing key out once, where the queue reads it twice (`put`, `get_nowait`)."""
 
-    @property
-    def key(self) -> tuple[int, bytes, Priority]:
-        return (self.address, self.pdu, self.priority)
+    __slots__ = (
+        "address",
+        "client",
+        "coalescable",
+        "frame",
+        "key",
+        "pdu",
+        "priority",
+        "probe",
+        "queued_at",
+        "retries",
+        "timeout_s",
+        "waiters",
+    )
+
+    def __init__(
+        self,
+        address: int,
+        pdu: bytes,
+        priority: Priority,
+        client: str,
+        timeout_s: float,
+        retries: int,
+        coalescable: bool = False,
+        waiters: list[Waiter] | None = None,
+        probe: bool = False,
+        frame: bytes = b"",
+        queued_at: float = 0.0,
+    ) -> None:
+        self.address = address
+        self.pdu = pdu
+        self.priority = priority
+        self.client = client
+        self.timeout_s = timeout_s
+        self.retries = retries
+        self.coalescable = coalescable
+        self.waiters: list[Waiter] = [] if waiters is None else waiters
+        self.probe = probe
+        """A bus's own check of an offline drive: nobody waits for it, it is always wanted."""
+        self.frame = frame
+        """The RTU frame, built when queued: CRC work done while the line is busy, not in the
+        gap."""
+        self.queued_at = queued_at
+        """When it was queued (`time.monotonic()`): did it wait for the gap, or the gap for
+        it?"""
+        self.key: tuple[int, bytes, Priority] = (address, pdu, priority)
+        """What identical reads share (`RequestQueue`): address, request PDU, priority."""
+
+    def __repr__(self) -> str:
+        return (
+            f"Transaction(address={self.address}, pdu={self.pdu.hex()}, "
+            f"priority={self.priority.name}, client={self.client!r}, "
+            f"waiters={len(self.waiters)}, probe={self.probe})"
+        )
 
     @property
     def wanted(self) -> bool:
@@ -117,20 +155,30 @@ class RequestQueue:
 
         Returns the transaction that will carry the request. Raises QueueFull.
         """
-        key = transaction.key if transaction.coalescable else None
-        if key is not None:
-            queued = self._coalescing.get(key)
+        coalescable = transaction.coalescable
+        if coalescable:
+            queued = self._coalescing.get(transaction.key)
             if queued is not None:
                 queued.waiters.extend(transaction.waiters)
                 self.coalesced += 1
                 return queued
         if self._size >= self.maxsize:
             raise QueueFull(f"bus queue full ({self.maxsize} requests waiting)")
-        clients = self._clients_of(transaction)
-        clients.setdefault(transaction.client, deque()).append(transaction)
-        if key is not None:
-            self._coalescing[key] = transaction
-        self._alone = clients if not self._size else None
+        priority = transaction.priority
+        # Broadcasts wait apart from the other writes (their own share).
+        if priority is Priority.WRITE and transaction.address == BROADCAST:
+            clients = self._broadcasts
+        else:
+            clients = self._levels[priority]
+        client = transaction.client
+        waiting = clients.get(client)
+        if waiting is None:
+            clients[client] = deque((transaction,))
+        else:
+            waiting.append(transaction)
+        if coalescable:
+            self._coalescing[transaction.key] = transaction
+        self._alone = None if self._size else clients
         self._size += 1
         return transaction
 
@@ -176,11 +224,6 @@ class RequestQueue:
             if self._coalescing.get(key) is transaction:
                 del self._coalescing[key]
         return transaction
-
-    def _clients_of(self, transaction: Transaction) -> dict[str, deque[Transaction]]:
-        if transaction.address == BROADCAST and transaction.priority is Priority.WRITE:
-            return self._broadcasts
-        return self._levels[transaction.priority]
 
     def _next_clients(self, now: float) -> dict[str, deque[Transaction]] | None:
         """Broadcasts and writes first, each within its share of the line while others wait."""

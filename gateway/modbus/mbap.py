@@ -17,6 +17,10 @@ HEADER_LENGTH = 7
 MIN_LENGTH = 2
 MAX_LENGTH = 254
 _HEADER = struct.Struct(">HHHB")
+read_header = _HEADER.unpack_from
+"""(transaction id, protocol id, length, unit id) from the front of a buffer, unchecked: a C
+call, no Python frame, for a caller that checks the fields itself (the Modbus-TCP server's fast
+path, once per request); `frame_header` checks them."""
 
 
 # Immutable, and built per transaction: a NamedTuple costs a fraction of a frozen dataclass,

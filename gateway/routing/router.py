@@ -125,15 +125,19 @@ class Router:
                 return cached
         return await self._forward(route, pdu, client, priority or Priority.READ)
 
-    def submit(self, unit_id: int, pdu: bytes, *, client: str, waiter: Waiter) -> bool:
+    def submit(self, unit_id: int, pdu: bytes, client: str, waiter: Waiter) -> bool:
         """`execute` without a task, for a read that is one bus transaction: the reply (from
         the cache, or the drive's) goes to `waiter`. False when the request needs `execute`
         (a write, a broadcast, a read the drive's word limit splits); a refusal before the bus
         (no such unit id, drive offline, queue full) is raised. `pdu` has passed the front
-        door's `check_request` (the Modbus-TCP server's fast path is the caller)."""
-        if unit_id == BROADCAST_ADDRESS or lookup(pdu[0]).writes:
+        door's `check_request` (the Modbus-TCP server's fast path is the caller, once per
+        request: one registry lookup, one route lookup, one call to the bus)."""
+        function = lookup(pdu[0])
+        if unit_id == BROADCAST_ADDRESS or function.writes:
             return False
-        route = self.route(unit_id)
+        route = self._routes.get(unit_id)
+        if route is None:
+            route = self.route(unit_id)  # raises, saying which unit id
         max_words = route.max_words
         if max_words is not None and needs_split(pdu, max_words):
             return False
@@ -143,7 +147,15 @@ class Router:
                 waiter.set_result(cached)
                 return True
         # A read is never rewritten to a RAM address (`_to_ram` takes 06H/10H only).
-        self._submit(route, pdu, waiter, client, Priority.READ)
+        route.bus.submit_read(
+            route.address,
+            pdu,
+            waiter,
+            client,
+            route.timeout_s,
+            route.retries,
+            function.coalescable,
+        )
         return True
 
     async def poll(

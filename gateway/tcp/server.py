@@ -42,7 +42,14 @@ from gateway.errors import ExceptionCode, MalformedFrame, ModbusError
 from gateway.listen import cannot_listen
 from gateway.logs import repeated
 from gateway.modbus.functions import changes_nothing, check_request, exception_pdu, lookup
-from gateway.modbus.mbap import HEADER_LENGTH, build_adu, frame_header
+from gateway.modbus.mbap import (
+    HEADER_LENGTH,
+    MAX_LENGTH,
+    MIN_LENGTH,
+    build_adu,
+    frame_header,
+    read_header,
+)
 from gateway.tcp.access import AccessPolicy, AccessRule
 from gateway.tcp.cert_roles import client_role
 from gateway.tcp.handshakes import HandshakeWatch
@@ -495,6 +502,19 @@ class Connection(asyncio.Protocol):
     def data_received(self, data: bytes) -> None:
         now = self._last_data = self._loop.time()
         if not self._buffer:
+            if not self._paused and len(data) >= HEADER_LENGTH:
+                # The common case: a client that waits for each answer sends each request in
+                # one segment, so the chunk is one whole frame with nothing before it. Its
+                # header is read from the chunk itself, without the buffer; anything else (a
+                # bad header, a part of a frame, several frames) goes the buffer's way below.
+                transaction_id, protocol_id, length, unit_id = read_header(data)
+                if (
+                    len(data) == HEADER_LENGTH - 1 + length
+                    and not protocol_id
+                    and MIN_LENGTH <= length <= MAX_LENGTH
+                ):
+                    self._take_frame(transaction_id, unit_id, data[HEADER_LENGTH:])
+                    return
             self._frame_started = now
         self._buffer += data
         self._take_frames()
@@ -505,7 +525,6 @@ class Connection(asyncio.Protocol):
                 self._rearm_idle_timer()
 
     def _take_frames(self) -> None:
-        settings = self.server.settings
         buffer = self._buffer
         budget = FRAMES_PER_PASS
         while len(buffer) >= HEADER_LENGTH and not self._paused:
@@ -531,23 +550,53 @@ class Connection(asyncio.Protocol):
                 return
             pdu = bytes(buffer[HEADER_LENGTH:end])
             del buffer[:end]
-            self.served = True
             if buffer:
                 self._frame_started = self._last_data  # the next frame began in the last chunk
-            self.server.stats.requests += 1
-            self.requests += 1
-            write = not changes_nothing(pdu)
-            checked = False
-            if write:
-                if self._writes_waiting >= settings.max_queued_writes_per_client:
-                    self._refuse_write(transaction_id, unit_id, pdu)
-                    continue
-                self._writes_waiting += 1
-            elif self.server.submit is not None:
-                if self._answer_fast(transaction_id, unit_id, pdu):
-                    continue  # answered, or on its way without a task
-                checked = True  # the front door has let it pass: the handler's way, in a task
-            self._start_task(transaction_id, unit_id, pdu, write, checked)
+            self._take_frame(transaction_id, unit_id, pdu)
+
+    def _take_frame(self, transaction_id: int, unit_id: int, pdu: bytes) -> None:
+        """One whole request: a write takes a task; a read goes to its bus in this pass of the
+        event loop, answered by the bus itself (an `_Answer`, no task), unless it needs the
+        handler (the router says so)."""
+        self.served = True
+        server = self.server
+        server.stats.requests += 1
+        self.requests += 1
+        if not changes_nothing(pdu):  # a write
+            if self._writes_waiting >= server.settings.max_queued_writes_per_client:
+                self._refuse_write(transaction_id, unit_id, pdu)
+                return
+            self._writes_waiting += 1
+            self._start_task(transaction_id, unit_id, pdu, True, False)
+            return
+        submit = server.submit
+        if submit is None:
+            self._start_task(transaction_id, unit_id, pdu, False, False)
+            return
+        # The front door first (`refusal`), which a well-formed read passes without a call when
+        # there are no access rules: `read_only` refuses writes only.
+        if check_request(pdu) is not None or server.access is not None:
+            refusal = server.refusal(unit_id, pdu, self.client, self.role)
+            if refusal is not None:
+                self._send(transaction_id, unit_id, refusal)
+                return
+        answer = _Answer(self, transaction_id, unit_id, pdu[0])
+        try:
+            if not submit(unit_id, pdu, self.client, answer):
+                # The front door has let it pass: the handler's way, in a task.
+                self._start_task(transaction_id, unit_id, pdu, False, True)
+                return
+        except Exception as exc:  # refused before the bus: answered at once
+            self._send(
+                transaction_id, unit_id, server.error_reply(unit_id, pdu[0], self.client, exc)
+            )
+            return
+        if not answer.settled:  # not answered from the cache at once: the bus has it
+            fast = self._fast
+            fast.add(answer)
+            if len(self.answers) + len(fast) >= server.settings.max_requests_per_connection:
+                # Back-pressure: stop reading this client until an answer has gone out.
+                self._pause()
 
     def _defer_frames(self) -> None:
         """The pass's budget is spent: take the rest in the next pass, reading nothing more
@@ -582,30 +631,6 @@ class Connection(asyncio.Protocol):
         if self.in_flight >= self.server.settings.max_requests_per_connection:
             # Back-pressure: stop reading this client until an answer has gone out.
             self._pause()
-
-    def _answer_fast(self, transaction_id: int, unit_id: int, pdu: bytes) -> bool:
-        """A read without a task: checked at the front door and handed to the bus in this pass
-        of the event loop, answered by the bus itself. False: the front door let it pass, but
-        it needs the handler (the router says so)."""
-        server = self.server
-        assert server.submit is not None
-        refusal = server.refusal(unit_id, pdu, self.client, self.role)
-        if refusal is not None:
-            self._send(transaction_id, unit_id, refusal)
-            return True
-        answer = _Answer(self, transaction_id, unit_id, pdu[0])
-        try:
-            if not server.submit(unit_id, pdu, self.client, answer):
-                return False
-        except Exception as exc:  # refused before the bus: answered at once
-            self._send(
-                transaction_id, unit_id, server.error_reply(unit_id, pdu[0], self.client, exc)
-            )
-            return True
-        if not answer.settled:  # not answered from the cache at once: the bus has it
-            self._fast.add(answer)
-            self._limit_in_flight()
-        return True
 
     def _send(self, transaction_id: int, unit_id: int, reply: bytes) -> None:
         if reply and reply[0] & 0x80:
