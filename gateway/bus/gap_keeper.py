@@ -273,6 +273,16 @@ class GapKeeper:
             return
         self._release_caller()  # the caller's loop takes it from here (`outcome` says what)
 
+    def queued(self) -> None:
+        """A request was queued: `kick`, then act on any gap of this loop's lines that has
+        ended (`LineTimer.fire_due`), in one call (once per request). `kick` only when the
+        caller is held idle: else it has nothing to do."""
+        if self._idle is not None:
+            self.kick()
+        timer = self._timer
+        if timer is not None:
+            timer.fire_due()
+
     def _go_idle(self, this: _Round) -> bool:
         """`pick` had nothing at a gap's end: hold the caller, idle, for `kick` (True), if
         its round allows and the wait can be taken over."""

@@ -67,6 +67,9 @@ class SerialLine:
         self._reader: ReplyReader | None = None
         self._gap = GapKeeper(settings, self.receiver, self._send_frame, self._discard_pending)
         self.gap_lead = self._gap.gap_lead
+        self.queued: Callable[[], None] = self._gap.queued
+        """A request was queued: `kick`, then `fire_due` (`GapKeeper.queued`); the gap
+        keeper's own, bound once: no call through the line, once per request."""
         """How long before the gap's end the timer wakes the line (`gateway.bus.gap_lead`)."""
 
     # What the receiver has seen, as metrics and the field tools read it off the line.
@@ -174,13 +177,6 @@ class SerialLine:
     def kick(self) -> None:
         """A request was queued: an idle line sends it now (`GapKeeper.kick`)."""
         self._gap.kick()
-
-    def queued(self) -> None:
-        """A request was queued: `kick`, then `fire_due`, in one call (once per request)."""
-        self._gap.kick()
-        timer = self._timer
-        if timer is not None:
-            timer.fire_due()
 
     def _discard_pending(self) -> None:
         """Throw away bytes nobody asked for (noise, a reply later than every drain)."""

@@ -107,6 +107,7 @@ __all__ = [
     "exception_pdu",
     "is_exception",
     "join_replies",
+    "known_function",
     "lookup",
     "rtu_reply_length",
     "split_request",
@@ -303,6 +304,11 @@ proxy's `get` goes through the proxy first."""
 
 def lookup(code: int) -> Function:
     return _BY_CODE.get(code, UNKNOWN_FUNCTION)
+
+
+known_function = _BY_CODE.get
+"""`lookup` without a Python frame (the dict's own `get`), for a caller once per request:
+None for a code the registry doesn't know (`lookup`'s `UNKNOWN_FUNCTION` then)."""
 
 
 @lru_cache(maxsize=1024)

@@ -16,6 +16,11 @@ from gateway.errors import MalformedFrame
 HEADER_LENGTH = 7
 MIN_LENGTH = 2
 MAX_LENGTH = 254
+COUNTED_FROM = HEADER_LENGTH - 1
+"""The length field counts the bytes from here (the unit id) to the frame's end."""
+MIN_FRAME = COUNTED_FROM + MIN_LENGTH
+MAX_FRAME = COUNTED_FROM + MAX_LENGTH
+"""A whole frame's size in bytes is within these."""
 _HEADER = struct.Struct(">HHHB")
 read_header = _HEADER.unpack_from
 """(transaction id, protocol id, length, unit id) from the front of a buffer, unchecked: a C

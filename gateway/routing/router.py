@@ -36,6 +36,7 @@ from gateway.modbus.functions import (
     WRITE_SINGLE_REGISTER,
     is_exception,
     join_replies,
+    known_function,
     lookup,
     needs_split,
     split_request,
@@ -132,7 +133,7 @@ class Router:
         (no such unit id, drive offline, queue full) is raised. `pdu` has passed the front
         door's `check_request` (the Modbus-TCP server's fast path is the caller, once per
         request: one registry lookup, one route lookup, one call to the bus)."""
-        function = lookup(pdu[0])
+        function = known_function(pdu[0]) or lookup(pdu[0])
         if unit_id == BROADCAST_ADDRESS or function.writes:
             return False
         route = self._routes.get(unit_id)

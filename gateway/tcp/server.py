@@ -43,9 +43,10 @@ from gateway.listen import cannot_listen
 from gateway.logs import repeated
 from gateway.modbus.functions import changes_nothing, check_request, exception_pdu, lookup
 from gateway.modbus.mbap import (
+    COUNTED_FROM,
     HEADER_LENGTH,
-    MAX_LENGTH,
-    MIN_LENGTH,
+    MAX_FRAME,
+    MIN_FRAME,
     build_adu,
     frame_header,
     read_header,
@@ -502,17 +503,16 @@ class Connection(asyncio.Protocol):
     def data_received(self, data: bytes) -> None:
         now = self._last_data = self._loop.time()
         if not self._buffer:
-            if not self._paused and len(data) >= HEADER_LENGTH:
+            size = len(data)
+            if MIN_FRAME <= size <= MAX_FRAME and not self._paused:
                 # The common case: a client that waits for each answer sends each request in
                 # one segment, so the chunk is one whole frame with nothing before it. Its
                 # header is read from the chunk itself, without the buffer; anything else (a
-                # bad header, a part of a frame, several frames) goes the buffer's way below.
+                # bad header, a part of a frame, several frames) goes the buffer's way below. A
+                # size within MIN_FRAME..MAX_FRAME that matches the length field is a length
+                # within MIN_LENGTH..MAX_LENGTH: `frame_header`'s checks, all passed.
                 transaction_id, protocol_id, length, unit_id = read_header(data)
-                if (
-                    len(data) == HEADER_LENGTH - 1 + length
-                    and not protocol_id
-                    and MIN_LENGTH <= length <= MAX_LENGTH
-                ):
+                if length == size - COUNTED_FROM and not protocol_id:
                     self._take_frame(transaction_id, unit_id, data[HEADER_LENGTH:])
                     return
             self._frame_started = now

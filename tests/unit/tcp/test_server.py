@@ -142,3 +142,32 @@ async def test_a_client_outside_the_allowed_networks_is_closed_unanswered() -> N
             assert await allowed.request(1, read_pdu(STATE_WORD_1)) == STOPPED
         finally:
             await allowed.close()
+
+
+async def test_a_frame_is_taken_whole_split_or_with_others_in_one_segment() -> None:
+    """A frame that comes as one segment is read without the buffer; a frame cut in two, two
+    frames in one segment and a segment with a bad header go the buffer's way: each request
+    answered once, with its own transaction id, and the bad header closes the connection."""
+    frame = bytes.fromhex("00 07 00 00 00 06 01") + read_pdu(STATE_WORD_1)
+    answer = bytes.fromhex("00 07 00 00 00 05 01") + STOPPED
+    drives = Drives()
+    async with front_door(drives) as server:
+        reader, writer = await asyncio.open_connection("127.0.0.1", server.port)
+        try:
+            writer.write(frame)  # whole
+            assert await asyncio.wait_for(reader.readexactly(len(answer)), 5) == answer
+            writer.write(frame[:4])  # cut in two
+            await writer.drain()
+            await asyncio.sleep(0.05)
+            writer.write(frame[4:])
+            assert await asyncio.wait_for(reader.readexactly(len(answer)), 5) == answer
+            writer.write(frame + frame.replace(b"\x00\x07", b"\x00\x08", 1))  # two at once
+            both = await asyncio.wait_for(reader.readexactly(2 * len(answer)), 5)
+            assert both == answer + answer.replace(b"\x00\x07", b"\x00\x08", 1)
+            assert len(drives.seen) == 4
+            writer.write(frame[:2] + b"\x00\x01" + frame[4:])  # whole, but protocol id 1
+            assert await asyncio.wait_for(reader.read(), 5) == b""  # closed, nothing said
+        finally:
+            writer.close()
+    assert server.stats.malformed == 1
+    assert server.stats.requests == 4
