@@ -67,10 +67,10 @@ class SerialLine:
         self._reader: ReplyReader | None = None
         self._gap = GapKeeper(settings, self.receiver, self._send_frame, self._discard_pending)
         self.gap_lead = self._gap.gap_lead
+        """How long before the gap's end the timer wakes the line (`gateway.bus.gap_lead`)."""
         self.queued: Callable[[], None] = self._gap.queued
         """A request was queued: `kick`, then `fire_due` (`GapKeeper.queued`); the gap
         keeper's own, bound once: no call through the line, once per request."""
-        """How long before the gap's end the timer wakes the line (`gateway.bus.gap_lead`)."""
 
     # What the receiver has seen, as metrics and the field tools read it off the line.
 

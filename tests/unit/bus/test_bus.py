@@ -11,6 +11,7 @@ import time
 import pytest
 
 from gateway.bus import Bus
+from gateway.bus.bus import RequestDone
 from gateway.bus.line import Exchange
 from gateway.bus.queue import Priority
 from gateway.errors import BusClosed, DriveOffline, GatewayTargetFailed
@@ -98,6 +99,43 @@ async def test_identical_reads_waiting_together_share_one_transaction(
         assert len(set(replies)) == 1
         assert bus.stats.coalesced == 4
         assert bus.stats.transactions == 2
+
+
+async def test_reads_submitted_in_one_call_are_shared_counted_and_observed_as_any_other(
+    line: SimulatedLine,
+) -> None:
+    """`submit_read`, the Modbus-TCP server's way to the bus: identical reads waiting together
+    share a transaction, every request is counted and its observers told, and an offline
+    drive's read is refused (0BH) as `submit` refuses it."""
+    line.set_reply_delay(2, 100)  # drive 2 holds the line while the reads queue up
+    async with running_bus(line.path, timeout_ms=300, retries=0, offline_after=1) as bus:
+        done: list[RequestDone] = []
+        bus.add_request_observer(done.append)
+        loop = asyncio.get_running_loop()
+        busy = asyncio.create_task(read(bus, 2, STATE_WORD_1))
+        await eventually(lambda: bus.busy, what="the slow request on the wire")
+        readers: list[asyncio.Future[bytes | None]] = [loop.create_future() for _ in range(3)]
+        for n, reader in enumerate(readers):
+            bus.submit_read(1, read_pdu(STATE_WORD_1), reader, f"c{n}", None, None, True)
+        assert await asyncio.gather(*readers) == [STOPPED_REPLY] * 3
+        await busy
+        assert bus.stats.coalesced == 2
+        assert bus.stats.transactions == 2
+        with pytest.raises(GatewayTargetFailed):
+            await read(bus, SILENT, STATE_WORD_1)  # offline from now (offline_after 1)
+        refused: asyncio.Future[bytes | None] = loop.create_future()
+        with pytest.raises(DriveOffline):
+            bus.submit_read(SILENT, read_pdu(STATE_WORD_1), refused, "c0", None, None, True)
+        assert bus.stats.offline_rejected == 1
+        assert bus.stats.requests == 6
+        assert sorted((d.address, d.client, d.code) for d in done) == [
+            (1, "c0", None),
+            (1, "c1", None),
+            (1, "c2", None),
+            (2, "t", None),
+            (SILENT, "c0", 0x0B),
+            (SILENT, "t", 0x0B),
+        ]
 
 
 async def test_closing_answers_the_queued_requests_with_bus_closed(line: SimulatedLine) -> None:
