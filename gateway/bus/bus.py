@@ -21,6 +21,7 @@ import asyncio
 import contextlib
 import logging
 import time
+from bisect import bisect_left
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -48,7 +49,7 @@ from gateway.errors import (
     PortError,
     ReplyTimeout,
 )
-from gateway.logs import dump_frame, frame_dump_enabled
+from gateway.logs import FRAMES, dump_frame, frame_dump_enabled
 from gateway.modbus.functions import lookup
 from gateway.modbus.rtu import BROADCAST_ADDRESS, build_frame, request_frame
 from gateway.tasks import cancel_and_wait
@@ -173,6 +174,11 @@ class RequestDone(NamedTuple):
     """None for a normal reply, else the exception code the caller got (the drive's, 0AH, 0BH)."""
 
 
+_request_done = partial(tuple.__new__, RequestDone)
+"""`RequestDone` from a tuple of its fields, made in C: the NamedTuple's own `__new__` is a
+Python function, a frame more per request."""
+
+
 Outcome = tuple[Callable[..., None], tuple[Any, ...]]
 """What the event loop does with a finished transaction: a callback and its arguments."""
 DriveListener = Callable[[str, int, bool], None]
@@ -221,6 +227,9 @@ class Bus:
         self._port_listeners: list[PortListener] = []
         self._opened = asyncio.Event()
         self._idle = asyncio.Event()
+        self._idle_awaited = 0
+        """`wait_idle` calls waiting now: a transaction answered in the reader callback sets
+        `_idle` only then (the event is cleared before each wait)."""
         self._last_port_error = ""
         self.tap: Tap | None = None
         """None unless someone watches the traffic: then one attribute test per attempt."""
@@ -483,8 +492,12 @@ class Bus:
         if not self.busy:
             return
         self._idle.clear()
-        with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(self._idle.wait(), timeout_s)
+        self._idle_awaited += 1
+        try:
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._idle.wait(), timeout_s)
+        finally:
+            self._idle_awaited -= 1
 
     # -- the bus's coroutine -------------------------------------------------------------------
 
@@ -799,22 +812,74 @@ class Bus:
         """The line's reader callback has the whole and valid reply to the frame `_pick` chose:
         the transaction ends there, as `_execute` would end it, without the bus's coroutine
         (one pass of the event loop less per transaction). A timeout, a bad, partial or late
-        reply, retries: those go the coroutine's way (`_execute`)."""
+        reply, retries: those go the coroutine's way (`_execute`).
+
+        Once per transaction on a busy line, so what `_execute`, `_finish` and `_done` do for
+        an answered first attempt is written out here in one place (`_observe_gap`,
+        `_count_attempt`, `_attempt_answered`, `_record`, `_resolve`): the same counts, the
+        same values for the observers. Never a broadcast (no reply is held for one).
+        """
         transaction = self._carrying
         assert transaction is not None  # the line holds a reply to what `_pick` chose
-        outcome: Outcome
+        started = sending.started
+        pdu, gap_s, busy_s, heard_at = exchange
+        assert pdu is not None  # a reply, not a broadcast
+        failure: GatewayError | None = None
         try:
-            self._observe_gap(sending)
-            drive = self._drive(transaction.address)
-            self._count_attempt(drive, sending.frame)
-            drive.line_s += time.monotonic() - sending.started
-            outcome = self._attempt_answered(transaction, 0, sending.started, exchange, drive)
+            if self._back_to_back:  # `_observe_gap`
+                beyond_gap = gap_s - self.settings.line.gap_s
+                since_queued = started - transaction.queued_at
+                excess = beyond_gap if beyond_gap < since_queued else since_queued
+                histogram = self.gap_excess  # `Buckets.observe`, written out
+                histogram.counts[bisect_left(histogram.bounds, excess)] += 1
+                histogram.sum_s += excess
+            address = transaction.address
+            drive = self.drive_stats.get(address)
+            if drive is None:
+                drive = self._drive(address)
+            drive.transactions += 1
+            now = time.monotonic()
+            # The line is quiet since the reply's last byte, heard before now: what `_finish`
+            # charges, max(now, busy_until) - started, is this too.
+            held = now - started
+            drive.line_s += held
+            if FRAMES.isEnabledFor(logging.DEBUG):
+                dump_frame(self.name, "tx", sending.frame)
+                # The frame as it came: a reply that passed its CRC check rebuilds byte-exact.
+                dump_frame(self.name, "rx", build_frame(address, pdu))
+            stats = self.stats  # `_record`
+            stats.busy_s += busy_s
+            self._reply_heard_at = heard_at
+            min_gap_s = stats.min_gap_s
+            if min_gap_s is None or gap_s < min_gap_s:
+                stats.min_gap_s = gap_s
+            if pdu[0] & 0x80 and len(pdu) > 1:
+                drive.exceptions[pdu[1]] += 1
+            if self.tap is not None:
+                self.tap(self.name, transaction, 0, started, exchange)
+            if address not in self.health.answering:
+                self._answered(address)  # back, or its failures to forget
         except Exception as exc:  # a bug costs this one request, never the line
             log.exception("bus %s: unexpected error in a transaction", self.name)
-            outcome = (_fail, (transaction, GatewayTargetFailed(f"bus {self.name}: {exc}")))
-        self._finish(transaction, sending, outcome)
+            failure = GatewayTargetFailed(f"bus {self.name}: {exc}")
+            now = time.monotonic()
+            held = max(now, self.line.busy_until) - started
+        self._queue.charge(transaction, held, now)
+        self._carrying = None  # `_done`
+        self._echo_sent = None
+        if failure is not None:
+            _fail(transaction, failure)
+        else:
+            for waiter in transaction.waiters:  # `_resolve`
+                if type(waiter) is _Observed:
+                    waiter.answer(pdu)
+                elif not waiter.done():
+                    waiter.set_result(pdu)
+        if self._idle_awaited:
+            self._idle.set()
         # What `_start_next` does before each gap: a busy line must still find a drive is back.
-        self._queue_due_probes()
+        if self.health.offline_count:
+            self._queue_due_probes()
 
     def _observe_gap(self, sending: Sending) -> None:
         """The silence the gateway added before `sending`, for a transaction the gap's end
@@ -975,6 +1040,32 @@ class _Observed:
         code = result[1] if result is not None and len(result) > 1 and result[0] & 0x80 else None
         self._bus._report(self._address, self._pdu, self._client, self._started, code)
         self._waiter.set_result(result)
+
+    def answer(self, result: bytes | None) -> None:
+        """`_resolve`'s `done` and `set_result` in one call, for a transaction answered in the
+        reader callback (`Bus._replied`): nothing once the waiter is done (its client gone),
+        else the observers told, then the waiter."""
+        waiter = self._waiter
+        if waiter.done():
+            return
+        code = result[1] if result and result[0] & 0x80 and len(result) > 1 else None
+        bus, pdu = self._bus, self._pdu
+        done = _request_done(
+            (
+                bus.name,
+                self._address,
+                pdu[0] if pdu else 0,
+                self._client,
+                time.monotonic() - self._started,
+                code,
+            )
+        )
+        for observer in bus._request_observers:  # `Bus._report`, written out
+            try:
+                observer(done)
+            except Exception:
+                log.exception("bus %s: request observer failed", bus.name)
+        waiter.set_result(result)
 
     def set_exception(self, exception: BaseException, /) -> None:
         self.report(exception.code if isinstance(exception, ModbusError) else None)

@@ -33,6 +33,13 @@ from gateway.modbus.rtu import check_reply, plain_read_reply, plain_read_reply_l
 Replied = Callable[[Sending, Exchange], None]
 """Told, in the port's reader callback, of an attempt whose whole and valid reply is there."""
 
+_exchange = partial(tuple.__new__, Exchange)
+"""`Exchange` from a tuple of all its fields, made in C: the NamedTuple's own `__new__` is a
+Python function, a frame more per transaction."""
+
+_STILL_COMING = b""
+"""`GapKeeper._reply_held`: the held caller's reply is not all there yet (no PDU is empty)."""
+
 
 @dataclass(slots=True)
 class _Round:
@@ -360,11 +367,80 @@ class GapKeeper:
         if port is not None and port.waiter is not None and port.waiter.done():
             port.waiter = None
 
-    def heard(self) -> None:
-        """The port's reader callback has taken bytes in: a held caller's reply, or news for
-        whoever waits."""
+    def heard(self, data: bytes) -> None:
+        """The port's reader callback has read `data`: a held caller's reply, or news for
+        whoever waits (the bytes are kept in the receiver, `Receiver.take`, unless they are the
+        held caller's reply, taken at once).
+
+        A reply whole and valid is the attempt's end, here: the hold ends, `replied` is told,
+        the gap is kept after it and the next frame sent at its end, the caller held all along
+        (what `send_after_gap`'s loop would do next). Once per transaction on a busy line, so
+        written out in this one callback."""
+        receiver = self.receiver
         held = self._held
-        if held is None or not self._answer_held(held):
+        pdu: bytes | None = None
+        if held is not None:
+            length = held.plain_read_length
+            arrivals = receiver.arrivals
+            if (
+                length == len(data)
+                and not receiver.received
+                and arrivals is not None
+                and len(arrivals) == 1
+            ):
+                # The common case, checked directly: a read's reply, alone and in one piece (no
+                # glitch before it, no pause inside it to measure), in this one read, as the
+                # search would find it: taken at once, never kept in the buffer.
+                pdu = plain_read_reply(data, held.sending.frame, length)
+            if pdu is not None:
+                receiver.quiet_since = time.monotonic()  # as `Receiver.take` stamps it
+            else:
+                receiver.take(data)
+                pdu = self._reply_held(held)
+        else:
+            receiver.take(data)
+        if pdu:
+            assert held is not None  # a reply is only looked for while a caller is held
+            # The hold is over: its caller stays held, now only by the gap timer.
+            self._held = None
+            receiver.arrivals = None
+            self._holding = False
+            deadline = self._response_deadline
+            if deadline is not None:
+                deadline.clear()
+            port = self._port
+            assert port is not None
+            port.waiter = None
+            this = held.round
+            this.outcome.clear()
+            try:
+                sending = held.sending
+                heard_at = receiver.quiet_since
+                busy_s = heard_at - sending.started
+                assert this.replied is not None
+                this.replied(sending, _exchange((pdu, sending.gap_s, busy_s, heard_at)))
+                # What came after the reply: nobody asked for it. Not `_discard_pending`: the
+                # port was read this very callback, and bytes that come during the gap are seen
+                # at its end (`_send_at_gap_end`), which starts it again.
+                if receiver.received:
+                    receiver.discard()
+                timer, port = self._timer, self._port
+                kept = False  # else the caller's loop takes it from here (`outcome` says what)
+                # A port gone or failed: the caller's own loop finds out what became of it.
+                if port is not None and port.usable and timer is not None:
+                    # `_wake_at`, written out.
+                    wake_at = receiver.quiet_since + self.settings.gap_s - self.gap_lead.lead_s
+                    if wake_at > time.monotonic():
+                        assert this.at_gap_end is not None  # set as the round began
+                        kept = timer.rearm(wake_at, this.at_gap_end)
+                    else:
+                        kept = self._send_at_gap_end(this, timed=False)
+                if not kept:
+                    self._release_caller()
+            except Exception as exc:  # in the caller's coroutine, not lost in the reader callback
+                this.outcome[:] = [exc]
+                self._release_caller()
+        elif pdu is None:
             self._held = None  # the caller's own reading takes it from here
             assert self._port is not None
             self._port.wake()
@@ -372,12 +448,12 @@ class GapKeeper:
         if timer is not None:
             timer.fire_due()  # another line's gap that ended while this pass ran
 
-    def _answer_held(self, held: _Held) -> bool:
-        """The reader callback, while a caller is held until its reply: finish the attempt here
-        if the reply is all there and valid. True: dealt with, the caller stays held (also
-        while the reply is still coming); False: wake the caller, whose own reading decides
-        (`ReplyReader`: a corrupt reply, one ended by a silence), going on with the record
-        of arrivals the hold began.
+    def _reply_held(self, held: _Held) -> bytes | None:
+        """The reader callback, while a caller is held until its reply, for what the common
+        case in `heard` leaves: the reply's PDU, taken out of the buffer, if it is all there
+        and valid; `_STILL_COMING` while it is still coming (the caller stays held); None:
+        wake the caller, whose own reading decides (`ReplyReader`: a corrupt reply, one ended
+        by a silence), going on with the record of arrivals the hold began.
         """
         frame = held.sending.frame
         receiver = self.receiver
@@ -385,77 +461,33 @@ class GapKeeper:
         arrivals = receiver.arrivals
         pdu = None
         if held.plain_read_length and arrivals is not None and len(arrivals) == 2:
-            # The common case, checked directly: a read's reply, alone and in one piece
-            # (no glitch before it, no pause inside it to measure), as the search would find it.
+            # A read's reply, alone and in one piece, that came after bytes of no use, or
+            # behind other bytes in the buffer (`heard` takes only a lone one directly).
             pdu = plain_read_reply(received, frame, held.plain_read_length)
         if pdu is not None:
             received.clear()
-        else:
-            # `Receiver.search`, written out: this runs for every reply on a busy line.
-            echoes = receiver.echoes > 0 or receiver.arrived_by(len(frame), held.echo_by)
-            search = search_reply(received, frame, adapter_echoes=echoes)
-            found = search.found
-            if found is Found.PARTIAL or found is Found.NOTHING:
-                # Still coming (adapters deliver in bursts), or so far only a glitch: the
-                # hold's deadline, the response timeout, wakes the caller if it never completes.
-                return True
-            if found is not Found.COMPLETE:
-                return False
-            try:
-                reply = bytes(received[search.start : search.end])
-                pdu = check_reply(frame, reply, crc_checked=True)
-            except BadReply:
-                return False  # the caller finds it too, counts it and drains the line
-            receiver.take_reply(search, search.end)
-        self._end_hold()
-        sending, this = held.sending, held.round
-        this.outcome.clear()
-        heard_at = receiver.quiet_since
-        exchange = Exchange(pdu, sending.gap_s, heard_at - sending.started, heard_at)
+            return pdu
+        # `Receiver.search`, written out: this runs for every reply on a busy line.
+        echoes = receiver.echoes > 0 or receiver.arrived_by(len(frame), held.echo_by)
+        search = search_reply(received, frame, adapter_echoes=echoes)
+        found = search.found
+        if found is Found.PARTIAL or found is Found.NOTHING:
+            # Still coming (adapters deliver in bursts), or so far only a glitch: the hold's
+            # deadline, the response timeout, wakes the caller if it never completes.
+            return _STILL_COMING
+        if found is not Found.COMPLETE:
+            return None
         try:
-            assert this.replied is not None
-            this.replied(sending, exchange)
-            self._keep_gap(this)
-        except Exception as exc:  # in the caller's coroutine, not lost in the reader callback
-            this.outcome[:] = [exc]
-            self._release_caller()
-        return True
-
-    def _end_hold(self) -> None:
-        """The held attempt is over: its caller stays held, now only by the gap timer."""
-        self._held = None
-        self.receiver.arrivals = None
-        self._holding = False
-        self._clear_response_deadline()
-        assert self._port is not None
-        self._port.waiter = None
+            reply = bytes(received[search.start : search.end])
+            pdu = check_reply(frame, reply, crc_checked=True)
+        except BadReply:
+            return None  # the caller finds it too, counts it and drains the line
+        receiver.take_reply(search, search.end)
+        return pdu
 
     def _clear_response_deadline(self) -> None:
         if self._response_deadline is not None:
             self._response_deadline.clear()
-
-    def _keep_gap(self, this: _Round) -> None:
-        """What `send_after_gap`'s loop does next, done here for a caller that stays held:
-        keep the gap after the reply just taken and send the next frame at its end."""
-        receiver = self.receiver
-        # What came after the reply: nobody asked for it. Not `_discard_pending`: the port was
-        # read this very callback, and bytes that come during the gap are seen at its end
-        # (`_send_at_gap_end`), which starts it again.
-        if receiver.received:
-            receiver.discard()
-        timer, port = self._timer, self._port
-        if port is None or not port.usable or timer is None:
-            self._release_caller()  # its own loop finds out what became of the port
-            return
-        due = receiver.quiet_since + self.settings.gap_s
-        wake_at = self._wake_at(due)
-        if wake_at > time.monotonic():
-            assert this.at_gap_end is not None  # set as the round began
-            if timer.rearm(wake_at, this.at_gap_end):
-                return
-        elif self._send_at_gap_end(this, timed=False):
-            return
-        self._release_caller()  # the caller's loop takes it from here (`outcome` says what)
 
     def _release_caller(self) -> None:
         if self._timer is not None and self._timer.waiting is not None:

@@ -39,8 +39,12 @@ class HealthTracker:
         self.probe_max_s = probe_max_s
         self._drives: dict[int, DriveHealth] = {}
         self._rng = rng or random.Random()
-        self._offline = 0
+        self.offline_count = 0
         """How many drives are offline: none, and no probe can be due (asked per transaction)."""
+        self.answering: set[int] = set()
+        """Drives that answered their last transaction, with nothing reset since: for them
+        `record_answer` has nothing to do, and the bus, asking per transaction, needs no call
+        to find that out (a set lookup). Left by a failure (`record_failure`, `force_offline`)."""
 
     def _get(self, address: int) -> DriveHealth:
         health = self._drives.get(address)
@@ -51,7 +55,7 @@ class HealthTracker:
 
     @property
     def any_offline(self) -> bool:
-        return self._offline > 0
+        return self.offline_count > 0
 
     def is_offline(self, address: int) -> bool:
         health = self._drives.get(address)
@@ -74,22 +78,26 @@ class HealthTracker:
             and not health.offline
             and not health.lost_with_line
         ):
-            # Nearly every answer: the drive answered last time too, and nothing is to be reset
-            # (its probes' backoff was reset when it last came back, or never moved).
+            # Nothing to reset: the drive answered last time too, or its health was made
+            # without a failure (its probes' backoff was reset when it last came back, or
+            # never moved). Now the bus needs no call for it (`answering`).
+            self.answering.add(address)
             return False
         health = self._get(address)
         was_offline = health.offline
         if was_offline:
-            self._offline -= 1
+            self.offline_count -= 1
         health.consecutive_failures = 0
         health.offline = False
         health.probes.reset()
         health.lost_with_line = False
+        self.answering.add(address)
         return was_offline
 
     def record_failure(self, address: int, now: float) -> bool:
         """A transaction got no valid reply. True if this made the drive go offline."""
         health = self._get(address)
+        self.answering.discard(address)
         health.consecutive_failures += 1
         health.lost_with_line = False  # silent on a working line: from now on, a dead drive
         if health.offline:
@@ -97,7 +105,7 @@ class HealthTracker:
             return False
         if health.consecutive_failures >= self.offline_after:
             health.offline = True
-            self._offline += 1
+            self.offline_count += 1
             health.probes.reset()
             self._schedule_probe(health, now)
             return True
@@ -111,8 +119,9 @@ class HealthTracker:
         health = self._get(address)
         if health.offline:
             return False
+        self.answering.discard(address)
         health.offline = True
-        self._offline += 1
+        self.offline_count += 1
         health.lost_with_line = True
         health.consecutive_failures = max(health.consecutive_failures, 1)
         health.probes.reset()

@@ -43,53 +43,67 @@ class LineShares:
     """Most of the line's time polls take while client reads wait."""
 
 
+REBASE_AFTER_S = 64 * HALF_LIFE_S
+"""How far the meter's weights may grow (2^64) before its sums are brought back to scale."""
+
+
 class ShareMeter:
+    """The decayed sums of line time, by kind.
+
+    Nothing decays per charge: a charge at `now` is added weighed by 2^((now - origin) / half
+    life), the sums kept scaled by that growing weight. What the shares decide is a ratio of two
+    sums (`_within`), which the scale doesn't change: the same decisions as sums decayed at
+    every charge and every look, for one `exp2` per charge and none per look. The weights are
+    brought back to 1 (`_rebase`) before they could grow out of a float's range."""
+
     def __init__(self, shares: LineShares) -> None:
         self.shares = shares
         self._writes = 0.0  # broadcasts included
         self._broadcasts = 0.0
         self._polls = 0.0
         self._total = 0.0
-        self._at = 0.0
+        self._origin = 0.0
+        """Where the weights are 1 (a `time.monotonic()` value)."""
 
     def charge(self, use: LineUse, seconds: float, now: float) -> None:
         """`seconds` of line time went to a transaction of this kind."""
-        self._decay(now)
-        self._total += seconds
+        elapsed = now - self._origin
+        if elapsed > REBASE_AFTER_S:
+            self._rebase(now)
+            elapsed = 0.0
+        weighed = seconds * math.exp2(elapsed / HALF_LIFE_S)
+        self._total += weighed
         if use is LineUse.POLL:
-            self._polls += seconds
+            self._polls += weighed
         elif use is not LineUse.OTHER:
-            self._writes += seconds
+            self._writes += weighed
             if use is LineUse.BROADCAST:
-                self._broadcasts += seconds
+                self._broadcasts += weighed
 
     def writes_may_go(self, now: float) -> bool:
         """May a write go before the reads waiting now?"""
-        return self._within(self._writes, self.shares.write_share, now)
+        return self._within(self._writes, self.shares.write_share)
 
     def broadcasts_may_go(self, now: float) -> bool:
         """May a broadcast go before the other requests waiting now?"""
-        return self._within(self._broadcasts, self.shares.broadcast_share, now) and (
+        return self._within(self._broadcasts, self.shares.broadcast_share) and (
             self.writes_may_go(now)
         )
 
     def polls_may_go(self, now: float) -> bool:
         """May a poll go before the client reads waiting now?"""
-        return self._within(self._polls, self.shares.poll_share, now)
+        return self._within(self._polls, self.shares.poll_share)
 
-    def _within(self, used: float, share: float, now: float) -> bool:
-        self._decay(now)
+    def _within(self, used: float, share: float) -> bool:
         if self._total <= 0 or share >= 1.0:  # 1: no limit, writes always first
             return True
         return used / self._total < share
 
-    def _decay(self, now: float) -> None:
-        elapsed = now - self._at
-        if elapsed <= 0:
-            return
-        factor = math.exp2(-elapsed / HALF_LIFE_S)
+    def _rebase(self, now: float) -> None:
+        """Decay the sums to `now` and weigh charges from there (a sum long unused goes to 0)."""
+        factor = math.exp2(-(now - self._origin) / HALF_LIFE_S)
         self._writes *= factor
         self._broadcasts *= factor
         self._polls *= factor
         self._total *= factor
-        self._at = now
+        self._origin = now

@@ -166,7 +166,17 @@ class LineTimer:
         or the wait is over): whoever took the wait over settles `waiting` then.
         """
         waiter = self._waiter
-        if waiter is None or waiter.done() or self._fd < 0 or not self._arm(deadline):
+        if waiter is None or waiter.done() or self._fd < 0:
+            return False
+        # `_arm` and `_settime`, written out: once per transaction on a busy line.
+        seconds, nanoseconds = divmod(max(math.ceil(deadline * 1e9), 1), 1_000_000_000)
+        spec = self._spec
+        spec[_VALUE_SECONDS] = seconds
+        spec[_VALUE_NANOSECONDS] = nanoseconds
+        assert self._timerfd_settime is not None
+        done = self._timerfd_settime(self._fd, TFD_TIMER_ABSTIME, spec, None)
+        self._arms += 1
+        if done != 0:
             return False
         self._at_deadline, self._deadline = at_deadline, deadline
         self._armed.add(self)

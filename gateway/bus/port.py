@@ -50,12 +50,13 @@ def is_pseudo_terminal(port: str) -> bool:
 def open_port(
     settings: LineSettings,
     receiver: Receiver,
-    heard: Callable[[], None],
+    heard: Callable[[bytes], None],
     failed: Callable[[], None],
 ) -> Port:
     """Open the line's port and start listening to it; call with the event loop running.
 
-    `heard`: told (in the reader callback) that bytes came into `receiver`; `failed`: told that
+    `heard`: given (in the reader callback) the bytes read, to keep in `receiver` (`Receiver.take`)
+    unless they are a held caller's reply (`GapKeeper.heard`); `failed`: told that
     the port failed while nobody waited for it (an adapter unplugged between transactions).
     """
     loop = asyncio.get_running_loop()
@@ -227,12 +228,11 @@ class TtyPort(Port):
         loop: asyncio.AbstractEventLoop,
         virtual: bool,
         fd: int,
-        heard: Callable[[], None],
+        heard: Callable[[bytes], None],
         failed: Callable[[], None],
     ) -> None:
         super().__init__(raw, settings, receiver, loop, virtual)
         self.fd = fd
-        self._take = receiver.take
         self._heard = heard
         self._failed = failed
         self._poll = select.poll()
@@ -245,7 +245,7 @@ class TtyPort(Port):
         super().close()
 
     def _readable(self) -> None:
-        """The loop's reader callback: take in what arrived, and tell the line."""
+        """The loop's reader callback: hand what arrived to the line, which keeps it."""
         try:
             data = os.read(self.fd, RECEIVE_CHUNK)
             # Called only when the loop saw the port readable, and nothing else reads it: a
@@ -257,8 +257,7 @@ class TtyPort(Port):
         except OSError as exc:
             self._fail(PortError(f"read from {self.settings.port} failed: {exc}"))
             return
-        self._take(data)
-        self._heard()
+        self._heard(data)
 
     def _fail(self, error: PortError) -> None:
         """The port is gone: stop watching it (a dead descriptor is readable forever)."""

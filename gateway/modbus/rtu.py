@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import NamedTuple
 
 from gateway.errors import BadReply
-from gateway.modbus.crc import crc16, crc_bytes
+from gateway.modbus.crc import crc16, crc16_from, crc_bytes
 from gateway.modbus.functions import EXCEPTION_BIT, lookup
 
 BROADCAST_ADDRESS = 0
@@ -38,6 +39,28 @@ def plain_read_reply_length(request: bytes) -> int:
     return 5 + 2 * count if 0 < count <= 125 else 0
 
 
+class _PlainReadReply(NamedTuple):
+    """What the normal reply to one plain read request is known by before it comes."""
+
+    head: bytes
+    """Its address, function and byte count."""
+    register: int
+    """The CRC register after `head` (`crc16_from`)."""
+    like_request: bool
+    """`head` is how the request itself begins too: an adapter's echo could pass for it."""
+
+
+@lru_cache(maxsize=1024)
+def _plain_read_reply_head(request: bytes) -> _PlainReadReply | None:
+    """`_PlainReadReply` of the plain read `request`; None for any other request. Remembered,
+    as `plain_read_reply_length` is."""
+    length = plain_read_reply_length(request)
+    if not length:
+        return None
+    head = bytes((request[0], request[1], length - 5))
+    return _PlainReadReply(head, crc16_from(0xFFFF, head, 0), request[2] == length - 5)
+
+
 def plain_read_reply(received: bytes | bytearray, request: bytes, length: int) -> bytes | None:
     """The PDU of the normal reply to the plain read `request` when `received` is exactly that
     reply (`length` from `plain_read_reply_length`) and its CRC is right; else None, and the
@@ -46,15 +69,17 @@ def plain_read_reply(received: bytes | bytearray, request: bytes, length: int) -
     What the search would find at offset 0 for such bytes, checked directly: the search also
     takes the first candidate with the expected address, function and byte count whose CRC is
     right, and `check_reply` then asks no more of a read's reply than its byte count. Bytes
-    that begin with the request itself are left to the search (an adapter's echo).
+    that begin with the request itself are left to the search (an adapter's echo). Once per
+    read on a busy line: the three bytes known before the reply comes are compared at once, and
+    the CRC worked out from the register after them.
     """
+    expected = _plain_read_reply_head(request)
     if (
-        len(received) == length
-        and received[0] == request[0]
-        and received[1] == request[1]
-        and received[2] == length - 5
-        and received[: len(request)] != request
-        and crc16(received) == 0
+        expected is not None
+        and len(received) == length
+        and received.startswith(expected.head)
+        and (not expected.like_request or received[: len(request)] != request)
+        and crc16_from(expected.register, received, 3) == 0
     ):
         return bytes(received[1:-2])
     return None

@@ -49,6 +49,7 @@ from gateway.modbus.mbap import (
     MIN_FRAME,
     build_adu,
     frame_header,
+    pack_header,
     read_header,
 )
 from gateway.tcp.access import AccessPolicy, AccessRule
@@ -779,12 +780,31 @@ class _Answer:
 
     def done(self) -> bool:
         # A client that has gone wants nothing: its read takes no bus time (`Transaction.wanted`).
-        return self.settled or self._connection.closing
+        # `Connection.closing`, written out: asked twice per read.
+        if self.settled:
+            return True
+        transport = self._connection._transport
+        return transport is None or transport.is_closing()
 
     def set_result(self, result: bytes | None, /) -> None:
         self.settled = True
         assert result is not None  # the fast path carries no broadcast
-        self._connection._answered_fast(self, result)
+        # `Connection._answered_fast`, `_send` and `build_adu`, written out: once per read.
+        connection = self._connection
+        if result and result[0] & 0x80:
+            connection.errors += 1
+        transport = connection._transport
+        if transport is not None and not transport.is_closing():
+            # One write per frame: answers finishing in any order never interleave.
+            header = pack_header(self.transaction_id, 0, len(result) + 1, self.unit_id)
+            transport.write(header + result)
+        fast = connection._fast
+        if self in fast:
+            fast.discard(self)
+            if connection._paused:  # else `_maybe_resume` has nothing to do
+                connection._maybe_resume()
+            if not fast and connection.server._drained is not None:  # `stop` may be waiting
+                connection.server._settled()
 
     def set_exception(self, exception: BaseException, /) -> None:
         self.settled = True
