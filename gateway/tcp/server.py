@@ -754,7 +754,11 @@ class _Answer:
 
     def done(self) -> bool:
         # A client that has gone wants nothing: its read takes no bus time (`Transaction.wanted`).
-        return self.settled or self._connection.closing
+        # `Connection.closing` written out: asked once or twice per read.
+        if self.settled:
+            return True
+        transport = self._connection._transport
+        return transport is None or transport.is_closing()
 
     def set_result(self, result: bytes | None, /) -> None:
         self.settled = True
