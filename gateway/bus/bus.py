@@ -599,17 +599,22 @@ class Bus:
         # client's think time). After a broadcast or a timeout there is no reply to count from.
         reply_heard_at = self._reply_heard_at
         self._reply_heard_at = 0.0
-        if self.closing:
+        if self.state is BusState.CLOSED:  # `closing`, without the property's call
             return None
-        now = time.monotonic()
-        while (transaction := self._queue.get_nowait(now)) is not None:
-            if not transaction.wanted:
-                continue  # every waiter has gone: no bus time for it
+        get_nowait = self._queue.get_nowait
+        while (transaction := get_nowait()) is not None:
+            probe = transaction.probe
+            if not probe:
+                # `Transaction.wanted`, written out (once per transaction): does anyone still
+                # wait for it? Every waiter gone (clients disconnected): no bus time for it.
+                for waiter in transaction.waiters:
+                    if not waiter.done():
+                        break
+                else:
+                    continue
             address = transaction.address
             if (
-                address != BROADCAST_ADDRESS
-                and not transaction.probe
-                and self.health.is_offline(address)
+                address != BROADCAST_ADDRESS and not probe and self.health.is_offline(address)
             ):  # went offline while this waited: 0BH at once, without bus time
                 self.stats.offline_rejected += 1
                 _fail(transaction, DriveOffline(f"drive {address} on {self.name} is offline"))

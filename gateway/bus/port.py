@@ -113,6 +113,9 @@ class Port(ABC):
 
     watched = False
     """The loop watches the port: bytes are taken in as they come, with their arrival times."""
+    readable_now: Callable[[int], list[tuple[int, int]]] | None = None
+    """A watched port's `readable_now(0)`: non-empty when bytes are waiting (`bytes_waiting`
+    as one C call, for the gap's end, which asks once or twice per transaction)."""
 
     def __init__(
         self,
@@ -237,6 +240,7 @@ class TtyPort(Port):
         self._failed = failed
         self._poll = select.poll()
         self._poll.register(fd, select.POLLIN)
+        self.readable_now = self._poll.poll
         loop.add_reader(fd, self._readable)
 
     def close(self) -> None:

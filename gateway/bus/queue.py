@@ -20,6 +20,7 @@ answers both. Reads only: writing twice is not the same as writing once.
 
 from __future__ import annotations
 
+import time
 from collections import deque
 from enum import IntEnum
 from typing import Protocol
@@ -132,6 +133,9 @@ class RequestQueue:
         # priority -> client -> that client's transactions; dicts keep insertion order, and a
         # client served goes to the back, which is the round robin.
         self._levels: dict[Priority, dict[str, deque[Transaction]]] = {p: {} for p in Priority}
+        self._reads = self._levels[Priority.READ]
+        self._polls = self._levels[Priority.POLL]
+        """Two levels by name (the same dicts, never replaced): looked at per transaction."""
         # Broadcasts (address 0) wait apart from the other writes: they have a share of their own.
         self._broadcasts: dict[str, deque[Transaction]] = {}
         self._meter = ShareMeter(shares or LineShares())
@@ -194,25 +198,27 @@ class RequestQueue:
             use = LineUse.OTHER
         self._meter.charge(use, seconds, now)
 
-    def get_nowait(self, now: float = 0.0) -> Transaction | None:
-        """The next transaction to serve; `now` (monotonic) for the line-time shares."""
-        levels = self._levels
+    def get_nowait(self, now: float | None = None) -> Transaction | None:
+        """The next transaction to serve; `now` (monotonic, read here if not given) for the
+        line-time shares."""
         clients = self._alone
+        reads, polls = self._reads, self._polls
         if clients is not None:
             # The only one waiting: what the rules would choose, with what choosing a read or a
             # poll alone does to the polls' turn (nothing waits behind it to take turns with).
             self._alone = None
-            if clients is levels[Priority.READ] or clients is levels[Priority.POLL]:
+            if clients is reads or clients is polls:
                 self._reads_while_polls_wait = 0
-                self._read_since_poll.clear()
+                if self._read_since_poll:
+                    self._read_since_poll.clear()
         else:
-            clients = self._next_clients(now)
+            clients = self._next_clients(time.monotonic() if now is None else now)
             if clients is None:
                 return None
         client, waiting = next(iter(clients.items()))
-        if clients is levels[Priority.POLL]:
+        if clients is polls:
             self._read_since_poll.clear()
-        elif levels[Priority.POLL] and clients is levels[Priority.READ]:
+        elif polls and clients is reads:
             self._read_since_poll.add(client)
         transaction = waiting.popleft()
         del clients[client]
@@ -220,9 +226,10 @@ class RequestQueue:
             clients[client] = waiting  # back of the round robin
         self._size -= 1
         if transaction.coalescable:
-            key = transaction.key
-            if self._coalescing.get(key) is transaction:
-                del self._coalescing[key]
+            key = (transaction.address, transaction.pdu, transaction.priority)  # `key`
+            coalescing = self._coalescing
+            if coalescing.get(key) is transaction:
+                del coalescing[key]
         return transaction
 
     def _next_clients(self, now: float) -> dict[str, deque[Transaction]] | None:
