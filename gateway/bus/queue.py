@@ -226,7 +226,7 @@ class RequestQueue:
             clients[client] = waiting  # back of the round robin
         self._size -= 1
         if transaction.coalescable:
-            key = (transaction.address, transaction.pdu, transaction.priority)  # `key`
+            key = transaction.key
             coalescing = self._coalescing
             if coalescing.get(key) is transaction:
                 del coalescing[key]
