@@ -86,6 +86,10 @@ class Transaction:
         return False
 
 
+_USES = {Priority.WRITE: LineUse.WRITE, Priority.READ: LineUse.OTHER, Priority.POLL: LineUse.POLL}
+"""The kind of line time a transaction of each priority takes (a broadcast's is its own)."""
+
+
 class RequestQueue:
     """Not thread-safe by itself: the bus holds its lock around every call."""
 
@@ -136,14 +140,7 @@ class RequestQueue:
 
     def charge(self, transaction: Transaction, seconds: float, now: float) -> None:
         """`transaction` held the line for `seconds`: count it against its kind's share."""
-        if transaction.address == BROADCAST:
-            use = LineUse.BROADCAST
-        elif transaction.priority is Priority.WRITE:
-            use = LineUse.WRITE
-        elif transaction.priority is Priority.POLL:
-            use = LineUse.POLL
-        else:
-            use = LineUse.OTHER
+        use = LineUse.BROADCAST if transaction.address == BROADCAST else _USES[transaction.priority]
         self._meter.charge(use, seconds, now)
 
     def get_nowait(self, now: float = 0.0) -> Transaction | None:
