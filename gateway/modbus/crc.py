@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import struct
 from array import array
+from collections.abc import Iterable
 
 
 def _build_table() -> tuple[int, ...]:
@@ -66,14 +67,24 @@ def crc16_from(register: int, data: bytes | bytearray | memoryview, start: int) 
     whose first bytes are known before it comes (a reply's address, function and byte count)
     has their part worked out once, not in every check of it."""
     size = len(data) - start
-    count = size >> 1
-    words = _WORDS[count] if count < len(_WORDS) else struct.Struct(f"<{count}H")
-    pairs = _PAIRS
-    for word in words.unpack_from(data, start):
-        register = pairs[register ^ word]
+    register = crc16_words(register, words_of(size >> 1).unpack_from(data, start))
     if size & 1:
         register = (register >> 8) ^ _TABLE[(register ^ data[-1]) & 0xFF]
     return register
+
+
+def crc16_words(register: int, words: Iterable[int]) -> int:
+    """The CRC register after `words`, a frame's bytes taken two at a time, low byte first
+    (`words_of`), from `register`: for a caller that knows the frame's length in advance."""
+    pairs = _PAIRS
+    for word in words:
+        register = pairs[register ^ word]
+    return register
+
+
+def words_of(count: int) -> struct.Struct:
+    """What takes `count` little-endian words out of a frame (`crc16_words`), in one call."""
+    return _WORDS[count] if count < len(_WORDS) else struct.Struct(f"<{count}H")
 
 
 def crc_bytes(data: bytes | bytearray | memoryview) -> bytes:

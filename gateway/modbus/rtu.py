@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import struct
 from functools import lru_cache
 from typing import NamedTuple
 
 from gateway.errors import BadReply
-from gateway.modbus.crc import crc16, crc16_from, crc_bytes
+from gateway.modbus.crc import crc16, crc16_from, crc16_words, crc_bytes, words_of
 from gateway.modbus.functions import EXCEPTION_BIT, lookup
 
 BROADCAST_ADDRESS = 0
@@ -48,6 +49,8 @@ class _PlainReadReply(NamedTuple):
     """The CRC register after `head` (`crc16_from`)."""
     like_request: bool
     """`head` is how the request itself begins too: an adapter's echo could pass for it."""
+    rest: struct.Struct
+    """Takes the words after `head` (the reply's words and its CRC) out of it."""
 
 
 @lru_cache(maxsize=1024)
@@ -58,7 +61,8 @@ def _plain_read_reply_head(request: bytes) -> _PlainReadReply | None:
     if not length:
         return None
     head = bytes((request[0], request[1], length - 5))
-    return _PlainReadReply(head, crc16_from(0xFFFF, head, 0), request[2] == length - 5)
+    register = crc16_from(0xFFFF, head, 0)
+    return _PlainReadReply(head, register, request[2] == length - 5, words_of((length - 3) // 2))
 
 
 def plain_read_reply(received: bytes | bytearray, request: bytes, length: int) -> bytes | None:
@@ -79,7 +83,7 @@ def plain_read_reply(received: bytes | bytearray, request: bytes, length: int) -
         and len(received) == length
         and received.startswith(expected.head)
         and (not expected.like_request or received[: len(request)] != request)
-        and crc16_from(expected.register, received, 3) == 0
+        and crc16_words(expected.register, expected.rest.unpack_from(received, 3)) == 0
     ):
         return bytes(received[1:-2])
     return None

@@ -46,3 +46,17 @@ def test_a_share_of_one_means_writes_always_go_first() -> None:
     meter.charge(LineUse.BROADCAST, 5.0, now=0.0)
     assert meter.writes_may_go(now=0.0)
     assert meter.broadcasts_may_go(now=0.0)
+
+
+def test_hours_of_line_time_weigh_as_their_last_minutes_without_overflowing() -> None:
+    """Charges are weighed by a weight that grows with time (nothing decays per charge); it is
+    brought back to scale long before a float overflows, and a monotonic clock that starts far
+    from 0 (a machine up for weeks) is no different."""
+    meter = ShareMeter(LineShares(write_share=0.5))
+    start = 3e6
+    meter.charge(LineUse.WRITE, 1.0, now=start)
+    for minute in range(1, 121):  # two hours of reads, a charge a minute: many rebases
+        meter.charge(LineUse.OTHER, 0.001, now=start + 60.0 * minute)
+    assert meter.writes_may_go(now=start + 7200.0)  # the old write is forgotten
+    meter.charge(LineUse.WRITE, 0.01, now=start + 7200.0)  # ten times the last read
+    assert not meter.writes_may_go(now=start + 7200.0)
