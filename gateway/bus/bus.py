@@ -366,7 +366,7 @@ class Bus:
             self.state is not _OPEN
             or self._work is not None
             or address == BROADCAST_ADDRESS
-            or self.health.is_offline(address)
+            or (self.health.offline_count and self.health.is_offline(address))
         ):
             self.submit(
                 address,
@@ -620,7 +620,10 @@ class Bus:
                     continue
             address = transaction.address
             if (
-                address != BROADCAST_ADDRESS and not probe and self.health.is_offline(address)
+                address != BROADCAST_ADDRESS
+                and not probe
+                and self.health.offline_count  # none offline (the usual case): no call
+                and self.health.is_offline(address)
             ):  # went offline while this waited: 0BH at once, without bus time
                 self.stats.offline_rejected += 1
                 _fail(transaction, DriveOffline(f"drive {address} on {self.name} is offline"))
@@ -1031,20 +1034,19 @@ class _Observed:
     """A waiter whose outcome the bus's request observers (metrics, the console) are told of,
     with the time from `submit` to the answer."""
 
-    __slots__ = ("_address", "_bus", "_client", "_pdu", "_started", "_waiter")
+    __slots__ = ("_address", "_bus", "_client", "_pdu", "_started", "_waiter", "done")
 
     def __init__(
         self, bus: Bus, waiter: Waiter, address: int, pdu: bytes, client: str, started: float
     ) -> None:
         self._bus = bus
         self._waiter = waiter
+        self.done = waiter.done
+        """The waiter's own: asked once or twice per request, without a call of ours between."""
         self._address = address
         self._pdu = pdu
         self._client = client
         self._started = started
-
-    def done(self) -> bool:
-        return self._waiter.done()
 
     def set_result(self, result: bytes | None, /) -> None:
         # Once per request: the exception test and `report` written out.

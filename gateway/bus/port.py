@@ -305,7 +305,8 @@ class TtyPort(Port):
         return True
 
     def write_now(self, frame: bytes) -> int:
-        self.check()
+        if self.error is not None or not self.open:  # `check`'s call only when it raises
+            self.check()
         try:
             return os.write(self.fd, frame)
         except BlockingIOError:  # the port's buffer is full: `write` waits for room
