@@ -241,19 +241,7 @@ class LineTimer:
         # is for rounding between the nanoseconds armed and the float `time.monotonic()` reads
         # back; acting a microsecond early is safe: the line's own check keeps the gap.
         if self._deadline <= time.monotonic() + EXPIRY_SLACK_S:
-            # `_deadline_reached`, written out: this is the wake-up that ends every gap of a
-            # busy line, and a Python call less here is one less per transaction.
-            waiter, action = self.waiting, self._at_deadline
-            if waiter is not None and not waiter.done():
-                self._deadline = math.inf  # acted on once only (see `_deadline_reached`)
-                self._armed.discard(self)
-                self._at_deadline = None
-                taken = False
-                try:
-                    taken = action is not None and action()
-                finally:
-                    if not taken:
-                        settle(waiter)
+            self._deadline_reached()
         if self._arms == arms and self._fd >= 0:
             # Nobody armed the timer again (which clears its expiry), nor closed it: read the
             # expiry count, or the loop would find it readable on every pass. (try, not
