@@ -230,6 +230,9 @@ class Bus:
         self.line.on_port_error = self._wake
         self._listeners: list[DriveListener] = []
         self._request_observers: list[RequestObserver] = []
+        self._report_own = self._report_transaction
+        """`Transaction.observed_by` of the reads `submit_read` queues: bound once, not once
+        per request."""
         self._port_listeners: list[PortListener] = []
         self._opened = asyncio.Event()
         self._idle = asyncio.Event()
@@ -382,9 +385,9 @@ class Bus:
         stats.requests += 1
         # One clock read: the request's start for the observers is when it was queued.
         now = time.monotonic()
-        observed = None
-        if self._request_observers:
-            waiter = observed = _Observed(self, waiter, address, pdu, client, now)
+        # The observers are told of this waiter's outcome by the transaction itself (no
+        # `_Observed` around the waiter: one object less per request).
+        observed_by = self._report_own if self._request_observers else None
         settings = self.settings
         transaction = Transaction(
             address,
@@ -398,19 +401,24 @@ class Bus:
             False,
             b"",
             now,
+            observed_by,
         )
         try:
             carrier = self._queue.put(transaction)
         except ModbusError as exc:  # the queue is full (QueueFull, as `_put` counts it)
             stats.queue_full += 1
-            if observed is not None:
-                observed.report(exc.code)
+            if observed_by is not None:
+                self._report(address, pdu, client, now, exc.code)
             raise
         if carrier is transaction:
             # Framed now, while the line may be busy: no CRC work in the gap.
             transaction.frame = request_frame(address, pdu)
         else:
             stats.coalesced += 1
+            if observed_by is not None:
+                # Its waiter joined the queued transaction's (the last one there): the
+                # observers are told of it by a wrapper of its own from now.
+                carrier.waiters[-1] = _Observed(self, waiter, address, pdu, client, now)
         # `_wake` without a `_work` to resolve (tested above), then `fire_due`: an idle line
         # sends it now, and a gap that ended while this loop pass ran is acted on now.
         self.line.queued()
@@ -439,6 +447,12 @@ class Bus:
         else:
             self.stats.coalesced += 1
         self._wake()
+
+    def _report_transaction(self, transaction: Transaction, code: int | None) -> None:
+        """A transaction's own waiter has its outcome (`Transaction.observed_by`)."""
+        self._report(
+            transaction.address, transaction.pdu, transaction.client, transaction.queued_at, code
+        )
 
     def _report(
         self, address: int, pdu: bytes, client: str, started: float, code: int | None
@@ -884,11 +898,32 @@ class Bus:
         if failure is not None:
             _fail(transaction, failure)
         else:
-            for waiter in transaction.waiters:  # `_resolve`
+            # `_resolve`, with the report to the observers of the transaction's own waiter
+            # (`Transaction.observed_by`, `_report`) written out, timed at `now`.
+            observed = transaction.observed_by is not None
+            for waiter in transaction.waiters:
                 if type(waiter) is _Observed:
                     waiter.answer(pdu)
                 elif not waiter.done():
+                    if observed:
+                        request = transaction.pdu
+                        done = _request_done(
+                            (
+                                self.name,
+                                transaction.address,
+                                request[0] if request else 0,
+                                transaction.client,
+                                now - transaction.queued_at,
+                                pdu[1] if pdu[0] & 0x80 and len(pdu) > 1 else None,
+                            )
+                        )
+                        for observer in self._request_observers:
+                            try:
+                                observer(done)
+                            except Exception:
+                                log.exception("bus %s: request observer failed", self.name)
                     waiter.set_result(pdu)
+                observed = False
         if self._idle_awaited:
             self._idle.set()
         # What `_start_next` does before each gap: a busy line must still find a drive is back.
@@ -1089,12 +1124,23 @@ class _Observed:
 
 
 def _resolve(transaction: Transaction, reply: bytes | None) -> None:
+    report = transaction.observed_by  # for its own waiter, the first
     for waiter in transaction.waiters:
         if not waiter.done():
+            if report is not None:
+                code = (
+                    reply[1] if reply is not None and len(reply) > 1 and reply[0] & 0x80 else None
+                )
+                report(transaction, code)
             waiter.set_result(reply)
+        report = None
 
 
 def _fail(transaction: Transaction, error: GatewayError) -> None:
+    report = transaction.observed_by  # for its own waiter, the first
     for waiter in transaction.waiters:
         if not waiter.done():
+            if report is not None:
+                report(transaction, error.code if isinstance(error, ModbusError) else None)
             waiter.set_exception(error)
+        report = None

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from collections.abc import Callable
 from enum import IntEnum
 from typing import Protocol
 
@@ -64,6 +65,7 @@ class Transaction:
         "coalescable",
         "frame",
         "key",
+        "observed_by",
         "pdu",
         "priority",
         "probe",
@@ -86,6 +88,7 @@ class Transaction:
         probe: bool = False,
         frame: bytes = b"",
         queued_at: float = 0.0,
+        observed_by: Callable[[Transaction, int | None], None] | None = None,
     ) -> None:
         self.address = address
         self.pdu = pdu
@@ -105,6 +108,12 @@ class Transaction:
         it?"""
         self.key: tuple[int, bytes, Priority] = (address, pdu, priority)
         """What identical reads share (`RequestQueue`): address, request PDU, priority."""
+        self.observed_by = observed_by
+        """Who is told of the outcome of `waiters[0]` (its own waiter), with its exception code
+        or None, before that waiter is given it, unless that waiter is done by then: the bus's
+        request observers, timed from `queued_at`. None: nobody (or the waiter is wrapped to
+        tell them itself). Carried here rather than by a wrapper object around the waiter:
+        one object less per request. A waiter added by coalescing brings its own wrapper."""
 
     def __repr__(self) -> str:
         return (

@@ -138,6 +138,48 @@ async def test_reads_submitted_in_one_call_are_shared_counted_and_observed_as_an
         ]
 
 
+async def test_a_read_submitted_in_one_call_is_observed_however_it_ends(
+    line: SimulatedLine,
+) -> None:
+    """The observers hear of a `submit_read` read's outcome once, with its exception code, on
+    every way it can end: answered, answered with the drive's exception, timed out, answered
+    by the closing bus; and not at all when its client went before the answer."""
+    line.set_reply_delay(2, 100)  # drive 2 holds the line while the reads queue up
+    async with running_bus(line.path, timeout_ms=300, retries=0, offline_after=5) as bus:
+        done: list[RequestDone] = []
+        bus.add_request_observer(done.append)
+        loop = asyncio.get_running_loop()
+
+        def submit(address: int, pdu: bytes, client: str) -> asyncio.Future[bytes | None]:
+            waiter: asyncio.Future[bytes | None] = loop.create_future()
+            bus.submit_read(address, pdu, waiter, client, None, None, True)
+            return waiter
+
+        assert await submit(1, read_pdu(STATE_WORD_1), "answered") == STOPPED_REPLY
+        refused = await submit(1, read_pdu(0xFFFF), "refused")
+        assert refused is not None
+        assert refused[0] == 0x83
+        with pytest.raises(GatewayTargetFailed):
+            await submit(SILENT, read_pdu(STATE_WORD_1), "timed-out")
+        busy = submit(2, read_pdu(STATE_WORD_1), "busy")
+        await eventually(lambda: bus.busy, what="the slow request on the wire")
+        gone = submit(1, read_pdu(RUNNING_VALUES), "gone")
+        closed = submit(1, read_pdu(FREQUENCY_SETPOINT), "closed")
+        gone.cancel()  # its client went while it waited
+        bus.close()
+        with pytest.raises(BusClosed):
+            await closed
+        assert await busy == STOPPED_REPLY
+        assert [(d.address, d.client, d.code) for d in done] == [
+            (1, "answered", None),
+            (1, "refused", refused[1]),
+            (SILENT, "timed-out", 0x0B),
+            (1, "closed", 0x0B),
+            (2, "busy", None),
+        ]
+        assert all(d.duration_s > 0 for d in done)
+
+
 async def test_closing_answers_the_queued_requests_with_bus_closed(line: SimulatedLine) -> None:
     line.set_reply_delay(1, 100)
     async with running_bus(line.path) as bus:
