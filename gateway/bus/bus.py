@@ -836,7 +836,7 @@ class Bus:
         drive.late_replies += len(late)
         self.late_replies.seen(address, late, timeout_s, asked_at)
 
-    def _replied(self, sending: Sending, exchange: Exchange) -> None:
+    def _replied(self, sending: Sending, pdu: bytes, heard_at: float) -> None:
         """The line's reader callback has the whole and valid reply to the frame `_pick` chose:
         the transaction ends there, as `_execute` would end it, without the bus's coroutine
         (one pass of the event loop less per transaction). A timeout, a bad, partial or late
@@ -850,8 +850,7 @@ class Bus:
         transaction = self._carrying
         assert transaction is not None  # the line holds a reply to what `_pick` chose
         started = sending.started
-        pdu, gap_s, busy_s, heard_at = exchange
-        assert pdu is not None  # a reply, not a broadcast
+        gap_s = sending.gap_s
         failure: GatewayError | None = None
         try:
             if self._back_to_back:  # `_observe_gap`
@@ -876,14 +875,15 @@ class Bus:
                 # The frame as it came: a reply that passed its CRC check rebuilds byte-exact.
                 dump_frame(self.name, "rx", build_frame(address, pdu))
             stats = self.stats  # `_record`
-            stats.busy_s += busy_s
+            stats.busy_s += heard_at - started
             self._reply_heard_at = heard_at
             min_gap_s = stats.min_gap_s
             if min_gap_s is None or gap_s < min_gap_s:
                 stats.min_gap_s = gap_s
             if pdu[0] & 0x80 and len(pdu) > 1:
                 drive.exceptions[pdu[1]] += 1
-            if self.tap is not None:
+            if self.tap is not None:  # the exchange made only for it
+                exchange = Exchange(pdu, gap_s, heard_at - started, heard_at)
                 self.tap(self.name, transaction, 0, started, exchange)
             if address not in self.health.answering:
                 self._answered(address)  # back, or its failures to forget

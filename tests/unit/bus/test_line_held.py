@@ -6,6 +6,7 @@ valid goes back to the caller's own reading. Over a real pty with simulated driv
 from __future__ import annotations
 
 import asyncio
+import itertools
 import os
 import time
 import tty
@@ -15,7 +16,7 @@ from collections.abc import Callable
 import pytest
 
 from gateway.bus import port as port_module
-from gateway.bus.line import Exchange, Sending, SerialLine
+from gateway.bus.line import Sending, SerialLine
 from gateway.config import BusConfig
 from gateway.errors import BadReply, PortError, ReplyTimeout
 from gateway.instruments.simulator import SimulatedLine
@@ -55,7 +56,7 @@ async def test_the_caller_stays_held_while_the_reader_callback_carries_each_tran
     line: SimulatedLine,
 ) -> None:
     frames = deque(build_frame(1 + n % 2, read_pdu(STATE_WORD_1)) for n in range(10))
-    replied: list[tuple[Sending, Exchange]] = []
+    replied: list[tuple[Sending, bytes, float]] = []
     serial = open_line(line.path)
     try:
         # Every frame but the first is picked in a callback, after the reply before it.
@@ -63,18 +64,24 @@ async def test_the_caller_stays_held_while_the_reader_callback_carries_each_tran
             serial.send_after_gap(
                 picking(frames),
                 lambda: 0.5,
-                lambda sending, exchange: replied.append((sending, exchange)),
+                lambda sending, pdu, heard_at: replied.append((sending, pdu, heard_at)),
             ),
             5.0,
         )
     finally:
         serial.close()
     assert ended is None  # back only once nothing was left to send
-    assert [exchange.reply_pdu for _, exchange in replied] == [STOPPED_REPLY] * 10
-    assert [sending.frame[0] for sending, _ in replied] == [1, 2] * 5  # in the order picked
+    assert [pdu for _, pdu, _ in replied] == [STOPPED_REPLY] * 10
+    assert [sending.frame[0] for sending, _, _ in replied] == [1, 2] * 5  # in the order picked
     assert line.stats["requests"] == 10
     # Each frame after the first waited a whole t3.5 after the reply before it.
-    assert all(exchange.gap_s >= FAST_T35_S for _, exchange in replied[1:])
+    assert all(sending.gap_s >= FAST_T35_S for sending, _, _ in replied[1:])
+    # Each reply was heard after its frame went out, and before the next frame's gap began.
+    assert all(sending.started < heard_at for sending, _, heard_at in replied)
+    assert all(
+        heard_at + FAST_T35_S <= after.started
+        for (_, _, heard_at), (after, _, _) in itertools.pairwise(replied)
+    )
     assert line.stats["gap_violations"] == 0
 
 
@@ -92,7 +99,7 @@ async def test_a_reply_that_never_comes_goes_back_to_the_callers_own_reading(
             serial.send_after_gap(
                 picking(frames),
                 lambda: 0.05,
-                lambda _, exchange: replied.append(exchange.reply_pdu),
+                lambda _sending, pdu, _heard_at: replied.append(pdu),
             ),
             5.0,
         )
@@ -118,7 +125,7 @@ async def test_a_held_caller_whose_drive_is_silent_wakes_at_its_response_timeout
             serial.send_after_gap(
                 picking(deque([build_frame(SILENT, read_pdu(STATE_WORD_1))])),
                 lambda: within_s,
-                lambda _, __: None,
+                lambda _sending, _pdu, _heard_at: None,
             ),
             5.0,
         )
@@ -143,7 +150,7 @@ async def test_a_port_that_fails_while_the_caller_is_held_is_reported_at_once(
             serial.send_after_gap(
                 picking(deque([build_frame(SILENT, read_pdu(STATE_WORD_1))])),
                 lambda: 10.0,
-                lambda _, __: None,
+                lambda _sending, _pdu, _heard_at: None,
             )
         )
         await asyncio.sleep(0.05)  # the request is out, its caller held until a reply
@@ -162,7 +169,7 @@ async def test_a_port_that_fails_while_the_caller_is_held_is_reported_at_once(
 async def test_a_failure_in_the_callers_hook_reaches_the_caller(line: SimulatedLine) -> None:
     frames = deque(build_frame(1, read_pdu(STATE_WORD_1)) for _ in range(3))
 
-    def replied(_sending: Sending, _exchange: Exchange) -> None:
+    def replied(_sending: Sending, _pdu: bytes, _heard_at: float) -> None:
         raise RuntimeError("a bug in the bus")
 
     serial = open_line(line.path)
