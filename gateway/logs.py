@@ -6,10 +6,17 @@ import json
 import logging
 import sys
 import time
+from collections.abc import Callable
 
 FRAMES = logging.getLogger("gateway.frames")
 """Hex dumps of every RTU frame, at debug level: `logging: {level: debug}` shows what went on
 the wire, byte for byte, without a line analyser."""
+FRAMES_CACHED: Callable[[int], bool | None] = vars(FRAMES)["_cache"].get  # logging's own cache
+"""What `FRAMES.isEnabledFor` has remembered for a level: True, False, or None when not known
+(since any logger's level or `logging.disable` last changed: logging clears this same dict
+then). `FRAMES_CACHED(logging.DEBUG) is not False and FRAMES.isEnabledFor(logging.DEBUG)` is
+`isEnabledFor`'s answer, with no Python call in the usual case (dumps off): once per
+transaction, that call is some 800 instructions (callgrind)."""
 
 _LEVELS = {
     "debug": logging.DEBUG,

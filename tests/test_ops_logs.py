@@ -54,6 +54,33 @@ async def test_no_frame_dump_above_debug(
     assert not [r for r in caplog.records if r.name == "gateway.frames"]
 
 
+async def test_frame_dumps_follow_the_level_while_the_gateway_runs(
+    line: SimulatedLine, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The level changed under a running gateway (as a reload or an operator's `setLevel`
+    does) turns the dumps on and off at the next frame: the bus's cheap check of logging's
+    remembered answer never keeps a stale one."""
+    caplog.set_level(logging.DEBUG, logger="gateway.frames")  # the capture takes all
+    frames = logging.getLogger("gateway.frames")
+    frames.setLevel(logging.INFO)  # caplog puts the level back afterwards
+
+    def dumps() -> list[str]:
+        return [r.getMessage() for r in caplog.records if r.name == "gateway.frames"]
+
+    async with running_gateway(gateway_config(line.path, DRIVES)) as app:
+        client = await TcpClient.connect(app.tcp.port)
+        assert await client.read(1, STATE_WORD_1) == [3]
+        assert dumps() == []
+        frames.setLevel(logging.DEBUG)
+        assert await client.read(1, STATE_WORD_1) == [3]
+        assert "line1 rx 01 03 02 00 03 f8 45" in dumps()
+        frames.setLevel(logging.INFO)
+        seen = len(dumps())
+        assert await client.read(1, STATE_WORD_1) == [3]
+        assert len(dumps()) == seen
+        await client.close()
+
+
 class LogWatch(logging.Handler):
     """Sets `seen` when a record with `text` is logged (records come from the event loop)."""
 

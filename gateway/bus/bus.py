@@ -49,7 +49,7 @@ from gateway.errors import (
     PortError,
     ReplyTimeout,
 )
-from gateway.logs import FRAMES, dump_frame, frame_dump_enabled
+from gateway.logs import FRAMES, FRAMES_CACHED, dump_frame, frame_dump_enabled
 from gateway.modbus.functions import lookup
 from gateway.modbus.rtu import BROADCAST_ADDRESS, build_frame, request_frame
 from gateway.tasks import cancel_and_wait
@@ -77,6 +77,7 @@ class BusState(StrEnum):
 # costs ~950 instructions on Python 3.11, a global ~45).
 _OPEN, _CLOSED = BusState.OPEN, BusState.CLOSED
 _READ = Priority.READ
+_DEBUG = logging.DEBUG
 
 
 @dataclass(frozen=True, slots=True)
@@ -870,7 +871,7 @@ class Bus:
             # charges, max(now, busy_until) - started, is this too.
             held = now - started
             drive.line_s += held
-            if FRAMES.isEnabledFor(logging.DEBUG):
+            if FRAMES_CACHED(_DEBUG) is not False and FRAMES.isEnabledFor(_DEBUG):
                 dump_frame(self.name, "tx", sending.frame)
                 # The frame as it came: a reply that passed its CRC check rebuilds byte-exact.
                 dump_frame(self.name, "rx", build_frame(address, pdu))
