@@ -23,6 +23,9 @@ from gateway.modbus.functions import FUNCTIONS
 
 SOURCES = ("tcp", "poll", "mqtt", "probe")
 """Who asked: clients are named "tcp:<peer>", "poll", "mqtt" and "probe" (the bus's own)."""
+MAX_SERIES_KEYS = 4096
+"""`RequestMetrics._series` holds at most this many keys (one per client, drive and function
+asked): a gateway whose clients reconnect all day must not grow it without end."""
 LATENCY_BUCKETS = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0)
 """Seconds: one short read at 115200 baud takes ~3 ms, a 16-word read at 9600 ~50 ms, and a
 queue behind a dead drive seconds."""
@@ -73,9 +76,11 @@ class RequestMetrics(Collector):
     def __init__(self, drives: Sequence[DriveLabels]) -> None:
         self.drive_name = DriveNames(drives)
         self._series: dict[tuple[str, int, str, int], tuple[_Count, _Latency | None]] = {}
-        """Per (bus, address, source, function): what a request of that kind counts in.
-        Bounded: a closed set of sources, 256 function codes, the configured drives' addresses.
-        Cleared by a reload; the counts themselves stay under their labels."""
+        """Per (bus, address, client, function): what a request of that kind counts in, found
+        with one lookup per request (the client's source, `request_source`, worked out only
+        for a new key). Bounded: emptied once it holds `MAX_SERIES_KEYS` (clients come and go
+        with their connections), and by a reload; the counts themselves stay under their
+        labels."""
         self._errors: dict[tuple[str, int, str, int], _Count] = {}
         """The same per (bus, address, source, exception code), for requests answered so."""
         self._requests: dict[tuple[str, ...], _Count] = {}
@@ -87,16 +92,18 @@ class RequestMetrics(Collector):
     def observe(self, done: RequestDone) -> None:
         # Once per request on every bus: a dict lookup and a few additions.
         bus, address, function, client, duration_s, code = done
-        source = request_source(client)
-        key = (bus, address, source, function)
+        key = (bus, address, client, function)
         series = self._series.get(key)
         if series is None:
-            series = self._series[key] = self._new_series(done, source)
+            if len(self._series) >= MAX_SERIES_KEYS:
+                self._series.clear()
+            series = self._series[key] = self._new_series(done, request_source(client))
         requests, latency = series
         requests.value += 1
         if latency is None:
             return
         if code is not None:  # a dead drive's every request: as cheap as the others
+            source = request_source(client)
             error_key = (bus, address, source, code)
             errors = self._errors.get(error_key)
             if errors is None:

@@ -9,7 +9,7 @@ from prometheus_client.parser import text_string_to_metric_families
 
 from gateway.bus import RequestDone
 from gateway.bus.metrics import DriveLabels
-from gateway.bus.request_metrics import RequestMetrics
+from gateway.bus.request_metrics import MAX_SERIES_KEYS, RequestMetrics
 
 PUMP = DriveLabels("pump1", "line1", 1, 1, "gd350")
 Samples = dict[tuple[str, frozenset[tuple[str, str]]], float]
@@ -72,3 +72,20 @@ def test_a_reload_that_renames_a_drive_keeps_what_was_counted_under_the_old_name
     for drive in ("pump1", "pump_north"):
         series = labels(bus="line1", drive=drive, source="poll", function="03")
         assert samples["invt_gateway_requests_total", series] == 1
+
+
+def test_clients_that_come_and_go_all_day_are_counted_in_bounded_memory() -> None:
+    """Each connection is a client of its own ("tcp:<peer>"): ten thousand of them, a read
+    each, all counted under their one series, and what the metrics remember per client stays
+    bounded (`MAX_SERIES_KEYS`)."""
+    metrics = RequestMetrics([PUMP])
+    clients = 10_000
+    for n in range(clients):
+        metrics.observe(
+            RequestDone("line1", 1, 3, f"tcp:10.0.{n // 250}.{n % 250}:502", 0.004, None)
+        )
+    _, samples = scrape(metrics)
+    tcp = {"bus": "line1", "drive": "pump1", "source": "tcp"}
+    assert samples["invt_gateway_requests_total", labels(**tcp, function="03")] == clients
+    assert samples["invt_gateway_request_duration_seconds_count", labels(**tcp)] == clients
+    assert len(metrics._series) <= MAX_SERIES_KEYS
