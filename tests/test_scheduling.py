@@ -15,7 +15,7 @@ from collections.abc import Iterator
 import pytest
 
 from gateway.app import Application
-from gateway.bus import Priority
+from gateway.bus import Priority, RequestDone
 from gateway.errors import GatewayTargetFailed
 from gateway.instruments.simulator import SimulatedLine
 from gateway.modbus.timing import CharacterFormat
@@ -336,7 +336,7 @@ async def test_polls_yield_to_clients_reading_without_pause_and_fill_an_idle_lin
             bus = app.buses["line1"]
             # From the moment every client has a read answered: the line is full from then on.
             await eventually(lambda: len(answered) == len(clients), what="the clients reading")
-            bus.add_request_observer(lambda done: served.append(done.client))
+            bus.add_request_observer(lambda *done: served.append(RequestDone(*done).client))
             await eventually(
                 lambda: served.count(POLL_CLIENT) >= 6, within_s=30.0, what="polls under the load"
             )

@@ -181,16 +181,15 @@ class RequestDone(NamedTuple):
     """None for a normal reply, else the exception code the caller got (the drive's, 0AH, 0BH)."""
 
 
-_request_done = partial(tuple.__new__, RequestDone)
-"""`RequestDone` from a tuple of its fields, made in C: the NamedTuple's own `__new__` is a
-Python function, a frame more per request."""
-
-
 Outcome = tuple[Callable[..., None], tuple[Any, ...]]
 """What the event loop does with a finished transaction: a callback and its arguments."""
 DriveListener = Callable[[str, int, bool], None]
 """Called on the event loop with (bus name, address, online) when a drive goes offline or back."""
-RequestObserver = Callable[[RequestDone], None]
+RequestObserver = Callable[[str, int, int, str, float, int | None], None]
+"""Called on the event loop with a `RequestDone`'s fields, in its order (bus, address, function,
+client, duration_s, code), when a caller's request is answered: as arguments, not a record,
+because it runs once per request and most observers (metrics) only add numbers; an observer
+that keeps the request makes the `RequestDone` itself (`RequestDone(*fields)`)."""
 PortListener = Callable[[str, str, bool, str], None]
 """Called on the event loop with (bus name, port, lost, reason) when the port is lost (or can't
 be opened at start) and when it is open again."""
@@ -458,12 +457,10 @@ class Bus:
     def _report(
         self, address: int, pdu: bytes, client: str, started: float, code: int | None
     ) -> None:
-        done = RequestDone(
-            self.name, address, pdu[0] if pdu else 0, client, time.monotonic() - started, code
-        )
+        function, duration_s = pdu[0] if pdu else 0, time.monotonic() - started
         for observer in self._request_observers:
             try:
-                observer(done)
+                observer(self.name, address, function, client, duration_s, code)
             except Exception:
                 log.exception("bus %s: request observer failed", self.name)
 
@@ -908,19 +905,13 @@ class Bus:
                 elif not waiter.done():
                     if observed:
                         request = transaction.pdu
-                        done = _request_done(
-                            (
-                                self.name,
-                                transaction.address,
-                                request[0] if request else 0,
-                                transaction.client,
-                                now - transaction.queued_at,
-                                pdu[1] if pdu[0] & 0x80 and len(pdu) > 1 else None,
-                            )
-                        )
+                        function = request[0] if request else 0
+                        client = transaction.client
+                        duration_s = now - transaction.queued_at
+                        code = pdu[1] if pdu[0] & 0x80 and len(pdu) > 1 else None
                         for observer in self._request_observers:
                             try:
-                                observer(done)
+                                observer(self.name, address, function, client, duration_s, code)
                             except Exception:
                                 log.exception("bus %s: request observer failed", self.name)
                     waiter.set_result(pdu)
@@ -1099,19 +1090,10 @@ class _Observed:
             return
         code = result[1] if result and result[0] & 0x80 and len(result) > 1 else None
         bus, pdu = self._bus, self._pdu
-        done = _request_done(
-            (
-                bus.name,
-                self._address,
-                pdu[0] if pdu else 0,
-                self._client,
-                time.monotonic() - self._started,
-                code,
-            )
-        )
+        function, duration_s = pdu[0] if pdu else 0, time.monotonic() - self._started
         for observer in bus._request_observers:  # `Bus._report`, written out
             try:
-                observer(done)
+                observer(bus.name, self._address, function, self._client, duration_s, code)
             except Exception:
                 log.exception("bus %s: request observer failed", bus.name)
         waiter.set_result(result)

@@ -89,14 +89,24 @@ class RequestMetrics(Collector):
         self._exceptions: dict[tuple[str, ...], _Count] = {}
         self._latency: dict[tuple[str, ...], _Latency] = {}
 
-    def observe(self, done: RequestDone) -> None:
+    def observe(
+        self,
+        bus: str,
+        address: int,
+        function: int,
+        client: str,
+        duration_s: float,
+        code: int | None,
+    ) -> None:
+        """The bus's request observer (`gateway.bus.bus.RequestObserver`): a `RequestDone`'s
+        fields."""
         # Once per request on every bus: a dict lookup and a few additions.
-        bus, address, function, client, duration_s, code = done
         key = (bus, address, client, function)
         series = self._series.get(key)
         if series is None:
             if len(self._series) >= MAX_SERIES_KEYS:
                 self._series.clear()
+            done = RequestDone(bus, address, function, client, duration_s, code)
             series = self._series[key] = self._new_series(done, request_source(client))
         requests, latency = series
         requests.value += 1

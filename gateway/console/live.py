@@ -17,7 +17,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
 
-from gateway.bus import Bus, BusSettings, BusState, RequestDone
+from gateway.bus import Bus, BusSettings, BusState
 from gateway.console.diagnostics import BusCounters
 from gateway.console.events import EventStore, GatewayEvent
 from gateway.modbus.functions import lookup
@@ -117,20 +117,28 @@ class LiveState:
 
     # -- the audit of writes from Modbus-TCP and MQTT (a bus request observer) ---------------
 
-    def request_done(self, done: RequestDone) -> None:
-        """A request answered: a write from SCADA or MQTT becomes an audit line."""
-        if not lookup(done.function).writes or done.client.startswith(AUDITED_ELSEWHERE):
+    def request_done(
+        self,
+        bus: str,
+        address: int,
+        function: int,
+        client: str,
+        duration_s: float,
+        code: int | None,
+    ) -> None:
+        """A request answered (a bus's request observer, told a `RequestDone`'s fields): a
+        write from SCADA or MQTT becomes an audit line."""
+        if not lookup(function).writes or client.startswith(AUDITED_ELSEWHERE):
             return
-        code = done.code
         result = "ok" if code is None else f"exception {code:02X}H {exception_name(code)}"
-        target = "broadcast" if done.address == 0 else f"address {done.address}"
+        target = "broadcast" if address == 0 else f"address {address}"
         self.events.record(
             GatewayEvent(
                 "write",
-                f"function {done.function:02X}H to {target}",
-                self._by_address.get((done.bus, done.address)),
-                done.bus,
-                who=done.client,
+                f"function {function:02X}H to {target}",
+                self._by_address.get((bus, address)),
+                bus,
+                who=client,
                 result=result,
             )
         )

@@ -110,7 +110,7 @@ async def test_reads_submitted_in_one_call_are_shared_counted_and_observed_as_an
     line.set_reply_delay(2, 100)  # drive 2 holds the line while the reads queue up
     async with running_bus(line.path, timeout_ms=300, retries=0, offline_after=1) as bus:
         done: list[RequestDone] = []
-        bus.add_request_observer(done.append)
+        bus.add_request_observer(lambda *fields: done.append(RequestDone(*fields)))
         loop = asyncio.get_running_loop()
         busy = asyncio.create_task(read(bus, 2, STATE_WORD_1))
         await eventually(lambda: bus.busy, what="the slow request on the wire")
@@ -147,7 +147,7 @@ async def test_a_read_submitted_in_one_call_is_observed_however_it_ends(
     line.set_reply_delay(2, 100)  # drive 2 holds the line while the reads queue up
     async with running_bus(line.path, timeout_ms=300, retries=0, offline_after=5) as bus:
         done: list[RequestDone] = []
-        bus.add_request_observer(done.append)
+        bus.add_request_observer(lambda *fields: done.append(RequestDone(*fields)))
         loop = asyncio.get_running_loop()
 
         def submit(address: int, pdu: bytes, client: str) -> asyncio.Future[bytes | None]:

@@ -36,9 +36,9 @@ def labels(**values: str) -> frozenset[tuple[str, str]]:
 
 def test_requests_are_counted_by_source_function_and_code_with_their_latency() -> None:
     metrics = RequestMetrics([PUMP])
-    metrics.observe(RequestDone("line1", 1, 3, "tcp:10.0.0.5:50123", 0.004, None))
-    metrics.observe(RequestDone("line1", 1, 3, "tcp:10.0.0.6:50124", 0.03, 0x02))
-    metrics.observe(RequestDone("line1", 0, 6, "mqtt", 0.1, None))
+    metrics.observe(*RequestDone("line1", 1, 3, "tcp:10.0.0.5:50123", 0.004, None))
+    metrics.observe(*RequestDone("line1", 1, 3, "tcp:10.0.0.6:50124", 0.03, 0x02))
+    metrics.observe(*RequestDone("line1", 0, 6, "mqtt", 0.1, None))
     _, samples = scrape(metrics)
     tcp = {"bus": "line1", "drive": "pump1", "source": "tcp"}
     assert samples["invt_gateway_requests_total", labels(**tcp, function="03")] == 2
@@ -65,9 +65,9 @@ def test_before_any_request_the_families_are_there_without_samples() -> None:
 
 def test_a_reload_that_renames_a_drive_keeps_what_was_counted_under_the_old_name() -> None:
     metrics = RequestMetrics([PUMP])
-    metrics.observe(RequestDone("line1", 1, 3, "poll", 0.01, None))
+    metrics.observe(*RequestDone("line1", 1, 3, "poll", 0.01, None))
     metrics.relabel([DriveLabels("pump_north", "line1", 1, 1, "gd350")])
-    metrics.observe(RequestDone("line1", 1, 3, "poll", 0.01, None))
+    metrics.observe(*RequestDone("line1", 1, 3, "poll", 0.01, None))
     _, samples = scrape(metrics)
     for drive in ("pump1", "pump_north"):
         series = labels(bus="line1", drive=drive, source="poll", function="03")
@@ -82,7 +82,7 @@ def test_clients_that_come_and_go_all_day_are_counted_in_bounded_memory() -> Non
     clients = 10_000
     for n in range(clients):
         metrics.observe(
-            RequestDone("line1", 1, 3, f"tcp:10.0.{n // 250}.{n % 250}:502", 0.004, None)
+            *RequestDone("line1", 1, 3, f"tcp:10.0.{n // 250}.{n % 250}:502", 0.004, None)
         )
     _, samples = scrape(metrics)
     tcp = {"bus": "line1", "drive": "pump1", "source": "tcp"}
