@@ -458,7 +458,12 @@ class GapKeeper:
             self._port.wake()
         timer = self._timer
         if timer is not None:
-            timer.fire_due()  # another line's gap that ended while this pass ran
+            # Another line's gap that ended while this pass ran: acted on now. With no other
+            # line's timer armed (one line on this loop, or the others idle) there is none, and
+            # this line's own wake-up was just set for the gap to come (or its frame sent).
+            armed = timer.loop_armed
+            if armed and (len(armed) > 1 or timer not in armed):
+                timer.fire_due()
 
     def _reply_held(self, held: _Held) -> bytes | None:
         """The reader callback, while a caller is held until its reply, for what the common

@@ -83,6 +83,9 @@ class LineTimer:
         self._deadline = math.inf
         """Of the pending sleep, until its deadline has been acted on; inf otherwise."""
         self._armed = _ARMED.setdefault(loop, set())
+        self.loop_armed: set[LineTimer] = self._armed
+        """The timers of this loop's lines armed now, this one's too (shared, never replaced):
+        a caller that knows only its own can be due skips `fire_due`'s call and clock read."""
         self._arms = 0
         """timerfd_settime calls so far: `_expired` tells by it whether its action re-armed."""
         self._fallback: NeverEarly | None = None
