@@ -17,7 +17,6 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
-from typing import NamedTuple
 
 from gateway.bus.exchange import Exchange, Sending
 from gateway.bus.gap_lead import GapLead, loop_spin_budget
@@ -40,6 +39,10 @@ instructions against ~1,400, counted with callgrind). For the records made once 
 _exchange = partial(tuple.__new__, Exchange)
 """`Exchange` from a tuple of all its fields, made in C: the NamedTuple's own `__new__` is a
 Python function, a frame more per transaction."""
+
+_NOT_SENT = Sending(b"", 0.0, 0.0, 0)
+"""`_Round.sending` before the round's first hold (typed so, the reader callback reads it
+without a check)."""
 
 _STILL_COMING = b""
 """`GapKeeper._reply_held`: the held caller's reply is not all there yet (no PDU is empty)."""
@@ -67,24 +70,22 @@ class _Round:
     """`GapKeeper._send_at_gap_end` for this round, made once: the timer is given it for every
     gap of the round (a transaction each on a busy line), not a new partial each time."""
 
+    # While the round's caller is held until its reply (`GapKeeper._held` is the round): the
+    # attempt the reply is for. Fields of the round, set per transaction, rather than a record
+    # made for each hold (a NamedTuple built in C costs ~1,400 instructions, callgrind).
+    sending: Sending = _NOT_SENT
+    sent: float = 0.0
+    """When the frame's last bit was on the wire: a copy of the request complete before
+    `Receiver.echo_deadline(frame, sent)` is the adapter's echo (worked out only when a reply
+    isn't taken at once: the common case needs no echo deadline)."""
+    plain_read_length: int = 0
+    """The length of the normal reply when the request is a plain read, else 0
+    (`gateway.modbus.rtu.plain_read_reply_length`)."""
+
     def take_pick(self) -> bytes | None:
         """The frame to send now: the one chosen earlier, if any, else `pick`'s."""
         picked, self.picked = self.picked, None
         return picked if picked is not None else self.pick()
-
-
-# A NamedTuple for the reason given at `Sending`.
-class _Held(NamedTuple):
-    """A caller held until its reply (`_send_at_gap_end`): the attempt the reply is for."""
-
-    sending: Sending
-    round: _Round
-    echo_by: float
-    """A copy of the request complete before this is the adapter's echo
-    (`Receiver.echo_deadline`)."""
-    plain_read_length: int
-    """The length of the normal reply when the request is a plain read, else 0
-    (`gateway.modbus.rtu.plain_read_reply_length`)."""
 
 
 class GapKeeper:
@@ -113,8 +114,10 @@ class GapKeeper:
         self._response_deadline: MovingDeadline | None = None
         """The held caller's response timeout: it wakes the caller, whose own reading then
         finds the reply missing or incomplete."""
-        self._held: _Held | None = None
-        """What the held caller sent, for the reader callback to finish the attempt itself."""
+        self._held: _Round | None = None
+        """The round of the caller held until its reply (its `sending`, `sent` and
+        `plain_read_length`: what it sent), for the reader callback to finish the attempt
+        itself."""
         self._idle: _Round | None = None
         """The round of a caller held while the line is idle: `kick` sends its next frame."""
         self.gap_lead = GapLead(settings.gap_s)
@@ -314,9 +317,9 @@ class GapKeeper:
         # empty above: no other callback ran in between).
         receiver.arrivals = [(0, sent)]
         if this.replied is not None:
-            echo_by = receiver.echo_deadline(frame, sent)
-            length = plain_read_reply_length(frame)
-            self._held = _new_tuple(_Held, (sending, this, echo_by, length))
+            this.sending, this.sent = sending, sent
+            this.plain_read_length = plain_read_reply_length(frame)
+            self._held = this
         return True
 
     def kick(self) -> None:
@@ -428,7 +431,7 @@ class GapKeeper:
             port = self._port
             assert port is not None
             port.waiter = None
-            this = held.round
+            this = held
             this.outcome.clear()
             try:
                 sending = held.sending
@@ -465,7 +468,7 @@ class GapKeeper:
         if timer is not None:
             timer.fire_due()  # another line's gap that ended while this pass ran
 
-    def _reply_held(self, held: _Held) -> bytes | None:
+    def _reply_held(self, held: _Round) -> bytes | None:
         """The reader callback, while a caller is held until its reply, for what the common
         case in `heard` leaves: the reply's PDU, taken out of the buffer, if it is all there
         and valid; `_STILL_COMING` while it is still coming (the caller stays held); None:
@@ -485,7 +488,9 @@ class GapKeeper:
             received.clear()
             return pdu
         # `Receiver.search`, written out: this runs for every reply on a busy line.
-        echoes = receiver.echoes > 0 or receiver.arrived_by(len(frame), held.echo_by)
+        echoes = receiver.echoes > 0 or receiver.arrived_by(
+            len(frame), receiver.echo_deadline(frame, held.sent)
+        )
         search = search_reply(received, frame, adapter_echoes=echoes)
         found = search.found
         if found is Found.PARTIAL or found is Found.NOTHING:
