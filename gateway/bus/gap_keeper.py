@@ -13,6 +13,7 @@ ends, and no pass for the caller's coroutine.
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -263,23 +264,35 @@ class GapKeeper:
                 return True
             this.outcome.append(None)
             return False
+        ready_at = 0.0  # unknown
         if timed and self._learns_lead:
-            lead.ready(gap_end)
+            ready_at = lead.ready(gap_end)
         elif early:
             lead.wait_out(gap_end)
-        if early and readable_now(0):
-            # Bytes came while the frame was chosen and the gap waited out: the line was not
-            # quiet, so the gap starts again, and the frame goes at its end.
-            receiver.quiet_since = time.monotonic()
-            this.picked = frame
-            return False
+        if early:
+            ready_at = 0.0  # the port is asked once more (a system call) before the frame goes
+            if readable_now(0):
+                # Bytes came while the frame was chosen and the gap waited out: the line was
+                # not quiet, so the gap starts again, and the frame goes at its end.
+                receiver.quiet_since = time.monotonic()
+                this.picked = frame
+                return False
         try:
             if self._rts_switched:
                 sending = self._send_frame(frame)
             else:  # `SerialLine._send_frame` without RTS, written out
-                started = time.monotonic()
+                # The frame's start: the clock `ready` read after the gap's end, a few
+                # statements ago, if nothing came between; else read now.
+                started = ready_at if ready_at else time.monotonic()
                 gap_s = started - receiver.quiet_since
-                written = port.write_now(frame)
+                # `TtyPort.write_now`, written out (once per transaction): the port is watched
+                # (`readable_now`) and usable (both seen above, nothing run since could fail it).
+                # A write that raises (a full buffer, a port gone, not a watched port after all)
+                # goes through `write_now`, which says what that means.
+                try:
+                    written = os.write(port.fd, frame)
+                except OSError:
+                    written = port.write_now(frame)
                 sending = _new_tuple(Sending, (frame, started, gap_s, written, 0.0))
         except Exception as exc:
             this.outcome.append(exc)
@@ -311,14 +324,22 @@ class GapKeeper:
         self._holding = True
         # Not on the gap timer: a timerfd write per transaction for a deadline that is almost
         # never reached costs more than the float stores of a moving deadline.
-        assert self._response_deadline is not None
-        self._response_deadline.set(sent + within_s)
+        # `MovingDeadline.set`, written out (once per transaction): while a timer is pending no
+        # later than the new deadline (the usual case) it is a float store, without a call.
+        response = self._response_deadline
+        assert response is not None
+        response_at = response.deadline = sent + within_s
+        if response_at < response.handle_at:
+            response.set(response_at)
         # What came, when: for echoes and bursts (nothing has come since `received` was seen
         # empty above: no other callback ran in between).
         receiver.arrivals = [(0, sent)]
         if this.replied is not None:
+            if frame is not this.sending.frame:
+                # Else the round's last request again (a poller's, its frame remembered by the
+                # bus): its reply's length is known, without the cache's lookup.
+                this.plain_read_length = plain_read_reply_length(frame)
             this.sending, this.sent = sending, sent
-            this.plain_read_length = plain_read_reply_length(frame)
             self._held = this
         return True
 

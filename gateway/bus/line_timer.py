@@ -39,6 +39,9 @@ TFD_NONBLOCK = os.O_NONBLOCK
 TFD_CLOEXEC = os.O_CLOEXEC
 TFD_TIMER_ABSTIME = 1
 EXPIRY_SLACK_S = 1e-6
+_INF = math.inf
+"""`math.inf` as a module global: read once per transaction or more, and `math.inf` is a
+global read and an attribute read."""
 
 
 _Itimerspec = ctypes.c_long * 4
@@ -80,7 +83,7 @@ class LineTimer:
         call costs ~600 instructions more than an attribute's read on Python 3.11."""
         self._at_deadline: Callable[[], bool] | None = None
         self._spec = _Itimerspec()
-        self._deadline = math.inf
+        self._deadline = _INF
         """Of the pending sleep, until its deadline has been acted on; inf otherwise."""
         self._armed = _ARMED.setdefault(loop, set())
         self._arms = 0
@@ -157,7 +160,7 @@ class LineTimer:
         finally:
             if self.waiting is waiter:  # not a newer sleep's, if this one ended late
                 self.waiting = self._at_deadline = None
-                self._deadline = math.inf
+                self._deadline = _INF
                 self._armed.discard(self)
 
     def rearm(self, deadline: float, at_deadline: Callable[[], bool]) -> bool:
@@ -189,9 +192,9 @@ class LineTimer:
         returns True, whoever takes it over settles `waiting` or `rearm`s it. The timerfd
         stays armed: its wake-up, if it still comes, finds nothing to do."""
         waiter = self.waiting
-        if waiter is None or waiter.done() or self._deadline == math.inf:
+        if waiter is None or waiter.done() or self._deadline == _INF:
             return False
-        self._deadline = math.inf
+        self._deadline = _INF
         self._armed.discard(self)
         self._at_deadline = None
         return True
@@ -253,10 +256,10 @@ class LineTimer:
 
     def _deadline_reached(self) -> None:
         waiter, action = self.waiting, self._at_deadline
-        if waiter is None or waiter.done() or self._deadline == math.inf:
+        if waiter is None or waiter.done() or self._deadline == _INF:
             return
         # Acted on once only: whichever comes first, the wake-up or `fire_due`.
-        self._deadline = math.inf
+        self._deadline = _INF
         self._armed.discard(self)
         self._at_deadline = None
         taken = False
