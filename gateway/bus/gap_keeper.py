@@ -13,11 +13,11 @@ ends, and no pass for the caller's coroutine.
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
-from typing import NamedTuple
 
 from gateway.bus.exchange import Sending
 from gateway.bus.gap_lead import GapLead, loop_spin_budget
@@ -38,6 +38,10 @@ _new_tuple = tuple.__new__
 """Builds a NamedTuple from a tuple of all its fields, in C: `Sending(...)` goes through the
 NamedTuple's `__new__`, a Python function called from C, which costs twice as much (~2,900
 instructions against ~1,400, counted with callgrind). For the records made once per transaction."""
+
+_NOT_SENT = Sending(b"", 0.0, 0.0, 0)
+"""`_Round.sending` before the round's first hold (typed so, the reader callback reads it
+without a check)."""
 
 _STILL_COMING = b""
 """`GapKeeper._reply_held`: the held caller's reply is not all there yet (no PDU is empty)."""
@@ -65,24 +69,22 @@ class _Round:
     """`GapKeeper._send_at_gap_end` for this round, made once: the timer is given it for every
     gap of the round (a transaction each on a busy line), not a new partial each time."""
 
+    # While the round's caller is held until its reply (`GapKeeper._held` is the round): the
+    # attempt the reply is for. Fields of the round, set per transaction, rather than a record
+    # made for each hold (a NamedTuple built in C costs ~1,400 instructions, callgrind).
+    sending: Sending = _NOT_SENT
+    sent: float = 0.0
+    """When the frame's last bit was on the wire: a copy of the request complete before
+    `Receiver.echo_deadline(frame, sent)` is the adapter's echo (worked out only when a reply
+    isn't taken at once: the common case needs no echo deadline)."""
+    plain_read_length: int = 0
+    """The length of the normal reply when the request is a plain read, else 0
+    (`gateway.modbus.rtu.plain_read_reply_length`)."""
+
     def take_pick(self) -> bytes | None:
         """The frame to send now: the one chosen earlier, if any, else `pick`'s."""
         picked, self.picked = self.picked, None
         return picked if picked is not None else self.pick()
-
-
-# A NamedTuple for the reason given at `Sending`.
-class _Held(NamedTuple):
-    """A caller held until its reply (`_send_at_gap_end`): the attempt the reply is for."""
-
-    sending: Sending
-    round: _Round
-    echo_by: float
-    """A copy of the request complete before this is the adapter's echo
-    (`Receiver.echo_deadline`)."""
-    plain_read_length: int
-    """The length of the normal reply when the request is a plain read, else 0
-    (`gateway.modbus.rtu.plain_read_reply_length`)."""
 
 
 class GapKeeper:
@@ -111,8 +113,10 @@ class GapKeeper:
         self._response_deadline: MovingDeadline | None = None
         """The held caller's response timeout: it wakes the caller, whose own reading then
         finds the reply missing or incomplete."""
-        self._held: _Held | None = None
-        """What the held caller sent, for the reader callback to finish the attempt itself."""
+        self._held: _Round | None = None
+        """The round of the caller held until its reply (its `sending`, `sent` and
+        `plain_read_length`: what it sent), for the reader callback to finish the attempt
+        itself."""
         self._idle: _Round | None = None
         """The round of a caller held while the line is idle: `kick` sends its next frame."""
         self.gap_lead = GapLead(settings.gap_s)
@@ -258,23 +262,35 @@ class GapKeeper:
                 return True
             this.outcome.append(None)
             return False
+        ready_at = 0.0  # unknown
         if timed and self._learns_lead:
-            lead.ready(gap_end)
+            ready_at = lead.ready(gap_end)
         elif early:
             lead.wait_out(gap_end)
-        if early and readable_now(0):
-            # Bytes came while the frame was chosen and the gap waited out: the line was not
-            # quiet, so the gap starts again, and the frame goes at its end.
-            receiver.quiet_since = time.monotonic()
-            this.picked = frame
-            return False
+        if early:
+            ready_at = 0.0  # the port is asked once more (a system call) before the frame goes
+            if readable_now(0):
+                # Bytes came while the frame was chosen and the gap waited out: the line was
+                # not quiet, so the gap starts again, and the frame goes at its end.
+                receiver.quiet_since = time.monotonic()
+                this.picked = frame
+                return False
         try:
             if self._rts_switched:
                 sending = self._send_frame(frame)
             else:  # `SerialLine._send_frame` without RTS, written out
-                started = time.monotonic()
+                # The frame's start: the clock `ready` read after the gap's end, a few
+                # statements ago, if nothing came between; else read now.
+                started = ready_at if ready_at else time.monotonic()
                 gap_s = started - receiver.quiet_since
-                written = port.write_now(frame)
+                # `TtyPort.write_now`, written out (once per transaction): the port is watched
+                # (`readable_now`) and usable (both seen above, nothing run since could fail it).
+                # A write that raises (a full buffer, a port gone, not a watched port after all)
+                # goes through `write_now`, which says what that means.
+                try:
+                    written = os.write(port.fd, frame)
+                except OSError:
+                    written = port.write_now(frame)
                 sending = _new_tuple(Sending, (frame, started, gap_s, written, 0.0))
         except Exception as exc:
             this.outcome.append(exc)
@@ -306,15 +322,23 @@ class GapKeeper:
         self._holding = True
         # Not on the gap timer: a timerfd write per transaction for a deadline that is almost
         # never reached costs more than the float stores of a moving deadline.
-        assert self._response_deadline is not None
-        self._response_deadline.set(sent + within_s)
+        # `MovingDeadline.set`, written out (once per transaction): while a timer is pending no
+        # later than the new deadline (the usual case) it is a float store, without a call.
+        response = self._response_deadline
+        assert response is not None
+        response_at = response.deadline = sent + within_s
+        if response_at < response.handle_at:
+            response.set(response_at)
         # What came, when: for echoes and bursts (nothing has come since `received` was seen
         # empty above: no other callback ran in between).
         receiver.arrivals = [(0, sent)]
         if this.replied is not None:
-            echo_by = receiver.echo_deadline(frame, sent)
-            length = plain_read_reply_length(frame)
-            self._held = _new_tuple(_Held, (sending, this, echo_by, length))
+            if frame is not this.sending.frame:
+                # Else the round's last request again (a poller's, its frame remembered by the
+                # bus): its reply's length is known, without the cache's lookup.
+                this.plain_read_length = plain_read_reply_length(frame)
+            this.sending, this.sent = sending, sent
+            self._held = this
         return True
 
     def kick(self) -> None:
@@ -426,7 +450,7 @@ class GapKeeper:
             port = self._port
             assert port is not None
             port.waiter = None
-            this = held.round
+            this = held
             this.outcome.clear()
             try:
                 assert this.replied is not None
@@ -465,7 +489,7 @@ class GapKeeper:
             if armed and (len(armed) > 1 or timer not in armed):
                 timer.fire_due()
 
-    def _reply_held(self, held: _Held) -> bytes | None:
+    def _reply_held(self, held: _Round) -> bytes | None:
         """The reader callback, while a caller is held until its reply, for what the common
         case in `heard` leaves: the reply's PDU, taken out of the buffer, if it is all there
         and valid; `_STILL_COMING` while it is still coming (the caller stays held); None:
@@ -485,7 +509,9 @@ class GapKeeper:
             received.clear()
             return pdu
         # `Receiver.search`, written out: this runs for every reply on a busy line.
-        echoes = receiver.echoes > 0 or receiver.arrived_by(len(frame), held.echo_by)
+        echoes = receiver.echoes > 0 or receiver.arrived_by(
+            len(frame), receiver.echo_deadline(frame, held.sent)
+        )
         search = search_reply(received, frame, adapter_echoes=echoes)
         found = search.found
         if found is Found.PARTIAL or found is Found.NOTHING:

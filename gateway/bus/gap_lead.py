@@ -121,9 +121,11 @@ class GapLead:
         self.budget = SpinBudget() if budget is None else budget
         """Shared with the other lines of the event loop (the line sets it as it opens)."""
 
-    def ready(self, gap_end: float) -> None:
+    def ready(self, gap_end: float) -> float:
         """The next frame is chosen and built, in a wake-up the timer made a lead early: learn
-        from how early or late that was, and wait out the rest of the gap."""
+        from how early or late that was, and wait out the rest of the gap. Returns the clock's
+        last reading (`gap_end` or later): the frame may go from then, and the line takes it
+        for the frame's start rather than read the clock again (once per transaction)."""
         # Once per transaction: plain comparisons rather than min() and max() calls.
         lead = self.lead_s
         budget = self.budget
@@ -133,17 +135,19 @@ class GapLead:
         if now >= gap_end:
             lead += STEP_S
             self.lead_s = lead if lead < self._max_s else self._max_s
-            return
+            return now
         lead -= budget.step_back_s
         self.lead_s = lead if lead > 0.0 else 0.0
-        self.wait_out(gap_end)
+        return self.wait_out(gap_end)
 
-    def wait_out(self, gap_end: float) -> None:
+    def wait_out(self, gap_end: float) -> float:
         """Return at `gap_end` (a `time.monotonic()` value), not before, spinning on the clock:
-        for waits far shorter than any wake-up the kernel could give. Counted in `spun_s`."""
+        for waits far shorter than any wake-up the kernel could give. Counted in `spun_s`.
+        Returns the clock's last reading (`gap_end` or later)."""
         now = started = time.monotonic()
         while now < gap_end:
             now = time.monotonic()
         spun = now - started
         self.spun_s += spun
         self.budget.spun_s += spun
+        return now

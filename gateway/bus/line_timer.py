@@ -38,7 +38,9 @@ CLOCK_MONOTONIC = 1
 TFD_NONBLOCK = os.O_NONBLOCK
 TFD_CLOEXEC = os.O_CLOEXEC
 TFD_TIMER_ABSTIME = 1
-EXPIRY_SLACK_S = 1e-6
+_INF = math.inf
+"""`math.inf` as a module global: read once per transaction or more, and `math.inf` is a
+global read and an attribute read."""
 
 
 _Itimerspec = ctypes.c_long * 4
@@ -81,14 +83,12 @@ class LineTimer:
         call costs ~600 instructions more than an attribute's read on Python 3.11."""
         self._at_deadline: Callable[[], bool] | None = None
         self._spec = _Itimerspec()
-        self._deadline = math.inf
+        self._deadline = _INF
         """Of the pending sleep, until its deadline has been acted on; inf otherwise."""
         self._armed = _ARMED.setdefault(loop, set())
         self.loop_armed: set[LineTimer] = self._armed
         """The timers of this loop's lines armed now, this one's too (shared, never replaced):
         a caller that knows only its own can be due skips `fire_due`'s call and clock read."""
-        self._arms = 0
-        """timerfd_settime calls so far: `_expired` tells by it whether its action re-armed."""
         self._fallback: NeverEarly | None = None
         """The loop's timer for the pending sleep where there is no timerfd."""
         self._fd = -1
@@ -161,7 +161,7 @@ class LineTimer:
         finally:
             if self.waiting is waiter:  # not a newer sleep's, if this one ended late
                 self.waiting = self._at_deadline = None
-                self._deadline = math.inf
+                self._deadline = _INF
                 self._armed.discard(self)
 
     def rearm(self, deadline: float, at_deadline: Callable[[], bool]) -> bool:
@@ -184,7 +184,6 @@ class LineTimer:
         spec[_VALUE_NANOSECONDS] = nanoseconds
         assert self._timerfd_settime is not None
         done = self._timerfd_settime(self._fd, TFD_TIMER_ABSTIME, spec, None)
-        self._arms += 1
         if done != 0:
             return False
         self._at_deadline, self._deadline = at_deadline, deadline
@@ -197,9 +196,9 @@ class LineTimer:
         returns True, whoever takes it over settles `waiting` or `rearm`s it. The timerfd
         stays armed: its wake-up, if it still comes, finds nothing to do."""
         waiter = self.waiting
-        if waiter is None or waiter.done() or self._deadline == math.inf:
+        if waiter is None or waiter.done() or self._deadline == _INF:
             return False
-        self._deadline = math.inf
+        self._deadline = _INF
         self._armed.discard(self)
         self._at_deadline = None
         return True
@@ -220,13 +219,12 @@ class LineTimer:
         return self._settime(seconds, nanoseconds, TFD_TIMER_ABSTIME)
 
     def _settime(self, seconds: int, nanoseconds: int, flags: int) -> bool:
-        """The one timerfd write (all zero: disarm), counted in `_arms` for `_expired`."""
+        """The one timerfd write (all zero: disarm); it clears the expiry count."""
         assert self._timerfd_settime is not None
         spec = self._spec
         spec[_VALUE_SECONDS] = seconds
         spec[_VALUE_NANOSECONDS] = nanoseconds
         done = self._timerfd_settime(self._fd, flags, spec, None)  # an array: its address
-        self._arms += 1
         return int(done) == 0
 
     def _fire_early(self) -> None:
@@ -244,27 +242,24 @@ class LineTimer:
         self._deadline_reached()
 
     def _expired(self) -> None:
-        arms = self._arms
-        # Else re-armed for later after this wake-up was queued, or nothing pending. The slack
-        # is for rounding between the nanoseconds armed and the float `time.monotonic()` reads
-        # back; acting a microsecond early is safe: the line's own check keeps the gap.
-        if self._deadline <= time.monotonic() + EXPIRY_SLACK_S:
-            self._deadline_reached()
-        if self._arms == arms and self._fd >= 0:
-            # Nobody armed the timer again (which clears its expiry), nor closed it: read the
-            # expiry count, or the loop would find it readable on every pass. (try, not
-            # contextlib.suppress: three Python calls less on every wake-up.)
-            try:  # noqa: SIM105 - see above
-                os.read(self._fd, 8)
-            except BlockingIOError:
-                pass
+        # The expiry count read first (or the loop would find the timer readable on every
+        # pass), and it says whether to act, without a clock read: the read succeeds only if
+        # the deadline armed now has passed (arming clears the count). It fails when the timer
+        # was armed again for later after this wake-up was queued (or disarmed, `_fire_early`),
+        # and when it is closed (-1). A deadline taken over or acted on already: nothing
+        # pending, `_deadline_reached` finds.
+        try:
+            os.read(self._fd, 8)
+        except OSError:
+            return
+        self._deadline_reached()
 
     def _deadline_reached(self) -> None:
         waiter, action = self.waiting, self._at_deadline
-        if waiter is None or waiter.done() or self._deadline == math.inf:
+        if waiter is None or waiter.done() or self._deadline == _INF:
             return
         # Acted on once only: whichever comes first, the wake-up or `fire_due`.
-        self._deadline = math.inf
+        self._deadline = _INF
         self._armed.discard(self)
         self._at_deadline = None
         taken = False

@@ -62,51 +62,49 @@ class MovingDeadline:
     length, not once per transaction.
     """
 
-    __slots__ = ("_action", "_deadline", "_handle", "_handle_at", "_loop")
+    __slots__ = ("_action", "_handle", "_loop", "deadline", "handle_at")
 
     def __init__(self, loop: asyncio.AbstractEventLoop, action: Callable[[], object]) -> None:
         self._loop, self._action = loop, action
-        self._deadline = math.inf
-        """Of the current transaction; inf when none is set."""
+        self.deadline = math.inf
+        """Of the current transaction; inf when none is set. Read-only outside, but for `set`
+        written out (the gap's end, once per transaction): store it, and call `set` when it is
+        earlier than `handle_at`."""
         self._handle: asyncio.TimerHandle | None = None
-        self._handle_at = math.inf
+        self.handle_at = math.inf
         """When the pending timer fires (a `time.monotonic()` value); inf when none is."""
 
-    @property
-    def deadline(self) -> float:
-        return self._deadline
-
     def set(self, deadline: float) -> None:
-        self._deadline = deadline
-        if deadline < self._handle_at:  # no timer yet, or one that would come too late
+        self.deadline = deadline
+        if deadline < self.handle_at:  # no timer yet, or one that would come too late
             if self._handle is not None:
                 self._handle.cancel()
             self._start(deadline)
 
     def clear(self) -> None:
         """No deadline now. The timer stays: the next `set` likely comes before it fires."""
-        self._deadline = math.inf
+        self.deadline = math.inf
 
     def close(self) -> None:
-        self._deadline = math.inf
+        self.deadline = math.inf
         if self._handle is not None:
             self._handle.cancel()
-            self._handle, self._handle_at = None, math.inf
+            self._handle, self.handle_at = None, math.inf
 
     def _start(self, at: float) -> None:
-        self._handle_at = at
+        self.handle_at = at
         self._handle = self._loop.call_later(max(at - time.monotonic(), 0.0), self._fired)
 
     def _fired(self) -> None:
-        self._handle, self._handle_at = None, math.inf
-        deadline = self._deadline
+        self._handle, self.handle_at = None, math.inf
+        deadline = self.deadline
         if deadline == math.inf:
             return  # nothing to watch: the next `set` starts a timer
         if deadline > time.monotonic():
             # A later transaction's deadline, or uvloop's rounding to the nearest millisecond.
             self._start(deadline)
             return
-        self._deadline = math.inf
+        self.deadline = math.inf
         self._action()
 
 

@@ -166,6 +166,45 @@ async def test_a_port_that_fails_while_the_caller_is_held_is_reported_at_once(
         serial.close()
 
 
+async def test_a_frame_whose_write_at_the_gaps_end_raises_goes_through_the_ports_own_write(
+    line: SimulatedLine, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The gap's end writes a frame to the port's descriptor itself (`TtyPort.write_now`
+    written out); a write that raises there (here a full buffer, once per frame) goes through
+    `write_now`, and the transactions come out as they do without it."""
+    frames = deque(build_frame(1 + n % 2, read_pdu(STATE_WORD_1)) for n in range(4))
+    sent = set(frames)
+    refused: list[bytes] = []
+    write = os.write
+
+    def write_once_refused(fd: int, data: bytes) -> int:
+        if data in sent and data not in refused:
+            refused.append(data)
+            raise BlockingIOError
+        return write(fd, data)
+
+    monkeypatch.setattr(os, "write", write_once_refused)
+    replied: list[tuple[Sending, bytes]] = []
+    serial = open_line(line.path)
+    try:
+        ended = await asyncio.wait_for(
+            serial.send_after_gap(
+                picking(frames),
+                lambda: 0.5,
+                lambda sending, pdu, _heard_at: replied.append((sending, pdu)),
+            ),
+            5.0,
+        )
+    finally:
+        serial.close()
+    assert ended is None
+    assert len(refused) == 2  # the two distinct frames, each refused once at the gap's end
+    assert [pdu for _, pdu in replied] == [STOPPED_REPLY] * 4
+    assert all(sending.written == len(sending.frame) for sending, _ in replied)
+    assert line.stats["requests"] == 4
+    assert line.stats["gap_violations"] == 0
+
+
 async def test_a_failure_in_the_callers_hook_reaches_the_caller(line: SimulatedLine) -> None:
     frames = deque(build_frame(1, read_pdu(STATE_WORD_1)) for _ in range(3))
 
