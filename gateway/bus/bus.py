@@ -35,7 +35,7 @@ from gateway.bus.health import HealthTracker
 from gateway.bus.late_replies import LateReplies
 from gateway.bus.line import Exchange, LineSettings, Sending, SerialLine
 from gateway.bus.line_share import LineShares
-from gateway.bus.queue import Priority, RequestQueue, Transaction, Waiter
+from gateway.bus.queue import USE_OF_PRIORITY, Priority, RequestQueue, Transaction, Waiter
 from gateway.bus.wakeup import woken_or_timeout
 from gateway.errors import (
     BadReply,
@@ -218,6 +218,7 @@ class Bus:
             settings.offline_after, settings.probe_initial_s, settings.probe_max_s
         )
         self._queue = RequestQueue(settings.queue_size, settings.shares)
+        self._charge_share = self._queue.charge_share
         self._work: asyncio.Future[None] | None = None
         """Set while the bus waits for work; a new request (or a lost port) resolves it."""
         self._carrying: Transaction | None = None
@@ -890,7 +891,8 @@ class Bus:
             failure = GatewayTargetFailed(f"bus {self.name}: {exc}")
             now = time.monotonic()
             held = max(now, self.line.busy_until) - started
-        self._queue.charge(transaction, held, now)
+        # `RequestQueue.charge`, written out (a reply: never a broadcast).
+        self._charge_share(USE_OF_PRIORITY[transaction.priority], held, now)
         self._carrying = None  # `_done`
         self._echo_sent = None
         if failure is not None:

@@ -138,7 +138,7 @@ class Transaction:
 # class's metaclass defines `__getattr__`, which sends every `Priority.WRITE` through a slow
 # attribute lookup: about 950 instructions a read against 45 for a global (callgrind).
 _WRITE, _POLL = Priority.WRITE, Priority.POLL
-_USE_OF_PRIORITY = (LineUse.WRITE, LineUse.OTHER, LineUse.POLL)
+USE_OF_PRIORITY = (LineUse.WRITE, LineUse.OTHER, LineUse.POLL)
 """The share a transaction of each priority (by its value) is charged to; broadcasts apart."""
 _BROADCAST_USE = LineUse.BROADCAST
 
@@ -209,8 +209,15 @@ class RequestQueue:
         if transaction.address == BROADCAST:
             use = _BROADCAST_USE
         else:
-            use = _USE_OF_PRIORITY[transaction.priority]
+            use = USE_OF_PRIORITY[transaction.priority]
         self._meter.charge(use, seconds, now)
+
+    @property
+    def charge_share(self) -> Callable[[LineUse, float, float], None]:
+        """The line-time meter's own `charge`, for a caller that knows the transaction's use
+        (`USE_OF_PRIORITY`, never a broadcast): `charge` without its call, once per
+        transaction (`Bus._replied`)."""
+        return self._meter.charge
 
     def get_nowait(self, now: float | None = None) -> Transaction | None:
         """The next transaction to serve; `now` (monotonic, read here if not given) for the

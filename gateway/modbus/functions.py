@@ -326,6 +326,14 @@ def changes_nothing(pdu: bytes) -> bool:
     return lookup(pdu[0]).changes_nothing(pdu)
 
 
+@lru_cache(maxsize=1024)
+def front_door(pdu: bytes) -> tuple[bool, Malformed | None]:
+    """(`changes_nothing`, `check_request`) of a client's request in one lookup: the Modbus-TCP
+    server asks both of every request it takes, and each remembered answer costs a hash
+    lookup through the cache's wrapper (some 700 instructions a call, callgrind)."""
+    return changes_nothing(pdu), check_request(pdu)
+
+
 def rtu_reply_length(header: bytes | bytearray, request_length: int) -> int:
     """Total RTU length of the reply that starts with `header` (address, function, ...).
 

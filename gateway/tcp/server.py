@@ -41,7 +41,13 @@ from gateway.bus.queue import Waiter
 from gateway.errors import ExceptionCode, MalformedFrame, ModbusError
 from gateway.listen import cannot_listen
 from gateway.logs import repeated
-from gateway.modbus.functions import changes_nothing, check_request, exception_pdu, lookup
+from gateway.modbus.functions import (
+    changes_nothing,
+    check_request,
+    exception_pdu,
+    front_door,
+    lookup,
+)
 from gateway.modbus.mbap import (
     COUNTED_FROM,
     HEADER_LENGTH,
@@ -563,7 +569,8 @@ class Connection(asyncio.Protocol):
         server = self.server
         server.stats.requests += 1
         self.requests += 1
-        if not changes_nothing(pdu):  # a write
+        reads_only, malformed = front_door(pdu)
+        if not reads_only:  # a write
             if self._writes_waiting >= server.settings.max_queued_writes_per_client:
                 self._refuse_write(transaction_id, unit_id, pdu)
                 return
@@ -576,7 +583,7 @@ class Connection(asyncio.Protocol):
             return
         # The front door first (`refusal`), which a well-formed read passes without a call when
         # there are no access rules: `read_only` refuses writes only.
-        if check_request(pdu) is not None or server.access is not None:
+        if malformed is not None or server.access is not None:
             refusal = server.refusal(unit_id, pdu, self.client, self.role)
             if refusal is not None:
                 self._send(transaction_id, unit_id, refusal)

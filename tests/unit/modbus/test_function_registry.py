@@ -19,6 +19,7 @@ from gateway.modbus.functions import (
     Reason,
     changes_nothing,
     check_request,
+    front_door,
     join_replies,
     lookup,
     needs_split,
@@ -402,3 +403,22 @@ def test_a_remembered_split_verdict_is_the_splits(
     assert needs_split(pdu, max_words) is expected
     assert needs_split(pdu, max_words) is expected  # the remembered answer too
     assert expected == (count > max_words and start + count <= 0x10000)
+
+
+@given(
+    st.one_of(
+        st.binary(min_size=0, max_size=12),
+        st.builds(
+            lambda code, start, count: struct.pack(">BHH", code, start, count),
+            st.sampled_from([1, 2, 3, 4, 5, 6, 0x41]),
+            st.integers(0, 0xFFFF),
+            st.integers(0, 0x200),
+        ),
+    )
+)
+def test_the_front_doors_one_lookup_says_what_the_two_checks_say(request_pdu: bytes) -> None:
+    """`front_door`, the Modbus-TCP server's one remembered verdict per request, is exactly
+    (`changes_nothing`, `check_request`) for any bytes a client may send."""
+    if not request_pdu:
+        return  # the server never takes an empty PDU (MIN_FRAME)
+    assert front_door(request_pdu) == (changes_nothing(request_pdu), check_request(request_pdu))
