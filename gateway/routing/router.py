@@ -140,7 +140,15 @@ class Router:
         if route is None:
             route = self.route(unit_id)  # raises, saying which unit id
         max_words = route.max_words
-        if max_words is not None and needs_split(pdu, max_words):
+        if (
+            max_words is not None
+            and len(pdu) >= 5
+            and (pdu[3] << 8 | pdu[4]) > max_words  # a split read asks for more words
+            and needs_split(pdu, max_words)
+        ):
+            # The first tests never change the verdict (only 03H/04H/10H requests split, each
+            # five bytes or more with its quantity in bytes 3-4, and only beyond `max_words`):
+            # they spare the reads that fit, nearly all, the remembered verdict's lookup.
             return False
         if route.cache_max_age_s is not None:
             cached = self._from_cache(route, pdu)
