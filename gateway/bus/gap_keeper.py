@@ -28,7 +28,7 @@ from gateway.bus.receiver import Receiver
 from gateway.bus.wakeup import MovingDeadline, settle
 from gateway.errors import BadReply
 from gateway.modbus.reply_search import Found, search_reply
-from gateway.modbus.rtu import check_reply, plain_read_reply, plain_read_reply_length
+from gateway.modbus.rtu import PlainRead, check_reply, plain_read, plain_read_reply
 
 Replied = Callable[[Sending, bytes, float], None]
 """Told, in the port's reader callback, of an attempt whose whole and valid reply is there:
@@ -77,9 +77,9 @@ class _Round:
     """When the frame's last bit was on the wire: a copy of the request complete before
     `Receiver.echo_deadline(frame, sent)` is the adapter's echo (worked out only when a reply
     isn't taken at once: the common case needs no echo deadline)."""
-    plain_read_length: int = 0
-    """The length of the normal reply when the request is a plain read, else 0
-    (`gateway.modbus.rtu.plain_read_reply_length`)."""
+    plain_read: PlainRead | None = None
+    """What the normal reply is known by when the request is a plain read, else None
+    (`gateway.modbus.rtu.plain_read`)."""
 
     def take_pick(self) -> bytes | None:
         """The frame to send now: the one chosen earlier, if any, else `pick`'s."""
@@ -115,7 +115,7 @@ class GapKeeper:
         finds the reply missing or incomplete."""
         self._held: _Round | None = None
         """The round of the caller held until its reply (its `sending`, `sent` and
-        `plain_read_length`: what it sent), for the reader callback to finish the attempt
+        `plain_read`: what it sent), for the reader callback to finish the attempt
         itself."""
         self._idle: _Round | None = None
         """The round of a caller held while the line is idle: `kick` sends its next frame."""
@@ -336,7 +336,7 @@ class GapKeeper:
             if frame is not this.sending.frame:
                 # Else the round's last request again (a poller's, its frame remembered by the
                 # bus): its reply's length is known, without the cache's lookup.
-                this.plain_read_length = plain_read_reply_length(frame)
+                this.plain_read = plain_read(frame)
             this.sending, this.sent = sending, sent
             self._held = this
         return True
@@ -419,10 +419,11 @@ class GapKeeper:
         held = self._held
         pdu: bytes | None = None
         if held is not None:
-            length = held.plain_read_length
+            expected = held.plain_read
             arrivals = receiver.arrivals
             if (
-                length == len(data)
+                expected is not None
+                and expected.length == len(data)
                 and not receiver.received
                 and arrivals is not None
                 and len(arrivals) == 1
@@ -430,7 +431,7 @@ class GapKeeper:
                 # The common case, checked directly: a read's reply, alone and in one piece (no
                 # glitch before it, no pause inside it to measure), in this one read, as the
                 # search would find it: taken at once, never kept in the buffer.
-                pdu = plain_read_reply(data, held.sending.frame, length)
+                pdu = plain_read_reply(data, expected)
             if pdu is not None:
                 receiver.quiet_since = time.monotonic()  # as `Receiver.take` stamps it
             else:
@@ -501,10 +502,11 @@ class GapKeeper:
         received = receiver.received
         arrivals = receiver.arrivals
         pdu = None
-        if held.plain_read_length and arrivals is not None and len(arrivals) == 2:
+        expected = held.plain_read
+        if expected is not None and arrivals is not None and len(arrivals) == 2:
             # A read's reply, alone and in one piece, that came after bytes of no use, or
             # behind other bytes in the buffer (`heard` takes only a lone one directly).
-            pdu = plain_read_reply(received, frame, held.plain_read_length)
+            pdu = plain_read_reply(received, expected)
         if pdu is not None:
             received.clear()
             return pdu

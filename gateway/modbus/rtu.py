@@ -28,21 +28,13 @@ def request_frame(address: int, pdu: bytes) -> bytes:
     return build_frame(address, pdu)
 
 
-@lru_cache(maxsize=1024)
-def plain_read_reply_length(request: bytes) -> int:
-    """The length of a normal reply to the RTU `request` when it is a plain read (03H or 04H,
-    8 bytes): address, function, byte count, the words, CRC. 0 for any other request, whose
-    reply only the reply search (`gateway.modbus.reply_search`) may size. Remembered, as
-    `request_frame` is: the same frames come back, and a hit is a hash lookup in C."""
-    if len(request) != 8 or request[1] not in (3, 4):
-        return 0
-    count = (request[4] << 8) | request[5]
-    return 5 + 2 * count if 0 < count <= 125 else 0
+class PlainRead(NamedTuple):
+    """What the normal reply to one plain read request (03H or 04H, 8 bytes) is known by
+    before it comes (`plain_read`)."""
 
-
-class _PlainReadReply(NamedTuple):
-    """What the normal reply to one plain read request is known by before it comes."""
-
+    request: bytes
+    length: int
+    """The reply's length: address, function, byte count, the words, CRC."""
     head: bytes
     """Its address, function and byte count."""
     register: int
@@ -54,33 +46,45 @@ class _PlainReadReply(NamedTuple):
 
 
 @lru_cache(maxsize=1024)
-def _plain_read_reply_head(request: bytes) -> _PlainReadReply | None:
-    """`_PlainReadReply` of the plain read `request`; None for any other request. Remembered,
-    as `plain_read_reply_length` is."""
-    length = plain_read_reply_length(request)
-    if not length:
+def plain_read(request: bytes) -> PlainRead | None:
+    """`PlainRead` of the RTU `request` when it is a plain read; None for any other request,
+    whose reply only the reply search (`gateway.modbus.reply_search`) may size. Remembered, as
+    `request_frame` is: the same frames come back, and a hit is a hash lookup in C."""
+    if len(request) != 8 or request[1] not in (3, 4):
         return None
+    count = (request[4] << 8) | request[5]
+    if not 0 < count <= 125:
+        return None
+    length = 5 + 2 * count
     head = bytes((request[0], request[1], length - 5))
     register = crc16_from(0xFFFF, head, 0)
-    return _PlainReadReply(head, register, request[2] == length - 5, words_of((length - 3) // 2))
+    return PlainRead(
+        request, length, head, register, request[2] == length - 5, words_of((length - 3) // 2)
+    )
 
 
-def plain_read_reply(received: bytes | bytearray, request: bytes, length: int) -> bytes | None:
-    """The PDU of the normal reply to the plain read `request` when `received` is exactly that
-    reply (`length` from `plain_read_reply_length`) and its CRC is right; else None, and the
-    reply search decides.
+def plain_read_reply_length(request: bytes) -> int:
+    """The length of a normal reply to the RTU `request` when it is a plain read (`plain_read`);
+    0 for any other request."""
+    expected = plain_read(request)
+    return 0 if expected is None else expected.length
+
+
+def plain_read_reply(received: bytes | bytearray, expected: PlainRead) -> bytes | None:
+    """The PDU of the normal reply to the plain read `expected.request` when `received` is
+    exactly that reply and its CRC is right; else None, and the reply search decides.
 
     What the search would find at offset 0 for such bytes, checked directly: the search also
     takes the first candidate with the expected address, function and byte count whose CRC is
     right, and `check_reply` then asks no more of a read's reply than its byte count. Bytes
     that begin with the request itself are left to the search (an adapter's echo). Once per
     read on a busy line: the three bytes known before the reply comes are compared at once, and
-    the CRC worked out from the register after them.
+    the CRC worked out from the register after them; what is known of the request is the
+    caller's (`plain_read`, looked up once per request sent).
     """
-    expected = _plain_read_reply_head(request)
+    request = expected.request
     if (
-        expected is not None
-        and len(received) == length
+        len(received) == expected.length
         and received.startswith(expected.head)
         and (not expected.like_request or received[: len(request)] != request)
         and crc16_words(expected.register, expected.rest.unpack_from(received, 3)) == 0
