@@ -13,6 +13,7 @@ ends, and no pass for the caller's coroutine.
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from collections.abc import Callable
@@ -42,6 +43,10 @@ instructions against ~1,400, counted with callgrind). For the records made once 
 _NOT_SENT = Sending(b"", 0.0, 0.0, 0)
 """`_Round.sending` before the round's first hold (typed so, the reader callback reads it
 without a check)."""
+
+_NO_DEADLINE = math.inf
+"""`MovingDeadline.deadline` when none is set (a module global: `math.inf` is an attribute
+read more)."""
 
 _STILL_COMING = b""
 """`GapKeeper._reply_held`: the held caller's reply is not all there yet (no PDU is empty)."""
@@ -447,7 +452,7 @@ class GapKeeper:
             self._holding = False
             deadline = self._response_deadline
             if deadline is not None:
-                deadline.clear()
+                deadline.deadline = _NO_DEADLINE  # `MovingDeadline.clear`, written out
             port = self._port
             assert port is not None
             port.waiter = None
