@@ -164,6 +164,10 @@ class RequestQueue:
         still the only one; else None. It goes next whatever the rules (a share is for sharing,
         not for idling): `get_nowait` takes it without weighing the levels, as it does once per
         transaction on a line whose clients ask one at a time."""
+        self._spare: deque[Transaction] | None = None
+        """A client's deque emptied by `get_nowait`, for the next client `put` finds with
+        none: a client that asks one at a time would otherwise make and drop one per request
+        (a deque's block is a C allocation of its own)."""
         self._reads_while_polls_wait = 0
         self._read_since_poll: set[str] = set()
         """Clients served a read since the last poll, while polls waited."""
@@ -195,7 +199,13 @@ class RequestQueue:
         client = transaction.client
         waiting = clients.get(client)
         if waiting is None:
-            clients[client] = deque((transaction,))
+            waiting = self._spare
+            if waiting is None:
+                clients[client] = deque((transaction,))
+            else:
+                self._spare = None
+                waiting.append(transaction)
+                clients[client] = waiting
         else:
             waiting.append(transaction)
         if coalescable:
@@ -245,6 +255,8 @@ class RequestQueue:
         del clients[client]
         if waiting:
             clients[client] = waiting  # back of the round robin
+        else:
+            self._spare = waiting
         self._size -= 1
         if transaction.coalescable:
             key = transaction.key
