@@ -246,7 +246,8 @@ class RequestQueue:
             clients = self._next_clients(time.monotonic() if now is None else now)
             if clients is None:
                 return None
-        client, waiting = next(iter(clients.items()))
+        client = next(iter(clients))  # the front of the round robin (no items view, no pair)
+        waiting = clients[client]
         if clients is polls:
             self._read_since_poll.clear()
         elif polls and clients is reads:
