@@ -1078,8 +1078,7 @@ class _Observed:
         self._started = started
 
     def set_result(self, result: bytes | None, /) -> None:
-        # Once per request: the exception test and `report` written out.
-        code = result[1] if result is not None and len(result) > 1 and result[0] & 0x80 else None
+        code = _exception_code(result)
         self._bus._report(self._address, self._pdu, self._client, self._started, code)
         self._waiter.set_result(result)
 
@@ -1090,7 +1089,7 @@ class _Observed:
         waiter = self._waiter
         if waiter.done():
             return
-        code = result[1] if result and result[0] & 0x80 and len(result) > 1 else None
+        code = _exception_code(result)
         bus, pdu = self._bus, self._pdu
         function, duration_s = pdu[0] if pdu else 0, time.monotonic() - self._started
         for observer in bus._request_observers:  # `Bus._report`, written out
@@ -1108,15 +1107,18 @@ class _Observed:
         self._bus._report(self._address, self._pdu, self._client, self._started, code)
 
 
+def _exception_code(reply: bytes | None) -> int | None:
+    """The exception code a caller answered with `reply` got, for the request observers; None
+    for a normal reply (or a broadcast's none). `Bus._replied` writes it out."""
+    return reply[1] if reply is not None and len(reply) > 1 and reply[0] & 0x80 else None
+
+
 def _resolve(transaction: Transaction, reply: bytes | None) -> None:
     report = transaction.observed_by  # for its own waiter, the first
     for waiter in transaction.waiters:
         if not waiter.done():
             if report is not None:
-                code = (
-                    reply[1] if reply is not None and len(reply) > 1 and reply[0] & 0x80 else None
-                )
-                report(transaction, code)
+                report(transaction, _exception_code(reply))
             waiter.set_result(reply)
         report = None
 

@@ -85,8 +85,7 @@ class LineTimer:
         self._spec = _Itimerspec()
         self._deadline = _INF
         """Of the pending sleep, until its deadline has been acted on; inf otherwise."""
-        self._armed = _ARMED.setdefault(loop, set())
-        self.loop_armed: set[LineTimer] = self._armed
+        self.loop_armed: set[LineTimer] = _ARMED.setdefault(loop, set())
         """The timers of this loop's lines armed now, this one's too (shared, never replaced):
         a caller that knows only its own can be due skips `fire_due`'s call and clock read."""
         self._fallback: NeverEarly | None = None
@@ -109,7 +108,7 @@ class LineTimer:
         """Act now on every gap of this timer's loop (its own or another line's) that has ended,
         rather than when that timer's wake-up gets its turn in the loop's pass (see the module's
         docstring). Cheap when none has: a clock read."""
-        armed = self._armed
+        armed = self.loop_armed
         if not armed:
             return
         now = time.monotonic()
@@ -144,7 +143,7 @@ class LineTimer:
         waiter = self._loop.create_future()
         self.waiting, self._at_deadline = waiter, at_deadline
         self._deadline = deadline
-        self._armed.add(self)
+        self.loop_armed.add(self)
         try:
             if self._fd >= 0 and self._arm(deadline):
                 await waiter
@@ -162,7 +161,7 @@ class LineTimer:
             if self.waiting is waiter:  # not a newer sleep's, if this one ended late
                 self.waiting = self._at_deadline = None
                 self._deadline = _INF
-                self._armed.discard(self)
+                self.loop_armed.discard(self)
 
     def rearm(self, deadline: float, at_deadline: Callable[[], bool]) -> bool:
         """Give a wait that its `at_deadline` took over (returned True) another deadline and
@@ -187,7 +186,7 @@ class LineTimer:
         if done != 0:
             return False
         self._at_deadline, self._deadline = at_deadline, deadline
-        self._armed.add(self)
+        self.loop_armed.add(self)
         return True
 
     def take_over(self) -> bool:
@@ -199,12 +198,12 @@ class LineTimer:
         if waiter is None or waiter.done() or self._deadline == _INF:
             return False
         self._deadline = _INF
-        self._armed.discard(self)
+        self.loop_armed.discard(self)
         self._at_deadline = None
         return True
 
     def close(self) -> None:
-        self._armed.discard(self)
+        self.loop_armed.discard(self)
         fd, self._fd = self._fd, -1
         if fd >= 0:
             self._loop.remove_reader(fd)
@@ -260,7 +259,7 @@ class LineTimer:
             return
         # Acted on once only: whichever comes first, the wake-up or `fire_due`.
         self._deadline = _INF
-        self._armed.discard(self)
+        self.loop_armed.discard(self)
         self._at_deadline = None
         taken = False
         try:

@@ -63,13 +63,6 @@ def plain_read(request: bytes) -> PlainRead | None:
     )
 
 
-def plain_read_reply_length(request: bytes) -> int:
-    """The length of a normal reply to the RTU `request` when it is a plain read (`plain_read`);
-    0 for any other request."""
-    expected = plain_read(request)
-    return 0 if expected is None else expected.length
-
-
 def plain_read_reply(received: bytes | bytearray, expected: PlainRead) -> bytes | None:
     """The PDU of the normal reply to the plain read `expected.request` when `received` is
     exactly that reply and its CRC is right; else None, and the reply search decides.

@@ -42,7 +42,6 @@ from gateway.modbus.rtu import (
     check_reply,
     plain_read,
     plain_read_reply,
-    plain_read_reply_length,
     request_frame,
 )
 from gateway.modbus.timing import CharacterFormat
@@ -326,7 +325,9 @@ _plain_reads = st.builds(
 def test_a_plain_reads_reply_is_taken_only_where_the_search_would_take_it(
     request: bytes, data: st.DataObject
 ) -> None:
-    length = plain_read_reply_length(request)
+    expected = plain_read(request)
+    assert expected is not None
+    length = expected.length
     assert length == 5 + 2 * struct.unpack(">H", request[4:6])[0]
     good = build_frame(request[0], bytes((request[1], length - 5)) + bytes(length - 5))
     received = data.draw(
@@ -342,8 +343,6 @@ def test_a_plain_reads_reply_is_taken_only_where_the_search_would_take_it(
             st.just(good[:-1]),  # still coming
         )
     )
-    expected = plain_read(request)
-    assert expected is not None
     fast = plain_read_reply(received, expected)
     if fast is not None:
         assert fast == _general_verdict(received, request) == received[1:-2]
@@ -356,7 +355,7 @@ def test_a_plain_reads_reply_is_taken_only_where_the_search_would_take_it(
     ["01 06 20 00 00 01", "01 10 20 00 00 01 02 00 01", "01 03 21 00 00 00", "01 03 21 00 00 7E"],
 )
 def test_requests_other_than_plain_reads_have_no_shortcut(request_hex: str) -> None:
-    assert plain_read_reply_length(build_frame(1, bytes.fromhex(request_hex)[1:])) == 0
+    assert plain_read(build_frame(1, bytes.fromhex(request_hex)[1:])) is None
 
 
 @PURE
