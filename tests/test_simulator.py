@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 import serial
 
+from gateway import timerfd
 from gateway.instruments.simulator import SimulatedLine
 from gateway.instruments.simulator.control import USAGE, run_control_command
 from gateway.modbus.crc import crc_ok
@@ -274,7 +275,14 @@ def test_noise_written_by_the_line_reaches_the_master(
 # ---------------------------------------------------------------- timing
 
 
-def test_wire_time_at_9600_baud() -> None:
+@pytest.mark.parametrize("wait", ["timerfd", "select"])
+def test_wire_time_at_9600_baud(wait: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Whichever way the serving thread waits for a reply's time: a timerfd in epoll, or
+    select's own timeout where the system has no timerfd."""
+    if wait == "select":
+        monkeypatch.setattr(timerfd, "libc", lambda: None)  # as on a system without timerfd
+    elif timerfd.libc() is None:
+        pytest.skip("no timerfd on this system")
     # 8 request + 7 reply bytes of 11 bits at 9600 baud: 17.2 ms on the wire, plus 5 ms delay.
     with (
         SimulatedLine([1], baudrate=9600, wire_time=True, response_delay_ms=5.0) as line,
@@ -288,6 +296,9 @@ def test_wire_time_at_9600_baud() -> None:
             time.sleep(0.01)  # more than t3.5 before the next request, as a master must
         assert min(durations) >= 15 * 11 / 9600 + 0.005
         assert max(durations) < 0.1
+        # Woken for each reply when it was due, not a tick or a wait's worth later.
+        late = {float(bound): count for bound, count in line.stats["reply_late_buckets"]}
+        assert late[0.0025] == late[float("inf")] == 3
 
 
 def test_a_line_that_does_not_spin_answers_right_and_never_early() -> None:

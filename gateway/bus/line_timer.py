@@ -20,50 +20,23 @@ from __future__ import annotations
 
 import asyncio
 import ctypes
-import ctypes.util
 import logging
 import math
 import os
-import sys
 import time
 import weakref
 from collections.abc import Callable
 
+from gateway import timerfd
 from gateway.bus.wakeup import NeverEarly, settle
+from gateway.timerfd import TFD_TIMER_ABSTIME, VALUE_NANOSECONDS, VALUE_SECONDS, Itimerspec
 
 log = logging.getLogger(__name__)
 
-CLOCK_MONOTONIC = 1
-"""The clock behind `time.monotonic()` on Linux: deadlines are passed through unchanged."""
-TFD_NONBLOCK = os.O_NONBLOCK
-TFD_CLOEXEC = os.O_CLOEXEC
-TFD_TIMER_ABSTIME = 1
 _INF = math.inf
 """`math.inf` as a module global: read once per transaction or more, and `math.inf` is a
 global read and an attribute read."""
-
-
-_Itimerspec = ctypes.c_long * 4
-"""struct itimerspec as four longs: it_interval (seconds, nanoseconds), then it_value. A flat
-array rather than nested Structures: `spec.it_value.tv_sec = ...` builds a view object of the
-inner struct on every access, and the timer is armed once per transaction."""
 _ceil = math.ceil
-_VALUE_SECONDS = 2
-_VALUE_NANOSECONDS = 3
-
-
-def _libc() -> ctypes.CDLL | None:
-    if not sys.platform.startswith("linux"):
-        return None
-    try:
-        # A PyDLL keeps the GIL through the call: the timerfd calls never block, and letting
-        # the GIL go and taking it back costs some 300 instructions a call (callgrind); the
-        # timer is armed once per transaction.
-        libc = ctypes.PyDLL(ctypes.util.find_library("c"), use_errno=True)
-        libc.timerfd_create  # noqa: B018 - the attribute lookup is the check
-    except (OSError, AttributeError):
-        return None
-    return libc
 
 
 _ARMED: weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, set[LineTimer]] = (
@@ -82,7 +55,7 @@ class LineTimer:
         attribute, not a property: the line reads it once per transaction, and a property's
         call costs ~600 instructions more than an attribute's read on Python 3.11."""
         self._at_deadline: Callable[[], bool] | None = None
-        self._spec = _Itimerspec()
+        self._spec = Itimerspec()
         self._deadline = _INF
         """Of the pending sleep, until its deadline has been acted on; inf otherwise."""
         self.loop_armed: set[LineTimer] = _ARMED.setdefault(loop, set())
@@ -91,13 +64,13 @@ class LineTimer:
         self._fallback: NeverEarly | None = None
         """The loop's timer for the pending sleep where there is no timerfd."""
         self._fd = -1
-        self._libc = _libc()
+        libc = timerfd.libc()
         self._timerfd_settime: Callable[..., int] | None = None
         """libc's, looked up once: a CDLL's attributes go through its `__getattr__` hook on
         every access, and the timer is armed once per transaction."""
-        if self._libc is not None:
-            self._timerfd_settime = self._libc.timerfd_settime
-            fd = int(self._libc.timerfd_create(CLOCK_MONOTONIC, TFD_NONBLOCK | TFD_CLOEXEC))
+        if libc is not None:
+            self._timerfd_settime = libc.timerfd_settime
+            fd = timerfd.create()
             if fd >= 0:
                 self._fd = fd
                 loop.add_reader(fd, self._expired)
@@ -179,8 +152,8 @@ class LineTimer:
             at_ns = 1
         seconds, nanoseconds = divmod(at_ns, 1_000_000_000)
         spec = self._spec
-        spec[_VALUE_SECONDS] = seconds
-        spec[_VALUE_NANOSECONDS] = nanoseconds
+        spec[VALUE_SECONDS] = seconds
+        spec[VALUE_NANOSECONDS] = nanoseconds
         assert self._timerfd_settime is not None
         done = self._timerfd_settime(self._fd, TFD_TIMER_ABSTIME, spec, None)
         if done != 0:
@@ -221,8 +194,8 @@ class LineTimer:
         """The one timerfd write (all zero: disarm); it clears the expiry count."""
         assert self._timerfd_settime is not None
         spec = self._spec
-        spec[_VALUE_SECONDS] = seconds
-        spec[_VALUE_NANOSECONDS] = nanoseconds
+        spec[VALUE_SECONDS] = seconds
+        spec[VALUE_NANOSECONDS] = nanoseconds
         done = self._timerfd_settime(self._fd, flags, spec, None)  # an array: its address
         return int(done) == 0
 

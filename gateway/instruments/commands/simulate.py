@@ -25,6 +25,7 @@ import sys
 from collections.abc import Iterator, Sequence
 from types import FrameType
 
+from gateway.collector import settle_startup_objects
 from gateway.exit_codes import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from gateway.instruments.simulator.abb_drive import ABB_MODELS
 from gateway.instruments.simulator.control import run_line_command
@@ -207,6 +208,9 @@ def handle(args: argparse.Namespace) -> int:
     with _signal_pipe() as signalled:
         try:
             lines = [build_line(args) for _ in range(args.lines)]
+            # As the gateway does: a full collection over the drives' registers stalled all
+            # the lines 16 ms (32 lines, the bench), and each reply due then went out late.
+            settle_startup_objects()
             server = LineServer(lines)
             server.start()
         except (ValueError, OSError) as error:

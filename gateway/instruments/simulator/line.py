@@ -348,9 +348,9 @@ class SimulatedLine:
         endpoint = self._endpoint
         return [self._wake_read] if endpoint is None else [self._wake_read, endpoint.fd]
 
-    def _serve_ready(self, readable: Container[int]) -> None:
+    def _serve_ready(self, readable: Container[int], woke_at: float) -> None:
         """One pass of the serving thread for this line: `readable` are the descriptors its
-        wait found ready (this line's among others)."""
+        wait found ready (this line's among others) when it woke at `woke_at`."""
         if self._wake_read in readable:
             os.read(self._wake_read, READ_SIZE)
         if self._stopping:
@@ -359,7 +359,9 @@ class SimulatedLine:
         self._run_calls()
         self._send_due(time.monotonic())
         if endpoint is not None and endpoint is self._endpoint and endpoint.fd in readable:
-            self._receive(endpoint, time.monotonic())
+            # The bytes were there when the wait ended: their time, however many lines' work
+            # came before this one's in the pass (a master's request is not later for that).
+            self._receive(endpoint, woke_at)
         with self._lock:
             for frame in self._assembler.on_silence(time.monotonic() + self.relay_s):
                 self._on_frame(frame)

@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from gateway.bus import line_timer
+from gateway import timerfd
 from gateway.bus.line_timer import LineTimer
 
 
@@ -30,7 +30,7 @@ async def test_without_a_timerfd_a_gap_still_never_ends_early(
     """Where there is no timerfd the loop's own timer keeps the gap; uvloop's comes up to half
     a millisecond early (it rounds to the nearest), asyncio's rounds up: on both loops the
     sleep lasts at least until its deadline, sub-millisecond gaps (RTS delays) included."""
-    monkeypatch.setattr(line_timer, "_libc", lambda: None)  # as on a system without timerfd
+    monkeypatch.setattr(timerfd, "libc", lambda: None)  # as on a system without timerfd
     timer = LineTimer(asyncio.get_running_loop())
     try:
         assert not timer.exact

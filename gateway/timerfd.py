@@ -1,0 +1,103 @@
+"""Linux's timerfd through libc: a file descriptor that becomes readable at a nanosecond deadline.
+
+Python 3.11 has no `os.timerfd_create` (3.13 has). A descriptor that a selector watches like any
+other gives a wait to the nanosecond where the selectors' own timeouts are whole milliseconds
+(epoll) or cost a scan of every descriptor (select). Two users: the gateway's line timer (the
+inter-frame gap, on the event loop) and the simulated drives' line server (replies due on the
+microsecond, on a thread).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import functools
+import math
+import os
+import sys
+from collections.abc import Callable
+
+CLOCK_MONOTONIC = 1
+"""The clock behind `time.monotonic()` on Linux: deadlines are passed through unchanged."""
+TFD_NONBLOCK = os.O_NONBLOCK
+TFD_CLOEXEC = os.O_CLOEXEC
+TFD_TIMER_ABSTIME = 1
+
+Itimerspec = ctypes.c_long * 4
+"""struct itimerspec as four longs: it_interval (seconds, nanoseconds), then it_value. A flat
+array rather than nested Structures: `spec.it_value.tv_sec = ...` builds a view object of the
+inner struct on every access, and a line's timer is armed once per transaction."""
+VALUE_SECONDS = 2
+VALUE_NANOSECONDS = 3
+
+
+@functools.cache
+def libc() -> ctypes.PyDLL | None:
+    """libc where it has timerfd (Linux), else None."""
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        # A PyDLL keeps the GIL through the call: the timerfd calls never block, and letting
+        # the GIL go and taking it back costs some 300 instructions a call (callgrind).
+        found = ctypes.PyDLL(ctypes.util.find_library("c"), use_errno=True)
+        found.timerfd_create  # noqa: B018 - the attribute lookup is the check
+    except (OSError, AttributeError):
+        return None
+    return found
+
+
+def create() -> int:
+    """A new non-blocking timerfd on the monotonic clock; -1 where there is none."""
+    found = libc()
+    if found is None:
+        return -1
+    return int(found.timerfd_create(CLOCK_MONOTONIC, TFD_NONBLOCK | TFD_CLOEXEC))
+
+
+class DeadlineTimer:
+    """One timerfd armed at an absolute `time.monotonic()` deadline, or disarmed.
+
+    Arming again replaces the deadline and clears the expiry count, so a waiter that arms before
+    each wait never has to read the descriptor; it is readable once the deadline armed last has
+    passed, until armed again or disarmed."""
+
+    __slots__ = ("_settime", "_spec", "armed_at", "fd")
+
+    def __init__(self) -> None:
+        self.fd = create()
+        """-1 where the system has no timerfd: `arm_at` and `disarm` return False then."""
+        found = libc()
+        self._settime: Callable[..., int] | None = None if found is None else found.timerfd_settime
+        self._spec = Itimerspec()
+        self.armed_at = math.inf
+        """The deadline armed now; inf when disarmed."""
+
+    def arm_at(self, deadline: float) -> bool:
+        """Readable at `deadline` (rounded up to the nanosecond: never early); inf disarms."""
+        if deadline == math.inf:
+            return self.disarm()
+        # At least 1 ns: an all-zero it_value would disarm the timer instead of firing it.
+        seconds, nanoseconds = divmod(max(math.ceil(deadline * 1e9), 1), 1_000_000_000)
+        if not self._write(seconds, nanoseconds, TFD_TIMER_ABSTIME):
+            return False
+        self.armed_at = deadline
+        return True
+
+    def disarm(self) -> bool:
+        if not self._write(0, 0, 0):
+            return False
+        self.armed_at = math.inf
+        return True
+
+    def close(self) -> None:
+        fd, self.fd = self.fd, -1
+        if fd >= 0:
+            os.close(fd)
+
+    def _write(self, seconds: int, nanoseconds: int, flags: int) -> bool:
+        if self.fd < 0 or self._settime is None:
+            return False
+        spec = self._spec
+        spec[VALUE_SECONDS] = seconds
+        spec[VALUE_NANOSECONDS] = nanoseconds
+        return int(self._settime(self.fd, flags, spec, None)) == 0
