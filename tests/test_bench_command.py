@@ -207,12 +207,17 @@ def test_bench_runs_several_lines_in_one_gateway_when_asked(tmp_path: Path) -> N
         # How long each waited for a core: the machine's share of what the line lost.
         assert 0 <= each["CPU waited"] < 1
         assert 0 <= each["drives waited"] < 1
+        # What the hypervisor took from the machine meanwhile (0 on bare metal).
+        assert 0 <= each["host steal"] < 1
     # Every one of the four lines carried traffic; the worst is at most the mean.
     assert 0 < row["worst line"] <= row["bus util"]
     # The mean line against one line alone, in percentage points.
     assert row["vs 1 line"] == pytest.approx(100 * (row["bus util"] - reference["bus util"]))
     assert reference["vs 1 line"] == 0
     assert row["gap+ p50 us"] >= 0
+    assert (
+        "of this machine's processor time while the cases were measured (steal)" in (report["host"])
+    )
     single, line = report["summary"]
     assert "the reference of the lines cases" in single
     assert "points from one line alone (target within 2)" in line

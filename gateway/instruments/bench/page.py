@@ -17,7 +17,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from gateway.instruments.bench.cases import CaseResult
-from gateway.instruments.bench.report import format_row, header, row, summary
+from gateway.instruments.bench.report import format_row, header, host_sentence, row, summary
 from gateway.version import describe_version
 
 WRITTEN_BY = "<!-- written by invt-gateway bench --page: run it again to replace this page -->"
@@ -92,6 +92,7 @@ def markdown(
             f"1-minute load average {machine.load_before:.1f} at the start, "
             f"{os.getloadavg()[0]:.1f} at the end, the run's own processes included",
         ),
+        ("host", host_sentence(results)),
     ]
     lines = [WRITTEN_BY, ""]
     if machine.load_before >= machine.cores / 2:

@@ -148,6 +148,19 @@ def cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
 
 
+def host_steal_s() -> float:
+    """CPU time the hypervisor gave other machines while this one's processors wanted it, all
+    processors together, since boot (steal, /proc/stat): nan where the kernel doesn't count it.
+    On a busy host a few percent of it make every wake-up late, whoever runs here."""
+    try:
+        with open("/proc/stat") as stat:
+            fields = stat.readline().split()
+        # "cpu user nice system idle iowait irq softirq steal ...": steal is the 8th number.
+        return int(fields[8]) / CLOCK_TICKS
+    except (OSError, IndexError, ValueError):
+        return math.nan
+
+
 def run_queue_s(pid: int) -> float:
     """How long the threads of `pid` have waited on a run queue, runnable but not running (a
     machine busy with other work): nan where the kernel doesn't keep schedstat."""

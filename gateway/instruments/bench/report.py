@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 from gateway.instruments.bench.cases import SCADA_ALONE, SCADA_POLLED, CaseResult
@@ -39,6 +40,7 @@ COLUMNS = (
     ("drives CPU", "{:>10.1%}"),
     ("CPU waited", "{:>10.1%}"),
     ("drives waited", "{:>13.1%}"),
+    ("host steal", "{:>10.1%}"),
 )
 POINTS_FROM_ONE_LINE = 2.0
 """The lines cases' target: each line within this many percentage points of one line alone."""
@@ -88,6 +90,9 @@ def row(result: CaseResult) -> dict[str, Any]:
         # well above nothing, the machine (its other work) was what held the line back.
         "CPU waited": result.run_queue_s / result.elapsed_s,
         "drives waited": result.simulator_run_queue_s / result.elapsed_s,
+        # What the hypervisor took from this machine's processors (steal): on a shared host
+        # above a percent or so, every wake-up here comes late and the line loses for it.
+        "host steal": result.host_steal_share,
     }
 
 
@@ -192,6 +197,28 @@ def summary(results: list[CaseResult]) -> list[str]:
                 "(target <= 60 MB)"
             )
     return lines
+
+
+STEAL_NOTICEABLE = 0.01
+"""Steal above this share of the processors' time: the figures measure the host too."""
+
+
+def host_sentence(results: Sequence[CaseResult]) -> str:
+    """How much of the processors' time the hypervisor took while the cases were measured."""
+    shares = [r.host_steal_share for r in results if not math.isnan(r.host_steal_share)]
+    if not shares:
+        return "the host's steal time is not known here (no /proc/stat)"
+    worst = max(shares)
+    said = (
+        f"the hypervisor took {min(shares):.1%}-{worst:.1%} of this machine's processor time "
+        "while the cases were measured (steal)"
+    )
+    if worst > STEAL_NOTICEABLE:
+        said += (
+            f": above {STEAL_NOTICEABLE:.0%} every wake-up comes late, and a case's line figures "
+            "fall with it (compare the rows' host steal)"
+        )
+    return said
 
 
 def lines_sentence(result: CaseResult, gaps: str) -> str:

@@ -141,7 +141,13 @@ def handle(args: argparse.Namespace) -> int:
         with_references,
     )
     from gateway.instruments.bench.processes import gateway_niceness
-    from gateway.instruments.bench.report import format_row, header, row, summary
+    from gateway.instruments.bench.report import (
+        format_row,
+        header,
+        host_sentence,
+        row,
+        summary,
+    )
 
     baudrates = tuple(args.baud or BAUDRATES)
     cases = matrix(baudrates, args.relay_ms)
@@ -178,6 +184,7 @@ def handle(args: argparse.Namespace) -> int:
             {
                 "event_loop": loop,
                 "priority": gateway_niceness(),
+                "host": host_sentence(results),
                 "cases": [row(r) for r in results],
                 "summary": summary(results),
             },
@@ -188,6 +195,7 @@ def handle(args: argparse.Namespace) -> int:
     else:
         print()
         print(f"the gateway ran on {loop}, {gateway_niceness()}")
+        print(host_sentence(results))
         for line in summary(results):
             print(line)
     if args.page is not None:
