@@ -129,18 +129,21 @@ class LineServer:
         soonest = min(self._deadlines)
         timeout = None if soonest == math.inf else max(0.0, soonest - time.monotonic())
         timer = self._timer
-        if timer.fd >= 0 and timeout != 0.0:
-            # The timerfd ends the wait (armed anew only when the soonest deadline moved:
-            # arming clears the expiry of the one before); the selector waits without one.
-            if soonest != timer.armed_at:
-                timer.arm_at(soonest)
+        # The timerfd ends the wait (armed anew only when the soonest deadline moved: arming
+        # clears the expiry of the one before); the selector waits without a timeout. Where
+        # arming is refused (never, in practice), the selector's own timeout serves.
+        if (
+            timer.fd >= 0
+            and timeout != 0.0
+            and (soonest == timer.armed_at or timer.arm_at(soonest))
+        ):
             timeout = None
         events = selector.select(timeout)
         now = time.monotonic()
         ready = {key.fd for key, _ in events}
         # A line with nothing to read and nothing due has nothing to do this pass.
         serving = {index for index, deadline in enumerate(self._deadlines) if deadline <= now}
-        serving.update(key.data for key, _ in events if key.data is not _TIMER)
+        serving.update(key.data for key, _ in events if key.data != _TIMER)
         # The soonest due first: a line waiting out its reply's last microseconds on the clock
         # holds up the others, which are due after it so.
         for index in sorted(serving, key=self._deadlines.__getitem__):
