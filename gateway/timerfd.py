@@ -59,35 +59,30 @@ class DeadlineTimer:
 
     Arming again replaces the deadline and clears the expiry count, so a waiter that arms before
     each wait never has to read the descriptor; it is readable once the deadline armed last has
-    passed, until armed again or disarmed."""
+    passed, until armed again or disarmed. A caller that arms once per transaction may write
+    `arm_at` out: `spec[VALUE_SECONDS]`, `spec[VALUE_NANOSECONDS]`, then
+    `settime(fd, TFD_TIMER_ABSTIME, spec, None)` (0 when done)."""
 
-    __slots__ = ("_settime", "_spec", "armed_at", "fd")
+    __slots__ = ("fd", "settime", "spec")
 
     def __init__(self) -> None:
         self.fd = create()
         """-1 where the system has no timerfd: `arm_at` and `disarm` return False then."""
         found = libc()
-        self._settime: Callable[..., int] | None = None if found is None else found.timerfd_settime
-        self._spec = Itimerspec()
-        self.armed_at = math.inf
-        """The deadline armed now; inf when disarmed."""
+        self.settime: Callable[..., int] | None = None if found is None else found.timerfd_settime
+        """libc's, looked up once: a CDLL's attributes go through its `__getattr__` hook on
+        every access."""
+        self.spec = Itimerspec()
 
     def arm_at(self, deadline: float) -> bool:
-        """Readable at `deadline` (rounded up to the nanosecond: never early); inf disarms."""
-        if deadline == math.inf:
-            return self.disarm()
+        """Readable at `deadline`, rounded up to the nanosecond: never early."""
         # At least 1 ns: an all-zero it_value would disarm the timer instead of firing it.
         seconds, nanoseconds = divmod(max(math.ceil(deadline * 1e9), 1), 1_000_000_000)
-        if not self._write(seconds, nanoseconds, TFD_TIMER_ABSTIME):
-            return False
-        self.armed_at = deadline
-        return True
+        return self._write(seconds, nanoseconds, TFD_TIMER_ABSTIME)
 
     def disarm(self) -> bool:
-        if not self._write(0, 0, 0):
-            return False
-        self.armed_at = math.inf
-        return True
+        """Never readable until armed again (the expiry count cleared too)."""
+        return self._write(0, 0, 0)
 
     def close(self) -> None:
         fd, self.fd = self.fd, -1
@@ -95,9 +90,9 @@ class DeadlineTimer:
             os.close(fd)
 
     def _write(self, seconds: int, nanoseconds: int, flags: int) -> bool:
-        if self.fd < 0 or self._settime is None:
+        if self.fd < 0 or self.settime is None:
             return False
-        spec = self._spec
+        spec = self.spec
         spec[VALUE_SECONDS] = seconds
         spec[VALUE_NANOSECONDS] = nanoseconds
-        return int(self._settime(self.fd, flags, spec, None)) == 0
+        return int(self.settime(self.fd, flags, spec, None)) == 0  # an array: its address

@@ -29,7 +29,7 @@ from collections.abc import Callable
 
 from gateway import timerfd
 from gateway.bus.wakeup import NeverEarly, settle
-from gateway.timerfd import TFD_TIMER_ABSTIME, VALUE_NANOSECONDS, VALUE_SECONDS, Itimerspec
+from gateway.timerfd import TFD_TIMER_ABSTIME, VALUE_NANOSECONDS, VALUE_SECONDS, DeadlineTimer
 
 log = logging.getLogger(__name__)
 
@@ -55,7 +55,6 @@ class LineTimer:
         attribute, not a property: the line reads it once per transaction, and a property's
         call costs ~600 instructions more than an attribute's read on Python 3.11."""
         self._at_deadline: Callable[[], bool] | None = None
-        self._spec = Itimerspec()
         self._deadline = _INF
         """Of the pending sleep, until its deadline has been acted on; inf otherwise."""
         self.loop_armed: set[LineTimer] = _ARMED.setdefault(loop, set())
@@ -63,19 +62,15 @@ class LineTimer:
         a caller that knows only its own can be due skips `fire_due`'s call and clock read."""
         self._fallback: NeverEarly | None = None
         """The loop's timer for the pending sleep where there is no timerfd."""
-        self._fd = -1
-        libc = timerfd.libc()
-        self._timerfd_settime: Callable[..., int] | None = None
-        """libc's, looked up once: a CDLL's attributes go through its `__getattr__` hook on
-        every access, and the timer is armed once per transaction."""
-        if libc is not None:
-            self._timerfd_settime = libc.timerfd_settime
-            fd = timerfd.create()
-            if fd >= 0:
-                self._fd = fd
-                loop.add_reader(fd, self._expired)
-            else:
-                log.debug("timerfd_create failed (errno %d); gaps kept to 1 ms", ctypes.get_errno())
+        self._timerfd = DeadlineTimer()
+        self._fd = self._timerfd.fd
+        """The timerfd's (-1: none), read once per transaction or more."""
+        self._spec, self._timerfd_settime = self._timerfd.spec, self._timerfd.settime
+        """For `rearm`'s written-out arming (`DeadlineTimer.arm_at`)."""
+        if self._fd >= 0:
+            loop.add_reader(self._fd, self._expired)
+        elif timerfd.libc() is not None:
+            log.debug("timerfd_create failed (errno %d); gaps kept to 1 ms", ctypes.get_errno())
 
     def fire_due(self) -> None:
         """Act now on every gap of this timer's loop (its own or another line's) that has ended,
@@ -118,7 +113,7 @@ class LineTimer:
         self._deadline = deadline
         self.loop_armed.add(self)
         try:
-            if self._fd >= 0 and self._arm(deadline):
+            if self._fd >= 0 and self._timerfd.arm_at(deadline):
                 await waiter
                 return
             # asyncio's loop timer rounds up to the next millisecond, uvloop's to the nearest:
@@ -145,7 +140,7 @@ class LineTimer:
         waiter = self.waiting
         if waiter is None or waiter.done() or self._fd < 0:
             return False
-        # `_arm` and `_settime`, written out: once per transaction on a busy line (a test and
+        # `DeadlineTimer.arm_at`, written out: once per transaction on a busy line (a test and
         # a module global rather than max() and math.ceil: a third of the conversion's cost).
         at_ns = _ceil(deadline * 1e9)
         if at_ns < 1:
@@ -180,24 +175,9 @@ class LineTimer:
         fd, self._fd = self._fd, -1
         if fd >= 0:
             self._loop.remove_reader(fd)
-            os.close(fd)
+        self._timerfd.close()
         if self.waiting is not None:
             settle(self.waiting)
-
-    def _arm(self, deadline: float) -> bool:
-        # Rounded up, never down: the gap may end a nanosecond late, never early. At least 1 ns:
-        # an all-zero it_value would disarm the timer instead of firing it.
-        seconds, nanoseconds = divmod(max(math.ceil(deadline * 1e9), 1), 1_000_000_000)
-        return self._settime(seconds, nanoseconds, TFD_TIMER_ABSTIME)
-
-    def _settime(self, seconds: int, nanoseconds: int, flags: int) -> bool:
-        """The one timerfd write (all zero: disarm); it clears the expiry count."""
-        assert self._timerfd_settime is not None
-        spec = self._spec
-        spec[VALUE_SECONDS] = seconds
-        spec[VALUE_NANOSECONDS] = nanoseconds
-        done = self._timerfd_settime(self._fd, flags, spec, None)  # an array: its address
-        return int(done) == 0
 
     def _fire_early(self) -> None:
         """`fire_due` found the deadline passed before the timer's own wake-up came: take that
@@ -210,7 +190,7 @@ class LineTimer:
             try:
                 os.read(self._fd, 8)
             except BlockingIOError:
-                self._settime(0, 0, 0)  # all zero: disarmed
+                self._timerfd.disarm()
         self._deadline_reached()
 
     def _expired(self) -> None:

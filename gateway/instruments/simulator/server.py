@@ -49,6 +49,8 @@ class LineServer:
         self._deadlines: list[float] = []
         self._timer: DeadlineTimer
         """The soonest deadline's wake-up (see `_open_selector`): the serving thread's."""
+        self._timer_at = math.inf
+        """The deadline `_timer` is armed at; inf when disarmed."""
 
     def start(self) -> None:
         """Open every line's port, then serve them all."""
@@ -118,7 +120,7 @@ class LineServer:
         is to the microsecond too (epoll's and poll's are whole milliseconds, and a reply due
         in the middle of one would go out up to a millisecond late), but every wait scans every
         line's descriptors (at 32 lines, most of the thread's time went there)."""
-        self._timer = DeadlineTimer()
+        self._timer, self._timer_at = DeadlineTimer(), math.inf
         if self._timer.fd < 0:
             return selectors.SelectSelector()
         selector = selectors.EpollSelector()
@@ -132,11 +134,7 @@ class LineServer:
         # The timerfd ends the wait (armed anew only when the soonest deadline moved: arming
         # clears the expiry of the one before); the selector waits without a timeout. Where
         # arming is refused (never, in practice), the selector's own timeout serves.
-        if (
-            timer.fd >= 0
-            and timeout != 0.0
-            and (soonest == timer.armed_at or timer.arm_at(soonest))
-        ):
+        if timer.fd >= 0 and timeout != 0.0 and (soonest == self._timer_at or self._arm(soonest)):
             timeout = None
         events = selector.select(timeout)
         now = time.monotonic()
@@ -149,6 +147,14 @@ class LineServer:
         for index in sorted(serving, key=self._deadlines.__getitem__):
             self.lines[index]._serve_ready(ready, now)
             self._look_again(selector, index)
+
+    def _arm(self, soonest: float) -> bool:
+        """The timerfd at `soonest` (disarmed for inf: no line has anything due)."""
+        timer = self._timer
+        if not (timer.disarm() if soonest == math.inf else timer.arm_at(soonest)):
+            return False
+        self._timer_at = soonest
+        return True
 
     def _look_again(self, selector: selectors.BaseSelector, index: int) -> None:
         """After serving the line at `index`: what to wait on for it next."""
