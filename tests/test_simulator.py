@@ -296,9 +296,11 @@ def test_wire_time_at_9600_baud(wait: str, monkeypatch: pytest.MonkeyPatch) -> N
             time.sleep(0.01)  # more than t3.5 before the next request, as a master must
         assert min(durations) >= 15 * 11 / 9600 + 0.005
         assert max(durations) < 0.1
-        # Woken for each reply when it was due, not a tick or a wait's worth later.
+        # Woken for each reply when it was due, not a wait's worth later (a timer armed in the
+        # wrong unit, or not at all, is tens of milliseconds late or never; a machine busy with
+        # other work makes a wake-up a few milliseconds late, which is no fault of the line).
         late = {float(bound): count for bound, count in line.stats["reply_late_buckets"]}
-        assert late[0.0025] == late[float("inf")] == 3
+        assert late[0.01] == late[float("inf")] == 3
 
 
 def test_a_line_that_does_not_spin_answers_right_and_never_early() -> None:
