@@ -9,19 +9,14 @@ Elsewhere (or if the call is refused) nothing changes: replies only come a littl
 
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
-import sys
+from gateway.libc import process_libc
 
 PR_SET_TIMERSLACK = 29
 
 
 def tighten_timer_slack() -> bool:
     """Set the calling thread's timer slack to 1 ns; True if the kernel took it."""
-    if not sys.platform.startswith("linux"):
+    libc = process_libc()
+    if libc is None or not hasattr(libc, "prctl"):
         return False
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c"), use_errno=True)
-        return int(libc.prctl(PR_SET_TIMERSLACK, 1, 0, 0, 0)) == 0
-    except (OSError, AttributeError):
-        return False
+    return int(libc.prctl(PR_SET_TIMERSLACK, 1, 0, 0, 0)) == 0

@@ -10,12 +10,12 @@ microsecond, on a thread).
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import functools
 import math
 import os
-import sys
 from collections.abc import Callable
+
+from gateway.libc import process_libc
 
 CLOCK_MONOTONIC = 1
 """The clock behind `time.monotonic()` on Linux: deadlines are passed through unchanged."""
@@ -34,14 +34,8 @@ VALUE_NANOSECONDS = 3
 @functools.cache
 def libc() -> ctypes.PyDLL | None:
     """libc where it has timerfd (Linux), else None."""
-    if not sys.platform.startswith("linux"):
-        return None
-    try:
-        # A PyDLL keeps the GIL through the call: the timerfd calls never block, and letting
-        # the GIL go and taking it back costs some 300 instructions a call (callgrind).
-        found = ctypes.PyDLL(ctypes.util.find_library("c"), use_errno=True)
-        found.timerfd_create  # noqa: B018 - the attribute lookup is the check
-    except (OSError, AttributeError):
+    found = process_libc()
+    if found is None or not hasattr(found, "timerfd_create"):
         return None
     return found
 

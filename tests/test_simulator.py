@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
-import ctypes.util
 import json
 import os
 import select
@@ -23,6 +22,7 @@ import serial
 from gateway import timerfd
 from gateway.instruments.simulator import SimulatedLine
 from gateway.instruments.simulator.control import USAGE, run_control_command
+from gateway.libc import process_libc
 from gateway.modbus.crc import crc_ok
 from gateway.modbus.rtu import build_frame
 from tests.support.protocol_frames import PROTOCOL_EXCHANGES
@@ -573,7 +573,8 @@ def test_control_commands_in_process(tmp_path: Path) -> None:
 
 def _signal_thread(pid: int, tid: int, number: int) -> None:
     """Send `number` to one thread of another process (glibc's tgkill; Python has no wrapper)."""
-    libc = ctypes.CDLL(ctypes.util.find_library("c"), use_errno=True)
+    libc = process_libc()
+    assert libc is not None
     if libc.tgkill(pid, tid, number) != 0:
         raise OSError(ctypes.get_errno(), "tgkill failed")
 

@@ -188,7 +188,7 @@ class SerialLine:
         started = time.monotonic()
         gap = started - self.receiver.quiet_since
         if self._rts is not None:
-            write_at = self._rts.start(frame, started)
+            write_at = self._rts.start(frame)
             return Sending(frame, started, gap, 0 if write_at else len(frame), write_at)
         assert self._port is not None
         return Sending(frame, started, gap, self._port.write_now(frame))

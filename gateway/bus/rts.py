@@ -22,12 +22,14 @@ class RtsSwitch:
         self._port = port
         self._timer = timer
 
-    def start(self, frame: bytes, started: float) -> float:
+    def start(self, frame: bytes) -> float:
         """Switch the driver on; write at once unless the transceiver needs a set-up delay.
         When `finish` may write the frame (0.0: written)."""
         self._port.set_rts(self.control.rts_level_for_tx)
         if self.control.delay_before_tx_s > 0:
-            return started + self.control.delay_before_tx_s
+            # Counted from the switch, not from when the attempt started: the set-up time is
+            # the transceiver's after its driver came on, and switching RTS is an ioctl.
+            return time.monotonic() + self.control.delay_before_tx_s
         self._port.write_whole(frame)
         return 0.0
 

@@ -21,16 +21,20 @@ import os
 import signal
 from collections.abc import Callable
 
+from gateway.libc import process_libc
+
 PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
-_libc = ctypes.CDLL(None, use_errno=True)
 
 
 def die_with_parent() -> Callable[[], None]:
     """A `preexec_fn` for subprocess.Popen: the child gets SIGTERM when this thread ends."""
     parent = os.getpid()
+    libc = process_libc()  # loaded here: the child, between fork and exec, only calls it
+    if libc is None:
+        raise OSError("no libc to set PR_SET_PDEATHSIG with (not Linux)")
 
     def in_the_child() -> None:
-        if _libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0) != 0:
+        if libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0) != 0:
             raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
         if os.getppid() != parent:
             os._exit(1)  # the parent ended before the setting took effect: never start
