@@ -236,10 +236,24 @@ def gateway(
             stop_process(process, stop_timeout_s)
 
 
+MAX_HANDED_OUT = 4096
+_HANDED_OUT: set[int] = set()
+"""The ports `free_port` gave in this process: the kernel's choice for a bind to port 0 can be
+the same port twice in a row (1 pair in 5,000 here), and a caller taking two (a demo's
+Modbus-TCP and MQTT ports) then found its own first listener on the second."""
+
+
 def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
+    """A loopback TCP port nothing listens on now, and one this process wasn't given before."""
+    while True:
+        with socket.socket() as sock:
+            sock.bind(("127.0.0.1", 0))
+            port = int(sock.getsockname()[1])
+        if port not in _HANDED_OUT:
+            if len(_HANDED_OUT) >= MAX_HANDED_OUT:
+                _HANDED_OUT.clear()  # long gone by now; the range is some 28,000 ports
+            _HANDED_OUT.add(port)
+            return port
 
 
 def wait_listening(port: int, process: subprocess.Popen[Any], timeout_s: float = 15.0) -> None:
