@@ -49,4 +49,3 @@ def test_the_timer_slack_and_timerfd_reach_libc_without_starting_a_process(
     finally:
         timer.close()
     assert spawned == []
-
