@@ -78,6 +78,8 @@ def row(result: CaseResult) -> dict[str, Any]:
         "worst line": min(result.line_shares, default=float("nan")),
         # Lines cases: the mean line's share of the wire minus one line's alone, in points.
         "vs 1 line": result.points_from_one_line,
+        # The same with the time lines waited for late simulated drives aside (JSON only).
+        "vs 1 line, drives aside": result.points_from_one_line_drives_aside,
         "CPU us/tx": result.cpu_per_transaction_us,
         "CPU us/ans": result.cpu_per_answer_us,
         "CPU": result.cpu_share,
@@ -233,7 +235,10 @@ def lines_sentence(result: CaseResult, gaps: str) -> str:
         )
     points = result.points_from_one_line
     compared = (
-        f"{points:+.1f} points from one line alone (target within {POINTS_FROM_ONE_LINE:g})"
+        f"{points:+.1f} points from one line alone (target within {POINTS_FROM_ONE_LINE:g}); "
+        f"with the simulated drives' lateness aside, {result.share_drives_aside:.1%} of what "
+        f"the wire and the drives allowed, {result.points_from_one_line_drives_aside:+.1f} "
+        "points"
         if not math.isnan(points)  # the reference ran
         else "one line alone not measured"
     )

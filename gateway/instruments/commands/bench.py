@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import shutil
 import sys
 from datetime import UTC, datetime
@@ -155,8 +154,7 @@ def handle(args: argparse.Namespace) -> int:
         cases = [c for c in cases + extra_cases(baudrates) if args.case in c.name]
         cases = with_references(cases)  # a lines case's row compares it with one line
     results: list[CaseResult] = []
-    # The lines cases' 1-line reference: its share of the wire, by baud rate and drive speed.
-    one_line: dict[tuple[int, bool], float] = {}
+    one_line: dict[tuple[int, bool], CaseResult] = {}  # the 1-line references, by (baud, fast)
     loop = gateway_event_loop()
     if loop is None:
         return EXIT_USAGE
@@ -174,8 +172,11 @@ def handle(args: argparse.Namespace) -> int:
             result = sorted(runs, key=lambda r: r.client_per_s)[len(runs) // 2]
             if case.many_lines:
                 if case.lines == 1:
-                    one_line[case.baudrate, case.fast] = result.utilisation
-                result.single_line_share = one_line.get((case.baudrate, case.fast), math.nan)
+                    one_line[case.baudrate, case.fast] = result
+                reference = one_line.get((case.baudrate, case.fast))
+                if reference is not None:
+                    result.single_line_share = reference.utilisation
+                    result.single_line_share_drives_aside = reference.share_drives_aside
             results.append(result)
             if not args.json:
                 progress.print(format_row(row(result)), sys.stdout)

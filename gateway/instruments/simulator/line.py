@@ -21,6 +21,8 @@ after it (the master's share, its reading of the reply and the relay between the
 that the line waits for besides the drives; with `relay_s`, beyond the relay's two delays too,
 which are the configured path's and not the master's: so its buckets, the same as the master's
 excess gap's, resolve what is left rather than the relay's half-millisecond or so).
+`stats["reply_late_s"]` is the replies' lateness summed: the time the line waited for drives
+answering late, which no master could have used.
 
 With `relay_s`, a relay sits between the master's port and the drives' wire, as a USB adapter's
 timer or a serial device server does: every byte reaches the wire `relay_s` after the master
@@ -313,13 +315,15 @@ class SimulatedLine:
     @property
     def stats(self) -> dict[str, Any]:
         """A snapshot: requests, replies, broadcasts, crc_errors, ignored, gap_violations,
-        min_gap_s, faults_injected (spoilt replies), faults_by_kind, and the histograms
-        reply_late_buckets and heard_gap_buckets (see the module's docstring)."""
+        min_gap_s, faults_injected (spoilt replies), faults_by_kind, the histograms
+        reply_late_buckets and heard_gap_buckets and the sum reply_late_s (see the module's
+        docstring)."""
         with self._lock:
             return {
                 **self._stats,
                 "faults_by_kind": dict(self._stats["faults_by_kind"]),
                 "reply_late_buckets": self._reply_late.cumulative(),
+                "reply_late_s": self._reply_late.sum_s,
                 "heard_gap_buckets": self._heard_gap.cumulative(),
             }
 
