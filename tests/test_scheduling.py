@@ -16,6 +16,7 @@ import pytest
 
 from gateway.app import Application
 from gateway.bus import Priority, RequestDone
+from gateway.bus.queue import Transaction
 from gateway.errors import GatewayTargetFailed
 from gateway.instruments.simulator import SimulatedLine
 from gateway.modbus.timing import CharacterFormat
@@ -401,3 +402,51 @@ async def test_a_drive_that_only_garbles_its_probes_backs_off_like_a_silent_one(
             # at the first interval it would be about 16.
             assert 1 <= probes <= 8
             assert bus.health.is_offline(1)
+
+
+async def test_a_long_poll_goes_in_pieces_while_clients_wait_and_whole_on_an_idle_line() -> None:
+    """A poll holds every waiting reader up for its transaction: while SCADA reads wait, a
+    12-word poll goes as two 6-word reads (each the time of a short read, not of a long one);
+    once the clients stop, as one read again. Seen on the wire through the bus's tap, as the
+    console's traffic monitor shows it."""
+    with SimulatedLine(addresses=[1, 2], baudrate=115200) as line:
+        running = {"name": "running", "start": 0x3000, "count": 12, "interval_ms": 20}
+        drives = [
+            {"name": "pump1", "address": 1, "poll": [running]},
+            {"name": "fan2", "address": 2},
+        ]
+        async with running_gateway(gateway_config(line.path, drives, timeout_ms=1000)) as app:
+            polled: list[tuple[int, int]] = []  # (start, count) of each poll on the wire
+            answered: set[int] = set()
+            stop = asyncio.Event()
+
+            def tap(bus: str, transaction: Transaction, attempt: int, *_: object) -> None:
+                if transaction.client == POLL_CLIENT and attempt == 0:
+                    polled.append(struct.unpack(">HH", transaction.pdu[1:5]))
+
+            async def scada(client: TcpClient, register: int) -> None:
+                while not stop.is_set():  # two in flight: a read always waits for the line
+                    client.send(2, read_pdu(register))
+                    client.send(2, read_pdu(register))
+                    for _ in range(2):
+                        assert (await client.receive()).pdu[0] == 3
+                    answered.add(register)
+
+            clients = [await TcpClient.connect(app.tcp.port) for _ in range(4)]
+            load = [asyncio.create_task(scada(c, 0x3000 + i)) for i, c in enumerate(clients)]
+            bus = app.buses["line1"]
+            await eventually(lambda: len(answered) == len(clients), what="the clients reading")
+            bus.tap = tap
+            failures = app.poller.poll_failures
+            await eventually(lambda: len(polled) >= 6, within_s=30.0, what="polls under the load")
+            under_load = list(polled)
+            stop.set()
+            await asyncio.gather(*load)
+            for client in clients:
+                await client.close()
+            assert set(under_load) <= {(0x3000, 6), (0x3006, 6)}, under_load
+            assert (0x3006, 6) in under_load  # the second piece follows the first
+            assert app.poller.poll_failures == failures
+            # The line idle: the whole block in one read.
+            polled.clear()
+            await eventually(lambda: (0x3000, 12) in polled, what="a whole poll on an idle line")

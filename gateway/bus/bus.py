@@ -269,6 +269,12 @@ class Bus:
         return len(self._queue)
 
     @property
+    def reads_waiting(self) -> bool:
+        """Client reads wait for the line (`RequestQueue.reads_waiting`): the poller cuts a
+        long poll short then."""
+        return self._queue.reads_waiting
+
+    @property
     def busy(self) -> bool:
         """A transaction is on the wire. Not a `BusState`: the state is what the line is (a
         metric and the console show it), not a flicker per transaction."""

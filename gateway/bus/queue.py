@@ -176,6 +176,11 @@ class RequestQueue:
     def __len__(self) -> int:
         return self._size
 
+    @property
+    def reads_waiting(self) -> bool:
+        """Client reads wait for the line: a poll that goes now holds them up for its time."""
+        return bool(self._reads)
+
     def put(self, transaction: Transaction) -> Transaction:
         """Queue `transaction`, or attach its waiters to an identical queued read.
 

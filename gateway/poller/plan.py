@@ -29,6 +29,14 @@ READ_FUNCTION: Final = {
 }
 
 
+WORDS_WHILE_READS_WAIT: Final = 8
+"""While SCADA reads wait for the line, a poll block of more words goes as pieces of at most
+this many, near-equal: every poll holds the waiting readers up for its transaction, and INVT's
+default 12-word read of the running values held them 30 ms at 19200 baud against a 2-word
+read's 17 (a reader's p99 1.20-1.21x of the same load unpolled); two 6-word reads hold them
+about 23 ms each, one reader's round apart (`gateway.bus.queue`)."""
+
+
 @dataclass(frozen=True, slots=True)
 class PollBlock:
     """One read request: `count` words (bits of a coil or discrete input) of `table` from
@@ -41,6 +49,21 @@ class PollBlock:
     @property
     def function(self) -> int:
         return READ_FUNCTION[self.table]
+
+    def pieces_while_reads_wait(self) -> tuple[PollBlock, ...]:
+        """This block as reads of at most `WORDS_WHILE_READS_WAIT` words, near-equal, in
+        order; itself when it is that short, or a block of bits (a coil read's length is
+        bits, a few bytes on the wire)."""
+        if self.table.bits or self.count <= WORDS_WHILE_READS_WAIT:
+            return (self,)
+        number = -(-self.count // WORDS_WHILE_READS_WAIT)
+        size, longer = divmod(self.count, number)
+        pieces, start = [], self.start
+        for index in range(number):
+            count = size + (index < longer)
+            pieces.append(PollBlock(start, count, self.table))
+            start += count
+        return tuple(pieces)
 
 
 @dataclass(frozen=True, slots=True)

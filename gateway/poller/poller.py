@@ -266,12 +266,32 @@ class Poller:
                     return
 
     async def _poll_block(self, drive: PolledDrive, block: PollBlock) -> bool:
-        """Read one block; False when the drive gave no answer (skip the rest of the group)."""
+        """Read one block; False when the drive gave no answer (skip the rest of the group).
+
+        While SCADA reads wait for the line, a long block is read in shorter pieces
+        (`PollBlock.pieces_while_reads_wait`): each poll holds the waiting readers up for its
+        own transaction. Its values are taken in once all pieces are answered, as one read's."""
+        pieces = block.pieces_while_reads_wait() if drive.route.bus.reads_waiting else (block,)
+        values: list[int] = []
+        for piece in pieces:
+            reply = await self._read(drive, piece)
+            if isinstance(reply, bool):
+                return reply
+            if is_exception(reply):
+                self._drive_refused(drive, piece, reply[1] if len(reply) > 1 else 0)
+                return True
+            values += _values(piece, reply)
+        self._answered(drive, word_key(block.table, block.start), values)
+        return True
+
+    async def _read(self, drive: PolledDrive, block: PollBlock) -> bytes | bool:
+        """One poll's reply PDU (an exception reply too); False when the drive gave no answer,
+        True when the bus had no room for it (the next interval tries again)."""
         name = drive.settings.name
         self.polls += 1
         drive.polls += 1
         try:
-            reply = await self.router.poll(drive.route, block.start, block.count, block.function)
+            return await self.router.poll(drive.route, block.start, block.count, block.function)
         except BusClosed:
             return False  # shutting down: not the drive's failure, nothing to count
         except DriveOffline:
@@ -285,11 +305,6 @@ class Poller:
             # Queue full: the bus is busy with more urgent work; the next interval tries again.
             log.debug("poll of %s skipped: %s", name, exc)
             return True
-        if is_exception(reply):
-            self._drive_refused(drive, block, reply[1] if len(reply) > 1 else 0)
-            return True
-        self._answered(drive, word_key(block.table, block.start), _values(block, reply))
-        return True
 
     def _answered(self, drive: PolledDrive, start: int, words: list[int]) -> None:
         drive.failed_polls = 0
