@@ -46,6 +46,10 @@ pytestmark = pytest.mark.cluster  # in the suite; alone with `pytest -m cluster`
 
 RETAINED_WITHIN_S = 5.0
 RESUMED_WITHIN_S = 25.0
+ELECTIONS_S = 12.0
+"""From a node's SIGKILL until the streams it led have new leaders (6-12 s measured here: module
+doc). Retained messages are a JetStream stream: a change published before its new leader is
+elected is stored only then, so the 5 s bound counts from a change made after it."""
 """From the SIGKILL of a gateway's node to its "online" through another node (module doc)."""
 POLL = [{"name": "state", "start": 0x2100, "count": 3, "interval_ms": 300}]
 """The state words only: what changes with a fault; the cluster's nodes have CPU to spare."""
@@ -256,7 +260,9 @@ async def test_gateways_on_a_nats_cluster_ride_a_dead_node_and_a_dead_gateway(
                     assert a_after_node < RESUMED_WITHIN_S, (
                         f"gateway a took {a_after_node:.1f} s to publish again through a live node"
                     )
-                    await asyncio.sleep(2)
+                    # The storm goes on until the dead node's streams have new leaders (CI saw
+                    # a's retained state 5.1 s behind a change made 8.4 s after the death).
+                    await asyncio.sleep(max(2.0, killed + ELECTIONS_S - time.monotonic()))
                 # Checked between the storms, so each change is the test's own.
                 await assert_retained_everywhere([a, b], nodes)
                 async with toggling([a, b]):
