@@ -7,10 +7,11 @@ the figures are `invt-gateway bench`'s job.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import itertools
 import struct
 import time
-from collections.abc import Iterator
+from collections.abc import AsyncIterator, Iterator
 
 import pytest
 
@@ -310,6 +311,34 @@ async def test_a_drive_comes_back_and_polls_run_while_scada_reads_without_pause(
                 await client.close()
 
 
+@contextlib.asynccontextmanager
+async def scada_keeping_the_line_full(app: Application, clients: int = 4) -> AsyncIterator[None]:
+    """SCADA connections reading without pause, two requests in flight each, so that a read
+    always waits for the line; from the moment each has had a read answered until the block
+    ends (then they stop and close)."""
+    answered: set[int] = set()  # the clients that had a read answered
+    stop = asyncio.Event()
+
+    async def scada(client: TcpClient, register: int) -> None:
+        while not stop.is_set():
+            client.send(2, read_pdu(register))
+            client.send(2, read_pdu(register))
+            for _ in range(2):
+                assert (await client.receive()).pdu[0] == 3
+            answered.add(register)
+
+    connected = [await TcpClient.connect(app.tcp.port) for _ in range(clients)]
+    load = [asyncio.create_task(scada(c, 0x3000 + i)) for i, c in enumerate(connected)]
+    try:
+        await eventually(lambda: len(answered) == clients, what="the clients reading")
+        yield
+    finally:
+        stop.set()
+        await asyncio.gather(*load)
+        for client in connected:
+            await client.close()
+
+
 async def test_polls_yield_to_clients_reading_without_pause_and_fill_an_idle_line() -> None:
     """SCADA connections keeping the line full: a poll never holds one of them for more than
     one poll transaction, and polls take a small share of the line (`poll_share`, 5 % of its
@@ -320,32 +349,15 @@ async def test_polls_yield_to_clients_reading_without_pause_and_fill_an_idle_lin
         drives = [{"name": "pump1", "address": 1, "poll": [state]}, {"name": "fan2", "address": 2}]
         async with running_gateway(gateway_config(line.path, drives, timeout_ms=1000)) as app:
             served: list[str] = []  # who each transaction on the line was for, in order
-            answered: set[int] = set()  # the clients that had a read answered
-            stop = asyncio.Event()
-
-            async def scada(client: TcpClient, register: int) -> None:
-                # Two requests in flight: this client always has one waiting for the line.
-                while not stop.is_set():
-                    client.send(2, read_pdu(register))
-                    client.send(2, read_pdu(register))
-                    for _ in range(2):
-                        assert (await client.receive()).pdu[0] == 3
-                    answered.add(register)
-
-            clients = [await TcpClient.connect(app.tcp.port) for _ in range(4)]
-            load = [asyncio.create_task(scada(c, 0x3000 + i)) for i, c in enumerate(clients)]
-            bus = app.buses["line1"]
-            # From the moment every client has a read answered: the line is full from then on.
-            await eventually(lambda: len(answered) == len(clients), what="the clients reading")
-            bus.add_request_observer(lambda *done: served.append(RequestDone(*done).client))
-            await eventually(
-                lambda: served.count(POLL_CLIENT) >= 6, within_s=30.0, what="polls under the load"
-            )
-            under_load = list(served)
-            stop.set()
-            await asyncio.gather(*load)
-            for client in clients:
-                await client.close()
+            async with scada_keeping_the_line_full(app):
+                bus = app.buses["line1"]
+                bus.add_request_observer(lambda *done: served.append(RequestDone(*done).client))
+                await eventually(
+                    lambda: served.count(POLL_CLIENT) >= 6,
+                    within_s=30.0,
+                    what="polls under the load",
+                )
+                under_load = list(served)
             polls = under_load.count(POLL_CLIENT)
             assert polls / len(under_load) <= 0.1, under_load
             for reader in set(under_load) - {POLL_CLIENT}:
@@ -417,33 +429,18 @@ async def test_a_long_poll_goes_in_pieces_while_clients_wait_and_whole_on_an_idl
         ]
         async with running_gateway(gateway_config(line.path, drives, timeout_ms=1000)) as app:
             polled: list[tuple[int, int]] = []  # (start, count) of each poll on the wire
-            answered: set[int] = set()
-            stop = asyncio.Event()
 
             def tap(bus: str, transaction: Transaction, attempt: int, *_: object) -> None:
                 if transaction.client == POLL_CLIENT and attempt == 0:
                     polled.append(struct.unpack(">HH", transaction.pdu[1:5]))
 
-            async def scada(client: TcpClient, register: int) -> None:
-                while not stop.is_set():  # two in flight: a read always waits for the line
-                    client.send(2, read_pdu(register))
-                    client.send(2, read_pdu(register))
-                    for _ in range(2):
-                        assert (await client.receive()).pdu[0] == 3
-                    answered.add(register)
-
-            clients = [await TcpClient.connect(app.tcp.port) for _ in range(4)]
-            load = [asyncio.create_task(scada(c, 0x3000 + i)) for i, c in enumerate(clients)]
-            bus = app.buses["line1"]
-            await eventually(lambda: len(answered) == len(clients), what="the clients reading")
-            bus.tap = tap
-            failures = app.poller.poll_failures
-            await eventually(lambda: len(polled) >= 6, within_s=30.0, what="polls under the load")
-            under_load = list(polled)
-            stop.set()
-            await asyncio.gather(*load)
-            for client in clients:
-                await client.close()
+            async with scada_keeping_the_line_full(app):
+                app.buses["line1"].tap = tap
+                failures = app.poller.poll_failures
+                await eventually(
+                    lambda: len(polled) >= 6, within_s=30.0, what="polls under the load"
+                )
+                under_load = list(polled)
             assert set(under_load) <= {(0x3000, 6), (0x3006, 6)}, under_load
             assert (0x3006, 6) in under_load  # the second piece follows the first
             assert app.poller.poll_failures == failures
