@@ -206,7 +206,10 @@ class EventDatabase:
                     db.execute("DELETE FROM tallies WHERE key = ?", (event.settles,))
                 self._fault_history(event)
             db.executemany(
-                "INSERT OR REPLACE INTO history (drive, time, data) VALUES (?, ?, ?)",
+                # A step a restart cut in two: the new run's values over the first's, a value
+                # the new run hadn't polled yet kept from the first (not lost with a replace).
+                "INSERT INTO history (drive, time, data) VALUES (?, ?, ?) "
+                "ON CONFLICT (drive, time) DO UPDATE SET data = json_patch(data, excluded.data)",
                 ((p.drive, p.time, _dump(p.values)) for p in batch.history),
             )
         bound = space.budget - space.budget // HEADROOM_FRACTION

@@ -394,13 +394,11 @@ class EventStore:
         """`drive`'s history points from `since` to before `until` (epoch s), oldest first;
         those still waiting for the disk included."""
         stored = await self._call(self._db.history, drive, since, until)
-        kept = {at for at, _ in stored}
-        waiting = [
-            (p.time, p.values)
-            for p in list(self._history)
-            if p.drive == drive and since <= p.time < until and p.time not in kept
-        ]
-        return sorted(stored + waiting, key=lambda point: point[0])
+        points = dict(stored)
+        for point in list(self._history):  # as the write will merge them
+            if point.drive == drive and since <= point.time < until:
+                points[point.time] = {**points.get(point.time, {}), **point.values}
+        return sorted(points.items(), key=lambda point: point[0])
 
     async def history_rows(self) -> int:
         return await self._call(self._db.history_rows)

@@ -5,7 +5,8 @@ The poller's state of a drive (`Telemetry`) is averaged over each history step
 a text value (the state) as it was last, a true/false the share of polls it was true. When the
 step is over, its point goes to the store's writer with the next write (one transaction, on the
 store's thread, like the events); a point of a drive and step written again (the step a restart
-cut in two) replaces the first. What the disk can't take waits in memory, at most
+cut in two) is merged with the first: the new run's values over the first's, a value only the
+first run had polled kept. What the disk can't take waits in memory, at most
 `MAX_WAITING_POINTS`, the oldest dropped first; nothing else changes when the disk is full.
 
 Disk use: one row per drive and step, about 30 bytes plus 25 per value (a GD350 polled for
@@ -110,7 +111,7 @@ class HistoryRecorder:
 
     def finish(self) -> None:
         """The gateway stops: each step begun is kept as far as it went (a restart within the
-        step replaces it with what the new run sees)."""
+        step merges what the new run sees over it)."""
         for drive, step in self._steps.items():
             if step.counts or step.texts:
                 self.keep(step.point(drive))

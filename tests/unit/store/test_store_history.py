@@ -114,6 +114,23 @@ async def test_history_older_than_history_days_goes_and_the_rest_survives_a_rest
     assert kept == [(now - 60, {"hz": 2.0})]
 
 
+async def test_a_step_a_restart_cut_in_two_keeps_what_each_run_polled(tmp_path: Path) -> None:
+    config = StorageConfig(path=str(tmp_path / "events.db"))
+    step = time.time() - 30
+    async with running_store(config) as store:
+        store.history.keep(HistoryPoint("pump1", step, {"hz": 30.0, "state": "running_forward"}))
+        await store.flush()
+    async with running_store(config) as store:
+        # The new run's first poll of the step had read only the state block.
+        store.history.keep(HistoryPoint("pump1", step, {"state": "stopped"}))
+        waiting = await store.history_points("pump1", 0.0, step + 1)
+        await store.flush()
+        written = await store.history_points("pump1", 0.0, step + 1)
+        rows = await store.history_rows()
+    assert waiting == written == [(step, {"hz": 30.0, "state": "stopped"})]
+    assert rows == 1
+
+
 async def test_history_days_0_keeps_no_history(tmp_path: Path) -> None:
     config = StorageConfig(path=str(tmp_path / "events.db"), history_days=0)
     async with running_store(config) as store:
