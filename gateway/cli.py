@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from collections.abc import Callable, Sequence
 
-from gateway.exit_codes import EXIT_INTERRUPTED
+from gateway.exit_codes import EXIT_BROKEN_PIPE, EXIT_INTERRUPTED
 from gateway.version import describe_version
 
 # Sub-commands and their modules, in the order `--help` lists them. The service and the field
@@ -70,6 +71,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return handler(args)
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        # `| head` has read what it wanted: quiet, as a shell tool ends. Python's own flush of
+        # stdout at exit would hit the closed pipe again, so stdout goes to /dev/null first.
+        quiet = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(quiet, sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
 
 
 if __name__ == "__main__":

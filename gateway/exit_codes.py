@@ -21,3 +21,6 @@ EXIT_STARTUP = 4
 a newer release. Restarted by the unit: the port may be free on the next try."""
 EXIT_INTERRUPTED = 130
 """Ctrl-C in a command that is not the service (128 + SIGINT, as a shell reports it)."""
+EXIT_BROKEN_PIPE = 141
+"""The reader of the output went away (`invt-gateway ... | head`): 128 + SIGPIPE, as a shell
+reports a tool that SIGPIPE ended, and nothing on stderr."""

@@ -15,9 +15,16 @@ from pathlib import Path
 
 import pytest
 
+from gateway.exit_codes import EXIT_BROKEN_PIPE
 from gateway.instruments.simulator import SimulatedLine
 from tests.support import free_port, scan_rows
-from tests.support.processes import SimulatorProcess, gateway_process, run_cli, simulator_process
+from tests.support.processes import (
+    SimulatorProcess,
+    entry_point,
+    gateway_process,
+    run_cli,
+    simulator_process,
+)
 
 SIMULATED = {1: "GD350", 7: "GD350", 200: "GD350"}
 LINE = ("--baud", "115200", "--parity", "N")
@@ -195,6 +202,24 @@ def test_decode_fault() -> None:
         "99: unknown fault 99",
     ]
     assert run_cli("decode-fault", "abc").returncode == 2
+
+
+def test_output_cut_short_by_head_ends_quietly() -> None:
+    """`invt-gateway decode-fault ... | head -1`: the reader goes after one line; the command
+    stops with the shell's code for it, no traceback on the terminal."""
+    codes = [str(code) for code in range(70)] * 100  # some 300 kB: more than a pipe holds
+    with subprocess.Popen(
+        [entry_point(), "decode-fault", *codes],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    ) as command:
+        assert command.stdout is not None
+        assert command.stderr is not None
+        assert command.stdout.readline() == b"0: none\n"
+        command.stdout.close()  # as head does once it has its line
+        stderr = command.stderr.read()
+        assert command.wait(timeout=30) == EXIT_BROKEN_PIPE == 141
+    assert stderr == b""
 
 
 def test_decode_fault_by_the_keypads_short_code() -> None:
