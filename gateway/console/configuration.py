@@ -26,7 +26,8 @@ from aiohttp import web
 from gateway.console.auth import Identity
 from gateway.console.config_editor import ConfigEditor
 from gateway.console.events import Category, GatewayEvent
-from gateway.console.web import CONSOLE, IDENTITY, Console, _error, _html, _status_class
+from gateway.console.replies import http_error, status_class
+from gateway.console.web import CONSOLE, IDENTITY, Console, html_page
 from gateway.errors import EditRefused
 
 T = TypeVar("T")
@@ -84,10 +85,10 @@ def add_routes(app: web.Application, editor: ConfigEditor | None) -> None:
 async def configuration_page(request: web.Request) -> web.StreamResponse:
     who: Identity = request[IDENTITY]
     if not who.may_configure:
-        refused = _html(request, "Configuration", _refused_page(who), {"page": "refused"})
+        refused = html_page(request, "Configuration", _refused_page(who), {"page": "refused"})
         refused.set_status(403)
         return refused
-    return _html(
+    return html_page(
         request, "Configuration", PAGE, {"page": "configuration"}, scripts=("configuration.js",)
     )
 
@@ -112,7 +113,7 @@ async def config_apply(request: web.Request) -> web.StreamResponse:
     body = await _body(request)
     text, note, base = _text(body), body.get("note", ""), _base(body)
     if not isinstance(note, str):
-        raise _error(400, 'note: a string, e.g. {"text": "buses: ...", "note": "why"}')
+        raise http_error(400, 'note: a string, e.g. {"text": "buses: ...", "note": "why"}')
     try:
         result = await editor.apply(text, who.name, note[:MAX_NOTE], base)
     except EditRefused as exc:
@@ -167,13 +168,13 @@ def _admin(request: web.Request, audit: str | None = None) -> Identity:
     reason = f"{who.name} ({who.role}) may not see or change the configuration: admins only"
     if audit is not None and who.may_write:  # viewers can't get past the guard's own check
         _audit(request.app[CONSOLE], who, f"asked to {audit}", f"refused: {reason}")
-    raise _error(403, reason)
+    raise http_error(403, reason)
 
 
 def _editor(request: web.Request, who: Identity) -> ConfigEditor:
     editor = request.app.get(EDITOR)
     if editor is None:
-        raise _error(404, "this gateway was started without a configuration file to edit")
+        raise http_error(404, "this gateway was started without a configuration file to edit")
     return editor
 
 
@@ -187,30 +188,30 @@ async def _done(work: Awaitable[T]) -> T:
 async def _body(request: web.Request) -> dict[str, Any]:
     """The JSON body, up to `MAX_BODY` (the console's other requests are held to less)."""
     if request.content_type != "application/json":
-        raise _error(400, "send JSON (Content-Type: application/json)")
+        raise http_error(400, "send JSON (Content-Type: application/json)")
     raw = await request.content.read(MAX_BODY + 1)
     if len(raw) > MAX_BODY:
-        raise _error(400, f"text: {MAX_BODY // 1024} kB at most")
+        raise http_error(400, f"text: {MAX_BODY // 1024} kB at most")
     try:
         body = json.loads(raw)
     except ValueError:
-        raise _error(400, "the body is not valid JSON") from None
+        raise http_error(400, "the body is not valid JSON") from None
     if not isinstance(body, dict):
-        raise _error(400, "the body must be a JSON object")
+        raise http_error(400, "the body must be a JSON object")
     return body
 
 
 def _text(body: dict[str, Any]) -> str:
     text = body.get("text")
     if not isinstance(text, str):
-        raise _error(400, 'text: the configuration as YAML text, e.g. {"text": "buses: ..."}')
+        raise http_error(400, 'text: the configuration as YAML text, e.g. {"text": "buses: ..."}')
     return text
 
 
 def _base(body: dict[str, Any]) -> str | None:
     base = body.get("base")
     if base is not None and not isinstance(base, str):
-        raise _error(400, "base: the file's fingerprint as GET /api/config/file gave it")
+        raise http_error(400, "base: the file's fingerprint as GET /api/config/file gave it")
     return base
 
 
@@ -218,7 +219,7 @@ def _number(request: web.Request) -> int:
     try:
         return int(request.match_info["number"])
     except ValueError:
-        raise _error(400, "version: a whole number") from None
+        raise http_error(400, "version: a whole number") from None
 
 
 def _refused(exc: EditRefused) -> web.HTTPException:
@@ -227,7 +228,7 @@ def _refused(exc: EditRefused) -> web.HTTPException:
     if exc.details is not None:
         body.update(exc.details)
     body.update({"ok": False, "error": str(exc)})
-    return _status_class(exc.status)(text=json.dumps(body), content_type="application/json")
+    return status_class(exc.status)(text=json.dumps(body), content_type="application/json")
 
 
 def _applied_text(result: dict[str, object], note: str) -> str:

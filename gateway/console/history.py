@@ -23,7 +23,8 @@ from typing import Any, Final, Protocol, TypeVar
 from aiohttp import web
 
 from gateway.console.live import HISTORY_S
-from gateway.console.web import CONSOLE, _drive_name, _error, _html, _limit, _time_query
+from gateway.console.replies import http_error, query_limit, time_query
+from gateway.console.web import CONSOLE, drive_name, html_page
 from gateway.errors import StoreError
 from gateway.poller.drive_state import iso_time
 from gateway.store.history import Series, Value, series, values
@@ -98,14 +99,14 @@ async def history_page(request: web.Request) -> web.StreamResponse:
     drives = list(console.live.drives)
     drive = request.query.get("drive") or (drives[0] if drives else "")
     data = {"page": "history", "drives": ",".join(drives), "drive": drive}
-    return _html(request, "History", HISTORY, data, scripts=("uPlot.iife.min.js", "history.js"))
+    return html_page(request, "History", HISTORY, data, scripts=("uPlot.iife.min.js", "history.js"))
 
 
 async def drive_history(request: web.Request) -> web.StreamResponse:
     console = request.app[CONSOLE]
-    name = _drive_name(request)
+    name = drive_name(request)
     since, until = _window(request)
-    max_points = _limit(request, "points", DEFAULT_POINTS, MAX_POINTS) or 1
+    max_points = query_limit(request, "points", DEFAULT_POINTS, MAX_POINTS) or 1
     live_from = time.time() - HISTORY_S
     source = request.app.get(HISTORY_SOURCE)
     if since >= live_from - 1.0 or source is None:
@@ -115,7 +116,7 @@ async def drive_history(request: web.Request) -> web.StreamResponse:
         try:
             points = await source.history_points(name, since, until)
         except StoreError as exc:
-            raise _error(409, f"the history cannot be read now: {exc}") from None
+            raise http_error(409, f"the history cannot be read now: {exc}") from None
         origin, step_s = "store", source.history_step_s
     now = values(console.live.telemetry(name))
     # A week of a drive's minutes is ten thousand points: merged off the event loop (the
@@ -171,17 +172,17 @@ def _cell(value: Value | None) -> str:
 def _window(request: web.Request) -> tuple[float, float]:
     query = request.query
     now = time.time()
-    until = _time_query(request, "until") or now
-    since = _time_query(request, "since")
+    until = time_query(request, "until") or now
+    since = time_query(request, "since")
     if since is None:
         window = query.get("window", DEFAULT_WINDOW)
         if window not in WINDOWS:
-            raise _error(400, f"window: one of {', '.join(WINDOWS)} (or since= and until=)")
+            raise http_error(400, f"window: one of {', '.join(WINDOWS)} (or since= and until=)")
         since = until - WINDOWS[window]
     if since >= until:
-        raise _error(400, "since: must be before until")
+        raise http_error(400, "since: must be before until")
     if until - since > MAX_WINDOW_S:
-        raise _error(400, "since: a window of 10 years at most")
+        raise http_error(400, "since: a window of 10 years at most")
     return since, until
 
 
@@ -205,8 +206,8 @@ def _keys(request: web.Request, available: list[str], drive: str) -> list[str]:
         return available
     for key in asked:
         if not KEY.match(key):
-            raise _error(400, f"keys: {key[:64]!r} is not a value's name (letters, digits, _)")
+            raise http_error(400, f"keys: {key[:64]!r} is not a value's name (letters, digits, _)")
         if key not in available:
             known = ", ".join(available) or "none yet"
-            raise _error(400, f"keys: {drive} has no value {key!r} (it has: {known})")
+            raise http_error(400, f"keys: {drive} has no value {key!r} (it has: {known})")
     return list(dict.fromkeys(asked))

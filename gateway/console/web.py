@@ -18,7 +18,6 @@ import logging
 import time
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import replace
-from datetime import datetime
 from importlib import resources
 from typing import Any, Final
 from urllib.parse import quote
@@ -54,6 +53,12 @@ from gateway.console.operations import (
     REGISTER_BLOCKS,
     DriveOperations,
 )
+from gateway.console.replies import (
+    MAX_EVENTS,
+    http_error,
+    query_limit,
+    time_query,
+)
 from gateway.console.traffic import TrafficMonitor
 from gateway.errors import OperationError
 from gateway.poller.drive_state import iso_time
@@ -66,7 +71,6 @@ HEARTBEAT_S: Final = 15.0
 RECENT_BATCH: Final = 100
 """Transactions kept that a new monitor gets between two turns of the event loop."""
 MAX_JSON: Final = 16 * 1024
-MAX_EVENTS: Final = 2000
 MAX_CSV_EVENTS: Final = 20000
 """A file of events may hold a shift's worth; a page shows fewer."""
 IDENTITY: Final = web.RequestKey("identity", Identity)
@@ -237,13 +241,13 @@ def _secure(request: web.Request, response: web.StreamResponse) -> None:
 async def _guarded(console: Console, request: web.Request, handler: Handler) -> web.StreamResponse:
     path = request.path
     if request.method not in ("GET", "HEAD") and not _same_origin(request):
-        raise _error(403, "cross-site request refused")
+        raise http_error(403, "cross-site request refused")
     if path.startswith(_OPEN_PATHS):
         return await handler(request)
     who = console.identify(request)
     if who is None:
         if path.startswith("/api/"):
-            raise _error(401, "log in, or send an API token (Authorization: Bearer TOKEN)")
+            raise http_error(401, "log in, or send an API token (Authorization: Bearer TOKEN)")
         raise web.HTTPFound(f"/login?next={quote(path)}")
     if request.method not in ("GET", "HEAD") and path != "/api/logout":
         refusal = None
@@ -253,7 +257,7 @@ async def _guarded(console: Console, request: web.Request, handler: Handler) -> 
             refusal = "missing or wrong CSRF token (X-CSRF-Token)"
         if refusal is not None:
             console.refused_write(who, request, refusal)
-            raise _error(403, refusal)
+            raise http_error(403, refusal)
     request[IDENTITY] = who
     return await handler(request)
 
@@ -272,27 +276,10 @@ def _csrf_ok(console: Console, request: web.Request) -> bool:
     return session is not None and bool(sent) and hmac.compare_digest(sent, session.csrf_token)
 
 
-def _error(status: int, message: str) -> web.HTTPException:
-    body = json.dumps({"ok": False, "error": message})
-    return _status_class(status)(text=body, content_type="application/json")
-
-
-def _status_class(status: int) -> type[web.HTTPException]:
-    return {
-        400: web.HTTPBadRequest,
-        401: web.HTTPUnauthorized,
-        403: web.HTTPForbidden,
-        404: web.HTTPNotFound,
-        409: web.HTTPConflict,
-        429: web.HTTPTooManyRequests,
-        502: web.HTTPBadGateway,
-    }[status]
-
-
 # -- pages ----------------------------------------------------------------------------------
 
 
-def _html(
+def html_page(
     request: web.Request,
     title: str,
     body: str,
@@ -316,7 +303,7 @@ def _html(
 
 
 async def overview_page(request: web.Request) -> web.StreamResponse:
-    return _html(request, "Overview", pages.OVERVIEW, {"page": "overview"})
+    return html_page(request, "Overview", pages.OVERVIEW, {"page": "overview"})
 
 
 async def drive_page(request: web.Request) -> web.StreamResponse:
@@ -325,7 +312,7 @@ async def drive_page(request: web.Request) -> web.StreamResponse:
         raise web.HTTPNotFound(text=f"no drive named {name}")
     groups = request.app[CONSOLE].operations.parameter_groups(name)
     data = {"page": "drive", "drive": name, "groups": ",".join((*groups, *REGISTER_BLOCKS))}
-    return _html(request, name, pages.DRIVE, data)
+    return html_page(request, name, pages.DRIVE, data)
 
 
 async def monitor_page(request: web.Request) -> web.StreamResponse:
@@ -333,20 +320,20 @@ async def monitor_page(request: web.Request) -> web.StreamResponse:
     bus = request.match_info.get("bus", buses[0])
     if bus not in buses:
         raise web.HTTPNotFound(text=f"no bus named {bus}")
-    return _html(request, f"Monitor {bus}", pages.MONITOR, {"page": "monitor", "bus": bus})
+    return html_page(request, f"Monitor {bus}", pages.MONITOR, {"page": "monitor", "bus": bus})
 
 
 async def events_page(request: web.Request) -> web.StreamResponse:
     drives = ",".join(request.app[CONSOLE].live.drives)
-    return _html(request, "Events", pages.EVENTS, {"page": "events", "drives": drives})
+    return html_page(request, "Events", pages.EVENTS, {"page": "events", "drives": drives})
 
 
 async def diagnostics_page(request: web.Request) -> web.StreamResponse:
-    return _html(request, "Diagnostics", pages.DIAGNOSTICS, {"page": "diagnostics"})
+    return html_page(request, "Diagnostics", pages.DIAGNOSTICS, {"page": "diagnostics"})
 
 
 async def login_page(request: web.Request) -> web.StreamResponse:
-    return _html(request, "Log in", pages.LOGIN, {"page": "login"})
+    return html_page(request, "Log in", pages.LOGIN, {"page": "login"})
 
 
 # -- login ----------------------------------------------------------------------------------
@@ -364,7 +351,7 @@ async def login(request: web.Request) -> web.StreamResponse:
         retry = max(1, round(wait))
         if throttle.refused(name, address):  # the first refusal is reported, the rest counted
             console.audit("login_failed", name, address, f"throttled: retry in {retry} s")
-        refused = _error(429, f"too many failed logins: try again in {retry} s")
+        refused = http_error(429, f"too many failed logins: try again in {retry} s")
         refused.headers["Retry-After"] = str(retry)
         raise refused
     # scrypt takes tens of milliseconds of CPU: in a thread, so the bus never waits for it.
@@ -374,7 +361,7 @@ async def login(request: web.Request) -> web.StreamResponse:
         console.logins.failed += 1
         log.warning("console: failed login for %r from %s", name[:MAX_NAME_LENGTH], address)
         console.audit("login_failed", name, address, "wrong name or password")
-        raise _error(401, "wrong name or password")
+        raise http_error(401, "wrong name or password")
     throttle.succeeded(name, address)
     console.logins.ok += 1
     key, session = console.sessions.open(name, role)
@@ -438,7 +425,7 @@ async def events(request: web.Request) -> web.StreamResponse:
     """The events, newest first: `?drive=&kind=&since=&until=&limit=`, `&format=csv` for a file."""
     console = request.app[CONSOLE]
     as_csv = request.query.get("format") == "csv"
-    limit = _limit(request, maximum=MAX_CSV_EVENTS if as_csv else MAX_EVENTS)
+    limit = query_limit(request, maximum=MAX_CSV_EVENTS if as_csv else MAX_EVENTS)
     found = await console.events.history(_event_query(console, request), limit)
     if not as_csv:
         return web.json_response({"events": [e.to_json() for e in found]})
@@ -451,24 +438,11 @@ def _event_query(console: Console, request: web.Request) -> EventQuery:
     query = request.query
     drive = query.get("drive") or None
     if drive is not None and drive not in console.live.drives:
-        raise _error(404, f"drive: no drive named {drive!r}")
+        raise http_error(404, f"drive: no drive named {drive!r}")
     kinds = frozenset(k.strip() for value in query.getall("kind", []) for k in value.split(","))
     return EventQuery(
-        drive, kinds - {""}, _time_query(request, "since"), _time_query(request, "until")
+        drive, kinds - {""}, time_query(request, "since"), time_query(request, "until")
     )
-
-
-def _time_query(request: web.Request, key: str) -> float | None:
-    value = request.query.get(key)
-    if not value:
-        return None
-    try:
-        moment = datetime.fromisoformat(value)
-    except ValueError:
-        moment = None
-    if moment is None or moment.tzinfo is None:
-        raise _error(400, f"{key}: an ISO 8601 time with its zone, e.g. 2026-11-25T06:00:00Z")
-    return moment.timestamp()
 
 
 async def diagnostics(request: web.Request) -> web.StreamResponse:
@@ -492,9 +466,9 @@ async def recent_log(request: web.Request) -> web.StreamResponse:
     console = request.app[CONSOLE]
     level = request.query.get("level", "info")
     try:
-        lines = console.log.lines(level, _limit(request, "limit", 200, LOG_LINES))
+        lines = console.log.lines(level, query_limit(request, "limit", 200, LOG_LINES))
     except ValueError as exc:
-        raise _error(400, str(exc)) from None
+        raise http_error(400, str(exc)) from None
     return web.json_response({"level": level, "lines": lines})
 
 
@@ -504,14 +478,14 @@ async def running_configuration(request: web.Request) -> web.StreamResponse:
     console = request.app[CONSOLE]
     who = console.identify(request)
     if who is None or not who.may_write:
-        raise _error(403, "the running configuration is for operators")
+        raise http_error(403, "the running configuration is for operators")
     if console.configuration is None:
-        raise _error(404, "no configuration to show")
+        raise http_error(404, "no configuration to show")
     return web.json_response({"configuration": console.configuration()})
 
 
 async def drive_detail(request: web.Request) -> web.StreamResponse:
-    return web.json_response(_drive_json(request.app[CONSOLE], _drive_name(request)))
+    return web.json_response(_drive_json(request.app[CONSOLE], drive_name(request)))
 
 
 def _drive_json(console: Console, name: str) -> dict[str, Any]:
@@ -519,15 +493,15 @@ def _drive_json(console: Console, name: str) -> dict[str, Any]:
 
 
 async def drive_chart(request: web.Request) -> web.StreamResponse:
-    return web.json_response(request.app[CONSOLE].live.chart(_drive_name(request)))
+    return web.json_response(request.app[CONSOLE].live.chart(drive_name(request)))
 
 
 async def drive_faults(request: web.Request) -> web.StreamResponse:
     console = request.app[CONSOLE]
-    name = _drive_name(request)
+    name = drive_name(request)
     history = await _operation(console.operations.fault_history(request[IDENTITY], name))
-    found = await console.events.history(EventQuery(drive=name), _limit(request))
-    recorded = await console.events.recorded_faults(name, _limit(request))
+    found = await console.events.history(EventQuery(drive=name), query_limit(request))
+    recorded = await console.events.recorded_faults(name, query_limit(request))
     return web.json_response(
         {
             "fault_history": history,
@@ -539,7 +513,7 @@ async def drive_faults(request: web.Request) -> web.StreamResponse:
 
 async def drive_parameters(request: web.Request) -> web.StreamResponse:
     console = request.app[CONSOLE]
-    name = _drive_name(request)
+    name = drive_name(request)
     groups = [*console.operations.parameter_groups(name), *REGISTER_BLOCKS]
     text = request.query.get("find")
     if text is not None:
@@ -558,7 +532,7 @@ async def drive_command(request: web.Request) -> web.StreamResponse:
     body = await _json_body(request)
     command = str(body.get("command", ""))
     result = await _operation(
-        console.operations.command(request[IDENTITY], _drive_name(request), command)
+        console.operations.command(request[IDENTITY], drive_name(request), command)
     )
     return web.json_response(result)
 
@@ -568,9 +542,9 @@ async def drive_frequency(request: web.Request) -> web.StreamResponse:
     body = await _json_body(request)
     hz = body.get("hz")
     if not isinstance(hz, int | float) or isinstance(hz, bool):
-        raise _error(400, 'hz: a number of hertz, e.g. {"hz": 25.0}')
+        raise http_error(400, 'hz: a number of hertz, e.g. {"hz": 25.0}')
     result = await _operation(
-        console.operations.set_frequency(request[IDENTITY], _drive_name(request), float(hz))
+        console.operations.set_frequency(request[IDENTITY], drive_name(request), float(hz))
     )
     return web.json_response(result)
 
@@ -580,12 +554,13 @@ async def drive_parameter(request: web.Request) -> web.StreamResponse:
     body = await _json_body(request)
     name, value, ram = body.get("name"), body.get("value"), body.get("ram", False)
     if not isinstance(name, str) or not isinstance(value, str | int | float):
-        raise _error(400, 'name and value: e.g. {"name": "P00.11", "value": "10.0", "ram": true}')
+        example = '{"name": "P00.11", "value": "10.0", "ram": true}'
+        raise http_error(400, f"name and value: e.g. {example}")
     if not isinstance(ram, bool):
-        raise _error(400, "ram: true or false")
+        raise http_error(400, "ram: true or false")
     result = await _operation(
         console.operations.write_parameter(
-            request[IDENTITY], _drive_name(request), name, str(value), ram
+            request[IDENTITY], drive_name(request), name, str(value), ram
         )
     )
     return web.json_response(result)
@@ -599,7 +574,7 @@ async def live_stream(request: web.Request) -> web.StreamResponse:
     console = request.app[CONSOLE]
     drive = request.query.get("drive")
     if drive is not None and drive not in console.live.drives:
-        raise _error(404, f"no drive named {drive!r}")
+        raise http_error(404, f"no drive named {drive!r}")
     response = await _open_stream(request)
     try:
         while not console.closing.is_set():
@@ -618,12 +593,12 @@ async def traffic_stream(request: web.Request) -> web.StreamResponse:
     console = request.app[CONSOLE]
     bus = request.match_info["bus"]
     if bus not in console.live.buses:
-        raise _error(404, f"no bus named {bus!r}")
+        raise http_error(404, f"no bus named {bus!r}")
     traffic = console.traffic
     watcher = traffic.watch(bus)
     try:
         response = await _open_stream(request)
-        recent = _limit(request, "recent", default=0)
+        recent = query_limit(request, "recent", default=0)
         if recent:
             for index, kept in enumerate(traffic.recent(bus)[-recent:]):
                 await _send_event(response, "traffic", traffic.to_json(kept))
@@ -670,13 +645,13 @@ async def _wait(console: Console, seconds: float) -> None:
 
 async def _json_body(request: web.Request) -> dict[str, Any]:
     if request.content_type != "application/json":
-        raise _error(400, "send JSON (Content-Type: application/json)")
+        raise http_error(400, "send JSON (Content-Type: application/json)")
     try:
         body = await request.json()
     except ValueError:
-        raise _error(400, "the body is not valid JSON") from None
+        raise http_error(400, "the body is not valid JSON") from None
     if not isinstance(body, dict):
-        raise _error(400, "the body must be a JSON object")
+        raise http_error(400, "the body must be a JSON object")
     return body
 
 
@@ -684,20 +659,11 @@ async def _operation(work: Awaitable[Any]) -> Any:
     try:
         return await work
     except OperationError as exc:
-        raise _error(exc.status, str(exc)) from None
+        raise http_error(exc.status, str(exc)) from None
 
 
-def _drive_name(request: web.Request) -> str:
+def drive_name(request: web.Request) -> str:
     name = request.match_info["name"]
     if name not in request.app[CONSOLE].live.drives:
-        raise _error(404, f"no drive named {name!r}")
+        raise http_error(404, f"no drive named {name!r}")
     return name
-
-
-def _limit(
-    request: web.Request, key: str = "limit", default: int = 200, maximum: int = MAX_EVENTS
-) -> int:
-    try:
-        return max(0, min(int(request.query.get(key, default)), maximum))
-    except ValueError:
-        raise _error(400, f"{key}: a whole number") from None
