@@ -11,7 +11,9 @@ from collections.abc import Callable
 FRAMES = logging.getLogger("gateway.frames")
 """Hex dumps of every RTU frame, at debug level: `logging: {level: debug}` shows what went on
 the wire, byte for byte, without a line analyser."""
-FRAMES_CACHED: Callable[[int], bool | None] = vars(FRAMES)["_cache"].get  # logging's own cache
+# logging's own cache, a private dict: a Python without it gives an empty one here, so every
+# check falls through to `isEnabledFor` (right, only slower) rather than failing at import.
+FRAMES_CACHED: Callable[[int], bool | None] = vars(FRAMES).get("_cache", {}).get
 """What `FRAMES.isEnabledFor` has remembered for a level: True, False, or None when not known
 (since any logger's level or `logging.disable` last changed: logging clears this same dict
 then). `FRAMES_CACHED(logging.DEBUG) is not False and FRAMES.isEnabledFor(logging.DEBUG)` is
