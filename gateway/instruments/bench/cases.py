@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import os
 import struct
 import time
 from dataclasses import dataclass, field
@@ -21,6 +20,7 @@ from gateway.instruments.bench.processes import (
     free_port,
     gateway,
     host_steal_s,
+    processors,
     simulator,
     wait_listening,
 )
@@ -367,7 +367,7 @@ class CaseResult:
     @property
     def host_steal_share(self) -> float:
         """Of all this machine's processors' time: 0.02 is 2 % of every core taken away."""
-        return self.host_steal_s / (self.elapsed_s * (os.cpu_count() or 1))
+        return self.host_steal_s / (self.elapsed_s * processors())
 
     @property
     def simulator_cpu_share(self) -> float:

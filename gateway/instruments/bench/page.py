@@ -17,6 +17,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from gateway.instruments.bench.cases import CaseResult
+from gateway.instruments.bench.processes import processors
 from gateway.instruments.bench.report import format_row, header, host_sentence, row, summary
 from gateway.version import describe_version
 
@@ -40,7 +41,7 @@ class Machine:
     def here(cls) -> Machine:
         return cls(
             processor=_processor(),
-            cores=os.cpu_count() or 0,
+            cores=processors(),
             memory_gib=_memory_gib(),
             system=f"{platform.system()} {platform.release()} ({platform.machine()})",
             python=f"{platform.python_implementation()} {platform.python_version()}",

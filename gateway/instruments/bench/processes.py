@@ -148,6 +148,12 @@ def cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
 
 
+def processors() -> int:
+    """The machine's processors, as /proc/stat counts them (its steal is theirs together): the
+    page's Machine line and the cases' steal share both take this."""
+    return os.cpu_count() or 1
+
+
 def host_steal_s() -> float:
     """CPU time the hypervisor gave other machines while this one's processors wanted it, all
     processors together, since boot (steal, /proc/stat): nan where the kernel doesn't count it.
