@@ -281,48 +281,37 @@ async def test_a_drive_comes_back_and_polls_run_while_scada_reads_without_pause(
         config = gateway_config(line.path, drives, timeout_ms=100, retries=0, offline_after=1)
         async with running_gateway(config) as app:
             bus = app.buses["line1"]
-            stop = asyncio.Event()
-
-            async def scada(client: TcpClient, register: int) -> None:
-                # Distinct registers per client (nothing to coalesce), two requests in flight:
-                # the queue never runs dry.
-                while not stop.is_set():
-                    client.send(1, read_pdu(register))
-                    client.send(1, read_pdu(register))
-                    for _ in range(2):
-                        assert (await client.receive()).pdu[0] == 3
-
-            clients = [await TcpClient.connect(app.tcp.port) for _ in range(6)]
-            load = [asyncio.create_task(scada(c, 0x3000 + i)) for i, c in enumerate(clients)]
-            # The poller finds fan2 dead and the bus isolates it.
-            await eventually(lambda: bus.health.is_offline(2), within_s=4.0)
-            line.set_dead(2, False)
-            # Under the same load, a probe must find it and polls must read it again.
-            polls_before = app.poller.polls
-            await eventually(
-                lambda: not bus.health.is_offline(2) and app.poller.polls > polls_before + 3,
-                within_s=8.0,
-                what="fan2 probed back and polled again",
-            )
-            assert not any(task.done() for task in load)  # SCADA was served all along
-            stop.set()
-            await asyncio.gather(*load)
-            for client in clients:
-                await client.close()
+            # Distinct registers per client (nothing to coalesce), two requests in flight: the
+            # queue never runs dry.
+            async with scada_keeping_the_line_full(app, clients=6, unit=1) as load:
+                # The poller finds fan2 dead and the bus isolates it.
+                await eventually(lambda: bus.health.is_offline(2), within_s=4.0)
+                line.set_dead(2, False)
+                # Under the same load, a probe must find it and polls must read it again.
+                polls_before = app.poller.polls
+                await eventually(
+                    lambda: not bus.health.is_offline(2) and app.poller.polls > polls_before + 3,
+                    within_s=8.0,
+                    what="fan2 probed back and polled again",
+                )
+                assert not any(task.done() for task in load)  # SCADA was served all along
 
 
 @contextlib.asynccontextmanager
-async def scada_keeping_the_line_full(app: Application, clients: int = 4) -> AsyncIterator[None]:
-    """SCADA connections reading without pause, two requests in flight each, so that a read
-    always waits for the line; from the moment each has had a read answered until the block
-    ends (then they stop and close)."""
+async def scada_keeping_the_line_full(
+    app: Application, clients: int = 4, unit: int = 2
+) -> AsyncIterator[list[asyncio.Task[None]]]:
+    """SCADA connections reading `unit` without pause, two requests in flight each, so that a
+    read always waits for the line; from the moment each has had a read answered until the
+    block ends (then they stop and close). The block gets the clients' tasks: one done early
+    is a client that stopped being served."""
     answered: set[int] = set()  # the clients that had a read answered
     stop = asyncio.Event()
 
     async def scada(client: TcpClient, register: int) -> None:
         while not stop.is_set():
-            client.send(2, read_pdu(register))
-            client.send(2, read_pdu(register))
+            client.send(unit, read_pdu(register))
+            client.send(unit, read_pdu(register))
             for _ in range(2):
                 assert (await client.receive()).pdu[0] == 3
             answered.add(register)
@@ -331,7 +320,7 @@ async def scada_keeping_the_line_full(app: Application, clients: int = 4) -> Asy
     load = [asyncio.create_task(scada(c, 0x3000 + i)) for i, c in enumerate(connected)]
     try:
         await eventually(lambda: len(answered) == clients, what="the clients reading")
-        yield
+        yield load
     finally:
         stop.set()
         await asyncio.gather(*load)
