@@ -129,11 +129,14 @@ class LineError(GatewayError):
 class ReplyTimeout(LineError):
     """No complete reply within the response timeout."""
 
-    def __init__(self, message: str, received: bytes = b"", late: tuple[float, ...] = ()) -> None:
+    def __init__(
+        self, message: str, received: bytes = b"", strays: tuple[tuple[bytes, float], ...] = ()
+    ) -> None:
         super().__init__(message)
         self.received = received
-        self.late = late
-        """During a resynchronisation: when each late reply set aside before it arrived."""
+        self.strays = strays
+        """Whole, sound frames set aside during the attempt and the drain after it, with when
+        each was heard (`gateway.bus.late_replies`)."""
 
 
 class BadReply(LineError):
@@ -143,6 +146,9 @@ class BadReply(LineError):
         super().__init__(message)
         self.kind = kind
         self.frame = frame
+        self.strays: tuple[tuple[bytes, float], ...] = ()
+        """Whole, sound frames set aside during the attempt and the drain after it
+        (`ReplyTimeout.strays`)."""
 
 
 class PortError(LineError):

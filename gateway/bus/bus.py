@@ -56,8 +56,8 @@ from gateway.tasks import cancel_and_wait
 
 log = logging.getLogger(__name__)
 
-# 08H diagnosis, sub-function 0000 (return query data): every Modbus device that implements 08H
-# echoes it, and one that doesn't still answers exception 01H, which proves it is alive as well.
+# What a probe asks for, as the traffic monitor shows it: on the wire, a probe is a marker (08H
+# echo or a read the drive answered before: `gateway.bus.late_replies`), never assumed optional.
 PROBE_PDU = bytes.fromhex("0800000000")
 PROBE_CLIENT = "probe"
 IDLE_WAKE_S = 0.5
@@ -225,6 +225,10 @@ class Bus:
         """The transaction taken from the queue (`_pick`, at the gap's end) until it is answered:
         on the wire, or about to be. Whoever holds the bus must answer it, whatever happens."""
         self.late_replies = LateReplies(self.name)
+        self._discarded = self.line.receiver.set_aside
+        """Frames the line heard between transactions, for the ledger (`_take_discarded`)."""
+        self._answered_frames = self.late_replies.answered
+        """The ledger's last answered request per drive (`LateReplies.answered`), bound once."""
         self._echo_sent: bytes | None = None
         """The echo `_pick` sent in place of `_carrying`'s frame: its drive owes replies."""
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -626,6 +630,8 @@ class Bus:
         self._reply_heard_at = 0.0
         if self.state is _CLOSED:  # `closing`, without the property's call
             return None
+        if self._discarded:  # frames heard between transactions: accounted before any choice
+            self._take_discarded()
         get_nowait = self._queue.get_nowait
         while (transaction := get_nowait()) is not None:
             probe = transaction.probe
@@ -649,12 +655,20 @@ class Bus:
                 continue
             self._carrying = transaction  # before anything can fail: it must be answered
             self._back_to_back = reply_heard_at != 0.0
-            if address in self.late_replies.owing:
-                # Its late replies first: `_execute` reads them off, then sends the request.
-                self._echo_sent = self.late_replies.echo_frame(address)
+            if probe or address in self.late_replies.owing:
+                # A marker first (a probe is one): `_execute` reads its answer, the frames
+                # before it set aside, then sends the request (`gateway.bus.late_replies`).
+                self._echo_sent = self.late_replies.marker(address)
                 return self._echo_sent
             return transaction.frame or build_frame(address, transaction.pdu)
         return None
+
+    def _take_discarded(self) -> None:
+        """Account the whole frames the line heard between transactions (late replies that
+        came after every drain) in the ledger."""
+        frames = tuple(self._discarded)
+        self._discarded.clear()
+        self._set_aside(frames, self.settings.timeout_s)
 
     def _idle_for(self) -> float | None:
         """With nothing queued at a gap's end: how long the line may wait, idle, for a request
@@ -726,10 +740,17 @@ class Bus:
 
     async def _execute(self, transaction: Transaction, first: Sending) -> Outcome:
         """Carry one transaction through its attempts, the first already sent; what to tell
-        its waiters."""
+        its waiters.
+
+        An attempt to a drive that owes replies (or is unsure, `gateway.bus.late_replies`)
+        starts with a marker; a probe is a marker and nothing else. Every frame set aside on
+        the way is accounted in the ledger (`_set_aside`), and every frame whose reply was not
+        taken (a timeout, a bad reply) is owed from then on.
+        """
         address = transaction.address
         frame = first.frame
         broadcast = address == BROADCAST_ADDRESS
+        late = self.late_replies
         self._observe_gap(first)
         # A probe brings its own retries; a drive that just failed gets none.
         retries = transaction.retries
@@ -737,27 +758,35 @@ class Bus:
             retries = 0
         drive = self._drive(address)
         errors: list[LineError] = []
-        # The first attempt is on its way: the request itself, or the echo that catches up
-        # with its drive's late replies (`_pick`).
+        # The first attempt is on its way: the request itself, or the marker that brings its
+        # drive back in step (`_pick`).
         pending: Sending | None = first
-        echo_pending: Sending | None = None
+        marker_pending: Sending | None = None
         if self._echo_sent is not None:
             frame = transaction.frame or build_frame(address, transaction.pdu)
             self._echo_sent = None
-            echo_pending, pending = first, None
+            marker_pending, pending = first, None
+        sends = 0  # times the request itself went out (markers aside): a write's may be done
         for attempt in range(retries + 1):
             if attempt:
                 drive.retries += 1
-            on_its_way = echo_pending or pending
+            on_its_way = marker_pending or pending
             started = on_its_way.started if on_its_way is not None else time.monotonic()
+            on_wire = frame
             try:
-                if address in self.late_replies.owing:
-                    sent, echo_pending = echo_pending, None  # taken, whatever comes of it
-                    echo = await self._catch_up(transaction, sent, drive)
-                    if transaction.probe:  # the echo is all a probe asks
-                        return self._attempt_answered(transaction, attempt, started, echo, drive)
+                if transaction.probe or (not broadcast and address in late.owing):
+                    sent, marker_pending = marker_pending, None  # taken, whatever comes of it
+                    if sent is None:
+                        sent = await self.line.send_after_gap(partial(late.marker, address))
+                        assert sent is not None  # the pick always has a frame
+                    on_wire = sent.frame
+                    marker = await self._catch_up(transaction, sent, drive)
+                    if transaction.probe:  # the marker is all a probe asks
+                        return self._attempt_answered(transaction, attempt, started, marker, drive)
                     started = time.monotonic()
+                    on_wire = frame
                 self._count_attempt(drive, frame)
+                sends += 1
                 sending, pending = pending, None
                 if sending is not None:
                     exchange = await self.line.finish(
@@ -767,15 +796,13 @@ class Bus:
                     exchange = await self.line.transact(
                         frame, expect_reply=not broadcast, timeout_s=transaction.timeout_s
                     )
+                if exchange.strays and self._set_aside(exchange.strays, transaction.timeout_s):
+                    # A frame from the asked drive came before this reply and answered nothing
+                    # it owed: this reply may be an older request's. Never handed over.
+                    raise BadReply("out_of_step", f"drive {address} sent a frame out of step")
             except ReplyTimeout as exc:
                 drive.timeouts += 1
-                if broadcast:
-                    pass
-                elif exc.late and address not in self.late_replies.owing:
-                    # Its reply came within the drain: the only one it owed, set aside.
-                    self._late(address, exc.late, transaction.timeout_s, drive, started)
-                else:
-                    self.late_replies.timed_out(address, started)
+                self._unanswered(address, on_wire, started, exc.strays, transaction.timeout_s)
                 dump_frame(self.name, "rx timeout", exc.received)
                 errors.append(exc)
                 if self.tap is not None:
@@ -783,6 +810,7 @@ class Bus:
                 continue
             except BadReply as exc:
                 drive.bad_replies[exc.kind] += 1
+                self._unanswered(address, on_wire, started, exc.strays, transaction.timeout_s)
                 dump_frame(self.name, f"rx bad {exc.kind}", exc.frame)
                 log.debug("bus %s: %s", self.name, exc)
                 errors.append(exc)
@@ -792,6 +820,8 @@ class Bus:
             except PortError as exc:
                 if self.tap is not None:
                     self.tap(self.name, transaction, attempt, started, exc)
+                if not broadcast:  # its reply may come to the reopened port
+                    late.unanswered(address, on_wire, started)
                 self._port_lost(exc)
                 return _fail, (transaction, GatewayTargetFailed(f"bus {self.name}: {exc}"))
             finally:
@@ -803,43 +833,77 @@ class Bus:
         # backs off; a request that got bad replies proves its drive is there.
         if transaction.probe or all(isinstance(error, ReplyTimeout) for error in errors):
             self._failed(address)
-        error = GatewayTargetFailed(f"drive {address} on {self.name}: {errors[-1]}")
-        return _fail, (transaction, error)
+        message = f"drive {address} on {self.name}: {errors[-1]}"
+        if sends and not broadcast and transaction.pdu and lookup(transaction.pdu[0]).writes:
+            message += (
+                f"; the write may have been carried out all the same: it went out {sends} "
+                f"time{'s' if sends > 1 else ''} and no reply confirmed it"
+            )
+            log.warning("bus %s: %s", self.name, message)
+        return _fail, (transaction, GatewayTargetFailed(message))
 
     async def _catch_up(
-        self, transaction: Transaction, sent: Sending | None, drive: DriveStats
+        self, transaction: Transaction, sent: Sending, drive: DriveStats
     ) -> Exchange:
-        """Read off the late replies its drive still owes, up to the echo of a fresh value
-        (`gateway.bus.late_replies`); `sent`: that echo, already on its way from `_pick`.
-        Raises as an attempt does (ReplyTimeout when the echo doesn't come in time)."""
+        """Read the answer to the marker `sent` (`gateway.bus.late_replies`), the frames before
+        it set aside: its drive is in step once it is back. Raises as an attempt does
+        (ReplyTimeout when the answer doesn't come in time, BadReply)."""
         address, timeout_s = transaction.address, transaction.timeout_s
         late = self.late_replies
-        if sent is None:
-            sent = await self.line.send_after_gap(partial(late.echo_frame, address))
-            assert sent is not None  # the pick always has a frame
         self._count_attempt(drive, sent.frame)
         drive.resyncs += 1
         try:
-            caught = await self.line.resynchronise(sent, timeout_s=timeout_s)
-        except ReplyTimeout as exc:
-            self._late(address, exc.late, timeout_s, drive)
+            exchange = await self.line.finish(
+                sent, expect_reply=True, timeout_s=timeout_s, owed=late.owed_frames(address)
+            )
+        except LineError:
+            late.marker_missed(address, sent.frame)
             raise  # its line time is the attempt's (`_execute`)
         drive.line_s += time.monotonic() - sent.started
-        self._late(address, caught.late, timeout_s, drive)
-        late.caught_up(address)
-        self._record(caught.exchange, drive)
-        return caught.exchange
+        self._set_aside(exchange.strays, timeout_s)
+        late.caught_up(address, sent.frame)
+        self._record(exchange, drive)
+        return exchange
 
-    def _late(
+    def _unanswered(
         self,
         address: int,
-        late: tuple[float, ...],
+        frame: bytes,
+        sent_at: float,
+        strays: tuple[tuple[bytes, float], ...],
         timeout_s: float,
-        drive: DriveStats,
-        asked_at: float | None = None,
     ) -> None:
-        drive.late_replies += len(late)
-        self.late_replies.seen(address, late, timeout_s, asked_at)
+        """An attempt ended without its reply: `frame` is owed (its reply may still come),
+        then the frames set aside are accounted (one of them may be that very reply)."""
+        if address != BROADCAST_ADDRESS:
+            self.late_replies.unanswered(address, frame, sent_at)
+        self._set_aside(strays, timeout_s)
+
+    def _set_aside(self, strays: tuple[tuple[bytes, float], ...], timeout_s: float) -> bool:
+        """Account frames set aside during an attempt in the ledger, each for the drive that
+        sent it; True if the drive carried now is left owing or unsure by them."""
+        late = self.late_replies
+        carrying = self._carrying
+        asked = carrying.address if carrying is not None else BROADCAST_ADDRESS
+        for frame, heard_at in strays:
+            address = frame[0]
+            dump_frame(self.name, "rx set aside", frame)
+            asked_at = late.heard(frame)
+            if asked_at is None:
+                # It answers nothing its drive owed: a reply that contradicts the request, or
+                # another address's, counted for the drive asked (as a bad reply always was).
+                if asked == BROADCAST_ADDRESS:  # heard between transactions
+                    self._drive(address).bad_replies["out_of_step"] += 1
+                else:
+                    kind = "mismatch" if address == asked else "address"
+                    self._drive(asked).bad_replies[kind] += 1
+            else:
+                self._drive(address).late_replies += 1
+                late.seen(address, heard_at, timeout_s, asked_at)
+            if self.health.offline_count and self.health.is_offline(address):
+                # It answers again: probe it now, not at the end of its backoff.
+                self.health.probe_now(address, time.monotonic())
+        return asked in late.owing
 
     def _replied(self, sending: Sending, pdu: bytes, heard_at: float) -> None:
         """The line's reader callback has the whole and valid reply to the frame `_pick` chose:
@@ -892,6 +956,7 @@ class Bus:
                 self.tap(self.name, transaction, 0, started, exchange)
             if address not in self.health.answering:
                 self._answered(address)  # back, or its failures to forget
+            self._answered_frames[address] = sending.frame  # what a marker may be made from
         except Exception as exc:  # a bug costs this one request, never the line
             log.exception("bus %s: unexpected error in a transaction", self.name)
             failure = GatewayTargetFailed(f"bus {self.name}: {exc}")
@@ -973,6 +1038,9 @@ class Bus:
             self.stats.broadcasts += 1
         else:
             self._answered(address)
+            if not transaction.probe:
+                frame = transaction.frame or build_frame(address, transaction.pdu)
+                self._answered_frames[address] = frame  # what a marker may be made from
         return _resolve, (transaction, exchange.reply_pdu)
 
     def _record(self, exchange: Exchange, drive: DriveStats) -> None:

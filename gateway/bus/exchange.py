@@ -35,13 +35,6 @@ class Exchange(NamedTuple):
     reply_heard_at: float = 0.0
     """When the reply's last byte arrived (`time.monotonic()`); 0.0 when not known (a broadcast,
     a URL port without arrival times)."""
-
-
-# A NamedTuple for the reason given at `Sending`.
-class Resynchronised(NamedTuple):
-    """A resynchronisation's echo came back (`SerialLine.resynchronise`)."""
-
-    exchange: Exchange
-    """The echo's exchange (or a device's exception 01H to 08H)."""
-    late: tuple[float, ...]
-    """When each whole frame that came before the echo arrived: replies to older requests."""
+    strays: tuple[tuple[bytes, float], ...] = ()
+    """Whole, sound frames that came before the reply and are not its answer, set aside with
+    when each was heard (`gateway.bus.late_replies`)."""

@@ -151,6 +151,12 @@ class HealthTracker:
         health = self._get(address)
         health.next_probe_at = now + health.probes.delay_s
 
+    def probe_now(self, address: int, now: float) -> None:
+        """An offline drive was heard (a late reply): probe it now, not at its backoff's end."""
+        health = self._drives.get(address)
+        if health is not None and health.offline and health.next_probe_at > now:
+            health.next_probe_at = now
+
     def next_probe_at(self) -> float | None:
         times = [h.next_probe_at for h in self._drives.values() if h.offline]
         return min(times) if times else None

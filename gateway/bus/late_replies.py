@@ -1,61 +1,254 @@
-"""Drives that may still owe replies to requests that timed out, and how the bus catches up.
+"""What each drive on a line may still answer, and how the bus gets back in step with it.
 
-RTU has no transaction id. A drive slower than the response timeout (a long P14.03, an EEPROM
-write, a serial device server on a slow link) answers a request after the gateway gave up on it,
-and that reply looks exactly like the answer to the next request of the same function and length
-to the same drive: two SCADA clients got each other's registers, silently. The drain after a
-timeout catches a reply that is only a little late, not one later than the drain.
+RTU frames carry no transaction id, and a line guarantees only this:
 
-So after a timeout the drive is marked as owing, and before anything else goes to it the bus
-sends a diagnostic echo (08H, sub-function 0000) carrying a fresh value. A drive answers in
-order: every frame that comes before that echo answers an older request and is set aside
-(counted as a late reply); once the echo is back, nothing older is in flight. A device without
-08H answers exception 01H, which comes in order just the same. The echo costs one short
-transaction after a timeout, and nothing while drives answer in time.
+1. a drive answers its own requests in the order they came, each at most once (some never: a
+   request lost to noise, dropped by a busy drive, or cut short by a stall);
+2. a reply carries the drive's address, the request's function and a length and content that
+   follow from the request, and nothing else: two requests of the same function and length to
+   one drive have replies that look alike.
+
+So the bus keeps, per drive, every request that went out and whose reply it did not take: it
+timed out, its attempt ended on a corrupt frame, noise or a reply it could not trust. The drive
+*owes* those. From 1 and 2:
+
+- **A frame is the answer to the request in flight only if its drive owed nothing when the
+  request went out, and nothing else came from that drive first.** Then the next frame it sends
+  answers this very request (1). Every other whole, sound frame is set aside, never handed to a
+  client, and does not end the attempt: the asked drive's reply may still come.
+- A frame set aside from a drive that owes answers the earliest owed request it can answer (2).
+  By 1, every request owed before that one has been answered or never will be: they are taken
+  off with it. A drive whose last owed request is answered so is in step again.
+- A frame that answers nothing the drive owes (another master, a drive out of step) leaves the
+  drive *unsure*: nothing from it is trusted until it is in step again.
+- Before anything else goes to a drive that owes or is unsure, the bus sends a **marker**: a
+  request whose replies (normal or exception) no owed request's reply can look like (2). Frames
+  before the marker's answer are set aside as above; once its answer is back, nothing older is in
+  flight (1) and the drive is in step.
+
+A marker never depends on an optional function code. It is the diagnostic echo (08H 0000) with a
+fresh value, or a read the drive has answered before or been asked before, changed so that its
+reply is told from every owed one: the other read function (04H for 03H), fewer registers, a
+written register read back. The bus turns from one kind to the next when a marker gets no
+answer, and a drive that answers reads but never 08H is remembered as one, and resynchronised
+with reads only from then (08H again as soon as it answers one). Offline probes are markers too.
+
+One assumption is added, for liveness only: a reply later than `LATE_HORIZON_S` does not come.
+An owed request that old no longer narrows the choice of marker (it stays owed as "unsure"): a
+device whose every other marker collides with it can still be brought back.
 """
 
 from __future__ import annotations
 
 import logging
+import time
 
-from gateway.modbus.functions import DIAGNOSTICS
-from gateway.modbus.rtu import build_frame
+from gateway.errors import BadReply
+from gateway.modbus.functions import (
+    DIAGNOSTICS,
+    EXCEPTION_BIT,
+    READ_HOLDING_REGISTERS,
+    READ_INPUT_REGISTERS,
+    WRITE_MULTIPLE_REGISTERS,
+    WRITE_SINGLE_REGISTER,
+)
+from gateway.modbus.rtu import build_frame, check_reply
 
 log = logging.getLogger(__name__)
 
 LOOP_BACK = b"\x00\x00"
 """08H sub-function 0000, return query data: the reply repeats the request."""
+LATE_HORIZON_S = 10.0
+"""An owed request older than this no longer narrows the choice of marker (module docstring)."""
+_READS = (READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS)
+
+Stray = tuple[bytes, float]
+"""A whole, sound frame set aside during an attempt, and when its last byte was heard."""
+
+
+def is_reply_to(request: bytes, frame: bytes) -> bool:
+    """Could the whole, CRC-checked `frame` be the reply to the RTU `request`, by rule 2?
+
+    An 08H echo's normal reply is the request byte for byte (its value included); an exception
+    answers any request of its function.
+    """
+    try:
+        pdu = check_reply(request, frame, crc_checked=True)
+    except BadReply:
+        return False
+    return request[1] != DIAGNOSTICS or frame == request or bool(pdu[0] & EXCEPTION_BIT)
+
+
+def _read(function: int, start: int, count: int) -> bytes:
+    return bytes((function,)) + start.to_bytes(2) + count.to_bytes(2)
+
+
+def _reads_from(request: bytes) -> list[bytes]:
+    """Reads (PDUs) a device asked `request` most likely answers, each with a reply that looks
+    unlike the reply to `request` (a written register read back; a read as the other read
+    function, or of fewer registers)."""
+    if len(request) < 8:
+        return []
+    function, start, count = request[1], int.from_bytes(request[2:4]), int.from_bytes(request[4:6])
+    if function in _READS and 0 < count <= 125:
+        other = _READS[function == READ_HOLDING_REGISTERS]  # 03H for 04H, 04H for 03H
+        reads = [_read(other, start, count)]
+        for fewer in range(count - 1, 0, -1):  # a part of what was read: as readable
+            reads += [_read(function, start, fewer), _read(other, start, fewer)]
+        return reads
+    if function == WRITE_SINGLE_REGISTER:
+        return [_read(READ_HOLDING_REGISTERS, start, 1), _read(READ_INPUT_REGISTERS, start, 1)]
+    if function == WRITE_MULTIPLE_REGISTERS and 0 < count <= 123:
+        return [_read(READ_HOLDING_REGISTERS, start, count), _read(READ_INPUT_REGISTERS, start, 1)]
+    return []
+
+
+def _collides(marker_pdu: bytes, owed: bytes) -> bool:
+    """Could a normal reply to the read `marker_pdu` look like the reply to the `owed` request?"""
+    if owed[1] != marker_pdu[0]:
+        return False
+    return len(owed) < 8 or owed[4:6] == marker_pdu[3:5]  # same function, same count
 
 
 class LateReplies:
-    """One bus's drives that may owe replies; the echo that catches up with each."""
+    """One bus's ledger: what each drive owes, and the marker that brings it back in step."""
 
     def __init__(self, bus: str) -> None:
         self.bus = bus
-        self.owing: dict[int, float] = {}
-        """Address → when the first request it hasn't answered since went out (monotonic)."""
+        self.owing: dict[int, list[tuple[bytes, float]]] = {}
+        """Address → the requests it owes replies to (frame, when sent), oldest first. A drive
+        that is here must get a marker before anything else (also with an empty list: unsure)."""
+        self.unsure: set[int] = set()
+        """Drives that sent a frame answering nothing they owed (module docstring)."""
+        self.answered: dict[int, bytes] = {}
+        """Address → the last request frame it answered: what a marker may be made from."""
+        self.no_echo: set[int] = set()
+        """Drives learnt not to answer 08H: resynchronised with reads only."""
+        self._echo_missed: set[int] = set()
+        """Drives whose last echo marker got no answer."""
+        self._read_missed_last: set[int] = set()
+        """Drives whose last marker was a read that got no answer: the echo is tried next."""
+        self._turn: dict[int, int] = {}
+        """Address → which of its marker reads comes next (one more after each missed)."""
         self._value = 0
         self._told: set[int] = set()
 
-    def timed_out(self, address: int, sent_at: float) -> None:
-        """A request to `address` got no reply in time: its reply may still come."""
-        self.owing.setdefault(address, sent_at)
+    def owes(self, address: int) -> bool:
+        return address in self.owing
 
-    def echo_frame(self, address: int) -> bytes:
-        """An 08H echo request with a value no earlier echo in flight carries."""
-        self._value = self._value % 0xFFFF + 1
-        return build_frame(address, bytes((DIAGNOSTICS,)) + LOOP_BACK + self._value.to_bytes(2))
+    def owed_frames(self, address: int) -> tuple[bytes, ...]:
+        return tuple(frame for frame, _ in self.owing.get(address, ()))
 
-    def seen(
-        self, address: int, late: tuple[float, ...], timeout_s: float, asked_at: float | None
-    ) -> None:
-        """Late replies from `address` were set aside (the first to a request sent at
-        `asked_at`, or else the first it owes): say once what they suggest."""
-        if not late or address in self._told:
+    def unanswered(self, address: int, frame: bytes, sent_at: float) -> None:
+        """`frame` went to `address` and its reply was not taken: it may still come."""
+        self.owing.setdefault(address, []).append((frame, sent_at))
+
+    def heard(self, frame: bytes) -> float | None:
+        """A whole, sound frame set aside: take off what it answers (rule 1); when the request
+        it answers went out. None when it answers nothing its drive owed: that drive is unsure
+        from now."""
+        address = frame[0]
+        owed = self.owing.get(address)
+        if owed:
+            for index, (request, sent_at) in enumerate(owed):
+                if is_reply_to(request, frame):
+                    skipped = owed[:index]
+                    del owed[: index + 1]
+                    if request[1] == DIAGNOSTICS:
+                        self._echo_answered(address)
+                    elif any(earlier[1] == DIAGNOSTICS for earlier, _ in skipped):
+                        self._no_echo(address)  # answered a later read, never the echo
+                    if not owed and address not in self.unsure:
+                        del self.owing[address]  # its last owed reply came: in step
+                    return sent_at
+        self.owing.setdefault(address, [])
+        self.unsure.add(address)
+        return None
+
+    def marker(self, address: int) -> bytes:
+        """The marker to send to `address` now (module docstring): its frame.
+
+        The echo, unless the drive is known not to answer it or the last echo went unanswered
+        and a read can be made; a read otherwise (the next in turn after each one missed), and
+        the echo again after a read went unanswered too: what works is kept, and a drive that
+        answers only one kind is back within two markers.
+        """
+        owed = self.owing.get(address, [])
+        now = time.monotonic()
+        recent = [frame for frame, sent_at in owed if now - sent_at < LATE_HORIZON_S]
+        reads = self._marker_reads(address, recent)
+        use_read = bool(reads) and (
+            address in self.no_echo
+            or (address in self._echo_missed and address not in self._read_missed_last)
+        )
+        if use_read:
+            chosen = reads[self._turn.get(address, 0) % len(reads)]
+        else:
+            self._value = self._value % 0xFFFF + 1
+            chosen = bytes((DIAGNOSTICS,)) + LOOP_BACK + self._value.to_bytes(2)
+        return build_frame(address, chosen)
+
+    def _marker_reads(self, address: int, owed: list[bytes]) -> list[bytes]:
+        sources = list(owed)
+        last = self.answered.get(address)
+        if last is not None:
+            sources.append(last)
+        reads: list[bytes] = []
+        for source in reversed(sources):  # the most recent first: the likeliest to be answered
+            for pdu in _reads_from(source):
+                if pdu not in reads and not any(_collides(pdu, request) for request in owed):
+                    reads.append(pdu)
+        # A read of a function nothing owed has first: even an exception to it is unambiguous.
+        functions = {request[1] for request in owed}
+        reads.sort(key=lambda pdu: pdu[0] in functions)
+        return reads
+
+    def marker_missed(self, address: int, marker: bytes) -> None:
+        """The marker got no answer it could trust: the next one is of the other kind (or the
+        next read in turn)."""
+        if marker[1] == DIAGNOSTICS:
+            self._echo_missed.add(address)
+            self._read_missed_last.discard(address)
+        else:
+            self._turn[address] = self._turn.get(address, 0) + 1
+            self._read_missed_last.add(address)
+
+    def caught_up(self, address: int, marker: bytes) -> None:
+        """The marker's answer came: nothing older is in flight from `address`."""
+        self.owing.pop(address, None)
+        self.unsure.discard(address)
+        self._read_missed_last.discard(address)
+        if marker[1] == DIAGNOSTICS:
+            self._echo_answered(address)
+        elif address in self._echo_missed:
+            self._no_echo(address)
+
+    def _no_echo(self, address: int) -> None:
+        """`address` answers reads, but an echo sent before went unanswered."""
+        self._echo_missed.add(address)
+        if address in self.no_echo:
+            return
+        self.no_echo.add(address)
+        log.warning(
+            "bus %s: drive %d answers reads but not the diagnostic echo (08H): it is "
+            "resynchronised and probed with reads from now",
+            self.bus,
+            address,
+        )
+
+    def _echo_answered(self, address: int) -> None:
+        self._echo_missed.discard(address)
+        self.no_echo.discard(address)
+
+    def seen(self, address: int, late_at: float, timeout_s: float, asked_at: float | None) -> None:
+        """A reply from `address` was set aside as late (at `late_at`, to a request sent at
+        `asked_at` if known): say once what it suggests."""
+        if address in self._told:
             return
         self._told.add(address)
-        since = asked_at if asked_at is not None else self.owing.get(address)
-        after = f" about {(late[0] - since) * 1000:.0f} ms after its request," if since else ""
+        after = ""
+        if asked_at is not None:
+            after = f" about {(late_at - asked_at) * 1000:.0f} ms after its request,"
         log.warning(
             "bus %s: drive %d answered%s later than timeout_ms (%.0f): its replies were set "
             "aside, never taken for another request's (counted in "
@@ -66,7 +259,3 @@ class LateReplies:
             after,
             timeout_s * 1000,
         )
-
-    def caught_up(self, address: int) -> None:
-        """The echo came back: nothing older is in flight from `address`."""
-        self.owing.pop(address, None)

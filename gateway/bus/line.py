@@ -10,7 +10,7 @@ The line is made of parts, each with one job:
   back-to-back transactions while the port's reader callback finishes each one;
 - `gateway.bus.line_timer` with `gateway.bus.gap_lead`: the exact wake-up that ends a gap;
 - `gateway.bus.reply_reader`: the rest of an attempt that its caller reads itself (a reply late,
-  bad or partial, an echo, the drain after a timeout, a resynchronisation).
+  bad or partial, an echo, the drain after a timeout, a marker's answer).
 
 This module puts them together for the bus: it opens and closes the port with its timer, starts
 each attempt (`send_after_gap`, `transact`) and has its rest read (`finish`). Nothing blocks the
@@ -40,7 +40,6 @@ from collections.abc import Callable
 
 from gateway.bus.direction import DirectionMode
 from gateway.bus.exchange import Exchange as Exchange
-from gateway.bus.exchange import Resynchronised as Resynchronised
 from gateway.bus.exchange import Sending as Sending
 from gateway.bus.gap_keeper import GapKeeper, Replied
 from gateway.bus.line_settings import LineSettings as LineSettings
@@ -195,18 +194,23 @@ class SerialLine:
 
     # -- the rest of an attempt, read by the caller (`gateway.bus.reply_reader`) -------------
 
-    async def finish(self, sending: Sending, *, expect_reply: bool, timeout_s: float) -> Exchange:
-        """The rest of an attempt begun by `send_after_gap`: the frame's tail, echo, reply.
+    async def finish(
+        self,
+        sending: Sending,
+        *,
+        expect_reply: bool,
+        timeout_s: float,
+        owed: tuple[bytes, ...] = (),
+    ) -> Exchange:
+        """The rest of an attempt begun by `send_after_gap`: the frame's tail, echo, reply
+        (`ReplyReader.finish`: a frame answering one of `owed` is set aside, not taken).
 
         Raises ReplyTimeout or BadReply (after draining the line), or PortError.
         """
         reader = self._require_reader()
-        return await reader.finish(sending, expect_reply=expect_reply, timeout_s=timeout_s)
-
-    async def resynchronise(self, sending: Sending, *, timeout_s: float) -> Resynchronised:
-        """The rest of an attempt whose frame is a diagnostic echo (08H 0000) carrying a fresh
-        value: the late replies that came before the echo (`ReplyReader.resynchronise`)."""
-        return await self._require_reader().resynchronise(sending, timeout_s=timeout_s)
+        return await reader.finish(
+            sending, expect_reply=expect_reply, timeout_s=timeout_s, owed=owed
+        )
 
     def _require_reader(self) -> ReplyReader:
         if self._reader is None:

@@ -20,39 +20,19 @@ import time
 from gateway.bus.hardware_hints import burst_hint, echo_hint
 from gateway.bus.line_settings import LineSettings
 from gateway.errors import BadReply, ReplyTimeout
-from gateway.modbus.functions import EXCEPTION_BIT
 from gateway.modbus.reply_search import MIN_REPLY, Found, ReplySearch, search_reply
-from gateway.modbus.rtu import check_reply
 
 log = logging.getLogger(__name__)
 
 MAX_BUFFERED = 4096
 """Bytes kept while nobody reads (a frame is at most 256): a babbling line can't fill memory."""
+MAX_SET_ASIDE = 64
+"""Frames kept from discarded bytes until the bus takes them (it does before each request)."""
+_NOBODY = bytes(8)
+"""A request no reply can answer (address 0): every whole, sound frame is found as another's."""
 BURSTS_FROM_S = 0.005
 """A silence inside a reply longer than this (beyond its bytes' own wire time) means the adapter
 delivers in bursts: worth a word in the log once. Clean USB adapters show well under 1 ms."""
-
-
-def answers(request: bytes, received: bytes | bytearray) -> bool:
-    """Is there a whole, sound reply to `request` among `received`?"""
-    search = search_reply(received, request)
-    if search.found is not Found.COMPLETE:
-        return False
-    try:
-        check_reply(request, bytes(received[search.start : search.end]), crc_checked=True)
-    except BadReply:
-        return False
-    return True
-
-
-def echo_of(echo_request: bytes, reply: bytes) -> bytes:
-    """The PDU of `reply` if it is the answer to this very 08H 0000 request: the request byte
-    for byte (its fresh value included: an older echo of another value is a late reply, which
-    check_reply's length rule alone would let through), or the device's exception to 08H."""
-    pdu = check_reply(echo_request, reply)
-    if reply != echo_request and not pdu[0] & EXCEPTION_BIT:
-        raise BadReply("mismatch", f"echo {reply.hex(' ')} is not of this value", reply)
-    return pdu
 
 
 def whole_frames(request: bytes, received: bytes | bytearray) -> list[bytes]:
@@ -78,6 +58,9 @@ class Receiver:
         self.virtual = False
         """The port is a pty: no wire, so no wire timing to judge an echo by."""
         self.discarded_bytes = 0
+        self.set_aside: list[tuple[bytes, float]] = []
+        """Whole, sound frames found among bytes thrown away, with when the line last heard
+        them, until the bus takes them (`Bus._pick`); the same list object for good."""
         self.garbage_bytes = 0
         """Bytes skipped before replies: glitches, noise (`invt_gateway_line_garbage_bytes`)."""
         self.echoes = 0
@@ -116,10 +99,16 @@ class Receiver:
         return data
 
     def discard(self) -> None:
-        """Throw away what nobody asked for (noise, a reply later than every drain)."""
-        if self.received:
-            self.discarded_bytes += len(self.received)
-            self.received.clear()
+        """Throw away what nobody asked for (noise, a reply later than every drain); the whole,
+        sound frames in it are kept in `set_aside` for the bus's ledger (a late reply that came
+        between transactions still tells what its drive no longer owes)."""
+        received = self.received
+        if received:
+            self.discarded_bytes += len(received)
+            if len(self.set_aside) < MAX_SET_ASIDE:
+                heard_at = self.quiet_since
+                self.set_aside += [(f, heard_at) for f in whole_frames(_NOBODY, received)]
+            received.clear()
 
     @property
     def echo_detected(self) -> bool:

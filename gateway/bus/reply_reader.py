@@ -3,21 +3,24 @@
 The line's reader callback finishes an attempt whose reply comes whole and valid while its caller
 is held (`gateway.bus.line`); everything else is read here: a reply late, partial, corrupt or
 ended by a silence, a broadcast's turnaround, an adapter's echo, the drain after a timeout or a
-bad reply, and a resynchronisation's echo (`gateway.bus.late_replies`). The reply is found by
+bad reply, and a marker's answer (`gateway.bus.late_replies`). The reply is found by
 the line's `Receiver`; this waits for its bytes on the `Port`, each wait bounded by the timeouts
-the line's module docstring sets out.
+the line's module docstring sets out. Whole, sound frames that are not the answer are set aside
+and returned with the outcome, for the bus's ledger (`gateway.bus.late_replies`) to account.
 """
 
 from __future__ import annotations
 
 import time
 
-from gateway.bus.exchange import Exchange, Resynchronised, Sending
+from gateway.bus.exchange import Exchange, Sending
+from gateway.bus.late_replies import is_reply_to
 from gateway.bus.line_settings import LineSettings
 from gateway.bus.port import Port
-from gateway.bus.receiver import Receiver, answers, echo_of, whole_frames
+from gateway.bus.receiver import Receiver, whole_frames
 from gateway.bus.rts import RtsSwitch
 from gateway.errors import BadReply, ReplyTimeout
+from gateway.modbus.functions import DIAGNOSTICS, EXCEPTION_BIT
 from gateway.modbus.reply_search import Found
 from gateway.modbus.rtu import MAX_FRAME, check_reply
 
@@ -37,77 +40,75 @@ class ReplyReader:
         self._port = port
         self._rts = rts
 
-    async def finish(self, sending: Sending, *, expect_reply: bool, timeout_s: float) -> Exchange:
+    async def finish(
+        self,
+        sending: Sending,
+        *,
+        expect_reply: bool,
+        timeout_s: float,
+        owed: tuple[bytes, ...] = (),
+    ) -> Exchange:
         """The rest of an attempt begun by `SerialLine.send_after_gap`: the frame's tail, its
-        echo, the reply."""
+        echo, the reply.
+
+        The reply is the first whole frame that answers the request and none of `owed` (the
+        requests its drive may still answer: `gateway.bus.late_replies`). Every other whole,
+        sound frame (another drive's, a late one) is set aside in the exchange's `strays` and
+        the wait goes on to the response deadline: the asked drive's reply may still come.
+        Raises ReplyTimeout (after a drain whose frames are set aside too) or BadReply for a
+        corrupt, partial or noisy reply (after draining the line), with their `strays`.
+        """
         frame, started = sending.frame, sending.started
         receiver = self.receiver
         sent = await self._complete_request(sending)
         if not expect_reply:
             receiver.quiet_since = max(receiver.quiet_since, sent + self.settings.turnaround_s)
             return Exchange(None, sending.gap_s, receiver.quiet_since - started)
-        try:
-            reply = await self._read_reply(frame, sent, sent + timeout_s)
-            pdu = check_reply(frame, reply)
-        except ReplyTimeout as exc:
-            drained = await self._drain(self.settings.drain_s)
-            if answers(frame, drained):  # the reply came within the drain: nothing in flight
-                raise ReplyTimeout(str(exc), exc.received, late=(receiver.quiet_since,)) from None
-            raise
-        except BadReply:
-            await self._drain(0.0)
-            raise
-        finally:
-            self._heard_by_now()
-        return Exchange(pdu, sending.gap_s, receiver.quiet_since - started, self._heard_at())
-
-    async def resynchronise(self, sending: Sending, *, timeout_s: float) -> Resynchronised:
-        """The rest of an attempt whose frame is a diagnostic echo (08H 0000) carrying a fresh
-        value, sent to a drive that may still owe replies to requests that timed out.
-
-        A drive answers its requests in order, so every whole frame that comes before the echo
-        of this very value is a reply nobody waits for any more: it is set aside and returned,
-        never taken for an answer, and once the echo is back nothing older is in flight. A
-        device without 08H answers exception 01H, which ends the wait just as well: it comes
-        in order too. Raises ReplyTimeout when the echo doesn't come within `timeout_s` (the
-        drive is still busy with older requests, or gone), BadReply for a corrupt frame.
-        """
-        frame, started = sending.frame, sending.started
-        receiver = self.receiver
-        sent = await self._complete_request(sending)
-        deadline = sent + timeout_s
-        late: list[float] = []
+        strays: list[tuple[bytes, float]] = []
         try:
             while True:
-                reply = await self._read_reply(frame, sent, deadline)
-                try:
-                    pdu = echo_of(frame, reply)
-                except BadReply as exc:
-                    if exc.kind in ("crc", "truncated"):
-                        raise
-                    late.append(receiver.quiet_since)  # whole and sound, but not this echo
-                    continue
-                break
+                reply = await self._read_reply(frame, sent, sent + timeout_s)
+                pdu = self._answer(frame, reply, owed, strays)
+                if pdu is not None:
+                    break
         except ReplyTimeout as exc:
-            # What the drain hears is read too: more late replies, or the echo itself.
-            echo = None
-            for whole in whole_frames(frame, await self._drain(self.settings.drain_s)):
-                try:
-                    echo = echo_of(frame, whole)
-                except BadReply:
-                    late.append(receiver.quiet_since)
-            if echo is None:
-                raise ReplyTimeout(str(exc), exc.received, late=tuple(late)) from None
-            pdu = echo
-        except BadReply:
-            # A corrupt frame: the echo may be in it, or still to come; the next attempt
-            # resynchronises again with a fresh value.
-            await self._drain(0.0)
+            strays += self._frames(frame, await self._drain(self.settings.drain_s))
+            raise ReplyTimeout(str(exc), exc.received, tuple(strays)) from None
+        except BadReply as exc:
+            strays += self._frames(frame, await self._drain(0.0))
+            exc.strays = tuple(strays)
             raise
         finally:
             self._heard_by_now()
-        exchange = Exchange(pdu, sending.gap_s, receiver.quiet_since - started, self._heard_at())
-        return Resynchronised(exchange, tuple(late))
+        heard_at = self._heard_at()
+        return Exchange(pdu, sending.gap_s, receiver.quiet_since - started, heard_at, tuple(strays))
+
+    def _answer(
+        self,
+        frame: bytes,
+        reply: bytes,
+        owed: tuple[bytes, ...],
+        strays: list[tuple[bytes, float]],
+    ) -> bytes | None:
+        """The PDU of `reply` if it answers `frame` and can't be an `owed` request's reply;
+        else None, `reply` set aside (whole and sound). Raises BadReply for a corrupt one."""
+        try:
+            pdu = check_reply(frame, reply)
+        except BadReply as exc:
+            if exc.kind in ("crc", "truncated"):
+                raise
+            strays.append((reply, self.receiver.quiet_since))  # sound, but not the answer
+            return None
+        if (frame[1] == DIAGNOSTICS and reply != frame and not pdu[0] & EXCEPTION_BIT) or any(
+            is_reply_to(request, reply) for request in owed
+        ):
+            strays.append((reply, self.receiver.quiet_since))
+            return None
+        return pdu
+
+    def _frames(self, frame: bytes, drained: bytearray) -> list[tuple[bytes, float]]:
+        """The whole, sound frames among what a drain heard, each stamped with its end."""
+        return [(whole, self.receiver.quiet_since) for whole in whole_frames(frame, drained)]
 
     def _heard_by_now(self) -> None:
         """A port without arrival times (a URL's): the line's last sound is now, the safe bet."""

@@ -54,6 +54,7 @@ from gateway.instruments.simulator.drive import SimulatedDrive
 from gateway.instruments.simulator.endpoint import Endpoint, point_link, remove_link
 from gateway.instruments.simulator.framing import ReceivedFrame, RequestAssembler
 from gateway.instruments.simulator.line_faults import LineFaults
+from gateway.instruments.simulator.quirks import DeviceQuirks
 from gateway.instruments.simulator.server import LineServer
 from gateway.modbus.rtu import BROADCAST_ADDRESS, build_frame
 from gateway.modbus.timing import CharacterFormat
@@ -128,6 +129,9 @@ class SimulatedLine:
         """Address → how much later than its response delay it answers: drawn from this range
         for each reply (`set_reply_delay`)."""
         self._slow_random = random.Random(0)
+        self._slow_share: dict[int, float] = {}
+        """Address → the share of its replies that take the extra delay (`set_reply_delay`)."""
+        self._quirks = DeviceQuirks()
         self._faults = LineFaults()
         self._adapter = AdapterEffects()
         self._stats: dict[str, Any] = {
@@ -257,15 +261,40 @@ class SimulatedLine:
         with self._lock:
             self._drive(address).set_fault_history(codes)
 
-    def set_reply_delay(self, address: int, ms: float, up_to_ms: float | None = None) -> None:
+    def set_reply_delay(
+        self, address: int, ms: float, up_to_ms: float | None = None, share: float = 1.0
+    ) -> None:
         """This address answers `ms` later than its response delay (or, with `up_to_ms`, a
         delay drawn at random from that range for each reply, as a drive busy writing its
-        EEPROM does); 0 makes it punctual again."""
+        EEPROM does); 0 makes it punctual again. `share`: only that share of its replies,
+        at random, are late (the rest come after the response delay)."""
         low = max(ms, 0.0) / 1000
         high = low if up_to_ms is None else max(up_to_ms / 1000, low)
         with self._lock:
             self._drive(address)
             self._extra_delay_s[address] = (low, high)
+            self._slow_share[address] = share
+
+    def know_only(self, address: int, functions: Iterable[int] | None) -> None:
+        """This address frames only `functions` and stays silent to any other (a libmodbus
+        device: no exception 01H); None: every function its drive has
+        (`gateway.instruments.simulator.quirks`)."""
+        with self._lock:
+            self._any_drive(address)
+            self._quirks.know_only(address, functions)
+
+    def stall(self, address: int, seconds: float) -> None:
+        """This address stalls for `seconds` from now: it answers what it takes meanwhile
+        once it carries on, in order."""
+        with self._lock:
+            self._any_drive(address)
+            self._quirks.stall(address, time.monotonic() + seconds)
+
+    def drop_requests(self, address: int, rate: float) -> None:
+        """This address never answers `rate` of its requests, at random."""
+        with self._lock:
+            self._any_drive(address)
+            self._quirks.drop(address, rate)
 
     def set_line_faults(
         self,
@@ -443,11 +472,17 @@ class SimulatedLine:
             return
         drive: SimulatedDrive | SimulatedAbbDrive | None = self.drives.get(address)
         drive = drive or self.abb_drives.get(address)
-        if drive is None or address in self._dead:
+        if (
+            drive is None
+            or address in self._dead
+            or self._quirks.silent(address, pdu[0] if pdu else 0)
+        ):
             self._stats["ignored"] += 1
             return
         reply = build_frame(address, drive.handle(pdu, wire_end))
         delay_s = self._response_delay_s(drive) + self._extra_delay(address)
+        # A stalled device takes the request in and answers once it carries on.
+        delay_s = max(delay_s, self._quirks.answers_from(address) - wire_end)
         spoilt = self._faults.maybe_spoil(reply)
         if spoilt is not None:
             self._stats["faults_injected"] += 1
@@ -473,6 +508,9 @@ class SimulatedLine:
 
     def _extra_delay(self, address: int) -> float:
         low, high = self._extra_delay_s.get(address, (0.0, 0.0))
+        share = self._slow_share.get(address, 1.0)
+        if share < 1.0 and self._slow_random.random() >= share:
+            return 0.0
         return low if low == high else self._slow_random.uniform(low, high)
 
     def _response_delay_s(self, drive: SimulatedDrive | SimulatedAbbDrive) -> float:

@@ -1,16 +1,35 @@
-"""The echo that catches up with a drive's late replies carries a value no echo in flight has."""
+"""The line's ledger: what each drive owes, in order, and markers no owed reply can pass for."""
 
 from __future__ import annotations
 
+import logging
+
 import pytest
 
-from gateway.bus.late_replies import LateReplies
+from gateway.bus.late_replies import LATE_HORIZON_S, LateReplies, is_reply_to
 from gateway.modbus.crc import crc_ok
+from gateway.modbus.rtu import build_frame
 
 
-def test_each_echo_carries_a_fresh_value_and_is_a_sound_08h_loop_back() -> None:
+def read(address: int, function: int, start: int, count: int) -> bytes:
+    return build_frame(address, bytes((function,)) + start.to_bytes(2) + count.to_bytes(2))
+
+
+def normal_reply(request: bytes) -> bytes:
+    """What a device answers a read or an echo with (its words all 1234H)."""
+    if request[1] == 0x08:
+        return request
+    count = int.from_bytes(request[4:6])
+    return build_frame(request[0], bytes((request[1], 2 * count)) + b"\x12\x34" * count)
+
+
+def exception_reply(request: bytes, code: int = 2) -> bytes:
+    return build_frame(request[0], bytes((request[1] | 0x80, code)))
+
+
+def test_each_echo_marker_carries_a_fresh_value_and_is_a_sound_08h_loop_back() -> None:
     late = LateReplies("line1")
-    frames = [late.echo_frame(7) for _ in range(0x10000)]
+    frames = [late.marker(7) for _ in range(0x10000)]
     for frame in frames[:3]:
         assert frame[:4] == bytes.fromhex("07 08 00 00")  # address, 08H, sub-function 0000
         assert len(frame) == 8
@@ -19,29 +38,110 @@ def test_each_echo_carries_a_fresh_value_and_is_a_sound_08h_loop_back() -> None:
     # 65,535 echoes in a row without a repeat: never the probe's 0000 either.
     assert len(set(values[:0xFFFF])) == 0xFFFF
     assert 0 not in values
+    older, newer = frames[0], frames[1]
+    assert is_reply_to(newer, newer)
+    assert not is_reply_to(newer, older)  # same function and length: still never taken for it
+    assert is_reply_to(newer, build_frame(7, bytes.fromhex("8801")))  # a device without 08H
 
 
-def test_a_drive_owes_from_its_first_timeout_until_its_echo_is_back() -> None:
+def test_a_late_reply_takes_off_its_request_and_every_one_owed_before_it() -> None:
     late = LateReplies("line1")
-    late.timed_out(3, 10.0)
-    late.timed_out(3, 11.0)  # still the first request it left unanswered
-    assert late.owing == {3: 10.0}
-    late.caught_up(3)
-    assert late.owing == {}
+    first, second, third = read(3, 3, 0x2100, 2), read(3, 3, 0x3000, 12), read(3, 3, 0x5000, 1)
+    for at, frame in enumerate((first, second, third)):
+        late.unanswered(3, frame, 100.0 + at)
+    # The answer to the second: the first was answered or never will be (in order).
+    assert late.heard(normal_reply(second)) == 101.0
+    assert late.owed_frames(3) == (third,)
+    assert late.owes(3)
+    assert late.heard(normal_reply(third)) == 102.0
+    assert not late.owes(3)  # its last owed reply came: in step, no marker needed
 
 
-def test_only_the_echo_of_this_very_value_ends_a_catch_up() -> None:
-    """An older echo (another value) has the same function and length: by those alone it
-    would pass, and the bus would think itself caught up with a reply still in flight."""
-    from gateway.bus.receiver import echo_of as _echo_of
-    from gateway.errors import BadReply
-    from gateway.modbus.rtu import build_frame
-
+def test_of_two_owed_requests_alike_a_reply_takes_off_only_the_first() -> None:
+    """Conservative: it may be the first's, so the second stays owed."""
     late = LateReplies("line1")
-    older, newer = late.echo_frame(1), late.echo_frame(1)
-    assert _echo_of(newer, newer) == newer[1:-2]
-    with pytest.raises(BadReply) as refused:  # never taken for this one
-        _echo_of(newer, older)
-    assert refused.value.kind == "mismatch"
-    no_08h = build_frame(1, bytes.fromhex("8801"))  # a device without 08H: in order too
-    assert _echo_of(newer, no_08h) == bytes.fromhex("8801")
+    state, again = read(1, 3, 0x2100, 2), read(1, 3, 0x2100, 2)
+    late.unanswered(1, state, 1.0)
+    late.unanswered(1, again, 2.0)
+    late.heard(normal_reply(state))
+    assert late.owed_frames(1) == (again,)
+
+
+def test_a_frame_that_answers_nothing_owed_leaves_its_drive_unsure_until_a_marker() -> None:
+    late = LateReplies("line1")
+    assert late.heard(normal_reply(read(2, 3, 0x3000, 2))) is None  # it owed nothing
+    assert late.owes(2)
+    marker = late.marker(2)
+    late.caught_up(2, marker)
+    assert not late.owes(2)
+
+
+def test_markers_never_look_like_an_owed_reply_and_turn_to_reads_when_echoes_go_unanswered(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    caplog.set_level(logging.WARNING)
+    late = LateReplies("line1")
+    owed = [read(1, 3, 0x0000, 1), read(1, 3, 0x0010, 4), read(1, 4, 0x0000, 2)]
+    for frame in owed:
+        late.unanswered(1, frame, 1e12)  # recent: each narrows the choice
+    seen_kinds = set()
+    for _ in range(6):
+        marker = late.marker(1)
+        seen_kinds.add(marker[1])
+        for reply in (normal_reply(marker), exception_reply(marker)):
+            if marker[1] != 0x08 and reply[1] & 0x80 and any(m[1] == marker[1] for m in owed):
+                continue  # an exception of an owed function: the reader sets it aside
+            assert is_reply_to(marker, reply)
+            assert not any(is_reply_to(request, reply) for request in owed if reply[1] != 0x88)
+        late.marker_missed(1, marker)
+    assert 0x08 in seen_kinds
+    assert seen_kinds - {0x08}, "after an unanswered echo, a read comes"
+    # A read marker answered after echoes went unanswered: a device without 08H, learnt.
+    read_marker = late.marker(1)
+    while read_marker[1] == 0x08:
+        late.marker_missed(1, read_marker)
+        read_marker = late.marker(1)
+    late.caught_up(1, read_marker)
+    assert 1 in late.no_echo
+    assert "not the diagnostic echo" in caplog.text
+    late.unanswered(1, owed[0], 1e12)
+    assert all(late.marker(1)[1] != 0x08 for _ in range(4))
+
+
+def test_a_written_register_is_read_back_as_the_marker_of_a_device_without_08h() -> None:
+    late = LateReplies("line1")
+    late.no_echo.add(5)
+    write = build_frame(5, bytes.fromhex("06 0002 0064"))
+    late.unanswered(5, write, 1e12)
+    marker = late.marker(5)
+    assert marker[1] in (0x03, 0x04) and marker[2:4] == b"\x00\x02"
+
+
+def test_an_owed_request_older_than_the_horizon_no_longer_narrows_the_marker() -> None:
+    late = LateReplies("line1")
+    late.no_echo.add(4)
+    only = read(4, 3, 0x0000, 1)
+    late.answered[4] = only
+    late.unanswered(4, only, 0.0)  # long ago
+    late.unanswered(4, read(4, 4, 0x0000, 1), 0.0)
+    # Both owed long ago: the read the device answered, as 04H, may be the marker although an
+    # owed 04H read looks the same; recent, it could not be.
+    assert late.marker(4) == read(4, 4, 0, 1)
+    late.owing.clear()
+    late.unanswered(4, read(4, 4, 0x0000, 1), 1e12)
+    assert late.marker(4) != read(4, 4, 0, 1)
+    assert LATE_HORIZON_S >= 5  # well beyond any drive's delay (P14.03 is at most 200 ms)
+
+
+@pytest.mark.parametrize("count", [1, 2, 12])
+def test_every_read_marker_of_a_read_is_told_from_its_reply(count: int) -> None:
+    late = LateReplies("line1")
+    late.no_echo.add(9)
+    for function in (3, 4):
+        owed = read(9, function, 0x1000, count)
+        late.owing.clear()
+        late.unanswered(9, owed, 1e12)
+        for _ in range(4):
+            marker = late.marker(9)
+            assert not is_reply_to(owed, normal_reply(marker))
+            late.marker_missed(9, marker)
