@@ -26,12 +26,16 @@ timed out, its attempt ended on a corrupt frame, noise or a reply it could not t
   before the marker's answer are set aside as above; once its answer is back, nothing older is in
   flight (1) and the drive is in step.
 
-A marker never depends on an optional function code. It is the diagnostic echo (08H 0000) with a
-fresh value, or a read the drive has answered before or been asked before, changed so that its
-reply is told from every owed one: the other read function (04H for 03H), fewer registers, a
-written register read back. The bus turns from one kind to the next when a marker gets no
-answer, and a drive that answers reads but never 08H is remembered as one, and resynchronised
-with reads only from then (08H again as soon as it answers one). Offline probes are markers too.
+A marker never depends on an optional function code. It is a read the drive has answered before
+or been asked before, changed so that its reply is told from every owed one (the other read
+function, 04H for 03H; fewer registers; a written register read back), the next in turn when one
+gets no answer. The diagnostic echo (08H 0000, a fresh value each time) is the marker only when
+no such read can be made, or for a drive that has answered an echo before, when a read went
+unanswered. Reads come first because an echo is not harmless to a device that doesn't know 08H:
+libmodbus takes it for a short frame with a wrong CRC, and may take the frames after it for the
+rest of that one until its line has been silent for half a second. A drive seen answering a read
+but never an echo sent before it is remembered as one (`no_echo`, said once in the log).
+Offline probes are markers too.
 
 One assumption is added, for liveness only: a reply later than `LATE_HORIZON_S` does not come.
 An owed request that old no longer narrows the choice of marker (it stays owed as "unsure"): a
@@ -95,6 +99,8 @@ def _reads_from(request: bytes) -> list[bytes]:
         reads = [_read(other, start, count)]
         for fewer in range(count - 1, 0, -1):  # a part of what was read: as readable
             reads += [_read(function, start, fewer), _read(other, start, fewer)]
+        for more in range(count + 1, min(count + 3, 126)):  # the registers after, last
+            reads += [_read(function, start, more), _read(other, start, more)]
         return reads
     if function == WRITE_SINGLE_REGISTER:
         return [_read(READ_HOLDING_REGISTERS, start, 1), _read(READ_INPUT_REGISTERS, start, 1)]
@@ -126,6 +132,8 @@ class LateReplies:
         """Drives learnt not to answer 08H: resynchronised with reads only."""
         self._echo_missed: set[int] = set()
         """Drives whose last echo marker got no answer."""
+        self._echo_ok: set[int] = set()
+        """Drives that have answered an echo: it may be their marker when reads go unanswered."""
         self._read_missed_last: set[int] = set()
         """Drives whose last marker was a read that got no answer: the echo is tried next."""
         self._turn: dict[int, int] = {}
@@ -168,20 +176,18 @@ class LateReplies:
     def marker(self, address: int) -> bytes:
         """The marker to send to `address` now (module docstring): its frame.
 
-        The echo, unless the drive is known not to answer it or the last echo went unanswered
-        and a read can be made; a read otherwise (the next in turn after each one missed), and
-        the echo again after a read went unanswered too: what works is kept, and a drive that
-        answers only one kind is back within two markers.
+        A read when one can be made, the next in turn after each one missed; the echo only when
+        none can, or, for a drive that has answered an echo before, after a read went
+        unanswered. Reads first: a device that frames only what it knows takes an echo for a
+        broken frame, and may take the frames after it for the rest of that one (libmodbus
+        does, until its line has been silent for half a second).
         """
         owed = self.owing.get(address, [])
         now = time.monotonic()
         recent = [frame for frame, sent_at in owed if now - sent_at < LATE_HORIZON_S]
         reads = self._marker_reads(address, recent)
-        use_read = bool(reads) and (
-            address in self.no_echo
-            or (address in self._echo_missed and address not in self._read_missed_last)
-        )
-        if use_read:
+        echo_next = address in self._echo_ok and address in self._read_missed_last
+        if reads and not echo_next:
             chosen = reads[self._turn.get(address, 0) % len(reads)]
         else:
             self._value = self._value % 0xFFFF + 1
@@ -239,6 +245,7 @@ class LateReplies:
     def _echo_answered(self, address: int) -> None:
         self._echo_missed.discard(address)
         self.no_echo.discard(address)
+        self._echo_ok.add(address)
 
     def seen(self, address: int, late_at: float, timeout_s: float, asked_at: float | None) -> None:
         """A reply from `address` was set aside as late (at `late_at`, to a request sent at
