@@ -201,7 +201,7 @@ _BUS_COUNTERS = {
     "port_errors": "Times the serial port failed (unplugged, I/O error)",
     "reopens": "Times the serial port was opened again after failing",
     "late_replies": "Replies that came after their request timed out, set aside, never an answer",
-    "resyncs": "Diagnostic echoes (08H) sent after a timeout to catch up with late replies",
+    "resyncs": "Markers (a read the drive answers, or 08H) sent to bring drives back in step",
 }
 _DRIVE_COUNTERS = {
     "transactions": "Attempts put on the wire for this drive, retries included",
@@ -209,7 +209,7 @@ _DRIVE_COUNTERS = {
     "timeouts": "Attempts this drive did not answer in time",
     "failed": "Requests to this drive answered 0x0B after every attempt failed",
     "late_replies": "Replies from this drive that came after their request timed out, set aside",
-    "resyncs": "Diagnostic echoes (08H) sent to this drive after a timeout, before anything else",
+    "resyncs": "Markers sent to this drive to bring it back in step, before anything else",
 }
 
 
