@@ -35,6 +35,11 @@ TWO_STATE: Final = (Kind.BOOL, Kind.BIT)
 """A device's points Home Assistant shows as binary sensors (on, off), not as sensors."""
 
 
+NON_NUMERIC_DEVICE_CLASSES: Final = frozenset({"date", "enum", "timestamp"})
+"""Home Assistant's sensor device classes whose state is not a number
+(homeassistant/components/sensor/const.py, `NON_NUMERIC_DEVICE_CLASSES`)."""
+
+
 @dataclass(frozen=True, slots=True)
 class Sensor:
     key: str
@@ -44,11 +49,16 @@ class Sensor:
     icon: str | None = None
     state_class: str | None = "measurement"
     """Home Assistant's state class where the sensor has a unit (or the device file says)."""
+    text: bool = False
+    """Its state is text (a drive's state, a fault's description, a string or enum point).
+    Home Assistant takes a state class, a unit or a numeric device class as the promise of a
+    number, and refuses a text state on such a sensor (it stays unknown): a text sensor has
+    none of them."""
 
 
 SENSORS: Final = (
-    Sensor("state", "State", icon="mdi:state-machine"),
-    Sensor("fault_description", "Fault", icon="mdi:alert-circle-outline"),
+    Sensor("state", "State", icon="mdi:state-machine", text=True),
+    Sensor("fault_description", "Fault", icon="mdi:alert-circle-outline", text=True),
     Sensor("output_frequency_hz", "Output frequency", "Hz", "frequency"),
     Sensor("output_current_a", "Output current", "A", "current"),
     Sensor("output_voltage_v", "Output voltage", "V", "voltage"),
@@ -191,15 +201,25 @@ def _sensor(entities: _Entities, sensor: Sensor) -> tuple[str, str]:
         "state_topic": entities.state_topic,
         "value_template": f"{{{{ value_json.{sensor.key} }}}}",
     }
-    if sensor.unit is not None:
-        fields["unit_of_measurement"] = sensor.unit
-    if sensor.unit is not None or sensor.state_class is not None:
-        fields["state_class"] = sensor.state_class
-    if sensor.device_class is not None:
-        fields["device_class"] = sensor.device_class
+    if not sensor.text:
+        fields.update(_numeric_classes(sensor))
     if sensor.icon is not None:
         fields["icon"] = sensor.icon
     return entities.config("sensor", sensor.key, fields)
+
+
+def _numeric_classes(sensor: Sensor) -> dict[str, Any]:
+    """A number's unit, state class and device class, as far as Home Assistant takes them: a
+    non-numeric device class (a device file may name one) would make it read the number as
+    text, and refuse the unit beside it; it is left out."""
+    fields: dict[str, Any] = {}
+    if sensor.unit is not None:
+        fields["unit_of_measurement"] = sensor.unit
+    if sensor.state_class is not None:
+        fields["state_class"] = sensor.state_class
+    if sensor.device_class is not None and sensor.device_class not in NON_NUMERIC_DEVICE_CLASSES:
+        fields["device_class"] = sensor.device_class
+    return fields
 
 
 def _alarm_sensors(entities: _Entities, drive: DriveSettings) -> list[tuple[str, str]]:
@@ -249,13 +269,15 @@ def _commands(
 
 
 def _point_sensor(point: TypedPoint) -> Sensor:
-    """A device file's point as a sensor: its unit and classes as the file gives them."""
+    """A device file's point as a sensor: its unit and classes as the file gives them (a
+    string or an enumeration's words: a text sensor, whatever the file says)."""
     return Sensor(
         point.name,
         _named(point.name),
         point.unit or None,
         point.device_class,
         state_class=point.state_class,
+        text=point.kind in (Kind.STRING, Kind.ENUM),
     )
 
 
@@ -290,12 +312,29 @@ def _point_numbers(entities: _Entities, profile: DriveProfile) -> list[tuple[str
             "mode": "box",
             "min": -1e9,
             "max": 1e9,
-            "step": "any",
+            "step": _step(point),
         }
         if point.unit:
             number["unit_of_measurement"] = point.unit
         messages.append(entities.config("number", point.name, number, unique))
     return messages
+
+
+MIN_STEP: Final = 0.001
+"""The smallest step Home Assistant's MQTT number takes (homeassistant/components/mqtt/
+number.py: `vol.Range(min=1e-3)`); it refuses a config with "any" (not a number) outright."""
+
+
+def _step(point: TypedPoint) -> float:
+    """A number's step: what one count of the register means (its scale), or a float's
+    published decimals; never below Home Assistant's smallest."""
+    if point.decimals is not None:
+        step = 10.0**-point.decimals
+    elif point.kind in (Kind.F32, Kind.F64):
+        step = MIN_STEP
+    else:
+        step = abs(point.scale) or 1.0
+    return max(step, MIN_STEP)
 
 
 def _named(key: str) -> str:
