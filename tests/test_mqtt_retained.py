@@ -88,6 +88,39 @@ async def test_a_broker_that_speaks_only_mqtt_3_1_1_gets_3_1_1() -> None:
         await broker.stop()
 
 
+async def test_on_a_3_1_1_broker_a_command_retained_while_connected_runs_and_is_cleared() -> None:
+    """Under 3.1.1 the broker hands a message retained while we are subscribed on without its
+    retain flag: the command runs (as documented), and must not stay on the broker for the
+    next subscriber. The demo's embedded broker speaks 3.1.1 only, as NATS and RabbitMQ do."""
+    broker = EmbeddedBroker("127.0.0.1", free_port())
+    await broker.start()
+    address = Address("127.0.0.1", broker.port)
+    try:
+        base = unique_base_topic()
+        topic = f"{base}/pump1/set"
+        with simulated_line() as line:
+            config = mqtt_config(line.path, address, base)
+            async with mqtt_probe(address, f"{base}/#") as probe, running_gateway(config) as app:
+                await probe.wait_for(f"{base}/pump1/availability", lambda a: a["state"] == "online")
+                assert app.mqtt.session.protocol == MQTT_3_1_1
+                mark = len(probe.messages)
+                run = {"command": "run_forward", "transaction": "t1"}
+                await probe.publish(topic, run, retain=True)
+                response = await probe.wait_for(
+                    f"{topic}/response", lambda r: r["transaction"] == "t1", after=mark
+                )
+                assert response.json()["status"] == "ok"  # it ran
+                await probe.wait_for(topic, lambda p: p == "", after=mark)  # then cleared
+                answers = [m for m in probe.messages[mark:] if m.topic == f"{topic}/response"]
+                assert len(answers) == 1  # the clearing is nobody's command: no answer
+        # Nothing is left retained on the broker: a new subscriber gets no command.
+        async with mqtt_probe(address, topic) as late:
+            await asyncio.sleep(0.5)  # asserting an absence: time for anything retained to arrive
+            assert [m for m in late.messages if m.payload] == []
+    finally:
+        await broker.stop()
+
+
 async def test_entities_no_longer_offered_are_removed_from_home_assistant(
     mosquitto: Mosquitto,
 ) -> None:

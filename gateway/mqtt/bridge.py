@@ -29,9 +29,9 @@ import aiomqtt
 
 from gateway.mqtt.alone import check_alone
 from gateway.mqtt.commands import CommandDrive, Commands
-from gateway.mqtt.connection import MQTT_5
+from gateway.mqtt.connection import MQTT_3_1_1, MQTT_5
 from gateway.mqtt.discovery_cleanup import own_discovery_topics, remove_stale_entities
-from gateway.mqtt.dispatcher import Dispatcher
+from gateway.mqtt.dispatcher import ClearAfterRun, Dispatcher
 from gateway.mqtt.event_link import EventLink
 from gateway.mqtt.kinds import Context, command_kinds
 from gateway.mqtt.lanes import Lanes
@@ -93,10 +93,15 @@ class MqttBridge:
             events,
         )
         kinds = command_kinds(context, drives, mqtt.homeassistant_discovery)
-        self.dispatcher = Dispatcher(
-            kinds, self.lanes, self.publisher.answer, self.stats, self.publisher.clear_retained
-        )
         self.session = Session(mqtt, self.topics, self.stats, tasks, self._connected, self._lost)
+        self.dispatcher = Dispatcher(
+            kinds,
+            self.lanes,
+            self.publisher.answer,
+            self.stats,
+            self.publisher.clear_retained,
+            self._clear_after_run,
+        )
         self.event_link = EventLink(self.session, self.publisher)
         self.settings = mqtt
         self.tasks = tasks
@@ -214,6 +219,13 @@ class MqttBridge:
         except aiomqtt.MqttError as exc:
             # Not worth a restart: the broker went away meanwhile; the next start tries again.
             log.info("MQTT: stale Home Assistant entities not checked: %s", exc)
+
+    def _clear_after_run(self) -> ClearAfterRun | None:
+        """Under MQTT 3.1.1 only: with MQTT 5 a retained command keeps its flag
+        (retain-as-published), is refused and cleared as such."""
+        if self.session.protocol == MQTT_3_1_1:
+            return self.publisher.clear_command_topic
+        return None
 
     def _lost(self) -> None:
         self.lanes.drop_waiting()

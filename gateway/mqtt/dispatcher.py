@@ -32,6 +32,8 @@ Answer = Callable[[aiomqtt.Client, str, Json], Awaitable[None]]
 """Publishes a response on a topic; says nothing when the connection is gone."""
 ClearRetained = Callable[[aiomqtt.Client, str], Awaitable[None]]
 """Removes the retained message on a topic (an empty retained publish), and says so."""
+ClearAfterRun = Callable[[aiomqtt.Client, str], Awaitable[None]]
+"""Removes whatever may be retained on a command's topic once the command ran, quietly."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -71,12 +73,16 @@ class Dispatcher:
         answer: Answer,
         stats: BridgeStats,
         clear_retained: ClearRetained | None = None,
+        clear_after_run: Callable[[], ClearAfterRun | None] | None = None,
     ) -> None:
+        """`clear_after_run`: asked after each command ran; what clears its topic then (the
+        bridge's under MQTT 3.1.1), or None: nothing to clear."""
         self.kinds = kinds
         self.lanes = lanes
         self.answer = answer
         self.stats = stats
         self.clear_retained = clear_retained
+        self.clear_after_run = clear_after_run
 
     @property
     def topics(self) -> Iterable[str]:
@@ -120,6 +126,8 @@ class Dispatcher:
 
         async def job() -> None:
             await self._run(client, kind, incoming)
+            if kind.command:
+                await self._clear_after_run(client, incoming.topic)
 
         if not self.lanes.submit(lane, job):
             self._refuse_busy(client, lane, incoming, kind.response_topic)
@@ -140,6 +148,21 @@ class Dispatcher:
                     "the gateway failed; see its log",
                 )
                 await self.answer(client, kind.response_topic, response)
+
+    async def _clear_after_run(self, client: aiomqtt.Client, topic: str) -> None:
+        """Under MQTT 3.1.1 a broker delivers a message retained while we are subscribed
+        without its retain flag: a retained command then looks fresh and runs (as documented),
+        and stayed retained on the broker for the next subscriber (another gateway, this one
+        after a restart, which would refuse it, but a dashboard shows it). Nothing tells it
+        from a fresh one, so every command's topic is cleared once it ran: an empty retained
+        publish, which costs nothing where nothing is retained."""
+        clear = self.clear_after_run() if self.clear_after_run is not None else None
+        if clear is None:
+            return
+        try:
+            await clear(client, topic)
+        except aiomqtt.MqttError as exc:
+            log.debug("MQTT: %s not cleared after its command: %s", topic, exc)
 
     def _clear(self, client: aiomqtt.Client, topic: str) -> None:
         clear = self.clear_retained

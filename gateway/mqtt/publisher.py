@@ -182,6 +182,12 @@ class Publisher:
         data: Json = {"drive": drive or "bridge", "topic": topic}
         self.events.record(EventType.RETAINED_COMMAND_CLEARED, data, drive=drive)
 
+    async def clear_command_topic(self, client: aiomqtt.Client, topic: str) -> None:
+        """Remove whatever may be retained on a command's topic, once the command ran (MQTT
+        3.1.1: the dispatcher's `clear_after_run`); quietly, as it is most often nothing."""
+        await self.publish(client, topic, "", retain=True, qos=self.mqtt.publish_qos)
+        log.debug("MQTT: %s cleared after its command ran (MQTT 3.1.1)", topic)
+
     async def keep(self, client: aiomqtt.Client, topic: str, payload: str) -> None:
         """A retained message the gateway publishes again on every connection (and a state
         every `publish_interval_s`): at `mqtt.publish_qos`, the latest one wins."""
