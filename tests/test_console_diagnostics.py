@@ -12,6 +12,7 @@ import pytest
 
 from gateway.app import Application
 from gateway.config import GatewayConfig, MqttConfig
+from gateway.instruments.embedded_broker import EmbeddedBroker
 from gateway.instruments.simulator import SimulatedLine
 from tests.support import TcpClient, eventually, free_port, running_gateway
 from tests.support.console_support import (
@@ -117,6 +118,24 @@ async def test_the_mqtt_session_with_its_broker_and_without(
         assert session["connected_since"] is None
         assert session["last_error"]
         assert session["last_error_at"].endswith("Z")
+
+
+async def test_a_healthy_3_1_1_link_shows_no_last_error(line: SimulatedLine) -> None:
+    """The MQTT 5 attempt a 3.1.1-only broker refuses (CONNACK 132, "unsupported protocol
+    version") is how the protocol is found, not an error: Diagnostics showed "Last error 132"."""
+    broker = EmbeddedBroker("127.0.0.1", 0)  # speaks 3.1.1 only, as NATS and RabbitMQ do
+    await broker.start()
+    try:
+        config = with_mqtt(console_config(line.path), broker.host, broker.port)
+        async with running_gateway(config) as app, console_client(app) as web:
+            assert (await web.login("victor", VIEWER_PASSWORD)).status == 200
+            await connected(app)
+            session = (await diagnostics(web))["mqtt"]
+            assert (session["protocol"], session["connected"]) == ("3.1.1", True)
+            assert (session["last_error"], session["last_error_at"]) == (None, None)
+            assert (session["connects"], session["connect_failures"]) == (1, 0)
+    finally:
+        await broker.stop()
 
 
 async def test_no_broker_there_is_a_last_error(line: SimulatedLine) -> None:

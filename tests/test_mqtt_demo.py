@@ -172,6 +172,33 @@ class DemoProcess:
                     stream.close()
 
 
+async def test_the_demo_raises_no_warning_about_its_own_broker(tmp_path: Path) -> None:
+    """The embedded broker speaks MQTT 3.1.1, which the gateway fully works with: the demo
+    warned "speaks MQTT 3.1.1 only" at every start (twice with Sparkplug, its own connection)."""
+    base = unique_base_topic("demo")
+    config = yaml.safe_load(demo_config_text(None))
+    config["console"]["port"] = 0
+    config["mqtt"].update(
+        {"port": free_port(), "base_topic": base, "sparkplug": {"group_id": "demo"}}
+    )
+    config["gateway_id"] = f"demo-{base}"
+    config_file = tmp_path / "demo.yaml"
+    config_file.write_text(yaml.safe_dump(config), encoding="utf-8")
+    demo = DemoProcess("--config", str(config_file), "--port", str(free_port()))
+    try:
+        await demo.wait_for("Stop with Ctrl-C")
+        await demo.wait_for("Home Assistant discovery published", "err")
+        await demo.wait_for("Sparkplug: born as", "err")
+    finally:
+        assert await demo.interrupt() == 0, demo.err.text
+    assert "(embedded" in demo.out.text
+    assert "3.1.1" in demo.err.text  # said, as information
+    complaints = [
+        line for line in demo.err.text.splitlines() if " WARNING " in line or " ERROR " in line
+    ]
+    assert complaints == []
+
+
 async def test_watch_watches_the_running_demo_and_no_two_client_ids_collide(
     tmp_path: Path,
 ) -> None:

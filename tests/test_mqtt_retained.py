@@ -84,6 +84,8 @@ async def test_a_broker_that_speaks_only_mqtt_3_1_1_gets_3_1_1() -> None:
                 assert app.mqtt.session.protocol == MQTT_3_1_1
                 assert app.mqtt.stats.connects == 1
                 assert app.mqtt.stats.connect_failures == 0  # refused 5, then 3.1.1 at once
+                # A negotiation, not an error: no "last error 132" (MQTT 5's CONNACK code).
+                assert app.mqtt.status().last_error is None
     finally:
         await broker.stop()
 
