@@ -9,6 +9,7 @@
     │   │                       events are kept in memory meanwhile
     │   └── DiskFull            its disk has no room (`storage.path`): nothing written, events wait
     ├── StoreRefused            the store's file is a newer release's: one line, exit code 4
+    │   └── StoreInUse          another gateway holds the store's file (its pid): exit code 4
     ├── BrokerShared            another gateway is live on this one's MQTT base topic: exit code 4
     │                           (a reload onto it: refused)
     ├── ServiceFailed           the service can't go on: stop with exit code 1 (systemd restarts it)
@@ -267,7 +268,12 @@ class DeviceFileError(GatewayError, ValueError):
 
 class StoreRefused(GatewayError):
     """The store's file was written by a newer release (its schema is past this release's): not
-    opened, not re-marked; the gateway doesn't start (one line, exit code 1)."""
+    opened, not re-marked; the gateway doesn't start (one line, exit code 4)."""
+
+
+class StoreInUse(StoreRefused):
+    """Another process holds the store's file (`gateway.store.owner`): the message names the file
+    and the holder's pid; the gateway doesn't start (one line, exit code 4), the holder runs on."""
 
 
 class MonitorError(GatewayError):

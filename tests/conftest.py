@@ -133,7 +133,7 @@ def session_state_directory(tmp_path_factory: pytest.TempPathFactory) -> Iterato
 def own_state_directory(
     tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Each test its own store (`storage.path` defaults to $STATE_DIRECTORY/events.db), for the
-    gateways it runs in-process and the ones it starts as subprocesses alike: never the machine's
-    /var/lib/invt-gateway, never what another test left."""
+    """Each test its own store (`storage.path` defaults to $STATE_DIRECTORY/events-<gateway_id>.db),
+    for the gateways it runs in-process and the ones it starts as subprocesses alike: never the
+    machine's /var/lib/invt-gateway, never what another test left."""
     monkeypatch.setenv(ENV_STATE_DIRECTORY, str(tmp_path_factory.mktemp("state")))

@@ -24,6 +24,8 @@ from tests.support.site import DOCS
 
 STATE = "/var/lib/invt-gateway"
 BACKUP = "/srv/backup"
+STORE = "events-invt-gateway.db"
+"""The file the page's recipe names: the default of the default gateway_id."""
 WAIT_S = 20.0
 
 
@@ -49,7 +51,7 @@ def gateway_config(state: Path, tmp_path: Path) -> dict[str, Any]:
             {"name": "fan2", "bus": "line1", "address": 2},
         ],
         "mqtt": {"host": "127.0.0.1", "port": free_port(), "reconnect_max_s": 1},
-        "storage": {"path": str(state / "events.db")},
+        "storage": {"path": str(state / STORE)},
     }
 
 
@@ -82,10 +84,10 @@ def test_the_backup_recipe_copies_a_live_store_and_the_restore_brings_it_back(
 
     with gateway_process(gateway_config(state, tmp_path), tmp_path) as gateway:
         deadline = time.monotonic() + WAIT_S
-        while stored_events(state / "events.db") < 1:
+        while stored_events(state / STORE) < 1:
             assert time.monotonic() < deadline, gateway.log.text
             time.sleep(0.2)
-        seen = count_events(state / "events.db")
+        seen = count_events(state / STORE)
         # The host's line, then the container's (its paths under the same folder), while the
         # gateway keeps its database open and writes.
         for command in (python_lines[0], in_container[0].removeprefix("docker exec invt-gateway ")):
@@ -107,12 +109,12 @@ def test_the_backup_recipe_copies_a_live_store_and_the_restore_brings_it_back(
         if line.startswith(("cp ", "rm -f "))
     ]
     assert len(restore) == 2
-    (state / "events.db").unlink()
+    (state / STORE).unlink()
     for command in restore:
         subprocess.run(["sh", "-c", command], check=True, timeout=30)
-    assert not (state / "events.db-wal").exists()
-    restored = count_events(state / "events.db")
+    assert not (state / f"{STORE}-wal").exists()
+    restored = count_events(state / STORE)
     assert restored >= seen
     with gateway_process(gateway_config(state, tmp_path), tmp_path) as gateway:
-        gateway.log.wait_for(f"store {state / 'events.db'}: ", WAIT_S)
+        gateway.log.wait_for(f"store {state / STORE}: ", WAIT_S)
         assert "events wait for the broker" in gateway.log.text

@@ -100,6 +100,31 @@ def test_a_store_of_a_newer_release_is_refused_and_left_as_it_is(tmp_path: Path)
     assert user_version(path) == newer  # never re-marked
 
 
+def test_a_store_of_a_newer_release_is_not_touched_not_even_switched_to_wal(
+    tmp_path: Path,
+) -> None:
+    """A newer release that keeps its store in another journal mode finds it as it left it: the
+    version is checked before the switch to WAL mode (a write to the file's header)."""
+    path = tmp_path / "events.db"
+    newer = schema.LATEST + 1
+    with contextlib.closing(sqlite3.connect(path, isolation_level=None)) as db:
+        db.executescript(RELEASED[1].read_text(encoding="utf-8"))
+        db.execute(f"PRAGMA user_version = {newer}")
+    before = path.read_bytes()
+    config = {
+        "modbus_tcp": {"host": "127.0.0.1", "port": 0},
+        "buses": [{"name": "line1", "port": str(tmp_path / "no-such-tty"), "timeout_ms": 20}],
+        "drives": [{"bus": "line1", "name": "pump1", "address": 1}],
+        "storage": {"path": str(path)},
+    }
+    with gateway_process(config, tmp_path) as gateway:
+        assert gateway.wait(20) == EXIT_STARTUP, gateway.log.text
+    assert path.read_bytes() == before  # header (journal mode, version) and pages alike
+    assert not Path(f"{path}-wal").exists()
+    with contextlib.closing(sqlite3.connect(f"file:{path}?mode=ro", uri=True)) as db:
+        assert db.execute("PRAGMA journal_mode").fetchone()[0] == "delete"
+
+
 async def test_a_store_missing_a_column_is_kept_out_of_use_and_says_which(tmp_path: Path) -> None:
     path = tmp_path / "events.db"
     sql = (FIXTURES / "store_schema_1.sql").read_text(encoding="utf-8")

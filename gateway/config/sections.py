@@ -636,8 +636,9 @@ class StorageConfig(Section):
     """The local store: events waiting for the broker, and each drive's fault history."""
 
     path: str | None = Field(None, min_length=1)
-    """The SQLite file; default `events.db` in $STATE_DIRECTORY (systemd's StateDirectory=),
-    else in /var/lib/invt-gateway/."""
+    """The SQLite file; default `events-<gateway_id>.db` in $STATE_DIRECTORY (systemd's
+    StateDirectory=), else in /var/lib/invt-gateway/ (an install that has the shared
+    `events.db` of earlier releases goes on with it: see the Operations page)."""
     max_mb: float = Field(64.0, ge=0.05, le=100000)
     """The most the store may take on disk; past it the oldest events go first (counted and
     logged when they had not reached the broker yet)."""
@@ -651,12 +652,22 @@ class StorageConfig(Section):
     """One history point per drive this often: the mean of each value over the step (a text
     value, such as the state, as it was last)."""
 
-    def resolved_path(self, environ: dict[str, str] | None = None) -> str:
+    def resolved_path(self, gateway_id: str, environ: dict[str, str] | None = None) -> str:
+        """`path`, else `events-<gateway_id>.db` in the state directory: two gateways on one
+        box (two lines, two `gateway_id`s) never share a store by default."""
         if self.path is not None:
             return self.path
-        env = os.environ if environ is None else environ
-        directory = env.get(ENV_STATE_DIRECTORY, "").split(":")[0] or DEFAULT_STATE_DIRECTORY
-        return str(Path(directory) / "events.db")
+        return str(_state_directory(environ) / f"events-{gateway_id}.db")
+
+    def shared_default(self, environ: dict[str, str] | None = None) -> str:
+        """The default before it was one per gateway_id, `events.db` in the state directory:
+        an install that has it goes on with it (the store's open decides)."""
+        return str(_state_directory(environ) / "events.db")
+
+
+def _state_directory(environ: dict[str, str] | None) -> Path:
+    env = os.environ if environ is None else environ
+    return Path(env.get(ENV_STATE_DIRECTORY, "").split(":")[0] or DEFAULT_STATE_DIRECTORY)
 
 
 class ConsoleUserConfig(Section):

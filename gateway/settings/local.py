@@ -24,19 +24,23 @@ class StoreSettings:
     """How long the history of polled values is kept; 0: none."""
     history_step_s: float = 60.0
     """One history point per drive this often."""
+    shared_path: str | None = None
+    """Without storage.path: the default store before it was one per gateway_id, kept in use
+    by an install that has it (`gateway.store.database.EventDatabase._choose_file`)."""
 
 
 def store_settings(config: GatewayConfig) -> StoreSettings:
     mqtt = config.mqtt
     storage = config.storage
     return StoreSettings(
-        path=storage.resolved_path(),
+        path=storage.resolved_path(config.gateway_id),
         max_mb=storage.max_mb,
         max_age_days=storage.max_age_days,
         forwarding=mqtt is not None and mqtt.enabled,
         max_waiting=mqtt.queue_size if mqtt is not None else EVENTS_WAITING,
         history_days=storage.history_days,
         history_step_s=storage.history_step_s,
+        shared_path=storage.shared_default() if storage.path is None else None,
     )
 
 

@@ -1,7 +1,9 @@
-"""The store's SQLite database: one file in WAL mode, bounded in size and age.
+"""The store's SQLite database: one file in WAL mode, bounded in size and age, one owner.
 
 Used only from the store's own thread (`gateway.store.events`): every call here blocks on the
-disk. Tables (their migrations in `gateway.store.schema`):
+disk. Opened only under the file's lock (`gateway.store.owner`): a second gateway on the same
+file is refused rather than writing over the first's events. Tables (their migrations in
+`gateway.store.schema`):
 
     events   id (given by the store when the event is recorded, never reused: strictly
              increasing across restarts and trims), type, time, drive, data (JSON), delivered
@@ -42,6 +44,7 @@ from typing import Any, Final
 
 from gateway.errors import DiskFull, StoreError
 from gateway.store import schema
+from gateway.store.owner import StoreLock
 from gateway.store.records import (
     ConfigVersion,
     EventType,
@@ -95,8 +98,15 @@ class EventDatabase:
         max_age_s: float,
         forwarding: bool,
         history_max_age_s: float = 7 * 86400.0,
+        shared_path: str | None = None,
     ) -> None:
         self.path = path
+        self.shared_path = shared_path
+        """The default store before it was one per gateway_id (`_choose_file`); None when
+        storage.path is given."""
+        self.note: str | None = None
+        """Which file `open` chose and why, when the shared one was considered."""
+        self._lock: StoreLock | None = None
         self.max_bytes = max_bytes
         self.max_age_s = max_age_s
         self.history_max_age_s = history_max_age_s
@@ -112,25 +122,61 @@ class EventDatabase:
     # -- opening and closing -------------------------------------------------------------------
 
     def open(self) -> list[int]:
-        """Open (or create) the file and bring its schema up to date; the migrations that ran."""
+        """Take the file (`gateway.store.owner`), open or create it and bring its schema up to
+        date; the migrations that ran. `StoreInUse` when another process holds it,
+        `StoreRefused` (the file untouched) when a newer release wrote it."""
+        lock = None
         try:
             if self.persistent:
+                self._choose_file()
                 Path(self.path).parent.mkdir(parents=True, exist_ok=True)
+                lock = StoreLock(self.path)
+                lock.acquire()
             db = sqlite3.connect(self.path, isolation_level=None)
         except (OSError, sqlite3.Error) as exc:
+            if lock is not None:
+                lock.release()
             raise StoreError(f"{self.path}: {exc}") from exc
         try:
             migrated = self._set_up(db)
-        except sqlite3.Error as exc:
+        except BaseException as exc:
             db.close()
-            raise StoreError(f"{self.path}: {exc}") from exc
-        except BaseException:
-            db.close()
+            if lock is not None:
+                lock.release()
+            if isinstance(exc, sqlite3.Error):
+                raise StoreError(f"{self.path}: {exc}") from exc
             raise
         self._db = db
+        self._lock = lock
         return migrated
 
+    def _choose_file(self) -> None:
+        """An install from before the default store was one per `gateway_id` goes on with the
+        shared file it has, while this gateway has no file of its own and no other gateway
+        holds the shared one (the first of two gateways started keeps it, the other starts its
+        own). `note` says which, for the log."""
+        shared = self.shared_path
+        if shared is None or shared == self.path:
+            return
+        if Path(self.path).exists() or not Path(shared).exists():
+            return
+        if StoreLock(shared).held_elsewhere():
+            self.note = (
+                f"store: {shared} (the default store before it was one per gateway_id) is held "
+                f"by another gateway; this one starts its own, {self.path}"
+            )
+            return
+        self.note = (
+            f"store: keeping {shared}, the default store before it was one per gateway_id; "
+            f"this gateway's own default is {self.path} (to move: stop the gateway, rename "
+            "the file, or set storage.path)"
+        )
+        self.path = shared
+
     def _set_up(self, db: sqlite3.Connection) -> list[int]:
+        # Before anything that writes (the WAL switch is a write to the file's header): a newer
+        # release's file is left exactly as it is.
+        schema.refuse_newer(db, self.path)
         if schema.version(db) == 0:
             # Only before the first table: lets deletes give pages back to the file system.
             db.execute("PRAGMA auto_vacuum = INCREMENTAL")
@@ -150,6 +196,9 @@ class EventDatabase:
         if self._db is not None:
             self._db.close()
             self._db = None
+        if self._lock is not None:
+            self._lock.release()  # after the close: nobody else opens it while we write
+            self._lock = None
 
     @property
     def db(self) -> sqlite3.Connection:

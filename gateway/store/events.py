@@ -105,6 +105,7 @@ class EventStore:
             settings.max_age_days * 86400,
             settings.forwarding,
             settings.history_days * 86400,
+            settings.shared_path,
         )
         self.history = HistoryRecorder(self._keep_history, settings.history_step_s)
         """The poller's listener for the history of polled values (the application adds it)."""
@@ -272,6 +273,9 @@ class EventStore:
             log.error("%s", self._memory_only)
             self._db.path = MEMORY
             migrated = await self._call(self._db.open)
+        self.path = self._db.path if self.persistent else self.path  # the file it chose
+        if self._db.note is not None:
+            log.warning("%s", self._db.note)
         if self.persistent and migrated and migrated[0] > 1:
             log.info("store %s: schema migrated to %d (ran %s)", self.path, migrated[-1], migrated)
         settled = await self._call(self._db.settle_tallies)

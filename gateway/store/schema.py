@@ -94,15 +94,22 @@ def version(db: sqlite3.Connection) -> int:
     return value
 
 
-def migrate(db: sqlite3.Connection, path: str) -> list[int]:
-    """Bring the file at `path` to `LATEST`; the migrations that ran. Raises `StoreRefused` for a
-    file of a newer release, `StoreError` for one that lacks what the code needs."""
+def refuse_newer(db: sqlite3.Connection, path: str) -> None:
+    """`StoreRefused` for a file of a newer release; reads only (the caller checks this before
+    anything that writes to the file, the switch to WAL mode included)."""
     found = version(db)
     if found > LATEST:
         raise StoreRefused(
             f"storage.path {path}: written by a newer release (store schema {found}; this "
             f"release knows 1 to {LATEST}); run that release, or restore a backup of this one"
         )
+
+
+def migrate(db: sqlite3.Connection, path: str) -> list[int]:
+    """Bring the file at `path` to `LATEST`; the migrations that ran. Raises `StoreRefused` for a
+    file of a newer release, `StoreError` for one that lacks what the code needs."""
+    refuse_newer(db, path)
+    found = version(db)
     ran = []
     for number in range(found + 1, LATEST + 1):
         db.execute("BEGIN IMMEDIATE")

@@ -21,7 +21,7 @@ async def running_store(
     async with asyncio.TaskGroup() as group:
         tasks.bind(group)
         settings = StoreSettings(
-            config.resolved_path(), config.max_mb, config.max_age_days, forwarding, 100_000
+            config.resolved_path("test"), config.max_mb, config.max_age_days, forwarding, 100_000
         )
         store = EventStore(settings, tasks)
         await store.start()

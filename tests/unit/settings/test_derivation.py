@@ -89,10 +89,12 @@ def test_the_store_lives_in_the_state_directory_and_forwards_only_with_mqtt(
 ) -> None:
     monkeypatch.setenv(ENV_STATE_DIRECTORY, f"{tmp_path}:/var/lib/other")  # systemd's list
     store = settings().store
-    assert store.path == str(tmp_path / "events.db")
+    assert store.path == str(tmp_path / "events-hall2.db")  # one per gateway_id
+    assert store.shared_path == str(tmp_path / "events.db")  # the default of earlier releases
     assert not store.forwarding
     assert settings(FILE + "mqtt: {host: 10.0.0.5}\n").store.forwarding
-    assert settings(FILE + "storage: {path: /srv/plant.db}\n").store.path == "/srv/plant.db"
+    given = settings(FILE + "storage: {path: /srv/plant.db}\n").store
+    assert (given.path, given.shared_path) == ("/srv/plant.db", None)
 
 
 def test_the_log_level_is_pythons_name_for_it() -> None:

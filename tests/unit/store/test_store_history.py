@@ -27,7 +27,7 @@ async def running_store(config: StorageConfig) -> AsyncIterator[EventStore]:
     async with asyncio.TaskGroup() as group:
         tasks.bind(group)
         settings = StoreSettings(
-            config.resolved_path(),
+            config.resolved_path("test"),
             config.max_mb,
             config.max_age_days,
             True,
