@@ -12,6 +12,7 @@ from collections.abc import Callable, Mapping
 from gateway.app import Application
 from gateway.collector import settle_startup_objects
 from gateway.config import GatewayConfig, load_config
+from gateway.config.startup import startup_problems
 from gateway.control import RELOAD, ControlServer
 from gateway.errors import (
     BrokerShared,
@@ -240,6 +241,10 @@ class Reloader:
         log.info("reading %s again", path)
         try:
             config = await asyncio.to_thread(load_config, path)
+            problems = await asyncio.to_thread(startup_problems, config)
+            if problems:
+                # Applied, it would run, and the next start would fail on it.
+                raise ConfigError(problems, path)
         except ConfigError as exc:
             # As check-config says it: every problem, with its key path, one line each (the
             # journal shows a line at a time). Nothing changes.

@@ -1,5 +1,6 @@
 """A configuration's text checked before it is applied (the console's editor, `gateway.console.
-config_editor`): every check `check-config` makes, and what the live reload would do with it.
+config_editor`): every check `check-config` makes (`gateway.config.startup` included: a text
+the gateway could not start on is refused), and what the live reload would do with it.
 
     problems        (key path, reason) for each thing wrong, as `check-config` prints them
     warnings        a serial port missing on this machine, a line its polls would fill
@@ -13,8 +14,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from gateway.config import parse_config
+from gateway.config.startup import startup_problems
 from gateway.errors import ConfigError
 from gateway.settings import GatewaySettings
+from gateway.settings.checks import line_budget, missing_ports
 from gateway.settings.reload import plan
 
 
@@ -47,8 +50,9 @@ def check_text(text: str, source: str, running: GatewaySettings, mqtt_running: b
         config = parse_config(text, source)
     except ConfigError as exc:
         return Checked(list(exc.problems))
-    from gateway.commands.check_config import line_budget, missing_ports
-
+    problems = startup_problems(config)
+    if problems:
+        return Checked(problems)
     warnings = missing_ports(config) + line_budget(config)[1]
     planned = plan(running.source, config, mqtt_running=mqtt_running)
     return Checked([], warnings, planned.changed, planned.restart_needed)
