@@ -133,3 +133,23 @@ async def test_events_download_as_csv_as_filtered(line: SimulatedLine) -> None:
     assert rows[0]["category"] == "control"
     assert rows[0]["time"].endswith("Z")
     assert {row["drive"] for row in rows} == {"pump1"}
+
+
+async def test_a_name_typed_at_the_login_is_exported_as_text_not_a_formula(
+    line: SimulatedLine,
+) -> None:
+    planted = '=HYPERLINK("http://x","y")'
+    async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
+        # Nobody logged in: a failed login is all it takes to put a name into the events.
+        assert (await web.login(planted, "wrong")).status == 401
+        assert (await web.login("olga", OPERATOR_PASSWORD)).status == 200
+        await app.events.flush()
+        async with web.session.get(f"{web.base}/api/events?format=csv") as response:
+            assert response.status == 200
+            rows = list(csv.DictReader(io.StringIO(await response.text())))
+    failed = [row for row in rows if row["kind"] == "login_failed"]
+    assert failed, rows
+    assert failed[0]["user"] == "'" + planted  # a spreadsheet shows it as text
+    cells = [value for row in rows for value in row.values()]
+    assert not [c for c in cells if c[:1] in ("=", "+", "-", "@", "\t", "\r")], cells
+    assert all(int(row["id"]) > 0 for row in rows)  # numbers are left as numbers

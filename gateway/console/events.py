@@ -23,6 +23,7 @@ from datetime import datetime
 from enum import StrEnum
 from typing import Any, Final, Protocol
 
+from gateway.console.spreadsheet import cell
 from gateway.poller.drive_state import iso_time
 from gateway.store.modbus_writes import client_host
 from gateway.store.records import FaultRecord, StoredEvent
@@ -371,13 +372,14 @@ CSV_COLUMNS: Final = (
 
 
 def events_csv(events: Sequence[GatewayEvent]) -> str:
-    """The events as a spreadsheet takes them: one row each, times in UTC (ISO 8601)."""
+    """The events as a spreadsheet takes them: one row each, times in UTC (ISO 8601); text
+    that a spreadsheet would run as a formula (a name typed at the login) quoted."""
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\r\n")
     writer.writerow(CSV_COLUMNS)
     for event in events:
         data = event.to_json()
-        writer.writerow(["" if data[c] is None else data[c] for c in CSV_COLUMNS])
+        writer.writerow([cell(data[c]) for c in CSV_COLUMNS])
     return out.getvalue()
 
 

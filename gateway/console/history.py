@@ -24,6 +24,7 @@ from aiohttp import web
 
 from gateway.console.live import HISTORY_S
 from gateway.console.replies import http_error, query_limit, time_query
+from gateway.console.spreadsheet import text_cell
 from gateway.console.web import CONSOLE, drive_name, html_page
 from gateway.errors import StoreError
 from gateway.poller.drive_state import iso_time
@@ -166,7 +167,8 @@ def history_csv(shown: Series) -> str:
 def _cell(value: Value | None) -> str:
     if value is None:
         return ""
-    return value if isinstance(value, str) else f"{value:g}"
+    # Numbers as numbers (a negative one too); a text value quoted if it reads as a formula.
+    return text_cell(value) if isinstance(value, str) else f"{value:g}"
 
 
 def _window(request: web.Request) -> tuple[float, float]:

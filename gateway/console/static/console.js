@@ -551,7 +551,10 @@ function monitorPage() {
   const columns = ["time", "client", "unit_id", "address", "drive", "function", "meaning",
     "outcome", "latency_ms", "queue_ms", "wire_ms", "turnaround_ms", "request_hex", "reply_hex"];
   document.getElementById("download-csv").addEventListener("click", () => {
-    const quote = (v) => `"${String(v ?? "").replace(/"/g, '""')}"`;
+    // OWASP's rule, as the server's exports (gateway/console/spreadsheet.py): text that a
+    // spreadsheet would run as a formula gets a quote in front; numbers stay numbers.
+    const safe = (v) => (typeof v === "string" && /^[=+\-@\t\r]/.test(v) ? `'${v}` : String(v ?? ""));
+    const quote = (v) => `"${safe(v).replace(/"/g, '""')}"`;
     const lines = [columns.join(",")].concat(shown().map((r) => columns.map((c) => quote(r[c])).join(",")));
     download(`traffic-${bus}.csv`, "text/csv", lines.join("\r\n") + "\r\n");
   });
