@@ -42,6 +42,8 @@ def parse_config(text: str, source: str = "<config>") -> GatewayConfig:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise ConfigError([("", _yaml_problem(exc))], source) from None
+    except RecursionError:  # thousands of nested [ or {: PyYAML recurses once per level
+        raise ConfigError([("", "not valid YAML: nested too deeply")], source) from None
     if not isinstance(data, dict):
         raise ConfigError([("", "the file must be a YAML mapping (key: value)")], source)
     version = data.get("version")

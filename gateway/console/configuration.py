@@ -26,7 +26,7 @@ from aiohttp import web
 from gateway.console.auth import Identity
 from gateway.console.config_editor import ConfigEditor
 from gateway.console.events import Category, GatewayEvent
-from gateway.console.replies import http_error, status_class
+from gateway.console.replies import http_error, json_body, status_class
 from gateway.console.web import CONSOLE, IDENTITY, Console, html_page
 from gateway.errors import EditRefused
 
@@ -187,18 +187,7 @@ async def _done(work: Awaitable[T]) -> T:
 
 async def _body(request: web.Request) -> dict[str, Any]:
     """The JSON body, up to `MAX_BODY` (the console's other requests are held to less)."""
-    if request.content_type != "application/json":
-        raise http_error(400, "send JSON (Content-Type: application/json)")
-    raw = await request.content.read(MAX_BODY + 1)
-    if len(raw) > MAX_BODY:
-        raise http_error(400, f"text: {MAX_BODY // 1024} kB at most")
-    try:
-        body = json.loads(raw)
-    except ValueError:
-        raise http_error(400, "the body is not valid JSON") from None
-    if not isinstance(body, dict):
-        raise http_error(400, "the body must be a JSON object")
-    return body
+    return await json_body(request, MAX_BODY)
 
 
 def _text(body: dict[str, Any]) -> str:

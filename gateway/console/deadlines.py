@@ -13,6 +13,9 @@ listener and aiohttp's own protocol, which it passes everything on to) and held 
 
 A connection that misses either is aborted and counted in `HttpTimeouts`. Between requests a
 connection may sit idle for `KEEP_ALIVE_S` (aiohttp's keep-alive), as browsers keep them.
+
+A request line longer than `bad_requests.MAX_REQUEST_LINE` is answered 414 here and the
+connection closed: aiohttp's parser would answer 400 and log a traceback for each.
 """
 
 from __future__ import annotations
@@ -26,6 +29,9 @@ from enum import Enum
 from typing import Final, cast
 
 from aiohttp import StreamReader, web
+
+from gateway.console.bad_requests import MAX_REQUEST_LINE, BadRequests
+from gateway.logs import repeated
 
 log = logging.getLogger(__name__)
 
@@ -54,9 +60,10 @@ class _Phase(Enum):
 class RequestDeadlines:
     """The deadlines of every connection of one listener, and what they closed."""
 
-    def __init__(self, timeout_s: float) -> None:
+    def __init__(self, timeout_s: float, bad: BadRequests | None = None) -> None:
         self.timeout_s = timeout_s
         self.closed = HttpTimeouts()
+        self.bad = bad if bad is not None else BadRequests()
 
     def wrap(self, handler: asyncio.Protocol) -> Deadlined:
         return Deadlined(self, handler)
@@ -72,6 +79,8 @@ class Deadlined(asyncio.Protocol):
         self._phase = _Phase.HEAD
         self._timer: asyncio.TimerHandle | None = None
         self._body_done: StreamReader | None = None
+        self._line_bytes: int | None = 0
+        """Bytes of the request line so far; None once it is whole (or refused)."""
 
     # -- the transport's side: passed on to aiohttp ------------------------------------------
 
@@ -83,7 +92,10 @@ class Deadlined(asyncio.Protocol):
     def data_received(self, data: bytes) -> None:
         if self._phase is _Phase.IDLE:
             self._phase = _Phase.HEAD  # a later request has begun: its head is due
+            self._line_bytes = 0
             self._arm()
+        if self._line_bytes is not None and not self._line_fits(data):
+            return
         self.handler.data_received(data)
 
     def eof_received(self) -> bool | None:
@@ -109,6 +121,24 @@ class Deadlined(asyncio.Protocol):
             self._arm()
         else:
             self._phase = _Phase.HANDLING
+
+    def _line_fits(self, data: bytes) -> bool:
+        """Counts a request line's bytes; False (answered 414, closing) when it is too long."""
+        assert self._line_bytes is not None
+        end = data.find(b"\n")
+        self._line_bytes += len(data) if end < 0 else end
+        if self._line_bytes <= MAX_REQUEST_LINE + 1:  # + 1: the "\r" before the "\n"
+            if end >= 0:
+                self._line_bytes = None
+            return True
+        self._line_bytes = None
+        transport = self._transport
+        if transport is not None and not transport.is_closing():
+            self._cancel()
+            self.deadlines.bad.refused(414, _peer(transport), "request line too long")
+            transport.write(URI_TOO_LONG)
+            transport.close()
+        return False
 
     def request_ended(self) -> None:
         self._cancel()
@@ -142,14 +172,30 @@ class Deadlined(asyncio.Protocol):
             self.deadlines.closed.body += 1
         else:
             return
-        peer = transport.get_extra_info("peername") or ("?", 0)
         log.info(
             "console: %s closed: no complete request %s within %g s (console.request_timeout_s)",
-            peer[0],
+            _peer(transport),
             phase.value,
             self.deadlines.timeout_s,
+            extra=repeated("console-slow"),
         )
         transport.abort()  # not close: nothing it has sent is worth an answer
+
+
+def _peer(transport: asyncio.BaseTransport) -> str:
+    peer = transport.get_extra_info("peername") or ("?", 0)
+    return str(peer[0])
+
+
+_URI_TOO_LONG_BODY: Final = (
+    b'{"ok": false, "error": "the request line is over %d bytes"}' % MAX_REQUEST_LINE
+)
+URI_TOO_LONG: Final = (
+    b"HTTP/1.1 414 URI Too Long\r\nContent-Type: application/json\r\n"
+    b"Content-Length: %d\r\nConnection: close\r\n\r\n"
+    % len(_URI_TOO_LONG_BODY)
+    + _URI_TOO_LONG_BODY
+)
 
 
 @web.middleware

@@ -19,6 +19,7 @@ from aiohttp import web
 from gateway.bus import Bus, BusSettings
 from gateway.console import configuration, history
 from gateway.console.auth import Users
+from gateway.console.bad_requests import BadRequests
 from gateway.console.config_editor import ConfigEditor
 from gateway.console.deadlines import KEEP_ALIVE_S, DeadlinedSite, RequestDeadlines
 from gateway.console.diagnostics import MqttSession, TcpClients
@@ -83,7 +84,9 @@ class ConsoleFeature:
         self.console: Console | None = None
         self._runner: web.AppRunner | None = None
         self._site: DeadlinedSite | None = None
-        self.deadlines = RequestDeadlines(settings.request_timeout_s)
+        self.bad_requests = BadRequests()
+        """Requests refused for their content (414, 413, 400), counted by status."""
+        self.deadlines = RequestDeadlines(settings.request_timeout_s, self.bad_requests)
         self._sampler: asyncio.Task[None] | None = None
         self._live: LiveState | None = None
         self.log_tail = LogTail()
@@ -129,12 +132,13 @@ class ConsoleFeature:
         )
         self.console.traffic.record_always()
         self.log_tail.attach()
-        app = build_app(self.console)
+        app = build_app(self.console, self.bad_requests)
         history.add_routes(app, self.history_source)
         configuration.add_routes(app, self.config_editor)
         self._runner = web.AppRunner(
             app,
             access_log=None,
+            logger=self.bad_requests.server_log(),  # its parser's refusals: no traceback each
             shutdown_timeout=SHUTDOWN_S,
             keepalive_timeout=KEEP_ALIVE_S,
         )

@@ -1,5 +1,5 @@
 """The console's metric families, read at scrape time: connections closed for a request too
-slow to arrive, and login attempts by result."""
+slow to arrive, requests refused for what they sent, and login attempts by result."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from collections.abc import Iterable
 from prometheus_client.core import CounterMetricFamily
 from prometheus_client.registry import Collector
 
+from gateway.console.bad_requests import REFUSED_STATUSES
 from gateway.console.feature import ConsoleFeature
 from gateway.metric_families import PREFIX
 
@@ -27,6 +28,16 @@ class ConsoleMetrics(Collector):
         timeouts.add_metric(["head"], closed.head)
         timeouts.add_metric(["body"], closed.body)
         yield timeouts
+        refused = CounterMetricFamily(
+            f"{PREFIX}_console_bad_requests",
+            "Console requests refused for what they sent, by HTTP status: 414 a request line "
+            "too long, 413 a body too large, 400 a request or body that does not parse",
+            labels=["status"],
+        )
+        by_status = self.console.bad_requests.by_status
+        for status in REFUSED_STATUSES:
+            refused.add_metric([str(status)], by_status[status])
+        yield refused
         console = self.console.console
         if console is None:  # not started (yet)
             return

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 from datetime import datetime
-from typing import Final
+from typing import Any, Final
 
 from aiohttp import web
 
@@ -28,6 +28,32 @@ def status_class(status: int) -> type[web.HTTPException]:
         429: web.HTTPTooManyRequests,
         502: web.HTTPBadGateway,
     }[status]
+
+
+async def json_body(request: web.Request, limit: int) -> dict[str, Any]:
+    """The request's body as a JSON object of at most `limit` bytes: 413 past it (before
+    reading, when Content-Length says so), 400 for anything that is not such an object."""
+    if request.content_type != "application/json":
+        raise http_error(400, "send JSON (Content-Type: application/json)")
+    size = request.content_length or 0
+    raw = bytearray()
+    while size <= limit and (chunk := await request.content.readany()):
+        raw += chunk
+        size = len(raw)
+    if size > limit:
+        message = json.dumps({"ok": False, "error": f"the body is over {limit // 1024} kB"})
+        raise web.HTTPRequestEntityTooLarge(
+            limit, size, text=message, content_type="application/json"
+        )
+    try:
+        body = json.loads(raw)
+    except RecursionError:  # thousands of nested [ or {: a stack's depth, not a value
+        raise http_error(400, "the body is nested too deeply") from None
+    except ValueError:
+        raise http_error(400, "the body is not valid JSON") from None
+    if not isinstance(body, dict):
+        raise http_error(400, "the body must be a JSON object")
+    return body
 
 
 def time_query(request: web.Request, key: str) -> float | None:

@@ -36,6 +36,7 @@ from gateway.console.auth import (
     Users,
     Via,
 )
+from gateway.console.bad_requests import BadRequests
 from gateway.console.deadlines import mark_requests
 from gateway.console.diagnostics import MqttSession, TcpClients, tcp_clients_json
 from gateway.console.events import (
@@ -56,6 +57,7 @@ from gateway.console.operations import (
 from gateway.console.replies import (
     MAX_EVENTS,
     http_error,
+    json_body,
     query_limit,
     time_query,
 )
@@ -177,8 +179,10 @@ class Console:
 CONSOLE: Final = web.AppKey("console", Console)
 
 
-def build_app(console: Console) -> web.Application:
-    app = web.Application(middlewares=[mark_requests, _guard], client_max_size=MAX_JSON)
+def build_app(console: Console, bad: BadRequests) -> web.Application:
+    """The console's application; `bad` counts and logs what is refused for its content."""
+    middlewares = [mark_requests, bad.middleware, _guard]
+    app = web.Application(middlewares=middlewares, client_max_size=MAX_JSON)
     app[CONSOLE] = console
     static = resources.files("gateway.console").joinpath("static")
     routes = [
@@ -644,15 +648,7 @@ async def _wait(console: Console, seconds: float) -> None:
 
 
 async def _json_body(request: web.Request) -> dict[str, Any]:
-    if request.content_type != "application/json":
-        raise http_error(400, "send JSON (Content-Type: application/json)")
-    try:
-        body = await request.json()
-    except ValueError:
-        raise http_error(400, "the body is not valid JSON") from None
-    if not isinstance(body, dict):
-        raise http_error(400, "the body must be a JSON object")
-    return body
+    return await json_body(request, MAX_JSON)
 
 
 async def _operation(work: Awaitable[Any]) -> Any:
