@@ -163,7 +163,8 @@ class Application:
         from gateway.mqtt.alone import check_alone
         from gateway.mqtt.topics import Topics
 
-        await check_alone(mqtt, Topics(mqtt.base_topic))
+        running = self.mqtt.topics if self.mqtt is not None else None
+        await check_alone(mqtt, Topics(mqtt.base_topic), running)
 
     async def _reload_mqtt(self, plan: ReloadPlan) -> None:
         """The bridge, started again with the running configuration: new settings, the drives

@@ -18,6 +18,7 @@ from pathlib import Path
 import aiomqtt
 import yaml
 
+from gateway.exit_codes import EXIT_STARTUP
 from gateway.instruments.commands.demo import demo_config_text
 from gateway.instruments.embedded_broker import EmbeddedBroker
 from tests.support import free_port
@@ -26,6 +27,7 @@ from tests.support.mosquitto import (
     BrokerAddress,
     Mosquitto,
     mqtt_probe,
+    retained_messages,
     unique_base_topic,
 )
 from tests.support.processes import LineCollector, entry_point
@@ -202,12 +204,12 @@ async def test_the_demo_raises_no_warning_about_its_own_broker(tmp_path: Path) -
 async def test_watch_watches_the_running_demo_and_no_two_client_ids_collide(
     tmp_path: Path,
 ) -> None:
-    # The demos' broker runs in this process, so the test sees its sessions by client id.
+    # The demo's broker runs in this process, so the test sees its sessions by client id.
     broker = EmbeddedBroker("127.0.0.1", 0)
     await broker.start()
     base = unique_base_topic("demo")
-    config = yaml.safe_load(demo_config_text(None))  # gateway_id "demo" in both demos
-    config["console"]["port"] = 0  # a free one each: two demos run side by side
+    config = yaml.safe_load(demo_config_text(None))  # gateway_id "demo"
+    config["console"]["port"] = 0
     config["mqtt"].update({"port": broker.port, "base_topic": base})
     config_file = tmp_path / "demo.yaml"
     config_file.write_text(yaml.safe_dump(config), encoding="utf-8")
@@ -217,11 +219,8 @@ async def test_watch_watches_the_running_demo_and_no_two_client_ids_collide(
         first = DemoProcess("--config", str(config_file), "--port", str(modbus_port))
         demos.append(first)
         await first.wait_for("Stop with Ctrl-C")
-        second = DemoProcess("--config", str(config_file), "--port", str(free_port()))
-        demos.append(second)
-        await second.wait_for("Stop with Ctrl-C")
-        # The banner's own watch line, given the first demo's Modbus-TCP port besides: a
-        # second gateway could not bind it, a watcher doesn't try.
+        # The banner's own watch line, given the demo's Modbus-TCP port besides: a second
+        # gateway could not bind it, a watcher doesn't try.
         watch_line = await first.wait_for("demo --watch")
         watch_args = watch_line.split("invt-gateway demo ")[1].split("  ")[0].split()
         assert watch_args == [
@@ -234,11 +233,10 @@ async def test_watch_watches_the_running_demo_and_no_two_client_ids_collide(
         assert json.loads(state.split(" ", 1)[1])["state"] == "stopped"
         watching = await watcher.wait_for("watching", "err")
         assert watching == f"watching {base}/# at 127.0.0.1:{broker.port} (Ctrl-C to stop)"
-        # Two demos and the watcher connected at once: with one client id between two of
-        # them, the broker would hold only one of their sessions (the last to connect wins).
-        ids = await sessions(broker, 3)
+        # The demo and the watcher connected at once: with one client id between them (or
+        # with a service whose gateway id is "demo"), the broker would hold only one session.
+        ids = await sessions(broker, 2)
         assert sorted(i.rsplit("-", 1)[0] for i in ids) == [
-            "invt-gateway-demo",
             "invt-gateway-demo",
             "invt-gateway-watch",
         ]
@@ -247,7 +245,46 @@ async def test_watch_watches_the_running_demo_and_no_two_client_ids_collide(
     finally:
         codes = [await demo.interrupt() for demo in demos]
         await broker.stop()
-    assert codes[:2] == [0, 0]
+    assert codes[0] == 0
+
+
+async def test_a_second_demo_on_the_broker_leaves_the_first_ones_entities_and_state_alone(
+    tmp_path: Path, mosquitto: Mosquitto
+) -> None:
+    """A second demo on a broker where one runs: with its own Modbus-TCP port it is refused
+    (it would share the first's gateway id, topics and Home Assistant entities); on the
+    first's port it fails to start. Either way it exits, and the first's discovery configs
+    and its "online" stay as they were: a failed demo cleared them all, and said "offline"."""
+    base = unique_base_topic("demo")
+    config = yaml.safe_load(demo_config_text(None))
+    config["console"]["port"] = 0
+    config["mqtt"].update({"port": mosquitto.port, "base_topic": base})
+    config_file = tmp_path / "demo.yaml"
+    config_file.write_text(yaml.safe_dump(config), encoding="utf-8")
+    modbus_port = free_port()
+    first = DemoProcess("--config", str(config_file), "--port", str(modbus_port))
+    try:
+        await first.wait_for("Home Assistant discovery published", "err")
+        entities = await retained_messages(mosquitto, "homeassistant/#")
+        assert entities
+        async with mqtt_probe(mosquitto, f"{base}/bridge/state") as probe:
+            online = await probe.wait_for(f"{base}/bridge/state")
+            assert online.json()["state"] == "online"
+            for port in (free_port(), modbus_port):
+                second = DemoProcess("--config", str(config_file), "--port", str(port))
+                code = await asyncio.to_thread(second.process.wait, 20)
+                await second.interrupt()
+                assert code == EXIT_STARTUP, second.err.text
+                if port != modbus_port:
+                    assert "gateway 'demo' is online already" in second.err.text
+                assert "cleared its" not in second.err.text
+            assert await retained_messages(mosquitto, "homeassistant/#") == entities
+            await asyncio.sleep(0.3)  # asserting an absence: no "offline" for the first
+            assert [m.json()["state"] for m in probe.messages] == ["online"]
+        assert first.process.poll() is None
+    finally:
+        assert await first.interrupt() == 0, first.err.text
+    assert await retained_messages(mosquitto, "homeassistant/#") == {}  # its own, at its stop
 
 
 async def sessions(broker: EmbeddedBroker, count: int, within_s: float = 15.0) -> list[str]:

@@ -7,6 +7,7 @@ SIGKILL (its last will not yet out) starts as usual."""
 from __future__ import annotations
 
 import asyncio
+import json
 import signal
 from pathlib import Path
 from typing import Any
@@ -15,7 +16,7 @@ import yaml
 
 from gateway.exit_codes import EXIT_CONFIG, EXIT_STARTUP
 from tests.support import free_port
-from tests.support.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
+from tests.support.mosquitto import Mosquitto, mqtt_probe, retained_messages, unique_base_topic
 from tests.support.mosquitto import mosquitto as mosquitto
 from tests.support.mqtt_setup import FAST_POLL, simulated_line
 from tests.support.processes import gateway_process, run_cli
@@ -52,6 +53,50 @@ async def test_a_second_gateway_on_a_live_base_topic_is_refused(
                 mark = len(probe.messages)
                 await asyncio.sleep(0.3)  # asserting an absence: no "offline" from the refusal
                 assert all(m.json()["state"] == "online" for m in probe.messages[mark:])
+
+
+async def test_a_second_gateway_leaves_the_first_ones_entities_and_state_alone(
+    mosquitto: Mosquitto, tmp_path: Path
+) -> None:
+    """The Home Assistant entities of a gateway are its gateway id's: a copy with that id on
+    another base topic is refused at start (it would republish them onto its own topics and,
+    at its stop, leave them pointing at its "offline"); another gateway beside it starts and
+    stops. Neither touches the first's discovery configs or its "online"."""
+    site = unique_base_topic()
+    a_base, b_base, prefix = f"{site}/a", f"{site}/b", f"{site}-ha"
+
+    def with_prefix(settings: dict[str, Any]) -> dict[str, Any]:
+        settings["mqtt"]["discovery_prefix"] = prefix
+        return settings
+
+    with simulated_line((1,)) as line_a, simulated_line((1,)) as line_b:
+        first = with_prefix(config("cabinet-a", line_a.path, mosquitto, a_base))
+        async with mqtt_probe(mosquitto, f"{a_base}/bridge/state") as probe:
+            with gateway_process(first, tmp_path) as a:
+                await asyncio.to_thread(a.log.wait_for, "Home Assistant discovery published")
+                await probe.wait_for(f"{a_base}/bridge/state", lambda s: s["state"] == "online")
+                entities = await retained_messages(mosquitto, f"{prefix}/#")
+                assert len(entities) > 5
+                copied = with_prefix(config("cabinet-a", line_b.path, mosquitto, b_base))
+                elsewhere = tmp_path / "copy"  # its file beside the first's, same name
+                elsewhere.mkdir()
+                with gateway_process(copied, elsewhere) as second:
+                    assert await asyncio.to_thread(second.wait, 15.0) == EXIT_STARTUP
+                    assert "gateway 'cabinet-a' is online already" in second.log.text
+                    assert f"mqtt.base_topic {a_base!r}" in second.log.text
+                other = with_prefix(config("cabinet-b", line_b.path, mosquitto, b_base))
+                with gateway_process(other, tmp_path) as b:
+                    await asyncio.to_thread(b.wait_ready)
+                    await asyncio.to_thread(b.log.wait_for, "Home Assistant discovery published")
+                # B stopped (SIGTERM): its own entities went offline, the first's are as they were.
+                mark = len(probe.messages)
+                after = await retained_messages(mosquitto, f"{prefix}/#")
+                assert {t: p for t, p in after.items() if "/invt_cabinet-a/" in t} == entities
+                await asyncio.sleep(0.3)  # asserting an absence: no "offline" for the first
+                assert all(m.json()["state"] == "online" for m in probe.messages[mark:])
+                state = await retained_messages(mosquitto, f"{a_base}/bridge/#")
+                assert json.loads(state[f"{a_base}/bridge/state"])["state"] == "online"
+                assert a.process.poll() is None
 
 
 async def test_the_check_asks_the_next_server_when_the_first_is_down(

@@ -271,6 +271,17 @@ async def mqtt_probe(
                 await task
 
 
+async def retained_messages(broker: BrokerAddress, topic_filter: str) -> dict[str, bytes]:
+    """What a fresh subscriber to `topic_filter` (ending in `#`) is handed as retained, by
+    topic: all of it arrives before a marker published under it after subscribing (one
+    session, in order)."""
+    marker = f"{topic_filter.rstrip('#/')}/marker-{uuid.uuid4().hex[:8]}"
+    async with mqtt_probe(broker, topic_filter) as probe:
+        await probe.publish(marker, "end")
+        await probe.wait_for(marker)
+        return {m.topic: m.payload for m in probe.messages if m.retain and m.payload}
+
+
 class BrokerProxy:
     """A TCP relay in front of a broker, to break a client's connection at an exact point.
 

@@ -237,17 +237,23 @@ async def serve_demo(
         unique = f"invt-gateway-{config.gateway_id}-{uuid.uuid4().hex[:8]}"
         mqtt = mqtt.model_copy(update={"client_id": unique})
     config = config.model_copy(update={"mqtt": mqtt})
+    started = False
+
+    def ready(app: Application) -> None:
+        nonlocal started
+        started = True
+        print_banner(app, config, (broker.note, watch), password)
+
     try:
         watch = watch_command(config_path, mqtt.port)
-        return await serve(
-            config,
-            on_ready=lambda app: print_banner(app, config, (broker.note, watch), password),
-            flags=LISTEN_FLAGS,
-        )
+        return await serve(config, on_ready=ready, flags=LISTEN_FLAGS)
     finally:
         if broker.embedded is not None:
             await broker.embedded.stop()
-        else:
+        elif started:
+            # Only a demo that started has entities of its own to clear: one that failed to
+            # start (a port taken, another demo live with its gateway id: refused before it
+            # published anything) would clear those of the demo already running.
             await clear_discovery(mqtt, config.gateway_id)
 
 
