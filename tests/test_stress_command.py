@@ -100,3 +100,20 @@ def test_a_stress_run_killed_by_sigkill_leaves_nothing_it_started_behind() -> No
     the same (the kernel tells them: PR_SET_PDEATHSIG)."""
     stress = [sys.executable, "-m", "gateway", "stress", "--duration", "120", "--json"]
     assert_ending_leaves_nothing_behind(stress, children=3, signum=signal.SIGKILL)
+
+
+def test_a_short_line_truth_run_stalls_drives_and_checks_every_value() -> None:
+    """`stress --line-truth`: late, dropping and stalling drives, two without 08H, on one line:
+    its verdict is no wrong value and every drive back within 1 s of each stall."""
+    result = run_cli("stress", "--line-truth", "--duration", "15", "--seed", "3", timeout_s=120)
+    assert result.returncode == 0, result.stdout + result.stderr
+    figures = dict(
+        re.split(r"\s{2,}", line.strip(), maxsplit=1)
+        for line in result.stdout.splitlines()
+        if re.search(r"\S\s{2,}\S", line)
+    )
+    assert figures["wrong values"] == "0"
+    assert int(figures["reads checked"]) > 50
+    assert int(figures["stalls"].split()[0]) >= 1
+    assert float(figures["back after a stall, slowest"].split()[0]) < 1.0
+    assert result.stdout.rstrip().endswith("verdict: PASS")

@@ -225,6 +225,9 @@ class Bus:
         """The transaction taken from the queue (`_pick`, at the gap's end) until it is answered:
         on the wire, or about to be. Whoever holds the bus must answer it, whatever happens."""
         self.late_replies = LateReplies(self.name)
+        self._heard_from_carried = False
+        """A frame from the drive carried now was set aside during its transaction: it is
+        there, late or out of step, and its failure doesn't count towards offline."""
         self._discarded = self.line.receiver.set_aside
         """Frames the line heard between transactions, for the ledger (`_take_discarded`)."""
         self._answered_frames = self.late_replies.answered
@@ -767,6 +770,7 @@ class Bus:
             self._echo_sent = None
             marker_pending, pending = first, None
         sends = 0  # times the request itself went out (markers aside): a write's may be done
+        self._heard_from_carried = False
         for attempt in range(retries + 1):
             if attempt:
                 drive.retries += 1
@@ -831,7 +835,10 @@ class Bus:
         log.debug("bus %s: drive %d: every attempt failed: %s", self.name, address, errors)
         # A probe that got nothing usable counts as a failure whatever went wrong, so its drive
         # backs off; a request that got bad replies proves its drive is there.
-        if transaction.probe or all(isinstance(error, ReplyTimeout) for error in errors):
+        # A drive heard meanwhile (late replies, set aside) is there too: not a failure.
+        if not self._heard_from_carried and (
+            transaction.probe or all(isinstance(error, ReplyTimeout) for error in errors)
+        ):
             self._failed(address)
         message = f"drive {address} on {self.name}: {errors[-1]}"
         if sends and not broadcast and transaction.pdu and lookup(transaction.pdu[0]).writes:
@@ -861,7 +868,7 @@ class Bus:
             raise  # its line time is the attempt's (`_execute`)
         drive.line_s += time.monotonic() - sent.started
         self._set_aside(exchange.strays, timeout_s)
-        late.caught_up(address, sent.frame)
+        late.caught_up(address, sent.frame, exchange.reply_pdu or b"")
         self._record(exchange, drive)
         return exchange
 
@@ -889,6 +896,8 @@ class Bus:
             address = frame[0]
             dump_frame(self.name, "rx set aside", frame)
             asked_at = late.heard(frame)
+            if address == asked:
+                self._heard_from_carried = True
             if asked_at is None:
                 # It answers nothing its drive owed: a reply that contradicts the request, or
                 # another address's, counted for the drive asked (as a bad reply always was).

@@ -128,6 +128,9 @@ class LateReplies:
         """Drives that sent a frame answering nothing they owed (module docstring)."""
         self.answered: dict[int, bytes] = {}
         """Address → the last request frame it answered: what a marker may be made from."""
+        self.refused: dict[int, set[int]] = {}
+        """Address → read functions it answered a marker with an exception (INVT drives: 04H):
+        their markers come last."""
         self.no_echo: set[int] = set()
         """Drives learnt not to answer 08H: resynchronised with reads only."""
         self._echo_missed: set[int] = set()
@@ -204,9 +207,11 @@ class LateReplies:
             for pdu in _reads_from(source):
                 if pdu not in reads and not any(_collides(pdu, request) for request in owed):
                     reads.append(pdu)
-        # A read of a function nothing owed has first: even an exception to it is unambiguous.
+        # A read of a function nothing owed has first: even an exception to it is unambiguous;
+        # a function the drive refuses last: its exception looks like any owed one's.
         functions = {request[1] for request in owed}
-        reads.sort(key=lambda pdu: pdu[0] in functions)
+        refused = self.refused.get(address, ())
+        reads.sort(key=lambda pdu: (pdu[0] in refused, pdu[0] in functions))
         return reads
 
     def marker_missed(self, address: int, marker: bytes) -> None:
@@ -219,8 +224,11 @@ class LateReplies:
             self._turn[address] = self._turn.get(address, 0) + 1
             self._read_missed_last.add(address)
 
-    def caught_up(self, address: int, marker: bytes) -> None:
-        """The marker's answer came: nothing older is in flight from `address`."""
+    def caught_up(self, address: int, marker: bytes, answer: bytes = b"") -> None:
+        """The marker's answer (`answer`, its PDU) came: nothing older is in flight from
+        `address`."""
+        if answer[:1] and answer[0] & EXCEPTION_BIT and marker[1] != DIAGNOSTICS:
+            self.refused.setdefault(address, set()).add(marker[1])
         self.owing.pop(address, None)
         self.unsure.discard(address)
         self._read_missed_last.discard(address)

@@ -13,6 +13,13 @@ dashboard with a persistent QoS 1 session, set-points sent all along; the node e
 is SIGKILLed in turn (and started again), one gateway is SIGKILLed and restarted. Exit 0 when
 every stored event reached the dashboard, every drive's retained state was new through every
 live node within 5 s of a change, no command ran twice and every gateway came back; 1 when not.
+
+    invt-gateway stress --line-truth [--duration 900] [--seed 1]
+
+Four drives on one line at the bus's defaults: a share of each one's replies late by a random
+0-1000 ms, a share of its requests dropped, one of them stalled 0.4-3 s every few seconds, drives
+3 and 4 silent to 08H (libmodbus devices); clients write and read back values they know. Exit 0
+when no value was wrong and every drive answered right within 1 s of each stall's end.
 """
 
 from __future__ import annotations
@@ -53,6 +60,12 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         action="store_true",
         help="gateways on a three-node NATS cluster whose nodes and one gateway are SIGKILLed "
         "(needs nats-server); the line-fault and Modbus-TCP options don't apply",
+    )
+    parser.add_argument(
+        "--line-truth",
+        action="store_true",
+        help="late, dropping, stalling drives (two without 08H) on one line, every value checked "
+        "(the line-fault and outage options don't apply)",
     )
     parser.add_argument(
         "--fault-rate",
@@ -106,6 +119,8 @@ def handle(args: argparse.Namespace) -> int:
     stop_on_terminate()  # a run ended by SIGTERM stops its gateway, drives and broker too
     if args.cluster:
         return handle_cluster(args)
+    if args.line_truth:
+        return handle_line_truth(args)
     from gateway.instruments.stress.report import document, problems, table
     from gateway.instruments.stress.scenario import StressSettings, run_stress
 
@@ -131,6 +146,24 @@ def handle(args: argparse.Namespace) -> int:
     else:
         print(table(result))
     if problems(result):
+        if result.gateway_log:
+            print(f"gateway's last log lines:\n{result.gateway_log}", file=sys.stderr)
+        return EXIT_FAILURE
+    return EXIT_OK
+
+
+def handle_line_truth(args: argparse.Namespace) -> int:
+    from gateway.instruments.stress.line_truth import line_truth_table, run_line_truth
+
+    duration_s = DEFAULT_DURATION_S if args.duration is None else args.duration
+    with Progress("stress --line-truth", duration_s, sys.stderr) as overall:
+        try:
+            result = asyncio.run(run_line_truth(duration_s, args.seed, overall.note))
+        except (RuntimeError, ValueError, OSError) as exc:
+            overall.print(f"invt-gateway stress: {exc}", sys.stderr)
+            return EXIT_FAILURE
+    print(line_truth_table(result))
+    if result.problems():
         if result.gateway_log:
             print(f"gateway's last log lines:\n{result.gateway_log}", file=sys.stderr)
         return EXIT_FAILURE

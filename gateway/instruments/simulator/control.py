@@ -5,6 +5,10 @@
     dead ADDR           the address stops answering          → ok dead 2
     alive ADDR          ... and answers again                → ok alive 2
     delay ADDR MS       the address answers MS ms late       → ok delay 1 100
+    slow ADDR MS-MS SHARE  that share of its replies late by a random MS-MS → ok slow 1 0-1000 0.05
+    stall ADDR S        the address stalls S s, then answers what it took, in order → ok stall 3 1.5
+    knows ADDR FC,..|all  frames only these codes (hex), silent to others → ok knows 3 03,04
+    drop ADDR RATE      never answers that share of its requests → ok drop 2 0.01
     noise HEX           bytes put on the line now            → ok noise 3
     bursts MS           replies handed over in bursts (0 off) → ok bursts 40
     glitch HEX|off      a spurious byte before each reply    → ok glitch ff
@@ -29,7 +33,8 @@ from typing import Final
 from gateway.instruments.simulator.line import SimulatedLine
 
 USAGE: Final = (
-    "commands: fault ADDR CODE, clear ADDR, dead ADDR, alive ADDR, delay ADDR MS, noise HEX, "
+    "commands: fault ADDR CODE, clear ADDR, dead ADDR, alive ADDR, delay ADDR MS, "
+    "slow ADDR MS-MS SHARE, stall ADDR S, knows ADDR FC,..|all, drop ADDR RATE, noise HEX, "
     "bursts MS, glitch HEX|off, echo on|off, unplug, replug, stats"
 )
 
@@ -96,6 +101,32 @@ def _delay(line: SimulatedLine, arguments: list[str]) -> str:
     return f"delay {address} {ms:g}"
 
 
+def _slow(line: SimulatedLine, arguments: list[str]) -> str:
+    address, low, _, high = int(arguments[0]), *arguments[1].partition("-")
+    share = float(arguments[2])
+    line.set_reply_delay(address, float(low), float(high or low), share)
+    return f"slow {address} {arguments[1]} {share:g}"
+
+
+def _stall(line: SimulatedLine, arguments: list[str]) -> str:
+    address, seconds = int(arguments[0]), float(arguments[1])
+    line.stall(address, seconds)
+    return f"stall {address} {seconds:g}"
+
+
+def _knows(line: SimulatedLine, arguments: list[str]) -> str:
+    address = int(arguments[0])
+    functions = None if arguments[1] == "all" else {int(f, 16) for f in arguments[1].split(",")}
+    line.know_only(address, functions)
+    return f"knows {address} {arguments[1]}"
+
+
+def _drop(line: SimulatedLine, arguments: list[str]) -> str:
+    address, rate = int(arguments[0]), float(arguments[1])
+    line.drop_requests(address, rate)
+    return f"drop {address} {rate:g}"
+
+
 def _noise(line: SimulatedLine, arguments: list[str]) -> str:
     data = bytes.fromhex(arguments[0])
     line.write_raw(data)
@@ -144,6 +175,10 @@ _COMMANDS: Final[dict[str, tuple[Callable[[SimulatedLine, list[str]], str], int]
     "dead": (_dead, 1),
     "alive": (_alive, 1),
     "delay": (_delay, 2),
+    "slow": (_slow, 3),
+    "stall": (_stall, 2),
+    "knows": (_knows, 2),
+    "drop": (_drop, 2),
     "noise": (_noise, 1),
     "bursts": (_bursts, 1),
     "glitch": (_glitch, 1),

@@ -70,11 +70,15 @@ class LoadStats:
     """Requests without a right answer (an exception, a timeout, the connection lost), per phase."""
     exceptions: Counter[int] = field(default_factory=Counter)
     answered: int = 0
+    checked_reads: int = 0
+    """Reads answered with the values the drive truly holds (checked, not only well formed)."""
     wrong: int = 0
     """Answers that were there but not right: wrong values, transaction id, unit or function."""
     wrong_examples: list[str] = field(default_factory=list)
     last_ok_at: float = 0.0
     """monotonic() of the last right answer: the scenario's measure of recovery."""
+    last_ok_by_unit: dict[int, float] = field(default_factory=dict)
+    """Unit id → monotonic() of its last right answer."""
     last_ok_connected_at: float = 0.0
     """When the connection that answer came on was opened (after a gateway restart, answers
     still buffered on a connection to the dead process are no sign of recovery)."""
@@ -213,7 +217,9 @@ class _Client:
             return
         if self._check(pdu, answer, values):
             stats.answered += 1
-            stats.last_ok_at = time.monotonic()
+            if pdu[0] == READ_HOLDING:
+                stats.checked_reads += 1
+            stats.last_ok_at = stats.last_ok_by_unit[self.unit_id] = time.monotonic()
             stats.last_ok_connected_at = self.connected_at
 
     def _phase(self, sent_in: str) -> str:
