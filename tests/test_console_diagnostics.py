@@ -77,6 +77,9 @@ async def test_line_counters_per_drive_since_start_and_in_the_last_minute(
         fan = drive_counts(found, "fan2")
         assert fan["since_start"]["timeouts"] >= fan["last_minute"]["timeouts"] > 0
         assert fan["since_start"]["failed"] > 0
+        # Its retries began with a marker each: counted, for the bus and the drive.
+        assert fan["since_start"]["resyncs"] > 0
+        assert bus["since_start"]["resyncs"] == fan["since_start"]["resyncs"]
         total = bus["since_start"]
         assert total["timeouts"] == sum(d["since_start"]["timeouts"] for d in bus["drives"])
         assert total["sent"] == sum(d["since_start"]["sent"] for d in bus["drives"])

@@ -60,6 +60,8 @@ log = logging.getLogger(__name__)
 # echo or a read the drive answered before: `gateway.bus.late_replies`), never assumed optional.
 PROBE_PDU = bytes.fromhex("0800000000")
 PROBE_CLIENT = "probe"
+RESYNC_CLIENT = "resync"
+"""The traffic monitor's client of a marker sent before a request (`gateway.bus.late_replies`)."""
 IDLE_WAKE_S = 0.5
 """With nothing queued, the bus still wakes this often to see whether a probe is due."""
 FINISH_S = 5.0
@@ -784,6 +786,8 @@ class Bus:
                         sent = await self.line.send_after_gap(partial(late.marker, address))
                         assert sent is not None  # the pick always has a frame
                     on_wire = sent.frame
+                    if transaction.probe:  # what the traffic monitor shows of it
+                        transaction.pdu = on_wire[1:-2]
                     marker = await self._catch_up(transaction, sent, drive)
                     if transaction.probe:  # the marker is all a probe asks
                         return self._attempt_answered(transaction, attempt, started, marker, drive)
@@ -863,14 +867,33 @@ class Bus:
             exchange = await self.line.finish(
                 sent, expect_reply=True, timeout_s=timeout_s, owed=late.owed_frames(address)
             )
-        except LineError:
+        except LineError as exc:
             late.marker_missed(address, sent.frame)
+            self._tap_marker(transaction, sent, exc)
             raise  # its line time is the attempt's (`_execute`)
+        self._tap_marker(transaction, sent, exchange)
         drive.line_s += time.monotonic() - sent.started
         self._set_aside(exchange.strays, timeout_s)
         late.caught_up(address, sent.frame, exchange.reply_pdu or b"")
         self._record(exchange, drive)
         return exchange
+
+    def _tap_marker(
+        self, transaction: Transaction, sent: Sending, outcome: Exchange | LineError
+    ) -> None:
+        """Show the traffic monitor a marker as what it is: its own request, client `resync`,
+        before the request it brought its drive in step for. A probe is its marker (its
+        attempt is shown as the probe's, with the marker's request: `_pick`)."""
+        if self.tap is not None and not transaction.probe:
+            marker = Transaction(
+                transaction.address,
+                sent.frame[1:-2],
+                _READ,
+                RESYNC_CLIENT,
+                transaction.timeout_s,
+                0,
+            )
+            self.tap(self.name, marker, 0, sent.started, outcome)
 
     def _unanswered(
         self,

@@ -46,6 +46,8 @@ class LineCounts:
     late_replies: int
     failed: int
     """Requests that got no usable reply after every retry."""
+    resyncs: int = 0
+    """Markers sent to bring a drive back in step (`gateway.bus.late_replies`)."""
 
     @classmethod
     def of(cls, stats: BusStats | DriveStats) -> LineCounts:
@@ -60,6 +62,7 @@ class LineCounts:
             stats.retries,
             stats.late_replies,
             stats.failed,
+            stats.resyncs,
         )
 
     @property
@@ -83,6 +86,7 @@ class LineCounts:
             self.retries - earlier.retries,
             self.late_replies - earlier.late_replies,
             self.failed - earlier.failed,
+            self.resyncs - earlier.resyncs,
         )
 
     def to_json(self) -> dict[str, Any]:
@@ -99,6 +103,7 @@ class LineCounts:
             "retries": self.retries,
             "late_replies": self.late_replies,
             "failed": self.failed,
+            "resyncs": self.resyncs,
         }
 
 

@@ -663,9 +663,10 @@ function eventsPage() {
 const LINE_COUNTS = [
   ["sent", "Frames sent"], ["replies", "Replies"], ["timeouts", "Timeouts"],
   ["crc_errors", "CRC errors"], ["bad_replies", "Other bad replies"], ["exceptions", "Exceptions"],
-  ["retries", "Retries"], ["late_replies", "Late replies"], ["failed", "Failed requests"],
+  ["retries", "Retries"], ["late_replies", "Late replies"],
+  ["resyncs", "Resyncs (markers)"], ["failed", "Failed requests"],
 ];
-const TROUBLE = new Set(["timeouts", "crc_errors", "bad_replies", "exceptions", "late_replies", "failed"]);
+const TROUBLE = new Set(["timeouts", "crc_errors", "bad_replies", "exceptions", "late_replies", "resyncs", "failed"]);
 
 function exceptionsText(list) {
   return list.length ? list.map((e) => `${e.code} ${e.name}: ${e.count}`).join(", ") : "0";
