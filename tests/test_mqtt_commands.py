@@ -17,8 +17,15 @@ from gateway.profile import parse_parameter
 from gateway.profile.invt import STATE_WORD_1
 from gateway.profile.states import RunState
 from tests.support import TcpClient, eventually, running_gateway
-from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
+from tests.support.mosquitto import (
+    Mosquitto,
+    MqttProbe,
+    Received,
+    mqtt_probe,
+    unique_base_topic,
+)
 from tests.support.mqtt_setup import mqtt_config, simulated_line
+from tests.support.service_log import lines, service_log
 
 FREQUENCY_SETPOINT = 0x2001
 
@@ -278,6 +285,9 @@ async def test_stale_command_is_refused(plant: Plant) -> None:
         ({"frequency_hz": "fast"}, "invalid_value"),
         ({"parameter": "P12.01", "value": 1.5}, "invalid_value"),  # in no table: decimals unknown
         ({"parameter": "P00.11", "value": 100000.0}, "invalid_value"),
+        ({"parameter": "P00.11", "value": 1e308}, "invalid_value"),  # x10 is inf: no overflow
+        ({"parameter": "P00.11", "value": 1e308, "decimals": 1}, "invalid_value"),
+        ({"register": "2001H", "value": 1e308}, "invalid_value"),
         ({"parameter": "2001H", "value": 10, "command": "stop"}, "invalid_request"),
         ({}, "invalid_request"),
     ],
@@ -293,6 +303,38 @@ async def test_bad_commands_are_answered_not_crashed_on(
     assert response["error"] == error
     # Still working afterwards.
     assert (await plant.set("pump1", {"command": "stop"}))["status"] == "ok"
+
+
+def on_since(plant: Plant, topic: str, mark: int) -> list[Received]:
+    return [m for m in plant.probe.messages[mark:] if m.topic == topic]
+
+
+async def test_floods_of_bad_commands_are_answered_and_logged_once_a_minute(
+    plant: Plant, caplog: pytest.LogCaptureFixture
+) -> None:
+    log = service_log(caplog)
+    topic = f"{plant.base}/pump1/set"
+    mark = len(plant.probe.messages)
+    for _ in range(200):
+        await plant.probe.publish(topic, {"parameter": "P00.11", "value": 1e308})
+    await eventually(lambda: len(on_since(plant, f"{topic}/response", mark)) >= 200, 20)
+    answers = [m.json() for m in on_since(plant, f"{topic}/response", mark)]
+    assert {(a["status"], a["error"]) for a in answers} == {("error", "invalid_value")}
+    said = lines(log, "gateway")
+    assert len(said) <= 2, said
+    assert not [line for line in said if "Overflow" in line or line.startswith("ERROR")]
+
+
+async def test_a_drive_this_gateway_has_not_is_answered_unknown_drive(plant: Plant) -> None:
+    response = await plant.set("pump9", {"command": "stop"})
+    assert (response["status"], response["error"]) == ("error", "unknown_drive")
+    assert "pump1" in str(response["message"])  # the drives it has, named
+    assert "transaction" in response
+    # The drives' own commands still come once each (one subscription covers them all).
+    mark = len(plant.probe.messages)
+    assert (await plant.set("pump1", {"command": "stop"}))["status"] == "ok"
+    await asyncio.sleep(0.2)
+    assert len(on_since(plant, f"{plant.base}/pump1/set/response", mark)) == 1
 
 
 async def test_offline_drive_answers_offline(plant: Plant) -> None:

@@ -17,9 +17,11 @@ import pytest
 from gateway.app import Application
 from gateway.instruments.simulator import SimulatedLine
 from gateway.profile.states import RunState
+from gateway.sparkplug import sparkplug_b_pb2 as pb
 from tests.support import eventually, running_gateway
 from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
 from tests.support.mqtt_setup import DRIVES, mqtt_config, simulated_line
+from tests.support.service_log import lines, service_log
 from tests.support.sparkplug import (
     Message,
     SparkplugHost,
@@ -299,3 +301,59 @@ async def test_ddata_keeps_the_deadband(mosquitto: Mosquitto, codec: TahuCodec) 
             )
             sent = [m["value"] for m in data.payload["metrics"] if m["alias"] == amps]
             assert sent == [8.5]
+
+
+def raw_dcmd(*metrics: pb.Payload.Metric) -> bytes:
+    """What Tahu's codec would never send: built field by field."""
+    return pb.Payload(timestamp=int(time.time() * 1000), metrics=metrics).SerializeToString()
+
+
+async def test_malformed_dcmds_are_refused_counted_and_logged_once_a_minute(
+    plant: Plant, caplog: pytest.LogCaptureFixture
+) -> None:
+    log = service_log(caplog)
+    host = plant.host
+    born = metrics((await host.wait_for(host.topic("DBIRTH", "pump1"))).payload)
+    topic = host.topic("DCMD", "pump1")
+    # A name that is not UTF-8 (protobuf hands it over as bytes).
+    named = raw_dcmd(pb.Payload.Metric(name="Xommands/run_forward", datatype=pb.Boolean))
+    named = named.replace(b"Xommands", b"\xff\xfemmands")
+    # An int_value where the datatype (Float) says float_value.
+    wrong_field = raw_dcmd(
+        pb.Payload.Metric(name="set_frequency_hz", datatype=pb.Float, int_value=20)
+    )
+    # A name, and the alias of another metric: which one is meant?
+    stop_alias = born["commands/stop"]["alias"]
+    both = host.codec.encode(
+        {
+            "timestamp": int(time.time() * 1000),
+            "metrics": [
+                {
+                    "name": "commands/run_forward",
+                    "alias": stop_alias,
+                    "type": "Boolean",
+                    "value": True,
+                }
+            ],
+        }
+    )
+    for data in (named, wrong_field, both):
+        await host.probe.publish(topic, data)
+    for _ in range(2000):
+        await host.probe.publish(topic, b"\xff\x01garbage")
+    bridge = plant.app.mqtt
+    assert bridge is not None
+    assert bridge.sparkplug is not None
+    node = bridge.sparkplug
+    # Each refused as invalid (or, past 16 waiting for the drive's lane, busy): counted.
+    await eventually(
+        lambda: node.commands.statuses["invalid_request"] + node.stats.busy >= 2003, 30
+    )
+    assert node.commands.statuses["invalid_request"] >= 3
+    assert plant.state(1) is RunState.STOPPED  # nothing of them run
+    said = lines(log, "gateway.sparkplug")
+    assert len(said) <= 3, said  # one line a minute for each kind of refusal
+    assert not [line for line in said if line.startswith("ERROR")], said
+    # The drive still takes a good DCMD.
+    await host.command("DCMD", RUN_FORWARD, device="pump1")
+    await eventually(lambda: plant.state(1) is RunState.RUNNING_FORWARD)

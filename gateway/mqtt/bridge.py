@@ -33,7 +33,7 @@ from gateway.mqtt.connection import MQTT_3_1_1, MQTT_5
 from gateway.mqtt.discovery_cleanup import own_discovery_topics, remove_stale_entities
 from gateway.mqtt.dispatcher import ClearAfterRun, Dispatcher
 from gateway.mqtt.event_link import EventLink
-from gateway.mqtt.kinds import Context, command_kinds
+from gateway.mqtt.kinds import AnySet, Context, command_kinds
 from gateway.mqtt.lanes import Lanes
 from gateway.mqtt.outbox import Outbox
 from gateway.mqtt.publisher import Publisher
@@ -101,6 +101,7 @@ class MqttBridge:
             self.stats,
             self.publisher.clear_retained,
             self._clear_after_run,
+            AnySet(context),
         )
         self.event_link = EventLink(self.session, self.publisher)
         self.settings = mqtt

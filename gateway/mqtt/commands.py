@@ -31,6 +31,7 @@ from gateway.errors import (
     ModbusError,
     QueueFull,
 )
+from gateway.logs import repeated
 from gateway.modbus.functions import is_exception
 from gateway.mqtt.dispatcher import Incoming
 from gateway.mqtt.requests import (
@@ -112,7 +113,12 @@ class Commands:
         except CommandRefused as exc:
             self.refused += 1
             self.statuses[exc.reason] += 1
-            log.warning("MQTT command refused (%s): %s", exc.reason, exc)
+            log.warning(
+                "MQTT command refused (%s): %s",
+                exc.reason,
+                exc,
+                extra=repeated(f"mqtt-refused-{exc.reason}"),  # anyone may send them, often
+            )
             return error_response(transaction, exc.reason, str(exc))
         except ModbusError as exc:
             self.refused += 1

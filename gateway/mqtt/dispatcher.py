@@ -65,6 +65,18 @@ class CommandKind(Protocol):
         """Its turn has come: do it, and answer."""
 
 
+class OtherTopics(Protocol):
+    """A wildcard subscription over some of the kinds' topics, with a kind for the topics it
+    brings that no kind has (`kinds.AnySet`: a `/set` of a drive this gateway hasn't)."""
+
+    @property
+    def filter(self) -> str: ...
+
+    def covers(self, topic: str) -> bool: ...
+
+    def kind(self, topic: str) -> CommandKind | None: ...
+
+
 class Dispatcher:
     def __init__(
         self,
@@ -74,6 +86,7 @@ class Dispatcher:
         stats: BridgeStats,
         clear_retained: ClearRetained | None = None,
         clear_after_run: Callable[[], ClearAfterRun | None] | None = None,
+        others: OtherTopics | None = None,
     ) -> None:
         """`clear_after_run`: asked after each command ran; what clears its topic then (the
         bridge's under MQTT 3.1.1), or None: nothing to clear."""
@@ -83,11 +96,16 @@ class Dispatcher:
         self.stats = stats
         self.clear_retained = clear_retained
         self.clear_after_run = clear_after_run
+        self.others = others
 
     @property
     def topics(self) -> Iterable[str]:
-        """What to subscribe to."""
-        return self.kinds.keys()
+        """What to subscribe to: the kinds' topics, those a wildcard covers by it alone (two
+        overlapping subscriptions may bring a message twice)."""
+        others = self.others
+        if others is None:
+            return self.kinds.keys()
+        return [*(t for t in self.kinds if not others.covers(t)), others.filter]
 
     async def run(self, client: aiomqtt.Client) -> None:
         """Receive for as long as the connection lasts."""
@@ -108,6 +126,8 @@ class Dispatcher:
     def dispatch(self, client: aiomqtt.Client, incoming: Incoming) -> None:
         """Hand the message to its lane; nothing here waits (for a drive or the broker)."""
         kind = self.kinds.get(incoming.topic)
+        if kind is None and self.others is not None:
+            kind = self.others.kind(incoming.topic)
         if kind is None:
             self.stats.ignored += 1
             return

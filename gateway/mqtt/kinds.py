@@ -3,6 +3,7 @@
 | topic                                  | kind            | lane                           |
 |----------------------------------------|-----------------|--------------------------------|
 | <base>/<drive>/set                     | DriveCommand    | the drive's                    |
+| <base>/<other>/set (no such drive)     | UnknownDrive    | "unknown": answered at once    |
 | <base>/<drive>/get                     | DriveRefresh    | the drive's refreshes          |
 | <base>/bridge/request/<op>             | BRIDGE_REQUESTS | the named drive's, or "bridge" |
 | <base>/bridge/request/fault_history    | FaultHistory    | "store" (never waits on a line)|
@@ -90,6 +91,53 @@ class DriveCommand:
 
     async def _set(self, payload: Json) -> Json:
         return await self.context.commands.set(self.drive, payload)
+
+
+UNKNOWN_LANE: Final = "unknown"
+
+
+class UnknownDrive:
+    command = True
+    """`<base>/<name>/set` for a name that is no drive of this gateway: answered
+    `unknown_drive` on its `/set/response`, as any other refusal is (a misspelt drive would
+    otherwise hear nothing until its own timeout)."""
+
+    def __init__(self, context: Context, name: str) -> None:
+        self.context = context
+        self.name = name
+        self.response_topic = context.topics.set_response(name)
+
+    def lane(self, message: Incoming) -> str | None:
+        self.context.stats.commands_received += 1
+        return UNKNOWN_LANE
+
+    async def run(self, client: aiomqtt.Client, message: Incoming) -> None:
+        response = await self.context.commands.acknowledge(message, False, self._refuse)
+        await self.context.publisher.respond(client, self.response_topic, response)
+
+    async def _refuse(self, payload: Json) -> Json:
+        known = ", ".join(sorted(self.context.commands.drives))
+        raise CommandRefused("unknown_drive", f"no drive {self.name!r} here (drives: {known})")
+
+
+class AnySet:
+    """`<base>/+/set`, subscribed to in place of each drive's own: a drive's `/set` goes to
+    its `DriveCommand` (an exact topic), any other name's to an `UnknownDrive`."""
+
+    def __init__(self, context: Context) -> None:
+        self.context = context
+        self.filter = context.topics.set("+")
+
+    def covers(self, topic: str) -> bool:
+        name = self.context.topics.drive_of(topic)
+        return name is not None and topic == self.context.topics.set(name)
+
+    def kind(self, topic: str) -> CommandKind | None:
+        if not self.covers(topic):
+            return None
+        name = self.context.topics.drive_of(topic)
+        assert name is not None
+        return UnknownDrive(self.context, name)
 
 
 class DriveRefresh:

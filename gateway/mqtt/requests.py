@@ -372,7 +372,10 @@ def _encoded(value: float, address: int, profile: DriveProfile) -> int:
 
 
 def _scaled(value: float, decimals: int, spelled: str) -> int:
-    raw = round(value * float(10**decimals))
+    scaled = value * float(10**decimals)
+    if not math.isfinite(scaled):  # 1e308 with its decimals: round() would overflow
+        raise CommandRefused("invalid_value", f"{spelled} = {value:g} does not fit in one register")
+    raw = round(scaled)
     if not -0x8000 <= raw <= 0xFFFF:
         raise CommandRefused(
             "invalid_value", f"{spelled} = {value:g} ({raw} raw) does not fit in one register"

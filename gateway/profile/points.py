@@ -14,6 +14,7 @@ A value is shown scaled with its unit and, for the words that are codes, decoded
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 from enum import Enum
@@ -129,6 +130,8 @@ class Point:
         except ValueError:
             raise ValueError(self._not_a_number(text)) from None
         scaled = value * float(10**self.decimals)
+        if not math.isfinite(scaled):  # 1e308, inf, nan: round() would raise OverflowError
+            raise ValueError(f"{self.label} = {text} does not fit in one register")
         raw = round(scaled)
         if abs(scaled - raw) > 1e-6 * max(1.0, abs(scaled)):  # finer than the register holds
             below, above = (raw if raw < scaled else raw - 1), (raw if raw > scaled else raw + 1)

@@ -6,6 +6,7 @@ A value with n decimals in the manual travels as value x 10^n (50.12 Hz → 1394
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Final
@@ -36,7 +37,10 @@ class Register:
     def encode(self, value: float, decimals: int | None = None) -> int:
         """Raw 16-bit word of an engineering value; ValueError when it doesn't fit."""
         places = self.decimals if decimals is None else decimals
-        raw = round(value * float(10**places))
+        scaled = value * float(10**places)
+        if not math.isfinite(scaled):  # round() would raise OverflowError (or ValueError)
+            raise ValueError(f"{self.name} = {value} does not fit in one register")
+        raw = round(scaled)
         low, high = (-0x8000, 0x7FFF) if self.signed else (0, 0xFFFF)
         if not low <= raw <= high:
             raise ValueError(f"{self.name} = {value} does not fit in one register ({raw})")

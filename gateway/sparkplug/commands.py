@@ -35,12 +35,23 @@ def device_command(received: Received, metrics: DeviceMetrics) -> DeviceCommand:
     points: list[Json] = []
     for metric in received.metrics:
         name = metric.name
-        if name is None and metric.alias is not None:
-            name = metrics.name_of(metric.alias)
+        aliased = None if metric.alias is None else metrics.name_of(metric.alias)
+        if name is None:
+            name = aliased
         if name is None:
             result.problems.append(f"alias {metric.alias}: no metric of {metrics.device} has it")
             continue
-        if metric.value is None:
+        if metric.alias is not None and aliased != name:
+            # The birth made them one metric: a DCMD that names two can't say which it means.
+            result.problems.append(
+                f"{name}: alias {metric.alias} is {aliased or 'no metric'} "
+                f"of {metrics.device}, not this one"
+            )
+            continue
+        mismatch = metrics.kind_mismatch(name, metric.value)
+        if mismatch:
+            result.problems.append(f"{name}: {mismatch}")
+        elif metric.value is None:
             result.problems.append(f"{name}: no value")
         elif name.startswith(COMMAND_PREFIX):
             _command(name.removeprefix(COMMAND_PREFIX), metric.value, metrics, control, result)

@@ -34,6 +34,7 @@ from typing import Final
 import aiomqtt
 
 from gateway import __version__
+from gateway.logs import repeated
 from gateway.mqtt.commands import CommandDrive, Commands
 from gateway.mqtt.dispatcher import Incoming
 from gateway.mqtt.lanes import Lanes
@@ -331,7 +332,11 @@ class SparkplugNode:
             return
         drive = self.topics.device_of(topic)
         if drive is None or drive not in self.devices:
-            log.warning("Sparkplug: a DCMD for %s, which is no device of this node", topic)
+            log.warning(
+                "Sparkplug: a DCMD for %s, which is no device of this node",
+                topic,
+                extra=repeated("sparkplug-no-device"),
+            )
             return
         self.stats.commands_received += 1
         if incoming.retained:
@@ -343,17 +348,20 @@ class SparkplugNode:
         if not self.lanes.submit(f"sparkplug:{drive}", job):
             self.stats.busy += 1
             log.warning(
-                "Sparkplug: DCMD for %s refused: %d wait already", drive, MAX_WAITING_PER_LANE
+                "Sparkplug: DCMD for %s refused: %d wait already",
+                drive,
+                MAX_WAITING_PER_LANE,
+                extra=repeated("sparkplug-busy"),
             )
 
     def _node_command(self, incoming: Incoming) -> None:
         if incoming.retained:
-            log.warning("Sparkplug: a retained NCMD ignored")
+            log.warning("Sparkplug: a retained NCMD ignored", extra=repeated("sparkplug-ncmd"))
             return
         try:
             received = payload.received(incoming.payload)
         except ValueError as exc:
-            log.warning("Sparkplug: NCMD ignored: %s", exc)
+            log.warning("Sparkplug: NCMD ignored: %s", exc, extra=repeated("sparkplug-ncmd"))
             return
         for metric in received.metrics:
             if metric.value is not True:
@@ -363,18 +371,31 @@ class SparkplugNode:
             elif metric.name == NEXT_SERVER:
                 self._leave = "a host asked for the next server (Node Control/Next Server)"
             else:
-                log.warning("Sparkplug: NCMD for %s ignored: no such node metric", metric.name)
+                log.warning(
+                    "Sparkplug: NCMD for %s ignored: no such node metric",
+                    metric.name,
+                    extra=repeated("sparkplug-ncmd"),
+                )
             self._wake.set()
 
     async def _device_command(self, drive: str, incoming: Incoming) -> None:
+        # Anyone who may publish on the broker sends these as fast as he likes: each is
+        # counted (`invalid_request`), the log has one line a minute of them.
         try:
             received = payload.received(incoming.payload)
         except ValueError as exc:
-            log.warning("Sparkplug: DCMD for %s refused: %s", drive, exc)
+            self.commands.statuses["invalid_request"] += 1
+            log.warning(
+                "Sparkplug: DCMD for %s refused: %s", drive, exc, extra=repeated("sparkplug-dcmd")
+            )
             return
         command = device_command(received, self.devices[drive])
+        if command.problems:
+            self.commands.statuses["invalid_request"] += 1
         for problem in command.problems:
-            log.warning("Sparkplug: DCMD for %s: %s", drive, problem)
+            log.warning(
+                "Sparkplug: DCMD for %s: %s", drive, problem, extra=repeated("sparkplug-dcmd")
+            )
         target = self.commands.drives[drive]
 
         async def run(set_payload: Json) -> Json:
@@ -391,6 +412,7 @@ class SparkplugNode:
                     drive,
                     answer.get("error"),
                     answer.get("message"),
+                    extra=repeated(f"sparkplug-refused-{answer.get('error')}"),
                 )
 
     async def _clear_retained(self, client: aiomqtt.Client, incoming: Incoming) -> None:

@@ -46,6 +46,8 @@ WIDER: Final[Mapping[int, frozenset[int]]] = {
 }
 """A datatype whose values a birth's other datatype carries as they are (a whole number read
 where the birth said Double)."""
+NUMBERS: Final = frozenset({INT32, INT64, DOUBLE})
+"""The datatypes `datatype_of` gives a number."""
 
 
 class Aliases:
@@ -161,6 +163,17 @@ class DeviceMetrics:
                 return name
         return None
 
+    def kind_mismatch(self, name: str, value: Value | None) -> str | None:
+        """Why a DCMD's `value` can't be `name`'s (a number for a Boolean, text for a number);
+        None when it can, or when the birth did not declare `name`."""
+        declared = self._declared.get(name)
+        if declared is None or value is None:
+            return None
+        found = datatype_of(value)
+        if _kind(found) == _kind(declared):
+            return None
+        return f"a {_kind(found)} for a {_kind(declared)} metric"
+
     def _birth_metric(self, key: str, value: Value) -> BirthMetric:
         writable = self.commands_enabled and key in self.writable
         properties: dict[str, Value] = {"readOnly": not writable}
@@ -170,6 +183,13 @@ class DeviceMetrics:
         return BirthMetric(
             key, self.aliases.of(self.device, key), datatype_of(value), value, properties
         )
+
+
+def _kind(datatype: int) -> str:
+    """What a datatype holds, as far as a command's value goes: widths don't matter here."""
+    if datatype == BOOLEAN:
+        return "boolean"
+    return "number" if datatype in NUMBERS else "text"
 
 
 def _reading(telemetry: Mapping[str, Value]) -> dict[str, Value]:

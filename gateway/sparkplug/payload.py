@@ -139,25 +139,48 @@ def device_death(seq: int, timestamp_ms: int) -> bytes:
 
 
 def received(data: bytes) -> Received:
-    """An NCMD's or DCMD's metrics. Raises ValueError for what isn't a Sparkplug B payload."""
+    """An NCMD's or DCMD's metrics. Raises ValueError for what isn't a Sparkplug B payload,
+    and for one that contradicts itself: a name or text that is not UTF-8 (protobuf's proto2
+    strings are bytes then), a value in another field than its datatype's (an `int_value` for
+    a Float): the host meant something else than it sent, so none of it is run."""
     try:
         payload = pb.Payload.FromString(data)
     except DecodeError as exc:
         raise ValueError(f"not a Sparkplug B payload: {exc}") from None
-    metrics = tuple(
-        ReceivedMetric(
-            metric.name if metric.HasField("name") else None,
-            metric.alias if metric.HasField("alias") else None,
-            metric.datatype,
-            None if metric.is_null else _value(metric),
-        )
-        for metric in payload.metrics
-    )
+    metrics = tuple(_received_metric(metric) for metric in payload.metrics)
     timestamp = payload.timestamp if payload.HasField("timestamp") else None
     return Received(timestamp, metrics)
 
 
 # -- inside ------------------------------------------------------------------------------------
+
+_FIELD_OF: Final[Mapping[int, str]] = {
+    **dict.fromkeys((pb.Int8, pb.Int16, pb.Int32, pb.UInt8, pb.UInt16, pb.UInt32), "int_value"),
+    **dict.fromkeys((pb.Int64, pb.UInt64, pb.DateTime), "long_value"),
+    pb.Float: "float_value",
+    pb.Double: "double_value",
+    pb.Boolean: "boolean_value",
+    **dict.fromkeys((pb.String, pb.Text, pb.UUID), "string_value"),
+}
+"""The field a value of each datatype travels in (specification 3.0, "Payload Metric Datatypes");
+the datatypes the gateway never takes (DataSet, Bytes, Template ...) are not here."""
+
+
+def _received_metric(metric: pb.Payload.Metric) -> ReceivedMetric:
+    name: object = metric.name if metric.HasField("name") else None
+    alias = metric.alias if metric.HasField("alias") else None
+    if name is not None and not isinstance(name, str):
+        raise ValueError(f"a metric name that is not UTF-8 text ({name!r:.40})")
+    label = name if name is not None else f"alias {alias}"
+    which = metric.WhichOneof("value")
+    expected = _FIELD_OF.get(metric.datatype)
+    if not metric.is_null and which is not None and expected is not None and which != expected:
+        datatype = pb.DataType.Name(metric.datatype)  # type: ignore[arg-type]  # a known one
+        raise ValueError(f"{label}: {which} for a {datatype} (whose value is in {expected})")
+    value = None if metric.is_null else _value(metric)
+    if isinstance(value, bytes):
+        raise ValueError(f"{label}: a text value that is not UTF-8")
+    return ReceivedMetric(name, alias, metric.datatype, value)
 
 
 def _set_value(out: pb.Payload.Metric, datatype: int, value: Value) -> None:

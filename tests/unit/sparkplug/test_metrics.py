@@ -91,6 +91,27 @@ def test_dcmd_metrics_as_set_payloads() -> None:
     ]
 
 
+def test_a_dcmd_whose_name_and_alias_differ_or_whose_value_is_of_another_kind() -> None:
+    pump = device(Aliases())
+    born = {m.name: m for m in pump.birth(TELEMETRY, 0.0)}
+    stop = born["commands/stop"].alias
+    asked = Received(
+        None,
+        (
+            ReceivedMetric("commands/run_forward", stop, 11, True),  # which one is meant?
+            ReceivedMetric("set_frequency_hz", None, 12, "fast"),
+            ReceivedMetric("commands/stop", None, 3, 1),
+        ),
+    )
+    command = device_command(asked, pump)
+    assert command.payloads == []
+    assert command.problems == [
+        f"commands/run_forward: alias {stop} is commands/stop of pump1, not this one",
+        "set_frequency_hz: a text for a number metric",
+        "commands/stop: a number for a boolean metric",
+    ]
+
+
 def test_a_device_files_writable_point() -> None:
     """An SDM630's `demand_period` (writable in its file) takes a DCMD as `{"point", "value"}`;
     its read-only points don't, and it has no commands to declare."""

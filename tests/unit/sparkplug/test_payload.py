@@ -72,3 +72,17 @@ def test_data_by_alias_only_and_death_certificates() -> None:
 def test_what_is_not_a_payload_is_refused() -> None:
     with pytest.raises(ValueError, match="not a Sparkplug B payload"):
         payload.received(b"\xff\xff\xff")
+
+
+def test_a_dcmd_that_contradicts_itself_is_refused() -> None:
+    wrong_field = pb.Payload(
+        metrics=[pb.Payload.Metric(name="set_frequency_hz", datatype=pb.Float, int_value=20)]
+    )
+    with pytest.raises(ValueError, match="int_value for a Float"):
+        payload.received(wrong_field.SerializeToString())
+    named = pb.Payload(metrics=[pb.Payload.Metric(name="Xet", datatype=pb.Boolean)])
+    not_utf8 = named.SerializeToString().replace(b"Xet", b"\xff\xfet")
+    with pytest.raises(ValueError, match="not UTF-8"):
+        payload.received(not_utf8)
+    widened = pb.Payload(metrics=[pb.Payload.Metric(name="x", datatype=pb.Int32, int_value=7)])
+    assert payload.received(widened.SerializeToString()).metrics[0].value == 7
