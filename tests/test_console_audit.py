@@ -19,7 +19,7 @@ import aiohttp
 import pytest
 
 from gateway.app import Application
-from gateway.console.auth import MAX_FAILURES
+from gateway.console.auth import MAX_ADDRESS_FAILURES, MAX_FAILURES
 from gateway.instruments.simulator import SimulatedLine
 from tests.support import running_gateway
 from tests.support.console_support import (
@@ -31,6 +31,7 @@ from tests.support.console_support import (
 )
 from tests.support.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
 from tests.support.mqtt_setup import mqtt_config
+from tests.support.service_log import lines, service_log
 
 WRONG = "hunter2-not-olgas"
 AUDIT_FIELDS = {"category", "user", "address", "result"}
@@ -64,6 +65,24 @@ async def test_a_guesser_elsewhere_slows_only_himself(line: SimulatedLine) -> No
         counts = app.console.console.logins if app.console.console else None
         assert counts is not None
         assert (counts.ok, counts.failed, counts.throttled) == (1, MAX_FAILURES + 1, 2)
+
+
+async def test_a_stranger_at_a_shared_pc_does_not_lock_its_other_users_out(
+    line: SimulatedLine, caplog: pytest.LogCaptureFixture
+) -> None:
+    log = service_log(caplog)
+    async with (
+        running_gateway(console_config(line.path)) as app,
+        client_from(app, "127.0.0.2") as stranger,
+        client_from(app, "127.0.0.2") as olga,
+    ):
+        for n in range(MAX_ADDRESS_FAILURES + 1):
+            assert (await stranger.login(f"guess{n}", WRONG)).status == 401
+        assert (await stranger.login("guess3", WRONG)).status == 429  # his names wait
+        # Olga, at the same PC (or behind the same proxy), has not failed: she logs in.
+        assert (await olga.login("olga", OPERATOR_PASSWORD)).status == 200
+    failed = [line for line in lines(log, "gateway.console") if "failed login" in line]
+    assert len(failed) == 1, failed  # 51 failures: each an audit event, one log line a minute
 
 
 async def audit_events(app: Application) -> list[dict[str, Any]]:

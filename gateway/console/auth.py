@@ -173,10 +173,12 @@ class LoginThrottle:
     failures each attempt waits twice as long as the one before (up to `MAX_DELAY_S`).
 
     Per name *and* address, so that somebody guessing alice's password from one machine slows
-    only himself: alice logs in from her own. Per address too, with more room, so that trying
-    many names from one machine is slowed as well (and scrypt's CPU with it). A key with no
-    failure for `FORGET_S` starts afresh; a login clears its (name, address). At most
-    `MAX_KEYS` keys are kept, the longest quiet ones forgotten first."""
+    only himself: alice logs in from her own. The address's count, with more room, holds back
+    only the names that have failed from there themselves: trying many names from one machine
+    is slowed (each name's second try waits), while a user behind the same address (a shared
+    PC, a proxy) who has not failed logs in at once, whatever a stranger there did to other
+    names. A key with no failure for `FORGET_S` starts afresh; a login clears its (name,
+    address). At most `MAX_KEYS` keys are kept, the longest quiet ones forgotten first."""
 
     def __init__(self) -> None:
         self._failures: dict[tuple[str | None, str], _Failures] = {}
@@ -211,13 +213,15 @@ class LoginThrottle:
         self._failures.pop(_keys(name, address)[0], None)
 
     def _known(self, name: str, address: str, now: float) -> list[tuple[_Failures, int]]:
-        """The recent failures of (name, address) and of address, with their free counts."""
-        found = []
+        """The recent failures of (name, address) and, when there are any, of address, with
+        their free counts; none for a name that has not failed from `address`."""
+        found: list[tuple[_Failures, int]] = []
         frees = (MAX_FAILURES, MAX_ADDRESS_FAILURES)
         for key, free in zip(_keys(name, address), frees, strict=True):
             failures = self._failures.get(key)
-            if failures is not None and now - failures.last <= FORGET_S:
-                found.append((failures, free))
+            if failures is None or now - failures.last > FORGET_S:
+                break  # the name's own first: without them, the address's don't apply
+            found.append((failures, free))
         return found
 
     def _forget(self, now: float) -> None:

@@ -63,6 +63,7 @@ from gateway.console.replies import (
 )
 from gateway.console.traffic import TrafficMonitor
 from gateway.errors import OperationError
+from gateway.logs import repeated
 from gateway.poller.drive_state import iso_time
 
 log = logging.getLogger(__name__)
@@ -363,7 +364,12 @@ async def login(request: web.Request) -> web.StreamResponse:
     if role is None:
         throttle.failed(name, address)
         console.logins.failed += 1
-        log.warning("console: failed login for %r from %s", name[:MAX_NAME_LENGTH], address)
+        log.warning(
+            "console: failed login for %r from %s",
+            name[:MAX_NAME_LENGTH],
+            address,
+            extra=repeated("console-login-failed"),  # each is an audit event; the log sums up
+        )
         console.audit("login_failed", name, address, "wrong name or password")
         raise http_error(401, "wrong name or password")
     throttle.succeeded(name, address)
