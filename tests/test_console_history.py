@@ -10,15 +10,19 @@ import asyncio
 import csv
 import io
 import time
-from datetime import datetime
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import aiohttp
 
-from gateway.config import GatewayConfig
+from gateway.config import GatewayConfig, StorageConfig
+from gateway.console.history import MAX_STORE_QUERIES, MAX_WAITING_QUERIES
 from gateway.instruments.simulator import SimulatedLine
+from gateway.store.history import Value
+from gateway.store.records import HistoryPoint
 from tests.support import (
+    RecordProperty,
     TcpClient,
     eventually,
     free_port,
@@ -34,6 +38,7 @@ from tests.support.console_support import (
     console_config,
 )
 from tests.support.processes import gateway_process
+from tests.support.store import running_store
 
 CONTROL_WORD = 0x2000
 RUN_FORWARD = 1
@@ -137,6 +142,10 @@ async def test_a_bad_ask_is_refused_naming_the_key(line: SimulatedLine, tmp_path
             "since=2026-01-01T00:00:00": "since: an ISO 8601 time with its zone",
             "since=2026-01-02T00:00:00Z&until=2026-01-01T00:00:00Z": "since: must be before",
             "points=many": "points: a whole number",
+            "points=0": "points: a whole number, 1 to 5000",
+            "points=-5": "points: a whole number, 1 to 5000",
+            "points=5001": "points: a whole number, 1 to 5000",
+            "points=1000000000": "points: a whole number, 1 to 5000",
         }
         for ask, reason in asks.items():
             async with web.session.get(f"{web.base}/api/drives/pump1/history?{ask}") as response:
@@ -144,6 +153,65 @@ async def test_a_bad_ask_is_refused_naming_the_key(line: SimulatedLine, tmp_path
                 assert reason in (await response.json())["error"], ask
         async with web.session.get(f"{web.base}/api/drives/nobody/history") as response:
             assert response.status == 404
+
+
+DAY_S = 86400.0
+
+
+async def test_a_months_window_is_reduced_in_the_store_and_queries_are_bounded(
+    line: SimulatedLine, tmp_path: Path, record_property: RecordProperty
+) -> None:
+    # 30 days of pump1 at a point a minute, kept by the store as the service keeps them.
+    storage = StorageConfig(path=str(tmp_path / "events.db"), history_days=90, history_step_s=60)
+    until = time.time() - time.time() % 60
+    since = until - 30 * DAY_S
+    async with running_store(storage) as store:
+        for n in range(int(30 * DAY_S / 60)):
+            state = "running_forward" if n % 2 else "stopped"
+            values: dict[str, Value] = {"output_frequency_hz": float(n % 4), "state": state}
+            store.history.keep(HistoryPoint("pump1", since + 60 * n, values))
+            if n % 5000 == 4999:
+                await store.flush()
+        await store.flush()
+    config = console_config(line.path)
+    config = GatewayConfig.model_validate({**config.model_dump(), "storage": storage.model_dump()})
+    async with running_gateway(config) as app, console_client(app) as web:
+        assert (await web.login("victor", VIEWER_PASSWORD)).status == 200
+        window = f"since={iso(since)}&until={iso(until)}&keys=output_frequency_hz,state"
+        started = time.monotonic()
+        found = await web.get_json(f"/api/drives/pump1/history?{window}&points=600")
+        took_s = time.monotonic() - started
+        times, hertz, states = found["columns"]
+        assert found["source"] == "store"
+        assert len(times) <= 600
+        assert found["step_s"] == 4380.0  # 73 minutes: 30 days in 593 points, aligned
+        assert times == sorted(times)
+        # Each point the mean of its 73 minutes of 0, 1, 2, 3 Hz in turn.
+        assert all(1.47 < h < 1.53 for h in hertz[1:-1]), hertz
+        assert set(states) <= {"running_forward", "stopped"}
+
+        # Twenty at once (a dashboard of many charts): two read the store at a time, eight
+        # wait their turn, the rest are told to come back (503), none is lost in a queue.
+        async def one() -> int:
+            ask = f"{web.base}/api/drives/pump1/history?{window}&points=5000"
+            async with web.session.get(ask) as response:
+                await response.read()
+                if response.status == 503:
+                    assert response.headers["Retry-After"] == "1"
+                return response.status
+
+        statuses = await asyncio.gather(*(one() for _ in range(20)))
+        assert set(statuses) <= {200, 503}, statuses
+        assert statuses.count(200) >= MAX_STORE_QUERIES + MAX_WAITING_QUERIES, statuses
+        record_property(
+            "figure:console history 30 days",
+            f"43,200 points of pump1 reduced in the store to {len(times)} in {took_s:.2f} s; "
+            f"20 at once: {statuses.count(200)} answered, {statuses.count(503)} told 503",
+        )
+
+
+def iso(at: float) -> str:
+    return datetime.fromtimestamp(at, UTC).isoformat().replace("+00:00", "Z")
 
 
 async def test_the_monitor_keeps_the_last_transactions_while_nobody_watches(

@@ -6,24 +6,29 @@
 
 A window within the last 15 minutes comes from the console's live ring (a point a second,
 `LiveState`); a longer one from the store's history (a point a `storage.history_step_s`,
-`gateway.store.history`), merged further when it has more points than asked for. Both hold the
-same values (`gateway.store.history.values`). Reading the store never waits on a bus.
+`gateway.store.history`), reduced in the database to at most `points` (1 to `MAX_POINTS`: a
+chart is not wider) when it holds more, before anything of it is read into memory. Both hold
+the same values (`gateway.store.history.values`). Reading the store never waits on a bus,
+and at most `MAX_STORE_QUERIES` read it at once: `MAX_WAITING_QUERIES` more wait their turn,
+any beyond are answered 503 (a dashboard of many charts over months can't take the box's
+memory or CPU).
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import csv
 import io
 import re
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import AsyncIterator, Callable, Sequence
 from typing import Any, Final, Protocol, TypeVar
 
 from aiohttp import web
 
 from gateway.console.live import HISTORY_S
-from gateway.console.replies import http_error, query_limit, time_query
+from gateway.console.replies import http_error, time_query
 from gateway.console.spreadsheet import text_cell
 from gateway.console.web import CONSOLE, drive_name, html_page
 from gateway.errors import StoreError
@@ -35,6 +40,9 @@ DEFAULT_WINDOW: Final = "1h"
 DEFAULT_POINTS: Final = 600
 MAX_POINTS: Final = 5000
 MAX_WINDOW_S: Final = 3650 * 86400.0
+MAX_STORE_QUERIES: Final = 2
+"""History queries reading the store at once (each a thread's CPU while it runs)."""
+MAX_WAITING_QUERIES: Final = 8
 INLINE_POINTS: Final = 1000
 """Up to this many points (the live 15 minutes) are merged on the event loop."""
 KEY: Final = re.compile(r"^[A-Za-z0-9_]{1,64}$")
@@ -49,15 +57,44 @@ class HistorySource(Protocol):
     @property
     def history_days(self) -> float: ...
 
-    async def history_points(
-        self, drive: str, since: float, until: float
-    ) -> list[tuple[float, dict[str, Value]]]: ...
+    async def history_window(
+        self, drive: str, since: float, until: float, max_points: int
+    ) -> tuple[float, list[tuple[float, dict[str, Value]]]]: ...
 
 
 T = TypeVar("T")
 
 
+class StoreQueries:
+    """At most `running` history queries on the store at once, `waiting` more in line; the
+    next is refused (503) rather than queued without bound."""
+
+    def __init__(self, running: int = MAX_STORE_QUERIES, waiting: int = MAX_WAITING_QUERIES):
+        self._slots = asyncio.Semaphore(running)
+        self._waiting = 0
+        self.max_waiting = waiting
+        self.refused = 0
+
+    @contextlib.asynccontextmanager
+    async def turn(self) -> AsyncIterator[None]:
+        if self._slots.locked() and self._waiting >= self.max_waiting:
+            self.refused += 1
+            busy = http_error(503, "too many history queries at once: try again shortly")
+            busy.headers["Retry-After"] = "1"
+            raise busy
+        self._waiting += 1
+        try:
+            await self._slots.acquire()
+        finally:
+            self._waiting -= 1
+        try:
+            yield
+        finally:
+            self._slots.release()
+
+
 HISTORY_SOURCE: Final = web.AppKey("history_source", HistorySource)
+STORE_QUERIES: Final = web.AppKey("history_store_queries", StoreQueries)
 
 HISTORY: Final = """
 <h1>History <span id="live" class="live">loading…</span></h1>
@@ -87,6 +124,7 @@ def add_routes(app: web.Application, source: HistorySource | None) -> None:
     minutes only."""
     if source is not None:
         app[HISTORY_SOURCE] = source
+    app[STORE_QUERIES] = StoreQueries()
     app.add_routes(
         [
             web.get("/history", history_page),
@@ -107,7 +145,7 @@ async def drive_history(request: web.Request) -> web.StreamResponse:
     console = request.app[CONSOLE]
     name = drive_name(request)
     since, until = _window(request)
-    max_points = query_limit(request, "points", DEFAULT_POINTS, MAX_POINTS) or 1
+    max_points = _points(request)
     live_from = time.time() - HISTORY_S
     source = request.app.get(HISTORY_SOURCE)
     if since >= live_from - 1.0 or source is None:
@@ -115,10 +153,11 @@ async def drive_history(request: web.Request) -> web.StreamResponse:
         origin, step_s = "live", 1.0
     else:
         try:
-            points = await source.history_points(name, since, until)
+            async with request.app[STORE_QUERIES].turn():
+                step_s, points = await source.history_window(name, since, until, max_points)
         except StoreError as exc:
             raise http_error(409, f"the history cannot be read now: {exc}") from None
-        origin, step_s = "store", source.history_step_s
+        origin = "store"
     now = values(console.live.telemetry(name))
     # A week of a drive's minutes is ten thousand points: merged off the event loop (the
     # buses' loop), like the store's own reading.
@@ -169,6 +208,19 @@ def _cell(value: Value | None) -> str:
         return ""
     # Numbers as numbers (a negative one too); a text value quoted if it reads as a formula.
     return text_cell(value) if isinstance(value, str) else f"{value:g}"
+
+
+def _points(request: web.Request) -> int:
+    text = request.query.get("points")
+    if text is None:
+        return DEFAULT_POINTS
+    try:
+        points = int(text)
+    except ValueError:
+        points = 0
+    if not 1 <= points <= MAX_POINTS:
+        raise http_error(400, f"points: a whole number, 1 to {MAX_POINTS} (a chart's width)")
+    return points
 
 
 def _window(request: web.Request) -> tuple[float, float]:

@@ -27,6 +27,7 @@ def status_class(status: int) -> type[web.HTTPException]:
         409: web.HTTPConflict,
         429: web.HTTPTooManyRequests,
         502: web.HTTPBadGateway,
+        503: web.HTTPServiceUnavailable,
     }[status]
 
 

@@ -454,6 +454,38 @@ class EventDatabase:
         ).fetchall()
         return [(row[0], json.loads(row[1])) for row in rows]
 
+    def history_count(self, drive: str, since: float, until: float) -> int:
+        row = self.db.execute(
+            "SELECT count(*) FROM history WHERE drive = ? AND time >= ? AND time < ?",
+            (drive, since, until),
+        ).fetchone()
+        return int(row[0])
+
+    def history_reduced(
+        self, drive: str, since: float, until: float, span_s: float
+    ) -> list[tuple[float, dict[str, float | str]]]:
+        """`drive`'s history from `since` to before `until` as one point per `span_s` (spans
+        aligned to the clock, each at its start), oldest first: a number the mean of the span's,
+        a text the last. Reduced in SQLite, so that a window of months never comes into
+        Python's memory whole: the answer has (window / span) x (values) rows at most."""
+        rows = self.db.execute(
+            "SELECT CAST(h.time / :span AS INTEGER) * :span AS at, j.key, "
+            "avg(CASE WHEN j.type IN ('integer', 'real') THEN j.value END), "
+            # The one max() makes the bare j.value the text of the span's last row (SQLite).
+            "max(CASE WHEN j.type = 'text' THEN h.time END), j.value "
+            "FROM history AS h, json_each(h.data) AS j "
+            "WHERE h.drive = :drive AND h.time >= :since AND h.time < :until "
+            "GROUP BY at, j.key ORDER BY at",
+            {"span": span_s, "drive": drive, "since": since, "until": until},
+        )
+        points: dict[float, dict[str, float | str]] = {}
+        for at, key, mean, last_text, text in rows:
+            if mean is not None:
+                points.setdefault(at, {})[key] = round(mean, 6)
+            elif last_text is not None:
+                points.setdefault(at, {})[key] = text
+        return list(points.items())
+
     def history_rows(self) -> int:
         return _count(self.db, "SELECT count(*) FROM history")
 

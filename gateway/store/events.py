@@ -44,7 +44,7 @@ from gateway.poller.drive_state import DriveEvent, EventKind, iso_time
 from gateway.profile.telemetry import Telemetry
 from gateway.settings import StoreSettings
 from gateway.store.database import MEMORY, Batch, EventDatabase
-from gateway.store.history import MAX_WAITING_POINTS, HistoryRecorder
+from gateway.store.history import MAX_WAITING_POINTS, HistoryRecorder, span_for
 from gateway.store.records import (
     ConfigVersion,
     EventType,
@@ -398,10 +398,38 @@ class EventStore:
         """`drive`'s history points from `since` to before `until` (epoch s), oldest first;
         those still waiting for the disk included."""
         stored = await self._call(self._db.history, drive, since, until)
-        points = dict(stored)
-        for point in list(self._history):  # as the write will merge them
-            if point.drive == drive and since <= point.time < until:
+        return self._with_waiting(dict(stored), drive, since, until, 0.0)
+
+    async def history_window(
+        self, drive: str, since: float, until: float, max_points: int
+    ) -> tuple[float, list[tuple[float, dict[str, float | str]]]]:
+        """`history_points`, at most `max_points` of them (about): the points as they are when
+        the window has no more, else reduced in the database to one a span (`span_for`);
+        the time one point stands for, and the points. A point still waiting for the disk
+        stands for its span where the disk has nothing of it."""
+        step_s = self.history_step_s
+        rows = await self._call(self._db.history_count, drive, since, until)
+        if rows <= max_points:
+            return step_s, await self.history_points(drive, since, until)
+        span_s = span_for(until - since, step_s, max_points)
+        reduced = await self._call(self._db.history_reduced, drive, since, until, span_s)
+        return span_s, self._with_waiting(dict(reduced), drive, since, until, span_s)
+
+    def _with_waiting(
+        self,
+        points: dict[float, dict[str, float | str]],
+        drive: str,
+        since: float,
+        until: float,
+        span_s: float,
+    ) -> list[tuple[float, dict[str, float | str]]]:
+        for point in list(self._history):
+            if point.drive != drive or not since <= point.time < until:
+                continue
+            if not span_s:  # as the write will merge them
                 points[point.time] = {**points.get(point.time, {}), **point.values}
+            else:
+                points.setdefault(point.time - point.time % span_s, dict(point.values))
         return sorted(points.items(), key=lambda point: point[0])
 
     async def history_rows(self) -> int:

@@ -129,6 +129,13 @@ class Series:
     """The time one point stands for."""
 
 
+def span_for(window_s: float, step_s: float, max_points: int) -> float:
+    """The span (a whole number of steps) whose points, aligned to the clock, cover a window
+    of `window_s` in at most `max_points` points: what the store reduces a window to."""
+    steps = math.ceil(window_s / step_s / max(1, max_points - 1)) if max_points > 1 else 0
+    return step_s * max(1, steps) if max_points > 1 else step_s * math.ceil(window_s / step_s)
+
+
 def series(
     points: Sequence[tuple[float, Mapping[str, Value]]],
     keys: Sequence[str],

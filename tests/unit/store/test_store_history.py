@@ -150,3 +150,27 @@ def test_never_more_points_than_asked_for_whatever_the_gaps() -> None:
         shown = series(points, ["hz"], 60.0, asked)
         assert 1 <= len(shown.times) <= asked
         assert shown.times == sorted(shown.times)
+
+
+async def test_a_window_is_reduced_in_the_database_as_series_merges_it(tmp_path: Path) -> None:
+    config = StorageConfig(path=str(tmp_path / "events.db"), history_days=90)
+    start = 1_764_000_000.0 - 1_764_000_000.0 % 3600
+    points: list[tuple[float, dict[str, Value]]] = [
+        (start + 60 * n, {"hz": float(n % 7), "state": f"s{n}"} if n % 5 else {"hz": -1.5})
+        for n in range(1000)
+    ]
+    async with running_store(config) as store:
+        for at, found in points:
+            store.history.keep(HistoryPoint("pump1", at, found))
+        await store.flush()
+        span_s, reduced = await store.history_window("pump1", start, start + 60_000, 101)
+        raw = await store.history_points("pump1", start, start + 60_000)
+        as_is = await store.history_window("pump1", start, start + 60_000, 1000)
+    assert as_is == (60.0, points)  # no more than asked for: as they are
+    assert span_s == 600.0
+    assert raw == points
+    shown = series(points, ["hz", "state"], 60.0, 100)  # ten steps a point: 600 s
+    assert shown.step_s == 600.0
+    assert [at for at, _ in reduced] == shown.times
+    assert [found["hz"] for _, found in reduced] == shown.columns[0]
+    assert [found.get("state") for _, found in reduced] == shown.columns[1]
