@@ -220,6 +220,9 @@ class GatewayTargetFailed(ModbusError):
     """0x0B: the drive gave no valid reply (after retries), is offline, or its port is lost."""
 
     code = ExceptionCode.GATEWAY_TARGET_FAILED
+    sent_unconfirmed = 0
+    """A write that went out this many times with no reply confirming it: the drive may have
+    carried it out all the same (0: not a write, or it never went out)."""
 
 
 class DriveOffline(GatewayTargetFailed):

@@ -346,6 +346,22 @@ async def test_offline_drive_answers_offline(plant: Plant) -> None:
     assert response["exception_code"] == 0x0B
 
 
+async def test_a_write_no_reply_confirmed_says_it_may_have_run(plant: Plant) -> None:
+    """The drive fell silent under the command: it may still have carried it out (the request
+    went out; only its reply is missing). The answer is 0BH, and the command's event says so."""
+    events = f"{plant.base}/bridge/event"
+    mark = len(plant.probe.messages)
+    plant.line.set_dead(2, True)
+    response = await plant.set("fan2", {"command": "run_forward"})
+    assert (response["status"], response["error"]) == ("error", "timeout")
+    event = await plant.probe.wait_for(
+        events, lambda e: e["type"] == "command" and e["data"]["drive"] == "fan2", after=mark
+    )
+    data = event.json()["data"]
+    assert (data["result"], data["may_have_run"]) == ("timeout", True)
+    assert data["times_sent"] >= 1
+
+
 async def test_commands_disabled(mosquitto: Mosquitto) -> None:
     base = unique_base_topic()
     with simulated_line() as line:

@@ -845,13 +845,16 @@ class Bus:
         ):
             self._failed(address)
         message = f"drive {address} on {self.name}: {errors[-1]}"
-        if sends and not broadcast and transaction.pdu and lookup(transaction.pdu[0]).writes:
+        unconfirmed = sends if transaction.pdu and lookup(transaction.pdu[0]).writes else 0
+        if unconfirmed and not broadcast:
             message += (
                 f"; the write may have been carried out all the same: it went out {sends} "
                 f"time{'s' if sends > 1 else ''} and no reply confirmed it"
             )
             log.warning("bus %s: %s", self.name, message)
-        return _fail, (transaction, GatewayTargetFailed(message))
+        error = GatewayTargetFailed(message)
+        error.sent_unconfirmed = unconfirmed
+        return _fail, (transaction, error)
 
     async def _catch_up(
         self, transaction: Transaction, sent: Sending, drive: DriveStats

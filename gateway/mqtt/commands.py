@@ -167,7 +167,11 @@ class Commands:
                     await asyncio.sleep(pause_s)
         except ModbusError as exc:
             error, code = modbus_error(exc)
-            self._record(drive, write, {"result": error, "exception_code": code})
+            outcome: Json = {"result": error, "exception_code": code}
+            if isinstance(exc, GatewayTargetFailed) and exc.sent_unconfirmed:
+                # No reply confirmed it, but it went out: the drive may have carried it out.
+                outcome |= {"may_have_run": True, "times_sent": exc.sent_unconfirmed}
+            self._record(drive, write, outcome)
             raise
         self._record(drive, write, {"result": "ok"})
         log.info("MQTT command to %s done: %s", drive.name, write.echo)
