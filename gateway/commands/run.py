@@ -176,6 +176,7 @@ def _edit_from_console(app: Application, path: str | None, reloader: Reloader) -
     if console is None or path is None:
         return
     from gateway.console.config_editor import ConfigEditor
+    from gateway.console.sealing import SecretSeal
 
     console.config_editor = ConfigEditor(
         path,
@@ -183,6 +184,7 @@ def _edit_from_console(app: Application, path: str | None, reloader: Reloader) -
         app.events,
         lambda: app.settings,
         lambda: hasattr(app, "mqtt"),
+        SecretSeal(lambda: app.events.path if app.events.persistent else None),
     )
 
 

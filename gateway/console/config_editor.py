@@ -18,7 +18,10 @@ Secrets are not sent to the browser: the value of a key named like a secret (`pa
 `token`...) shows as `"***N"`, the file's N-th secret; a `"***N"` sent back stands for that
 value, wherever its line went (a user removed above another leaves the other's hash with it).
 The text carries the file's fingerprint (`base`): an edit of a file changed meanwhile is
-refused (409) rather than numbered against the wrong secrets.
+refused (409) rather than numbered against the wrong secrets. A mask that stands for no secret of
+the file (`"***99"`, or `"***"` copied from a diff) is refused at its key, never kept as the
+value. The versions kept in the store have each secret sealed with the box's key
+(`gateway.console.sealing`), never in clear; a rollback opens them.
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final, Protocol
 
+from gateway.console.sealing import SecretSeal
 from gateway.errors import EditRefused, StoreError
 from gateway.settings import GatewaySettings
 from gateway.settings.editing import Checked, check_text
@@ -56,6 +60,8 @@ _FLOW: Final = re.compile(
 )
 """A key and its value inside a flow mapping (up to `,` or `}`)."""
 _TOKEN: Final = re.compile(r"""(?P<quote>["']?)\*\*\*(?P<number>\d+)(?P=quote)""")
+_MASK_LIKE: Final = re.compile(r"""(["']?)\*\*\*\d*\1""")
+"""A secret's value that is a mask: `***`, `***N`, quoted or not."""
 
 
 class VersionStore(Protocol):
@@ -76,8 +82,10 @@ class ConfigEditor:
         versions: VersionStore,
         running: Callable[[], GatewaySettings],
         mqtt_running: Callable[[], bool],
+        seal: SecretSeal,
     ) -> None:
         self.path = path
+        self.seal = seal
         self.reload = reload
         self.versions = versions
         self.running = running
@@ -112,6 +120,9 @@ class ConfigEditor:
         `base`: the file's `fingerprint` when the text was loaded."""
         current = await self._read_file()
         _same_file(current, base, self.path)
+        problems = mask_problems(text, current)
+        if problems:
+            return Checked(problems)
         return await asyncio.to_thread(self._check, unmasked(text, current))
 
     async def apply(
@@ -120,8 +131,9 @@ class ConfigEditor:
         async with self._one_at_a_time:
             current = await self._read_file()
             _same_file(current, base, self.path)
+            problems = mask_problems(text, current)
             full = unmasked(text, current)
-            checked = await asyncio.to_thread(self._check, full)
+            checked = Checked(problems) if problems else await asyncio.to_thread(self._check, full)
             if not checked.ok:
                 raise EditRefused(400, "the configuration does not check out", checked.to_json())
             number = await self._keep(user, full, note, current)
@@ -148,7 +160,8 @@ class ConfigEditor:
         found = {v.id: v for v in await self._versions()}
         if number not in found:
             raise EditRefused(404, f"version: no version {number} is kept")
-        return await self.apply(found[number].text, user, f"rollback to version {number}")
+        text = await asyncio.to_thread(self.seal.open_all, found[number].text, f"version {number}")
+        return await self.apply(text, user, f"rollback to version {number}")
 
     # -- inside --------------------------------------------------------------------------------
 
@@ -160,10 +173,24 @@ class ConfigEditor:
     async def _keep(self, user: str, text: str, note: str, current: str) -> int:
         try:
             if not await self.versions.config_versions():
-                await self.versions.add_config_version("(file)", current, FOUND)
-            return await self.versions.add_config_version(user, text, note)
+                found = await asyncio.to_thread(self._sealed, current)
+                await self.versions.add_config_version("(file)", found, FOUND)
+            kept = await asyncio.to_thread(self._sealed, text)
+            return await self.versions.add_config_version(user, kept, note)
+        except OSError as exc:  # the key file can't be made or read: not kept in clear instead
+            raise EditRefused(409, f"not applied: the secrets can't be sealed: {exc}") from None
         except StoreError as exc:
             raise EditRefused(409, f"not applied: the version cannot be kept: {exc}") from None
+
+    def _sealed(self, text: str) -> str:
+        """`text` with the value of every key named like a secret sealed (as the store keeps it)."""
+        out, last = [], 0
+        for secret in _secrets(text):
+            out.append(text[last : secret.start])
+            out.append(self.seal.seal(secret.value))
+            last = secret.end
+        out.append(text[last:])
+        return "".join(out)
 
     async def _versions(self) -> list[ConfigVersion]:
         try:
@@ -236,6 +263,7 @@ def _secret(key: str) -> bool:
 
 @dataclass(frozen=True, slots=True)
 class _Found:
+    key: str
     start: int
     end: int
     value: str
@@ -252,17 +280,14 @@ def _secrets(text: str) -> list[_Found]:
         block = _BLOCK.match(bare)
         if block is not None and not block["value"].startswith(("{", "[")):
             if _secret(block["key"]) and block["value"] not in ("null", "~", "''", '""'):
-                found.append(
-                    _Found(
-                        offset + block.start("value"), offset + block.end("value"), block["value"]
-                    )
-                )
+                start, end = offset + block.start("value"), offset + block.end("value")
+                found.append(_Found(block["key"], start, end, block["value"]))
         else:
             for flow in _FLOW.finditer(bare):
                 value = flow["value"].rstrip()
                 if _secret(flow["key"]) and value not in ("null", "~", "''", '""'):
                     start = offset + flow.start("value")
-                    found.append(_Found(start, start + len(value), value))
+                    found.append(_Found(flow["key"], start, start + len(value), value))
         offset += len(line)
     return found
 
@@ -279,10 +304,33 @@ def masked(text: str, numbered: bool = True) -> str:
     return "".join(out)
 
 
+def mask_problems(text: str, original: str) -> list[tuple[str, str]]:
+    """A secret's value in `text` that is a mask standing for none of `original`'s secrets
+    (`"***99"` where the file has 3; `"***"` copied from a diff): (key, reason) each. Kept, it
+    would become the password itself."""
+    count = len(_secrets(original))
+    problems = []
+    for secret in _secrets(text):
+        if not _MASK_LIKE.fullmatch(secret.value):
+            continue
+        token = _TOKEN.fullmatch(secret.value)
+        if token is not None and 1 <= int(token["number"]) <= count:
+            continue
+        held = f"{MASK}1 to {MASK}{count}" if count else "none"
+        problems.append(
+            (
+                secret.key,
+                f"{secret.value} stands for no secret of the file (it has {held}): type the "
+                "value itself, or load the file again to get its masks",
+            )
+        )
+    return problems
+
+
 def unmasked(text: str, original: str) -> str:
     """`text` with each `"***N"` replaced by the N-th secret of `original`, as the file has it
     (wherever the line went: a user removed above another keeps the other's hash). A number
-    `original` doesn't have is left as it is: the check then names its key."""
+    `original` doesn't have is left as it is (`mask_problems` refuses it at its key)."""
     secrets = [secret.value for secret in _secrets(original)]
 
     def secret(match: re.Match[str]) -> str:

@@ -15,8 +15,9 @@ file is refused rather than writing over the first's events. Tables (their migra
              start, after a kill)
     history  polled values, one row per drive and history step (data: JSON of the values);
              rows older than `history_max_age_s` go at the hourly expiry
-    config_versions  each configuration applied from the console: its text, who, when; the
-             newest `MAX_CONFIG_VERSIONS` kept
+    config_versions  each configuration applied from the console: its text (secrets sealed by
+             the editor, `gateway.console.sealing`), who, when; the newest
+             `MAX_CONFIG_VERSIONS` kept
 
 Bounds, checked after every write: the store's files (with the write-ahead log) stay within
 `max_bytes` and within what the disk has, leaving a reserve free (`gateway.store.space`). Past

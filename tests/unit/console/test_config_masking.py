@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import yaml
 
-from gateway.console.config_editor import diff, masked, unmasked
+from gateway.console.config_editor import diff, mask_problems, masked, unmasked
 
 FILE = """\
 mqtt:
@@ -60,6 +60,9 @@ def test_a_user_removed_leaves_the_next_ones_hash_with_it() -> None:
 def test_a_number_the_file_has_not_is_left_for_the_check_to_refuse() -> None:
     edited = masked(FILE).replace('"***4"', '"***9"')
     assert 'password_hash: "***9"' in unmasked(edited, FILE)
+    [(key, reason)] = mask_problems(edited, FILE)
+    assert key == "password_hash"
+    assert reason.startswith('"***9" stands for no secret of the file (it has ***1 to ***')
 
 
 def test_a_diff_never_shows_a_secret() -> None:
