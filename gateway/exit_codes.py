@@ -17,8 +17,10 @@ EXIT_USAGE = 2
 EXIT_CONFIG = 3
 """A configuration that does not validate: restarting won't fix it, the unit leaves it down."""
 EXIT_STARTUP = 4
-"""`run` or `demo` could not start: a port taken or an address not of this machine, a store of
-a newer release. Restarted by the unit: the port may be free on the next try."""
+"""`run` or `demo` could not start: a port taken or an address not of this machine, two
+listeners on one port or a TLS file that can't be used (`gateway.config.startup`), a store of a
+newer release or held by another gateway. Restarted by the unit: the port may be free on the
+next try."""
 EXIT_INTERRUPTED = 130
 """Ctrl-C in a command that is not the service (128 + SIGINT, as a shell reports it)."""
 EXIT_BROKEN_PIPE = 141

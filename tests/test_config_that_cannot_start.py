@@ -1,5 +1,6 @@
 """A configuration the gateway could not start on is refused wherever it is checked, each problem
-at its key with the reason: by `check-config` (a real subprocess, exit code 3), by the console's
+at its key with the reason: by `check-config` (a real subprocess, exit code 3), by `run` itself
+before it starts anything (a line a problem, exit code 4), by the console's
 Check and Apply on a running gateway (real HTTP: Apply answers 400 and neither writes the file
 nor keeps a version), and by a reload of the file edited by hand. The four cases are the ones
 that passed all of them and then failed the next start: the Modbus-TCP port equal to the
@@ -16,7 +17,7 @@ from typing import Any
 import pytest
 import yaml
 
-from gateway.exit_codes import EXIT_CONFIG
+from gateway.exit_codes import EXIT_CONFIG, EXIT_STARTUP
 from gateway.instruments.simulator import SimulatedLine
 from tests.support import free_port
 from tests.support.processes import check_config, gateway_process, run_cli
@@ -71,6 +72,23 @@ def test_check_config_refuses_what_could_not_start_naming_key_and_reason(
     assert said, result.stderr
     assert reason in said[0]
     assert "valid" not in result.stdout
+
+
+@pytest.mark.parametrize(("edit", "key", "reason"), CASES, ids=IDS)
+def test_run_refuses_it_before_starting_one_line_a_problem_exit_4(
+    line: SimulatedLine, tmp_path: Path, edit: Edit, key: str, reason: str
+) -> None:
+    edited = config(line, free_port())
+    edit(edited, tmp_path)
+    path = tmp_path / "gateway.yaml"
+    path.write_text(yaml.safe_dump(edited), encoding="utf-8")
+    result = run_cli("run", "--config", str(path))
+    assert result.returncode == EXIT_STARTUP, result.stderr
+    said = [row for row in result.stderr.splitlines() if "cannot start" in row]
+    assert said, result.stderr
+    assert f"cannot start: {key}: " in said[0]  # the first problem in the file's order
+    assert reason in said[0]
+    assert "Traceback" not in result.stderr
 
 
 async def test_the_consoles_check_and_apply_refuse_what_could_not_start(

@@ -45,7 +45,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "/metrics with /health. Stops cleanly on SIGTERM or Ctrl-C; SIGHUP reloads the file. "
         "Exit codes: 0 stopped, 1 failed while serving (a bus or a feature died), 3 the "
         "configuration does not validate (the key and the reason are printed), 4 could not "
-        "start (a port taken, a store from a newer release).",
+        "start (a port taken or two on one port, a TLS file that can't be used, a store from a "
+        "newer release or held by another gateway).",
     )
     parser.add_argument(
         "--config", "-c", default=DEFAULT_CONFIG, help=f"YAML file (default {DEFAULT_CONFIG})"
@@ -100,6 +101,13 @@ async def serve(
     `modbus_tcp.port`): an error that names such a key names the option too, since the user
     typed the option and may never have seen the key.
     """
+    problems = await asyncio.to_thread(startup_problems, config)
+    if problems:
+        # What binding and loading would find one at a time, said at once, before anything
+        # started: the same lines check-config and the console give.
+        for key, reason in problems:
+            log.error("cannot start: %s", naming_flags(f"{key}: {reason}", flags))
+        return EXIT_STARTUP
     app = Application(runtime_settings(config))
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()

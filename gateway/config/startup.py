@@ -3,8 +3,9 @@
 A file can validate key by key and still not start: two listeners on one port, a certificate
 file that is missing or is not a certificate, a bind address that is not this machine's. `run`
 finds these only as it binds and loads, and fails. So they are checked here, in one function
-that `check-config`, the console's Check and Apply and every reload call, each refusing the
-configuration with the same (key path, reason) pairs a validation error has:
+that `run` calls before it starts anything (exit code 4, one line each) and `check-config`, the
+console's Check and Apply and every reload call, each refusing the configuration with the same
+(key path, reason) pairs a validation error has:
 
     ports      the listeners (Modbus-TCP, its TLS listener, the console, /metrics) never two on
                one port of overlapping addresses (0.0.0.0 and :: overlap every address); port 0
@@ -66,7 +67,7 @@ def _listeners(config: GatewayConfig) -> Iterator[Listener]:
     if config.console.enabled:
         yield Listener("the console", "console", config.console.host, config.console.port)
     if config.metrics.enabled:
-        yield Listener("/metrics", "metrics", config.metrics.host, config.metrics.port)
+        yield Listener("metrics and health", "metrics", config.metrics.host, config.metrics.port)
 
 
 def _port_clashes(listeners: list[Listener]) -> list[Problem]:
