@@ -18,6 +18,7 @@ from __future__ import annotations
 import base64
 import os
 import re
+import threading
 from collections.abc import Callable
 from pathlib import Path
 from typing import Final
@@ -42,6 +43,9 @@ class SecretSeal:
         """`store_path`: the store's file now (None: the store is in memory only)."""
         self.store_path = store_path
         self._key: bytes | None = None
+        self._making = threading.Lock()
+        """Two first uses at once (a rollback and an apply, each on a thread of its own) make or
+        read the key file one after the other: never one reading it half-written."""
 
     def seal(self, value: str) -> str:
         """`value` (as the text has it, quotes included) as one quoted sealed string."""
@@ -73,13 +77,14 @@ class SecretSeal:
         return None if path is None else path + KEY_SUFFIX
 
     def _the_key(self) -> bytes:
-        if self._key is None:
-            path = self._key_file()
-            if path is None:
-                self._key = AESGCM.generate_key(KEY_BYTES * 8)
-            else:
-                self._key = _load_or_make(Path(path))
-        return self._key
+        with self._making:
+            if self._key is None:
+                path = self._key_file()
+                if path is None:
+                    self._key = AESGCM.generate_key(KEY_BYTES * 8)
+                else:
+                    self._key = _load_or_make(Path(path))
+            return self._key
 
 
 def _load_or_make(path: Path) -> bytes:
