@@ -7,12 +7,14 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
 import sqlite3
 from pathlib import Path
 from typing import Any
 
 import pytest
 
+from gateway.config import ENV_STATE_DIRECTORY
 from gateway.exit_codes import EXIT_STARTUP
 from gateway.settings import StoreSettings
 from gateway.store import EventStore
@@ -61,6 +63,25 @@ def test_a_second_gateway_on_a_store_in_use_is_refused_naming_the_file_and_holde
     assert ids == sorted(set(ids))
     # Only the first gateway wrote: its line's loss once, not once per gateway.
     assert [kind for _, kind in stored].count("port_lost") == 1, stored
+
+
+def test_two_gateways_without_a_storage_key_each_have_their_own_store(tmp_path: Path) -> None:
+    """Two services on one box (two lines, two gateway_ids), neither naming a store: both run."""
+    state = Path(os.environ[ENV_STATE_DIRECTORY])  # each test's own (conftest)
+    configs = [gateway_config(name, tmp_path / "unused.db", tmp_path) for name in ("a", "b")]
+    for each in configs:
+        del each["storage"]
+    with (
+        gateway_process(configs[0], tmp_path) as first,
+        gateway_process(configs[1], tmp_path) as second,
+    ):
+        first.wait_ready(WAIT_S)
+        second.wait_ready(WAIT_S)
+        assert first.process.poll() is None, first.log.text
+        assert second.process.poll() is None, second.log.text
+    for name in ("a", "b"):
+        assert [kind for _, kind in events_in(state / f"events-{name}.db")].count("port_lost") == 1
+    assert not (state / "events.db").exists()
 
 
 def settings(path: Path, shared: Path) -> StoreSettings:
