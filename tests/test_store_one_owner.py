@@ -8,6 +8,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import os
+import signal
 import sqlite3
 from pathlib import Path
 from typing import Any
@@ -63,6 +64,19 @@ def test_a_second_gateway_on_a_store_in_use_is_refused_naming_the_file_and_holde
     assert ids == sorted(set(ids))
     # Only the first gateway wrote: its line's loss once, not once per gateway.
     assert [kind for _, kind in stored].count("port_lost") == 1, stored
+
+
+def test_a_gateway_killed_leaves_nothing_that_keeps_its_next_start_out(tmp_path: Path) -> None:
+    store = tmp_path / "events.db"
+    settings = gateway_config("cabinet-a", store, tmp_path)
+    with gateway_process(settings, tmp_path) as killed:
+        killed.wait_ready(WAIT_S)
+        killed.signal(signal.SIGKILL)
+        killed.wait(WAIT_S)
+    with gateway_process(settings, tmp_path) as again:
+        again.wait_ready(WAIT_S)  # the kernel let go of the lock with the killed process
+        holder = Path(f"{store}.lock").read_text(encoding="ascii").strip()
+        assert holder == str(again.process.pid)
 
 
 def test_two_gateways_without_a_storage_key_each_have_their_own_store(tmp_path: Path) -> None:
