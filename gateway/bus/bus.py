@@ -660,12 +660,13 @@ class Bus:
                 continue
             self._carrying = transaction  # before anything can fail: it must be answered
             self._back_to_back = reply_heard_at != 0.0
+            frame = transaction.frame or build_frame(address, transaction.pdu)
             if probe or address in self.late_replies.owing:
                 # A marker first (a probe is one): `_execute` reads its answer, the frames
                 # before it set aside, then sends the request (`gateway.bus.late_replies`).
                 self._echo_sent = self.late_replies.marker(address)
                 return self._echo_sent
-            return transaction.frame or build_frame(address, transaction.pdu)
+            return frame
         return None
 
     def _take_discarded(self) -> None:
@@ -759,7 +760,8 @@ class Bus:
         self._observe_gap(first)
         # A probe brings its own retries; a drive that just failed gets none.
         retries = transaction.retries
-        if not transaction.probe and self.health.is_suspect(address):
+        cut = not transaction.probe and self.health.is_suspect(address)
+        if cut:
             retries = 0
         drive = self._drive(address)
         errors: list[LineError] = []
@@ -773,14 +775,18 @@ class Bus:
             marker_pending, pending = first, None
         sends = 0  # times the request itself went out (markers aside): a write's may be done
         self._heard_from_carried = False
-        for attempt in range(retries + 1):
+        attempt = -1
+        while attempt < retries:
+            attempt += 1
             if attempt:
                 drive.retries += 1
             on_its_way = marker_pending or pending
             started = on_its_way.started if on_its_way is not None else time.monotonic()
             on_wire = frame
             try:
-                if transaction.probe or (not broadcast and address in late.owing):
+                if transaction.probe or (
+                    not broadcast and late.needs_marker(address, frame, transaction)
+                ):
                     sent, marker_pending = marker_pending, None  # taken, whatever comes of it
                     if sent is None:
                         sent = await self.line.send_after_gap(partial(late.marker, address))
@@ -819,6 +825,8 @@ class Bus:
             except BadReply as exc:
                 drive.bad_replies[exc.kind] += 1
                 self._unanswered(address, on_wire, started, exc.strays, transaction.timeout_s)
+                if cut:  # something came back: not a dead drive's, its retries are due
+                    retries, cut = transaction.retries, False
                 dump_frame(self.name, f"rx bad {exc.kind}", exc.frame)
                 log.debug("bus %s: %s", self.name, exc)
                 errors.append(exc)
@@ -829,7 +837,7 @@ class Bus:
                 if self.tap is not None:
                     self.tap(self.name, transaction, attempt, started, exc)
                 if not broadcast:  # its reply may come to the reopened port
-                    late.unanswered(address, on_wire, started)
+                    late.unanswered(address, on_wire, started, transaction)
                 self._port_lost(exc)
                 return _fail, (transaction, GatewayTargetFailed(f"bus {self.name}: {exc}"))
             finally:
@@ -909,7 +917,7 @@ class Bus:
         """An attempt ended without its reply: `frame` is owed (its reply may still come),
         then the frames set aside are accounted (one of them may be that very reply)."""
         if address != BROADCAST_ADDRESS:
-            self.late_replies.unanswered(address, frame, sent_at)
+            self.late_replies.unanswered(address, frame, sent_at, self._carrying)
         self._set_aside(strays, timeout_s)
 
     def _set_aside(self, strays: tuple[tuple[bytes, float], ...], timeout_s: float) -> bool:
@@ -938,7 +946,10 @@ class Bus:
             if self.health.offline_count and self.health.is_offline(address):
                 # It answers again: probe it now, not at the end of its backoff.
                 self.health.probe_now(address, time.monotonic())
-        return asked in late.owing
+        if carrying is None or asked not in late.owing:
+            return False
+        frame = carrying.frame or build_frame(asked, carrying.pdu)
+        return late.needs_marker(asked, frame, carrying)
 
     def _replied(self, sending: Sending, pdu: bytes, heard_at: float) -> None:
         """The line's reader callback has the whole and valid reply to the frame `_pick` chose:
@@ -1071,6 +1082,7 @@ class Bus:
             self.tap(self.name, transaction, attempt, started, exchange)
         if address == BROADCAST_ADDRESS:
             self.stats.broadcasts += 1
+            self.late_replies.broadcast()
         else:
             self._answered(address)
             if not transaction.probe:

@@ -24,7 +24,10 @@ timed out, its attempt ended on a corrupt frame, noise or a reply it could not t
 - Before anything else goes to a drive that owes or is unsure, the bus sends a **marker**: a
   request whose replies (normal or exception) no owed request's reply can look like (2). Frames
   before the marker's answer are set aside as above; once its answer is back, nothing older is in
-  flight (1) and the drive is in step.
+  flight (1) and the drive is in step. One exception: a retry, when all the drive owes is that
+  very request sent before for the same transaction, needs none: whichever send a reply answers,
+  it answers the question its client is waiting on; what was owed stays owed, so the next
+  transaction gets its marker (never a reply one request behind).
 
 A marker never depends on an optional function code. It is a read the drive has answered before
 or been asked before, changed so that its reply is told from every owed one (the other read
@@ -121,9 +124,10 @@ class LateReplies:
 
     def __init__(self, bus: str) -> None:
         self.bus = bus
-        self.owing: dict[int, list[tuple[bytes, float]]] = {}
-        """Address → the requests it owes replies to (frame, when sent), oldest first. A drive
-        that is here must get a marker before anything else (also with an empty list: unsure)."""
+        self.owing: dict[int, list[tuple[bytes, float, object]]] = {}
+        """Address → the requests it owes replies to (frame, when sent, the transaction that
+        sent it), oldest first. A drive that is here must get a marker before anything else
+        (also with an empty list: unsure), but for a retry (`needs_marker`)."""
         self.unsure: set[int] = set()
         """Drives that sent a frame answering nothing they owed (module docstring)."""
         self.answered: dict[int, bytes] = {}
@@ -147,27 +151,48 @@ class LateReplies:
     def owes(self, address: int) -> bool:
         return address in self.owing
 
-    def owed_frames(self, address: int) -> tuple[bytes, ...]:
-        return tuple(frame for frame, _ in self.owing.get(address, ()))
+    def needs_marker(self, address: int, frame: bytes, by: object) -> bool:
+        """Must a marker go before `frame` to `address`, sent for the transaction `by`? Not
+        when it owes nothing, nor when all it owes is this very request sent before for this
+        same transaction (a retry after a timeout or a corrupt reply): whichever send a reply
+        answers, it answers the question its client is waiting on. What it owed stays owed
+        (the reply taken may be the earlier send's), so the next transaction gets a marker."""
+        owed = self.owing.get(address)
+        if owed is None:
+            return False
+        if not owed or address in self.unsure:
+            return True
+        return any(request != frame or sender is not by for request, _, sender in owed)
 
-    def unanswered(self, address: int, frame: bytes, sent_at: float) -> None:
-        """`frame` went to `address` and its reply was not taken: it may still come."""
-        self.owing.setdefault(address, []).append((frame, sent_at))
+    def owed_frames(self, address: int) -> tuple[bytes, ...]:
+        return tuple(frame for frame, _, _ in self.owing.get(address, ()))
+
+    def unanswered(self, address: int, frame: bytes, sent_at: float, by: object = None) -> None:
+        """`frame` went to `address` for the transaction `by` and its reply was not taken: it
+        may still come."""
+        self.owing.setdefault(address, []).append((frame, sent_at, by))
+
+    def broadcast(self) -> None:
+        """A broadcast went out (a write to every drive): a reply owed from before it carries
+        values from before it, so no drive that owes may skip its marker now."""
+        self.unsure.update(self.owing)
 
     def heard(self, frame: bytes) -> float | None:
         """A whole, sound frame set aside: take off what it answers (rule 1); when the request
         it answers went out. None when it answers nothing its drive owed: that drive is unsure
         from now."""
         address = frame[0]
+        if frame[1] & EXCEPTION_BIT and frame[1] & 0x7F in _READS:
+            self.refused.setdefault(address, set()).add(frame[1] & 0x7F)
         owed = self.owing.get(address)
         if owed:
-            for index, (request, sent_at) in enumerate(owed):
+            for index, (request, sent_at, _) in enumerate(owed):
                 if is_reply_to(request, frame):
                     skipped = owed[:index]
                     del owed[: index + 1]
                     if request[1] == DIAGNOSTICS:
                         self._echo_answered(address)
-                    elif any(earlier[1] == DIAGNOSTICS for earlier, _ in skipped):
+                    elif any(earlier[1] == DIAGNOSTICS for earlier, _, _ in skipped):
                         self._no_echo(address)  # answered a later read, never the echo
                     if not owed and address not in self.unsure:
                         del self.owing[address]  # its last owed reply came: in step
@@ -187,7 +212,7 @@ class LateReplies:
         """
         owed = self.owing.get(address, [])
         now = time.monotonic()
-        recent = [frame for frame, sent_at in owed if now - sent_at < LATE_HORIZON_S]
+        recent = [frame for frame, sent_at, _ in owed if now - sent_at < LATE_HORIZON_S]
         reads = self._marker_reads(address, recent)
         echo_next = address in self._echo_ok and address in self._read_missed_last
         if reads and not echo_next:
@@ -198,6 +223,8 @@ class LateReplies:
         return build_frame(address, chosen)
 
     def _marker_reads(self, address: int, owed: list[bytes]) -> list[bytes]:
+        functions = {request[1] for request in owed}
+        refused = self.refused.get(address, ())
         sources = list(owed)
         last = self.answered.get(address)
         if last is not None:
@@ -205,12 +232,13 @@ class LateReplies:
         reads: list[bytes] = []
         for source in reversed(sources):  # the most recent first: the likeliest to be answered
             for pdu in _reads_from(source):
-                if pdu not in reads and not any(_collides(pdu, request) for request in owed):
-                    reads.append(pdu)
+                if pdu in reads or any(_collides(pdu, request) for request in owed):
+                    continue
+                if pdu[0] in refused and pdu[0] in functions:
+                    continue  # its exception would look like an owed request's
+                reads.append(pdu)
         # A read of a function nothing owed has first: even an exception to it is unambiguous;
-        # a function the drive refuses last: its exception looks like any owed one's.
-        functions = {request[1] for request in owed}
-        refused = self.refused.get(address, ())
+        # a function the drive refuses last.
         reads.sort(key=lambda pdu: (pdu[0] in refused, pdu[0] in functions))
         return reads
 

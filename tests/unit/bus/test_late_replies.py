@@ -157,3 +157,17 @@ def test_every_read_marker_of_a_read_is_told_from_its_reply(count: int) -> None:
             marker = late.marker(9)
             assert not is_reply_to(owed, normal_reply(marker))
             late.marker_missed(9, marker)
+
+
+def test_a_retry_of_the_same_transaction_needs_no_marker_the_next_transaction_does() -> None:
+    late = LateReplies("line1")
+    request = read(1, 3, 0x2100, 2)
+    first, second = object(), object()
+    assert not late.needs_marker(1, request, first)  # owes nothing
+    late.unanswered(1, request, 1e12, first)
+    # Whichever send a reply answers, it answers what this transaction's client asked.
+    assert not late.needs_marker(1, request, first)
+    assert late.needs_marker(1, read(1, 3, 0x3000, 2), first)  # another question
+    assert late.needs_marker(1, request, second)  # never a reply one request behind
+    late.broadcast()  # values from before a broadcast write: a marker even for the retry
+    assert late.needs_marker(1, request, first)
