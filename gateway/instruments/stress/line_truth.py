@@ -190,6 +190,9 @@ def _gateway_config(link: Path) -> dict[str, Any]:
             for unit_id in DRIVES
         ],
         "logging": {"level": "warning"},
+        # Its own store in the run's folder: two runs at once never share one (a store has
+        # one owner), and nothing is left in /var/lib.
+        "storage": {"path": str(link.parent / "events.db")},
     }
 
 

@@ -322,6 +322,9 @@ def _gateway_config(settings: StressSettings, link: Path, broker: Broker | None)
             for unit_id in _unit_ids(settings)
         ],
         "logging": {"level": "warning"},
+        # Its own store in the run's folder: two runs at once never share one (a store has
+        # one owner), and nothing is left in /var/lib.
+        "storage": {"path": str(link.parent / "events.db")},
     }
     if broker is not None:
         config["mqtt"] = {
