@@ -67,6 +67,9 @@ LOOP_BACK = b"\x00\x00"
 """08H sub-function 0000, return query data: the reply repeats the request."""
 LATE_HORIZON_S = 10.0
 """An owed request older than this no longer narrows the choice of marker (module docstring)."""
+MAX_OWED = 64
+"""Requests kept owed per drive at most (a bound on memory for a drive that never answers);
+past it the oldest go and the drive stays unsure."""
 _READS = (READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS)
 
 Stray = tuple[bytes, float]
@@ -169,8 +172,14 @@ class LateReplies:
 
     def unanswered(self, address: int, frame: bytes, sent_at: float, by: object = None) -> None:
         """`frame` went to `address` for the transaction `by` and its reply was not taken: it
-        may still come."""
-        self.owing.setdefault(address, []).append((frame, sent_at, by))
+        may still come. Requests owed longer than `LATE_HORIZON_S` are let go (a dead drive's
+        probes would pile up for good otherwise); the drive stays unsure, in want of a marker."""
+        owed = self.owing.setdefault(address, [])
+        owed.append((frame, sent_at, by))
+        if sent_at - owed[0][1] > LATE_HORIZON_S or len(owed) > MAX_OWED:
+            kept = [entry for entry in owed if sent_at - entry[1] <= LATE_HORIZON_S]
+            owed[:] = kept[-MAX_OWED:]
+            self.unsure.add(address)
 
     def broadcast(self) -> None:
         """A broadcast went out (a write to every drive): a reply owed from before it carries

@@ -6,7 +6,7 @@ import logging
 
 import pytest
 
-from gateway.bus.late_replies import LATE_HORIZON_S, LateReplies, is_reply_to
+from gateway.bus.late_replies import LATE_HORIZON_S, MAX_OWED, LateReplies, is_reply_to
 from gateway.modbus.crc import crc_ok
 from gateway.modbus.rtu import build_frame
 
@@ -171,3 +171,16 @@ def test_a_retry_of_the_same_transaction_needs_no_marker_the_next_transaction_do
     assert late.needs_marker(1, request, second)  # never a reply one request behind
     late.broadcast()  # values from before a broadcast write: a marker even for the retry
     assert late.needs_marker(1, request, first)
+
+
+def test_a_dead_drive_s_owed_requests_are_bounded_and_it_stays_unsure() -> None:
+    late = LateReplies("line1")
+    probe = read(7, 3, 0x2100, 1)
+    for second in range(2000):  # a probe a second, never answered
+        late.unanswered(7, probe, 1000.0 + second)
+    assert len(late.owed_frames(7)) <= LATE_HORIZON_S + 1
+    for burst in range(500):  # a burst of timeouts within the horizon
+        late.unanswered(7, probe, 5000.0 + burst / 1000)
+    assert len(late.owed_frames(7)) == MAX_OWED
+    assert late.needs_marker(7, probe, object())
+    assert 7 in late.unsure
