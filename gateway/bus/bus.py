@@ -232,6 +232,7 @@ class Bus:
         there, late or out of step, and its failure doesn't count towards offline."""
         self._discarded = self.line.receiver.set_aside
         """Frames the line heard between transactions, for the ledger (`_take_discarded`)."""
+        self.line.receiver.on_set_aside = self._take_discarded
         self._answered_frames = self.late_replies.answered
         """The ledger's last answered request per drive (`LateReplies.answered`), bound once."""
         self._echo_sent: bytes | None = None
@@ -635,8 +636,6 @@ class Bus:
         self._reply_heard_at = 0.0
         if self.state is _CLOSED:  # `closing`, without the property's call
             return None
-        if self._discarded:  # frames heard between transactions: accounted before any choice
-            self._take_discarded()
         get_nowait = self._queue.get_nowait
         while (transaction := get_nowait()) is not None:
             probe = transaction.probe
@@ -1002,7 +1001,9 @@ class Bus:
                 self.tap(self.name, transaction, 0, started, exchange)
             if address not in self.health.answering:
                 self._answered(address)  # back, or its failures to forget
-            self._answered_frames[address] = sending.frame  # what a marker may be made from
+                # What a marker may be made from: a request it answered (the first since it
+                # last failed is as good as the last, and costs the common case nothing).
+                self._answered_frames[address] = sending.frame
         except Exception as exc:  # a bug costs this one request, never the line
             log.exception("bus %s: unexpected error in a transaction", self.name)
             failure = GatewayTargetFailed(f"bus {self.name}: {exc}")

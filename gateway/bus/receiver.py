@@ -16,6 +16,7 @@ from __future__ import annotations
 import itertools
 import logging
 import time
+from collections.abc import Callable
 
 from gateway.bus.hardware_hints import burst_hint, echo_hint
 from gateway.bus.line_settings import LineSettings
@@ -60,7 +61,9 @@ class Receiver:
         self.discarded_bytes = 0
         self.set_aside: list[tuple[bytes, float]] = []
         """Whole, sound frames found among bytes thrown away, with when the line last heard
-        them, until the bus takes them (`Bus._pick`); the same list object for good."""
+        them, until the bus takes them (`on_set_aside`); the same list object for good."""
+        self.on_set_aside: Callable[[], None] | None = None
+        """Told when frames were put in `set_aside` (the bus accounts them in its ledger)."""
         self.garbage_bytes = 0
         """Bytes skipped before replies: glitches, noise (`invt_gateway_line_garbage_bytes`)."""
         self.echoes = 0
@@ -105,10 +108,13 @@ class Receiver:
         received = self.received
         if received:
             self.discarded_bytes += len(received)
-            if len(self.set_aside) < MAX_SET_ASIDE:
-                heard_at = self.quiet_since
-                self.set_aside += [(f, heard_at) for f in whole_frames(_NOBODY, received)]
+            frames = whole_frames(_NOBODY, received) if len(self.set_aside) < MAX_SET_ASIDE else ()
             received.clear()
+            if frames:
+                heard_at = self.quiet_since
+                self.set_aside += [(frame, heard_at) for frame in frames]
+                if self.on_set_aside is not None:
+                    self.on_set_aside()
 
     @property
     def echo_detected(self) -> bool:
