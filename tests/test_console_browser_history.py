@@ -24,6 +24,7 @@ from gateway.commands.run import Reloader, _edit_from_console
 from gateway.config import load_config
 from gateway.instruments.simulator import SimulatedLine
 from gateway.passwords import hash_password
+from gateway.poller.drive_state import iso_time
 from gateway.settings import runtime_settings
 from gateway.systemd import Notifier
 from tests.support import running_application
@@ -226,3 +227,45 @@ async def test_numbers_line_up_right_and_the_overview_reflows_on_a_tablet(
     return [box.scrollWidth, box.clientWidth];"""
     scroll, client = await browser.run(browser.driver.execute_script, inside)
     assert scroll <= client, f"the drives table scrolls inside its box: {scroll} > {client}"
+
+
+X_AXIS = "return document.querySelector('#h-charts .chart').dataset.xLabels || '';"
+
+
+async def test_history_opens_on_the_live_15_minutes_and_one_point_keeps_a_clock_axis(
+    console: tuple[Application, Browser],
+) -> None:
+    """History opened from the menu: the live quarter-hour, a point a second, its time axis in
+    clock times. A stretch holding one point keeps an axis of that stretch's seconds, not
+    years."""
+    _, browser = console
+    await browser.open("/history")
+    await browser.wait(lambda d: charts(d) == ["output_frequency_hz", "output_current_a"])
+    await browser.wait(showing("#h-count", "one per 1 s"))
+    assert "live, last 15 minutes" in await browser.text("#h-count")
+    assert await attribute(browser, "#h-window", "value") == "15m"
+    await axis_in_clock_times(browser)
+    answer = await browser.run(
+        browser.driver.execute_async_script,
+        """const done = arguments[arguments.length - 1];
+        done(await (await fetch('/api/drives/pump1/history?window=15m')).json());""",
+    )
+    at = answer["columns"][0][-1]  # one point's time: a stretch of 0.6 s around it
+    since, until = (iso_time(at - 0.3), iso_time(at + 0.3))
+    await browser.open(f"/history?drive=pump1&since={since}&until={until}")
+    await browser.wait(showing("#h-count", "1 point, one per"))
+    await browser.wait(lambda d: len(charts(d)) == 2)
+    labels = await axis_in_clock_times(browser)
+    assert all(re.fullmatch(r"\d\d:\d\d:\d\d", label) for label in labels), labels
+    await browser.screenshot("history-one-point")
+
+
+async def axis_in_clock_times(browser: Browser) -> list[str]:
+    """The time axis's labels: two or more, each a time of day, none repeated."""
+    # uPlot draws its axes on the next animation frame after the chart is made.
+    drawn = await browser.wait(lambda d: d.execute_script(X_AXIS))
+    labels: list[str] = drawn.split()
+    assert len(labels) >= 2, labels
+    assert all(re.fullmatch(r"\d\d:\d\d(:\d\d)?", label) for label in labels), labels
+    assert len(set(labels)) == len(labels), labels
+    return labels

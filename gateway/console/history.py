@@ -1,7 +1,7 @@
 """Any polled value of a drive over a chosen window: the history page and its JSON API.
 
     GET /history                       the page: a drive, its values, a window; zoom; CSV
-    GET /api/drives/{name}/history     ?keys=a,b&window=1h (or since=&until=, ISO with zone)
+    GET /api/drives/{name}/history     ?keys=a,b&window=15m (or since=&until=, ISO with zone)
                                        &points=600; &format=csv for a file of what is shown
 
 A window within the last 15 minutes comes from the console's live ring (a point a second,
@@ -36,7 +36,9 @@ from gateway.poller.drive_state import iso_time
 from gateway.store.history import Series, Value, series, values
 
 WINDOWS: Final = {"15m": 900.0, "1h": 3600.0, "6h": 6 * 3600.0, "24h": 86400.0, "7d": 7 * 86400.0}
-DEFAULT_WINDOW: Final = "1h"
+DEFAULT_WINDOW: Final = "15m"
+"""The page opens on it (the `selected` option below): the live ring, a point a second, where
+a ramp shows as a ramp; an hour of the store's minutes would draw it as a straight line."""
 DEFAULT_POINTS: Final = 600
 MAX_POINTS: Final = 5000
 MAX_WINDOW_S: Final = 3650 * 86400.0
@@ -101,7 +103,7 @@ HISTORY: Final = """
 <form id="history-filters" class="filters">
 <label>Drive <select id="h-drive"></select></label>
 <label>Window <select id="h-window">
-<option value="15m">15 minutes (live)</option><option value="1h" selected>1 hour</option>
+<option value="15m" selected>15 minutes (live)</option><option value="1h">1 hour</option>
 <option value="6h">6 hours</option><option value="24h">24 hours</option>
 <option value="7d">7 days</option></select></label>
 <button type="button" id="h-reset" disabled>Whole window</button>

@@ -6,6 +6,10 @@
 const HISTORY_COLORS = ["#2563eb", "#d97706", "#059669", "#7c3aed", "#dc2626", "#0891b2"];
 const HISTORY_HEIGHT = 170;
 const HISTORY_DEFAULT_KEYS = ["output_frequency_hz", "output_current_a"];
+// Time between ticks, in whole seconds: the values are a second apart at the finest, and a
+// tick between two seconds would repeat its neighbour's label.
+const HISTORY_TICKS = [1, 2, 5, 10, 15, 30, 60, 120, 300, 600, 900, 1800, 3600, 7200, 10800,
+  21600, 43200, 86400, 2 * 86400, 7 * 86400];
 
 function historyPage() {
   const params = new URLSearchParams(location.search);
@@ -23,7 +27,10 @@ function historyPage() {
   if (params.get("window")) windowSelect.value = params.get("window");
   let chosen = (params.get("keys") || "").split(",").filter(Boolean);
   let data = null;
-  let zoom = null; // [since, until] in epoch seconds while zoomed in
+  // [since, until] in epoch seconds while zoomed in; a stretch kept in the address opens zoomed.
+  const seconds = (text) => (text ? Date.parse(text) / 1000 : NaN);
+  let zoom = [seconds(params.get("since")), seconds(params.get("until"))];
+  if (!(zoom[0] < zoom[1])) zoom = null;
   let plots = [];
 
   const query = (format) => {
@@ -41,6 +48,10 @@ function historyPage() {
   const remember = () => {
     const q = new URLSearchParams({ drive: driveSelect.value, window: windowSelect.value });
     if (chosen.length) q.set("keys", chosen.join(","));
+    if (zoom) {
+      q.set("since", new Date(zoom[0] * 1000).toISOString());
+      q.set("until", new Date(zoom[1] * 1000).toISOString());
+    }
     history.replaceState(null, "", `/history?${q}`);
     csv.href = query("csv");
     reset.disabled = !zoom;
@@ -67,6 +78,12 @@ function historyPage() {
     plots = [];
     chartsBox.replaceChildren();
     const times = data.columns[0];
+    // The x axis spans the points; for one point alone uPlot would pick a day after it (and
+    // label it in years): then it spans the window asked for, a minute at least.
+    const [since, until] = [seconds(data.since), seconds(data.until)];
+    const middle = (since + until) / 2;
+    const span = until - since >= 60 ? [since, until] : [middle - 30, middle + 30];
+    const xRange = (u, min, max) => (times.length > 1 ? [min, max] : span);
     data.keys.slice(1).forEach((key, index) => {
       const column = data.columns[index + 1];
       if (column.some((v) => typeof v === "string")) return; // a text value: in the CSV only
@@ -74,11 +91,14 @@ function historyPage() {
       chartsBox.append(box);
       const options = {
         title: key, width: box.clientWidth || 360, height: HISTORY_HEIGHT,
-        scales: { x: { time: true } },
+        scales: { x: { time: true, range: xRange } },
         series: [{}, { label: key, stroke: HISTORY_COLORS[index % HISTORY_COLORS.length], width: 2 }],
         axes: [
-          { space: 80, values: (u, ticks, axis, space, step) =>
-            ticks.map((tick) => (step >= 86400 ? stamp(tick).slice(0, 10) : clock(new Date(tick * 1000), step < 60))) },
+          { space: 80, incrs: HISTORY_TICKS, values: (u, ticks, axis, space, step) => {
+            const labels = ticks.map((tick) => (step >= 86400 ? stamp(tick).slice(0, 10) : clock(new Date(tick * 1000), step < 60)));
+            box.dataset.xLabels = labels.join(" "); // what the axis says, for a test to read
+            return labels;
+          } },
           { size: 60 },
         ],
         legend: { show: false },
@@ -118,7 +138,7 @@ function historyPage() {
       draw();
       const points = answer.columns[0].length;
       const step = answer.step_s >= 60 ? `${Math.round(answer.step_s / 60)} min` : `${answer.step_s} s`;
-      count.textContent = `${points} points, one per ${step}, from ${stamp(answer.since)} to ` +
+      count.textContent = `${points} point${points === 1 ? "" : "s"}, one per ${step}, from ${stamp(answer.since)} to ` +
         `${stamp(answer.until)} (${answer.source === "live" ? "live, last 15 minutes" : "the store's history"})`;
       live.textContent = answer.source === "live" ? "live" : "history";
       live.className = "live on";
