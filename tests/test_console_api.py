@@ -45,6 +45,19 @@ async def test_nobody_sees_anything_without_a_login(line: SimulatedLine) -> None
             assert response.headers["Location"].startswith("/login")
 
 
+async def test_the_icon_is_served_to_anyone_and_every_page_links_it(line: SimulatedLine) -> None:
+    """Every browser asks for /favicon.ico: an icon, not a 404 (nor the login page) each time."""
+    async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
+        async with web.session.get(f"{web.base}/favicon.ico", allow_redirects=False) as response:
+            assert response.status == 200
+            assert response.content_type == "image/x-icon"
+            icon = await response.read()
+        assert icon[:4] == b"\x00\x00\x01\x00"  # an ICO file's header: reserved 0, type 1
+        assert icon[22:30] == b"\x89PNG\r\n\x1a\n"  # its one image, a PNG
+        async with web.session.get(f"{web.base}/login") as response:
+            assert '<link rel="icon" href="/favicon.ico">' in await response.text()
+
+
 async def test_overview_lists_the_drives_with_their_polled_state(line: SimulatedLine) -> None:
     async with running_gateway(console_config(line.path)) as app, console_client(app) as web:
         assert (await web.login("victor", VIEWER_PASSWORD)).status == 200

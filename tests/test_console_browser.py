@@ -373,3 +373,112 @@ async def test_the_parameter_browser_shows_every_group_ranges_defaults_and_finds
         "document.getElementById('parameter-find').scrollIntoView()",
     )
     await browser.screenshot("parameters")
+
+
+DIALOG_FIELDS = """return [...document.querySelectorAll('#confirm label')]
+  .filter((label) => label.offsetParent !== null).map((label) => label.id);"""
+
+
+async def test_every_confirmation_dialog_shows_only_its_own_fields(
+    console: tuple[Application, Browser],
+) -> None:
+    """A command asks "Run forward pump1?" and nothing else: no RAM-only box, no empty Value
+    field. A parameter write asks for its value (and RAM only, for a P parameter)."""
+    _, browser = console
+    await browser.login("olga", OPERATOR_PASSWORD)
+    await browser.wait(showing("#who", "olga (operator)"))
+    await browser.open("/drives/pump1")
+    await browser.wait(showing("#controls-note", "every command asks for a confirmation"))
+    await browser.type("#setpoint", "25")
+    openers = {
+        "run forward": "button[data-command=run_forward]",
+        "run reverse": "button[data-command=run_reverse]",
+        "stop": "button[data-command=stop]",
+        "coast stop": "button[data-command=coast_stop]",
+        "fault reset": "button[data-command=fault_reset]",
+        "set-point": "#setpoint-form button[type=submit]",
+    }
+    for command, opener in openers.items():
+        await browser.click(opener)
+        await browser.wait(lambda d: d.find_element(By.ID, "confirm").is_displayed())
+        shown = await browser.run(browser.driver.execute_script, DIALOG_FIELDS)
+        assert shown == [], f"{command}'s dialog shows {shown}"
+        await browser.click("#confirm button[value=cancel]")
+        await browser.wait(lambda d: not d.find_element(By.ID, "confirm").is_displayed())
+    await browser.wait(showing("#parameters tr[data-name='P00.03']", "Write"))
+    await browser.click("#parameters tr[data-name='P00.03'] button")
+    await browser.wait(lambda d: d.find_element(By.ID, "confirm").is_displayed())
+    shown = await browser.run(browser.driver.execute_script, DIALOG_FIELDS)
+    assert shown == ["confirm-ram-label", "confirm-value-label"]
+    await browser.screenshot("confirm-parameter")
+    await browser.click("#confirm button[value=cancel]")
+
+
+async def test_a_refused_set_point_names_the_drives_maximum_and_an_error_says_its_write_once(
+    console: tuple[Application, Browser],
+) -> None:
+    """pump1's P00.03 is 50.00 Hz: the drive refuses 60 Hz with a bare 04H, and the page says
+    which limit it hit. A value outside a parameter's range is said once, not twice."""
+    _, browser = console
+    await browser.login("olga", OPERATOR_PASSWORD)
+    await browser.wait(showing("#who", "olga (operator)"))
+    await browser.open("/drives/pump1")
+    await browser.wait(showing("#controls-note", "every command asks for a confirmation"))
+    await browser.type("#setpoint", "60")
+    await browser.click("#setpoint-form button[type=submit]")
+    await browser.wait(showing("#confirm-text", "60.00 Hz"))
+    await browser.click("#confirm-ok")
+    await browser.wait(showing("#toast", "drive refused"))
+    said = await browser.text("#toast")
+    assert "60.00 Hz is above P00.03 = 50.00 Hz, the drive's maximum" in said, said
+    await browser.screenshot("setpoint-refused")
+
+    await browser.wait(showing("#parameters tr[data-name='P00.11']", "Write"))
+    await browser.click("#parameters tr[data-name='P00.11'] button")
+    await browser.type("#confirm-value", "99999")
+    await browser.click("#confirm-ok")
+    await browser.wait(showing("#toast", "is outside"))
+    said = await browser.text("#toast")
+    assert said.startswith("P00.11 = 99999 is outside"), said
+    assert said.count("99999") == 1, said
+
+
+MONITOR_PAGE = """const seqs = [...document.querySelectorAll('#traffic tbody tr[data-seq]')]
+  .map((row) => Number(row.dataset.seq));
+return {seqs, height: document.documentElement.scrollHeight};"""
+
+
+def more_rows_than(count: int) -> Any:
+    def check(driver: Any) -> bool:
+        shown = driver.find_element(By.ID, "count").text.split(" shown")[0]
+        return shown.isdigit() and int(shown) > count
+
+    return check
+
+
+async def test_the_monitor_pages_its_rows_on_a_phone(
+    console: tuple[Application, Browser],
+) -> None:
+    """On a phone a row is a card: 50 of them a page, older ones a click away, not 2,000
+    cards in one page tens of thousands of pixels tall."""
+    _, browser = console
+    await browser.resize(390, 844)
+    await browser.open("/monitor/line1")
+    await browser.wait(more_rows_than(60), 40.0)
+    await browser.click("#pause")  # the rows stand still while they are counted
+    await browser.wait(showing("#count", "paused"))
+    newest = await browser.run(browser.driver.execute_script, MONITOR_PAGE)
+    assert len(newest["seqs"]) == 50
+    assert newest["height"] < 50 * 200, f"{newest['height']} px tall"
+    assert newest["seqs"] == sorted(newest["seqs"], reverse=True)
+    assert "rows 1 to 50 of" in await browser.text("#page-place")
+    await browser.click("#page-older")
+    await browser.wait(showing("#page-place", "rows 51 to"))
+    older = await browser.run(browser.driver.execute_script, MONITOR_PAGE)
+    assert older["seqs"]
+    assert max(older["seqs"]) < min(newest["seqs"])
+    await browser.screenshot("monitor-phone-older")
+    await browser.click("#page-newer")
+    await browser.wait(showing("#page-place", "rows 1 to 50 of"))
+    again = await browser.run(browser.driver.execute_script, MONITOR_PAGE)
+    assert again["seqs"] == newest["seqs"]

@@ -16,7 +16,7 @@ from gateway.instruments.simulator import SimulatedLine
 from gateway.profile import parse_parameter
 from gateway.profile.invt import STATE_WORD_1
 from gateway.profile.states import RunState
-from tests.support import TcpClient, eventually, running_gateway
+from tests.support import TcpClient, eventually, running_gateway, write_pdu
 from tests.support.mosquitto import (
     Mosquitto,
     MqttProbe,
@@ -197,6 +197,22 @@ async def test_invalid_value_returns_the_invt_exception_by_name(plant: Plant) ->
     assert response["exception_code"] == 4
     assert "04H" in str(response["message"])
     assert plant.parameter(1, "P00.10") == before  # unchanged
+
+
+async def test_a_set_point_above_the_drives_maximum_is_refused_naming_it(plant: Plant) -> None:
+    """The drive's bare 04H, with the limit it hit: P00.03, read from the drive."""
+    response = await plant.set("pump1", {"frequency_hz": 60})
+    assert (response["status"], response["error"]) == ("error", "operation_failure")
+    assert response["exception_code"] == 4
+    assert response["message"] == (
+        "04H operation failure: 60.00 Hz is above P00.03 = 50.00 Hz, the drive's maximum"
+    )
+    # P00.03 raised since the gateway started: 60 Hz passes, and a refusal names the drive's
+    # value of now, not the one read at start.
+    assert await plant.tcp.request(1, write_pdu(0x0003, 6000)) == write_pdu(0x0003, 6000)
+    assert (await plant.set("pump1", {"frequency_hz": 60}))["status"] == "ok"
+    response = await plant.set("pump1", {"frequency_hz": 65})
+    assert response["message"].endswith("65.00 Hz is above P00.03 = 60.00 Hz, the drive's maximum")
 
 
 async def test_a_value_outside_the_manuals_range_or_finer_than_the_register_is_refused(

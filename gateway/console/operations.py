@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import struct
-from collections.abc import Mapping
+from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Final
 
@@ -40,6 +40,7 @@ from gateway.profile.parameters import FAULT_HISTORY, Parameter, parameter_group
 from gateway.profile.points import for_series
 from gateway.profile.ram_writes import ram_write_address
 from gateway.routing import Router
+from gateway.setpoint_limit import setpoint_refusal
 from gateway.settings import DriveSettings
 from gateway.tcp.access import AccessPolicy
 
@@ -70,6 +71,14 @@ class Policy:
                 rule = self.access.rules[refusal.rule].label
                 return f"refused by modbus_tcp.access rule {rule}"
         return None
+
+
+Explain = Callable[[int], Awaitable[str]]
+"""What a drive's exception code to a write means, said for that write."""
+
+
+async def _drive_words(code: int) -> str:
+    return describe_exception(code)
 
 
 class DriveOperations:
@@ -196,7 +205,13 @@ class DriveOperations:
             writes = profile.control_writes(None, profile.setpoint_word(hz))
         except ValueError as exc:
             raise OperationError(400, str(exc)) from None
-        return await self._write_steps(who, drive, writes)
+        settings = self._drive(drive)
+        read_at_start = self.poller.max_frequency_hz if self.poller is not None else {}
+
+        async def explain(code: int) -> str:
+            return await setpoint_refusal(self.router, settings, hz, code, read_at_start)
+
+        return await self._write_steps(who, drive, writes, explain)
 
     async def write_parameter(
         self, who: Identity, drive: str, name: str, value: str, ram: bool
@@ -219,7 +234,11 @@ class DriveOperations:
     # -- the path every request takes --------------------------------------------------------
 
     async def _write_steps(
-        self, who: Identity, drive: str, writes: tuple[RegisterWrite, ...]
+        self,
+        who: Identity,
+        drive: str,
+        writes: tuple[RegisterWrite, ...],
+        explain: Explain = _drive_words,
     ) -> dict[str, Any]:
         """The profile's writes for a command, in order, one word at a time (the console writes
         with 06H only), with the pauses its state machine asks for."""
@@ -227,14 +246,20 @@ class DriveOperations:
         for step in writes:
             for offset, word in enumerate(step.words):
                 address = step.start + offset
-                answer = await self._write(who, drive, address, word, Category.CONTROL)
+                answer = await self._write(who, drive, address, word, Category.CONTROL, explain)
                 done.append(answer["write"])
             if step.pause_s:
                 await asyncio.sleep(step.pause_s)
         return {"ok": True, "write": "; ".join(done)}
 
     async def _write(
-        self, who: Identity, drive: str, address: int, raw: int, category: Category
+        self,
+        who: Identity,
+        drive: str,
+        address: int,
+        raw: int,
+        category: Category,
+        explain: Explain = _drive_words,
     ) -> dict[str, Any]:
         settings = self._drive(drive)
         if not settings.profile.commands:
@@ -249,7 +274,7 @@ class DriveOperations:
             self._audit(who, drive, settings, category, what, f"refused: {exc}")
             raise
         if is_exception(reply):
-            result = f"drive refused: {describe_exception(reply[1])}"
+            result = f"drive refused: {await explain(reply[1])}"
             self._audit(who, drive, settings, category, what, result)
             raise OperationError(502, result)
         self._audit(who, drive, settings, category, what, "ok")

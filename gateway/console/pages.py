@@ -45,6 +45,7 @@ def page(
 <meta charset="utf-8">
 <meta name="viewport" content="width=device-width, initial-scale=1">
 <title>{escape(title)} · invt-gateway</title>
+<link rel="icon" href="/favicon.ico">
 <link rel="stylesheet" href="/static/console.css">
 <link rel="stylesheet" href="/static/uPlot.min.css">
 {extra}
@@ -191,6 +192,11 @@ MONITOR = """
 <th>Outcome</th><th>Latency</th></tr></thead>
 <tbody></tbody>
 </table></div>
+<div class="pager" id="pager" hidden>
+<button type="button" id="page-newer">← Newer</button>
+<span id="page-place" class="muted"></span>
+<button type="button" id="page-older">Older →</button>
+</div>
 """
 
 LOGIN = """

@@ -212,14 +212,25 @@ def build_app(console: Console, bad: BadRequests) -> web.Application:
         web.post("/api/drives/{name}/parameter", drive_parameter),
         web.get("/api/buses/{bus}/traffic", traffic_stream),
         web.static("/static", str(static), append_version=False),
+        web.get("/favicon.ico", favicon),
     ]
     app.add_routes(routes)
     return app
 
 
+FAVICON: Final = resources.files("gateway.console").joinpath("static", "favicon.ico")
+
+
+async def favicon(request: web.Request) -> web.StreamResponse:
+    """Where every browser asks for a site's icon, whatever the page links: no 404 per page."""
+    response = web.Response(body=FAVICON.read_bytes(), content_type="image/x-icon")
+    response.headers["Cache-Control"] = "max-age=86400"
+    return response
+
+
 # -- the guard ------------------------------------------------------------------------------
 
-_OPEN_PATHS: Final = ("/login", "/api/login", "/static/")
+_OPEN_PATHS: Final = ("/login", "/api/login", "/static/", "/favicon.ico")
 
 
 @web.middleware

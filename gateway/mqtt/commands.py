@@ -49,6 +49,7 @@ from gateway.mqtt.requests import (
 from gateway.poller import Poller
 from gateway.profile import DriveProfile, describe_exception, exception_name
 from gateway.routing import MAX_READ_WORDS, Route, Router
+from gateway.setpoint_limit import setpoint_refusal
 from gateway.settings import MqttSettings
 from gateway.store import EventStore, EventType
 
@@ -154,7 +155,20 @@ class Commands:
         """A `/set` payload carried out (a command, set-point, parameter or point write); what
         the acknowledgement repeats of it. Raises CommandRefused or a ModbusError."""
         write = parse_set(payload, drive.profile)
-        await self.write(drive, write)
+        try:
+            await self.write(drive, write)
+        except DriveException as exc:
+            polled = self.poller.drives.get(drive.name)
+            if "frequency_hz" not in write.echo or polled is None:
+                raise
+            message = await setpoint_refusal(
+                self.router,
+                polled.settings,
+                float(write.echo["frequency_hz"]),
+                exc.code,
+                self.poller.max_frequency_hz,
+            )
+            raise DriveException(exc.function, exc.code, message) from None
         return write.echo
 
     async def write(self, drive: CommandDrive, write: RegisterWrite) -> None:

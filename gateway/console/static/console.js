@@ -353,7 +353,9 @@ async function write(path, json, what) {
     toast(`${what}: done (${result.write})`, "ok");
     return true;
   } catch (error) {
-    toast(`${what}: ${error.message}`, "error");
+    // "P00.11 = 99999 is outside ..." names the write already: no second "P00.11 = 99999: ".
+    const said = error.message.startsWith(what) ? error.message : `${what}: ${error.message}`;
+    toast(said, "error");
     return false;
   }
 }
@@ -505,12 +507,46 @@ function monitorPage() {
       el("td", { class: "outcome" }, r.outcome), latencyCell(r));
   };
   const shown = () => rows.filter(matches);
+  // A page of rows, newest first: 50 on a phone (a row is a card there, ~120 px tall), 500
+  // on a wider screen. `pageEnd` null follows the line; otherwise the page ends at that
+  // row (its seq), and stays put while new rows arrive.
+  const narrow = window.matchMedia("(max-width: 700px)");
+  const pageSize = () => (narrow.matches ? 50 : 500);
+  let pageEnd = null;
+  let page = { start: 0, end: 0, visible: [] };
+  const pager = {
+    box: document.getElementById("pager"), place: document.getElementById("page-place"),
+    newer: document.getElementById("page-newer"), older: document.getElementById("page-older"),
+  };
   const render = () => {
     const visible = shown();
-    tbody.replaceChildren(...visible.slice(-500).reverse().map(rowOf));
+    const size = pageSize();
+    let end = visible.length;
+    if (pageEnd !== null) end = visible.filter((r) => r.seq <= pageEnd).length;
+    const start = Math.max(0, end - size);
+    page = { start, end, visible };
+    tbody.replaceChildren(...visible.slice(start, end).reverse().map(rowOf));
     document.getElementById("count").textContent =
       `${visible.length} shown of ${rows.length}${paused ? ` · paused (${held.length} waiting)` : ""}`;
+    pager.box.hidden = visible.length <= size && pageEnd === null;
+    pager.place.textContent = end > start
+      ? `rows ${visible.length - end + 1} to ${visible.length - start} of ${visible.length}, newest first`
+      : "no row here";
+    pager.newer.disabled = pageEnd === null;
+    pager.older.disabled = start === 0;
   };
+  pager.older.addEventListener("click", () => {
+    if (page.start > 0) pageEnd = page.visible[page.start - 1].seq;
+    render();
+    document.getElementById("traffic").scrollIntoView();
+  });
+  pager.newer.addEventListener("click", () => {
+    const end = page.end + pageSize();
+    pageEnd = end >= page.visible.length ? null : page.visible[end - 1].seq;
+    render();
+    document.getElementById("traffic").scrollIntoView();
+  });
+  narrow.addEventListener("change", () => render());
   const addOption = (select, seen, value, label) => {
     if (value === null || value === undefined || seen.has(value)) return;
     seen.add(value);
@@ -534,14 +570,14 @@ function monitorPage() {
       schedule();
     },
   });
-  Object.values(filters).forEach((f) => f.addEventListener("change", render));
+  Object.values(filters).forEach((f) => f.addEventListener("change", () => { pageEnd = null; render(); }));
   document.getElementById("pause").addEventListener("click", (event) => {
     paused = !paused;
     event.target.textContent = paused ? "Resume" : "Pause";
     if (!paused) held.splice(0).forEach(take);
     render();
   });
-  document.getElementById("clear").addEventListener("click", () => { rows.length = 0; render(); });
+  document.getElementById("clear").addEventListener("click", () => { rows.length = 0; pageEnd = null; render(); });
   const download = (name, type, text) => {
     const link = el("a", { href: URL.createObjectURL(new Blob([text], { type })), download: name });
     document.body.append(link);
