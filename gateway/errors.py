@@ -83,14 +83,25 @@ class GatewayError(Exception):
 
 
 class ConfigError(GatewayError):
-    """The configuration is invalid. `problems` lists (key path, reason) pairs."""
+    """The configuration is invalid. `problems` lists (key path, reason) pairs; `lines`, where
+    given, each one's line in the file (None where it has none), shown before it."""
 
-    def __init__(self, problems: list[tuple[str, str]], source: str = "") -> None:
+    def __init__(
+        self,
+        problems: list[tuple[str, str]],
+        source: str = "",
+        lines: list[int | None] | None = None,
+    ) -> None:
         self.problems = problems
         self.source = source
-        lines = [f"{path}: {reason}" if path else reason for path, reason in problems]
+        self.lines = lines if lines is not None else [None] * len(problems)
+        said = [
+            (f"line {line}: " if line is not None else "")
+            + (f"{path}: {reason}" if path else reason)
+            for (path, reason), line in zip(problems, self.lines, strict=True)
+        ]
         where = f"{source}: " if source else ""
-        super().__init__(where + "invalid configuration\n  " + "\n  ".join(lines))
+        super().__init__(where + "invalid configuration\n  " + "\n  ".join(said))
 
 
 class TlsSettingsError(GatewayError):

@@ -126,11 +126,46 @@ def test_every_problem_of_a_file_in_one_run_cross_field_ones_included(tmp_path: 
     assert result.returncode == 3
     problems = result.stderr.splitlines()[1:]
     assert problems == [
-        "  buses[0] (line1).retrys: unknown key",
-        "  drives[1] (fan3).address: Input should be less than or equal to 247",
-        "  drives[1] (fan3).unit_id: duplicate unit_id 1 (also drives[0] (pump1))",
-        "  drives[2] (pump2).bus: bus 'line9' is not defined (buses: line1)",
+        "  line 10: buses[0] (line1).retrys: unknown key; did you mean retries?",
+        "  line 13: drives[1] (fan3).address: Input should be less than or equal to 247",
+        "  line 13: drives[1] (fan3).unit_id: duplicate unit_id 1 (also drives[0] (pump1))",
+        "  line 14: drives[2] (pump2).bus: bus 'line9' is not defined (buses: line1)",
     ]
+
+
+def test_a_typo_names_the_nearest_key_or_model_and_every_mistake_its_line(tmp_path: Path) -> None:
+    """As a newcomer types them: `baudrat`, `modle`, `gd35O` (a letter O), an unknown section;
+    each answered with what was meant and where in the file it is."""
+    text = """buses:
+  - name: line1
+    port: /dev/ttyUSB0
+    baudrat: 9600
+drives:
+  - name: pump1
+    bus: line1
+    address: 1
+    modle: gd350
+  - name: fan2
+    bus: line1
+    address: 2
+    model: gd35O
+mqt: {host: broker}
+"""
+    result = check_config(tmp_path, text)
+    assert result.returncode == 3
+    problems = result.stderr.splitlines()[1:]
+    assert problems[:2] == [
+        "  line 4: buses[0] (line1).baudrat: unknown key; did you mean baudrate?",
+        "  line 9: drives[0] (pump1).modle: unknown key; did you mean model?",
+    ]
+    assert problems[2].startswith(
+        "  line 13: drives[1] (fan2).model: unknown drive profile 'gd35O' (did you mean gd350?)"
+    )
+    assert problems[3] == "  line 14: mqt: unknown key; did you mean mqtt?"
+    assert len(problems) == 4
+    # Nothing near: no guess.
+    result = check_config(tmp_path, text.replace("baudrat", "speed"))
+    assert "line 4: buses[0] (line1).speed: unknown key\n" in result.stderr
 
 
 def test_a_cross_field_problem_that_follows_from_a_reported_one_is_left_out(

@@ -87,6 +87,8 @@ async def test_an_admin_edits_checks_applies_and_rolls_back_an_operator_cannot(
             (problem,) = checked["problems"]
             assert problem["key"] == "drives[1] (fan2).address"
             assert "247" in problem["reason"]
+            at = wrong.splitlines()[problem["line"] - 1]  # the line the problem names
+            assert "address: 300" in at
             status, refused = await admin.post("/api/config/apply", {"text": wrong, "base": base})
             assert status == 400
             assert refused["problems"] == checked["problems"]

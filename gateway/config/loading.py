@@ -1,17 +1,20 @@
 """Reading a file: YAML, the environment's secrets, validation, and every problem reported with
-its key path (`drives[1] (fan3).unit_id: ...`), the checks across sections included even when
-fields are invalid, so that one run of `check-config` says everything."""
+its line and key path (`line 14: drives[1] (fan3).unit_id: ...`), the checks across sections
+included even when fields are invalid, so that one run of `check-config` says everything. An
+unknown key names the nearest one the section has (`did you mean baudrate?`)."""
 
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
-from typing import Annotated, Any, TypeVar, cast
+from typing import Annotated, Any, Final, TypeVar, cast, get_args
 
 import yaml
-from pydantic import TypeAdapter, ValidationError
+from pydantic import BaseModel, TypeAdapter, ValidationError
 
 from gateway.config.cross_checks import cross_field_problems
+from gateway.config.lines import key_lines
 from gateway.config.schema import GatewayConfig
 from gateway.config.sections import (
     CONFIG_VERSIONS,
@@ -23,6 +26,7 @@ from gateway.config.sections import (
     Section,
 )
 from gateway.errors import ConfigError
+from gateway.nearest import did_you_mean
 
 S = TypeVar("S", bound=Section)
 
@@ -59,7 +63,8 @@ def parse_config(text: str, source: str = "<config>") -> GatewayConfig:
         return GatewayConfig.model_validate(data)
     except ValidationError as exc:
         problems = _problems(exc, data)
-        raise ConfigError(problems + _cross_problems(exc, data, problems), source) from None
+        problems += _cross_problems(exc, data, problems)
+        raise ConfigError(problems, source, _lines(problems, text, data)) from None
 
 
 def _yaml_problem(exc: yaml.YAMLError) -> str:
@@ -92,7 +97,7 @@ def _problems(exc: ValidationError, data: dict[str, Any]) -> list[tuple[str, str
     for error in exc.errors():
         path = _key_path(error["loc"], data)
         if error["type"] == "extra_forbidden":
-            reason = "unknown key"
+            reason = "unknown key" + _nearest_key(error["loc"])
         elif error["type"] == "missing":
             reason = "required key is missing"
         else:
@@ -102,6 +107,49 @@ def _problems(exc: ValidationError, data: dict[str, Any]) -> list[tuple[str, str
         else:
             problems.append((path, reason))
     return problems
+
+
+def _nearest_key(loc: tuple[int | str, ...]) -> str:
+    """ "; did you mean baudrate?" for the unknown key at `loc`, from its section's keys."""
+    section: type[BaseModel] | None = GatewayConfig
+    for part in loc[:-1]:
+        if section is None:
+            return ""
+        if isinstance(part, str):
+            field = section.model_fields.get(part)
+            section = None if field is None else _section_in(field.annotation)
+    if section is None or not isinstance(loc[-1], str):
+        return ""
+    return did_you_mean(loc[-1], section.model_fields)
+
+
+def _section_in(annotation: Any) -> type[BaseModel] | None:
+    """The section a field holds: itself, or inside `list[...]`, `... | None`, `Annotated`."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    for argument in get_args(annotation):
+        found = _section_in(argument)
+        if found is not None:
+            return found
+    return None
+
+
+_LAST_STEP: Final = re.compile(r"(?:\.[^.\[]+|\[\d+\](?: \([^)]*\))?)$")
+"""The last step of a key path: `.unit_id`, or `[1] (fan3)`."""
+
+
+def _lines(problems: list[tuple[str, str]], text: str, data: Any) -> list[int | None]:
+    """Each problem's line in the file: its key's, or (a missing key) its item's."""
+    by_path = {_key_path(loc, data): line for loc, line in key_lines(text).items()}
+    found: list[int | None] = []
+    for path, reason in problems:
+        # A cross-field problem carries its path in its reason: "drives[1] (fan3).bus: ...".
+        where = path or reason.split(": ", 1)[0]
+        while where and where not in by_path:
+            shorter = _LAST_STEP.sub("", where)
+            where = "" if shorter == where else shorter  # a top-level key: no line
+        found.append(by_path.get(where))
+    return found
 
 
 def _key_path(loc: tuple[int | str, ...], data: Any) -> str:

@@ -13,6 +13,7 @@ from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Final
 
+from gateway.nearest import nearest
 from gateway.profile.abb import ABB_PROFILES, SCAN_QUESTION
 from gateway.profile.device_files import FILE_PREFIX, device_file_profile, shipped_devices
 from gateway.profile.generic import GENERIC
@@ -54,7 +55,9 @@ def get_profile(name: str) -> DriveProfile:
     try:
         return _BY_NAME[_normalise(name)]
     except KeyError:
+        near = nearest(_normalise(name), _BY_NAME)
+        suggestion = f" (did you mean {_BY_NAME[near].key}?)" if near else ""
         raise ValueError(
-            f"unknown drive profile {name!r}: valid profiles are {', '.join(PROFILES)}, "
-            f"or {FILE_PREFIX}PATH for a device file"
+            f"unknown drive profile {name!r}{suggestion}: valid profiles are "
+            f"{', '.join(PROFILES)}, or {FILE_PREFIX}PATH for a device file"
         ) from None

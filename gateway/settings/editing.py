@@ -3,6 +3,7 @@ config_editor`): every check `check-config` makes (`gateway.config.startup` incl
 the gateway could not start on is refused), and what the live reload would do with it.
 
     problems        (key path, reason) for each thing wrong, as `check-config` prints them
+    lines           each problem's line in the text (None where it has none)
     warnings        a serial port missing on this machine, a line its polls would fill
     changed         what the reload would apply at once (`gateway.settings.reload.plan`)
     restart_needed  what would wait for a restart, kept at its running value meanwhile
@@ -28,15 +29,23 @@ class Checked:
     warnings: list[str] = field(default_factory=list)
     changed: list[str] = field(default_factory=list)
     restart_needed: list[str] = field(default_factory=list)
+    lines: list[int | None] = field(default_factory=list)
+    """Each problem's line in the text; shorter than `problems` where a check has none."""
 
     @property
     def ok(self) -> bool:
         return not self.problems
 
+    def _line(self, index: int) -> int | None:
+        return self.lines[index] if index < len(self.lines) else None
+
     def to_json(self) -> dict[str, Any]:
         return {
             "ok": self.ok,
-            "problems": [{"key": key, "reason": reason} for key, reason in self.problems],
+            "problems": [
+                {"key": key, "reason": reason, "line": self._line(index)}
+                for index, (key, reason) in enumerate(self.problems)
+            ],
             "warnings": self.warnings,
             "changed": self.changed,
             "restart_needed": self.restart_needed,
@@ -49,7 +58,7 @@ def check_text(text: str, source: str, running: GatewaySettings, mqtt_running: b
     try:
         config = parse_config(text, source)
     except ConfigError as exc:
-        return Checked(list(exc.problems))
+        return Checked(list(exc.problems), lines=list(exc.lines))
     problems = startup_problems(config)
     if problems:
         return Checked(problems)

@@ -22,7 +22,8 @@ function configurationPage() {
     : null);
 
   const showChecked = (answer, headline) => {
-    const problems = (answer.problems || []).map((p) => (p.key ? `${p.key}: ${p.reason}` : p.reason));
+    const problems = (answer.problems || []).map((p) =>
+      (p.line ? `line ${p.line}: ` : "") + (p.key ? `${p.key}: ${p.reason}` : p.reason));
     const parts = [
       el("p", { class: answer.ok ? "ok-text" : "error" }, headline),
       list("Problems", problems, "problems error"),

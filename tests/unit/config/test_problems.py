@@ -43,7 +43,7 @@ def test_an_item_without_a_name_is_named_by_its_index_alone() -> None:
 
 def test_unknown_and_missing_keys_say_so_in_words() -> None:
     unknown = problems({"buses": [{**BUS, "baud": 9600}]})
-    assert unknown == [("buses[0] (line1).baud", "unknown key")]
+    assert unknown == [("buses[0] (line1).baud", "unknown key; did you mean baudrate?")]
     assert problems({"drives": []}) == [("buses", "required key is missing")]
 
 
