@@ -215,6 +215,23 @@ async def test_a_set_point_above_the_drives_maximum_is_refused_naming_it(plant: 
     assert response["message"].endswith("65.00 Hz is above P00.03 = 60.00 Hz, the drive's maximum")
 
 
+async def test_a_gd20s_max_frequency_is_held_to_its_own_manual(plant: Plant) -> None:
+    """The Goodrive20 manual: P00.03 "P00.04-400.00Hz", ◎ (not while running). 450 Hz is
+    refused before the wire; while fan2 runs, even 60 Hz is refused by the drive (08H)."""
+    above = await plant.set("fan2", {"parameter": "P00.03", "value": 450})
+    assert (above["status"], above["error"]) == ("error", "invalid_value")
+    assert "outside 0.00..400.00 Hz" in str(above["message"])
+    assert plant.parameter(2, "P00.03") == 5000  # unchanged
+    assert (await plant.set("fan2", {"command": "run_forward"}))["status"] == "ok"
+    running = await plant.set("fan2", {"parameter": "P00.03", "value": 60})
+    assert running["error"] == "not_changeable_while_running"
+    assert running["exception_code"] == 8
+    assert (await plant.set("fan2", {"command": "stop"}))["status"] == "ok"
+    await eventually(lambda: plant.state(2) is RunState.STOPPED)
+    assert (await plant.set("fan2", {"parameter": "P00.03", "value": 60}))["status"] == "ok"
+    assert plant.parameter(2, "P00.03") == 6000
+
+
 async def test_a_value_outside_the_manuals_range_or_finer_than_the_register_is_refused(
     plant: Plant,
 ) -> None:

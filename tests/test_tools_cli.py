@@ -234,6 +234,20 @@ def test_decode_fault_by_the_keypads_short_code() -> None:
     assert "keypad's short code" in unknown.stderr
 
 
+def test_a_models_faults_decode_from_its_own_list_only() -> None:
+    """The Goodrive200A manual's P07.27 lists 0-28, 32, 33 and 36: 35 (STo elsewhere) is no
+    fault of a GD200A's, and STo is no keypad code of one."""
+    result = run_cli("decode-fault", "--model", "gd200a", "35", "33", "36")
+    assert result.returncode == 1
+    assert result.stdout.splitlines() == [
+        "35: unknown fault 35",
+        "33: ETH2: short circuit to ground 2",
+        "36: LL: electronic underload",
+    ]
+    assert run_cli("decode-fault", "--model", "gd200a", "STo").returncode == 2
+    assert run_cli("decode-fault", "--model", "gd20", "35").stdout == "STo: maladjustment\n"
+
+
 def test_read_and_write_via_a_running_gateway(tmp_path: Path) -> None:
     tcp_port = free_port()
     with SimulatedLine(addresses=[1], baudrate=115200, parity="N", wire_time=True) as line:

@@ -4,7 +4,9 @@ Each drive profile carries its own `FaultTable`: a code outside it is "unknown f
 drive, never another series' name for the same number (a GD20 reporting 40 is not a GD350's STO).
 
 - `GOODRIVE_FAULTS`: codes 0-36, the table the Goodrive communication chapters share (GD10, GD20,
-  GD200A, GD35, GD100, GD300).
+  GD35, GD100, GD300).
+- Goodrive200A: only the codes its own manual's P07.27 lists (0-28, 32, 33, 36: no 29-31, 34 or
+  35), described as the common table describes them (`FaultTable.only`, built in `invt`).
 - `GD350_FAULTS`: the GD350 family (GD350, GD350A, GD350-UL) goes on to 69; its manual gives short
   codes only for 37-69, so they are shown as the short code alone.
 - Goodrive30, IPE300 and Goodrive300-LIFT: no public fault list was found for them. Their
@@ -20,7 +22,7 @@ the widest one: what `decode-fault` without `--model` shows.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Final
@@ -116,6 +118,19 @@ class FaultTable:
         if not short:
             return description
         return f"{short}: {description}" if description else short
+
+    def only(self, listed: Iterable[tuple[int, str]], name: str) -> FaultTable:
+        """The codes a series' own manual lists (`listed`: code → its keypad short code, as the
+        P07.27 row's choices give them), described as this table describes the same short
+        code: a code the manual leaves out is unknown for that series."""
+        entries: dict[int, tuple[str, str]] = {}
+        for code, short in listed:
+            known = self.entries.get(code)
+            if known is not None and (code == NO_FAULT or known[0].casefold() == short.casefold()):
+                entries[code] = known
+            else:
+                entries[code] = (short, "")
+        return FaultTable(name, MappingProxyType(entries), self.confirmed)
 
     def with_overrides(self, names: Mapping[int, str]) -> FaultTable:
         """This table with a site's corrections: code → "SHORT: description" or "SHORT"."""

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Final, TypedDict
 
+from gateway.errors import TableError
 from gateway.profile.addressing import format_register
 from gateway.profile.commands import control_write, ram_only_address, setpoint_word
 from gateway.profile.faults import (
@@ -293,6 +294,15 @@ def _named(key: str) -> _Named:
     )
 
 
+def _own_fault_list(key: str, name: str) -> FaultTable:
+    """The fault codes a series' own parameter table lists for P07.27 (its manual's words):
+    fault codes decode from the model's own list, never another series'."""
+    row = series_table(key).named("P07.27")
+    if row is None or not row.confirmed:
+        raise TableError(f"{key}: its parameter table has no P07.27 of its own manual")
+    return GOODRIVE_FAULTS.only(row.choices, name)
+
+
 def _gd350_family(key: str, ready_bit_source: str = "") -> InvtProfile:
     """GD350-UL and GD350A: their own chapters' 2101H rows were not found; the GD350's
     polarity is assumed and marked unconfirmed."""
@@ -312,6 +322,7 @@ _PROFILES: Final = (
     InvtProfile(
         **_named("gd200a"),
         unconfirmed=(UNCONFIRMED_READY_BIT,),
+        faults=_own_fault_list("gd200a", "Goodrive200A (its manual's P07.27)"),
     ),
     InvtProfile(
         **_named("gd300"),
