@@ -235,6 +235,16 @@ async def test_every_group_of_the_series_table_shows_with_the_manuals_words(
         vector = (await web.get_json("/api/drives/pump1/parameters?group=P03"))["parameters"]
         torque = next(p for p in vector if p["name"] == "P03.12")
         assert (torque["raw"], torque["value"]) == (0xFE0C, "-50.0 %")
+        # A borrowed range is the drive's to check: its refusal comes back saying so.
+        status, body = await web.post(
+            "/api/drives/pump1/parameter", {"name": "P01.00", "value": "5", "ram": False}
+        )
+        assert status == 502
+        assert body["error"] == (
+            "drive refused: 04H operation failure: the written value is invalid; P01.00's range "
+            "is another series' (the table is borrowed, unconfirmed for gd350): the drive "
+            "checked it"
+        )
 
 
 async def test_the_parameter_browser_gives_range_default_and_finds_by_number_or_name(

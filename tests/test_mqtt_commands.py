@@ -232,6 +232,20 @@ async def test_a_gd20s_max_frequency_is_held_to_its_own_manual(plant: Plant) -> 
     assert plant.parameter(2, "P00.03") == 6000
 
 
+async def test_a_borrowed_range_is_left_to_the_drive_and_its_refusal_says_so(plant: Plant) -> None:
+    """pump1 (GD350) takes P01.00 from the Goodrive200A table, unconfirmed for its series: the
+    gateway doesn't hold that range against it; the drive's own 04H comes back naming the
+    parameter and saying the table is borrowed."""
+    response = await plant.set("pump1", {"parameter": "P01.00", "value": 5})
+    assert (response["error"], response["exception_code"]) == ("operation_failure", 4)
+    assert response["message"] == (
+        "04H operation failure: the written value is invalid; P01.00's range is another "
+        "series' (the table is borrowed, unconfirmed for gd350): the drive checked it"
+    )
+    assert (await plant.set("pump1", {"parameter": "P01.00", "value": 1}))["status"] == "ok"
+    assert plant.parameter(1, "P01.00") == 1
+
+
 async def test_a_value_outside_the_manuals_range_or_finer_than_the_register_is_refused(
     plant: Plant,
 ) -> None:

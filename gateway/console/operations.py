@@ -229,7 +229,12 @@ class DriveOperations:
             if not settings.profile.ram_writes_supported:
                 raise OperationError(400, f"{settings.model} has no RAM-only parameter writes")
             address = ram_write_address(address)
-        return await self._write(who, drive, address, raw, Category.CONFIGURATION)
+
+        async def explain(code: int) -> str:
+            note = point.borrowed_note
+            return f"{describe_exception(code)}; {note}" if note else describe_exception(code)
+
+        return await self._write(who, drive, address, raw, Category.CONFIGURATION, explain)
 
     # -- the path every request takes --------------------------------------------------------
 

@@ -48,6 +48,7 @@ from gateway.mqtt.requests import (
 )
 from gateway.poller import Poller
 from gateway.profile import DriveProfile, describe_exception, exception_name
+from gateway.profile.points import for_series
 from gateway.routing import MAX_READ_WORDS, Route, Router
 from gateway.setpoint_limit import setpoint_refusal
 from gateway.settings import MqttSettings
@@ -158,6 +159,9 @@ class Commands:
         try:
             await self.write(drive, write)
         except DriveException as exc:
+            note = borrowed_note(drive.profile, write.echo.get("parameter"))
+            if note:
+                raise DriveException(exc.function, exc.code, f"{exc}; {note}") from None
             polled = self.poller.drives.get(drive.name)
             if "frequency_hz" not in write.echo or polled is None:
                 raise
@@ -218,6 +222,16 @@ class Commands:
             code = reply[1] if len(reply) > 1 else 0
             raise DriveException(pdu[0], code, describe_exception(code))
         return reply
+
+
+def borrowed_note(profile: DriveProfile, spelled: object) -> str:
+    """`Point.borrowed_note` of the parameter a write named (P01.00, 0100H), "" for another."""
+    if not isinstance(spelled, str):
+        return ""
+    try:
+        return for_series(profile.resolve(spelled), profile).borrowed_note
+    except ValueError:
+        return ""
 
 
 def modbus_error(exc: ModbusError) -> tuple[str, int]:

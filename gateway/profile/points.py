@@ -44,6 +44,9 @@ class Profile(Protocol):
     importing the protocol, which names `Point`."""
 
     @property
+    def key(self) -> str: ...
+
+    @property
     def parameter_table(self) -> ParameterTable: ...
 
 
@@ -75,6 +78,20 @@ class Point:
     bounded_by: tuple[str | None, str | None] = (None, None)
     """Parameters whose value bounds this one at run time (P00.04 within P00.05..P00.03): the
     drive checks those; the manual's outer range is checked here."""
+    borrowed_for: str = ""
+    """The series (`gd350`) whose table took this row from another series' manual, unconfirmed:
+    its range is then left to the drive (no `minimum`/`maximum` here), and a refusal says so."""
+
+    @property
+    def borrowed_note(self) -> str:
+        """What a drive's refusal of a write adds: "P01.00's range is another series' (the
+        table is borrowed, unconfirmed for gd350): the drive checked it"; "" otherwise."""
+        if not self.borrowed_for:
+            return ""
+        return (
+            f"{self.label}'s range is another series' (the table is borrowed, unconfirmed for "
+            f"{self.borrowed_for}): the drive checked it"
+        )
 
     @property
     def where(self) -> str:
@@ -271,6 +288,8 @@ def for_series(point: Point, profile: Profile | None) -> Point:
     if row is None:
         return point
     meaning = Meaning.FAULT if row.name in FAULT_HISTORY else Meaning.NUMBER
+    # Another series' range can't be held against this drive: only the drive can check it.
+    confirmed = row.confirmed
     return Point(
         point.label,
         point.address,
@@ -280,9 +299,10 @@ def for_series(point: Point, profile: Profile | None) -> Point:
         row.signed,
         meaning,
         row.choices,
-        row.minimum,
-        row.maximum,
+        row.minimum if confirmed else None,
+        row.maximum if confirmed else None,
         (row.minimum_from, row.maximum_from),
+        "" if confirmed else profile.key,
     )
 
 
