@@ -235,6 +235,13 @@ async def test_every_group_of_the_series_table_shows_with_the_manuals_words(
         vector = (await web.get_json("/api/drives/pump1/parameters?group=P03"))["parameters"]
         torque = next(p for p in vector if p["name"] == "P03.12")
         assert (torque["raw"], torque["value"]) == (0xFE0C, "-50.0 %")
+        # P00.00 and P00.07 as the Goodrive200A manual gives them, unconfirmed for a GD350 (the
+        # common table's range 0-3 and default 15 had no source).
+        basic = (await web.get_json("/api/drives/pump1/parameters?group=P00"))["parameters"]
+        mode = next(p for p in basic if p["name"] == "P00.00")
+        command_b = next(p for p in basic if p["name"] == "P00.07")
+        assert (mode["range"], mode["confirmed"]) == ("1 ... 2", False)
+        assert (command_b["default"].split()[0], command_b["confirmed"]) == ("2", False)
         # A borrowed range is the drive's to check: its refusal comes back saying so.
         status, body = await web.post(
             "/api/drives/pump1/parameter", {"name": "P01.00", "value": "5", "ram": False}

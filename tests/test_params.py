@@ -255,11 +255,13 @@ def test_a_clone_restored_onto_another_drive_leaves_no_difference(
 def test_an_old_eighteen_parameter_backup_still_restores(
     line: SimulatorProcess, tmp_path: Path
 ) -> None:
-    """A file `params backup` wrote before the series tables: the common table's 18 codes."""
+    """A file `params backup` wrote before the series tables: the common table's 18 codes.
+    (P00.07 at 2, the factory's value in the Goodrive200A manual the series borrows: the common
+    table's 15 had no source and is gone.)"""
     old = {
         "P00": {
             "P00.00": 2, "P00.01": 2, "P00.02": 0, "P00.03": 50.0, "P00.04": 45.0,
-            "P00.05": 0.0, "P00.06": 8, "P00.07": 15, "P00.10": 50.0, "P00.11": 12.5,
+            "P00.05": 0.0, "P00.06": 8, "P00.07": 2, "P00.10": 50.0, "P00.11": 12.5,
             "P00.12": 10.0, "P00.13": 0,
         },
         "P01": {"P01.20": 0.0},

@@ -4,7 +4,7 @@ Each name is one register (Pxx.yy, 2100H, a profile name), printed scaled with i
 decoded where it is a code. `--via tcp://HOST:PORT` asks a running gateway instead of the line.
 
 State word 2 (2101H) and fault codes read differently by series, and a parameter is scaled by
-the series' table (profile/data/; the common table knows 27 codes): the series is `--model`, or
+the series' table (profile/data/; the common table knows 25 codes): the series is `--model`, or
 what the drive's 2103H names (read once, only for those); where 2103H can't tell (010AH: GD300
 or GD300-LIFT, whose bit 0 polarities differ), 2101H bit 0 is shown undecided.
 """

@@ -2,7 +2,7 @@
 
 Values are given as shown (10.0 s, 25.00 Hz) and scaled for the wire from the profile: a
 parameter by the series' table (`--model`, or what the drive's 2103H names, read only when a
-parameter is beyond the common table's 27 codes); the control word also takes command names
+parameter is beyond the common table's 25 codes); the control word also takes command names
 (control_word=run_forward, =stop, =fault_reset). Each is one 06H write, confirmed by the
 drive's echo. `--ram` writes parameters to their RAM-only address (no EEPROM wear; lost at
 power-off). `--via tcp://HOST:PORT` goes through a gateway.

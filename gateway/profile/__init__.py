@@ -20,7 +20,7 @@ INVT, one implementation of the protocol:
 - `addressing`: Pxx.yy ↔ register, RAM-only addresses, register spellings ("2100H", "0x2100").
 - `registers`: the communication registers (2000H..., 2100H..., 3000H...) and the telemetry keys.
 - `parameters`: a Pxx.yy parameter's description (decimals, range, default, marks, words), and
-  the common table of 27 codes every series shares.
+  the common table of 25 codes every series shares.
 - `parameter_tables`: each series' whole table, loaded from `data/` (CSV rows, sources per group).
 - `states`: control word commands, state words 1 and 2 (the bit-level codecs).
 - `words`: one decoder per status word (2100H, 2101H, fault codes, 2103H) for a drive's series:

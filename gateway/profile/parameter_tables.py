@@ -45,7 +45,7 @@ COLUMNS: Final = (
 )  # fmt: skip
 CHANGE_MARKS: Final = {"○": "any time", "◎": "stopped only", "●": "read-only"}
 COMMON: Final = "common"
-"""The gateway's earlier table of 27 parameters (`parameters.PARAMETERS`), kept as a layer."""
+"""The gateway's earlier table of 25 parameters (`parameters.PARAMETERS`), kept as a layer."""
 _CHOICE: Final = re.compile(r"^(\d+)(?:-(\d+))?: (.+)$")
 _NUMBER: Final = re.compile(r"P\d{1,2}\.\d{1,2}|\d[0-9A-F]{0,3}H|0x[0-9A-F]{1,4}", re.IGNORECASE)
 """How a parameter's number is written: P00.03 (the manual), 0003H or 0x0003 (the wire)."""

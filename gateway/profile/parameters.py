@@ -1,6 +1,6 @@
 """A function parameter (Pxx.yy) as described: decimals, range, default, marks, the manual's words.
 
-`PARAMETERS` is the common table: 27 codes for remote control that every series' table starts
+`PARAMETERS` is the common table: 25 codes for remote control that every series' table starts
 with but the Goodrive200A's, whose manual was read whole (`parameter_tables` loads each series'
 table from `data/`); `read`, `write` and the MQTT bridge scale by it when the series is not
 known. Its ranges and factory defaults follow the Goodrive manuals; "depends on model" defaults
@@ -9,10 +9,15 @@ with (`default_known` False: the console doesn't call it the factory's). A range
 another parameter's value (P00.04, the upper limit, lies within P00.05 ... P00.03):
 `minimum_from` and `maximum_from`.
 
+P00.00 (speed control mode, range 0-3) and P00.07 (frequency command B, default 15) were here
+once, without a source; they are gone (issue 46): a series takes them from its own manual's
+table, or from the Goodrive200A's, unconfirmed, whose range the drive checks.
+
 Marks as in the manual: `read_only` ("●", e.g. the fault history P07.27-P07.32) and
 `locked_while_running` ("◎": writable only when the drive is stopped; exception 08H otherwise).
-Only P00.00 (speed control mode) carries "◎" here: PROTOCOL.md's frames write P00.03 right
-after a run command and expect an echo, so the frequency limits are not locked. (The
+No row carries "◎" here: PROTOCOL.md's frames write P00.03 right after a run command and
+expect an echo, so the frequency limits are not locked (a series' own manual says otherwise
+where it does: the GD20's and GD200A's P00.03 is "◎"). (The
 Goodrive200A manual marks P00.03-P00.05 "◎": its table says so.)
 """
 
@@ -129,7 +134,6 @@ _MAX_HZ: Final = 63000
 """P00.03's upper end, 630.00 Hz; the frequencies it bounds (P00.04, P00.05, P00.10, P08.06)
 can't go beyond it either, so it is their outer range too."""
 PARAMETERS: Final[tuple[Parameter, ...]] = (
-    _P("P00.00", "speed control mode", default=2, maximum=3, locked_while_running=True),
     _P(
         "P00.01",
         "run command channel: 0 keypad, 1 terminal, 2 communication",
@@ -165,7 +169,6 @@ PARAMETERS: Final[tuple[Parameter, ...]] = (
         maximum_from="P00.04",
     ),
     _P("P00.06", "frequency command A: 0 keypad, 8 Modbus", maximum=15),
-    _P("P00.07", "frequency command B", default=15, maximum=15),
     _P(
         "P00.10",
         "keypad set frequency",

@@ -281,7 +281,7 @@ def _register_point(register: Register, label: str) -> Point:
 
 def for_series(point: Point, profile: Profile | None) -> Point:
     """A parameter as the drive's series table describes and scales it (the common table, which
-    `resolve` uses, knows 27 codes); any other point, or without a series, as it is."""
+    `resolve` uses, knows 25 codes); any other point, or without a series, as it is."""
     if profile is None or not point.label.startswith("P"):
         return point
     row = profile.parameter_table.at(point.address & 0x7FFF)
