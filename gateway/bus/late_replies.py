@@ -71,6 +71,8 @@ MAX_OWED = 64
 """Requests kept owed per drive at most (a bound on memory for a drive that never answers);
 past it the oldest go and the drive stays unsure."""
 _READS = (READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS)
+ILLEGAL_FUNCTION = 0x01
+"""The exception code of a function the device doesn't serve (an illegal address is not that)."""
 
 Stray = tuple[bytes, float]
 """A whole, sound frame set aside during an attempt, and when its last byte was heard."""
@@ -136,8 +138,8 @@ class LateReplies:
         self.answered: dict[int, bytes] = {}
         """Address → the last request frame it answered: what a marker may be made from."""
         self.refused: dict[int, set[int]] = {}
-        """Address → read functions it answered a marker with an exception (INVT drives: 04H):
-        their markers come last."""
+        """Address → read functions it answered with exception 01H, illegal function (INVT
+        drives: 04H): their markers come last, and none while one of its requests is owed."""
         self.no_echo: set[int] = set()
         """Drives learnt not to answer 08H: resynchronised with reads only."""
         self._echo_missed: set[int] = set()
@@ -191,7 +193,7 @@ class LateReplies:
         it answers went out. None when it answers nothing its drive owed: that drive is unsure
         from now."""
         address = frame[0]
-        if frame[1] & EXCEPTION_BIT and frame[1] & 0x7F in _READS:
+        if frame[1] & EXCEPTION_BIT and frame[1] & 0x7F in _READS and frame[2] == ILLEGAL_FUNCTION:
             self.refused.setdefault(address, set()).add(frame[1] & 0x7F)
         owed = self.owing.get(address)
         if owed:
@@ -264,7 +266,7 @@ class LateReplies:
     def caught_up(self, address: int, marker: bytes, answer: bytes = b"") -> None:
         """The marker's answer (`answer`, its PDU) came: nothing older is in flight from
         `address`."""
-        if answer[:1] and answer[0] & EXCEPTION_BIT and marker[1] != DIAGNOSTICS:
+        if answer[1:2] == bytes((ILLEGAL_FUNCTION,)) and answer[0] & EXCEPTION_BIT:
             self.refused.setdefault(address, set()).add(marker[1])
         self.owing.pop(address, None)
         self.unsure.discard(address)

@@ -184,3 +184,11 @@ def test_a_dead_drive_s_owed_requests_are_bounded_and_it_stays_unsure() -> None:
     assert len(late.owed_frames(7)) == MAX_OWED
     assert late.needs_marker(7, probe, object())
     assert 7 in late.unsure
+
+
+def test_only_an_illegal_function_exception_marks_a_read_function_refused() -> None:
+    late = LateReplies("line1")
+    late.heard(exception_reply(read(2, 3, 0x0100, 9), 2))  # an illegal address: 03H still served
+    assert 3 not in late.refused.get(2, set())
+    late.heard(exception_reply(read(2, 4, 0x0100, 1), 1))  # 04H not served at all
+    assert late.refused[2] == {4}
