@@ -188,6 +188,9 @@ class BusMetrics(Collector):
         yield exceptions
 
 
+# The help texts are pinned with the names (tests/fixtures/metric_families.tsv): "resyncs"
+# now counts markers of either kind (`gateway.bus.late_replies`), an 08H echo or a read; the
+# Operations page says so.
 _BUS_COUNTERS = {
     "requests": "Requests handed to the bus",
     "transactions": "Attempts put on the wire, retries included",
@@ -201,7 +204,7 @@ _BUS_COUNTERS = {
     "port_errors": "Times the serial port failed (unplugged, I/O error)",
     "reopens": "Times the serial port was opened again after failing",
     "late_replies": "Replies that came after their request timed out, set aside, never an answer",
-    "resyncs": "Markers (a read the drive answers, or 08H) sent to bring drives back in step",
+    "resyncs": "Diagnostic echoes (08H) sent after a timeout to catch up with late replies",
 }
 _DRIVE_COUNTERS = {
     "transactions": "Attempts put on the wire for this drive, retries included",
@@ -209,7 +212,7 @@ _DRIVE_COUNTERS = {
     "timeouts": "Attempts this drive did not answer in time",
     "failed": "Requests to this drive answered 0x0B after every attempt failed",
     "late_replies": "Replies from this drive that came after their request timed out, set aside",
-    "resyncs": "Markers sent to this drive to bring it back in step, before anything else",
+    "resyncs": "Diagnostic echoes (08H) sent to this drive after a timeout, before anything else",
 }
 
 
