@@ -80,6 +80,9 @@ async def test_a_second_gateway_leaves_the_first_ones_entities_and_state_alone(
                 copied = with_prefix(config("cabinet-a", line_b.path, mosquitto, b_base))
                 elsewhere = tmp_path / "copy"  # its file beside the first's, same name
                 elsewhere.mkdir()
+                # A store of its own: the same gateway id's default store would be refused
+                # first (a store has one owner), and it is the broker's check on trial here.
+                copied["storage"] = {"path": str(elsewhere / "events.db")}
                 with gateway_process(copied, elsewhere) as second:
                     assert await asyncio.to_thread(second.wait, 15.0) == EXIT_STARTUP
                     assert "gateway 'cabinet-a' is online already" in second.log.text
