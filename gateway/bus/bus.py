@@ -30,6 +30,7 @@ from functools import partial
 from typing import Any, NamedTuple
 
 from gateway.backoff import Backoff
+from gateway.bus.exchange import Stray
 from gateway.bus.gap_excess import GapExcess
 from gateway.bus.health import HealthTracker
 from gateway.bus.late_replies import LateReplies
@@ -230,13 +231,14 @@ class Bus:
         self._heard_from_carried = False
         """A frame from the drive carried now was set aside during its transaction: it is
         there, late or out of step, and its failure doesn't count towards offline."""
-        self._discarded = self.line.receiver.set_aside
-        """Frames the line heard between transactions, for the ledger (`_take_discarded`)."""
-        self.line.receiver.on_set_aside = self._take_discarded
+        # Frames the line heard between transactions (late replies that came after every
+        # drain) are accounted in the ledger as any set aside during an attempt.
+        self.line.receiver.on_set_aside = self._set_aside_between
         self._answered_frames = self.late_replies.answered
         """The ledger's last answered request per drive (`LateReplies.answered`), bound once."""
-        self._echo_sent: bytes | None = None
-        """The echo `_pick` sent in place of `_carrying`'s frame: its drive owes replies."""
+        self._marker_sent: bytes | None = None
+        """The marker `_pick` sent in place of `_carrying`'s frame (a probe's, or its drive
+        owes replies): `_execute` reads its answer."""
         self._loop: asyncio.AbstractEventLoop | None = None
         self.line.on_port_error = self._wake
         self._listeners: list[DriveListener] = []
@@ -573,7 +575,7 @@ class Bus:
     def _done(self, callback: Callable[..., None], args: tuple[Any, ...]) -> None:
         """A transaction taken from the queue is over: tell its waiters, and `wait_idle`."""
         self._carrying = None
-        self._echo_sent = None
+        self._marker_sent = None
         callback(*args)
         self._idle.set()
 
@@ -659,20 +661,16 @@ class Bus:
                 continue
             self._carrying = transaction  # before anything can fail: it must be answered
             self._back_to_back = reply_heard_at != 0.0
-            frame = transaction.frame or build_frame(address, transaction.pdu)
             if probe or address in self.late_replies.owing:
                 # A marker first (a probe is one): `_execute` reads its answer, the frames
                 # before it set aside, then sends the request (`gateway.bus.late_replies`).
-                self._echo_sent = self.late_replies.marker(address)
-                return self._echo_sent
-            return frame
+                self._marker_sent = self.late_replies.marker(address)
+                return self._marker_sent
+            return transaction.frame or build_frame(address, transaction.pdu)
         return None
 
-    def _take_discarded(self) -> None:
-        """Account the whole frames the line heard between transactions (late replies that
-        came after every drain) in the ledger."""
-        frames = tuple(self._discarded)
-        self._discarded.clear()
+    def _set_aside_between(self, frames: tuple[Stray, ...]) -> None:
+        """The receiver's `on_set_aside`: frames heard between transactions."""
         self._set_aside(frames, self.settings.timeout_s)
 
     def _idle_for(self) -> float | None:
@@ -688,7 +686,7 @@ class Bus:
         """For the transaction `_pick` just sent: how long its drive has to answer (None: a
         broadcast, which has no reply)."""
         carrying = self._carrying
-        if carrying is None or carrying.address == BROADCAST_ADDRESS or self._echo_sent:
+        if carrying is None or carrying.address == BROADCAST_ADDRESS or self._marker_sent:
             return None  # an echo after a timeout is read by `_execute`, never by the hold
         return carrying.timeout_s
 
@@ -768,9 +766,9 @@ class Bus:
         # drive back in step (`_pick`).
         pending: Sending | None = first
         marker_pending: Sending | None = None
-        if self._echo_sent is not None:
+        if self._marker_sent is not None:
             frame = transaction.frame or build_frame(address, transaction.pdu)
-            self._echo_sent = None
+            self._marker_sent = None
             marker_pending, pending = first, None
         sends = 0  # times the request itself went out (markers aside): a write's may be done
         self._heard_from_carried = False
@@ -910,7 +908,7 @@ class Bus:
         address: int,
         frame: bytes,
         sent_at: float,
-        strays: tuple[tuple[bytes, float], ...],
+        strays: tuple[Stray, ...],
         timeout_s: float,
     ) -> None:
         """An attempt ended without its reply: `frame` is owed (its reply may still come),
@@ -919,7 +917,7 @@ class Bus:
             self.late_replies.unanswered(address, frame, sent_at, self._carrying)
         self._set_aside(strays, timeout_s)
 
-    def _set_aside(self, strays: tuple[tuple[bytes, float], ...], timeout_s: float) -> bool:
+    def _set_aside(self, strays: tuple[Stray, ...], timeout_s: float) -> bool:
         """Account frames set aside during an attempt in the ledger, each for the drive that
         sent it; True if the drive carried now is left owing or unsure by them."""
         late = self.late_replies
@@ -1012,7 +1010,7 @@ class Bus:
         # `RequestQueue.charge`, written out (a reply: never a broadcast).
         self._charge_share(USE_OF_PRIORITY[transaction.priority], held, now)
         self._carrying = None  # `_done`
-        self._echo_sent = None
+        self._marker_sent = None
         if failure is not None:
             _fail(transaction, failure)
         else:

@@ -4,6 +4,10 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+Stray = tuple[bytes, float]
+"""A whole, sound frame set aside during an attempt (not its answer), and when the line last
+heard it (`gateway.bus.late_replies`)."""
+
 
 # Immutable, and built per transaction: a NamedTuple costs a fraction of a frozen dataclass,
 # whose __init__ goes through object.__setattr__ for every field.
@@ -35,6 +39,6 @@ class Exchange(NamedTuple):
     reply_heard_at: float = 0.0
     """When the reply's last byte arrived (`time.monotonic()`); 0.0 when not known (a broadcast,
     a URL port without arrival times)."""
-    strays: tuple[tuple[bytes, float], ...] = ()
+    strays: tuple[Stray, ...] = ()
     """Whole, sound frames that came before the reply and are not its answer, set aside with
     when each was heard (`gateway.bus.late_replies`)."""

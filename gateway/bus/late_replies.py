@@ -74,9 +74,6 @@ _READS = (READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS)
 ILLEGAL_FUNCTION = 0x01
 """The exception code of a function the device doesn't serve (an illegal address is not that)."""
 
-Stray = tuple[bytes, float]
-"""A whole, sound frame set aside during an attempt, and when its last byte was heard."""
-
 
 def is_reply_to(request: bytes, frame: bytes) -> bool:
     """Could the whole, CRC-checked `frame` be the reply to the RTU `request`, by rule 2?

@@ -18,6 +18,7 @@ import logging
 import time
 from collections.abc import Callable
 
+from gateway.bus.exchange import Stray
 from gateway.bus.hardware_hints import burst_hint, echo_hint
 from gateway.bus.line_settings import LineSettings
 from gateway.errors import BadReply, ReplyTimeout
@@ -27,8 +28,6 @@ log = logging.getLogger(__name__)
 
 MAX_BUFFERED = 4096
 """Bytes kept while nobody reads (a frame is at most 256): a babbling line can't fill memory."""
-MAX_SET_ASIDE = 64
-"""Frames kept from discarded bytes until the bus takes them (it does before each request)."""
 _NOBODY = bytes(8)
 """A request no reply can answer (address 0): every whole, sound frame is found as another's."""
 BURSTS_FROM_S = 0.005
@@ -59,11 +58,9 @@ class Receiver:
         self.virtual = False
         """The port is a pty: no wire, so no wire timing to judge an echo by."""
         self.discarded_bytes = 0
-        self.set_aside: list[tuple[bytes, float]] = []
-        """Whole, sound frames found among bytes thrown away, with when the line last heard
-        them, until the bus takes them (`on_set_aside`); the same list object for good."""
-        self.on_set_aside: Callable[[], None] | None = None
-        """Told when frames were put in `set_aside` (the bus accounts them in its ledger)."""
+        self.on_set_aside: Callable[[tuple[Stray, ...]], None] | None = None
+        """Told of the whole, sound frames among bytes thrown away (`discard`): the bus
+        accounts them in its ledger."""
         self.garbage_bytes = 0
         """Bytes skipped before replies: glitches, noise (`invt_gateway_line_garbage_bytes`)."""
         self.echoes = 0
@@ -103,18 +100,17 @@ class Receiver:
 
     def discard(self) -> None:
         """Throw away what nobody asked for (noise, a reply later than every drain); the whole,
-        sound frames in it are kept in `set_aside` for the bus's ledger (a late reply that came
+        sound frames in it go to `on_set_aside`, for the bus's ledger (a late reply that came
         between transactions still tells what its drive no longer owes)."""
         received = self.received
         if received:
             self.discarded_bytes += len(received)
-            frames = whole_frames(_NOBODY, received) if len(self.set_aside) < MAX_SET_ASIDE else ()
+            told = self.on_set_aside
+            frames = whole_frames(_NOBODY, received) if told is not None else ()
             received.clear()
-            if frames:
+            if frames and told is not None:
                 heard_at = self.quiet_since
-                self.set_aside += [(frame, heard_at) for frame in frames]
-                if self.on_set_aside is not None:
-                    self.on_set_aside()
+                told(tuple((frame, heard_at) for frame in frames))
 
     @property
     def echo_detected(self) -> bool:

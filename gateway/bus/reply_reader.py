@@ -13,14 +13,14 @@ from __future__ import annotations
 
 import time
 
-from gateway.bus.exchange import Exchange, Sending
+from gateway.bus.exchange import Exchange, Sending, Stray
 from gateway.bus.late_replies import is_reply_to
 from gateway.bus.line_settings import LineSettings
 from gateway.bus.port import Port
 from gateway.bus.receiver import Receiver, whole_frames
 from gateway.bus.rts import RtsSwitch
 from gateway.errors import BadReply, ReplyTimeout
-from gateway.modbus.functions import DIAGNOSTICS, EXCEPTION_BIT
+from gateway.modbus.functions import DIAGNOSTICS
 from gateway.modbus.reply_search import Found
 from gateway.modbus.rtu import MAX_FRAME, check_reply
 
@@ -64,7 +64,7 @@ class ReplyReader:
         if not expect_reply:
             receiver.quiet_since = max(receiver.quiet_since, sent + self.settings.turnaround_s)
             return Exchange(None, sending.gap_s, receiver.quiet_since - started)
-        strays: list[tuple[bytes, float]] = []
+        strays: list[Stray] = []
         try:
             while True:
                 reply = await self._read_reply(frame, sent, sent + timeout_s)
@@ -88,7 +88,7 @@ class ReplyReader:
         frame: bytes,
         reply: bytes,
         owed: tuple[bytes, ...],
-        strays: list[tuple[bytes, float]],
+        strays: list[Stray],
     ) -> bytes | None:
         """The PDU of `reply` if it answers `frame` and can't be an `owed` request's reply;
         else None, `reply` set aside (whole and sound). Raises BadReply for a corrupt one."""
@@ -99,14 +99,16 @@ class ReplyReader:
                 raise
             strays.append((reply, self.receiver.quiet_since))  # sound, but not the answer
             return None
-        if (frame[1] == DIAGNOSTICS and reply != frame and not pdu[0] & EXCEPTION_BIT) or any(
+        # An echo of another value (an older one's) passes `check_reply`: `is_reply_to` has
+        # the echo's rule too.
+        if (frame[1] == DIAGNOSTICS and not is_reply_to(frame, reply)) or any(
             is_reply_to(request, reply) for request in owed
         ):
             strays.append((reply, self.receiver.quiet_since))
             return None
         return pdu
 
-    def _frames(self, frame: bytes, drained: bytearray) -> list[tuple[bytes, float]]:
+    def _frames(self, frame: bytes, drained: bytearray) -> list[Stray]:
         """The whole, sound frames among what a drain heard, each stamped with its end."""
         return [(whole, self.receiver.quiet_since) for whole in whole_frames(frame, drained)]
 
