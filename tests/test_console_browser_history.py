@@ -262,6 +262,7 @@ async def test_history_opens_on_the_live_15_minutes_and_one_point_keeps_a_clock_
 
 async def axis_in_clock_times(browser: Browser) -> list[str]:
     """The time axis's labels: two or more, each a time of day, none repeated."""
+
     # uPlot draws its axes on the next animation frame after the chart is made; a live chart
     # that has just opened may hold a second's points, with one label, until the next ones.
     def two_or_more(driver: Any) -> str | bool:
