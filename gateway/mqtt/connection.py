@@ -155,7 +155,7 @@ def read_loss(client: aiomqtt.Client) -> None:
     prints "Future exception was never retrieved ... MqttCodeError" when the client is
     dropped. The loss is handled already (the connection is made again): reading it is all
     that is left to do. `_disconnected` is aiomqtt's (2.x); if it goes, this does nothing, and
-    `tests/test_mqtt_lost_connection.py` says so.
+    `tests/system/test_mqtt_lost_connection.py` says so.
     """
     lost = getattr(client, "_disconnected", None)
     if isinstance(lost, asyncio.Future) and lost.done() and not lost.cancelled():

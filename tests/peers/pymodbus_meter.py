@@ -1,5 +1,5 @@
 """pymodbus's own RTU server playing a meter: every type and order a device file knows, in
-registers laid out by hand here (not by the gateway's codecs), for `tests/test_devices.py`.
+registers laid out by hand here (not by the gateway's codecs), for `tests/system/test_devices.py`.
 
 Usage: python -m tests.peers.pymodbus_meter DEVICE BAUD UNIT. Prints "ready" once it serves.
 The device file that describes it is `tests/fixtures/devices/test_meter.yaml`.

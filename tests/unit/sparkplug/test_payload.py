@@ -1,6 +1,6 @@
 """Sparkplug B payloads: what we encode reads back with the specification's field numbers and
-datatypes; sequence numbers wrap at 255. (What another codec makes of them: tests/test_sparkplug.py,
-with Eclipse Tahu's JavaScript codec.)"""
+datatypes; sequence numbers wrap at 255. (What another codec makes of them:
+tests/system/test_sparkplug.py, with Eclipse Tahu's JavaScript codec.)"""
 
 from __future__ import annotations
 

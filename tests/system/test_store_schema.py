@@ -24,7 +24,7 @@ from tests.support.mqtt_setup import simulated_line
 from tests.support.processes import gateway_process
 from tests.support.store import running_store
 
-FIXTURES = Path(__file__).parent / "fixtures"
+FIXTURES = Path(__file__).parents[1] / "fixtures"
 RELEASED = {
     1: FIXTURES / "store_schema_1.sql",
     2: FIXTURES / "store_schema_2.sql",

@@ -14,7 +14,7 @@ from tests.support import free_port
 from tests.support.console_support import ConsoleClient
 from tests.support.http import http_get
 from tests.support.processes import GatewayProcess, gateway_process
-from tests.test_console_config_edit import ADMIN_PASSWORD, browser_like, config
+from tests.system.test_console_config_edit import ADMIN_PASSWORD, browser_like, config
 
 LONG_URL = b"GET /api/overview?" + b"a" * 9000 + b" HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n"
 HALF_A_BODY = (

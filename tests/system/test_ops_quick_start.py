@@ -25,7 +25,7 @@ import pytest
 from tests.support import free_port
 from tests.support.processes import LineCollector
 
-REPOSITORY = Path(__file__).resolve().parent.parent
+REPOSITORY = Path(__file__).resolve().parents[2]
 DEBIAN_PYTHON = Path("/usr/bin/python3")
 # What `python3` is on a fresh Debian: its default PATH, without /usr/local (nothing there yet).
 DEBIAN_PATH = "/usr/sbin:/usr/bin:/sbin:/bin"

@@ -25,9 +25,9 @@ from tests.support.console_support import OPERATOR_TOKEN, console_config
 from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
 from tests.support.mqtt_setup import mqtt_config
 from tests.support.processes import entry_point, gateway_process, pymodbus_peer, run_cli
-from tests.test_console_monitor import line_with
+from tests.system.test_console_monitor import line_with
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 METER_FILE = ROOT / "tests" / "fixtures" / "devices" / "test_meter.yaml"
 UNIT = 7
 

@@ -4,7 +4,7 @@ alerts are built on them (a public name: add, never rename). A real gateway with
 traffic on a pty line so that every family has samples to show its labels, scraped over HTTP and
 held against the list in `tests/fixtures/metric_families.tsv`.
 
-A family added on purpose goes into the list with it (`python -m tests.test_ops_metric_names
+A family added on purpose goes into the list with it (`python -m tests.system.test_ops_metric_names
 FILE` prints the lines a scrape file has, in the list's form).
 """
 
@@ -23,7 +23,7 @@ from tests.support import TcpClient, free_port, read_pdu, running_gateway, write
 from tests.support.http import http_get
 from tests.support.mosquitto import Mosquitto, unique_base_topic
 
-PINNED = Path(__file__).parent / "fixtures" / "metric_families.tsv"
+PINNED = Path(__file__).parents[1] / "fixtures" / "metric_families.tsv"
 STATE_WORD_1 = 0x2100
 
 

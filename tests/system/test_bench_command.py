@@ -333,7 +333,7 @@ def test_bench_counts_the_gateways_instructions_per_transaction() -> None:
     """Two gateways under callgrind, 10 and 110 checked reads: the difference over 100 reads.
     The gateway is taken from a checkout named with --gateway-from (this one), as an A/B with
     an older version would be."""
-    checkout = Path(__file__).resolve().parents[1]
+    checkout = Path(__file__).resolve().parents[2]
     arguments = ["--instructions", "--transactions", "10", "110", "--gateway-from", str(checkout)]
     result = subprocess.run(
         [sys.executable, "-m", "gateway", "bench", *arguments],
@@ -434,7 +434,7 @@ def test_the_bench_runs_the_gateway_at_its_systemd_unit_s_priority() -> None:
         simulator,
     )
 
-    unit = (Path(__file__).parents[1] / "config" / "invt-gateway.service").read_text()
+    unit = (Path(__file__).parents[2] / "config" / "invt-gateway.service").read_text()
     assert f"\nNice={GATEWAY_NICENESS}\n" in unit
     port = free_port()
     with (

@@ -16,7 +16,7 @@ from gateway.instruments.simulator import SimulatedLine
 from tests.support import TcpClient, eventually, gateway_config, running_gateway
 from tests.support.processes import pymodbus_peer
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture

@@ -19,7 +19,7 @@ import yaml
 from gateway.instruments.simulator import SimulatedLine
 from tests.support import free_port
 from tests.support.processes import gateway_process
-from tests.test_console_config_edit import ADMIN_PASSWORD, browser_like, config
+from tests.system.test_console_config_edit import ADMIN_PASSWORD, browser_like, config
 
 MQTT_PASSWORD = "plant-pass-4242"
 

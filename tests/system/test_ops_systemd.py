@@ -22,7 +22,7 @@ from gateway.instruments.simulator import SimulatedLine
 from tests.support import free_port
 from tests.support.processes import entry_point, gateway_process
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 UNIT = ROOT / "config" / "invt-gateway.service"
 INSTALLED_PATH = "/opt/invt-gateway/bin/invt-gateway"
 SYSTEMD_ANALYZE = shutil.which("systemd-analyze") or "/usr/bin/systemd-analyze"

@@ -30,7 +30,7 @@ from gateway.systemd import Notifier
 from tests.support import running_application
 from tests.support.browser import CHROMEDRIVER, CHROMIUM, Browser, showing
 from tests.support.console_support import OPERATOR_PASSWORD, console_config
-from tests.test_console_browser import FITS, SIZES
+from tests.system.test_console_browser import FITS, SIZES
 
 ADMIN_PASSWORD = "admin-secret-333"
 

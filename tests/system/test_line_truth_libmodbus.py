@@ -21,7 +21,7 @@ import pytest
 
 from tests.support import TcpClient, gateway_config, read_pdu, running_gateway
 
-SOURCE = Path(__file__).parent / "peers" / "libmodbus" / "rtu_slave.c"
+SOURCE = Path(__file__).parents[1] / "peers" / "libmodbus" / "rtu_slave.c"
 UNIT = 1
 EXPECTED = bytes.fromhex("03 04 10 00 10 01")  # holding registers 0 and 1: 1000H, 1001H
 

@@ -29,7 +29,7 @@ from gateway.instruments.simulator import SimulatedLine
 from tests.support import free_port, read_state_word
 from tests.support.processes import LineCollector
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 DOCKERFILE = ROOT / "Dockerfile"
 EXAMPLE = ROOT / "config" / "config.example.yaml"
 IMAGE_CONFIG = "/etc/invt-gateway/config.yaml"

@@ -118,7 +118,7 @@ async def test_last_will_when_the_gateway_is_killed(mosquitto: Mosquitto, tmp_pa
                 *(sys.executable, "-m", "gateway", "run", "--config", str(config_file)),
                 stdout=asyncio.subprocess.DEVNULL,
                 stderr=asyncio.subprocess.DEVNULL,
-                env={**os.environ, "PYTHONPATH": str(Path(__file__).parent.parent)},
+                env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[2])},
             )
             try:
                 await probe.wait_for(f"{base}/bridge/state", lambda s: s["state"] == "online")
@@ -197,7 +197,7 @@ async def test_same_base_topic_is_reported(
         one = mqtt_config(one_line.path, mosquitto, base, gateway_id="one")
         other = mqtt_config(other_line.path, mosquitto, base, gateway_id="other")
         # Both started while the broker is away: neither can be refused at its start
-        # (tests/test_mqtt_shared_broker.py), so they meet once it is back.
+        # (tests/system/test_mqtt_shared_broker.py), so they meet once it is back.
         mosquitto.stop()
         with caplog.at_level(logging.ERROR, logger="gateway.mqtt.kinds"):
             async with running_gateway(one) as one_app, running_gateway(other) as other_app:

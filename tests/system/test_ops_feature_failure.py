@@ -43,7 +43,7 @@ def run_with_a_bug(tmp_path: Path, bug: str, **sections: Any) -> subprocess.Comp
             capture_output=True,
             text=True,
             timeout=EXIT_WITHIN_S,
-            cwd=Path(__file__).parent.parent,
+            cwd=Path(__file__).parents[2],
             check=False,
         )
 

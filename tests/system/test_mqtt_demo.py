@@ -96,7 +96,7 @@ async def test_demo_starts_a_broker_when_none_runs(tmp_path: Path) -> None:
         *(sys.executable, "-m", "gateway", "demo", "--config", str(config_file), "--port", "0"),
         stdout=asyncio.subprocess.PIPE,
         stderr=asyncio.subprocess.DEVNULL,
-        env={**os.environ, "PYTHONPATH": str(Path(__file__).parent.parent)},
+        env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[2])},
     )
     try:
         broker = Address("127.0.0.1", mqtt_port)

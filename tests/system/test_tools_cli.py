@@ -331,7 +331,7 @@ def test_version_names_the_release_and_the_commit_of_a_checkout(tmp_path: Path) 
 
     result = run_cli("--version")
     assert result.returncode == 0
-    root = Path(__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parents[2]
     if (root / ".git").exists():  # the suite runs from a checkout, as CI's clone is
         head = subprocess.run(
             ["git", "-C", str(root), "rev-parse", "--short", "HEAD"],

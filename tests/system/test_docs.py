@@ -45,9 +45,9 @@ from gateway.profile.registers import COMMUNICATION_REGISTERS
 from gateway.store.records import EventType
 from tests.support.site import DOCS, cell_text, mkdocs_build, table_rows_html
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 PAGES = DOCS / "pages"
-METRIC_FAMILIES = Path(__file__).parent / "fixtures" / "metric_families.tsv"
+METRIC_FAMILIES = Path(__file__).parents[1] / "fixtures" / "metric_families.tsv"
 
 
 def page(name: str) -> str:
@@ -141,7 +141,7 @@ def test_a_key_without_a_description_is_named_with_the_line_to_fix() -> None:
     )
     assert reference.undocumented(_Machine) == [
         f"spindles[].brake: no description; write a docstring under _Spindle.brake "
-        f"(tests/test_docs.py:{line})"
+        f"(tests/system/test_docs.py:{line})"
     ]
     table = reference.markdown(_Machine)
     assert "| `warmup_s` | number | `2` | s | How long it turns slowly after a start. |" in table

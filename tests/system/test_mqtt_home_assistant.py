@@ -27,7 +27,7 @@ from tests.support.home_assistant import all_problems, component_of, config_prob
 from tests.support.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
 from tests.support.mqtt_setup import FAST_POLL, MQTT_LINE, mqtt_config
 
-METER = Path(__file__).resolve().parent / "fixtures" / "devices" / "test_meter.yaml"
+METER = Path(__file__).resolve().parents[1] / "fixtures" / "devices" / "test_meter.yaml"
 
 
 def demo_drives() -> list[dict[str, Any]]:

@@ -21,7 +21,7 @@ from gateway.exit_codes import EXIT_CONFIG, EXIT_STARTUP
 from gateway.instruments.simulator import SimulatedLine
 from tests.support import free_port
 from tests.support.processes import check_config, gateway_process, run_cli
-from tests.test_console_config_edit import ADMIN_PASSWORD, browser_like, config
+from tests.system.test_console_config_edit import ADMIN_PASSWORD, browser_like, config
 
 Edit = Callable[[dict[str, Any], Path], None]
 
