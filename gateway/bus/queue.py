@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Callable
 from enum import IntEnum
 from typing import Protocol
 
@@ -44,6 +43,18 @@ class Waiter(Protocol):
     def set_result(self, result: bytes | None, /) -> None: ...
 
     def set_exception(self, exception: BaseException, /) -> None: ...
+
+
+class RequestReport(Protocol):
+    """Who is told of a caller's request answered (`gateway.bus.observers.BusObservers`)."""
+
+    def report(
+        self, address: int, pdu: bytes, client: str, started: float, code: int | None
+    ) -> None: ...
+
+    def report_reply(
+        self, address: int, pdu: bytes, client: str, started: float, reply: bytes | None
+    ) -> None: ...
 
 
 class Priority(IntEnum):
@@ -88,7 +99,7 @@ class Transaction:
         probe: bool = False,
         frame: bytes = b"",
         queued_at: float = 0.0,
-        observed_by: Callable[[Transaction, int | None], None] | None = None,
+        observed_by: RequestReport | None = None,
     ) -> None:
         self.address = address
         self.pdu = pdu
@@ -226,13 +237,6 @@ class RequestQueue:
         else:
             use = USE_OF_PRIORITY[transaction.priority]
         self._meter.charge(use, seconds, now)
-
-    @property
-    def charge_share(self) -> Callable[[LineUse, float, float], None]:
-        """The line-time meter's own `charge`, for a caller that knows the transaction's use
-        (`USE_OF_PRIORITY`, never a broadcast): `charge` without its call, once per
-        transaction (`Bus._replied`)."""
-        return self._meter.charge
 
     def get_nowait(self, now: float | None = None) -> Transaction | None:
         """The next transaction to serve; `now` (monotonic, read here if not given) for the

@@ -131,8 +131,8 @@ class Router:
         the cache, or the drive's) goes to `waiter`. False when the request needs `execute`
         (a write, a broadcast, a read the drive's word limit splits); a refusal before the bus
         (no such unit id, drive offline, queue full) is raised. `pdu` has passed the front
-        door's `check_request` (the Modbus-TCP server's fast path is the caller, once per
-        request: one registry lookup, one route lookup, one call to the bus)."""
+        door's `check_request` (the Modbus-TCP server's reads: one registry lookup, one route
+        lookup, then the bus by `_submit`, the way every request takes)."""
         function = known_function(pdu[0]) or lookup(pdu[0])
         if unit_id == BROADCAST_ADDRESS or function.writes:
             return False
@@ -156,15 +156,7 @@ class Router:
                 waiter.set_result(cached)
                 return True
         # A read is never rewritten to a RAM address (`_to_ram` takes 06H/10H only).
-        route.bus.submit_read(
-            route.address,
-            pdu,
-            waiter,
-            client,
-            route.timeout_s,
-            route.retries,
-            function.coalescable,
-        )
+        self._submit(route, pdu, waiter, client, Priority.READ, function.coalescable)
         return True
 
     async def poll(
@@ -232,18 +224,17 @@ class Router:
         return answer
 
     def _submit(
-        self, route: Route, pdu: bytes, waiter: Waiter, client: str, priority: Priority
+        self,
+        route: Route,
+        pdu: bytes,
+        waiter: Waiter,
+        client: str,
+        priority: Priority,
+        coalescable: bool | None = None,
     ) -> None:
         """`pdu` onto the route's bus, with the drive's own timeout and retries."""
-        route.bus.submit(
-            route.address,
-            pdu,
-            waiter,
-            priority=priority,
-            client=client,
-            timeout_s=route.timeout_s,
-            retries=route.retries,
-        )
+        bus, address, timeout_s, retries = route.bus, route.address, route.timeout_s, route.retries
+        bus.submit(address, pdu, waiter, priority, client, timeout_s, retries, coalescable)
 
     async def _broadcast(self, pdu: bytes, client: str) -> None:
         if not lookup(pdu[0]).broadcastable:

@@ -55,7 +55,6 @@ from gateway.modbus.mbap import (
     MIN_FRAME,
     build_adu,
     frame_header,
-    pack_header,
     read_header,
 )
 from gateway.tcp.access import AccessPolicy, AccessRule
@@ -429,6 +428,7 @@ class Connection(asyncio.Protocol):
         self._fast: set[_Answer] = set()
         """Reads on the fast path (no task): waiting for the bus, answered by it."""
         self._transport: asyncio.Transport | None = None
+        self.transport_closing: Callable[[], bool] = _no_transport
         self._buffer = bytearray()
         self._paused = False
         self._deferred = False
@@ -455,6 +455,9 @@ class Connection(asyncio.Protocol):
         # A stream transport: asyncio's, or uvloop's (which doesn't derive from asyncio's
         # classes, so no isinstance check here).
         self._transport = cast(asyncio.Transport, transport)
+        self.transport_closing = self._transport.is_closing
+        """The transport's own `is_closing`, bound once: a fast-path read asks it twice
+        (`_Answer.done`). A transport once closing stays so, after `connection_lost` too."""
         peer = transport.get_extra_info("peername") or ("?", 0)
         self.host = str(peer[0])
         self.client = f"tcp:{peer[0]}:{peer[1]}"
@@ -651,10 +654,12 @@ class Connection(asyncio.Protocol):
     def _answered_fast(self, answer: _Answer, reply: bytes) -> None:
         """The bus has the reply (or the error) of a fast-path read."""
         self._send(answer.transaction_id, answer.unit_id, reply)
-        if answer in self._fast:
-            self._fast.discard(answer)
-            self._maybe_resume()
-            if not self._fast:
+        fast = self._fast
+        if answer in fast:
+            fast.discard(answer)
+            if self._paused:  # else `_maybe_resume` has nothing to do
+                self._maybe_resume()
+            if not fast and self.server._drained is not None:  # else nobody waits to stop
                 self.server._settled()
 
     def _refuse_write(self, transaction_id: int, unit_id: int, pdu: bytes) -> None:
@@ -772,6 +777,11 @@ class Connection(asyncio.Protocol):
         self._arm_idle_timer()
 
 
+def _no_transport() -> bool:
+    """`Connection.transport_closing` before the connection is made: closed, as it were."""
+    return True
+
+
 class _Answer:
     """A read's answer on the fast path: the bus's waiter that writes the answer frame the
     moment the reply is there, in the bus's own pass of the event loop (no task to wake)."""
@@ -787,31 +797,12 @@ class _Answer:
 
     def done(self) -> bool:
         # A client that has gone wants nothing: its read takes no bus time (`Transaction.wanted`).
-        # `Connection.closing`, written out: asked twice per read.
-        if self.settled:
-            return True
-        transport = self._connection._transport
-        return transport is None or transport.is_closing()
+        return self.settled or self._connection.transport_closing()
 
     def set_result(self, result: bytes | None, /) -> None:
         self.settled = True
         assert result is not None  # the fast path carries no broadcast
-        # `Connection._answered_fast`, `_send` and `build_adu`, written out: once per read.
-        connection = self._connection
-        if result and result[0] & 0x80:
-            connection.errors += 1
-        transport = connection._transport
-        if transport is not None and not transport.is_closing():
-            # One write per frame: answers finishing in any order never interleave.
-            header = pack_header(self.transaction_id, 0, len(result) + 1, self.unit_id)
-            transport.write(header + result)
-        fast = connection._fast
-        if self in fast:
-            fast.discard(self)
-            if connection._paused:  # else `_maybe_resume` has nothing to do
-                connection._maybe_resume()
-            if not fast and connection.server._drained is not None:  # `stop` may be waiting
-                connection.server._settled()
+        self._connection._answered_fast(self, result)
 
     def set_exception(self, exception: BaseException, /) -> None:
         self.settled = True

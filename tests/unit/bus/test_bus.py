@@ -104,9 +104,9 @@ async def test_identical_reads_waiting_together_share_one_transaction(
 async def test_reads_submitted_in_one_call_are_shared_counted_and_observed_as_any_other(
     line: SimulatedLine,
 ) -> None:
-    """`submit_read`, the Modbus-TCP server's way to the bus: identical reads waiting together
-    share a transaction, every request is counted and its observers told, and an offline
-    drive's read is refused (0BH) as `submit` refuses it."""
+    """`submit` with a waiter, the Modbus-TCP server's way to the bus: identical reads waiting
+    together share a transaction, every request is counted and its observers told, and an
+    offline drive's read is refused (0BH) before it is queued."""
     line.set_reply_delay(2, 100)  # drive 2 holds the line while the reads queue up
     async with running_bus(line.path, timeout_ms=300, retries=0, offline_after=1) as bus:
         done: list[RequestDone] = []
@@ -116,7 +116,7 @@ async def test_reads_submitted_in_one_call_are_shared_counted_and_observed_as_an
         await eventually(lambda: bus.busy, what="the slow request on the wire")
         readers: list[asyncio.Future[bytes | None]] = [loop.create_future() for _ in range(3)]
         for n, reader in enumerate(readers):
-            bus.submit_read(1, read_pdu(STATE_WORD_1), reader, f"c{n}", None, None, True)
+            bus.submit(1, read_pdu(STATE_WORD_1), reader, Priority.READ, f"c{n}")
         assert await asyncio.gather(*readers) == [STOPPED_REPLY] * 3
         await busy
         assert bus.stats.coalesced == 2
@@ -125,7 +125,7 @@ async def test_reads_submitted_in_one_call_are_shared_counted_and_observed_as_an
             await read(bus, SILENT, STATE_WORD_1)  # offline from now (offline_after 1)
         refused: asyncio.Future[bytes | None] = loop.create_future()
         with pytest.raises(DriveOffline):
-            bus.submit_read(SILENT, read_pdu(STATE_WORD_1), refused, "c0", None, None, True)
+            bus.submit(SILENT, read_pdu(STATE_WORD_1), refused, Priority.READ, "c0")
         assert bus.stats.offline_rejected == 1
         assert bus.stats.requests == 6
         assert sorted((d.address, d.client, d.code) for d in done) == [
@@ -141,7 +141,7 @@ async def test_reads_submitted_in_one_call_are_shared_counted_and_observed_as_an
 async def test_a_read_submitted_in_one_call_is_observed_however_it_ends(
     line: SimulatedLine,
 ) -> None:
-    """The observers hear of a `submit_read` read's outcome once, with its exception code, on
+    """The observers hear of a `submit`ted read's outcome once, with its exception code, on
     every way it can end: answered, answered with the drive's exception, timed out, answered
     by the closing bus; and not at all when its client went before the answer."""
     line.set_reply_delay(2, 100)  # drive 2 holds the line while the reads queue up
@@ -152,7 +152,7 @@ async def test_a_read_submitted_in_one_call_is_observed_however_it_ends(
 
         def submit(address: int, pdu: bytes, client: str) -> asyncio.Future[bytes | None]:
             waiter: asyncio.Future[bytes | None] = loop.create_future()
-            bus.submit_read(address, pdu, waiter, client, None, None, True)
+            bus.submit(address, pdu, waiter, Priority.READ, client)
             return waiter
 
         assert await submit(1, read_pdu(STATE_WORD_1), "answered") == STOPPED_REPLY
