@@ -252,7 +252,7 @@ class Bus:
             if isinstance(exc, QueueFull):
                 stats.queue_full += 1
             if observed_by is not None:
-                self.observers.report(address, pdu, client, now, exc.code)
+                self.observers.report(address, pdu, client, now, None, exc.code)
             raise
         if carrier is transaction:
             # Framed now, while the line may be busy: no CRC work in the gap.

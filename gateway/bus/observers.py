@@ -55,17 +55,19 @@ class BusObservers:
         self.request_observers = list(old.request_observers)
         self.tap = old.tap
 
-    def report_reply(
-        self, address: int, pdu: bytes, client: str, started: float, reply: bytes | None
-    ) -> None:
-        """A caller's request to `address` is answered with `reply` (None: a broadcast's)."""
-        code = reply[1] if reply is not None and len(reply) > 1 and reply[0] & 0x80 else None
-        self.report(address, pdu, client, started, code)
-
     def report(
-        self, address: int, pdu: bytes, client: str, started: float, code: int | None
+        self,
+        address: int,
+        pdu: bytes,
+        client: str,
+        started: float,
+        reply: bytes | None,
+        code: int | None = None,
     ) -> None:
-        """A caller's request to `address` is answered (`code`: its exception code, or None)."""
+        """A caller's request to `address` is answered: with `reply` (None: a broadcast's, or
+        none), or refused or failed with `code`; a reply's exception code is worked out here."""
+        if reply is not None and len(reply) > 1 and reply[0] & 0x80:
+            code = reply[1]
         function, duration_s = pdu[0] if pdu else 0, time.monotonic() - started
         for observer in self.request_observers:
             try:
@@ -114,7 +116,7 @@ class Observed:
         self._started = started
 
     def set_result(self, result: bytes | None, /) -> None:
-        self._observers.report_reply(self._address, self._pdu, self._client, self._started, result)
+        self._observers.report(self._address, self._pdu, self._client, self._started, result)
         self._waiter.set_result(result)
 
     def set_exception(self, exception: BaseException, /) -> None:
@@ -122,7 +124,7 @@ class Observed:
         self._waiter.set_exception(exception)
 
     def _report(self, code: int | None) -> None:
-        self._observers.report(self._address, self._pdu, self._client, self._started, code)
+        self._observers.report(self._address, self._pdu, self._client, self._started, None, code)
 
 
 def answer(transaction: Transaction, reply: bytes | None) -> None:
@@ -132,7 +134,7 @@ def answer(transaction: Transaction, reply: bytes | None) -> None:
     for waiter in transaction.waiters:
         if not waiter.done():
             if observers is not None:
-                observers.report_reply(
+                observers.report(
                     transaction.address,
                     transaction.pdu,
                     transaction.client,
@@ -154,6 +156,7 @@ def fail(transaction: Transaction, error: GatewayError) -> None:
                     transaction.pdu,
                     transaction.client,
                     transaction.queued_at,
+                    None,
                     error.code if isinstance(error, ModbusError) else None,
                 )
             waiter.set_exception(error)

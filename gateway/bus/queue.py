@@ -49,11 +49,13 @@ class RequestReport(Protocol):
     """Who is told of a caller's request answered (`gateway.bus.observers.BusObservers`)."""
 
     def report(
-        self, address: int, pdu: bytes, client: str, started: float, code: int | None
-    ) -> None: ...
-
-    def report_reply(
-        self, address: int, pdu: bytes, client: str, started: float, reply: bytes | None
+        self,
+        address: int,
+        pdu: bytes,
+        client: str,
+        started: float,
+        reply: bytes | None,
+        code: int | None = None,
     ) -> None: ...
 
 
