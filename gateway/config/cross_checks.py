@@ -10,7 +10,9 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from gateway.config.sections import AccessRuleConfig, BusConfig, DriveConfig
+from gateway.config.sections.buses import BusConfig
+from gateway.config.sections.drives import DriveConfig
+from gateway.config.sections.modbus_tcp import AccessRuleConfig
 
 
 def cross_field_problems(

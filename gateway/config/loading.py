@@ -15,16 +15,12 @@ from pydantic import BaseModel, TypeAdapter, ValidationError
 
 from gateway.config.cross_checks import cross_field_problems
 from gateway.config.lines import key_lines
-from gateway.config.schema import GatewayConfig
-from gateway.config.sections import (
-    CONFIG_VERSIONS,
-    ENV_MQTT_PASSWORD,
-    ENV_MQTT_USERNAME,
-    AccessRuleConfig,
-    BusConfig,
-    DriveConfig,
-    Section,
-)
+from gateway.config.schema import CONFIG_VERSIONS, GatewayConfig
+from gateway.config.sections.buses import BusConfig
+from gateway.config.sections.drives import DriveConfig
+from gateway.config.sections.modbus_tcp import AccessRuleConfig
+from gateway.config.sections.mqtt import ENV_MQTT_PASSWORD, ENV_MQTT_USERNAME
+from gateway.config.sections.section import Section
 from gateway.errors import ConfigError
 from gateway.nearest import did_you_mean
 

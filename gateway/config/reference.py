@@ -26,7 +26,7 @@ from pydantic import BaseModel
 from pydantic.fields import FieldInfo
 
 from gateway.config.schema import GatewayConfig
-from gateway.config.sections import RegisterRange
+from gateway.config.sections.values import RegisterRange
 
 UNIT_SUFFIXES = (
     ("_ms", "ms"),
@@ -58,7 +58,8 @@ class ConfigKey:
 
     @property
     def where(self) -> str:
-        """The model's field this key is: `BusConfig.retries (gateway/config/sections.py:251)`."""
+        """The model's field this key is: `BusConfig.retries
+        (gateway/config/sections/buses.py:50)`."""
         file, line = _field_line(self.model, self.name)
         return f"{self.model.__name__}.{self.name} ({file}:{line})"
 

@@ -6,17 +6,17 @@ from __future__ import annotations
 from pydantic import Field, model_validator
 
 from gateway.config.cross_checks import cross_field_problems
-from gateway.config.sections import (
-    BusConfig,
-    ConsoleConfig,
-    DriveConfig,
-    LoggingConfig,
-    MetricsConfig,
-    ModbusTcpConfig,
-    MqttConfig,
-    Section,
-    StorageConfig,
-)
+from gateway.config.sections.buses import BusConfig
+from gateway.config.sections.console import ConsoleConfig
+from gateway.config.sections.drives import DriveConfig
+from gateway.config.sections.modbus_tcp import ModbusTcpConfig
+from gateway.config.sections.monitoring import LoggingConfig, MetricsConfig
+from gateway.config.sections.mqtt import MqttConfig
+from gateway.config.sections.section import Section
+from gateway.config.sections.storage import StorageConfig
+
+CONFIG_VERSIONS = (1,)
+"""The file format versions this gateway reads (`version:` in the file; without it, 1)."""
 
 
 class GatewayConfig(Section):
