@@ -25,9 +25,9 @@ from aiohttp import web
 
 from gateway.console.auth import Identity
 from gateway.console.config_editor import ConfigEditor
+from gateway.console.context import CONSOLE, IDENTITY, Console, html_page
 from gateway.console.events import Category, GatewayEvent
 from gateway.console.replies import http_error, json_body, status_class
-from gateway.console.web import CONSOLE, IDENTITY, Console, html_page
 from gateway.errors import EditRefused
 
 T = TypeVar("T")

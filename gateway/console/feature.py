@@ -21,6 +21,7 @@ from gateway.console import configuration, history
 from gateway.console.auth import Users
 from gateway.console.bad_requests import BadRequests
 from gateway.console.config_editor import ConfigEditor
+from gateway.console.context import Console
 from gateway.console.deadlines import KEEP_ALIVE_S, DeadlinedSite, RequestDeadlines
 from gateway.console.diagnostics import MqttSession, TcpClients
 from gateway.console.events import EventStore, MemoryEventStore
@@ -28,7 +29,7 @@ from gateway.console.live import LiveState
 from gateway.console.log_tail import LogTail
 from gateway.console.operations import DriveOperations, Policy
 from gateway.console.traffic import DriveLabel, TrafficMonitor
-from gateway.console.web import Console, build_app
+from gateway.console.web import build_app
 from gateway.listen import cannot_listen
 from gateway.poller import Poller
 from gateway.routing import Router

@@ -27,10 +27,10 @@ from typing import Any, Final, Protocol, TypeVar
 
 from aiohttp import web
 
+from gateway.console.context import CONSOLE, drive_name, html_page
 from gateway.console.live import HISTORY_S
 from gateway.console.replies import http_error, time_query
 from gateway.console.spreadsheet import text_cell
-from gateway.console.web import CONSOLE, drive_name, html_page
 from gateway.errors import StoreError
 from gateway.poller.drive_state import iso_time
 from gateway.store.history import Series, Value, series, values
