@@ -7,8 +7,11 @@
   own thread;
 - `events`: the `EventStore` the rest of the gateway talks to, on the event loop: `record`
   returns at once; writing, reading and trimming run on the store's one thread; what the disk
-  can't take waits in memory and goes to the broker from there;
+  can't take waits in memory and goes to the broker from there. Its reading half is `reads`
+  (events, faults, history windows, configuration versions), its forwarding half
+  `forwarding` (what the broker doesn't have yet, marked delivered once acknowledged);
 - `status`: whether events are kept on disk now, for /health, `healthcheck` and the console;
+  the store's counters, for /metrics;
 - `modbus_writes`: SCADA writes counted per client, unit id and minute, one event each.
 """
 

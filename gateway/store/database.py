@@ -14,7 +14,8 @@ file is refused rather than writing over the first's events. Tables (their migra
              grow; each becomes an event once complete, in the same transaction (or at the next
              start, after a kill)
     history  polled values, one row per drive and history step (data: JSON of the values);
-             rows older than `history_max_age_s` go at the hourly expiry
+             rows older than `history_max_age_s` go at the hourly expiry; read by
+             `gateway.store.history_queries`
     config_versions  each configuration applied from the console: its text (secrets sealed by
              the editor, `gateway.console.sealing`), who, when; the newest
              `MAX_CONFIG_VERSIONS` kept
@@ -443,52 +444,6 @@ class EventDatabase:
             "SELECT drive, code FROM faults WHERE cleared IS NULL ORDER BY id"
         ).fetchall()
         return {drive: code for drive, code in rows}  # the newest per drive wins
-
-    def history(
-        self, drive: str, since: float, until: float
-    ) -> list[tuple[float, dict[str, float | str]]]:
-        """`drive`'s history points from `since` to before `until`, oldest first."""
-        rows = self.db.execute(
-            "SELECT time, data FROM history WHERE drive = ? AND time >= ? AND time < ? "
-            "ORDER BY time",
-            (drive, since, until),
-        ).fetchall()
-        return [(row[0], json.loads(row[1])) for row in rows]
-
-    def history_count(self, drive: str, since: float, until: float) -> int:
-        row = self.db.execute(
-            "SELECT count(*) FROM history WHERE drive = ? AND time >= ? AND time < ?",
-            (drive, since, until),
-        ).fetchone()
-        return int(row[0])
-
-    def history_reduced(
-        self, drive: str, since: float, until: float, span_s: float
-    ) -> list[tuple[float, dict[str, float | str]]]:
-        """`drive`'s history from `since` to before `until` as one point per `span_s` (spans
-        aligned to the clock, each at its start), oldest first: a number the mean of the span's,
-        a text the last. Reduced in SQLite, so that a window of months never comes into
-        Python's memory whole: the answer has (window / span) x (values) rows at most."""
-        rows = self.db.execute(
-            "SELECT CAST(h.time / :span AS INTEGER) * :span AS at, j.key, "
-            "avg(CASE WHEN j.type IN ('integer', 'real') THEN j.value END), "
-            # The one max() makes the bare j.value the text of the span's last row (SQLite).
-            "max(CASE WHEN j.type = 'text' THEN h.time END), j.value "
-            "FROM history AS h, json_each(h.data) AS j "
-            "WHERE h.drive = :drive AND h.time >= :since AND h.time < :until "
-            "GROUP BY at, j.key ORDER BY at",
-            {"span": span_s, "drive": drive, "since": since, "until": until},
-        )
-        points: dict[float, dict[str, float | str]] = {}
-        for at, key, mean, last_text, text in rows:
-            if mean is not None:
-                points.setdefault(at, {})[key] = round(mean, 6)
-            elif last_text is not None:
-                points.setdefault(at, {})[key] = text
-        return list(points.items())
-
-    def history_rows(self) -> int:
-        return _count(self.db, "SELECT count(*) FROM history")
 
     def add_config_version(self, at: float, user: str, text: str, note: str) -> int:
         """Keep a configuration's text; its version number. The oldest past

@@ -7,15 +7,15 @@
                (never on the event loop), holds the size bound, wakes whoever waits for events
     forwarding the MQTT bridge reads what the broker doesn't have yet, in id order, publishes it
                (QoS 1: acknowledged) and then marks it delivered; after a restart whatever was
-               not marked goes out again (consumers de-duplicate by `id`)
+               not marked goes out again (consumers de-duplicate by `id`): `forwarding`
     tallies    `keep_tally`: a count still growing, written as it grows; the event that
                completes it (`record(..., settles=key)`) replaces it in the same transaction
-    reading    `recent_events` and `fault_history`, for MQTT requests and the console
+    reading    `recent_events` and `fault_history`, for MQTT requests and the console: `reads`
     history    `history`: a poll listener averaging each drive's values over a step; each
                finished step's point is written with the next write (`gateway.store.history`);
-               `history_points` reads them back for the console's charts
+               `history_points` reads them back for the console's charts (`reads`)
     versions   `add_config_version`, `config_versions`: the configurations applied from the
-               console, kept for their diff and a rollback
+               console, kept for their diff and a rollback (`reads`)
 
 A disk that is full or failing must not cost the plant its events: what can't be written waits
 in memory (at most `max_waiting`, the oldest dropped and counted past it) and goes to the broker
@@ -34,9 +34,8 @@ import itertools
 import logging
 import time
 from collections import deque
-from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Final, TypeVar
 
 from gateway.errors import DiskFull, StoreError, StoreRefused
@@ -44,17 +43,15 @@ from gateway.poller.drive_state import DriveEvent, EventKind, iso_time
 from gateway.profile.telemetry import Telemetry
 from gateway.settings import StoreSettings
 from gateway.store.database import MEMORY, Batch, EventDatabase
-from gateway.store.history import MAX_WAITING_POINTS, HistoryRecorder, span_for
+from gateway.store.forwarding import StoreForwarding
+from gateway.store.history import MAX_WAITING_POINTS, HistoryRecorder
 from gateway.store.records import (
-    ConfigVersion,
     EventType,
-    FaultRecord,
     HistoryPoint,
     Json,
     NewEvent,
-    StoredEvent,
 )
-from gateway.store.status import StoreState, StoreStatus
+from gateway.store.status import StoreState, StoreStats, StoreStatus
 from gateway.tasks import ServiceTasks, cancel_and_wait
 
 log = logging.getLogger(__name__)
@@ -75,23 +72,10 @@ SNAPSHOT_LEAVES_OUT: Final = frozenset(
 )
 
 
-@dataclass(slots=True)
-class StoreStats:
-    events_recorded: int = 0
-    stored: int = 0
-    events_delivered: int = 0
-    events_dropped: int = 0
-    """Events removed (size or age bound, or memory while the disk failed) before the broker
-    had them."""
-    write_failures: int = 0
-    events_not_stored: int = 0
-    """Events pushed out of memory while the disk could not take them, though the broker had
-    them: gone from the history only."""
-    undelivered: int = 0
-    """Recorded (on disk or waiting in memory), and not yet acknowledged by the broker."""
+class EventStore(StoreForwarding):
+    """The journal: events recorded on the event loop, written on the store's thread, forwarded
+    to the broker; what it reads back is `StoreReads`'."""
 
-
-class EventStore:
     def __init__(self, settings: StoreSettings, tasks: ServiceTasks) -> None:
         self.settings = settings
         self.path = settings.path
@@ -158,14 +142,6 @@ class EventStore:
     @property
     def persistent(self) -> bool:
         return self._db.persistent
-
-    @property
-    def history_step_s(self) -> float:
-        return self.history.step_s
-
-    @property
-    def history_days(self) -> float:
-        return self.settings.history_days
 
     def status(self) -> StoreStatus:
         if self._memory_only is not None:
@@ -321,146 +297,7 @@ class EventStore:
                 )
             )
 
-    # -- forwarding: the MQTT bridge's side ----------------------------------------------------
-
-    async def undelivered(self, limit: int) -> list[StoredEvent]:
-        """The oldest events the broker has not acknowledged yet, in id order: from the file,
-        then those waiting in memory (a disk that can't take them)."""
-        self._stored.clear()  # before reading: a write finishing after it wakes `wait_stored`
-        while True:
-            writes = self._writes_done
-            events = await self._call(self._db.undelivered, self._delivered_up_to, limit)
-            if writes == self._writes_done:
-                break  # what waits in memory now is what the file didn't have
-            if events:
-                return events  # a write ended meanwhile: the rest comes from the file next time
-        if len(events) < limit and self._db.forwarding:
-            after = max(self._delivered_up_to, events[-1].id if events else 0)
-            events += [
-                event.stored()
-                for event in itertools.islice(self._unsent_waiting(after), limit - len(events))
-            ]
-        return events
-
-    async def wait_stored(self, timeout_s: float) -> None:
-        with contextlib.suppress(TimeoutError):
-            async with asyncio.timeout(timeout_s):
-                await self._stored.wait()
-
-    def delivered(self, ids: list[int]) -> None:
-        """The broker acknowledged these: marked on the store's thread, in order; returns at once
-        (so that a cancelled publisher still gets what it sent marked)."""
-        if not ids:
-            return
-        self._delivered_up_to = max(self._delivered_up_to, *ids)
-        self.stats.events_delivered += len(ids)
-        self.stats.undelivered = max(0, self.stats.undelivered - len(ids))
-        if self._waiting:
-            first = self._waiting[0].id  # ids from it on, delivered: sent from memory
-            self._sent_from_memory.update(i for i in ids if i >= first)
-        if self._executor is not None:
-            self._executor.submit(self._db.mark_delivered, ids).add_done_callback(_log_failure)
-
-    def redeliver(self) -> None:
-        """A new connection: what was published but never acknowledged goes out again."""
-        self._delivered_up_to = 0
-
-    # -- reading: MQTT requests, the console ------------------------------------------------------
-
-    async def recent_events(
-        self,
-        limit: int,
-        drive: str | None = None,
-        *,
-        types: Sequence[str] = (),
-        since: float | None = None,
-        until: float | None = None,
-    ) -> list[StoredEvent]:
-        """The newest `limit` events (of `drive`, of one of `types`, from `since` to before
-        `until`, in epoch seconds), newest first."""
-        return await self._call(self._db.recent, limit, drive, tuple(types), since, until)
-
-    async def fault_history(self, drive: str, limit: int) -> list[FaultRecord]:
-        """The newest `limit` faults of `drive`, newest first."""
-        return await self._call(self._db.faults, drive, limit)
-
-    async def open_faults(self) -> dict[str, int]:
-        """Drive → its fault still open in the fault history: what the drives were in when
-        the last run stopped. Empty when the store can't say (it isn't running)."""
-        try:
-            return await self._call(self._db.open_faults)
-        except StoreError:
-            return {}
-
-    async def history_points(
-        self, drive: str, since: float, until: float
-    ) -> list[tuple[float, dict[str, float | str]]]:
-        """`drive`'s history points from `since` to before `until` (epoch s), oldest first;
-        those still waiting for the disk included."""
-        stored = await self._call(self._db.history, drive, since, until)
-        return self._with_waiting(dict(stored), drive, since, until, 0.0)
-
-    async def history_window(
-        self, drive: str, since: float, until: float, max_points: int
-    ) -> tuple[float, list[tuple[float, dict[str, float | str]]]]:
-        """`history_points`, at most `max_points` of them (about): the points as they are when
-        the window has no more, else reduced in the database to one a span (`span_for`);
-        the time one point stands for, and the points. A point still waiting for the disk
-        stands for its span where the disk has nothing of it."""
-        step_s = self.history_step_s
-        rows = await self._call(self._db.history_count, drive, since, until)
-        if rows <= max_points:
-            return step_s, await self.history_points(drive, since, until)
-        span_s = span_for(until - since, step_s, max_points)
-        reduced = await self._call(self._db.history_reduced, drive, since, until, span_s)
-        return span_s, self._with_waiting(dict(reduced), drive, since, until, span_s)
-
-    def _with_waiting(
-        self,
-        points: dict[float, dict[str, float | str]],
-        drive: str,
-        since: float,
-        until: float,
-        span_s: float,
-    ) -> list[tuple[float, dict[str, float | str]]]:
-        for point in list(self._history):
-            if point.drive != drive or not since <= point.time < until:
-                continue
-            if not span_s:  # as the write will merge them
-                points[point.time] = {**points.get(point.time, {}), **point.values}
-            else:
-                points.setdefault(point.time - point.time % span_s, dict(point.values))
-        return sorted(points.items(), key=lambda point: point[0])
-
-    async def history_rows(self) -> int:
-        return await self._call(self._db.history_rows)
-
-    async def add_config_version(self, user: str, text: str, note: str) -> int:
-        """Keep a configuration's text at once (not through the writer: the caller must know it
-        is kept before applying it); its version number. `StoreError` if it can't be."""
-        try:
-            return await self._call(self._db.add_config_version, time.time(), user, text, note)
-        except StoreError:
-            raise
-        except Exception as exc:  # sqlite3.Error, OSError: a full or failing disk
-            raise StoreError(f"storage.path {self.path}: {exc}") from exc
-
-    async def remove_config_version(self, number: int) -> None:
-        await self._call(self._db.remove_config_version, number)
-
-    async def config_versions(self) -> list[ConfigVersion]:
-        return await self._call(self._db.config_versions)
-
-    async def size_bytes(self) -> int:
-        return await self._call(self._db.file_bytes)
-
     # -- inside ----------------------------------------------------------------------------------
-
-    async def _call(self, function: Callable[..., T], *args: object) -> T:
-        if self._executor is None:
-            raise StoreError(f"{self.path}: the store is not running")
-        loop = asyncio.get_running_loop()
-        return await loop.run_in_executor(self._executor, function, *args)
 
     async def _write_forever(self) -> None:
         next_expiry = time.monotonic() + EXPIRE_EVERY_S
@@ -558,11 +395,6 @@ class EventStore:
             return f"storage.max_mb ({self.settings.max_mb:g}) reached"
         return f"its disk has room for {bound / 1024 / 1024:.1f} MB only (less than storage.max_mb)"
 
-    def _unsent_waiting(self, after: int) -> Iterator[NewEvent]:
-        for event in self._waiting:
-            if event.id > after and event.id not in self._sent_from_memory:
-                yield event
-
     def _renumber(self, next_id: int) -> None:
         """Ids from the file's sequence on; events recorded before start take the first."""
         self._next_id = next_id
@@ -626,9 +458,3 @@ class EventStore:
 def _ignore(future: Future[None]) -> None:
     """Giving space back is worth trying; with the disk full it may fail too."""
     future.exception()
-
-
-def _log_failure(future: Future[None]) -> None:
-    exception = future.exception()
-    if exception is not None:
-        log.error("store: cannot mark events delivered: %s (they will be sent again)", exception)

@@ -5,6 +5,8 @@ cannot_write   the disk is full or failing: events wait in memory (bounded) and 
                broker from there; written once the disk takes them again, without a restart
 memory_only    storage.path could not be opened (owned by another user, a read-only disk, a
                damaged file): events are kept in memory only, a restart loses them
+
+`StoreStats` are the store's counters since the start, for /metrics (`store.metrics`).
 """
 
 from __future__ import annotations
@@ -40,3 +42,19 @@ class StoreStatus:
             "reason": self.reason,
             "events_in_memory": self.events_in_memory,
         }
+
+
+@dataclass(slots=True)
+class StoreStats:
+    events_recorded: int = 0
+    stored: int = 0
+    events_delivered: int = 0
+    events_dropped: int = 0
+    """Events removed (size or age bound, or memory while the disk failed) before the broker
+    had them."""
+    write_failures: int = 0
+    events_not_stored: int = 0
+    """Events pushed out of memory while the disk could not take them, though the broker had
+    them: gone from the history only."""
+    undelivered: int = 0
+    """Recorded (on disk or waiting in memory), and not yet acknowledged by the broker."""
