@@ -104,20 +104,36 @@ class ConsoleFeature:
         return f"{scheme}://{self.settings.host}:{self.port}/"
 
     async def start(self) -> None:
-        settings = self.settings
-        drives = self.drives
-        live = LiveState(self.buses, self.lines, drives, self.poller, self.events)
+        live = LiveState(self.buses, self.lines, self.drives, self.poller, self.events)
         if self.poller is not None:
             self.poller.add_listener(live)
         for bus in self.buses.values():
             bus.add_request_observer(live.request_done)
         self._live = live
+        self.console = self._console(live)
+        self.console.traffic.record_always()
+        self.log_tail.attach()
+        app = build_app(self.console, self.bad_requests)
+        history.add_routes(app, self.history_source)
+        configuration.add_routes(app, self.config_editor)
+        await self._listen(app)
+        live.sample_buses()
+        # In the service's TaskGroup: a bug here stops the service, saying so, rather than
+        # freezing the charts without a word.
+        self._sampler = self.tasks.start("console:sampler", self._sample(live))
+        log.info("console on %s", self.url)
+
+    def _console(self, live: LiveState) -> Console:
+        """The parts the handlers use: who may log in, the drives' operations under the access
+        rules, the line monitor, the events and the diagnostics' sources."""
+        settings = self.settings
+        drives = self.drives
         labels = {(d.bus, d.address): DriveLabel(d.name, d.unit_id, d.profile) for d in drives}
         policy = Policy(self.read_only, self.access, settings.commands_enabled)
         operations = DriveOperations(
             {d.name: d for d in drives}, self.router, policy, self.poller, self.events
         )
-        self.console = Console(
+        return Console(
             users=Users(settings.users),
             anonymous_view=settings.anonymous_view,
             commands_enabled=settings.commands_enabled,
@@ -131,11 +147,11 @@ class ConsoleFeature:
             log=self.log_tail,
             configuration=self.configuration,
         )
-        self.console.traffic.record_always()
-        self.log_tail.attach()
-        app = build_app(self.console, self.bad_requests)
-        history.add_routes(app, self.history_source)
-        configuration.add_routes(app, self.config_editor)
+
+    async def _listen(self, app: web.Application) -> None:
+        """Serve `app` on console.host/port (HTTPS with a certificate), each request within its
+        deadlines; `CannotListen` naming the keys when the address can't be had."""
+        settings = self.settings
         self._runner = web.AppRunner(
             app,
             access_log=None,
@@ -156,11 +172,6 @@ class ConsoleFeature:
                 "the console", settings.host, settings.port, "console.host/port", exc
             ) from exc
         self._site = site
-        live.sample_buses()
-        # In the service's TaskGroup: a bug here stops the service, saying so, rather than
-        # freezing the charts without a word.
-        self._sampler = self.tasks.start("console:sampler", self._sample(live))
-        log.info("console on %s", self.url)
 
     async def stop(self) -> None:
         if self.console is not None:

@@ -23,21 +23,8 @@ def page(
     scripts: Sequence[str] = (),
 ) -> str:
     attributes = " ".join(f'data-{k}="{escape(v)}"' for k, v in data.items())
-    monitor_links = (
-        '<a href="/events">Events</a><a href="/history">History</a>'
-        '<a href="/diagnostics">Diagnostics</a>'
-    ) + "".join(f'<a href="/monitor/{escape(bus)}">Monitor {escape(bus)}</a>' for bus in buses)
-    if who is not None and who.may_configure:
-        monitor_links += '<a href="/configuration">Configuration</a>'
-    if who is None or who.via is Via.ANONYMOUS:
-        user = '<a id="login-link" href="/login">Log in</a>'
-        if who is not None:
-            user = f'<span class="who">viewing anonymously</span> {user}'
-    else:
-        user = (
-            f'<span class="who" id="who">{escape(who.name)} ({escape(str(who.role))})</span>'
-            ' <button id="logout" type="button" class="link">Log out</button>'
-        )
+    monitor_links = _links(who, buses)
+    user = _user(who)
     extra = "".join(f'<script src="/static/{escape(s)}"></script>' for s in scripts)
     return f"""<!doctype html>
 <html lang="en">
@@ -65,6 +52,31 @@ def page(
 </body>
 </html>
 """
+
+
+def _links(who: Identity | None, buses: Sequence[str]) -> str:
+    """The header's links after Overview: every page, a monitor per bus, and the configuration
+    for those who may change it."""
+    links = (
+        '<a href="/events">Events</a><a href="/history">History</a>'
+        '<a href="/diagnostics">Diagnostics</a>'
+    ) + "".join(f'<a href="/monitor/{escape(bus)}">Monitor {escape(bus)}</a>' for bus in buses)
+    if who is not None and who.may_configure:
+        links += '<a href="/configuration">Configuration</a>'
+    return links
+
+
+def _user(who: Identity | None) -> str:
+    """Who is logged in, with a way out; or a way in."""
+    if who is None or who.via is Via.ANONYMOUS:
+        user = '<a id="login-link" href="/login">Log in</a>'
+        if who is not None:
+            user = f'<span class="who">viewing anonymously</span> {user}'
+        return user
+    return (
+        f'<span class="who" id="who">{escape(who.name)} ({escape(str(who.role))})</span>'
+        ' <button id="logout" type="button" class="link">Log out</button>'
+    )
 
 
 OVERVIEW = """

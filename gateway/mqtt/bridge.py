@@ -75,11 +75,7 @@ class MqttBridge:
         self.publisher = Publisher(
             mqtt, served, self.topics, self.outbox, poller, self.stats, events
         )
-        drives = {
-            # The drive's corrected profile (faults, identification, ready bit), as the poller's.
-            d.name: CommandDrive(d.name, router.route_for_drive(d.name), d.profile)
-            for d in served
-        }
+        drives = _command_drives(served, router)
         self.commands = Commands(mqtt, router, poller, drives, events)
         self.context = context = Context(
             self.topics,
@@ -107,15 +103,9 @@ class MqttBridge:
         self.settings = mqtt
         self.tasks = tasks
         self._discovery_cleaned = False
-        self.sparkplug: SparkplugNode | None = None
+        self.sparkplug = _sparkplug_node(mqtt, served, router, poller, tasks, events)
         """The Sparkplug B edge node beside the JSON topics (`mqtt.sparkplug`), on its own
         connection; it takes what the poller hands the bridge too."""
-        if mqtt.sparkplug is not None:
-            from gateway.sparkplug.edge_node import SparkplugNode  # protobuf only when asked
-
-            self.sparkplug = SparkplugNode(
-                mqtt, mqtt.sparkplug, served, router, poller, tasks, events
-            )
 
     def continue_from(self, old: MqttBridge) -> None:
         """A reload's new bridge after `old`: the Sparkplug bdSeq counts on (it counts the
@@ -230,3 +220,25 @@ class MqttBridge:
 
     def _lost(self) -> None:
         self.lanes.drop_waiting()
+
+
+def _command_drives(served: Sequence[DriveSettings], router: Router) -> dict[str, CommandDrive]:
+    """Each drive served, as commands reach it: its route, and its corrected profile (faults,
+    identification, ready bit), as the poller's."""
+    return {d.name: CommandDrive(d.name, router.route_for_drive(d.name), d.profile) for d in served}
+
+
+def _sparkplug_node(
+    mqtt: MqttSettings,
+    served: Sequence[DriveSettings],
+    router: Router,
+    poller: Poller,
+    tasks: ServiceTasks,
+    events: EventStore,
+) -> SparkplugNode | None:
+    """The edge node when `mqtt.sparkplug` asks for one, else None."""
+    if mqtt.sparkplug is None:
+        return None
+    from gateway.sparkplug.edge_node import SparkplugNode  # protobuf only when asked
+
+    return SparkplugNode(mqtt, mqtt.sparkplug, served, router, poller, tasks, events)

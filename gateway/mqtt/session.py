@@ -123,6 +123,8 @@ class Session:
         self.last_error_at: float | None = None
         self._server_index = 0
         """Which of `mqtt.servers` is in use, or tried next; the next one after each failure."""
+        self._failures = 0
+        """Connection attempts failed in a row (0 once connected)."""
 
     @property
     def server(self) -> tuple[str, int]:
@@ -185,65 +187,71 @@ class Session:
     async def _run(self) -> None:
         backoff = Backoff(RECONNECT_INITIAL_S, self.mqtt.reconnect_max_s)
         tls = self._tls = await self._tls_context(backoff)
-        failures = 0
-        retry_at_once = False
+        self._failures = 0
         while not self._stopping:
-            client: aiomqtt.Client | None = None
-            try:
-                # Inside the try: whatever building a client raises is one more failed attempt,
-                # never the end of the loop.
-                client = make_client(
-                    self.mqtt,
-                    self.topics,
-                    tls,
-                    self.server,
-                    self.protocol,
-                    last_will=self.presence.will(),
-                )
-                async with client:
-                    self._client = client
-                    if failures:
-                        log.info("MQTT: connected again after %d failed attempts", failures)
-                    failures = 0
-                    backoff.reset()
-                    await self._connected(client)
-            except* aiomqtt.MqttError as group:
-                # Refused MQTT 5: again at once, in 3.1.1; the broker is there, it answered.
-                # That is the negotiation of the protocol, not an error: Diagnostics showed
-                # "Last error 132" (MQTT 5's "unsupported protocol version") on a healthy
-                # 3.1.1 connection.
-                retry_at_once = self._choose_protocol_after(group.exceptions[0])
-                if not retry_at_once:
-                    self._note_error(group.exceptions[0])
-                    failures += 1
-                    self.stats.connect_failures += 1
-                    self._log_failure(failures, group.exceptions[0])
-            except* Exception as failure:
-                # A bug, or a client that can't be built: not the broker, but the bridge must not
-                # die of it either. The whole story once, then a line per attempt.
-                failures += 1
-                self.stats.connect_failures += 1
-                self._note_error(failure.exceptions[0])
-                if failures == 1:
-                    log.exception("MQTT bridge failed; retrying with backoff")
-                else:
-                    log.debug("MQTT bridge failed again (attempt %d)", failures, exc_info=True)
-            finally:
-                if client is not None:
-                    read_loss(client)
-                self._client = None
-                self.connected_since = None
-                self.connected.clear()
-                self._on_lost()
+            retry_at_once = await self._connection(tls, backoff)
             if self._stopping:
                 return
             if retry_at_once:
-                retry_at_once = False
                 continue
             # Whatever failed, the next broker of the list is tried (a cluster's node that
             # died may stay away; any node will do), after the backoff's wait.
             self._server_index = (self._server_index + 1) % len(self.mqtt.servers)
             await asyncio.sleep(backoff.next_delay())
+
+    async def _connection(self, tls: ssl.SSLContext | None, backoff: Backoff) -> bool:
+        """One connection to the broker, from the attempt to its loss. True: try again at once
+        (the broker refused MQTT 5, and answered: 3.1.1 next)."""
+        retry_at_once = False
+        client: aiomqtt.Client | None = None
+        try:
+            # Inside the try: whatever building a client raises is one more failed attempt,
+            # never the end of the loop.
+            client = make_client(
+                self.mqtt,
+                self.topics,
+                tls,
+                self.server,
+                self.protocol,
+                last_will=self.presence.will(),
+            )
+            async with client:
+                self._client = client
+                if self._failures:
+                    log.info("MQTT: connected again after %d failed attempts", self._failures)
+                self._failures = 0
+                backoff.reset()
+                await self._connected(client)
+        except* aiomqtt.MqttError as group:
+            # Refused MQTT 5: again at once, in 3.1.1; the broker is there, it answered.
+            # That is the negotiation of the protocol, not an error: Diagnostics showed
+            # "Last error 132" (MQTT 5's "unsupported protocol version") on a healthy
+            # 3.1.1 connection.
+            retry_at_once = self._choose_protocol_after(group.exceptions[0])
+            if not retry_at_once:
+                self._log_failure(self._failed(group.exceptions[0]), group.exceptions[0])
+        except* Exception as failure:
+            # A bug, or a client that can't be built: not the broker, but the bridge must not
+            # die of it either. The whole story once, then a line per attempt.
+            if self._failed(failure.exceptions[0]) == 1:
+                log.exception("MQTT bridge failed; retrying with backoff")
+            else:
+                log.debug("MQTT bridge failed again (attempt %d)", self._failures, exc_info=True)
+        finally:
+            if client is not None:
+                read_loss(client)
+            self._client = None
+            self.connected_since = None
+            self.connected.clear()
+            self._on_lost()
+        return retry_at_once
+
+    def _failed(self, error: BaseException) -> int:
+        """One more failed attempt, noted for Diagnostics and counted; how many in a row."""
+        self._note_error(error)
+        self._failures += 1
+        self.stats.connect_failures += 1
+        return self._failures
 
     def _note_error(self, error: BaseException) -> None:
         self.last_error = str(error) or type(error).__name__

@@ -14,6 +14,7 @@ A device file is checked whole when it is loaded: every mistake is named by its 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any, Final, Literal
@@ -230,28 +231,7 @@ def _typed(name: str, spec: _PointSpec, device: _DeviceSpec, where: str) -> Type
 
     registers = _registers(spec, wrong)
     assert isinstance(spec.address, int)  # the validator made it one
-    if spec.address + registers > 0x10000:
-        raise wrong("address", f"its {registers} registers pass FFFFH")
-    if spec.table.bits != (spec.type is Kind.BOOL):
-        raise wrong(
-            "type",
-            "a coil or discrete input is a bool, and a bool is a coil or a discrete input",
-        )
-    if (spec.type is Kind.BIT) != (spec.bit is not None) or not 0 <= (spec.bit or 0) <= 15:
-        raise wrong("bit", "a bit point needs bit: 0..15, and only a bit point has one")
-    if (spec.type is Kind.ENUM) != bool(spec.values):
-        raise wrong("values", "an enum needs values (raw: words), and only an enum has them")
-    if spec.writable and spec.table in (Table.INPUT, Table.DISCRETE_INPUT):
-        raise wrong("writable", "input registers and discrete inputs are read-only on every device")
-    if spec.writable and spec.type is Kind.BIT:
-        raise wrong(
-            "writable", "a bit can't be written alone (its register's other bits would be too)"
-        )
-    limited = spec.high is not None or spec.low is not None
-    if limited and spec.type in (Kind.STRING, Kind.ENUM, Kind.BIT, Kind.BOOL):
-        raise wrong("high" if spec.high is not None else "low", "only a number has limits")
-    if spec.high is not None and spec.low is not None and spec.low >= spec.high:
-        raise wrong("low", f"must be below high ({spec.high:g})")
+    _check(spec, spec.address, registers, wrong)
     order = spec.order or device.order
     if spec.type is Kind.STRING and order.words_reversed:
         raise wrong("order", "a string's registers come in order: ABCD or BADC")
@@ -276,6 +256,35 @@ def _typed(name: str, spec: _PointSpec, device: _DeviceSpec, where: str) -> Type
         report=_report(spec, device),
         limit=Limit(spec.high, spec.low, spec.hysteresis, spec.alarm_delay_ms / 1000),
     )
+
+
+def _check(
+    spec: _PointSpec, address: int, registers: int, wrong: Callable[[str, str], DeviceFileError]
+) -> None:
+    """What a point's keys must agree on: its table and type, a bit's number, an enum's values,
+    what may be written, a number's limits."""
+    if address + registers > 0x10000:
+        raise wrong("address", f"its {registers} registers pass FFFFH")
+    if spec.table.bits != (spec.type is Kind.BOOL):
+        raise wrong(
+            "type",
+            "a coil or discrete input is a bool, and a bool is a coil or a discrete input",
+        )
+    if (spec.type is Kind.BIT) != (spec.bit is not None) or not 0 <= (spec.bit or 0) <= 15:
+        raise wrong("bit", "a bit point needs bit: 0..15, and only a bit point has one")
+    if (spec.type is Kind.ENUM) != bool(spec.values):
+        raise wrong("values", "an enum needs values (raw: words), and only an enum has them")
+    if spec.writable and spec.table in (Table.INPUT, Table.DISCRETE_INPUT):
+        raise wrong("writable", "input registers and discrete inputs are read-only on every device")
+    if spec.writable and spec.type is Kind.BIT:
+        raise wrong(
+            "writable", "a bit can't be written alone (its register's other bits would be too)"
+        )
+    limited = spec.high is not None or spec.low is not None
+    if limited and spec.type in (Kind.STRING, Kind.ENUM, Kind.BIT, Kind.BOOL):
+        raise wrong("high" if spec.high is not None else "low", "only a number has limits")
+    if spec.high is not None and spec.low is not None and spec.low >= spec.high:
+        raise wrong("low", f"must be below high ({spec.high:g})")
 
 
 def _report(spec: _PointSpec, device: _DeviceSpec) -> ReportRule:

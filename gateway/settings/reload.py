@@ -37,7 +37,15 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
-from gateway.config import BusConfig, DriveConfig, GatewayConfig, MetricsConfig, ModbusTcpConfig
+from gateway.config import (
+    BusConfig,
+    ConsoleConfig,
+    DriveConfig,
+    GatewayConfig,
+    MetricsConfig,
+    ModbusTcpConfig,
+    MqttConfig,
+)
 from gateway.profile import DriveProfile
 from gateway.profile.device_files import FILE_PREFIX
 from gateway.settings import DriveSettings, GatewaySettings, runtime_settings
@@ -104,21 +112,9 @@ def plan(
         changed.append("storage")
     if new.logging != old.logging:
         changed.append("logging")
-    mqtt = old.mqtt
-    was_on = old.mqtt is not None and old.mqtt.enabled
-    is_on = new.mqtt is not None and new.mqtt.enabled
-    if was_on != is_on:
-        restart.append("mqtt.enabled")  # the store's forwarding is set at start
-    elif old.mqtt != new.mqtt:
-        mqtt = new.mqtt
-        if is_on:
-            changed.append("mqtt")
+    mqtt = _mqtt(old.mqtt, new.mqtt, changed, restart)
     metrics = _metrics(old.metrics, new.metrics, changed, restart)
-    restart += [
-        f"console.{key}"
-        for key in type(new.console).model_fields
-        if getattr(old.console, key) != getattr(new.console, key)
-    ]
+    restart += _console(old.console, new.console)
     reopened = _buses(old, new, changed, restart)
     # Buses added or removed wait for a restart, and so do the drives that would move onto or
     # off them; on every other bus (reopened or not) drives change now.
@@ -127,18 +123,8 @@ def plan(
     restart_bridge = mqtt_running and ("mqtt" in changed or bool(added or removed))
     if (added or removed) and mqtt_running:
         changed.append("MQTT topics of drives added or removed")
-    running = new.model_copy(
-        update={
-            "gateway_id": old.gateway_id,
-            "modbus_tcp": tcp,
-            "storage": storage,
-            "buses": _running_buses(old, new),
-            "drives": drives,
-            "mqtt": mqtt,
-            "metrics": metrics,
-            "console": old.console,
-        }
-    )
+    planned = {"modbus_tcp": tcp, "storage": storage, "mqtt": mqtt, "metrics": metrics}
+    running = _running(old, new, drives, planned)
     settings = runtime_settings(running)
     return ReloadPlan(
         old,
@@ -151,6 +137,40 @@ def plan(
         reopened,
         restart_bridge,
     )
+
+
+def _running(
+    old: GatewayConfig,
+    new: GatewayConfig,
+    drives: tuple[DriveConfig, ...],
+    parts: Mapping[str, object],
+) -> GatewayConfig:
+    """The configuration that runs after the reload: `new`, with what waits for a restart as it
+    was (the gateway id, the console, buses added or removed) and `parts` as planned."""
+    kept = {"gateway_id": old.gateway_id, "console": old.console}
+    buses = _running_buses(old, new)
+    return new.model_copy(update={**kept, **parts, "buses": buses, "drives": drives})
+
+
+def _mqtt(
+    old: MqttConfig | None, new: MqttConfig | None, changed: list[str], restart: list[str]
+) -> MqttConfig | None:
+    """The broker's settings change now; turning MQTT on or off waits for a restart."""
+    was_on = old is not None and old.enabled
+    is_on = new is not None and new.enabled
+    if was_on != is_on:
+        restart.append("mqtt.enabled")  # the store's forwarding is set at start
+        return old
+    if old != new and is_on:
+        changed.append("mqtt")
+    return old if old == new else new
+
+
+def _console(old: ConsoleConfig, new: ConsoleConfig) -> list[str]:
+    """Every console key waits for a restart (its listener, users and sessions)."""
+    return [
+        f"console.{key}" for key in type(new).model_fields if getattr(old, key) != getattr(new, key)
+    ]
 
 
 def _buses(
