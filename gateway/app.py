@@ -27,7 +27,6 @@ from gateway.poller import Poller
 from gateway.routing import RegisterCache, Router
 from gateway.settings import (
     ConsoleSettings,
-    DriveSettings,
     GatewaySettings,
     MqttSettings,
     drive_route,
@@ -40,7 +39,9 @@ from gateway.tasks import ServiceTasks, cancel_and_wait
 from gateway.tcp import ModbusTcpServer
 
 if TYPE_CHECKING:
+    from gateway.console.feature import ConsoleFeature
     from gateway.metrics import MetricsFeature
+    from gateway.mqtt import MqttBridge
 
 log = logging.getLogger(__name__)
 
@@ -58,6 +59,11 @@ class Feature(Protocol):
 
 
 class Application:
+    """The parts, each built by a function of its own and named here: the buses, the router,
+    the Modbus-TCP server, the store, the write tally and the poller always; the MQTT bridge,
+    /metrics and the console when their sections are configured (None when not). Nothing is
+    found by asking whether an attribute exists."""
+
     def __init__(self, settings: GatewaySettings) -> None:
         self.settings = settings
         self.buses = {b.name: Bus(b) for b in settings.buses}
@@ -69,77 +75,91 @@ class Application:
         # Reads that are one transaction go to the router's `submit` directly (one call less per
         # request); the router says False to anything else, so there is no write to tally there.
         self.tcp = ModbusTcpServer(settings.tcp, self._handle_tcp, self.router.submit)
-        self.features: list[Feature] = []
         self.tasks = ServiceTasks()
         self._group: asyncio.TaskGroup | None = None
         self._bus_tasks: dict[str, asyncio.Task[None]] = {}
         """Each bus's `run`, by name: a reload that reopens a bus waits for its old one."""
         self.phase = Phase.STARTING
-        # Started before the features that record events, stopped after them: none is lost.
         self.events = EventStore(settings.store, self.tasks)
-        self.features.append(self.events)
         for bus in self.buses.values():
             bus.add_port_listener(self.events.port_changed)
         self.writes = WriteTally(self.events, self._drive_of, self.tasks)
-        self.features.append(self.writes)
-        polled = [d for d in settings.drives if settings.polled(d)]
-        if polled:
-            self._add_poller(polled)
+        self.poller = self._build_poller()
+        self.mqtt: MqttBridge | None = None
         if settings.mqtt is not None:
-            self._add_mqtt(settings.mqtt)
+            self.mqtt = self._build_mqtt(settings.mqtt)
+        self.metrics: MetricsFeature | None = None
         if settings.metrics is not None:
             from gateway.metrics import MetricsFeature  # prometheus-client only when asked for
 
-            # First to start, last to stop: /health answers while the others come and go.
             self.metrics = MetricsFeature(self, settings.metrics)
-            self.features.insert(0, self.metrics)
+        self.console: ConsoleFeature | None = None
         if settings.console is not None:
-            self._add_console(settings.console)
+            self.console = self._build_console(settings.console)
 
-    def _add_poller(self, drives: list[DriveSettings]) -> None:
-        """Polls feed the cache, the fault log and (when configured) the MQTT bridge."""
+    @property
+    def features(self) -> list[Feature]:
+        """The parts with a lifecycle, in the order they start (they stop in reverse): /metrics
+        first and last, so /health answers while the others come and go; the store before
+        every part that records events, so none is lost; the poller before the bridge and the
+        console it feeds."""
+        parts: tuple[Feature | None, ...] = (
+            self.metrics,
+            self.events,
+            self.writes,
+            self.poller,
+            self.mqtt,
+            self.console,
+        )
+        return [part for part in parts if part is not None]
+
+    def _build_poller(self) -> Poller:
+        """Polls feed the cache, the fault log and (when configured) the MQTT bridge and the
+        console. It runs with no drive to poll too (a pure Modbus-TCP gateway, a site whose
+        drives are still to come): a reload may add some."""
         from gateway.event_log import DriveEventLog
 
-        self.poller = Poller(drives, self.router, self.tasks)
+        settings = self.settings
+        poller = Poller([d for d in settings.drives if settings.polled(d)], self.router, self.tasks)
         for bus in self.buses.values():
-            bus.add_listener(self.poller.on_drive_health)
-        self.poller.add_listener(DriveEventLog())
-        self.poller.add_listener(self.events)
-        self.poller.add_listener(self.events.history)  # the history of polled values
-        self.poller.open_faults = self.events.open_faults  # no fault raised twice by a restart
-        self.features.append(self.poller)
+            bus.add_listener(poller.on_drive_health)
+        poller.add_listener(DriveEventLog())
+        poller.add_listener(self.events)
+        poller.add_listener(self.events.history)  # the history of polled values
+        poller.open_faults = self.events.open_faults  # no fault raised twice by a restart
+        return poller
 
-    def _add_mqtt(self, mqtt: MqttSettings) -> None:
-        """The bridge stops before the poller that feeds it (features stop in reverse)."""
+    def _build_mqtt(self, mqtt: MqttSettings) -> MqttBridge:
+        """The bridge takes what the poller hands it; it stops before the poller."""
         from gateway.mqtt import MqttBridge  # aiomqtt only loaded when MQTT is configured
 
         drives = self.settings.drives
-        self.mqtt = MqttBridge(mqtt, drives, self.router, self.poller, self.tasks, self.events)
+        bridge = MqttBridge(mqtt, drives, self.router, self.poller, self.tasks, self.events)
         self.poller.read_max_frequency = mqtt.homeassistant_discovery
-        self.poller.add_listener(self.mqtt)
-        self.features.append(self.mqtt)
+        self.poller.add_listener(bridge)
+        return bridge
 
     async def reload(self, new: GatewaySettings) -> ReloadPlan:
         """Apply a new, valid configuration in place (`gateway.settings.reload`); what changed."""
-        poller: Poller | None = getattr(self, "poller", None)
+        poller = self.poller
         profiles = {d.name: d.profile for d in self.settings.drives}
         plan = plan_reload(
-            self.settings.source, new.source, mqtt_running=hasattr(self, "mqtt"), profiles=profiles
+            self.settings.source,
+            new.source,
+            mqtt_running=self.mqtt is not None,
+            profiles=profiles,
         )
         await self._check_bridge_alone(plan)  # before anything changes: a refusal keeps it all
         running = self.settings = plan.settings
-        if poller is None and any(running.polled(d) for d in plan.added):
-            plan.restart_needed.append("polling (no drive was polled at start)")
         for name in plan.removed:
-            if poller is not None:
-                poller.remove_drive(name)
+            poller.remove_drive(name)
         closed = self._replace_buses(running, plan.reopened)
         routes = (drive_route(d, self.buses[d.bus]) for d in running.drives)
         self.router.replace_routes(routes, self.buses.values())
-        if poller is not None and plan.reopened:
+        if plan.reopened:
             poller.reroute()
         for drive in plan.added:
-            if poller is not None and running.polled(drive):
+            if running.polled(drive):
                 poller.add_drive(drive)
         self.tcp.update(running.tcp)
         self.events.update_bounds(running.store)
@@ -169,7 +189,7 @@ class Application:
     async def _reload_mqtt(self, plan: ReloadPlan) -> None:
         """The bridge, started again with the running configuration: new settings, the drives
         it serves now (a removed one's topics are no longer subscribed, an added one's are)."""
-        old = getattr(self, "mqtt", None)
+        old = self.mqtt
         running = plan.settings
         if old is None or not plan.restart_bridge or running.mqtt is None:
             return
@@ -182,12 +202,11 @@ class Application:
         )
         new.continue_from(old)
         self.poller.add_listener(new)
-        self.features[self.features.index(old)] = new
         self.mqtt = new
         await new.start(checked=True)  # by `_check_bridge_alone`, before the reload began
 
     async def _reload_metrics(self, plan: ReloadPlan) -> None:
-        metrics: MetricsFeature | None = getattr(self, "metrics", None)
+        metrics = self.metrics
         if metrics is None:
             return
         if plan.added or plan.removed:
@@ -247,29 +266,28 @@ class Application:
     def cache(self) -> RegisterCache:
         return self.router.cache
 
-    def _add_console(self, console: ConsoleSettings) -> None:
+    def _build_console(self, console: ConsoleSettings) -> ConsoleFeature:
         """The console reads the poller's state and sends through the router, with Modbus-TCP's
         write policy; it starts after the poller and stops before it."""
         from gateway.console.events import ConsoleEventsRecorded
         from gateway.console.feature import ConsoleFeature  # aiohttp only when asked for
 
-        self.console = ConsoleFeature(
+        return ConsoleFeature(
             console,
             self.settings.buses,
             self.settings.drives,
             self.buses,
             self.router,
-            getattr(self, "poller", None),
+            self.poller,
             self.tasks,
             read_only=self.settings.tcp.read_only,
             access=self.tcp.access,
             events=ConsoleEventsRecorded(self.events),
             tcp=self.tcp,
-            mqtt=getattr(self, "mqtt", None),
+            mqtt=self.mqtt,
             configuration=lambda: self.settings.shown_configuration(),
             history_source=self.events,
         )
-        self.features.append(self.console)
 
     async def _handle_tcp(self, unit_id: int, pdu: bytes, client: str) -> bytes | None:
         try:

@@ -17,7 +17,7 @@ import platform
 import time
 from collections.abc import Callable, Iterable, Mapping
 from http import HTTPStatus
-from typing import Generic, Protocol, TypeVar
+from typing import TYPE_CHECKING, Generic, Protocol, TypeVar
 
 from prometheus_client import (
     CONTENT_TYPE_LATEST,
@@ -45,6 +45,10 @@ from gateway.store.metrics import StoreMetrics
 from gateway.tcp.metrics import TcpMetrics
 from gateway.tcp.server import ModbusTcpServer
 
+if TYPE_CHECKING:
+    from gateway.console.feature import ConsoleFeature
+    from gateway.mqtt import MqttBridge
+
 log = logging.getLogger(__name__)
 T = TypeVar("T")
 
@@ -69,6 +73,14 @@ class Service(Protocol):
 
     @property
     def events(self) -> EventStore: ...
+
+    @property
+    def mqtt(self) -> MqttBridge | None:
+        """None: MQTT is not configured. A reload may replace the bridge."""
+
+    @property
+    def console(self) -> ConsoleFeature | None:
+        """None: the console is not configured."""
 
 
 def drive_labels(service: Service) -> list[DriveLabels]:
@@ -155,15 +167,14 @@ class MetricsFeature:
         store's."""
         service = self.service
         yield TcpMetrics(service.tcp)
-        if hasattr(service, "mqtt"):
+        if service.mqtt is not None:
             from gateway.mqtt.metrics import MqttMetrics
 
-            yield OfTheCurrent(lambda: getattr(service, "mqtt", None), MqttMetrics)
-        console = getattr(service, "console", None)
-        if console is not None:
+            yield OfTheCurrent(lambda: service.mqtt, MqttMetrics)
+        if service.console is not None:
             from gateway.console.metrics import ConsoleMetrics
 
-            yield ConsoleMetrics(console)
+            yield ConsoleMetrics(service.console)
         yield StoreMetrics(service.events)
 
     def _endpoint(self, settings: MetricsSettings) -> HttpEndpoint:

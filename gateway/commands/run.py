@@ -7,7 +7,8 @@ import asyncio
 import logging
 import signal
 import sys
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Coroutine, Mapping
+from typing import Any
 
 from gateway.app import Application
 from gateway.collector import settle_startup_objects
@@ -101,31 +102,67 @@ async def serve(
     `modbus_tcp.port`): an error that names such a key names the option too, since the user
     typed the option and may never have seen the key.
     """
-    problems = await asyncio.to_thread(startup_problems, config)
-    if problems:
-        # What binding and loading would find one at a time, said at once, before anything
-        # started: the same lines check-config and the console give.
-        for key, reason in problems:
-            log.error("cannot start: %s", naming_flags(f"{key}: {reason}", flags))
+    if not await can_start(config, flags):
         return EXIT_STARTUP
     app = Application(runtime_settings(config))
-    stop = asyncio.Event()
-    loop = asyncio.get_running_loop()
     notifier = Notifier.from_environment()
-
-    def on_signal(signum: signal.Signals) -> None:
-        if not stop.is_set():
-            log.info("%s received: shutting down", signum.name)
-            notifier.stopping()
-        stop.set()
-
-    for signum in (signal.SIGTERM, signal.SIGINT):
-        loop.add_signal_handler(signum, on_signal, signum)
     reloader = Reloader(app, config_path, notifier)
     _edit_from_console(app, config_path, reloader)
-    reload_asked = asyncio.Event()
-    loop.add_signal_handler(signal.SIGHUP, reload_asked.set)
-    control = await listen_for_control(config_path, reloader)
+    with Signals(notifier) as signals:
+        control = await listen_for_control(config_path, reloader)
+        try:
+            work = beside_the_service(reloader, signals.reload_asked, notifier)
+            ready = announce_ready(app, config, notifier, on_ready)
+            return await run_to_exit_code(app, signals.stop, ready, work, flags)
+        finally:
+            if control is not None:
+                await control.stop()
+            notifier.close()
+
+
+async def can_start(config: GatewayConfig, flags: Mapping[str, str] | None) -> bool:
+    """What binding and loading would find one at a time, said at once, before anything
+    started: the same lines check-config and the console give."""
+    problems = await asyncio.to_thread(startup_problems, config)
+    for key, reason in problems:
+        log.error("cannot start: %s", naming_flags(f"{key}: {reason}", flags))
+    return not problems
+
+
+class Signals:
+    """SIGTERM and SIGINT set `stop` (STOPPING=1 to systemd, once); SIGHUP sets
+    `reload_asked`. The handlers are this loop's while the block runs, and removed after."""
+
+    def __init__(self, notifier: Notifier) -> None:
+        self.notifier = notifier
+        self.stop = asyncio.Event()
+        self.reload_asked = asyncio.Event()
+        self._loop = asyncio.get_running_loop()
+
+    def __enter__(self) -> Signals:
+        for signum in (signal.SIGTERM, signal.SIGINT):
+            self._loop.add_signal_handler(signum, self._stop, signum)
+        self._loop.add_signal_handler(signal.SIGHUP, self.reload_asked.set)
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        for signum in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
+            self._loop.remove_signal_handler(signum)
+
+    def _stop(self, signum: signal.Signals) -> None:
+        if not self.stop.is_set():
+            log.info("%s received: shutting down", signum.name)
+            self.notifier.stopping()
+        self.stop.set()
+
+
+def announce_ready(
+    app: Application,
+    config: GatewayConfig,
+    notifier: Notifier,
+    on_ready: Callable[[Application], None] | None,
+) -> Callable[[], None]:
+    """What runs once the gateway is ready: the log line, READY=1, and the caller's own."""
 
     def ready() -> None:
         status = (
@@ -138,12 +175,31 @@ async def serve(
         if on_ready is not None:
             on_ready(app)
 
-    # In the application's TaskGroup: a bug in either stops the service, saying so, rather
-    # than leaving it deaf to SIGHUP or killed later by the watchdog without a reason.
-    alongside = {"reload": reloader.on_hangup(reload_asked)}
+    return ready
+
+
+def beside_the_service(
+    reloader: Reloader, reload_asked: asyncio.Event, notifier: Notifier
+) -> dict[str, Coroutine[Any, Any, None]]:
+    """The service's own work, by task name, for the application's TaskGroup: a bug in either
+    stops the service, saying so, rather than leaving it deaf to SIGHUP or killed later by the
+    watchdog without a reason."""
+    work = {"reload": reloader.on_hangup(reload_asked)}
     interval_s = watchdog_interval_s()
     if interval_s is not None and notifier.enabled:
-        alongside["systemd-watchdog"] = keep_watchdog(notifier, interval_s)
+        work["systemd-watchdog"] = keep_watchdog(notifier, interval_s)
+    return work
+
+
+async def run_to_exit_code(
+    app: Application,
+    stop: asyncio.Event,
+    ready: Callable[[], None],
+    alongside: Mapping[str, Coroutine[Any, Any, None]],
+    flags: Mapping[str, str] | None,
+) -> int:
+    """The application run until `stop`; its failures turned into the exit codes the service
+    manager reads (`gateway.exit_codes`)."""
     try:
         await app.run(stop, ready, alongside)
     except OSError as exc:
@@ -162,12 +218,6 @@ async def serve(
         # Exit non-zero so the service manager restarts the gateway (Restart=on-failure).
         log.critical("stopping: %s", failed.exceptions[0])
         return EXIT_FAILURE
-    finally:
-        for signum in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
-            loop.remove_signal_handler(signum)
-        if control is not None:
-            await control.stop()
-        notifier.close()
     return EXIT_OK
 
 
@@ -180,7 +230,7 @@ def naming_flags(message: str, flags: Mapping[str, str] | None) -> str:
 
 def _edit_from_console(app: Application, path: str | None, reloader: Reloader) -> None:
     """The console's admins edit the file the gateway runs with, applied by the same reload."""
-    console = getattr(app, "console", None)
+    console = app.console
     if console is None or path is None:
         return
     from gateway.console.config_editor import ConfigEditor
@@ -191,7 +241,7 @@ def _edit_from_console(app: Application, path: str | None, reloader: Reloader) -
         reloader.reload,
         app.events,
         lambda: app.settings,
-        lambda: hasattr(app, "mqtt"),
+        lambda: app.mqtt is not None,
         SecretSeal(lambda: app.events.path if app.events.persistent else None),
     )
 

@@ -15,7 +15,7 @@ import time
 import tty
 from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass
-from typing import Any, TypeAlias
+from typing import Any, TypeAlias, TypeVar
 
 from gateway.app import Application
 from gateway.bus import Bus
@@ -25,9 +25,18 @@ from gateway.instruments.bench.processes import (
 )
 from gateway.settings import bus_settings, runtime_settings
 
+T = TypeVar("T")
+
 RecordProperty: TypeAlias = Callable[[str, object], None]
 """The type of pytest's `record_property` fixture (pytest exports no name for it): records a
 key and value as a property of the test in the JUnit XML report."""
+
+
+def present(part: T | None) -> T:
+    """An optional part of the application that the test configured (`app.mqtt`,
+    `app.console`: None when their section is absent)."""
+    assert part is not None, "the test's configuration has no such part"
+    return part
 
 
 async def eventually(

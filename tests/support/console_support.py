@@ -15,7 +15,7 @@ from gateway.app import Application
 from gateway.config import GatewayConfig
 from gateway.passwords import hash_password, hash_token
 from gateway.profile.invt import STATE_WORD_1
-from tests.support import TcpClient
+from tests.support import TcpClient, present
 
 OPERATOR_PASSWORD = "operator-secret-1"
 VIEWER_PASSWORD = "viewer-secret-22"
@@ -100,7 +100,7 @@ async def console_client(app: Application) -> AsyncIterator[ConsoleClient]:
     # unsafe=True: the cookie jar keeps cookies of an IP address host (127.0.0.1), as browsers do.
     jar = aiohttp.CookieJar(unsafe=True)
     async with aiohttp.ClientSession(cookie_jar=jar) as session:
-        yield ConsoleClient(session, f"http://127.0.0.1:{app.console.port}")
+        yield ConsoleClient(session, f"http://127.0.0.1:{present(app.console).port}")
 
 
 async def state_word(app: Application, unit_id: int) -> int:

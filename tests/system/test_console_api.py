@@ -19,7 +19,7 @@ from gateway.app import Application
 from gateway.console.auth import MAX_FAILURES
 from gateway.instruments.simulator import SimulatedLine
 from gateway.profile import get_profile
-from tests.support import TcpClient, eventually, read_pdu, running_gateway
+from tests.support import TcpClient, eventually, present, read_pdu, running_gateway
 from tests.support.console_support import (
     OPERATOR_PASSWORD,
     OPERATOR_TOKEN,
@@ -338,8 +338,9 @@ async def test_the_monitor_records_at_all_times_and_streams_a_read_as_it_happens
 ) -> None:
     app, web = traffic
     bus = app.buses["line1"]
-    assert app.console.console is not None  # the console has started
-    monitor = app.console.console.traffic
+    started = present(app.console).console
+    assert started is not None  # the console has started
+    monitor = started.traffic
     client = await TcpClient.connect(app.tcp.port)
     await client.request(1, read_pdu(STATE_WORD_1))
     assert bus.tap is not None  # recording before anybody watches
@@ -420,7 +421,7 @@ async def test_open_streams_do_not_hold_up_the_shutdown(line: SimulatedLine) -> 
     config = console_config(line.path, anonymous_view=True)
     async with aiohttp.ClientSession() as session:
         async with running_gateway(config) as app:
-            base = f"http://127.0.0.1:{app.console.port}"
+            base = f"http://127.0.0.1:{present(app.console).port}"
             traffic = await session.get(f"{base}/api/buses/line1/traffic")
             live = await session.get(f"{base}/api/live")
             assert (await traffic.content.readline()).startswith(b"event: watching")
@@ -442,8 +443,8 @@ async def test_with_a_certificate_the_console_speaks_https_only(
     )
     trusting = ssl.create_default_context(cafile=str(certificates.ca))
     async with running_gateway(config) as app, aiohttp.ClientSession() as session:
-        port = app.console.port
-        assert app.console.url == f"https://127.0.0.1:{port}/"
+        port = present(app.console).port
+        assert present(app.console).url == f"https://127.0.0.1:{port}/"
         login = {"name": "olga", "password": OPERATOR_PASSWORD}
         async with session.post(
             f"https://127.0.0.1:{port}/api/login", json=login, ssl=trusting

@@ -21,7 +21,7 @@ import pytest
 from gateway.app import Application
 from gateway.console.auth import MAX_ADDRESS_FAILURES, MAX_FAILURES
 from gateway.instruments.simulator import SimulatedLine
-from tests.support import running_gateway
+from tests.support import present, running_gateway
 from tests.support.console_support import (
     OPERATOR_PASSWORD,
     VIEWER_PASSWORD,
@@ -43,7 +43,7 @@ async def client_from(app: Application, address: str) -> AsyncIterator[ConsoleCl
     connector = aiohttp.TCPConnector(local_addr=(address, 0))
     jar = aiohttp.CookieJar(unsafe=True)
     async with aiohttp.ClientSession(connector=connector, cookie_jar=jar) as session:
-        yield ConsoleClient(session, f"http://127.0.0.1:{app.console.port}")
+        yield ConsoleClient(session, f"http://127.0.0.1:{present(app.console).port}")
 
 
 async def test_a_guesser_elsewhere_slows_only_himself(line: SimulatedLine) -> None:
@@ -62,7 +62,8 @@ async def test_a_guesser_elsewhere_slows_only_himself(line: SimulatedLine) -> No
             second = await guesser.login("olga", WRONG)
             assert second.status == 429
             assert int(second.headers["Retry-After"]) == 2 * first_wait
-        counts = app.console.console.logins if app.console.console else None
+        started = present(app.console).console
+        counts = started.logins if started else None
         assert counts is not None
         assert (counts.ok, counts.failed, counts.throttled) == (1, MAX_FAILURES + 1, 2)
 

@@ -22,7 +22,7 @@ from selenium.webdriver.support.ui import Select
 from gateway.app import Application
 from gateway.instruments.simulator import SimulatedLine
 from gateway.profile import get_profile
-from tests.support import TcpClient, running_gateway, write_pdu
+from tests.support import TcpClient, present, running_gateway, write_pdu
 from tests.support.browser import CHROMEDRIVER, CHROMIUM, Browser, answered, showing
 from tests.support.console_support import (
     OPERATOR_PASSWORD,
@@ -44,7 +44,7 @@ pytestmark = pytest.mark.skipif(
 @pytest.fixture
 async def console(line: SimulatedLine) -> AsyncIterator[tuple[Application, Browser]]:
     async with running_gateway(console_config(line.path, anonymous_view=True)) as app:
-        browser = await asyncio.to_thread(Browser, f"http://127.0.0.1:{app.console.port}")
+        browser = await asyncio.to_thread(Browser, f"http://127.0.0.1:{present(app.console).port}")
         try:
             yield app, browser
         finally:

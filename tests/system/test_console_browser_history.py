@@ -27,6 +27,7 @@ from gateway.passwords import hash_password
 from gateway.poller.drive_state import iso_time
 from gateway.settings import runtime_settings
 from gateway.systemd import Notifier
+from tests.support import present as configured
 from tests.support import running_application
 from tests.support.browser import CHROMEDRIVER, CHROMIUM, Browser, showing
 from tests.support.console_support import OPERATOR_PASSWORD, console_config
@@ -56,7 +57,9 @@ async def console(
     app = Application(runtime_settings(load_config(path)))
     _edit_from_console(app, str(path), Reloader(app, str(path), Notifier(None)))
     async with running_application(app):
-        browser = await asyncio.to_thread(Browser, f"http://127.0.0.1:{app.console.port}")
+        browser = await asyncio.to_thread(
+            Browser, f"http://127.0.0.1:{configured(app.console).port}"
+        )
         try:
             yield app, browser
         finally:

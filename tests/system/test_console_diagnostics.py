@@ -14,7 +14,7 @@ from gateway.app import Application
 from gateway.config import GatewayConfig, MqttConfig
 from gateway.instruments.embedded_broker import EmbeddedBroker
 from gateway.instruments.simulator import SimulatedLine
-from tests.support import TcpClient, eventually, free_port, running_gateway
+from tests.support import TcpClient, eventually, free_port, present, running_gateway
 from tests.support.console_support import (
     OPERATOR_PASSWORD,
     VIEWER_PASSWORD,
@@ -158,7 +158,7 @@ async def test_no_broker_there_is_a_last_error(line: SimulatedLine) -> None:
 
 async def connected(app: Application) -> None:
     async def up() -> bool:
-        return app.mqtt.connected.is_set()
+        return present(app.mqtt).connected.is_set()
 
     await eventually(up)
 

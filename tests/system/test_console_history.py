@@ -26,6 +26,7 @@ from tests.support import (
     TcpClient,
     eventually,
     free_port,
+    present,
     read_pdu,
     running_gateway,
     write_many,
@@ -108,7 +109,7 @@ async def test_the_history_survives_a_restart_and_is_charted_and_downloaded(
         assert float(rows[1][1]) == hertz[0]
 
         # The last 15 minutes come from the console's live ring, a point a second.
-        await eventually(lambda: bool(app.console.console and _live_points(app)), 5.0)
+        await eventually(lambda: bool(present(app.console).console and _live_points(app)), 5.0)
         live = await web.get_json("/api/drives/pump1/history?keys=output_frequency_hz&window=15m")
         assert live["source"] == "live"
         assert live["step_s"] == 1.0

@@ -20,7 +20,7 @@ import yaml
 from gateway.app import Application
 from gateway.config import GatewayConfig
 from gateway.instruments.simulator import SimulatedLine
-from tests.support import TcpClient, eventually, running_gateway
+from tests.support import TcpClient, eventually, present, running_gateway
 from tests.support.browser import CHROMEDRIVER, CHROMIUM, Browser, showing
 from tests.support.console_support import VIEWER_PASSWORD, console_client, console_config
 from tests.support.processes import run_cli
@@ -136,7 +136,7 @@ async def test_scada_reads_show_as_a_drives_share_above_its_planned_one(
 async def test_the_overview_shows_each_share_beside_the_planned_one(
     gateway: Application,
 ) -> None:
-    browser = await asyncio.to_thread(Browser, f"http://127.0.0.1:{gateway.console.port}")
+    browser = await asyncio.to_thread(Browser, f"http://127.0.0.1:{present(gateway.console).port}")
     try:
         await browser.open("/")
         await browser.wait(showing("#drives tr[data-drive=fan2] td.online", "online"))

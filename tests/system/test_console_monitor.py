@@ -8,14 +8,14 @@ import os
 import re
 
 from gateway.instruments.simulator import SimulatedLine
-from tests.support import TcpClient, read_pdu, running_gateway
+from tests.support import TcpClient, present, read_pdu, running_gateway
 from tests.support.console_support import OPERATOR_TOKEN, console_config
 from tests.support.processes import entry_point, run_cli
 
 
 async def test_monitor_prints_a_scada_read_in_words(line: SimulatedLine) -> None:
     async with running_gateway(console_config(line.path)) as app:
-        url = f"http://127.0.0.1:{app.console.port}"
+        url = f"http://127.0.0.1:{present(app.console).port}"
         process = await asyncio.create_subprocess_exec(
             *(entry_point(), "monitor", "--url", url, "--bus", "line1", "--recent", "0"),
             stdin=asyncio.subprocess.DEVNULL,
@@ -51,7 +51,7 @@ async def line_with(stream: asyncio.StreamReader, text: str, within_s: float = 1
 
 async def test_monitor_without_a_token_says_why_and_exits_1(line: SimulatedLine) -> None:
     async with running_gateway(console_config(line.path)) as app:
-        url = f"http://127.0.0.1:{app.console.port}"
+        url = f"http://127.0.0.1:{present(app.console).port}"
         result = await asyncio.to_thread(run_cli, "monitor", "--url", url)
     assert result.returncode == 1
     assert "401" in result.stderr

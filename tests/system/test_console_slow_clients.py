@@ -14,7 +14,7 @@ import time
 from gateway.config import MetricsConfig
 from gateway.console.deadlines import HttpTimeouts
 from gateway.instruments.simulator import SimulatedLine
-from tests.support import RecordProperty, free_port, running_gateway
+from tests.support import RecordProperty, free_port, present, running_gateway
 from tests.support.console_support import VIEWER_PASSWORD, console_client, console_config
 from tests.support.http import http_get
 
@@ -51,7 +51,7 @@ async def test_half_requests_are_closed_in_time_and_counted_while_others_are_ser
     metrics = MetricsConfig(enabled=True, host="127.0.0.1", port=metrics_port)
     config = console_config(line.path, request_timeout_s=1).model_copy(update={"metrics": metrics})
     async with running_gateway(config) as app, console_client(app) as web:
-        port = app.console.port
+        port = present(app.console).port
         heads = await half_requests(port, 200, HALF_A_HEAD)
         bodies = await half_requests(port, 10, HALF_A_BODY)
         silent = await half_requests(port, 10, b"")
@@ -66,7 +66,7 @@ async def test_half_requests_are_closed_in_time_and_counted_while_others_are_ser
         waited = await asyncio.gather(*heads, *bodies, *silent)
         assert max(waited) < 2.5, max(waited)
         assert min(waited) > 0.8, min(waited)
-        closed = app.console.deadlines.closed
+        closed = present(app.console).deadlines.closed
         assert (closed.head, closed.body) == (210, 10)
         # The one that was served kept its connection (keep-alive) and is served still.
         assert len((await web.get_json("/api/overview"))["drives"]) == 2
@@ -95,4 +95,4 @@ async def test_a_long_answer_is_not_a_slow_client(line: SimulatedLine) -> None:
                     if time.monotonic() - started > 2.5:
                         break
             assert events >= 4  # one every 0.5 s, on and on past the 1 s deadline
-        assert app.console.deadlines.closed == HttpTimeouts(head=0, body=0)
+        assert present(app.console).deadlines.closed == HttpTimeouts(head=0, body=0)

@@ -20,7 +20,7 @@ import pytest
 from gateway.app import Application
 from gateway.config import GatewayConfig
 from tests.peers.pymodbus_meter import EXPECTED
-from tests.support import TcpClient, eventually, running_gateway
+from tests.support import TcpClient, eventually, present, running_gateway
 from tests.support.console_support import OPERATOR_TOKEN, console_config
 from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
 from tests.support.mqtt_setup import mqtt_config
@@ -341,7 +341,7 @@ async def test_the_traffic_monitor_shows_a_float_as_its_value(meter_line: str) -
         {"name": "meter1", "bus": "line1", "address": UNIT, "model": f"file:{METER_FILE}"}
     ]
     async with running_gateway(GatewayConfig.model_validate(data)) as app:
-        url = f"http://127.0.0.1:{app.console.port}"
+        url = f"http://127.0.0.1:{present(app.console).port}"
         process = await asyncio.create_subprocess_exec(
             *(entry_point(), "monitor", "--url", url, "--bus", "line1", "--recent", "0"),
             stdin=asyncio.subprocess.DEVNULL,

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from tests.support import running_gateway
+from tests.support import present, running_gateway
 from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
 from tests.support.mqtt_setup import mqtt_config, simulated_line
 
@@ -57,7 +57,7 @@ async def test_five_faults_with_snapshots_read_back_after_a_restart(mosquitto: M
 
         # A restart: a new gateway on the same store.
         async with mqtt_probe(mosquitto, f"{base}/#") as probe, running_gateway(config) as app:
-            await app.mqtt.connected.wait()  # subscribed: a request now is heard
+            await present(app.mqtt).connected.wait()  # subscribed: a request now is heard
             answer = await request(probe, base, "fault_history", {"drive": "pump1", "limit": 20})
             two = await request(probe, base, "fault_history", {"drive": "pump1", "limit": 2})
             none = await request(probe, base, "fault_history", {"drive": "fan2"})
@@ -99,7 +99,7 @@ async def test_a_fault_that_cleared_while_the_gateway_was_down_is_closed(
         line.clear_fault(1)  # reset on the keypad while the gateway was down
         async with mqtt_probe(mosquitto, f"{base}/#") as probe, running_gateway(config) as app:
             await probe.wait_for(f"{base}/pump1", lambda s: s.get("fault_code") == 0)
-            await app.mqtt.connected.wait()
+            await present(app.mqtt).connected.wait()
             for _ in range(50):  # the history is written by the store's thread, a moment later
                 answer = await request(probe, base, "fault_history", {"drive": "pump1"})
                 (fault,) = answer["data"]["faults"]

@@ -17,7 +17,7 @@ import yaml
 
 from gateway.profile.invt import STATE_WORD_1
 from gateway.profile.states import RunState
-from tests.support import TcpClient, eventually, free_port, running_gateway
+from tests.support import TcpClient, eventually, free_port, present, running_gateway
 from tests.support.mosquitto import BrokerProxy, Mosquitto, mqtt_probe, unique_base_topic
 from tests.support.mqtt_setup import DRIVES, mqtt_config, simulated_line
 
@@ -66,7 +66,9 @@ async def test_broker_killed_and_restarted(mosquitto: Mosquitto) -> None:
             try:
                 with_broker = await read_for(tcp, 1.0)
                 mosquitto.stop()
-                await eventually(lambda: not app.mqtt.connected.is_set(), what="broker lost")
+                await eventually(
+                    lambda: not present(app.mqtt).connected.is_set(), what="broker lost"
+                )
                 line.inject_fault(2, 13)  # while the broker is away: the event must wait
                 without_broker = await read_for(tcp, 2.0)
             finally:
@@ -74,7 +76,7 @@ async def test_broker_killed_and_restarted(mosquitto: Mosquitto) -> None:
             # Modbus-TCP didn't notice: as many reads, no slower.
             assert len(without_broker) >= 1.5 * len(with_broker)
             assert max(without_broker) < 1.5  # a bridge blocking the loop would stall for seconds
-            assert app.mqtt.connected.is_set() is False
+            assert present(app.mqtt).connected.is_set() is False
 
             mosquitto.start()  # a restarted broker without persistence: nothing retained
             async with mqtt_probe(mosquitto, f"{base}/#") as probe:
@@ -89,7 +91,7 @@ async def test_broker_killed_and_restarted(mosquitto: Mosquitto) -> None:
                     f"{base}/bridge/event", lambda e: e["type"] == "fault_raised"
                 )
                 assert event.json()["data"]["drive"] == "fan2"
-            assert app.mqtt.stats.connects == 2
+            assert present(app.mqtt).stats.connects == 2
 
 
 async def test_last_will_when_the_gateway_is_killed(mosquitto: Mosquitto, tmp_path: Path) -> None:
@@ -185,8 +187,8 @@ async def test_two_gateways_on_one_broker(mosquitto: Mosquitto) -> None:
             ]
             assert not probe.on(f"{south_base}/pump1/set/response")
             # Distinct client ids: neither threw the other off the broker.
-            assert north_app.mqtt.stats.connects == 1
-            assert south_app.mqtt.stats.connects == 1
+            assert present(north_app.mqtt).stats.connects == 1
+            assert present(south_app.mqtt).stats.connects == 1
 
 
 async def test_same_base_topic_is_reported(
@@ -204,7 +206,10 @@ async def test_same_base_topic_is_reported(
                 mosquitto.start()
                 # Each hears of the other, whichever published its info last (kinds.GatewayInfo).
                 await eventually(
-                    lambda: one_app.mqtt.stats.conflicts and other_app.mqtt.stats.conflicts,
+                    lambda: (
+                        present(one_app.mqtt).stats.conflicts
+                        and present(other_app.mqtt).stats.conflicts
+                    ),
                     within_s=10.0,
                 )
         assert "gateway 'other' also publishes under" in caplog.text
@@ -238,4 +243,4 @@ async def test_an_event_being_published_when_the_connection_breaks_is_not_lost(
                 assert event.json()["data"]["drive"] == "fan2"
                 assert event.json()["data"]["fault_code"] == 13
                 assert app.events.stats.events_dropped == 0
-                assert app.mqtt.stats.connects == 2
+                assert present(app.mqtt).stats.connects == 2

@@ -16,7 +16,7 @@ from gateway.instruments.simulator import SimulatedLine
 from gateway.profile import parse_parameter
 from gateway.profile.invt import STATE_WORD_1
 from gateway.profile.states import RunState
-from tests.support import TcpClient, eventually, running_gateway, write_pdu
+from tests.support import TcpClient, eventually, present, running_gateway, write_pdu
 from tests.support.mosquitto import (
     Mosquitto,
     MqttProbe,
@@ -296,7 +296,7 @@ async def test_retained_command_is_ignored(mosquitto: Mosquitto) -> None:
 async def test_command_sent_while_disconnected_is_never_run(plant: Plant) -> None:
     """No session is kept on the broker (clean session): what was published for the gateway
     while it was away is not delivered when it comes back, so a run command can't be replayed."""
-    bridge = plant.app.mqtt
+    bridge = present(plant.app.mqtt)
     await bridge.stop()
     mark = len(plant.probe.messages)
     await plant.probe.publish(f"{plant.base}/pump1/set", {"command": "run_forward"})

@@ -12,7 +12,7 @@ from typing import Any
 
 import aiomqtt
 
-from tests.support import eventually, running_gateway
+from tests.support import eventually, present, running_gateway
 from tests.support.mosquitto import BrokerProxy, Mosquitto, mqtt_probe, unique_base_topic
 from tests.support.mqtt_setup import mqtt_config, simulated_line
 
@@ -40,7 +40,7 @@ async def test_events_go_on_their_own_connection_at_qos_1_states_and_answers_at_
                 f"{base}/pump1/set/response", lambda r: r["transaction"] == "t1", after=mark
             )
             assert (answer.qos, answer.json()["status"]) == (0, "ok")
-            assert app.mqtt.stats.connects == 1
+            assert present(app.mqtt).stats.connects == 1
         # A late dashboard still reads the state, retained.
         async with mqtt_probe(mosquitto, f"{base}/fan2") as late:
             retained = await late.wait_for(f"{base}/fan2", lambda s: s["fault_code"] == 13)
@@ -58,18 +58,20 @@ async def test_the_events_connection_lost_alone_leaves_the_session_up_and_loses_
             await probe.wait_for(f"{base}/fan2", lambda s: s["state"] == "stopped")
             # Another client with the events' client id: the broker closes theirs.
             intruder = aiomqtt.Client(
-                mosquitto.host, mosquitto.port, identifier=f"{app.mqtt.settings.client_id}-events"
+                mosquitto.host,
+                mosquitto.port,
+                identifier=f"{present(app.mqtt).settings.client_id}-events",
             )
             async with intruder:
-                await eventually(lambda: app.mqtt.event_link.losses >= 1, within_s=5.0)
+                await eventually(lambda: present(app.mqtt).event_link.losses >= 1, within_s=5.0)
             mark = len(probe.messages)
             line.inject_fault(2, 14)
             event = await probe.wait_for(
                 f"{base}/bridge/event", lambda e: e["type"] == "fault_raised", after=mark
             )
             assert event.json()["data"]["fault_code"] == 14
-            assert app.mqtt.stats.connects == 1  # the session's connection never dropped
-            assert app.mqtt.session.connected.is_set()
+            assert present(app.mqtt).stats.connects == 1  # the session's connection never dropped
+            assert present(app.mqtt).session.connected.is_set()
             assert app.events.stats.events_dropped == 0
 
 

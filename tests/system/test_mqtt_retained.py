@@ -16,7 +16,7 @@ from gateway.instruments.embedded_broker import EmbeddedBroker
 from gateway.mqtt.connection import MQTT_3_1_1, MQTT_5
 from gateway.profile.states import RunState
 from gateway.settings import runtime_settings
-from tests.support import free_port, running_gateway
+from tests.support import free_port, present, running_gateway
 from tests.support.mosquitto import Address, Mosquitto, mqtt_probe, unique_base_topic
 from tests.support.mqtt_setup import mqtt_config, simulated_line
 
@@ -30,7 +30,7 @@ async def test_a_retained_command_published_while_connected_is_refused_and_clear
         config = mqtt_config(line.path, mosquitto, base)
         async with mqtt_probe(mosquitto, f"{base}/#") as probe, running_gateway(config) as app:
             await probe.wait_for(f"{base}/pump1/availability", lambda a: a["state"] == "online")
-            assert app.mqtt.session.protocol == MQTT_5
+            assert present(app.mqtt).session.protocol == MQTT_5
             mark = len(probe.messages)
             await probe.publish(topic, {"command": "run_forward", "transaction": "t1"}, retain=True)
             response = await probe.wait_for(
@@ -80,12 +80,14 @@ async def test_a_broker_that_speaks_only_mqtt_3_1_1_gets_3_1_1() -> None:
         with simulated_line() as line:
             config = mqtt_config(line.path, Address("127.0.0.1", broker.port), base)
             async with running_gateway(config) as app:
-                await asyncio.wait_for(app.mqtt.connected.wait(), 10)
-                assert app.mqtt.session.protocol == MQTT_3_1_1
-                assert app.mqtt.stats.connects == 1
-                assert app.mqtt.stats.connect_failures == 0  # refused 5, then 3.1.1 at once
+                await asyncio.wait_for(present(app.mqtt).connected.wait(), 10)
+                assert present(app.mqtt).session.protocol == MQTT_3_1_1
+                assert present(app.mqtt).stats.connects == 1
+                assert (
+                    present(app.mqtt).stats.connect_failures == 0
+                )  # refused 5, then 3.1.1 at once
                 # A negotiation, not an error: no "last error 132" (MQTT 5's CONNACK code).
-                assert app.mqtt.status().last_error is None
+                assert present(app.mqtt).status().last_error is None
     finally:
         await broker.stop()
 
@@ -104,7 +106,7 @@ async def test_on_a_3_1_1_broker_a_command_retained_while_connected_runs_and_is_
             config = mqtt_config(line.path, address, base)
             async with mqtt_probe(address, f"{base}/#") as probe, running_gateway(config) as app:
                 await probe.wait_for(f"{base}/pump1/availability", lambda a: a["state"] == "online")
-                assert app.mqtt.session.protocol == MQTT_3_1_1
+                assert present(app.mqtt).session.protocol == MQTT_3_1_1
                 mark = len(probe.messages)
                 run = {"command": "run_forward", "transaction": "t1"}
                 await probe.publish(topic, run, retain=True)
@@ -142,7 +144,7 @@ async def test_entities_no_longer_offered_are_removed_from_home_assistant(
             )
             async with running_gateway(config) as app:
                 await probe.wait_for(ghost, lambda p: p == "", timeout_s=10)  # cleared
-                offered = app.mqtt.publisher.discovery_topics()
+                offered = present(app.mqtt).publisher.discovery_topics()
                 assert ghost not in offered
             # Now with discovery off: every entity of this gateway goes, the other one stays.
             config = mqtt_config(

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from gateway.config import GatewayConfig, MqttConfig
 from gateway.mqtt.metrics import MqttMetrics
-from tests.support import eventually, gateway_config, running_gateway
+from tests.support import eventually, gateway_config, present, running_gateway
 from tests.support.mosquitto import Mosquitto, mqtt_probe, running_mosquitto, unique_base_topic
 from tests.support.mqtt_setup import DRIVES, simulated_line
 from tests.support.processes import check_config
@@ -71,12 +71,12 @@ async def test_the_gateway_moves_to_the_next_server_when_its_broker_goes(tmp_pat
         name_1, name_2 = f"{first.host}:{first.port}", f"{second.host}:{second.port}"
         config = servers_config(line.path, [first, second], base)
         async with running_gateway(config) as app:
-            metrics = MqttMetrics(app.mqtt)
+            metrics = MqttMetrics(present(app.mqtt))
             async with mqtt_probe(first, f"{base}/#") as probe:
                 state = await probe.wait_for(f"{base}/bridge/state")
                 assert state.json()["state"] == "online"
                 assert state.json()["server"] == name_1
-            assert app.mqtt.status().broker == name_1
+            assert present(app.mqtt).status().broker == name_1
             assert server_info(metrics) == {name_1: 1.0, name_2: 0.0}
 
             first.stop()  # SIGKILL: the connection drops
@@ -90,6 +90,8 @@ async def test_the_gateway_moves_to_the_next_server_when_its_broker_goes(tmp_pat
                 }
                 mark = len(probe.messages)
                 await probe.wait_for(f"{base}/pump1", after=mark)  # publishing there, live
-            assert app.mqtt.status().broker == name_2
-            await eventually(lambda: app.mqtt.status().connected, what="connected to the second")
+            assert present(app.mqtt).status().broker == name_2
+            await eventually(
+                lambda: present(app.mqtt).status().connected, what="connected to the second"
+            )
             assert server_info(metrics) == {name_1: 0.0, name_2: 1.0}

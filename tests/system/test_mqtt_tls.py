@@ -19,7 +19,7 @@ from gateway.errors import ConfigError, TlsSettingsError
 from gateway.instruments.simulator import SimulatedLine
 from gateway.mqtt.connection import tls_context
 from gateway.settings import mqtt_settings
-from tests.support import TcpClient, eventually, free_port, running_gateway
+from tests.support import TcpClient, eventually, free_port, present, running_gateway
 from tests.support.mosquitto import mqtt_probe, unique_base_topic
 from tests.support.mqtt_setup import MQTT_LINE
 from tests.support.processes import gateway_process
@@ -140,7 +140,7 @@ async def test_a_gateway_without_its_credentials_is_turned_away(
                 await asyncio.sleep(0.05)  # SCADA's pace: a second of reads while MQTT fails
         finally:
             await tcp.close()
-        assert not app.mqtt.connected.is_set()
+        assert not present(app.mqtt).connected.is_set()
     expected = "did not return a certificate" if missing == "client certificate" else "not auth"
     assert expected in broker.log()
 
@@ -222,9 +222,9 @@ async def test_a_bad_tls_file_is_reported_once_and_retried_until_it_is_right(
         async with running_gateway(config) as app:
             # Said, then tried again, and again.
             await eventually(lambda: len(about_the_ca()) >= 3, within_s=10.0)
-            assert not app.mqtt.connected.is_set()
+            assert not present(app.mqtt).connected.is_set()
             ca.write_bytes(certificates.ca.read_bytes())
-            await asyncio.wait_for(app.mqtt.connected.wait(), 10)
+            await asyncio.wait_for(present(app.mqtt).connected.wait(), 10)
     loud = [
         r.getMessage()
         for r in caplog.records

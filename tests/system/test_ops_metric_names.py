@@ -19,7 +19,7 @@ from prometheus_client.parser import text_string_to_metric_families
 
 from gateway.config import GatewayConfig
 from gateway.instruments.simulator import SimulatedLine
-from tests.support import TcpClient, free_port, read_pdu, running_gateway, write_pdu
+from tests.support import TcpClient, free_port, present, read_pdu, running_gateway, write_pdu
 from tests.support.http import http_get
 from tests.support.mosquitto import Mosquitto, unique_base_topic
 
@@ -89,7 +89,7 @@ async def test_every_published_metric_keeps_its_name_type_labels_and_help(
         assert await client.request(2, read_pdu(STATE_WORD_1)) == bytes.fromhex("83 0b")
         line.set_line_faults(rate=0.0)
         assert await client.request(0, write_pdu(0x2000, 5)) == write_pdu(0x2000, 5)
-        await app.mqtt.connected.wait()
+        await present(app.mqtt).connected.wait()
         assert config.metrics.port is not None
         status, _, text = await http_get(config.metrics.port, "/metrics")
         await client.close()

@@ -19,7 +19,7 @@ from gateway.config import GatewayConfig, MqttConfig
 from gateway.instruments.simulator import SimulatedLine
 from gateway.instruments.stress.checked_load import STEADY, CheckedLoad
 from gateway.instruments.stress.scenario import first_answer_after
-from tests.support import RecordProperty, eventually, free_port, running_gateway
+from tests.support import RecordProperty, eventually, free_port, present, running_gateway
 from tests.support.mosquitto import Mosquitto, unique_base_topic
 from tests.support.processes import GatewayProcess
 
@@ -95,18 +95,20 @@ async def test_broker_killed_and_restarted_costs_modbus_nothing(
         }
     )
     async with running_gateway(config) as app:
-        await asyncio.wait_for(app.mqtt.connected.wait(), LIMIT_S)
+        await asyncio.wait_for(present(app.mqtt).connected.wait(), LIMIT_S)
         load = CheckedLoad(app.tcp.port, UNITS, CLIENTS)
         stop = asyncio.Event()
         task = asyncio.create_task(load.run(stop))
         try:
             await steady_for(load, 0.5)
             mosquitto.stop()  # SIGKILL
-            await eventually(lambda: not app.mqtt.connected.is_set(), 2.0, "the broker lost")
+            await eventually(
+                lambda: not present(app.mqtt).connected.is_set(), 2.0, "the broker lost"
+            )
             await steady_for(load, 0.8)
             mosquitto.start()  # same port, nothing retained (no persistence)
             restarted = time.monotonic()
-            await asyncio.wait_for(app.mqtt.connected.wait(), LIMIT_S)
+            await asyncio.wait_for(present(app.mqtt).connected.wait(), LIMIT_S)
             seconds = time.monotonic() - restarted
             await steady_for(load, 0.3)
         finally:

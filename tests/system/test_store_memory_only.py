@@ -16,7 +16,7 @@ import pytest
 from gateway.config import StorageConfig
 from gateway.instruments.simulator import SimulatedLine
 from gateway.store.database import EventDatabase
-from tests.support import free_port, running_gateway
+from tests.support import free_port, present, running_gateway
 from tests.support.browser import CHROMEDRIVER, CHROMIUM, Browser, showing
 from tests.support.console_support import console_config
 from tests.support.mqtt_setup import simulated_line
@@ -83,7 +83,9 @@ async def test_the_console_shows_a_banner_while_events_are_in_memory_only(
     config = config.model_copy(update={"storage": StorageConfig(path=str(store))})
     with read_only(store):
         async with running_gateway(config) as app:
-            browser = await asyncio.to_thread(Browser, f"http://127.0.0.1:{app.console.port}")
+            browser = await asyncio.to_thread(
+                Browser, f"http://127.0.0.1:{present(app.console).port}"
+            )
             try:
                 await browser.open("/")
                 await browser.wait(showing("#store-banner", "Events are not kept on disk"))

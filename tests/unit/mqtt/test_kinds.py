@@ -11,7 +11,7 @@ from gateway.mqtt.dispatcher import CommandKind
 from gateway.mqtt.kinds import BRIDGE_REQUESTS, BridgeRequest
 from gateway.mqtt.requests import Json, RegisterRead
 from gateway.settings import runtime_settings
-from tests.support import running_application
+from tests.support import present, running_application
 from tests.support.mosquitto import Mosquitto, mqtt_probe, unique_base_topic
 from tests.support.mqtt_setup import mqtt_config, simulated_line
 
@@ -43,7 +43,7 @@ async def test_a_new_bridge_request_is_subscribed_checked_and_answered(
     response_topic = f"{base}/bridge/response/read_state_word"
     with simulated_line() as line:
         app = Application(runtime_settings(mqtt_config(line.path, mosquitto, base)))
-        bridge = app.mqtt
+        bridge = present(app.mqtt)
         kinds: dict[str, CommandKind] = dict(bridge.dispatcher.kinds)
         kinds[bridge.topics.bridge_request(ReadStateWord.operation)] = ReadStateWord(bridge.context)
         bridge.dispatcher.kinds = kinds
