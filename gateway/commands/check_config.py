@@ -21,7 +21,8 @@ from gateway.config import GatewayConfig
 from gateway.config.startup import startup_problems
 from gateway.errors import ConfigError
 from gateway.exit_codes import EXIT_CONFIG, EXIT_OK
-from gateway.settings.checks import line_budget, missing_ports
+from gateway.poller.budget import line_budget
+from gateway.settings.checks import missing_ports
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -38,10 +38,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final, Protocol
 
+from gateway.console.config_check import Checked, check_text
 from gateway.console.sealing import SecretSeal
 from gateway.errors import EditRefused, StoreError
 from gateway.settings import GatewaySettings
-from gateway.settings.editing import Checked, check_text
 from gateway.settings.shown import MASK, SECRET_WORDS
 from gateway.store.records import ConfigVersion
 

@@ -16,9 +16,10 @@ from dataclasses import dataclass
 from typing import Final
 
 from gateway.bus import BusSettings
+from gateway.config import GatewayConfig
 from gateway.modbus.timing import CharacterFormat
 from gateway.poller.plan import PollBlock, PollSchedule, poll_schedules
-from gateway.settings import DriveSettings
+from gateway.settings import DriveSettings, runtime_settings
 
 REQUEST_BYTES: Final = 8
 REPLY_OVERHEAD_BYTES: Final = 5
@@ -78,3 +79,36 @@ def line_plans(
         )
         plans[bus.name] = LinePlan(total, drives)
     return plans
+
+
+def line_budget(config: GatewayConfig) -> tuple[str, list[str]]:
+    """Each line's poll load (of the drives `run` would poll), and a warning for each line the
+    polls would fill."""
+    settings = runtime_settings(config)
+    plans = line_plans(settings.buses, (d for d in settings.drives if settings.polled(d)))
+    lines = ["Poll load (wire time of every planned read; each device's answer delay on top):"]
+    overloaded = []
+    for index, bus in enumerate(config.buses):
+        plan = plans[bus.name]
+        load = plan.total
+        lines.append(
+            f"  {bus.name}: {len(plan.drives)} polled, {load.requests_per_s:.1f} requests/s, "
+            f"{load.busy_fraction:.1%} of the line"
+        )
+        lines += [
+            f"    {name}: {drive.requests_per_s:.1f} requests/s, {drive.busy_fraction:.1%}"
+            for name, drive in plan.drives.items()
+        ]
+        if load.busy_fraction >= 1.0:
+            overloaded.append(
+                f"buses[{index}] ({bus.name}): its polls alone need {load.busy_fraction:.0%} of "
+                "the line: polls will fall behind; lengthen intervals (interval_ms) or raise "
+                "the baud rate"
+            )
+        elif plan.over_budget:
+            overloaded.append(
+                f"buses[{index}] ({bus.name}): its polls take {load.busy_fraction:.0%} of the "
+                f"line, more than {POLL_BUDGET:.0%}: little is left for SCADA's requests, "
+                "commands and retries; lengthen intervals (interval_ms) or raise the baud rate"
+            )
+    return "\n".join(lines), overloaded

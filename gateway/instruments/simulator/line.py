@@ -56,6 +56,7 @@ from gateway.instruments.simulator.framing import ReceivedFrame, RequestAssemble
 from gateway.instruments.simulator.line_faults import LineFaults
 from gateway.instruments.simulator.quirks import DeviceQuirks
 from gateway.instruments.simulator.server import LineServer
+from gateway.modbus.functions import exception_pdu
 from gateway.modbus.rtu import BROADCAST_ADDRESS, build_frame
 from gateway.modbus.timing import CharacterFormat
 
@@ -189,7 +190,10 @@ class SimulatedLine:
         if server is not None:
             server.stop()
 
-    def _open(self, server: LineServer) -> None:
+    # ----------------------------------------------------------------- as `LineServer` serves it
+    # (`gateway.instruments.simulator.server.ServedLine`)
+
+    def open_for(self, server: LineServer) -> None:
         """Before `server`'s thread serves this line: the wake-up pipe and the port."""
         self._wake_read, self._wake_write = os.pipe()
         try:
@@ -200,7 +204,16 @@ class SimulatedLine:
         self._stopping = False
         self._server = server
 
-    def _close(self) -> None:
+    def served_from(self, thread: threading.Thread) -> None:
+        """The thread that serves the line from now on: control calls run there."""
+        self._thread = thread
+
+    def stop_serving(self) -> None:
+        """The serving thread stops: the pass under way ends at once, and the thread wakes."""
+        self._stopping = True
+        self._wake()
+
+    def close_port(self) -> None:
         """After `server`'s thread stopped: the port and the wake-up pipe closed."""
         self._thread = self._server = None
         self._unplug()
@@ -282,6 +295,13 @@ class SimulatedLine:
         with self._lock:
             self._any_drive(address)
             self._quirks.know_only(address, functions)
+
+    def refuse(self, address: int, code: int | None) -> None:
+        """This address answers every request with exception `code` (a standard device
+        busy: 06H); None: it answers again (`gateway.instruments.simulator.quirks`)."""
+        with self._lock:
+            self._any_drive(address)
+            self._quirks.refuse(address, code)
 
     def stall(self, address: int, seconds: float) -> None:
         """This address stalls for `seconds` from now: it answers what it takes meanwhile
@@ -376,12 +396,17 @@ class SimulatedLine:
 
     # ----------------------------------------------------------------- the thread
 
-    def _watched(self) -> list[int]:
+    @property
+    def endpoint(self) -> Endpoint | None:
+        """The port the thread reads; another one after a replug (None while unplugged)."""
+        return self._endpoint
+
+    def watched(self) -> list[int]:
         """The descriptors the serving thread waits on for this line."""
         endpoint = self._endpoint
         return [self._wake_read] if endpoint is None else [self._wake_read, endpoint.fd]
 
-    def _serve_ready(self, readable: Container[int], woke_at: float) -> None:
+    def serve_ready(self, readable: Container[int], woke_at: float) -> None:
         """One pass of the serving thread for this line: `readable` are the descriptors its
         wait found ready (this line's among others) when it woke at `woke_at`."""
         if self._wake_read in readable:
@@ -399,7 +424,7 @@ class SimulatedLine:
             for frame in self._assembler.on_silence(time.monotonic() + self.relay_s):
                 self._on_frame(frame)
 
-    def _deadline(self) -> float | None:
+    def deadline(self) -> float | None:
         """When the serving thread must next serve this line with nothing to read: a little
         before a reply is due (`_send_due` waits out the rest: a timer wake-up is late by up
         to a few hundred microseconds, and a drive that answers late would make the gateway
@@ -479,7 +504,12 @@ class SimulatedLine:
         ):
             self._stats["ignored"] += 1
             return
-        reply = build_frame(address, drive.handle(pdu, wire_end))
+        refusal = self._quirks.refusal(address)
+        function = pdu[0] if pdu else 0
+        answer = (
+            drive.handle(pdu, wire_end) if refusal is None else exception_pdu(function, refusal)
+        )
+        reply = build_frame(address, answer)
         delay_s = self._response_delay_s(drive) + self._extra_delay(address)
         # A stalled device takes the request in and answers once it carries on.
         delay_s = max(delay_s, self._quirks.answers_from(address) - wire_end)

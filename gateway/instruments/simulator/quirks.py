@@ -8,6 +8,8 @@ codes they know, stall, drop requests.
 - **Stalls**: a device busy with something else (an EEPROM write, a firmware task, a process
   stopped for a moment) takes requests in and answers them once it carries on, in order.
 - **Drops**: a request lost to noise at the device's end, never answered.
+- **Refuses**: a device that answers every request with one exception code for a while: a
+  standard device busy with a long command answers 06H (server device busy).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ class DeviceQuirks:
         self._known: dict[int, frozenset[int]] = {}
         self._stalled_until: dict[int, float] = {}
         self._drop_rate: dict[int, float] = {}
+        self._refusing: dict[int, int] = {}
         self._random = random.Random(seed)
         self.dropped = 0
         self.unframed = 0
@@ -44,6 +47,17 @@ class DeviceQuirks:
         if not 0.0 <= rate <= 1.0:
             raise ValueError(f"drop rate {rate} is outside 0..1")
         self._drop_rate[address] = rate
+
+    def refuse(self, address: int, code: int | None) -> None:
+        """`address` answers every request with exception `code` (None: answers again)."""
+        if code is None:
+            self._refusing.pop(address, None)
+        else:
+            self._refusing[address] = code
+
+    def refusal(self, address: int) -> int | None:
+        """The exception code `address` answers every request with now; None: it answers."""
+        return self._refusing.get(address)
 
     def silent(self, address: int, function: int) -> bool:
         """Does `address` leave this request unanswered (a function it doesn't frame, a drop)?"""

@@ -15,14 +15,11 @@ import selectors
 import sys
 import threading
 import time
-from collections.abc import Sequence
-from typing import TYPE_CHECKING, Final
+from collections.abc import Container, Sequence
+from typing import Final, Protocol
 
 from gateway.timer_slack import tighten_timer_slack
 from gateway.timerfd import DeadlineTimer
-
-if TYPE_CHECKING:
-    from gateway.instruments.simulator.line import SimulatedLine
 
 log = logging.getLogger(__name__)
 
@@ -34,10 +31,40 @@ _TIMER: Final = -1
 """The selector's data for the deadline's timerfd (a line's is its index)."""
 
 
+class ServedLine(Protocol):
+    """What the server asks of each line it serves, and all it knows of one (`SimulatedLine`
+    is one); every call but `open_for` and `close_port` comes from the serving thread."""
+
+    def open_for(self, server: LineServer) -> None:
+        """Before the thread serves the line: its port and its wake-up descriptor."""
+
+    def served_from(self, thread: threading.Thread) -> None:
+        """The thread that serves the line from now on."""
+
+    def stop_serving(self) -> None:
+        """The thread stops: end the pass under way at once, and wake the thread."""
+
+    def close_port(self) -> None:
+        """After the thread stopped: the port and the wake-up descriptor closed."""
+
+    @property
+    def endpoint(self) -> object | None:
+        """The port the thread reads: another object after a replug (watch it again)."""
+
+    def watched(self) -> list[int]:
+        """The descriptors to wait on for this line."""
+
+    def deadline(self) -> float | None:
+        """When to serve the line next with nothing to read (monotonic); None: not before."""
+
+    def serve_ready(self, readable: Container[int], woke_at: float) -> None:
+        """One pass for the line: `readable` are the descriptors found ready at `woke_at`."""
+
+
 class LineServer:
     """Serves `lines` from one thread, from `start()` to `stop()`."""
 
-    def __init__(self, lines: Sequence[SimulatedLine]) -> None:
+    def __init__(self, lines: Sequence[ServedLine]) -> None:
         if not lines:
             raise ValueError("a line server needs at least one line")
         self.lines = tuple(lines)
@@ -56,14 +83,14 @@ class LineServer:
         """Open every line's port, then serve them all."""
         if self._thread is not None:
             raise RuntimeError("the line server is already started")
-        opened: list[SimulatedLine] = []
+        opened: list[ServedLine] = []
         try:
             for line in self.lines:
-                line._open(self)
+                line.open_for(self)
                 opened.append(line)
         except BaseException:
             for line in opened:
-                line._close()
+                line.close_port()
             raise
         # The simulated drives may share a process with an event loop (the demo, the tests):
         # with Python's default 5 ms switch interval a busy loop would hold the GIL, and the
@@ -73,7 +100,7 @@ class LineServer:
         name = "simulated-line" if len(self.lines) == 1 else "simulated-lines"
         self._thread = threading.Thread(target=self._serve, name=name, daemon=True)
         for line in self.lines:
-            line._thread = self._thread
+            line.served_from(self._thread)
         self._thread.start()
 
     def stop(self) -> None:
@@ -83,14 +110,13 @@ class LineServer:
             return
         self._stopping = True
         for line in self.lines:
-            line._stopping = True
-            line._wake()
+            line.stop_serving()
         thread.join(STOP_TIMEOUT_S)
         if thread.is_alive():
             log.error("simulated line thread did not stop within %.1f s", STOP_TIMEOUT_S)
         self._thread = None
         for line in self.lines:
-            line._close()
+            line.close_port()
 
     def _serve(self) -> None:
         selector = self._open_selector()
@@ -145,7 +171,7 @@ class LineServer:
         # The soonest due first: a line waiting out its reply's last microseconds on the clock
         # holds up the others, which are due after it so.
         for index in sorted(serving, key=self._deadlines.__getitem__):
-            self.lines[index]._serve_ready(ready, now)
+            self.lines[index].serve_ready(ready, now)
             self._look_again(selector, index)
 
     def _arm(self, soonest: float) -> bool:
@@ -159,14 +185,14 @@ class LineServer:
     def _look_again(self, selector: selectors.BaseSelector, index: int) -> None:
         """After serving the line at `index`: what to wait on for it next."""
         line = self.lines[index]
-        endpoint = line._endpoint
+        endpoint = line.endpoint
         if endpoint is not self._endpoints[index]:
             for fd in self._watched[index]:
                 with contextlib.suppress(KeyError):
                     selector.unregister(fd)
-            self._watched[index] = tuple(line._watched())
+            self._watched[index] = tuple(line.watched())
             for fd in self._watched[index]:
                 selector.register(fd, selectors.EVENT_READ, index)
             self._endpoints[index] = endpoint
-        deadline = line._deadline()
+        deadline = line.deadline()
         self._deadlines[index] = math.inf if deadline is None else deadline

@@ -17,8 +17,9 @@ from typing import Any
 from gateway.config import parse_config
 from gateway.config.startup import startup_problems
 from gateway.errors import ConfigError
+from gateway.poller.budget import line_budget
 from gateway.settings import GatewaySettings
-from gateway.settings.checks import line_budget, missing_ports
+from gateway.settings.checks import missing_ports
 from gateway.settings.reload import plan
 
 
