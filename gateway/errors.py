@@ -205,8 +205,11 @@ class ModbusError(GatewayError):
 class DriveException(ModbusError):
     """The drive answered with an exception response; `function` is the request's function code."""
 
-    def __init__(self, function: int, code: int, message: str = "") -> None:
+    def __init__(self, function: int, code: int, message: str = "", name: str = "") -> None:
         self.function = function
+        self.name = name
+        """The drive's own name for `code`, from its profile (`data_frame_error` for an INVT
+        drive's 06H, `server_device_busy` for another's); "" where no profile was at hand."""
         super().__init__(message or f"drive answered exception {code:#04x}", code)
 
 

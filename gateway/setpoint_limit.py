@@ -14,7 +14,6 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from gateway.poller.max_frequency import read_max_frequencies
-from gateway.profile import describe_exception
 from gateway.profile.exception_codes import OPERATION_FAILURE
 from gateway.routing import Router
 from gateway.settings import DriveSettings
@@ -37,12 +36,14 @@ async def setpoint_refusal(
 ) -> str:
     """What a drive's exception `code` to a set-point of `frequency_hz` means: "04H operation
     failure: 60.00 Hz is above P00.03 = 50.00 Hz, the drive's maximum" when the drive's maximum
-    is known and below it, `describe_exception(code)` otherwise."""
+    is known and below it, the profile's description of `code` otherwise."""
+    exceptions = drive.profile.exceptions
     known = drive.profile.max_frequency_parameter
     if code != OPERATION_FAILURE or known is None:
-        return describe_exception(code)
+        return exceptions.describe(code)
     now = await read_max_frequencies(router, [drive], READ_BUDGET_S)
     maximum = now.get(drive.name, read_at_start.get(drive.name))
     if maximum is None or frequency_hz <= maximum:
-        return describe_exception(code)
-    return f"{code:02X}H operation failure: {above_maximum(frequency_hz, known.name, maximum)}"
+        return exceptions.describe(code)
+    name = exceptions.name(code).replace("_", " ")
+    return f"{code:02X}H {name}: {above_maximum(frequency_hz, known.name, maximum)}"

@@ -79,7 +79,8 @@ def handle(args: argparse.Namespace) -> int:
                 return EXIT_USAGE
         for point, raw in writes:
             # Stop at the first failure: later writes may depend on earlier ones.
-            print(write_point(master, args.address, point, raw, ram=args.ram), flush=True)
+            line = write_point(master, args.address, point, raw, ram=args.ram, profile=profile)
+            print(line, flush=True)
     except FieldError as exc:
         print(f"invt-gateway write: {exc}", file=sys.stderr)
         return EXIT_FAILURE

@@ -28,7 +28,14 @@ from gateway.modbus.functions import (
     WRITE_MULTIPLE_REGISTERS,
     WRITE_SINGLE_REGISTER,
 )
-from gateway.profile import DriveProfile, Point, exception_name, format_register, is_ram_address
+from gateway.profile import (
+    STANDARD_EXCEPTIONS,
+    DriveProfile,
+    ExceptionNames,
+    Point,
+    format_register,
+    is_ram_address,
+)
 from gateway.profile.point_types import Table, word_key
 
 BIT_TABLES = {READ_COILS: Table.COIL, READ_DISCRETE_INPUTS: Table.DISCRETE_INPUT}
@@ -68,6 +75,12 @@ def describe_request(pdu: bytes, profile: DriveProfile | None) -> str:
     return f"function {function:02X}H"
 
 
+def exceptions_of(profile: DriveProfile | None) -> ExceptionNames:
+    """The words of the drive's profile; the Modbus standard's for a device the gateway
+    doesn't know (an address on the line that no drive of the configuration has)."""
+    return STANDARD_EXCEPTIONS if profile is None else profile.exceptions
+
+
 def describe(pdu: bytes, reply: bytes | None, profile: DriveProfile | None) -> str:
     """The request and, when the drive answered, what the answer says."""
     request = describe_request(pdu, profile)
@@ -75,7 +88,7 @@ def describe(pdu: bytes, reply: bytes | None, profile: DriveProfile | None) -> s
         return request
     if reply and reply[0] & 0x80:
         code = reply[1] if len(reply) > 1 else 0
-        return f"{request} → exception {code:02X}H {exception_name(code)}"
+        return f"{request} → exception {code:02X}H {exceptions_of(profile).name(code)}"
     if not pdu:
         return request
     function = pdu[0]

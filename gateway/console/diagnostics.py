@@ -12,14 +12,14 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Final, Protocol
 
 from gateway.bus import BusStats
 from gateway.bus.bus import DriveStats
 from gateway.poller.drive_state import iso_time
-from gateway.profile import exception_name
+from gateway.profile import STANDARD_EXCEPTIONS, ExceptionNames
 from gateway.tcp.server import ClientStatus
 
 if TYPE_CHECKING:  # the console never loads aiomqtt for a gateway without MQTT
@@ -89,7 +89,8 @@ class LineCounts:
             self.resyncs - earlier.resyncs,
         )
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self, exceptions: ExceptionNames) -> dict[str, Any]:
+        """`exceptions`: the words of the drive's profile (of the line's drives, for a line)."""
         return {
             "sent": self.sent,
             "replies": self.replies,
@@ -97,7 +98,7 @@ class LineCounts:
             "crc_errors": self.crc_errors,
             "bad_replies": self.bad_replies,
             "exceptions": [
-                {"code": f"{code:02X}H", "name": exception_name(code), "count": count}
+                {"code": f"{code:02X}H", "name": exceptions.name(code), "count": count}
                 for code, count in self.exceptions
             ],
             "retries": self.retries,
@@ -146,22 +147,29 @@ class BusCounters:
             window.add(at, LineCounts.of(stats))
 
     def view(
-        self, drive_stats: Mapping[int, DriveStats], names: Mapping[int, str]
+        self,
+        drive_stats: Mapping[int, DriveStats],
+        names: Mapping[int, str],
+        exceptions: Mapping[int, ExceptionNames],
     ) -> dict[str, Any]:
+        """`names`, `exceptions`: each configured drive's name and its profile's words for
+        exceptions, by address (an address no drive has gets the Modbus standard's)."""
         drives = []
         for address in sorted(set(drive_stats) | set(names)):
             counted = drive_stats.get(address)
             window = self.drives.get(address)
+            words = exceptions.get(address, STANDARD_EXCEPTIONS)
+            since_start = NOTHING if counted is None else LineCounts.of(counted)
+            last_minute = NOTHING if window is None else window.last_minute()
             drives.append(
                 {
                     "address": address,
                     "drive": names.get(address),
-                    "since_start": (
-                        NOTHING if counted is None else LineCounts.of(counted)
-                    ).to_json(),
-                    "last_minute": (NOTHING if window is None else window.last_minute()).to_json(),
+                    "since_start": since_start.to_json(words),
+                    "last_minute": last_minute.to_json(words),
                 }
             )
+        words = line_words(exceptions.values())
         stats = self.stats
         return {
             "counting_since": iso_time(self.since),
@@ -170,10 +178,17 @@ class BusCounters:
             "coalesced": stats.coalesced,
             "port_errors": stats.port_errors,
             "reopens": stats.reopens,
-            "since_start": LineCounts.of(stats).to_json(),
-            "last_minute": self.bus.last_minute().to_json(),
+            "since_start": LineCounts.of(stats).to_json(words),
+            "last_minute": self.bus.last_minute().to_json(words),
             "drives": drives,
         }
+
+
+def line_words(tables: Iterable[ExceptionNames]) -> ExceptionNames:
+    """A line's exceptions in its drives' words when they all speak alike (a line of INVT
+    drives), else in the Modbus standard's."""
+    distinct = set(tables)
+    return distinct.pop() if len(distinct) == 1 else STANDARD_EXCEPTIONS
 
 
 class TcpClients(Protocol):

@@ -24,7 +24,7 @@ from gateway.modbus.functions import lookup
 from gateway.poller import Poller
 from gateway.poller.budget import LinePlan, line_plans
 from gateway.poller.drive_state import DriveEvent, EventKind, iso_time
-from gateway.profile import exception_name
+from gateway.profile import STANDARD_EXCEPTIONS, ExceptionNames
 from gateway.profile.telemetry import Telemetry
 from gateway.settings import DriveSettings
 from gateway.store.history import Value, values
@@ -86,6 +86,9 @@ class LiveState:
         self._bus_states = {name: bus.state for name, bus in buses.items()}
         self._counters: dict[str, BusCounters] = {}
         self._by_address = {(d.bus, d.address): d.name for d in drives}
+        self._exceptions: dict[tuple[str, int], ExceptionNames] = {
+            (d.bus, d.address): d.profile.exceptions for d in drives
+        }
 
     # -- poll listener ----------------------------------------------------------------------
 
@@ -130,7 +133,8 @@ class LiveState:
         write from SCADA or MQTT becomes an audit line."""
         if not lookup(function).writes or client.startswith(AUDITED_ELSEWHERE):
             return
-        result = "ok" if code is None else f"exception {code:02X}H {exception_name(code)}"
+        exceptions = self._exceptions.get((bus, address), STANDARD_EXCEPTIONS)
+        result = "ok" if code is None else f"exception {code:02X}H {exceptions.name(code)}"
         target = "broadcast" if address == 0 else f"address {address}"
         self.events.record(
             GatewayEvent(
@@ -235,7 +239,10 @@ class LiveState:
             names = {
                 address: drive for (on, address), drive in self._by_address.items() if on == name
             }
-            view = counters.view(bus.drive_stats, names)
+            exceptions = {
+                address: words for (on, address), words in self._exceptions.items() if on == name
+            }
+            view = counters.view(bus.drive_stats, names, exceptions)
             line = bus.line
             hardware = {  # what the adapter does to replies, since start (as /metrics has it)
                 "glitch_bytes": line.garbage_bytes,

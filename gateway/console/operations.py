@@ -31,7 +31,6 @@ from gateway.profile import (
     COMMUNICATION_REGISTERS,
     Point,
     RegisterWrite,
-    describe_exception,
     parse_parameter,
     resolve,
 )
@@ -74,11 +73,8 @@ class Policy:
 
 
 Explain = Callable[[int], Awaitable[str]]
-"""What a drive's exception code to a write means, said for that write."""
-
-
-async def _drive_words(code: int) -> str:
-    return describe_exception(code)
+"""What a drive's exception code to a write means, said for that write (without one: the
+words of the drive's profile)."""
 
 
 class DriveOperations:
@@ -230,9 +226,12 @@ class DriveOperations:
                 raise OperationError(400, f"{settings.model} has no RAM-only parameter writes")
             address = ram_write_address(address)
 
+        exceptions = self._drive(drive).profile.exceptions
+
         async def explain(code: int) -> str:
             note = point.borrowed_note
-            return f"{describe_exception(code)}; {note}" if note else describe_exception(code)
+            words = exceptions.describe(code)
+            return f"{words}; {note}" if note else words
 
         return await self._write(who, drive, address, raw, Category.CONFIGURATION, explain)
 
@@ -243,7 +242,7 @@ class DriveOperations:
         who: Identity,
         drive: str,
         writes: tuple[RegisterWrite, ...],
-        explain: Explain = _drive_words,
+        explain: Explain | None = None,
     ) -> dict[str, Any]:
         """The profile's writes for a command, in order, one word at a time (the console writes
         with 06H only), with the pauses its state machine asks for."""
@@ -264,7 +263,7 @@ class DriveOperations:
         address: int,
         raw: int,
         category: Category,
-        explain: Explain = _drive_words,
+        explain: Explain | None = None,
     ) -> dict[str, Any]:
         settings = self._drive(drive)
         if not settings.profile.commands:
@@ -279,7 +278,10 @@ class DriveOperations:
             self._audit(who, drive, settings, category, what, f"refused: {exc}")
             raise
         if is_exception(reply):
-            result = f"drive refused: {await explain(reply[1])}"
+            code = reply[1]
+            exceptions = settings.profile.exceptions
+            words = exceptions.describe(code) if explain is None else await explain(code)
+            result = f"drive refused: {words}"
             self._audit(who, drive, settings, category, what, result)
             raise OperationError(502, result)
         self._audit(who, drive, settings, category, what, "ok")
@@ -306,7 +308,8 @@ class DriveOperations:
         pdu = struct.pack(">BHH", READ_HOLDING_REGISTERS, start, count)
         reply = await self._send(who, settings, pdu)
         if is_exception(reply):
-            raise OperationError(502, f"drive refused: {describe_exception(reply[1])}")
+            words = settings.profile.exceptions.describe(reply[1])
+            raise OperationError(502, f"drive refused: {words}")
         return list(struct.unpack(f">{count}H", reply[2 : 2 + 2 * count]))
 
     async def _send(self, who: Identity, settings: DriveSettings, pdu: bytes) -> bytes:
@@ -318,7 +321,8 @@ class DriveOperations:
             reply = await self.router.execute(unit_id, pdu, client=who.client)
             assert reply is None or isinstance(reply, bytes)
         except ModbusError as exc:
-            raise OperationError(502, f"{describe_exception(exc.code)} ({exc})") from None
+            words = settings.profile.exceptions.describe(exc.code)
+            raise OperationError(502, f"{words} ({exc})") from None
         assert reply is not None  # only broadcasts have none
         return reply
 

@@ -28,11 +28,11 @@ from typing import Any
 from gateway.bus import Bus
 from gateway.bus.line import Exchange
 from gateway.bus.queue import Transaction
-from gateway.console.decode import describe
+from gateway.console.decode import describe, exceptions_of
 from gateway.errors import BadReply, LineError, PortError, ReplyTimeout
 from gateway.modbus.rtu import build_frame
 from gateway.poller.drive_state import iso_time
-from gateway.profile import DriveProfile, exception_name
+from gateway.profile import DriveProfile
 
 log = logging.getLogger(__name__)
 
@@ -162,7 +162,7 @@ class TrafficMonitor:
             "address": record.address,
             "function": f"{record.pdu[0]:02X}H" if record.pdu else "",
             "meaning": describe(record.pdu, meaning_reply, profile),
-            "outcome": _outcome_words(record),
+            "outcome": _outcome_words(record, profile),
             "attempt": record.attempt,
             "latency_ms": round(record.latency_s * 1000, 1),
             **self.timing(record),
@@ -248,11 +248,12 @@ def _queued_for(transaction: Transaction, attempt: int, started: float) -> float
     return max(0.0, started - transaction.queued_at)
 
 
-def _outcome_words(record: Record) -> str:
+def _outcome_words(record: Record, profile: DriveProfile | None) -> str:
     """ "ok", "exception 02H illegal_data_address", "timeout", "crc error", "retry 1: ok"."""
     outcome = record.outcome
     if outcome == "exception" and record.reply is not None and len(record.reply) > 1:
-        outcome = f"exception {record.reply[1]:02X}H {exception_name(record.reply[1])}"
+        code = record.reply[1]
+        outcome = f"exception {code:02X}H {exceptions_of(profile).name(code)}"
     elif outcome == "crc":
         outcome = "crc error"
     elif outcome == "port_lost":

@@ -6,7 +6,8 @@ is never executed (it would run again at every reconnect of every subscriber), a
 longer than `command_max_age_s` since it was received), and none at all with
 `commands_enabled: false`.
 Writes then go through the router at write priority, as a SCADA write would; the drive's own
-exception comes back by its INVT name (`operation_failure` for 04H), the gateway's as its reason.
+exception comes back by its profile's name (an INVT drive's 04H `operation_failure`, another
+maker's `server_device_failure`), the gateway's as its reason.
 Each drive is resolved to its route once, when the bridge is built: a command names a drive and
 goes straight to its route.
 """
@@ -18,7 +19,7 @@ import logging
 import struct
 import time
 from collections import Counter
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Final
 
@@ -47,7 +48,7 @@ from gateway.mqtt.requests import (
     transaction_of,
 )
 from gateway.poller import Poller
-from gateway.profile import DriveProfile, describe_exception, exception_name
+from gateway.profile import STANDARD_EXCEPTIONS, DriveProfile
 from gateway.profile.points import for_series
 from gateway.routing import MAX_READ_WORDS, Route, Router
 from gateway.setpoint_limit import setpoint_refusal
@@ -58,8 +59,6 @@ log = logging.getLogger(__name__)
 
 MQTT_CLIENT: Final = "mqtt"
 """The bus's name for requests from MQTT (its own round-robin share, like one SCADA client)."""
-
-Run = Callable[[Json], Awaitable[Json]]
 
 
 @dataclass(frozen=True, slots=True)
@@ -103,33 +102,32 @@ class Commands:
     # `received_at` of each message is the monotonic time the bridge received it: what waited
     # longer than `command_max_age_s` before its turn came is refused, not run late.
 
-    async def acknowledge(self, message: Incoming, writes: bool, run: Run) -> Json:
-        """Check the command, `run` it, and the answer: ok with its data, or why not."""
-        transaction: Any = None
-        try:
-            payload = parse_object(message.payload)
-            transaction = transaction_of(payload)
-            self._check_allowed(payload, message.retained, writes)
-            check_waited(message.received_at, self.settings.command_max_age_s, time.monotonic())
-            data = await run(payload)
-        except CommandRefused as exc:
+    def acknowledgement(self) -> Acknowledgement:
+        """The answer to one message, built as it is checked and carried out:
+
+            with commands.acknowledgement() as answer:
+                payload = commands.admit(message, answer, writes=True)
+                answer.ok(await commands.set(drive, payload))
+            respond(answer.response)
+
+        A refusal or a Modbus exception raised inside the block becomes the answer."""
+        return Acknowledgement(self)
+
+    def admit(self, message: Incoming, answer: Acknowledgement, writes: bool) -> Json:
+        """The message's payload, once the checks that keep a plant safe passed (see the
+        module's docstring); raises CommandRefused. `writes`: it would change a drive."""
+        payload = parse_object(message.payload)
+        answer.transaction = transaction_of(payload)
+        self._check_allowed(payload, message.retained, writes)
+        check_waited(message.received_at, self.settings.command_max_age_s, time.monotonic())
+        return payload
+
+    def _count(self, status: str) -> None:
+        if status == "ok":
+            self.executed += 1
+        else:
             self.refused += 1
-            self.statuses[exc.reason] += 1
-            log.warning(
-                "MQTT command refused (%s): %s",
-                exc.reason,
-                exc,
-                extra=repeated(f"mqtt-refused-{exc.reason}"),  # anyone may send them, often
-            )
-            return error_response(transaction, exc.reason, str(exc))
-        except ModbusError as exc:
-            self.refused += 1
-            error, code = modbus_error(exc)
-            self.statuses[error] += 1
-            return error_response(transaction, error, str(exc), code)
-        self.executed += 1
-        self.statuses["ok"] += 1
-        return ok_response(transaction, data)
+        self.statuses[status] += 1
 
     def may_refresh(self, drive: str, message: Incoming) -> bool:
         """`<base>/<drive>/get`: False (and logged) when the request is to be ignored."""
@@ -161,7 +159,7 @@ class Commands:
         except DriveException as exc:
             note = borrowed_note(drive.profile, write.echo.get("parameter"))
             if note:
-                raise DriveException(exc.function, exc.code, f"{exc}; {note}") from None
+                raise DriveException(exc.function, exc.code, f"{exc}; {note}", exc.name) from None
             polled = self.poller.drives.get(drive.name)
             if "frequency_hz" not in write.echo or polled is None:
                 raise
@@ -172,7 +170,7 @@ class Commands:
                 exc.code,
                 self.poller.max_frequency_hz,
             )
-            raise DriveException(exc.function, exc.code, message) from None
+            raise DriveException(exc.function, exc.code, message, exc.name) from None
         return write.echo
 
     async def write(self, drive: CommandDrive, write: RegisterWrite) -> None:
@@ -220,7 +218,8 @@ class Commands:
         reply = await self.router.request(route, pdu, client=MQTT_CLIENT)
         if is_exception(reply):
             code = reply[1] if len(reply) > 1 else 0
-            raise DriveException(pdu[0], code, describe_exception(code))
+            words = drive.profile.exceptions
+            raise DriveException(pdu[0], code, words.describe(code), words.name(code))
         return reply
 
 
@@ -234,10 +233,51 @@ def borrowed_note(profile: DriveProfile, spelled: object) -> str:
         return ""
 
 
+class Acknowledgement:
+    """The answer to one command message (`Commands.acknowledgement`): ok with the data the
+    command gave, or why not (the refusal's reason, or the Modbus exception's name), each
+    counted by status."""
+
+    def __init__(self, commands: Commands) -> None:
+        self.commands = commands
+        self.transaction: Any = None
+        """The caller's `transaction`, repeated in the answer (once the payload parsed)."""
+        self.response: Json = {}
+
+    def __enter__(self) -> Acknowledgement:
+        return self
+
+    def ok(self, data: Json) -> None:
+        self.commands._count("ok")
+        self.response = ok_response(self.transaction, data)
+
+    def __exit__(
+        self, kind: type[BaseException] | None, exc: BaseException | None, tb: object
+    ) -> bool:
+        """A refusal or a Modbus exception: answered, not raised further. Anything else (a
+        bug, a cancellation) goes on up."""
+        if isinstance(exc, CommandRefused):
+            log.warning(
+                "MQTT command refused (%s): %s",
+                exc.reason,
+                exc,
+                extra=repeated(f"mqtt-refused-{exc.reason}"),  # anyone may send them, often
+            )
+            self.commands._count(exc.reason)
+            self.response = error_response(self.transaction, exc.reason, str(exc))
+            return True
+        if isinstance(exc, ModbusError):
+            error, code = modbus_error(exc)
+            self.commands._count(error)
+            self.response = error_response(self.transaction, error, str(exc), code)
+            return True
+        return False
+
+
 def modbus_error(exc: ModbusError) -> tuple[str, int]:
     """The response's `error` and `exception_code` for a Modbus exception, drive's or gateway's."""
     if isinstance(exc, DriveException):
-        return exception_name(exc.code), exc.code
+        return exc.name or STANDARD_EXCEPTIONS.name(exc.code), exc.code
     if isinstance(exc, DriveOffline):
         return "offline", exc.code
     if isinstance(exc, GatewayTargetFailed):
@@ -246,4 +286,4 @@ def modbus_error(exc: ModbusError) -> tuple[str, int]:
         return "busy", exc.code
     if isinstance(exc, GatewayPathUnavailable):
         return "unavailable", exc.code
-    return exception_name(exc.code), exc.code
+    return STANDARD_EXCEPTIONS.name(exc.code), exc.code

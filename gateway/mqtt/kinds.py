@@ -86,11 +86,11 @@ class DriveCommand:
         return drive_lane(self.drive.name)
 
     async def run(self, client: aiomqtt.Client, message: Incoming) -> None:
-        response = await self.context.commands.acknowledge(message, True, self._set)
-        await self.context.publisher.respond(client, self.response_topic, response)
-
-    async def _set(self, payload: Json) -> Json:
-        return await self.context.commands.set(self.drive, payload)
+        commands = self.context.commands
+        with commands.acknowledgement() as answer:
+            payload = commands.admit(message, answer, writes=True)
+            answer.ok(await commands.set(self.drive, payload))
+        await self.context.publisher.respond(client, self.response_topic, answer.response)
 
 
 UNKNOWN_LANE: Final = "unknown"
@@ -112,12 +112,12 @@ class UnknownDrive:
         return UNKNOWN_LANE
 
     async def run(self, client: aiomqtt.Client, message: Incoming) -> None:
-        response = await self.context.commands.acknowledge(message, False, self._refuse)
-        await self.context.publisher.respond(client, self.response_topic, response)
-
-    async def _refuse(self, payload: Json) -> Json:
-        known = ", ".join(sorted(self.context.commands.drives))
-        raise CommandRefused("unknown_drive", f"no drive {self.name!r} here (drives: {known})")
+        commands = self.context.commands
+        with commands.acknowledgement() as answer:
+            commands.admit(message, answer, writes=False)  # a retained or stale one says so
+            known = ", ".join(sorted(commands.drives))
+            raise CommandRefused("unknown_drive", f"no drive {self.name!r} here (drives: {known})")
+        await self.context.publisher.respond(client, self.response_topic, answer.response)
 
 
 class AnySet:
@@ -187,8 +187,11 @@ class BridgeRequest:
         return BRIDGE_LANE
 
     async def run(self, client: aiomqtt.Client, message: Incoming) -> None:
-        response = await self.context.commands.acknowledge(message, self.writes, self.execute)
-        await self.context.publisher.respond(client, self.response_topic, response)
+        commands = self.context.commands
+        with commands.acknowledgement() as answer:
+            payload = commands.admit(message, answer, writes=self.writes)
+            answer.ok(await self.execute(payload))
+        await self.context.publisher.respond(client, self.response_topic, answer.response)
 
     async def execute(self, payload: Json) -> Json:
         """The request's `data` once done; raises CommandRefused or a ModbusError."""

@@ -405,7 +405,8 @@ def error_response(
     exception_code: int | None = None,
     data: Json | None = None,
 ) -> Json:
-    """`error`: the INVT exception's name (`operation_failure`) or the gateway's reason."""
+    """`error`: the drive's name for its exception, its profile's (an INVT drive's 04H
+    `operation_failure`, another's `server_device_failure`), or the gateway's reason."""
     response: Json = {"status": "error", "error": error, "message": message, "data": data or {}}
     if exception_code is not None:
         response["exception_code"] = exception_code

@@ -33,7 +33,7 @@ from gateway.errors import BusClosed, DriveOffline, GatewayPathUnavailable, Gate
 from gateway.modbus.functions import is_exception
 from gateway.poller.drive_state import DriveEvent, DriveState
 from gateway.poller.plan import PollBlock, PollSchedule, poll_schedules
-from gateway.profile import exception_name, format_register
+from gateway.profile import format_register
 from gateway.profile.point_types import word_key
 from gateway.profile.telemetry import Telemetry
 from gateway.routing import Route, Router
@@ -344,7 +344,7 @@ class Poller:
                 block.count,
                 format_register(block.start),
                 code,
-                exception_name(code),
+                drive.settings.profile.exceptions.name(code),
             )
 
     def _tell_availability(self, drive: PolledDrive) -> None:

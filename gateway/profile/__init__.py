@@ -26,7 +26,8 @@ INVT, one implementation of the protocol:
 - `words`: one decoder per status word (2100H, 2101H, fault codes, 2103H) for a drive's series:
   what every surface (telemetry, `read`, `scan`, the console, the events) shows.
 - `faults`: fault codes → short code and description, one table per series.
-- `exception_codes`: INVT's meanings of exception codes 01H-09H, and the gateway's 0AH/0BH.
+- `exception_codes`: each maker's words for the exception codes (INVT's, the Modbus standard's),
+  one table each, named by the profile (`DriveProfile.exceptions`).
 - `invt`: model identification codes and the `InvtProfile` of each series.
 """
 
@@ -39,7 +40,7 @@ from gateway.profile.addressing import (
     parse_register,
     ram_address,
 )
-from gateway.profile.exception_codes import EXCEPTIONS, describe_exception, exception_name
+from gateway.profile.exception_codes import INVT_EXCEPTIONS, STANDARD_EXCEPTIONS, ExceptionNames
 from gateway.profile.faults import FAULTS, FaultTable, describe_fault, fault_short_code
 from gateway.profile.generic import GenericProfile
 from gateway.profile.invt import (
@@ -85,16 +86,18 @@ from gateway.profile.states import (
 __all__ = [
     "COMMUNICATION_REGISTERS",
     "CONTROL_COMMANDS",
-    "EXCEPTIONS",
     "FAULTS",
     "IDENTIFICATION_CODES",
+    "INVT_EXCEPTIONS",
     "PARAMETERS",
     "PROFILES",
     "RUNNING_VALUES",
     "SCAN_QUESTIONS",
+    "STANDARD_EXCEPTIONS",
     "CommandSource",
     "ControlCommand",
     "DriveProfile",
+    "ExceptionNames",
     "FaultTable",
     "GenericProfile",
     "Identified",
@@ -112,11 +115,9 @@ __all__ = [
     "decode_running_values",
     "decode_state_word_1",
     "decode_state_word_2",
-    "describe_exception",
     "describe_fault",
     "describe_identification",
     "encode_state_word_2",
-    "exception_name",
     "fault_short_code",
     "format_parameter",
     "format_register",

@@ -24,6 +24,7 @@ from typing import Any, Final
 import yaml
 
 from gateway.profile.addressing import format_register, parse_register
+from gateway.profile.exception_codes import STANDARD_EXCEPTIONS, ExceptionNames
 from gateway.profile.faults import FaultTable
 from gateway.profile.overrides import FaultOverrides
 from gateway.profile.parameter_tables import ParameterTable
@@ -197,6 +198,11 @@ class AbbProfile(FaultOverrides):
         raise ValueError(no_typed_points(self.display_name))
 
     # -- faults -----------------------------------------------------------------------------
+    @property
+    def exceptions(self) -> ExceptionNames:
+        """ABB's drives answer the Modbus standard's exceptions (06H: busy)."""
+        return STANDARD_EXCEPTIONS
+
     def current_fault(self, registers: Mapping[int, int]) -> int | None:
         return None  # the fault code is a drive parameter, not one of the profile's words
 

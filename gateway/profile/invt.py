@@ -29,6 +29,7 @@ from typing import Final, TypedDict
 from gateway.errors import TableError
 from gateway.profile.addressing import format_register
 from gateway.profile.commands import control_write, ram_only_address, setpoint_word
+from gateway.profile.exception_codes import INVT_EXCEPTIONS, ExceptionNames
 from gateway.profile.faults import (
     GD350_FAULTS,
     GOODRIVE_FAULTS,
@@ -136,6 +137,11 @@ class InvtProfile:
     unconfirmed: tuple[str, ...] = ()
     """Facts of this profile no public manual confirmed, in words (docs, `scan`, `decode-fault`)."""
     typed_points: tuple[TypedPoint, ...] = ()
+
+    @property
+    def exceptions(self) -> ExceptionNames:
+        """INVT's own meanings of 04H-09H (06H: a data frame error, not "busy")."""
+        return INVT_EXCEPTIONS
 
     @property
     def max_fault_code(self) -> int:

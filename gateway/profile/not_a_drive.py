@@ -7,6 +7,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, ClassVar
 
+from gateway.profile.exception_codes import STANDARD_EXCEPTIONS, ExceptionNames
 from gateway.profile.overrides import FaultOverrides
 from gateway.profile.parameter_tables import ParameterTable
 
@@ -22,6 +23,11 @@ class NotADrive(FaultOverrides):
     display_name: str
     no_commands_hint: ClassVar[str] = ""
     """Said after "takes no drive commands" (what to do instead, e.g. ": write its points")."""
+
+    @property
+    def exceptions(self) -> ExceptionNames:
+        """A device that is not a drive speaks the Modbus standard's exceptions."""
+        return STANDARD_EXCEPTIONS
 
     @property
     def parameter_table(self) -> ParameterTable:

@@ -14,7 +14,7 @@ and the console ask the profile.
 | the line | `max_words`, `split_by_default`, `poll_groups`, `ram_writes_supported` |
 | register words and their decoders | `telemetry`, `telemetry_keys`, `point`, `resolve`, |
 | | `typed_points`, `point_write` |
-| faults | `faults`, `current_fault`, `fault_fields` |
+| faults | `faults`, `current_fault`, `fault_fields`, `exceptions` |
 | commands | `commands`, `command_name`, `setpoint_word`, `control_writes`, `ram_only_address` |
 | parameters | `parameter_table`, `parameters`, `max_frequency_hz`, `max_frequency_parameter` |
 """
@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Protocol
 from gateway.profile.point_types import Table, TypedPoint
 
 if TYPE_CHECKING:
+    from gateway.profile.exception_codes import ExceptionNames
     from gateway.profile.faults import FaultTable
     from gateway.profile.parameter_tables import ParameterTable
     from gateway.profile.parameters import Parameter
@@ -165,6 +166,12 @@ class DriveProfile(Protocol):
 
     def fault_fields(self, code: int) -> Telemetry:
         """`fault_code`, `fault_name`, `fault_description` of a fault code."""
+
+    @property
+    def exceptions(self) -> ExceptionNames:
+        """What the device means by each exception code it answers: its maker's words (INVT's
+        own for 04H-09H), the Modbus standard's for a device that follows it. MQTT's answers,
+        the console, the poller's log and the field tools all say a device's exception so."""
 
     # -- commands ----------------------------------------------------------------------------
     @property

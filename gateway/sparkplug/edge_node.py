@@ -397,13 +397,12 @@ class SparkplugNode:
                 "Sparkplug: DCMD for %s: %s", drive, problem, extra=repeated("sparkplug-dcmd")
             )
         target = self.commands.drives[drive]
-
-        async def run(set_payload: Json) -> Json:
-            return await self.commands.set(target, set_payload)
-
         for set_payload in command.payloads:
             message = dataclasses.replace(incoming, payload=json.dumps(set_payload).encode())
-            answer = await self.commands.acknowledge(message, True, run)
+            with self.commands.acknowledgement() as acknowledgement:
+                admitted = self.commands.admit(message, acknowledgement, writes=True)
+                acknowledgement.ok(await self.commands.set(target, admitted))
+            answer = acknowledgement.response
             if answer.get("status") == "ok":
                 log.info("Sparkplug: DCMD for %s done: %s", drive, answer.get("data"))
             else:

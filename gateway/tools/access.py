@@ -2,7 +2,7 @@
 
 Every error leaves here as a `FieldError` naming the request ("reading P00.11 at address 1")
 and the checklist that fits: silence, garbage, a port that won't open, or the drive's own
-exception code with INVT's meaning.
+exception code in its profile's words (INVT's when the model isn't given).
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from gateway.errors import BadReply, FieldError, PortError, ReplyTimeout
 from gateway.modbus.functions import READ_HOLDING_REGISTERS, WRITE_SINGLE_REGISTER, is_exception
 from gateway.profile import DriveProfile, parse_parameter, profiles_for_identification
+from gateway.profile.exception_codes import INVT_EXCEPTIONS
 from gateway.profile.invt import IDENTIFICATION
 from gateway.profile.points import Meaning, Point
 from gateway.profile.ram_writes import ram_write_address
@@ -47,8 +48,12 @@ class Reading:
         )
 
 
-def ask(master: Master, address: int, pdu: bytes, what: str) -> bytes:
-    """The reply PDU to `pdu`; a FieldError for silence, garbage, a lost port or an exception."""
+def ask(
+    master: Master, address: int, pdu: bytes, what: str, profile: DriveProfile | None = None
+) -> bytes:
+    """The reply PDU to `pdu`; a FieldError for silence, garbage, a lost port or an exception
+    (in `profile`'s words; INVT's without one: the field tools' drives are INVT's unless
+    `--model` says otherwise)."""
     via_gateway = isinstance(master, TcpMaster)
     try:
         reply = master.request(address, pdu)
@@ -60,7 +65,10 @@ def ask(master: Master, address: int, pdu: bytes, what: str) -> bytes:
     except PortError as exc:
         raise FieldError(f"{what}: {exc}", GATEWAY if via_gateway else PORT) from exc
     if is_exception(reply):
-        raise exception_error(reply[1] if len(reply) > 1 else 0, what)
+        code = reply[1] if len(reply) > 1 else 0
+        raise exception_error(
+            code, what, INVT_EXCEPTIONS if profile is None else profile.exceptions
+        )
     return reply
 
 
@@ -69,18 +77,26 @@ def read_point(
 ) -> Reading:
     what = f"reading {point.label} ({point.where}) at address {address}"
     pdu = struct.pack(">BHH", READ_HOLDING_REGISTERS, point.address, 1)
-    reply = ask(master, address, pdu, what)
+    reply = ask(master, address, pdu, what, profile)
     if len(reply) != 4 or reply[:2] != bytes((READ_HOLDING_REGISTERS, 2)):
         raise FieldError(f"{what}: unexpected reply {reply.hex(' ')}", GARBLED)
     return Reading(point, int.from_bytes(reply[2:4], "big"), profile)
 
 
-def write_point(master: Master, address: int, point: Point, raw: int, *, ram: bool = False) -> str:
+def write_point(
+    master: Master,
+    address: int,
+    point: Point,
+    raw: int,
+    *,
+    ram: bool = False,
+    profile: DriveProfile | None = None,
+) -> str:
     """Write one word with 06H; the confirmation line, with a warning if the drive won't obey."""
     register = ram_write_address(point.address) if ram else point.address
     what = f"writing {point.label} ({point.where}) at address {address}"
     pdu = struct.pack(">BHH", WRITE_SINGLE_REGISTER, register, raw)
-    reply = ask(master, address, pdu, what)
+    reply = ask(master, address, pdu, what, profile)
     if reply != pdu:
         raise FieldError(f"{what}: the echo {reply.hex(' ')} differs from the request", GARBLED)
     where = f"{register:04X}H, RAM only" if register != point.address else point.where

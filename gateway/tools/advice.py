@@ -8,8 +8,8 @@ P00.06 frequency source.
 from __future__ import annotations
 
 from gateway.errors import FieldError
-from gateway.profile import describe_exception
 from gateway.profile import exception_codes as code
+from gateway.profile.exception_codes import INVT_EXCEPTIONS, ExceptionNames
 
 NO_ANSWER = (
     "baud rate and data format: the drive's P14.01 and P14.02 must match --baud and --parity "
@@ -41,7 +41,7 @@ COMMUNICATION_MODE = (
     "for a frequency set-point it needs P00.06 = 8 (frequency command: Modbus)",
 )
 
-_EXCEPTION_CHECKS: dict[int, tuple[str, ...]] = {
+_INVT_EXCEPTION_CHECKS: dict[int, tuple[str, ...]] = {
     code.ILLEGAL_COMMAND: (
         "the drive has no such function, or it is in a fault state: read 2102H",
         *COMMUNICATION_MODE,
@@ -61,6 +61,9 @@ _EXCEPTION_CHECKS: dict[int, tuple[str, ...]] = {
         "the parameter can only be changed while the drive is stopped",
     ),
     code.PASSWORD_PROTECTION: ("the drive is locked by a password (P07.00)",),
+}
+"""What an INVT drive's exception asks to check: INVT's meanings, INVT's parameters."""
+_GATEWAY_EXCEPTION_CHECKS: dict[int, tuple[str, ...]] = {
     code.GATEWAY_PATH_UNAVAILABLE: (
         "the gateway's configuration has a drive with this unit id (check-config lists them)",
     ),
@@ -71,10 +74,14 @@ _EXCEPTION_CHECKS: dict[int, tuple[str, ...]] = {
 }
 
 
-def exception_error(code: int, what: str) -> FieldError:
-    """The error for an exception reply `code` to `what` ("reading P00.11 at address 1")."""
-    error = FieldError(
-        f"{what}: exception {describe_exception(code)}", _EXCEPTION_CHECKS.get(code, ())
-    )
+def exception_error(
+    code: int, what: str, exceptions: ExceptionNames = INVT_EXCEPTIONS
+) -> FieldError:
+    """The error for an exception reply `code` to `what` ("reading P00.11 at address 1"), in
+    the words of the device's profile (`exceptions`: INVT's unless `--model` names another)."""
+    checks = _GATEWAY_EXCEPTION_CHECKS.get(code)
+    if checks is None:
+        checks = _INVT_EXCEPTION_CHECKS.get(code, ()) if exceptions is INVT_EXCEPTIONS else ()
+    error = FieldError(f"{what}: exception {exceptions.describe(code)}", checks)
     error.exception_code = code
     return error

@@ -9,7 +9,7 @@ import pkgutil
 import gateway
 from gateway import errors
 from gateway.errors import ExceptionCode, GatewayError
-from gateway.profile import describe_exception, exception_name
+from gateway.profile import INVT_EXCEPTIONS
 from gateway.profile import exception_codes as invt
 
 
@@ -49,9 +49,9 @@ def test_exception_codes_have_one_name_each_from_01h_to_0bh() -> None:
 
 def test_invt_names_are_the_same_codes_with_invt_meanings() -> None:
     assert invt.DATA_FRAME_ERROR is ExceptionCode.SERVER_DEVICE_BUSY
-    assert exception_name(ExceptionCode.SERVER_DEVICE_BUSY) == "data_frame_error"
-    assert exception_name(6) == "data_frame_error"
-    assert describe_exception(invt.PASSWORD_PROTECTION) == (
+    assert INVT_EXCEPTIONS.name(ExceptionCode.SERVER_DEVICE_BUSY) == "data_frame_error"
+    assert INVT_EXCEPTIONS.name(6) == "data_frame_error"
+    assert INVT_EXCEPTIONS.describe(invt.PASSWORD_PROTECTION) == (
         "09H password protection: the drive is locked by a password"
     )
-    assert exception_name(0x0C) == "exception_0c"
+    assert INVT_EXCEPTIONS.name(0x0C) == "exception_0c"

@@ -7,17 +7,16 @@ import pytest
 from gateway.profile import (
     COMMUNICATION_REGISTERS,
     FAULTS,
+    INVT_EXCEPTIONS,
     PROFILES,
     StateWord2,
     control_command,
     decode_running_values,
     decode_state_word_1,
     decode_state_word_2,
-    describe_exception,
     describe_fault,
     describe_identification,
     encode_state_word_2,
-    exception_name,
     fault_short_code,
     format_parameter,
     format_register,
@@ -285,16 +284,16 @@ def test_fault_table_is_complete_from_0_to_69() -> None:
 
 
 def test_exception_codes_carry_invt_meanings() -> None:
-    assert exception_name(0x04) == "operation_failure"
-    assert exception_name(0x06) == "data_frame_error"  # not "server busy"
-    assert exception_name(0x07) == "parameter_read_only"
-    assert exception_name(0x0A) == "gateway_path_unavailable"
-    assert exception_name(0x0B) == "gateway_target_failed"
-    assert exception_name(0x42) == "exception_42"
-    assert describe_exception(0x06).startswith("06H data frame error")
-    assert "busy" not in describe_exception(0x06)
-    assert describe_exception(0x04) == "04H operation failure: the written value is invalid"
-    assert all(exception_name(code) != f"exception_{code:02x}" for code in range(0x01, 0x0C))
+    assert INVT_EXCEPTIONS.name(0x04) == "operation_failure"
+    assert INVT_EXCEPTIONS.name(0x06) == "data_frame_error"  # not "server busy"
+    assert INVT_EXCEPTIONS.name(0x07) == "parameter_read_only"
+    assert INVT_EXCEPTIONS.name(0x0A) == "gateway_path_unavailable"
+    assert INVT_EXCEPTIONS.name(0x0B) == "gateway_target_failed"
+    assert INVT_EXCEPTIONS.name(0x42) == "exception_42"
+    assert INVT_EXCEPTIONS.describe(0x06).startswith("06H data frame error")
+    assert "busy" not in INVT_EXCEPTIONS.describe(0x06)
+    assert INVT_EXCEPTIONS.describe(0x04) == "04H operation failure: the written value is invalid"
+    assert all(INVT_EXCEPTIONS.name(code) != f"exception_{code:02x}" for code in range(0x01, 0x0C))
 
 
 # ---------------------------------------------------------------- models
