@@ -42,6 +42,7 @@ if TYPE_CHECKING:
     from gateway.console.feature import ConsoleFeature
     from gateway.metrics import MetricsFeature
     from gateway.mqtt import MqttBridge
+    from gateway.sparkplug.edge_node import SparkplugNode
 
 log = logging.getLogger(__name__)
 
@@ -86,8 +87,11 @@ class Application:
         self.writes = WriteTally(self.events, self._drive_of, self.tasks)
         self.poller = self._build_poller()
         self.mqtt: MqttBridge | None = None
+        self.sparkplug: SparkplugNode | None = None
+        """Beside the bridge's JSON topics, started and stopped by it (`mqtt.sparkplug`)."""
         if settings.mqtt is not None:
-            self.mqtt = self._build_mqtt(settings.mqtt)
+            self.sparkplug = self._build_sparkplug(settings.mqtt)
+            self.mqtt = self._build_mqtt(settings.mqtt, self.sparkplug)
         self.metrics: MetricsFeature | None = None
         if settings.metrics is not None:
             from gateway.metrics import MetricsFeature  # prometheus-client only when asked for
@@ -129,15 +133,28 @@ class Application:
         poller.open_faults = self.events.open_faults  # no fault raised twice by a restart
         return poller
 
-    def _build_mqtt(self, mqtt: MqttSettings) -> MqttBridge:
-        """The bridge takes what the poller hands it; it stops before the poller."""
+    def _build_mqtt(self, mqtt: MqttSettings, sparkplug: SparkplugNode | None) -> MqttBridge:
+        """The bridge takes what the poller hands it (and hands it on to the Sparkplug node);
+        it stops before the poller."""
         from gateway.mqtt import MqttBridge  # aiomqtt only loaded when MQTT is configured
 
         drives = self.settings.drives
-        bridge = MqttBridge(mqtt, drives, self.router, self.poller, self.tasks, self.events)
+        parts = (self.router, self.poller, self.tasks, self.events)
+        bridge = MqttBridge(mqtt, drives, *parts, beside=sparkplug)
         self.poller.read_max_frequency = mqtt.homeassistant_discovery
         self.poller.add_listener(bridge)
         return bridge
+
+    def _build_sparkplug(self, mqtt: MqttSettings) -> SparkplugNode | None:
+        """The Sparkplug B edge node when `mqtt.sparkplug` asks for it, on the drives the
+        running configuration has."""
+        if mqtt.sparkplug is None:
+            return None
+        from gateway.sparkplug.edge_node import SparkplugNode  # protobuf only when asked
+
+        drives = self.settings.drives
+        parts = (self.router, self.poller, self.tasks, self.events)
+        return SparkplugNode(mqtt, mqtt.sparkplug, drives, *parts)
 
     async def reload(self, new: GatewaySettings) -> ReloadPlan:
         """Apply a new, valid configuration in place (`gateway.settings.reload`); what changed."""
@@ -193,17 +210,13 @@ class Application:
         running = plan.settings
         if old is None or not plan.restart_bridge or running.mqtt is None:
             return
-        from gateway.mqtt import MqttBridge
-
         await old.stop()
         self.poller.remove_listener(old)
-        new = MqttBridge(
-            running.mqtt, running.drives, self.router, self.poller, self.tasks, self.events
-        )
-        new.continue_from(old)
-        self.poller.add_listener(new)
-        self.mqtt = new
-        await new.start(checked=True)  # by `_check_bridge_alone`, before the reload began
+        old_node, node = self.sparkplug, self._build_sparkplug(running.mqtt)
+        if node is not None and old_node is not None:
+            node.continue_from(old_node)
+        self.sparkplug, self.mqtt = node, self._build_mqtt(running.mqtt, node)
+        await self.mqtt.start(checked=True)  # by `_check_bridge_alone`, before the reload began
 
     async def _reload_metrics(self, plan: ReloadPlan) -> None:
         metrics = self.metrics

@@ -8,8 +8,10 @@ A feature of the application, put together from its jobs:
 - `event_link`: the connection the events go out on (the session's, or one of their own);
 - `dispatcher`: each received message to its kind (`kinds`), run in its lane (`lanes`).
 
-With `mqtt.sparkplug`, the Sparkplug B edge node (`gateway.sparkplug`) runs beside it on its
-own connection: the bridge hands it what the poller hands the bridge, and starts and stops it.
+With `mqtt.sparkplug`, the Sparkplug B edge node (`gateway.sparkplug`), which the application
+builds and hands in (`BesideTheBridge`), runs beside it on its own connection: the bridge hands
+it what the poller hands the bridge, and starts and stops it (both goodbyes at once: the two fit
+in the time one feature has to stop).
 
 On every connection: online, info, subscriptions, discovery, every drive's availability and
 state, then the publisher and the dispatcher run side by side until the connection is lost; what
@@ -23,7 +25,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import Awaitable, Sequence
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import aiomqtt
 
@@ -47,15 +49,29 @@ from gateway.settings import DriveSettings, MqttSettings
 from gateway.store import EventStore
 from gateway.tasks import ServiceTasks, side_by_side
 
-if TYPE_CHECKING:
-    from gateway.sparkplug.edge_node import SparkplugNode
-
 log = logging.getLogger(__name__)
 
 STOP_TASK_BUDGET_S = 0.6
 """With the offline message, inside the 1 s the application gives each feature to stop."""
 MAX_WAITING_PER_LANE = 16
 """Messages for one drive waiting for their turn; past this they are answered `busy`."""
+
+
+class BesideTheBridge(Protocol):
+    """A part on a connection of its own that takes what the poller hands the bridge, started
+    and stopped with it: the Sparkplug B edge node (`gateway.sparkplug.edge_node.SparkplugNode`)."""
+
+    def state_updated(self, drive: str, telemetry: Telemetry) -> None: ...
+
+    def availability_changed(self, drive: str, online: bool) -> None: ...
+
+    async def start(self) -> None: ...
+
+    async def say_offline(self) -> None:
+        """Its goodbye on its connection, bounded (said beside the bridge's own)."""
+
+    async def end_tasks(self) -> None:
+        """Its connection's work ended, bounded."""
 
 
 class MqttBridge:
@@ -67,6 +83,7 @@ class MqttBridge:
         poller: Poller,
         tasks: ServiceTasks,
         events: EventStore,
+        beside: BesideTheBridge | None = None,
     ) -> None:
         self.stats = BridgeStats()
         self.topics = Topics(mqtt.base_topic)
@@ -75,7 +92,11 @@ class MqttBridge:
         self.publisher = Publisher(
             mqtt, served, self.topics, self.outbox, poller, self.stats, events
         )
-        drives = _command_drives(served, router)
+        drives = {
+            # The drive's corrected profile (faults, identification, ready bit), as the poller's.
+            d.name: CommandDrive(d.name, router.route_for_drive(d.name), d.profile)
+            for d in served
+        }
         self.commands = Commands(mqtt, router, poller, drives, events)
         self.context = context = Context(
             self.topics,
@@ -103,15 +124,9 @@ class MqttBridge:
         self.settings = mqtt
         self.tasks = tasks
         self._discovery_cleaned = False
-        self.sparkplug = _sparkplug_node(mqtt, served, router, poller, tasks, events)
+        self.beside = beside
         """The Sparkplug B edge node beside the JSON topics (`mqtt.sparkplug`), on its own
-        connection; it takes what the poller hands the bridge too."""
-
-    def continue_from(self, old: MqttBridge) -> None:
-        """A reload's new bridge after `old`: the Sparkplug bdSeq counts on (it counts the
-        CONNECTs of the gateway's run, not of one bridge: a host pairs births and deaths by it)."""
-        if self.sparkplug is not None and old.sparkplug is not None:
-            self.sparkplug.bd_seq.value = old.sparkplug.bd_seq.value
+        connection; None: not enabled."""
 
     @property
     def connected(self) -> asyncio.Event:
@@ -140,13 +155,13 @@ class MqttBridge:
 
     def state_updated(self, drive: str, telemetry: Telemetry) -> None:
         self.outbox.put_state(drive, telemetry)
-        if self.sparkplug is not None:
-            self.sparkplug.state_updated(drive, telemetry)
+        if self.beside is not None:
+            self.beside.state_updated(drive, telemetry)
 
     def availability_changed(self, drive: str, online: bool) -> None:
         self.outbox.put_availability(drive, online)
-        if self.sparkplug is not None:
-            self.sparkplug.availability_changed(drive, online)
+        if self.beside is not None:
+            self.beside.availability_changed(drive, online)
 
     def drive_event(self, event: DriveEvent) -> None:
         pass  # events reach the broker from the store, where the store's own listener put them
@@ -159,24 +174,24 @@ class MqttBridge:
         if not checked:
             await check_alone(self.settings, self.topics)
         await self.session.start()
-        if self.sparkplug is not None:
-            await self.sparkplug.start()
+        if self.beside is not None:
+            await self.beside.start()
 
     async def stop(self) -> None:
-        sparkplug = self.sparkplug
+        beside = self.beside
         # Both goodbyes at once, then both connections' ends at once: the two fit in the time
         # one has (each step is bounded).
         offline: list[Awaitable[object]] = [self.session.say_offline()]
-        if sparkplug is not None:
-            offline.append(sparkplug.say_offline())
+        if beside is not None:
+            offline.append(beside.say_offline())
         await asyncio.gather(*offline)
         # Commands being carried out are cut off: the buses are closed by now anyway.
         stopping: list[Awaitable[object]] = [
             self.lanes.close(STOP_TASK_BUDGET_S),
             self.session.stop(STOP_TASK_BUDGET_S),
         ]
-        if sparkplug is not None:
-            stopping.append(sparkplug.end_tasks())
+        if beside is not None:
+            stopping.append(beside.end_tasks())
         await asyncio.gather(*stopping)
 
     # -- one connection ----------------------------------------------------------------------
@@ -220,25 +235,3 @@ class MqttBridge:
 
     def _lost(self) -> None:
         self.lanes.drop_waiting()
-
-
-def _command_drives(served: Sequence[DriveSettings], router: Router) -> dict[str, CommandDrive]:
-    """Each drive served, as commands reach it: its route, and its corrected profile (faults,
-    identification, ready bit), as the poller's."""
-    return {d.name: CommandDrive(d.name, router.route_for_drive(d.name), d.profile) for d in served}
-
-
-def _sparkplug_node(
-    mqtt: MqttSettings,
-    served: Sequence[DriveSettings],
-    router: Router,
-    poller: Poller,
-    tasks: ServiceTasks,
-    events: EventStore,
-) -> SparkplugNode | None:
-    """The edge node when `mqtt.sparkplug` asks for one, else None."""
-    if mqtt.sparkplug is None:
-        return None
-    from gateway.sparkplug.edge_node import SparkplugNode  # protobuf only when asked
-
-    return SparkplugNode(mqtt, mqtt.sparkplug, served, router, poller, tasks, events)

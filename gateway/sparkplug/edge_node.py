@@ -123,6 +123,11 @@ class SparkplugNode:
     def connected(self) -> asyncio.Event:
         return self.session.connected
 
+    def continue_from(self, old: SparkplugNode) -> None:
+        """A reload's new node after `old`: the bdSeq counts on (it counts the CONNECTs of the
+        gateway's run, not of one node: a host pairs births and deaths by it)."""
+        self.bd_seq.value = old.bd_seq.value
+
     # -- PollListener, through the bridge: return at once -----------------------------------
 
     def state_updated(self, drive: str, telemetry: Telemetry) -> None:

@@ -147,7 +147,7 @@ async def test_each_combination_starts_serves_and_stops_in_process(
         assert set(app.poller.drives) == ({"pump1", "fan2"} if polled else set())
         if app.mqtt is not None:
             await asyncio.wait_for(app.mqtt.connected.wait(), 5)
-            node = app.mqtt.sparkplug
+            node = app.sparkplug
             assert (node is None) is (mqtt == "json")
             if node is not None:
                 await asyncio.wait_for(node.connected.wait(), 5)

@@ -18,7 +18,7 @@ import pytest
 
 from gateway.config import MqttConfig
 from gateway.settings import runtime_settings
-from tests.support import free_port, present, running_gateway
+from tests.support import free_port, running_gateway
 from tests.support.mosquitto import Mosquitto, mqtt_probe, running_mosquitto, unique_base_topic
 from tests.support.mqtt_setup import FAST_POLL, mqtt_config, simulated_line
 from tests.support.processes import gateway_process
@@ -111,7 +111,7 @@ async def test_primary_host_state_decides_where_and_when(tmp_path: Path, codec: 
             mqtt_probe(two) as scada_two,
             running_gateway(config) as app,
         ):
-            node = present(app.mqtt).sparkplug
+            node = app.sparkplug
             assert node is not None
             await asyncio.wait_for(node.connected.wait(), 10)
             await asyncio.sleep(1.0)  # asserting an absence: no birth while the host is away
