@@ -124,9 +124,7 @@ class MqttBridge:
         self.settings = mqtt
         self.tasks = tasks
         self._discovery_cleaned = False
-        self.beside = beside
-        """The Sparkplug B edge node beside the JSON topics (`mqtt.sparkplug`), on its own
-        connection; None: not enabled."""
+        self.beside = beside  # the Sparkplug B edge node (`mqtt.sparkplug`); None: not enabled
 
     @property
     def connected(self) -> asyncio.Event:
