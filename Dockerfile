@@ -1,10 +1,14 @@
 # invt-gateway: Modbus-TCP/MQTT gateway for INVT drives on RS-485.
 #
 #   docker build -t invt-gateway .
+#   install -d -o 10001 -g 10001 -m 0750 /srv/invt-gateway     (config.yaml in it, 10001's too)
 #   docker run -d --name invt-gateway --restart unless-stopped \
 #     --device /dev/serial/by-id/usb-FTDI_...-if00-port0:/dev/ttyRS485-1 \
-#     -v /etc/invt-gateway:/etc/invt-gateway:ro -v invt-gateway-state:/var/lib/invt-gateway \
+#     -v /srv/invt-gateway:/etc/invt-gateway -v invt-gateway-state:/var/lib/invt-gateway \
 #     -p 5020:5020 -p 9102:9102 invt-gateway
+# The configuration's directory is mounted writable and the container user's, not `:ro`: the
+# console's editor writes a new config.yaml beside the old and renames it over (a file mounted
+# on its own can't be renamed over). docs/pages/operations.md has the whole run.
 #   docker kill -s HUP invt-gateway     (reloads the configuration without a restart)
 #
 # Behind a plant's inspecting proxy, pip needs the plant's own index and its CA certificate:
@@ -53,10 +57,11 @@ LABEL org.opencontainers.image.title="invt-gateway" \
 RUN groupadd --system --gid 10001 invt-gateway \
     && useradd --system --uid 10001 --gid 10001 --groups dialout --no-create-home \
         --home-dir /nonexistent --shell /usr/sbin/nologin invt-gateway \
-    && mkdir -p /etc/invt-gateway \
+    && install -d -o 10001 -g 10001 -m 0750 /etc/invt-gateway \
     && install -d -o 10001 -g 10001 -m 0700 /var/lib/invt-gateway
 COPY --from=build /opt/invt-gateway /opt/invt-gateway
-COPY config/config.example.yaml /etc/invt-gateway/config.yaml
+# The user's, as a named volume over /etc/invt-gateway copies it: editable from the console.
+COPY --chown=10001:10001 config/config.example.yaml /etc/invt-gateway/config.yaml
 ENV PATH=/opt/invt-gateway/bin:$PATH \
     PYTHONUNBUFFERED=1 \
     PYTHONDONTWRITEBYTECODE=1

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final, Protocol
 
+from gateway.console import config_access
 from gateway.console.config_check import Checked, check_text
 from gateway.console.sealing import SecretSeal
 from gateway.errors import EditRefused, StoreError
@@ -96,7 +97,13 @@ class ConfigEditor:
 
     async def current(self) -> dict[str, Any]:
         text = await self._read_file()
-        return {"path": self.path, "text": masked(text), "base": fingerprint(text)}
+        read_only = await asyncio.to_thread(config_access.refusal, self.path)
+        return {
+            "path": self.path,
+            "text": masked(text),
+            "base": fingerprint(text),
+            "read_only": read_only,
+        }
 
     async def history(self) -> list[dict[str, Any]]:
         """Every version kept, newest first, each with its diff from the one before."""
@@ -131,6 +138,10 @@ class ConfigEditor:
         async with self._one_at_a_time:
             current = await self._read_file()
             _same_file(current, base, self.path)
+            # Said before anything is kept: a file the console can't write is no version.
+            read_only = await asyncio.to_thread(config_access.refusal, self.path)
+            if read_only is not None:
+                raise EditRefused(409, read_only)
             problems = mask_problems(text, current)
             full = unmasked(text, current)
             checked = Checked(problems) if problems else await asyncio.to_thread(self._check, full)
@@ -208,11 +219,8 @@ class ConfigEditor:
         try:
             await asyncio.to_thread(_replace_file, self.path, text)
         except OSError as exc:
-            raise EditRefused(
-                409,
-                f"{self.path}: cannot write it: {exc.strerror or exc} (the service user needs "
-                "write access to the file and its directory to edit from the console)",
-            ) from None
+            why = await asyncio.to_thread(config_access.write_failed, self.path, exc)
+            raise EditRefused(409, why) from None
 
 
 def fingerprint(text: str) -> str:

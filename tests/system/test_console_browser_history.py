@@ -212,6 +212,16 @@ async def test_an_admin_checks_applies_and_sees_the_diff_an_operator_is_refused(
     await browser.wait(showing("#c-diff", "+  timeout_ms: 150"))
     await browser.screenshot("configuration")
 
+    # A file the console can't write (marked read-only here): said when the page loads, and
+    # Apply is off rather than failing after the edit.
+    path = Path((await browser.text("#c-path")).split(" · ")[0])
+    await asyncio.to_thread(path.chmod, 0o444)
+    await browser.open("/configuration")
+    await browser.wait(showing("#c-read-only", f"{path} cannot be changed from the console"))
+    assert "marked read-only (mode 0444)" in await browser.text("#c-read-only")
+    assert await attribute(browser, "#c-apply", "disabled") == "true"
+    await browser.screenshot("configuration-read-only")
+
 
 async def test_numbers_line_up_right_and_the_overview_reflows_on_a_tablet(
     console: tuple[Application, Browser],

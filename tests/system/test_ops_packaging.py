@@ -14,6 +14,7 @@ build passes --no-cache-dir only to keep the image small).
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import signal
 import site
@@ -107,6 +108,32 @@ def test_image_runs_as_non_root_and_signals_reach_the_gateway() -> None:
     }
 
 
+def test_the_documented_run_gives_the_image_user_a_writable_configuration_directory() -> None:
+    """The console's editor writes a new config.yaml beside the old and renames it over: the
+    directory mounted on /etc/invt-gateway must be writable (no `:ro`), a directory (a file
+    mounted alone can't be renamed over) and the image user's, in the image and in each run
+    the docs and the Dockerfile show."""
+    runtime = dict(stages()[-1])
+    user = runtime["USER"]
+    owner = f"-o {user} -g {user} -m 0750"
+    assert f"install -d {owner} /etc/invt-gateway" in runtime["RUN"]
+    copies = [arguments for keyword, arguments in stages()[-1] if keyword == "COPY"]
+    assert f"--chown={user}:{user} config/config.example.yaml {IMAGE_CONFIG}" in copies
+    page = (ROOT / "docs" / "pages" / "operations.md").read_text(encoding="utf-8")
+    docker = page.split("\n## Docker\n", 1)[1].split("\n## ", 1)[0]
+    blocks = re.findall(r"```(?:sh|yaml)\n(.*?)```", docker, re.DOTALL)  # the run and compose
+    assert len(blocks) == 2
+    texts = {"Dockerfile": DOCKERFILE.read_text(encoding="utf-8"), "operations.md": "".join(blocks)}
+    for name, text in texts.items():
+        mounts = re.findall(r"(\S+):/etc/invt-gateway(\S*)", text)
+        assert len(mounts) >= 1, name
+        for source, options in mounts:
+            assert options == "", f"{name}: {source}:/etc/invt-gateway{options}"
+            assert not source.endswith((".yaml", ".yml")), f"{name}: a file mounted alone"
+            if source.startswith("/"):  # a host directory: the lines before make it the user's
+                assert f"install -d {owner} {source}" in text, f"{name}: {source}"
+
+
 def test_dockerignore_keeps_what_the_build_copies() -> None:
     ignored = {
         line.strip()
@@ -116,7 +143,8 @@ def test_dockerignore_keeps_what_the_build_copies() -> None:
     for stage in stages():
         for keyword, arguments in stage:
             if keyword == "COPY" and not arguments.startswith("--from"):
-                for source in arguments.split()[:-1]:
+                words = arguments.split()[:-1]
+                for source in [word for word in words if not word.startswith("--")]:
                     assert Path(source).parts[0] not in ignored, source
                     assert (ROOT / source).exists(), source
 

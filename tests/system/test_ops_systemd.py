@@ -17,13 +17,18 @@ from pathlib import Path
 
 import pytest
 
+from gateway.config import StorageConfig
+from gateway.console.sealing import KEY_SUFFIX
+from gateway.control import control_path
 from gateway.exit_codes import EXIT_CONFIG
 from gateway.instruments.simulator import SimulatedLine
+from gateway.store.owner import LOCK_SUFFIX
 from tests.support import free_port
 from tests.support.processes import entry_point, gateway_process
 
 ROOT = Path(__file__).resolve().parents[2]
 UNIT = ROOT / "config" / "invt-gateway.service"
+SYSUSERS = ROOT / "config" / "invt-gateway.sysusers"
 INSTALLED_PATH = "/opt/invt-gateway/bin/invt-gateway"
 SYSTEMD_ANALYZE = shutil.which("systemd-analyze") or "/usr/bin/systemd-analyze"
 
@@ -43,7 +48,7 @@ def test_systemd_analyze_verify_passes(tmp_path: Path) -> None:
     if not Path(SYSTEMD_ANALYZE).exists():
         pytest.fail("systemd-analyze not found: install the Debian package systemd")
     # verify checks that ExecStart's program exists: point it at this environment's script.
-    # The user needs no creating: DynamicUser= allocates it when the service starts.
+    # It doesn't look the user up (systemd-sysusers makes it: the test below).
     text = UNIT.read_text(encoding="utf-8")
     assert INSTALLED_PATH in text
     unit = tmp_path / UNIT.name
@@ -76,8 +81,12 @@ def test_unit_runs_the_service_as_the_issue_asks() -> None:
         # A bad configuration: restarting won't help. A failed start (a port taken) is
         # restarted: the port may be free on the next try.
         "RestartPreventExitStatus": [str(EXIT_CONFIG)],
-        # The store, writable under ProtectSystem=strict and DynamicUser, kept across restarts.
+        # The store, writable under ProtectSystem=strict, given to the user at each start.
         "StateDirectory": ["invt-gateway"],
+        # The configuration's directory, writable under ProtectSystem=strict (the install
+        # gives it to the user, with this mode, so the console can edit the file).
+        "ConfigurationDirectory": ["invt-gateway"],
+        "ConfigurationDirectoryMode": ["0750"],
         # systemctl reload: the config read again, and the reload fails when it is refused.
         "ExecReload": [f"{INSTALLED_PATH} reload --config /etc/invt-gateway/config.yaml"],
     }
@@ -88,6 +97,75 @@ def test_unit_runs_the_service_as_the_issue_asks() -> None:
     for group in ("ttyUSB", "ttyACM", "ttyS", "ttyAMA", "ttySC"):
         assert f"char-{group} rw" in settings["DeviceAllow"], group
     assert settings["ExecStart"] == [f"{INSTALLED_PATH} run --config /etc/invt-gateway/config.yaml"]
+    # A static user (systemd-sysusers): a dynamic one's uid may own nothing that outlives it.
+    assert "DynamicUser" not in settings
+
+
+def test_the_sysusers_file_makes_the_units_user(tmp_path: Path) -> None:
+    """The docs' `systemd-sysusers` step, run on an empty system root: the unit's User= exists
+    after it, a system user with no login shell, its group of the same name."""
+    (tmp_path / "etc").mkdir()
+    (tmp_path / "etc" / "passwd").write_text("root:x:0:0:root:/root:/bin/bash\n")
+    (tmp_path / "etc" / "group").write_text("root:x:0:\ndialout:x:20:\n")
+    sysusers = shutil.which("systemd-sysusers") or "/usr/bin/systemd-sysusers"
+    result = subprocess.run(
+        [sysusers, f"--root={tmp_path}", str(SYSUSERS)],
+        capture_output=True,
+        text=True,
+        timeout=30,
+        check=False,
+    )
+    assert result.returncode == 0, result.stderr
+    (user,) = unit_settings()["User"]
+    made = {
+        line.split(":")[0]: line.split(":")
+        for line in (tmp_path / "etc" / "passwd").read_text().splitlines()
+    }
+    _, _, uid, gid, _, _, shell = made[user]
+    assert 0 < int(uid) < 1000  # a system user's
+    assert shell == "/usr/sbin/nologin"
+    groups = dict(
+        line.split(":")[::2] for line in (tmp_path / "etc" / "group").read_text().splitlines()
+    )
+    assert groups[user] == gid
+
+
+def operations_install_lines() -> list[str]:
+    """The systemd block of the Operations page, one command a line, comments dropped."""
+    page = (ROOT / "docs" / "pages" / "operations.md").read_text(encoding="utf-8")
+    block = page.split("\n## systemd\n", 1)[1].split("```sh\n", 1)[1].split("```", 1)[0]
+    return [line.split("  #")[0].strip() for line in block.splitlines() if line.strip()]
+
+
+def test_the_docs_install_gives_the_service_what_it_writes() -> None:
+    """Every path the gateway writes under the unit is in a directory the unit makes writable
+    (ConfigurationDirectory=, StateDirectory=, PrivateTmp=) and that the docs' install lines or
+    systemd give the service's user: the configuration file and the new file renamed over it
+    (the console's editor), the store with its lock and the key sealing the versions' secrets,
+    the control socket of `invt-gateway reload`."""
+    settings = unit_settings()
+    (user,) = settings["User"]
+    etc = Path("/etc") / settings["ConfigurationDirectory"][0]
+    state = Path("/var/lib") / settings["StateDirectory"][0]
+    config = Path(settings["ExecStart"][0].split("--config ")[1])
+    assert config.parent == etc  # the new file is made beside it, then renamed over it
+    lines = operations_install_lines()
+    mode = settings["ConfigurationDirectoryMode"][0]
+    assert f"install -d -o {user} -g {user} -m {mode} {etc}" in lines
+    (placed,) = [
+        line for line in lines if line.startswith("install ") and line.endswith(f" {config}")
+    ]
+    assert placed.startswith(f"install -o {user} -g {user} -m 0640 ")
+    assert f"install -m 0644 config/{SYSUSERS.name} /etc/sysusers.d/invt-gateway.conf" in lines
+    assert "systemd-sysusers /etc/sysusers.d/invt-gateway.conf" in lines
+    # The store: where storage.path defaults to with $STATE_DIRECTORY as systemd sets it.
+    store = Path(StorageConfig().resolved_path("cabinet-a", {"STATE_DIRECTORY": str(state)}))
+    assert store.parent == state
+    for beside in (LOCK_SUFFIX, KEY_SUFFIX, "-wal", "-shm"):
+        assert Path(f"{store}{beside}").parent == state
+    # The control socket: in the temp folder, the unit's own (PrivateTmp=).
+    assert settings["PrivateTmp"] == ["yes"]
+    assert control_path(str(config)).is_relative_to(tempfile.gettempdir())
 
 
 @contextlib.contextmanager

@@ -40,6 +40,10 @@ function configurationPage() {
     text.value = file.text;
     loaded = file.text;
     base = file.base;
+    // A file the console can't write (a read-only mount, root's file): said at once, and
+    // Apply stays off rather than failing after the edit.
+    document.getElementById("c-apply").disabled = Boolean(file.read_only);
+    if (file.read_only) result.replaceChildren(el("p", { class: "error", id: "c-read-only" }, file.read_only));
   };
 
   const loadVersions = async () => {
