@@ -1,5 +1,6 @@
 """`invt-gateway demo` opens the console: on loopback, anonymous view, a fresh operator password
-printed in its banner (a real demo subprocess, the console reached over HTTP)."""
+and a fresh admin password printed in its banner, the admin editing a copy of the demo's
+configuration (a real demo subprocess, the console reached over HTTP)."""
 
 from __future__ import annotations
 
@@ -13,10 +14,11 @@ import yaml
 
 from gateway.instruments.commands.demo import demo_config_text
 from tests.support import free_port
+from tests.support.console_support import ConsoleClient
 from tests.support.processes import entry_point
 
 
-async def test_the_demo_prints_the_console_address_and_an_operator_password(
+async def test_the_demo_prints_the_console_address_an_operator_and_an_admin_login(
     tmp_path: Path,
 ) -> None:
     config = yaml.safe_load(demo_config_text(None))
@@ -51,8 +53,34 @@ async def test_the_demo_prints_the_console_address_and_an_operator_password(
             async with web.post(f"{url}api/login", json=login) as response:
                 assert response.status == 200
                 assert (await response.json())["role"] == "operator"
+
+        # The admin's login, printed the same way: the configuration can be edited in the demo.
+        admin = re.search(
+            r"log in as admin, password (\S+)\n.*a copy of the demo's, (\S+),", banner
+        )
+        assert admin is not None, banner
+        password, copy = admin.groups()
+        assert password != found.group(1)
+        async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as web:
+            console = ConsoleClient(web, url.rstrip("/"))
+            assert (await console.login("admin", password)).status == 200
+            async with web.get(url) as response:  # the menu's link leads somewhere that works
+                assert 'href="/configuration"' in await response.text()
+            shown = await console.get_json("/api/config/file")
+            assert (shown["path"], shown["read_only"]) == (copy, None)
+            longer = shown["text"].replace("timeout_ms: 300", "timeout_ms: 400")
+            assert longer != shown["text"]
+            edit = {"text": longer, "note": "tried in the demo", "base": shown["base"]}
+            status, applied = await console.post("/api/config/apply", edit)
+            assert status == 200, applied
+            assert applied["changed"] == ["buses reopened: line1"]
+            running = (await console.get_json("/api/config"))["configuration"]
+            assert running["buses"][0]["timeout_ms"] == 400
+        # The file given with --config is left as it was: the admin edits the demo's copy.
+        assert yaml.safe_load(config_file.read_text(encoding="utf-8")) == config
         process.send_signal(signal.SIGINT)
         assert await asyncio.wait_for(process.wait(), 10) == 0
+        assert not await asyncio.to_thread(Path(copy).exists)  # gone with the demo
     finally:
         if process.returncode is None:
             process.kill()

@@ -17,8 +17,9 @@ import tempfile
 import uuid
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, Final, Literal
 
+import yaml
 from pydantic import ValidationError
 
 from gateway.app import Application
@@ -30,6 +31,12 @@ from gateway.exit_codes import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from gateway.logs import setup_logging
 
 DEMO_OPERATOR = "operator"
+DEMO_ADMIN = "admin"
+DEMO_LOGINS: Final[dict[str, Literal["operator", "admin"]]] = {
+    DEMO_OPERATOR: "operator",
+    DEMO_ADMIN: "admin",
+}
+"""The demo's own console users, each with a fresh password at every start: name to role."""
 DEMO_MQTT_PORT = 1883
 """The embedded demo.yaml's broker port: `demo --watch` without options looks there."""
 
@@ -134,14 +141,15 @@ def handle(args: argparse.Namespace) -> int:
             "echo": args.echo,
         }
         config = simulate_buses(config, stack, adapter)
+        # The demo's own folder, gone with it: its store, and the copy of its configuration
+        # the console's admin edits.
+        folder = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="invt-gateway-demo-")))
         if config.storage.path is None:
-            # Simulated drives' events: a store of the demo's own, gone with it.
-            state = stack.enter_context(tempfile.TemporaryDirectory(prefix="invt-gateway-demo-"))
-            storage = config.storage.model_copy(update={"path": f"{state}/events.db"})
+            storage = config.storage.model_copy(update={"path": str(folder / "events.db")})
             config = config.model_copy(update={"storage": storage})
-        config, password = with_demo_operator(config)
+        config, logins = with_demo_logins(config)
         log.info("event loop: %s", loop.describe())
-        return run_on_loop(serve_demo(config, args.config, password), loop)
+        return run_on_loop(serve_demo(config, args.config, logins, folder), loop)
 
 
 def one_broker(mqtt: MqttConfig) -> MqttConfig:
@@ -198,32 +206,53 @@ async def watch_demo(config: GatewayConfig) -> int:
     return EXIT_OK
 
 
-def with_demo_operator(config: GatewayConfig) -> tuple[GatewayConfig, str | None]:
-    """With the console on, a user "operator" with a fresh random password (printed in the
-    banner): operator actions always need a login, even in the demo."""
+def with_demo_logins(config: GatewayConfig) -> tuple[GatewayConfig, dict[str, str]]:
+    """With the console on, a user "operator" and a user "admin", each with a fresh random
+    password (printed in the banner): operator actions and configuration edits always need a
+    login, even in the demo. A user of that name in the configuration is left as it is (no
+    password printed for it)."""
     console = config.console
-    if not console.enabled or any(user.name == DEMO_OPERATOR for user in console.users):
-        return config, None
+    if not console.enabled:
+        return config, {}
     from gateway.config import ConsoleUserConfig
     from gateway.passwords import hash_password
 
-    password = secrets.token_urlsafe(9)
-    operator = ConsoleUserConfig(
-        name=DEMO_OPERATOR, password_hash=hash_password(password), role="operator"
+    taken = {user.name for user in console.users}
+    logins = {name: secrets.token_urlsafe(9) for name in DEMO_LOGINS if name not in taken}
+    added = tuple(
+        ConsoleUserConfig(name=name, password_hash=hash_password(password), role=DEMO_LOGINS[name])
+        for name, password in logins.items()
     )
-    console = console.model_copy(update={"users": (*console.users, operator)})
-    return config.model_copy(update={"console": console}), password
+    console = console.model_copy(update={"users": (*console.users, *added)})
+    return config.model_copy(update={"console": console}), logins
+
+
+def editable_copy(config: GatewayConfig, folder: Path) -> str:
+    """The demo's configuration as it runs (its simulated lines, store, logins) written to
+    `folder`: the file the console's admin edits and the reload reads. The file given with
+    --config, or the packaged one, stays as it is."""
+    path = folder / "config.yaml"
+    data = config.model_dump(mode="json", exclude_unset=True)
+    path.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
+    return str(path)
 
 
 async def serve_demo(
-    config: GatewayConfig, config_path: str | None = None, password: str | None = None
+    config: GatewayConfig,
+    config_path: str | None = None,
+    logins: dict[str, str] | None = None,
+    folder: Path | None = None,
 ) -> int:
-    """Serve the demo; with MQTT configured, against a broker even on a machine that has none."""
+    """Serve the demo; with MQTT configured, against a broker even on a machine that has none.
+    `folder`: where the copy of the configuration the console edits goes (None: no editing)."""
+    logins = logins or {}
     mqtt = config.mqtt
     if mqtt is None or not mqtt.enabled:
+        edited = None if folder is None else editable_copy(config, folder)
         return await serve(
             config,
-            on_ready=lambda app: print_banner(app, config, None, password),
+            on_ready=lambda app: print_banner(app, config, None, logins, edited),
+            config_path=edited,
             flags=LISTEN_FLAGS,
         )
     from gateway.instruments.demo_broker import broker_for_demo, clear_discovery
@@ -237,16 +266,17 @@ async def serve_demo(
         unique = f"invt-gateway-{config.gateway_id}-{uuid.uuid4().hex[:8]}"
         mqtt = mqtt.model_copy(update={"client_id": unique})
     config = config.model_copy(update={"mqtt": mqtt})
+    edited = None if folder is None else editable_copy(config, folder)
     started = False
 
     def ready(app: Application) -> None:
         nonlocal started
         started = True
-        print_banner(app, config, (broker.note, watch), password)
+        print_banner(app, config, (broker.note, watch), logins, edited)
 
     try:
         watch = watch_command(config_path, mqtt.port)
-        return await serve(config, on_ready=ready, flags=LISTEN_FLAGS)
+        return await serve(config, on_ready=ready, config_path=edited, flags=LISTEN_FLAGS)
     finally:
         if broker.embedded is not None:
             await broker.embedded.stop()
@@ -301,8 +331,12 @@ def print_banner(
     app: Application,
     config: GatewayConfig,
     mqtt_note: tuple[str, str] | None = None,
-    password: str | None = None,
+    logins: dict[str, str] | None = None,
+    edited: str | None = None,
 ) -> None:
+    """`logins`: the demo's own users and their passwords; `edited`: the file the console's
+    admin edits."""
+    logins = logins or {}
     host = config.modbus_tcp.host
     port = app.tcp.port
     lines = [
@@ -330,8 +364,15 @@ def print_banner(
     console = getattr(app, "console", None)
     if console is not None:
         lines.append(f"The console: open {console.url} in a browser (viewing needs no login).")
-        if password is not None:
+        if DEMO_OPERATOR in logins:
+            password = logins[DEMO_OPERATOR]
             lines.append(f"  To run, stop or write: log in as {DEMO_OPERATOR}, password {password}")
+        if DEMO_ADMIN in logins and edited is not None:
+            password = logins[DEMO_ADMIN]
+            lines.append(
+                f"  To edit the configuration too: log in as {DEMO_ADMIN}, password {password}"
+            )
+            lines.append(f"    (a copy of the demo's, {edited}, gone when the demo stops)")
         lines.append(f"  Traffic in a terminal: {me} monitor --url {console.url}")
     lines += [
         "Stop with Ctrl-C.",
