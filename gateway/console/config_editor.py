@@ -11,7 +11,9 @@
     rollback  an earlier version applied again, as a new version
 
 The file is the truth a restart reads, so it is written before the reload reads it; the
-version is kept first, so the store always holds the text the file has. Before the first edit
+version is kept first, so the store always holds the text the file has. A file the console can't
+write (a read-only mount, a file mounted alone, another user's: `config_access` says why) is
+said so when it is loaded and refused before anything is kept. Before the first edit
 the file as found is kept as version 1 ("as found"), so the first change can be rolled back too.
 
 Secrets are not sent to the browser: the value of a key named like a secret (`password`,
