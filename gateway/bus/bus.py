@@ -25,12 +25,12 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 
 from gateway.backoff import Backoff
-from gateway.bus.carrier import RESYNC_CLIENT as RESYNC_CLIENT
 from gateway.bus.carrier import Carrier, Outcome
 from gateway.bus.exchange import Sending, Stray
 from gateway.bus.health import HealthTracker
 from gateway.bus.line import LineSettings, SerialLine
 from gateway.bus.line_share import LineShares
+from gateway.bus.observers import RESYNC_CLIENT as RESYNC_CLIENT
 from gateway.bus.observers import (
     BusObservers,
     DriveListener,

@@ -29,7 +29,7 @@ from gateway.bus.late_replies import LateReplies
 from gateway.bus.line import SerialLine
 from gateway.bus.line_settings import LineSettings
 from gateway.bus.observers import BusObservers, answer, fail
-from gateway.bus.queue import Priority, RequestQueue, Transaction
+from gateway.bus.queue import RequestQueue, Transaction
 from gateway.bus.stats import BusStats, DriveStats
 from gateway.errors import BadReply, GatewayTargetFailed, LineError, PortError, ReplyTimeout
 from gateway.logs import FRAMES_CACHED, dump_frame, frame_dump_enabled
@@ -38,9 +38,6 @@ from gateway.modbus.rtu import BROADCAST_ADDRESS, build_frame
 
 log = logging.getLogger("gateway.bus.bus")
 
-RESYNC_CLIENT = "resync"
-"""The traffic monitor's client of a marker sent before a request (`gateway.bus.late_replies`)."""
-_READ = Priority.READ
 _DEBUG = logging.DEBUG
 
 Outcome = tuple[Callable[..., None], tuple[Any, ...]]
@@ -287,9 +284,9 @@ class Carrier:
             )
         except LineError as exc:
             late.marker_missed(address, sent.frame)
-            self._tap_marker(transaction, sent, exc)
+            self.observers.tap_marker(transaction, sent, exc)
             raise  # its line time is the attempt's (`carry`)
-        self._tap_marker(transaction, sent, exchange)
+        self.observers.tap_marker(transaction, sent, exchange)
         drive.line_s += time.monotonic() - sent.started
         self.set_aside(exchange.strays, timeout_s)
         late.caught_up(address, sent.frame, exchange.reply_pdu or b"")
@@ -297,24 +294,6 @@ class Carrier:
             drive, exchange.reply_pdu, exchange.gap_s, exchange.busy_s, exchange.reply_heard_at
         )
         return exchange
-
-    def _tap_marker(
-        self, transaction: Transaction, sent: Sending, outcome: Exchange | LineError
-    ) -> None:
-        """Show the traffic monitor a marker as what it is: its own request, client `resync`,
-        before the request it brought its drive in step for. A probe is its marker (its
-        attempt is shown as the probe's, with the marker's request: the bus's `_pick`)."""
-        tap = self.observers.tap
-        if tap is not None and not transaction.probe:
-            marker = Transaction(
-                transaction.address,
-                sent.frame[1:-2],
-                _READ,
-                RESYNC_CLIENT,
-                transaction.timeout_s,
-                0,
-            )
-            tap(self.name, marker, 0, sent.started, outcome)
 
     def _unanswered(
         self,

@@ -10,14 +10,18 @@ import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
+from gateway.bus.queue import Priority, Transaction
 from gateway.errors import GatewayError, ModbusError
 
 if TYPE_CHECKING:
-    from gateway.bus.exchange import Exchange
-    from gateway.bus.queue import Transaction, Waiter
+    from gateway.bus.exchange import Exchange, Sending
+    from gateway.bus.queue import Waiter
     from gateway.errors import LineError
 
 log = logging.getLogger("gateway.bus.bus")
+
+RESYNC_CLIENT = "resync"
+"""The traffic monitor's client of a marker sent before a request (`gateway.bus.late_replies`)."""
 
 DriveListener = Callable[[str, int, bool], None]
 """Called on the event loop with (bus name, address, online) when a drive goes offline or back."""
@@ -74,6 +78,24 @@ class BusObservers:
                 observer(self.name, address, function, client, duration_s, code)
             except Exception:
                 log.exception("bus %s: request observer failed", self.name)
+
+    def tap_marker(
+        self, transaction: Transaction, sent: Sending, outcome: Exchange | LineError
+    ) -> None:
+        """Show the traffic monitor a marker as what it is: its own request, client `resync`,
+        before the request it brought its drive in step for. A probe is its marker (its
+        attempt is shown as the probe's, with the marker's request: the bus's `_pick`)."""
+        tap = self.tap
+        if tap is not None and not transaction.probe:
+            marker = Transaction(
+                transaction.address,
+                sent.frame[1:-2],
+                Priority.READ,
+                RESYNC_CLIENT,
+                transaction.timeout_s,
+                0,
+            )
+            tap(self.name, marker, 0, sent.started, outcome)
 
     def drive(self, address: int, online: bool) -> None:
         for listener in self.drive_listeners:
