@@ -416,7 +416,7 @@ class Bus:
     def _pick(self) -> bytes | None:
         """Take the best transaction queued now and return its frame; None if there is none."""
         # The first pick after a reply is the gap's end: what it finds waited for the line, and
-        # the silence before it, beyond the gap, is the gateway's own (`Carrier.observe_gap`). That
+        # the silence before it, beyond the gap, is the gateway's own (`Carrier._sent`). That
         # includes a request queued during the gap (clients answered together ask again
         # together) and one queued after the gap had ended but before the gateway woke for it
         # (it waited for the gateway: leaving it out would hide the late wake-ups). When that

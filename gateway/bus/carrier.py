@@ -17,7 +17,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from bisect import bisect_left
 from collections.abc import Callable
 from functools import partial
 from typing import Any
@@ -62,8 +61,9 @@ class Carrier:
         self.line_settings = line_settings
         self.line = line
         self._receiver = line.receiver
-        self._queue = queue
-        """The bus's: charged with each transaction's time on the line (`finish`)."""
+        self._charge_share = queue.charge_share
+        """The bus's queue's line-time meter: charged with each transaction's time on the
+        line, to its `use` (`finish`)."""
         self.stats = stats
         self.drive_stats = stats.drives
         self.health = health
@@ -112,10 +112,9 @@ class Carrier:
         started = sending.started
         outcome: Outcome
         try:
-            self.observe_gap(sending)
             address = transaction.address
             drive = self.drive_stats.get(address) or self.drive(address)
-            self._count_attempt(drive, sending.frame)
+            self._sent(drive, sending.frame, sending)
             drive.line_s += time.monotonic() - started
             outcome = self.attempt_answered(
                 transaction, 0, started, pdu, sending.gap_s, heard_at - started, heard_at, drive
@@ -134,7 +133,7 @@ class Carrier:
             now = time.monotonic()
             quiet_since = self._receiver.quiet_since  # `SerialLine.busy_until`
             held = (quiet_since if quiet_since > now else now) - started
-            self._queue.charge(transaction, held, now)
+            self._charge_share(transaction.use, held, now)
         callback, args = outcome
         callback(*args)
         if self.idle_awaited:
@@ -156,13 +155,13 @@ class Carrier:
         broadcast = address == BROADCAST_ADDRESS
         late = self.late_replies
         tap = self.observers.tap
-        self.observe_gap(first)
+        drive = self.drive(address)
+        self._sent(drive, first.frame, first)
         # A probe brings its own retries; a drive that just failed gets none.
         retries = transaction.retries
         cut = not transaction.probe and self.health.is_suspect(address)
         if cut:
             retries = 0
-        drive = self.drive(address)
         errors: list[LineError] = []
         # The first attempt is on its way: the request itself, or the marker that brings its
         # drive back in step (the bus's `_pick`).
@@ -190,6 +189,7 @@ class Carrier:
                     if sent is None:
                         sent = await self.line.send_after_gap(partial(late.marker, address))
                         assert sent is not None  # the pick always has a frame
+                        self._sent(drive, sent.frame)
                     on_wire = sent.frame
                     if transaction.probe:  # what the traffic monitor shows of it
                         transaction.pdu = on_wire[1:-2]
@@ -198,14 +198,14 @@ class Carrier:
                         return self._exchange_answered(transaction, attempt, started, marker, drive)
                     started = time.monotonic()
                     on_wire = frame
-                self._count_attempt(drive, frame)
                 sends += 1
                 sending, pending = pending, None
-                if sending is not None:
+                if sending is not None:  # sent by the pick, counted as it went
                     exchange = await self.line.finish(
                         sending, expect_reply=not broadcast, timeout_s=transaction.timeout_s
                     )
                 else:
+                    self._sent(drive, frame)
                     exchange = await self.line.transact(
                         frame, expect_reply=not broadcast, timeout_s=transaction.timeout_s
                     )
@@ -276,7 +276,6 @@ class Carrier:
         (ReplyTimeout when the answer doesn't come in time, BadReply)."""
         address, timeout_s = transaction.address, transaction.timeout_s
         late = self.late_replies
-        self._count_attempt(drive, sent.frame)
         drive.resyncs += 1
         try:
             exchange = await self.line.finish(
@@ -343,26 +342,21 @@ class Carrier:
 
     # -- an attempt's end, either way -------------------------------------------------------------
 
-    def observe_gap(self, sending: Sending) -> None:
-        """The silence the gateway added before `sending`, for a transaction the gap's end
-        found waiting: beyond the gap, or since the request was queued if that came later (the
+    def _sent(self, drive: DriveStats, frame: bytes, first: Sending | None = None) -> None:
+        """An attempt's frame went out (whichever way it ends): counted. `first`: it is the
+        transaction's first frame (its request, or a marker before it), sent as the gap ended;
+        for a transaction the gap's end found waiting, the silence the gateway added before it
+        is observed: beyond the gap, or since the request was queued if that came later (the
         line was idle until then for want of a request, not of the gateway)."""
-        if self.back_to_back:
-            transaction = self.carrying
-            assert transaction is not None  # `sending` is its frame
-            beyond_gap = sending.gap_s - self.line_settings.gap_s
-            since_queued = sending.started - transaction.queued_at
-            excess = beyond_gap if beyond_gap < since_queued else since_queued
-            # `Buckets.observe`, inlined (the one place a gap's excess is observed).
-            histogram = self.gap_excess
-            histogram.counts[bisect_left(histogram.bounds, excess)] += 1
-            histogram.sum_s += excess
-
-    def _count_attempt(self, drive: DriveStats, frame: bytes) -> None:
-        """One attempt on the wire, whichever way it ends."""
         drive.transactions += 1
         if FRAMES_CACHED(_DEBUG) is not False:  # the logger's own cache: no call when off
             dump_frame(self.name, "tx", frame)
+        if first is not None and self.back_to_back:
+            transaction = self.carrying
+            assert transaction is not None  # `first` is its frame
+            beyond_gap = first.gap_s - self.line_settings.gap_s
+            since_queued = first.started - transaction.queued_at
+            self.gap_excess.observe(beyond_gap if beyond_gap < since_queued else since_queued)
 
     def _exchange_answered(
         self,

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from collections.abc import Callable
 from enum import IntEnum
 from typing import Protocol
 
@@ -85,6 +86,7 @@ class Transaction:
         "queued_at",
         "retries",
         "timeout_s",
+        "use",
         "waiters",
     )
 
@@ -119,6 +121,8 @@ class Transaction:
         self.queued_at = queued_at
         """When it was queued (`time.monotonic()`): did it wait for the gap, or the gap for
         it?"""
+        self.use = LineUse.OTHER
+        """The share of the line its time is charged to (`RequestQueue.put` sets it)."""
         self.key: tuple[int, bytes, Priority] = (address, pdu, priority)
         """What identical reads share (`RequestQueue`): address, request PDU, priority."""
         self.observed_by = observed_by
@@ -209,11 +213,13 @@ class RequestQueue:
         if self._size >= self.maxsize:
             raise QueueFull(f"bus queue full ({self.maxsize} requests waiting)")
         priority = transaction.priority
-        # Broadcasts wait apart from the other writes (their own share).
+        # Broadcasts wait apart from the other writes, and are charged apart (their own share).
         if priority is _WRITE and transaction.address == BROADCAST:
             clients = self._broadcasts
+            transaction.use = _BROADCAST_USE
         else:
             clients = self._levels[priority]
+            transaction.use = USE_OF_PRIORITY[priority]
         client = transaction.client
         waiting = clients.get(client)
         if waiting is None:
@@ -234,11 +240,13 @@ class RequestQueue:
 
     def charge(self, transaction: Transaction, seconds: float, now: float) -> None:
         """`transaction` held the line for `seconds`: count it against its kind's share."""
-        if transaction.address == BROADCAST:
-            use = _BROADCAST_USE
-        else:
-            use = USE_OF_PRIORITY[transaction.priority]
-        self._meter.charge(use, seconds, now)
+        self._meter.charge(transaction.use, seconds, now)
+
+    @property
+    def charge_share(self) -> Callable[[LineUse, float, float], None]:
+        """The line-time meter's own `charge`, bound once by the bus for `charge`'s work
+        without its call (once per transaction): given a transaction's `use`."""
+        return self._meter.charge
 
     def get_nowait(self, now: float | None = None) -> Transaction | None:
         """The next transaction to serve; `now` (monotonic, read here if not given) for the

@@ -132,7 +132,7 @@ class Router:
         (a write, a broadcast, a read the drive's word limit splits); a refusal before the bus
         (no such unit id, drive offline, queue full) is raised. `pdu` has passed the front
         door's `check_request` (the Modbus-TCP server's reads: one registry lookup, one route
-        lookup, then the bus by `_submit`, the way every request takes)."""
+        lookup, then the bus, as `_send` goes to it)."""
         function = known_function(pdu[0]) or lookup(pdu[0])
         if unit_id == BROADCAST_ADDRESS or function.writes:
             return False
@@ -156,7 +156,10 @@ class Router:
                 waiter.set_result(cached)
                 return True
         # A read is never rewritten to a RAM address (`_to_ram` takes 06H/10H only).
-        self._submit(route, pdu, waiter, client, Priority.READ, function.coalescable)
+        bus, address, timeout_s, retries = route.bus, route.address, route.timeout_s, route.retries
+        bus.submit(
+            address, pdu, waiter, Priority.READ, client, timeout_s, retries, function.coalescable
+        )
         return True
 
     async def poll(
@@ -218,23 +221,11 @@ class Router:
 
     async def _send(self, route: Route, pdu: bytes, client: str, priority: Priority) -> bytes:
         reply: asyncio.Future[bytes | None] = asyncio.get_running_loop().create_future()
-        self._submit(route, pdu, reply, client, priority)
+        bus, address, timeout_s, retries = route.bus, route.address, route.timeout_s, route.retries
+        bus.submit(address, pdu, reply, priority, client, timeout_s, retries)
         answer = await reply
         assert answer is not None  # only broadcasts have no reply
         return answer
-
-    def _submit(
-        self,
-        route: Route,
-        pdu: bytes,
-        waiter: Waiter,
-        client: str,
-        priority: Priority,
-        coalescable: bool | None = None,
-    ) -> None:
-        """`pdu` onto the route's bus, with the drive's own timeout and retries."""
-        bus, address, timeout_s, retries = route.bus, route.address, route.timeout_s, route.retries
-        bus.submit(address, pdu, waiter, priority, client, timeout_s, retries, coalescable)
 
     async def _broadcast(self, pdu: bytes, client: str) -> None:
         if not lookup(pdu[0]).broadcastable:

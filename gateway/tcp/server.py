@@ -651,17 +651,6 @@ class Connection(asyncio.Protocol):
             # One write per frame: answers finishing in any order never interleave.
             transport.write(build_adu(transaction_id, unit_id, reply))
 
-    def _answered_fast(self, answer: _Answer, reply: bytes) -> None:
-        """The bus has the reply (or the error) of a fast-path read."""
-        self._send(answer.transaction_id, answer.unit_id, reply)
-        fast = self._fast
-        if answer in fast:
-            fast.discard(answer)
-            if self._paused:  # else `_maybe_resume` has nothing to do
-                self._maybe_resume()
-            if not fast and self.server._drained is not None:  # else nobody waits to stop
-                self.server._settled()
-
     def _refuse_write(self, transaction_id: int, unit_id: int, pdu: bytes) -> None:
         """0AH at once: this client has too many writes waiting for the line already."""
         stats = self.server.stats
@@ -800,14 +789,21 @@ class _Answer:
         return self.settled or self._connection.transport_closing()
 
     def set_result(self, result: bytes | None, /) -> None:
+        """The bus has the reply (or, from `set_exception`, the error's): it goes out now."""
         self.settled = True
         assert result is not None  # the fast path carries no broadcast
-        self._connection._answered_fast(self, result)
+        connection = self._connection
+        connection._send(self.transaction_id, self.unit_id, result)
+        fast = connection._fast
+        if self in fast:
+            fast.discard(self)
+            if connection._paused:  # else `_maybe_resume` has nothing to do
+                connection._maybe_resume()
+            if not fast and connection.server._drained is not None:  # else nobody waits to stop
+                connection.server._settled()
 
     def set_exception(self, exception: BaseException, /) -> None:
-        self.settled = True
         connection = self._connection
-        reply = connection.server.error_reply(
-            self.unit_id, self.function, connection.client, exception
+        self.set_result(
+            connection.server.error_reply(self.unit_id, self.function, connection.client, exception)
         )
-        connection._answered_fast(self, reply)
