@@ -73,9 +73,6 @@ class Application:
         )
         for bus in self.buses.values():
             bus.add_listener(self.router.on_drive_health)
-        # Reads that are one transaction go to the router's `submit` directly (one call less per
-        # request); the router says False to anything else, so there is no write to tally there.
-        self.tcp = ModbusTcpServer(settings.tcp, self._handle_tcp, self.router.submit)
         self.tasks = ServiceTasks()
         self._group: asyncio.TaskGroup | None = None
         self._bus_tasks: dict[str, asyncio.Task[None]] = {}
@@ -85,6 +82,7 @@ class Application:
         for bus in self.buses.values():
             bus.add_port_listener(self.events.port_changed)
         self.writes = WriteTally(self.events, self._drive_of, self.tasks)
+        self.tcp = ModbusTcpServer(settings.tcp, TcpRequests(self.router, self.writes))
         self.poller = self._build_poller()
         self.mqtt: MqttBridge | None = None
         self.sparkplug: SparkplugNode | None = None
@@ -302,15 +300,6 @@ class Application:
             history_source=self.events,
         )
 
-    async def _handle_tcp(self, unit_id: int, pdu: bytes, client: str) -> bytes | None:
-        try:
-            reply = await self.router.execute(unit_id, pdu, client=client)
-        except GatewayError:
-            self.writes.count(client, unit_id, pdu, refused=True)
-            raise
-        self.writes.count(client, unit_id, pdu, refused=reply is not None and is_exception(reply))
-        return reply
-
     def _drive_of(self, unit_id: int) -> str | None:
         try:
             return self.router.route(unit_id).drive
@@ -380,3 +369,25 @@ class Application:
             elif not stopping.cancelled() and stopping.exception() is not None:
                 log.error("%s failed to stop: %r", name, stopping.exception())
         await self.tcp.stop(grace_s=0.2)
+
+
+class TcpRequests:
+    """What Modbus-TCP clients ask goes to the router (`RequestRoute`): every SCADA write
+    tallied for the audit (`WriteTally`), answered or refused. Reads that are one transaction
+    go to the router's `submit` at once (no task); the router says False to anything else, so
+    there is no write to tally there."""
+
+    def __init__(self, router: Router, writes: WriteTally) -> None:
+        self._router = router
+        self._writes = writes
+        self.submit = router.submit
+
+    async def execute(self, unit_id: int, pdu: bytes, client: str) -> bytes | None:
+        try:
+            reply = await self._router.execute(unit_id, pdu, client=client)
+        except GatewayError:
+            self._writes.count(client, unit_id, pdu, refused=True)
+            raise
+        refused = reply is not None and is_exception(reply)
+        self._writes.count(client, unit_id, pdu, refused=refused)
+        return reply

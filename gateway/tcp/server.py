@@ -33,9 +33,9 @@ import logging
 import socket
 import ssl
 import time
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import cast
+from typing import Protocol, cast
 
 from gateway.bus.queue import Waiter
 from gateway.errors import ExceptionCode, MalformedFrame, ModbusError
@@ -64,12 +64,21 @@ from gateway.tcp.stats import TcpStats
 
 log = logging.getLogger(__name__)
 
-RequestHandler = Callable[[int, bytes, str], Awaitable[bytes | None]]
-"""(unit id, request PDU, client) -> reply PDU, or None when nothing answers (a broadcast)."""
-RequestSubmitter = Callable[[int, bytes, str, Waiter], bool]
-"""(unit id, request PDU, client, waiter) -> True when the request was started without a task
-and `waiter` will get its reply (or error); False: it needs the handler. Raises a ModbusError
-when it is refused before reaching a bus."""
+
+class RequestRoute(Protocol):
+    """Where the server sends what its clients ask (the gateway's router, with the SCADA write
+    audit around it: `gateway.app`)."""
+
+    async def execute(self, unit_id: int, pdu: bytes, client: str) -> bytes | None:
+        """The reply PDU to `pdu` for `unit_id`, or None when nothing answers (a broadcast)."""
+        ...
+
+    def submit(self, unit_id: int, pdu: bytes, client: str, waiter: Waiter) -> bool:
+        """Start a read that is one bus transaction without a task: True when `waiter` will
+        get its reply (or error); False: it needs `execute`. Raises a ModbusError when it is
+        refused before reaching a bus."""
+        ...
+
 
 # Once part of a frame has arrived, the rest follows at once; a client that stops halfway is
 # broken, and waiting for it the whole idle timeout would hold a connection slot.
@@ -150,14 +159,11 @@ class ClientStatus:
 
 
 class ModbusTcpServer:
-    def __init__(
-        self, settings: TcpSettings, handler: RequestHandler, submit: RequestSubmitter | None = None
-    ) -> None:
+    def __init__(self, settings: TcpSettings, route: RequestRoute) -> None:
         self.settings = settings
         self.stats = TcpStats()
-        self.handler = handler
-        self.submit = submit
-        """The fast path for reads that are one transaction; None: every request takes a task."""
+        self.route = route
+        """Where each request goes: `execute` in a task, or a read at once (`submit`)."""
         self._drained: asyncio.Future[None] | None = None
         """Set while `stop` waits for the answers of the fast path to go out."""
         self._server: asyncio.Server | None = None
@@ -389,7 +395,7 @@ class ModbusTcpServer:
     async def forward(self, unit_id: int, pdu: bytes, client: str) -> bytes | None:
         """The handler's reply to a request the front door let pass."""
         try:
-            reply = await self.handler(unit_id, pdu, client)
+            reply = await self.route.execute(unit_id, pdu, client)
         except Exception as exc:
             return self.error_reply(unit_id, pdu[0], client, exc)
         if reply is None:  # a broadcast: no drive answers it
@@ -566,8 +572,8 @@ class Connection(asyncio.Protocol):
 
     def _take_frame(self, transaction_id: int, unit_id: int, pdu: bytes) -> None:
         """One whole request: a write takes a task; a read goes to its bus in this pass of the
-        event loop, answered by the bus itself (an `_Answer`, no task), unless it needs the
-        handler (the router says so)."""
+        event loop, answered by the bus itself (an `_Answer`, no task), unless it needs
+        `RequestRoute.execute` (the router says so)."""
         self.served = True
         server = self.server
         server.stats.requests += 1
@@ -580,10 +586,6 @@ class Connection(asyncio.Protocol):
             self._writes_waiting += 1
             self._start_task(transaction_id, unit_id, pdu, True, False)
             return
-        submit = server.submit
-        if submit is None:
-            self._start_task(transaction_id, unit_id, pdu, False, False)
-            return
         # The front door first (`refusal`), which a well-formed read passes without a call when
         # there are no access rules: `read_only` refuses writes only.
         if malformed is not None or server.access is not None:
@@ -593,7 +595,7 @@ class Connection(asyncio.Protocol):
                 return
         answer = _Answer(self, transaction_id, unit_id, pdu[0])
         try:
-            if not submit(unit_id, pdu, self.client, answer):
+            if not server.route.submit(unit_id, pdu, self.client, answer):
                 # The front door has let it pass: the handler's way, in a task.
                 self._start_task(transaction_id, unit_id, pdu, False, True)
                 return

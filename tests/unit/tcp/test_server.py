@@ -21,14 +21,18 @@ STOPPED = bytes.fromhex("03 02 00 03")
 
 
 class Drives:
-    """The tiny handler: unit 1 answers at once, unit 2 when the test releases it, unit 3 is
-    offline, unit 4 has no path, unit 5 has a bug; unit 0 is a broadcast. It notes what it saw."""
+    """The tiny request route: unit 1 answers at once, unit 2 when the test releases it, unit 3
+    is offline, unit 4 has no path, unit 5 has a bug; unit 0 is a broadcast. It notes what it
+    saw. Every request takes `execute` (`submit` starts none)."""
 
     def __init__(self) -> None:
         self.release_unit_2 = asyncio.Event()
         self.seen: list[tuple[int, bytes]] = []
 
-    async def __call__(self, unit_id: int, pdu: bytes, client: str) -> bytes | None:
+    def submit(self, unit_id: int, pdu: bytes, client: str, waiter: object) -> bool:
+        return False
+
+    async def execute(self, unit_id: int, pdu: bytes, client: str) -> bytes | None:
         self.seen.append((unit_id, pdu))
         if unit_id == 0:
             return None
@@ -45,7 +49,8 @@ class Drives:
 
 @contextlib.asynccontextmanager
 async def front_door(drives: Drives, **settings: object) -> AsyncIterator[ModbusTcpServer]:
-    server = ModbusTcpServer(TcpSettings(host="127.0.0.1", port=0, **settings), drives)  # type: ignore[arg-type]
+    settings_ = TcpSettings(host="127.0.0.1", port=0, **settings)  # type: ignore[arg-type]
+    server = ModbusTcpServer(settings_, drives)
     await server.start()
     try:
         yield server
