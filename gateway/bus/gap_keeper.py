@@ -14,7 +14,6 @@ ends, and no pass for the caller's coroutine.
 from __future__ import annotations
 
 import math
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -26,9 +25,10 @@ from gateway.bus.line_settings import LineSettings
 from gateway.bus.line_timer import LineTimer
 from gateway.bus.port import Port
 from gateway.bus.receiver import Receiver
+from gateway.bus.rts import RtsSwitch
 from gateway.bus.wakeup import MovingDeadline, settle
-from gateway.errors import BadReply
-from gateway.modbus.reply_search import Found, search_reply
+from gateway.errors import BadReply, PortError
+from gateway.modbus.reply_search import Found
 from gateway.modbus.rtu import PlainRead, check_reply, plain_read, plain_read_reply
 
 Replied = Callable[[Sending, bytes, float], None]
@@ -99,19 +99,17 @@ class GapKeeper:
         self,
         settings: LineSettings,
         receiver: Receiver,
-        send_frame: Callable[[bytes], Sending],
         discard_pending: Callable[[], None],
     ) -> None:
         self.settings = settings
         self.receiver = receiver
-        self._send_frame = send_frame
-        """The line's: start writing a frame now (through RTS where it switches)."""
         self._discard_pending = discard_pending
         """The line's: throw away bytes nobody asked for; raises PortError if it is closed."""
         self._port: Port | None = None
         self._timer: LineTimer | None = None
-        self._rts_switched = False
-        """RTS is switched around each frame (`gateway.bus.rts`): its reading is the caller's."""
+        self._rts: RtsSwitch | None = None
+        """RTS switched around each frame (`gateway.bus.rts`), where it is: the frame's writing
+        and its reply's reading are then the caller's."""
         self._holding = False
         """`send_after_gap`'s caller is held until the reply's first bytes, or the response
         timeout (`_response_deadline`)."""
@@ -135,9 +133,9 @@ class GapKeeper:
         """The timer's wake-ups are exact (timerfd): the lead is learnt from them. Without a
         timerfd the loop's timer never fires early, and the lead stays 0."""
 
-    def opened(self, port: Port, timer: LineTimer, rts_switched: bool) -> None:
-        """The line's port is open, with its timer: gaps are kept on them from now."""
-        self._port, self._timer, self._rts_switched = port, timer, rts_switched
+    def opened(self, port: Port, timer: LineTimer, rts: RtsSwitch | None) -> None:
+        """The line's port is open, with its timer (and RTS switch): gaps are kept on them."""
+        self._port, self._timer, self._rts = port, timer, rts
         self._readable_now = port.readable_now
         self._response_deadline = MovingDeadline(port.loop, port.wake)
         self._learns_lead = timer.exact
@@ -197,7 +195,7 @@ class GapKeeper:
             if due <= now:
                 frame = this.take_pick()
                 if frame is not None:
-                    return self._send_frame(frame)
+                    return self._send_frame(frame, 0.0)
                 idle_s = None if idle_for is None else idle_for()
                 if idle_s is None:
                     return None
@@ -253,12 +251,8 @@ class GapKeeper:
         if gap_end - lead.lead_s > now:
             return False  # woken before the lead (the timer's rounding slack): look again
         early = gap_end > now  # the line was seen quiet before the gap ended: look once more
-        frame = this.picked
         try:
-            if frame is None:
-                frame = this.pick()
-            else:
-                this.picked = None
+            frame = this.take_pick()
         except Exception as exc:
             this.outcome.append(exc)
             return False
@@ -281,43 +275,51 @@ class GapKeeper:
                 this.picked = frame
                 return False
         try:
-            if self._rts_switched:
-                sending = self._send_frame(frame)
-            else:  # `SerialLine._send_frame` without RTS, written out
-                # The frame's start: the clock `ready` read after the gap's end, a few
-                # statements ago, if nothing came between; else read now.
-                started = ready_at if ready_at else time.monotonic()
-                gap_s = started - receiver.quiet_since
-                # `TtyPort.write_now`, written out (once per transaction): the port is watched
-                # (`readable_now`) and usable (both seen above, nothing run since could fail it).
-                # A write that raises (a full buffer, a port gone, not a watched port after all)
-                # goes through `write_now`, which says what that means.
-                try:
-                    written = os.write(port.fd, frame)
-                except OSError:
-                    written = port.write_now(frame)
-                sending = _new_tuple(Sending, (frame, started, gap_s, written, 0.0))
+            # The frame's start: the clock `ready` read after the gap's end, a few statements
+            # ago, if nothing came between; else read as it goes.
+            sending = self._send_frame(frame, ready_at)
         except Exception as exc:
             this.outcome.append(exc)
             return False
         this.outcome.append(sending)
+        return self._hold(this, sending)
+
+    def _send_frame(self, frame: bytes, started: float) -> Sending:
+        """Start writing `frame` now, through RTS where it switches; `started`: the clock's
+        reading just taken (0.0: read here). What the port took at once is the attempt's
+        `written`; `finish` writes the rest."""
+        if not started:
+            started = time.monotonic()
+        gap_s = started - self.receiver.quiet_since
+        rts = self._rts
+        if rts is not None:
+            write_at = rts.start(frame)
+            return Sending(frame, started, gap_s, 0 if write_at else len(frame), write_at)
+        port = self._port
+        if port is None:
+            raise PortError(f"{self.settings.port} is not open")
+        return _new_tuple(Sending, (frame, started, gap_s, port.write_now(frame), 0.0))
+
+    def _hold(self, this: _Round, sending: Sending) -> bool:
+        """`sending` is on its way: hold the round's caller until its reply (True), the reader
+        callback finishing the attempt (`heard`) or waking the caller, whose own reading then
+        decides; False: the caller's own reading does it all (`finish` has more to do than wait
+        for the reply: the frame's tail to write, RTS to switch back, an echo to read first)."""
         reply_within = this.reply_within
+        frame = sending.frame
         if (
             reply_within is None
             or self.settings.echo
-            or self._rts_switched
+            or self._rts is not None
             or sending.written != len(frame)
         ):
-            # `finish` has more to do than wait for the reply: the frame's tail to write, RTS
-            # to switch back, an echo to read first. The caller's own reading does it.
             return False
         within_s = reply_within()
         if within_s is None:
             return False
-        # Hold the caller until its reply: the reader callback finishes the attempt
-        # (`_answer_held`) or wakes the caller, whose own reading decides.
-        waiting = self._timer.waiting if self._timer is not None else None
-        if waiting is None or port.waiter is not None:
+        port, timer = self._port, self._timer
+        waiting = timer.waiting if timer is not None else None
+        if waiting is None or port is None or port.waiter is not None:
             return False
         # The reader callback wakes whoever waits on the port (the held caller) when its reply
         # needs the caller's own reading; the response timeout does too, so a silent drive
@@ -326,17 +328,16 @@ class GapKeeper:
         sent = sending.started + self._char_time_s * len(frame)  # the frame's last bit on the wire
         self._holding = True
         # Not on the gap timer: a timerfd write per transaction for a deadline that is almost
-        # never reached costs more than the float stores of a moving deadline.
-        # `MovingDeadline.set`, written out (once per transaction): while a timer is pending no
-        # later than the new deadline (the usual case) it is a float store, without a call.
+        # never reached costs more than the float stores of a moving deadline: its `deadline`
+        # set directly while its timer comes no later (`MovingDeadline`), `set` otherwise.
         response = self._response_deadline
         assert response is not None
         response_at = response.deadline = sent + within_s
         if response_at < response.handle_at:
             response.set(response_at)
         # What came, when: for echoes and bursts (nothing has come since `received` was seen
-        # empty above: no other callback ran in between).
-        receiver.arrivals = [(0, sent)]
+        # empty at the gap's end: no other callback ran in between).
+        self.receiver.arrivals = [(0, sent)]
         if this.replied is not None:
             if frame is not this.sending.frame:
                 # Else the round's last request again (a poller's, its frame remembered by the
@@ -418,8 +419,7 @@ class GapKeeper:
 
         A reply whole and valid is the attempt's end, here: the hold ends, `replied` is told,
         the gap is kept after it and the next frame sent at its end, the caller held all along
-        (what `send_after_gap`'s loop would do next). Once per transaction on a busy line, so
-        written out in this one callback."""
+        (what `send_after_gap`'s loop would do next)."""
         receiver = self.receiver
         held = self._held
         pdu: bytes | None = None
@@ -452,7 +452,7 @@ class GapKeeper:
             self._holding = False
             deadline = self._response_deadline
             if deadline is not None:
-                deadline.deadline = _NO_DEADLINE  # `MovingDeadline.clear`, written out
+                deadline.deadline = _NO_DEADLINE  # cleared (`MovingDeadline`: its timer stays)
             port = self._port
             assert port is not None
             port.waiter = None
@@ -470,8 +470,7 @@ class GapKeeper:
                 kept = False  # else the caller's loop takes it from here (`outcome` says what)
                 # A port gone or failed: the caller's own loop finds out what became of it.
                 if port is not None and port.usable and timer is not None:
-                    # `_wake_at`, written out.
-                    wake_at = receiver.quiet_since + self.settings.gap_s - self.gap_lead.lead_s
+                    wake_at = self._wake_at(receiver.quiet_since + self.settings.gap_s)
                     if wake_at > time.monotonic():
                         assert this.at_gap_end is not None  # set as the round began
                         kept = timer.rearm(wake_at, this.at_gap_end)
@@ -515,11 +514,7 @@ class GapKeeper:
         if pdu is not None:
             received.clear()
             return pdu
-        # `Receiver.search`, written out: this runs for every reply on a busy line.
-        echoes = receiver.echoes > 0 or receiver.arrived_by(
-            len(frame), receiver.echo_deadline(frame, held.sent)
-        )
-        search = search_reply(received, frame, adapter_echoes=echoes)
+        search = receiver.search(frame, receiver.echo_deadline(frame, held.sent))
         found = search.found
         if found is Found.PARTIAL or found is Found.NOTHING:
             # Still coming (adapters deliver in bursts), or so far only a glitch: the hold's

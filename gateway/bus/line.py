@@ -35,7 +35,6 @@ Timeouts, and which is which:
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 
 from gateway.bus.direction import DirectionMode
@@ -64,7 +63,7 @@ class SerialLine:
         self._timer: LineTimer | None = None
         self._rts: RtsSwitch | None = None
         self._reader: ReplyReader | None = None
-        self._gap = GapKeeper(settings, self.receiver, self._send_frame, self._discard_pending)
+        self._gap = GapKeeper(settings, self.receiver, self._discard_pending)
         self.gap_lead = self._gap.gap_lead
         """How long before the gap's end the timer wakes the line (`gateway.bus.gap_lead`)."""
         self.queued: Callable[[], None] = self._gap.queued
@@ -120,7 +119,7 @@ class SerialLine:
         control = self.settings.direction
         if control is not None and control.mode is DirectionMode.RTS:
             self._rts = RtsSwitch(control, port, timer)
-        self._gap.opened(port, timer, self._rts is not None)
+        self._gap.opened(port, timer, self._rts)
         self._reader = ReplyReader(self.settings, self.receiver, port, self._rts)
         self.receiver.opened(port.virtual)  # quiet from now: the first gap ends a gap later
 
@@ -182,15 +181,6 @@ class SerialLine:
         port = self._require_port()
         self.receiver.arrivals = None  # a new attempt starts its own record
         port.discard_pending()
-
-    def _send_frame(self, frame: bytes) -> Sending:
-        started = time.monotonic()
-        gap = started - self.receiver.quiet_since
-        if self._rts is not None:
-            write_at = self._rts.start(frame)
-            return Sending(frame, started, gap, 0 if write_at else len(frame), write_at)
-        assert self._port is not None
-        return Sending(frame, started, gap, self._port.write_now(frame))
 
     # -- the rest of an attempt, read by the caller (`gateway.bus.reply_reader`) -------------
 

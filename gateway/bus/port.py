@@ -117,8 +117,7 @@ class Port(ABC):
     """A watched port's `readable_now(0)`: non-empty when bytes are waiting (`bytes_waiting`
     as one C call, for the gap's end, which asks once or twice per transaction)."""
     fd = -1
-    """A watched port's descriptor: the gap's end writes a frame to it with `os.write` itself
-    (`write_now` written out, its call only when the write raises); -1 for any other port."""
+    """A watched port's descriptor (the loop watches it); -1 for any other port."""
 
     def __init__(
         self,

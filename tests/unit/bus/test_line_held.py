@@ -166,12 +166,12 @@ async def test_a_port_that_fails_while_the_caller_is_held_is_reported_at_once(
         serial.close()
 
 
-async def test_a_frame_whose_write_at_the_gaps_end_raises_goes_through_the_ports_own_write(
+async def test_a_frame_the_ports_buffer_refuses_at_the_gaps_end_goes_out_through_its_caller(
     line: SimulatedLine, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """The gap's end writes a frame to the port's descriptor itself (`TtyPort.write_now`
-    written out); a write that raises there (here a full buffer, once per frame) goes through
-    `write_now`, and the transactions come out as they do without it."""
+    """A frame the port's buffer refuses at the gap's end (`TtyPort.write_now` takes nothing)
+    is not lost: the attempt goes back to its caller with nothing written, whose own `finish`
+    writes it whole and reads its reply; the frames after it are held as ever."""
     frames = deque(build_frame(1 + n % 2, read_pdu(STATE_WORD_1)) for n in range(4))
     sent = set(frames)
     refused: list[bytes] = []
@@ -185,22 +185,28 @@ async def test_a_frame_whose_write_at_the_gaps_end_raises_goes_through_the_ports
 
     monkeypatch.setattr(os, "write", write_once_refused)
     replied: list[tuple[Sending, bytes]] = []
+    finished: list[bytes | None] = []
     serial = open_line(line.path)
     try:
-        ended = await asyncio.wait_for(
-            serial.send_after_gap(
-                picking(frames),
-                lambda: 0.5,
-                lambda sending, pdu, _heard_at: replied.append((sending, pdu)),
-            ),
-            5.0,
-        )
+        while True:
+            ended = await asyncio.wait_for(
+                serial.send_after_gap(
+                    picking(frames),
+                    lambda: 0.5,
+                    lambda sending, pdu, _heard_at: replied.append((sending, pdu)),
+                ),
+                5.0,
+            )
+            if ended is None:
+                break
+            assert ended.written == 0  # refused at the gap's end: its caller writes it
+            exchange = await serial.finish(ended, expect_reply=True, timeout_s=0.5)
+            finished.append(exchange.reply_pdu)
     finally:
         serial.close()
-    assert ended is None
     assert len(refused) == 2  # the two distinct frames, each refused once at the gap's end
-    assert [pdu for _, pdu in replied] == [STOPPED_REPLY] * 4
-    assert all(sending.written == len(sending.frame) for sending, _ in replied)
+    assert finished == [STOPPED_REPLY] * 2
+    assert [pdu for _, pdu in replied] == [STOPPED_REPLY] * 2
     assert line.stats["requests"] == 4
     assert line.stats["gap_violations"] == 0
 
