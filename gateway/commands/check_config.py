@@ -22,6 +22,7 @@ from gateway.config.startup import startup_problems
 from gateway.errors import ConfigError
 from gateway.exit_codes import EXIT_CONFIG, EXIT_OK
 from gateway.poller.budget import line_budget
+from gateway.settings import runtime_settings
 from gateway.settings.checks import missing_ports
 
 
@@ -50,7 +51,7 @@ def handle(args: argparse.Namespace) -> int:
         print(f"warning: {warning}", file=sys.stderr)
     print(routing_table(config))
     print()
-    budget, overloaded = line_budget(config)
+    budget, overloaded = line_budget(runtime_settings(config))
     print(budget)
     for warning in overloaded:
         print(f"warning: {warning}", file=sys.stderr)

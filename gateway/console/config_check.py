@@ -18,7 +18,7 @@ from gateway.config import parse_config
 from gateway.config.startup import startup_problems
 from gateway.errors import ConfigError
 from gateway.poller.budget import line_budget
-from gateway.settings import GatewaySettings
+from gateway.settings import GatewaySettings, runtime_settings
 from gateway.settings.checks import missing_ports
 from gateway.settings.reload import plan
 
@@ -63,6 +63,6 @@ def check_text(text: str, source: str, running: GatewaySettings, mqtt_running: b
     problems = startup_problems(config)
     if problems:
         return Checked(problems)
-    warnings = missing_ports(config) + line_budget(config)[1]
+    warnings = missing_ports(config) + line_budget(runtime_settings(config))[1]
     planned = plan(running.source, config, mqtt_running=mqtt_running)
     return Checked([], warnings, planned.changed, planned.restart_needed)

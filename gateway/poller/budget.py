@@ -16,10 +16,9 @@ from dataclasses import dataclass
 from typing import Final
 
 from gateway.bus import BusSettings
-from gateway.config import GatewayConfig
 from gateway.modbus.timing import CharacterFormat
 from gateway.poller.plan import PollBlock, PollSchedule, poll_schedules
-from gateway.settings import DriveSettings, runtime_settings
+from gateway.settings import DriveSettings, GatewaySettings
 
 REQUEST_BYTES: Final = 8
 REPLY_OVERHEAD_BYTES: Final = 5
@@ -81,14 +80,13 @@ def line_plans(
     return plans
 
 
-def line_budget(config: GatewayConfig) -> tuple[str, list[str]]:
+def line_budget(settings: GatewaySettings) -> tuple[str, list[str]]:
     """Each line's poll load (of the drives `run` would poll), and a warning for each line the
     polls would fill."""
-    settings = runtime_settings(config)
     plans = line_plans(settings.buses, (d for d in settings.drives if settings.polled(d)))
     lines = ["Poll load (wire time of every planned read; each device's answer delay on top):"]
     overloaded = []
-    for index, bus in enumerate(config.buses):
+    for index, bus in enumerate(settings.buses):
         plan = plans[bus.name]
         load = plan.total
         lines.append(

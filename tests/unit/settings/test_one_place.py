@@ -10,6 +10,7 @@ ALLOWED = (
     "config/",  # the models themselves
     "settings/",  # the one place they become runtime settings (and a reload compares them)
     "commands/",  # the commands that load a file (run, check-config)
+    "console/config_check.py",  # the console's Check: a text loaded as check-config loads it
     "instruments/commands/",  # ... and the instruments' (demo)
     "instruments/demo_broker.py",  # the demo's MQTT section pointed at the broker it starts
 )
