@@ -456,7 +456,7 @@ class Bus:
 
     def _set_aside_between(self, frames: tuple[Stray, ...]) -> None:
         """The receiver's `on_set_aside`: frames heard between transactions."""
-        self.carrier.set_aside(frames, self.settings.timeout_s)
+        self.carrier.set_aside(frames)
 
     def _idle_for(self) -> float | None:
         """With nothing queued at a gap's end: how long the line may wait, idle, for a request

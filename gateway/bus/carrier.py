@@ -209,7 +209,7 @@ class Carrier:
                     exchange = await self.line.transact(
                         frame, expect_reply=not broadcast, timeout_s=transaction.timeout_s
                     )
-                if exchange.strays and self.set_aside(exchange.strays, transaction.timeout_s):
+                if exchange.strays and self.set_aside(exchange.strays):
                     # A frame from the asked drive came before this reply and answered nothing
                     # it owed: this reply may be an older request's. Never handed over.
                     raise BadReply("out_of_step", f"drive {address} sent a frame out of step")
@@ -236,7 +236,7 @@ class Carrier:
                 if tap is not None:
                     tap(self.name, transaction, attempt, started, exc)
                 if not broadcast:  # its reply may come to the reopened port
-                    late.unanswered(address, on_wire, started, transaction)
+                    late.unanswered(address, on_wire, started, transaction, transaction.timeout_s)
                 raise
             finally:
                 drive.line_s += time.monotonic() - started
@@ -287,7 +287,7 @@ class Carrier:
             raise  # its line time is the attempt's (`carry`)
         self.observers.tap_marker(transaction, sent, exchange)
         drive.line_s += time.monotonic() - sent.started
-        self.set_aside(exchange.strays, timeout_s)
+        self.set_aside(exchange.strays)
         late.caught_up(address, sent.frame, exchange.reply_pdu or b"")
         self._record(
             drive, exchange.reply_pdu, exchange.gap_s, exchange.busy_s, exchange.reply_heard_at
@@ -305,10 +305,10 @@ class Carrier:
         """An attempt ended without its reply: `frame` is owed (its reply may still come),
         then the frames set aside are accounted (one of them may be that very reply)."""
         if address != BROADCAST_ADDRESS:
-            self.late_replies.unanswered(address, frame, sent_at, self.carrying)
-        self.set_aside(strays, timeout_s)
+            self.late_replies.unanswered(address, frame, sent_at, self.carrying, timeout_s)
+        self.set_aside(strays)
 
-    def set_aside(self, strays: tuple[Stray, ...], timeout_s: float) -> bool:
+    def set_aside(self, strays: tuple[Stray, ...]) -> bool:
         """Account frames set aside during an attempt (or heard between transactions) in the
         ledger, each for the drive that sent it; True if the drive carried now is left owing
         or unsure by them."""
@@ -318,10 +318,10 @@ class Carrier:
         for frame, heard_at in strays:
             address = frame[0]
             dump_frame(self.name, "rx set aside", frame)
-            asked_at = late.heard(frame)
+            answered = late.heard(frame)
             if address == asked:
                 self._heard_from_carried = True
-            if asked_at is None:
+            if answered is None:
                 # It answers nothing its drive owed: a reply that contradicts the request, or
                 # another address's, counted for the drive asked (as a bad reply always was).
                 if asked == BROADCAST_ADDRESS:  # heard between transactions
@@ -331,7 +331,7 @@ class Carrier:
                     self.drive(asked).bad_replies[kind] += 1
             else:
                 self.drive(address).late_replies += 1
-                late.seen(address, heard_at, timeout_s, asked_at)
+                late.seen(address, heard_at, answered)
             if self.health.offline_count and self.health.is_offline(address):
                 # It answers again: probe it now, not at the end of its backoff.
                 self.health.probe_now(address, time.monotonic())

@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import logging
 import time
+from typing import NamedTuple
 
 from gateway.errors import BadReply
 from gateway.modbus.functions import (
@@ -62,6 +63,19 @@ from gateway.modbus.functions import (
 from gateway.modbus.rtu import build_frame, check_reply
 
 log = logging.getLogger(__name__)
+
+
+class Owed(NamedTuple):
+    """A request whose reply was not taken, and may still come."""
+
+    frame: bytes
+    sent_at: float
+    """When it went out (`time.monotonic()`)."""
+    by: object
+    """The transaction that sent it (a retry within it needs no marker: `needs_marker`)."""
+    timeout_s: float
+    """The response timeout it had: what its reply came later than."""
+
 
 LOOP_BACK = b"\x00\x00"
 """08H sub-function 0000, return query data: the reply repeats the request."""
@@ -126,10 +140,10 @@ class LateReplies:
 
     def __init__(self, bus: str) -> None:
         self.bus = bus
-        self.owing: dict[int, list[tuple[bytes, float, object]]] = {}
-        """Address → the requests it owes replies to (frame, when sent, the transaction that
-        sent it), oldest first. A drive that is here must get a marker before anything else
-        (also with an empty list: unsure), but for a retry (`needs_marker`)."""
+        self.owing: dict[int, list[Owed]] = {}
+        """Address → the requests it owes replies to, oldest first. A drive that is here must
+        get a marker before anything else (also with an empty list: unsure), but for a retry
+        (`needs_marker`)."""
         self.unsure: set[int] = set()
         """Drives that sent a frame answering nothing they owed (module docstring)."""
         self.answered: dict[int, bytes] = {}
@@ -164,19 +178,22 @@ class LateReplies:
             return False
         if not owed or address in self.unsure:
             return True
-        return any(request != frame or sender is not by for request, _, sender in owed)
+        return any(owed.frame != frame or owed.by is not by for owed in owed)
 
     def owed_frames(self, address: int) -> tuple[bytes, ...]:
-        return tuple(frame for frame, _, _ in self.owing.get(address, ()))
+        return tuple(owed.frame for owed in self.owing.get(address, ()))
 
-    def unanswered(self, address: int, frame: bytes, sent_at: float, by: object = None) -> None:
-        """`frame` went to `address` for the transaction `by` and its reply was not taken: it
-        may still come. Requests owed longer than `LATE_HORIZON_S` are let go (a dead drive's
-        probes would pile up for good otherwise); the drive stays unsure, in want of a marker."""
+    def unanswered(
+        self, address: int, frame: bytes, sent_at: float, by: object = None, timeout_s: float = 0.0
+    ) -> None:
+        """`frame` went to `address` for the transaction `by` (which gave it `timeout_s`) and
+        its reply was not taken: it may still come. Requests owed longer than `LATE_HORIZON_S`
+        are let go (a dead drive's probes would pile up for good otherwise); the drive stays
+        unsure, in want of a marker."""
         owed = self.owing.setdefault(address, [])
-        owed.append((frame, sent_at, by))
-        if sent_at - owed[0][1] > LATE_HORIZON_S or len(owed) > MAX_OWED:
-            kept = [entry for entry in owed if sent_at - entry[1] <= LATE_HORIZON_S]
+        owed.append(Owed(frame, sent_at, by, timeout_s))
+        if sent_at - owed[0].sent_at > LATE_HORIZON_S or len(owed) > MAX_OWED:
+            kept = [entry for entry in owed if sent_at - entry.sent_at <= LATE_HORIZON_S]
             owed[:] = kept[-MAX_OWED:]
             self.unsure.add(address)
 
@@ -185,26 +202,26 @@ class LateReplies:
         values from before it, so no drive that owes may skip its marker now."""
         self.unsure.update(self.owing)
 
-    def heard(self, frame: bytes) -> float | None:
-        """A whole, sound frame set aside: take off what it answers (rule 1); when the request
-        it answers went out. None when it answers nothing its drive owed: that drive is unsure
-        from now."""
+    def heard(self, frame: bytes) -> Owed | None:
+        """A whole, sound frame set aside: take off what it answers (rule 1); the request it
+        answers. None when it answers nothing its drive owed: that drive is unsure from now."""
         address = frame[0]
         if frame[1] & EXCEPTION_BIT and frame[1] & 0x7F in _READS and frame[2] == ILLEGAL_FUNCTION:
             self.refused.setdefault(address, set()).add(frame[1] & 0x7F)
         owed = self.owing.get(address)
         if owed:
-            for index, (request, sent_at, _) in enumerate(owed):
+            for index, entry in enumerate(owed):
+                request = entry.frame
                 if is_reply_to(request, frame):
                     skipped = owed[:index]
                     del owed[: index + 1]
                     if request[1] == DIAGNOSTICS:
                         self._echo_answered(address)
-                    elif any(earlier[1] == DIAGNOSTICS for earlier, _, _ in skipped):
+                    elif any(earlier.frame[1] == DIAGNOSTICS for earlier in skipped):
                         self._no_echo(address)  # answered a later read, never the echo
                     if not owed and address not in self.unsure:
                         del self.owing[address]  # its last owed reply came: in step
-                    return sent_at
+                    return entry
         self.owing.setdefault(address, [])
         self.unsure.add(address)
         return None
@@ -220,7 +237,7 @@ class LateReplies:
         """
         owed = self.owing.get(address, [])
         now = time.monotonic()
-        recent = [frame for frame, sent_at, _ in owed if now - sent_at < LATE_HORIZON_S]
+        recent = [entry.frame for entry in owed if now - entry.sent_at < LATE_HORIZON_S]
         reads = self._marker_reads(address, recent)
         echo_next = address in self._echo_ok and address in self._read_missed_last
         if reads and not echo_next:
@@ -291,15 +308,14 @@ class LateReplies:
         self.no_echo.discard(address)
         self._echo_ok.add(address)
 
-    def seen(self, address: int, late_at: float, timeout_s: float, asked_at: float | None) -> None:
-        """A reply from `address` was set aside as late (at `late_at`, to a request sent at
-        `asked_at` if known): say once what it suggests."""
+    def seen(self, address: int, late_at: float, answered: Owed) -> None:
+        """A reply from `address` to the request `answered` was set aside as late (at
+        `late_at`): say once what it suggests, with the timeout that request had."""
         if address in self._told:
             return
         self._told.add(address)
-        after = ""
-        if asked_at is not None:
-            after = f" about {(late_at - asked_at) * 1000:.0f} ms after its request,"
+        after = f" about {(late_at - answered.sent_at) * 1000:.0f} ms after its request,"
+        timeout_s = answered.timeout_s
         log.warning(
             "bus %s: drive %d answered%s later than timeout_ms (%.0f): its replies were set "
             "aside, never taken for another request's (counted in "

@@ -175,13 +175,6 @@ async def test_a_drive_that_owes_a_reply_gets_a_marker_first_and_its_late_reply_
     assert [d.code for d in done] == [GATEWAY_TARGET_FAILED, None]
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="the late-reply hint quotes the timeout of the transaction carried when the late "
-    "reply is set aside (Carrier._catch_up passes its own, gateway/bus/carrier.py:290 -> :334), "
-    "not the timeout the late request had: 'answered about 257 ms after its request, later "
-    "than timeout_ms (1000)'",
-)
 async def test_the_late_reply_hint_names_the_timeout_its_request_had(
     line: SimulatedLine, caplog: pytest.LogCaptureFixture
 ) -> None:

@@ -50,10 +50,14 @@ def test_a_late_reply_takes_off_its_request_and_every_one_owed_before_it() -> No
     for at, frame in enumerate((first, second, third)):
         late.unanswered(3, frame, 100.0 + at)
     # The answer to the second: the first was answered or never will be (in order).
-    assert late.heard(normal_reply(second)) == 101.0
+    answered = late.heard(normal_reply(second))
+    assert answered is not None
+    assert answered.sent_at == 101.0
     assert late.owed_frames(3) == (third,)
     assert late.owes(3)
-    assert late.heard(normal_reply(third)) == 102.0
+    answered = late.heard(normal_reply(third))
+    assert answered is not None
+    assert answered.sent_at == 102.0
     assert not late.owes(3)  # its last owed reply came: in step, no marker needed
 
 
