@@ -28,6 +28,7 @@ from gateway.config.sections.mqtt import (
     MqttConfig,
     SparkplugConfig,
 )
+from gateway.config.sections.opcua import OpcUaConfig
 from gateway.config.sections.reports import DriveReportConfig, GatewayReportConfig, ReportConfig
 from gateway.config.sections.section import Section, readable_file
 from gateway.config.sections.storage import (
@@ -59,6 +60,7 @@ __all__ = [
     "ModbusTcpConfig",
     "ModbusTlsConfig",
     "MqttConfig",
+    "OpcUaConfig",
     "PollGroupConfig",
     "RegisterRange",
     "Registers",

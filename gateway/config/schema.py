@@ -12,6 +12,7 @@ from gateway.config.sections.drives import DriveConfig
 from gateway.config.sections.modbus_tcp import ModbusTcpConfig
 from gateway.config.sections.monitoring import LoggingConfig, MetricsConfig
 from gateway.config.sections.mqtt import MqttConfig
+from gateway.config.sections.opcua import OpcUaConfig
 from gateway.config.sections.section import Section
 from gateway.config.sections.storage import StorageConfig
 
@@ -36,6 +37,8 @@ class GatewayConfig(Section):
     """`/metrics` (Prometheus) and `/health`, on one port."""
     console: ConsoleConfig = ConsoleConfig()
     """The operator's web console (see Console); off unless enabled."""
+    opcua: OpcUaConfig = OpcUaConfig()
+    """The OPC UA server (see OPC UA); off unless enabled. Its users are `console.users`."""
     logging: LoggingConfig = LoggingConfig()
     """What the log says and in which form."""
     storage: StorageConfig = StorageConfig()
@@ -45,6 +48,11 @@ class GatewayConfig(Section):
     @model_validator(mode="after")
     def _cross_checks(self) -> GatewayConfig:
         problems = cross_field_problems(self.buses, self.drives, self.modbus_tcp.access)
+        opcua = self.opcua
+        if opcua.enabled and not self.console.users and not opcua.anonymous:
+            problems.append(
+                "opcua: enabled with no console.users and anonymous false: nobody could log in"
+            )
         if problems:
             raise ValueError("\n".join(problems))
         return self

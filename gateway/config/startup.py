@@ -68,6 +68,8 @@ def _listeners(config: GatewayConfig) -> Iterator[Listener]:
         yield Listener("the console", "console", config.console.host, config.console.port)
     if config.metrics.enabled:
         yield Listener("metrics and health", "metrics", config.metrics.host, config.metrics.port)
+    if config.opcua.enabled:
+        yield Listener("the OPC UA server", "opcua", config.opcua.host, config.opcua.port)
 
 
 def _port_clashes(listeners: list[Listener]) -> list[Problem]:

@@ -26,6 +26,7 @@ from gateway.settings.local import (
     store_settings,
 )
 from gateway.settings.mqtt import MqttSettings, mqtt_settings
+from gateway.settings.opcua import OpcUaSettings, opcua_settings
 from gateway.settings.shown import shown_configuration
 from gateway.settings.tcp import tcp_settings
 from gateway.tcp import TcpSettings
@@ -46,6 +47,8 @@ class GatewaySettings:
     console: ConsoleSettings | None
     log_level: str
     """Python's name of the level ("INFO")."""
+    opcua: OpcUaSettings | None = None
+    """None: the OPC UA server not enabled."""
 
     def shown_configuration(self) -> dict[str, Any]:
         """The running configuration, secrets masked (`gateway.settings.shown`)."""
@@ -54,7 +57,8 @@ class GatewaySettings:
     def polled(self, drive: DriveSettings) -> bool:
         """Without MQTT or the console only the drives that ask for it are polled: polls cost
         line time, and a pure Modbus-TCP gateway shouldn't spend it unasked."""
-        return self.mqtt is not None or self.console is not None or drive.asks_for_polls
+        shown = self.mqtt is not None or self.console is not None or self.opcua is not None
+        return shown or drive.asks_for_polls
 
     def drive(self, name: str) -> DriveSettings:
         return next(d for d in self.drives if d.name == name)
@@ -72,6 +76,7 @@ def runtime_settings(config: GatewayConfig) -> GatewaySettings:
         metrics=metrics_settings(config.metrics),
         console=console_settings(config.console),
         log_level=config.logging.level.upper(),
+        opcua=opcua_settings(config),
     )
 
 
@@ -82,6 +87,7 @@ __all__ = [
     "GatewaySettings",
     "MetricsSettings",
     "MqttSettings",
+    "OpcUaSettings",
     "StoreSettings",
     "bus_settings",
     "drive_route",

@@ -18,6 +18,7 @@ What changes in place, SCADA's connections staying open and requests in flight f
 What keeps its running value until a restart, named in the log and the `config_reloaded` event
 ("restart needed for: ..."): the listeners (`modbus_tcp.host`, `port`, `plain`, `tls`),
 `gateway_id`, `storage.path`, the console (its listener and, in this version, its other keys),
+the OPC UA server (every `opcua` key, and its address space keeps the drives it started with),
 and in this version buses added or removed (with the drives that would move onto or off them),
 `metrics.enabled` and `mqtt.enabled`. A site's device file (`model: file:PATH`) is read again:
 edited, its drive is changed as if its keys had been (its points polled and published anew).
@@ -36,6 +37,8 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+
+from pydantic import BaseModel
 
 from gateway.config import (
     BusConfig,
@@ -115,6 +118,7 @@ def plan(
     mqtt = _mqtt(old.mqtt, new.mqtt, changed, restart)
     metrics = _metrics(old.metrics, new.metrics, changed, restart)
     restart += _console(old.console, new.console)
+    restart += _waits(old.opcua, new.opcua, "opcua")
     reopened = _buses(old, new, changed, restart)
     # Buses added or removed wait for a restart, and so do the drives that would move onto or
     # off them; on every other bus (reopened or not) drives change now.
@@ -147,7 +151,7 @@ def _running(
 ) -> GatewayConfig:
     """The configuration that runs after the reload: `new`, with what waits for a restart as it
     was (the gateway id, the console, buses added or removed) and `parts` as planned."""
-    kept = {"gateway_id": old.gateway_id, "console": old.console}
+    kept = {"gateway_id": old.gateway_id, "console": old.console, "opcua": old.opcua}
     buses = _running_buses(old, new)
     return new.model_copy(update={**kept, **parts, "buses": buses, "drives": drives})
 
@@ -168,8 +172,15 @@ def _mqtt(
 
 def _console(old: ConsoleConfig, new: ConsoleConfig) -> list[str]:
     """Every console key waits for a restart (its listener, users and sessions)."""
+    return _waits(old, new, "console")
+
+
+def _waits(old: BaseModel, new: BaseModel, section: str) -> list[str]:
+    """Each of the section's keys that changed, as waiting for a restart."""
     return [
-        f"console.{key}" for key in type(new).model_fields if getattr(old, key) != getattr(new, key)
+        f"{section}.{key}"
+        for key in type(new).model_fields
+        if getattr(old, key) != getattr(new, key)
     ]
 
 

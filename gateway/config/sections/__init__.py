@@ -10,6 +10,7 @@ One module per subject of the file:
     reports     report by exception, for a drive (`drives[].report`) and for all (`mqtt.report`)
     mqtt        `mqtt`: the broker connection, and Sparkplug B
     console     `console`: the operator's web console and its users
+    opcua       `opcua`: the OPC UA server (its users are the console's)
     storage     `storage`: the local store
     monitoring  `metrics` and `logging`
 

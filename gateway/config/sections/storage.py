@@ -39,14 +39,15 @@ class StorageConfig(Section):
         box (two lines, two `gateway_id`s) never share a store by default."""
         if self.path is not None:
             return self.path
-        return str(_state_directory(environ) / f"events-{gateway_id}.db")
+        return str(state_directory(environ) / f"events-{gateway_id}.db")
 
     def shared_default(self, environ: dict[str, str] | None = None) -> str:
         """The default before it was one per gateway_id, `events.db` in the state directory:
         an install that has it goes on with it (the store's open decides)."""
-        return str(_state_directory(environ) / "events.db")
+        return str(state_directory(environ) / "events.db")
 
 
-def _state_directory(environ: dict[str, str] | None) -> Path:
+def state_directory(environ: dict[str, str] | None = None) -> Path:
+    """Where the gateway keeps what it makes ($STATE_DIRECTORY, else /var/lib/invt-gateway)."""
     env = os.environ if environ is None else environ
     return Path(env.get(ENV_STATE_DIRECTORY, "").split(":")[0] or DEFAULT_STATE_DIRECTORY)

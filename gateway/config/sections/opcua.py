@@ -1,0 +1,64 @@
+"""`opcua`: the OPC UA server SCADA, MES and historians connect to (see OPC UA).
+
+Who may log in is the console's `users` (their roles: a viewer browses, reads and subscribes; an
+operator and an admin also write and call methods); the section itself says where the server
+listens, which security it offers and where its certificates are.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field, field_validator, model_validator
+
+from gateway.config.sections.section import Section, readable_file
+
+SecurityChoice = Literal["None", "Basic256Sha256_Sign", "Basic256Sha256_SignAndEncrypt"]
+
+
+class OpcUaConfig(Section):
+    enabled: bool = False
+    """Start the OPC UA server (it needs `console.users`, or `anonymous: true`)."""
+    host: str = "127.0.0.1"
+    """Bind address; loopback by default, as the console's: `0.0.0.0` for the plant network."""
+    port: int = Field(4840, ge=1, le=65535)
+    """OPC UA's registered port by default."""
+    security: tuple[SecurityChoice, ...] = Field(
+        ("Basic256Sha256_SignAndEncrypt", "Basic256Sha256_Sign"), min_length=1
+    )
+    """The endpoints offered, each a security policy and mode. `None` (no signing, no
+    encryption: passwords then travel in clear) only when listed here, and a warning is logged
+    at every start that offers it."""
+    certificate_file: str | None = None
+    """The server's application certificate (DER or PEM), with `private_key_file`; left out, one
+    is made on the first start (RSA 2048, SHA-256, ten years) as `opcua/server-cert.der` in the
+    state directory (see `storage.path`) and kept; its SHA-1 thumbprint is logged at each start,
+    for a client's administrator to compare."""
+    private_key_file: str | None = None
+    """The certificate's private key (PEM); with `certificate_file`."""
+    trusted_clients_dir: str | None = None
+    """Client certificates trusted (DER or PEM, one a file); default `opcua/trusted` in the
+    state directory. A client whose certificate is not here is refused (BadCertificateUntrusted)
+    and its certificate kept in `rejected_clients_dir`: move the file here to trust it (read at
+    each connection, no restart)."""
+    rejected_clients_dir: str | None = None
+    """Where refused client certificates are kept (`<thumbprint>.der`); default
+    `opcua/rejected` in the state directory."""
+    anonymous: bool = False
+    """True: a client may connect without a login, as a viewer (browse, read, subscribe)."""
+    commands_enabled: bool = True
+    """False: writes and methods are refused to everyone (BadUserAccessDenied): monitoring only."""
+
+    @field_validator("certificate_file", "private_key_file")
+    @classmethod
+    def _readable(cls, value: str | None) -> str | None:
+        return readable_file(value)
+
+    @model_validator(mode="after")
+    def _pair(self) -> OpcUaConfig:
+        if (self.certificate_file is None) != (self.private_key_file is None):
+            raise ValueError(
+                "certificate_file and private_key_file go together: give both, or neither (one "
+                "is then made in the state directory)"
+            )
+        return self
