@@ -29,6 +29,7 @@ from gateway.settings import (
     ConsoleSettings,
     GatewaySettings,
     MqttSettings,
+    OpcUaSettings,
     drive_route,
 )
 from gateway.settings.reload import ReloadPlan
@@ -42,6 +43,7 @@ if TYPE_CHECKING:
     from gateway.console.feature import ConsoleFeature
     from gateway.metrics import MetricsFeature
     from gateway.mqtt import MqttBridge
+    from gateway.opcua.server import OpcUaServer
     from gateway.sparkplug.edge_node import SparkplugNode
 
 log = logging.getLogger(__name__)
@@ -62,7 +64,8 @@ class Feature(Protocol):
 class Application:
     """The parts, each built by a function of its own and named here: the buses, the router,
     the Modbus-TCP server, the store, the write tally and the poller always; the MQTT bridge,
-    /metrics and the console when their sections are configured (None when not). Nothing is
+    /metrics, the OPC UA server and the console when their sections are configured (None
+    when not). Nothing is
     found by asking whether an attribute exists."""
 
     def __init__(self, settings: GatewaySettings) -> None:
@@ -95,6 +98,9 @@ class Application:
             from gateway.metrics import MetricsFeature  # prometheus-client only when asked for
 
             self.metrics = MetricsFeature(self, settings.metrics)
+        self.opcua: OpcUaServer | None = None
+        if settings.opcua is not None:
+            self.opcua = self._build_opcua(settings.opcua)
         self.console: ConsoleFeature | None = None
         if settings.console is not None:
             self.console = self._build_console(settings.console)
@@ -111,6 +117,7 @@ class Application:
             self.writes,
             self.poller,
             self.mqtt,
+            self.opcua,
             self.console,
         )
         return [part for part in parts if part is not None]
@@ -142,6 +149,18 @@ class Application:
         self.poller.read_max_frequency = mqtt.homeassistant_discovery
         self.poller.add_listener(bridge)
         return bridge
+
+    def _build_opcua(self, opcua: OpcUaSettings) -> OpcUaServer:
+        """The OPC UA server takes what the poller hands it and sends writes and methods
+        through the command path; the drives of the configuration it started with (a reload's
+        drives added or removed wait for a restart, in this version)."""
+        from gateway.opcua.server import OpcUaServer  # asyncua only when asked for
+
+        settings = self.settings
+        parts = (self.router, self.poller, self.tasks, self.events)
+        server = OpcUaServer(opcua, settings.buses, settings.drives, *parts)
+        self.poller.add_listener(server)
+        return server
 
     def _build_sparkplug(self, mqtt: MqttSettings) -> SparkplugNode | None:
         """The Sparkplug B edge node when `mqtt.sparkplug` asks for it, on the drives the

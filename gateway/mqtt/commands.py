@@ -21,7 +21,7 @@ import time
 from collections import Counter
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Final
+from typing import Any, Final, Protocol
 
 from gateway.errors import (
     CommandRefused,
@@ -52,7 +52,6 @@ from gateway.profile import STANDARD_EXCEPTIONS, DriveProfile
 from gateway.profile.points import for_series
 from gateway.routing import MAX_READ_WORDS, Route, Router
 from gateway.setpoint_limit import setpoint_refusal
-from gateway.settings import MqttSettings
 from gateway.store import EventStore, EventType
 
 log = logging.getLogger(__name__)
@@ -76,10 +75,20 @@ class CommandDrive:
         return MAX_READ_WORDS if self.route.max_words is not None else self.profile.max_words
 
 
+class CommandRules(Protocol):
+    """What the command path reads of its source's settings (MQTT's, or the OPC UA server's)."""
+
+    @property
+    def commands_enabled(self) -> bool: ...
+
+    @property
+    def command_max_age_s(self) -> float: ...
+
+
 class Commands:
     def __init__(
         self,
-        settings: MqttSettings,
+        settings: CommandRules,
         router: Router,
         poller: Poller,
         drives: Mapping[str, CommandDrive],
@@ -87,7 +96,7 @@ class Commands:
         source: str = "mqtt",
     ) -> None:
         """`source`: what a `command` event names as where the command came from (the JSON
-        topics' `mqtt`, Sparkplug's `sparkplug`)."""
+        topics' `mqtt`, Sparkplug's `sparkplug`, the OPC UA server's `opcua`)."""
         self.settings = settings
         self.source = source
         self.router = router

@@ -1,6 +1,7 @@
 """What `invt-gateway run` loads is the service and nothing else: no simulator, bench, stress or
-demo broker (`gateway.instruments`), shown by Python's own import log (`-X importtime`) of a real
-`run` process serving a simulated line until it is stopped."""
+demo broker (`gateway.instruments`), no OPC UA stack unless `opcua:` asks for it (asyncua), shown
+by Python's own import log (`-X importtime`) of a real `run` process serving a simulated line
+until it is stopped."""
 
 from __future__ import annotations
 
@@ -57,5 +58,7 @@ def test_run_imports_nothing_of_the_instruments(tmp_path: Path) -> None:
     assert "gateway.app" in imported  # the log is what it seems
     instruments = [name for name in imported if name.startswith("gateway.instruments")]
     assert instruments == []
-    others = [name for name in imported if name.split(".")[0] in ("pymodbus", "selenium")]
+    others = [
+        name for name in imported if name.split(".")[0] in ("pymodbus", "selenium", "asyncua")
+    ]
     assert others == []

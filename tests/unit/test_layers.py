@@ -65,8 +65,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ),
     ("front doors for people", ("gateway.console", "gateway.mqtt")),
     (
-        "beside them: Sparkplug on MQTT's parts, /metrics over every part",
-        ("gateway.sparkplug", "gateway.metrics"),
+        "beside them: Sparkplug and OPC UA on MQTT's parts, /metrics over every part",
+        ("gateway.sparkplug", "gateway.opcua", "gateway.metrics"),
     ),
     ("wiring", ("gateway.app",)),
     ("commands", ("gateway.commands", "gateway.cli", "gateway.__main__")),

@@ -1,0 +1,214 @@
+"""The OPC UA server: a feature of the application, on the gateway's own event loop (asyncua).
+
+    start   the server's certificate (made on the first start), the endpoint with the security
+            offered, the logins (`logins`), the address space (`address_space`), the writes
+            and methods routed to the command path (`command_path`); then it listens
+    serve   what the poller hands it goes into the variables (`shown`, one task): a client
+            reads and subscribes to what the poller last read, never to the line
+    stop    the server closes its sessions and its listener
+
+Values are written only when they differ from what is shown (a Good value keeps the time it
+was first read so); a drive that goes offline shows BadCommunicationError on each of its
+variables, and Good values again from the first poll it answers.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import datetime
+import logging
+from collections.abc import Sequence
+from typing import Final
+
+from asyncua import Server, ua
+
+from gateway.bus import BusSettings
+from gateway.errors import CannotListen
+from gateway.mqtt.commands import CommandDrive, Commands
+from gateway.opcua.address_space import NAMESPACE, AddressSpaceBuilder, DriveNodes, MethodCall
+from gateway.opcua.certificates import ClientTrust, ensure_server_certificate, thumbprint
+from gateway.opcua.command_path import CommandPath, CommandWrites
+from gateway.opcua.logins import CALLER, ConsoleLogins, Permissions
+from gateway.opcua.values import data_value, status_value
+from gateway.poller import DriveEvent, Poller
+from gateway.profile.telemetry import Telemetry
+from gateway.routing import Router
+from gateway.settings import DriveSettings, OpcUaSettings
+from gateway.store import EventStore
+from gateway.tasks import ServiceTasks, cancel_and_wait
+
+log = logging.getLogger(__name__)
+
+POLICIES: Final = {
+    "None": ua.SecurityPolicyType.NoSecurity,
+    "Basic256Sha256_Sign": ua.SecurityPolicyType.Basic256Sha256_Sign,
+    "Basic256Sha256_SignAndEncrypt": ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
+}
+STOP_BUDGET_S: Final = 0.4
+OFFLINE: Final = None
+"""What `_pending` holds for a drive gone offline."""
+
+
+class OpcUaServer:
+    def __init__(
+        self,
+        settings: OpcUaSettings,
+        buses: Sequence[BusSettings],
+        drives: Sequence[DriveSettings],
+        router: Router,
+        poller: Poller,
+        tasks: ServiceTasks,
+        events: EventStore,
+    ) -> None:
+        self.settings = settings
+        self.buses = buses
+        self.drives = drives
+        self.tasks = tasks
+        command_drives = {
+            d.name: CommandDrive(d.name, router.route_for_drive(d.name), d.profile) for d in drives
+        }
+        self.command_drives = command_drives
+        commands = Commands(settings, router, poller, command_drives, events, source="opcua")
+        self.path = CommandPath(commands, settings.commands_enabled)
+        self.poller = poller
+        self.server: Server | None = None
+        self.nodes: dict[str, DriveNodes] = {}
+        self._pending: dict[str, Telemetry | None] = {}
+        self._news = asyncio.Event()
+        self._shower: asyncio.Task[None] | None = None
+
+    # -- PollListener: called by the poller, return at once ----------------------------------
+
+    def state_updated(self, drive: str, telemetry: Telemetry) -> None:
+        if drive in self.nodes:
+            self._pending[drive] = telemetry
+            self._news.set()
+
+    def availability_changed(self, drive: str, online: bool) -> None:
+        if drive in self.nodes and not online:
+            self._pending[drive] = OFFLINE
+            self._news.set()
+
+    def drive_event(self, event: DriveEvent) -> None:
+        pass  # faults as OPC UA events: not in this version
+
+    # -- lifecycle ---------------------------------------------------------------------------
+
+    async def start(self) -> None:
+        settings = self.settings
+        server = Server(user_manager=ConsoleLogins(settings.users, settings.anonymous))
+        await server.init()
+        server.set_endpoint(settings.endpoint)
+        server.set_server_name(f"invt-gateway {settings.gateway_id}")
+        await server.set_application_uri(settings.application_uri)
+        await self._security(server)
+        namespace = await server.register_namespace(NAMESPACE)
+        builder = AddressSpaceBuilder(server, namespace, settings.commands_enabled)
+        await self._address_space(builder)
+        iserver = server.iserver
+        iserver.attribute_service = CommandWrites(iserver.aspace, builder.targets, self.path)
+        try:
+            await server.start()
+        except OSError as exc:
+            raise CannotListen(f"OPC UA server on {settings.host}:{settings.port}: {exc}") from exc
+        self.server = server
+        self._shower = self.tasks.start("opcua:values", self._show_forever())
+        log.info("OPC UA server on %s (%s)", settings.endpoint, ", ".join(settings.security))
+
+    async def _security(self, server: Server) -> None:
+        settings = self.settings
+        certificate = ensure_server_certificate(
+            settings.certificate_file,
+            settings.private_key_file,
+            settings.application_uri,
+            f"invt-gateway {settings.gateway_id}",
+            settings.host,
+        )
+        await server.load_certificate(str(settings.certificate_file))
+        await server.load_private_key(str(settings.private_key_file))
+        log.info("OPC UA server certificate thumbprint (SHA-1): %s", thumbprint(certificate))
+        if "None" in settings.security:
+            log.warning(
+                "OPC UA: security policy None is offered (opcua.security): no signing, no "
+                "encryption, passwords in clear on the network"
+            )
+        server.set_security_policy(
+            [POLICIES[name] for name in settings.security], permission_ruleset=Permissions()
+        )
+        tokens = [ua.UserNameIdentityToken]
+        if settings.anonymous:
+            tokens.append(ua.AnonymousIdentityToken)
+        server.set_identity_tokens(tokens)
+        trust = ClientTrust(settings.trusted_clients_dir, settings.rejected_clients_dir)
+        server.set_certificate_validator(trust)
+
+    async def _address_space(self, builder: AddressSpaceBuilder) -> None:
+        gateway = await builder.gateway(self.settings.gateway_id)
+        for bus in self.buses:
+            bus_node = await builder.bus(gateway, bus.name)
+            for drive in self.drives:
+                if drive.bus == bus.name:
+                    command_drive = self.command_drives[drive.name]
+                    nodes = await builder.drive(bus_node, drive, command_drive, self._method)
+                    self.nodes[drive.name] = nodes
+        for name in self.nodes:
+            if self.poller.availability(name) is False:
+                self._pending[name] = OFFLINE
+            elif telemetry := self.poller.telemetry(name):
+                self._pending[name] = telemetry
+        self._news.set()
+
+    def _method(self, drive: CommandDrive, command: str) -> MethodCall:
+        async def call(parent: ua.NodeId, *arguments: ua.Variant) -> ua.CallMethodResult:
+            answer = await self.path.carry(drive, {"command": command}, CALLER.get())
+            return ua.CallMethodResult(
+                StatusCode=ua.StatusCode(answer.status),
+                OutputArguments=[ua.Variant(answer.words, ua.VariantType.String)],
+            )
+
+        return call
+
+    async def stop(self) -> None:
+        if self._shower is not None:
+            await cancel_and_wait(self._shower, STOP_BUDGET_S)
+        server, self.server = self.server, None
+        if server is None:
+            return
+        # asyncua's stop waits for its CurrentTime loop to wake from its 1 s sleep: longer than
+        # a feature has to stop. The loop is ended here, and its stop finds nothing to wait for.
+        clock = server.iserver.time_task
+        server.iserver.time_task = None
+        if clock is not None:
+            await cancel_and_wait(clock, STOP_BUDGET_S)
+        await asyncio.wait_for(server.stop(), STOP_BUDGET_S)
+
+    # -- values ------------------------------------------------------------------------------
+
+    async def _show_forever(self) -> None:
+        while True:
+            await self._news.wait()
+            self._news.clear()
+            pending, self._pending = self._pending, {}
+            for drive, telemetry in pending.items():
+                await self._show(self.nodes[drive], telemetry)
+
+    async def _show(self, nodes: DriveNodes, telemetry: Telemetry | None) -> None:
+        server = self.server
+        if server is None:
+            return
+        now = datetime.datetime.now(datetime.UTC)
+        for key, (node_id, kind) in nodes.variables.items():
+            if telemetry is OFFLINE:
+                value = status_value(ua.StatusCodes.BadCommunicationError, now)
+            elif key in telemetry:
+                value = data_value(kind, telemetry[key], now)
+            else:
+                continue
+            shown = nodes.shown.get(key)
+            if shown is not None and (shown.Value, shown.StatusCode) == (
+                value.Value,
+                value.StatusCode,
+            ):
+                continue
+            nodes.shown[key] = value
+            await server.write_attribute_value(node_id, value)

@@ -1,0 +1,314 @@
+"""The OPC UA server as a SCADA's client sees it, through asyncua's own client (the server's
+stack) here and node-opcua's (another stack's) in `test_opcua_node_client.py`: the tree, values
+from the poller with their units, a drive offline, writes and methods through the command path
+with the role's say, anonymous and untrusted clients refused.
+
+Each test runs the whole gateway in-process on a simulated line (a real pty) and talks to it on
+a real socket, with Basic256Sha256 Sign & Encrypt and a client certificate the test trusts.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import datetime
+import hashlib
+import logging
+import time
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from asyncua import Client, ua
+from asyncua.crypto.cert_gen import setup_self_signed_certificate
+from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+from cryptography.x509.oid import ExtendedKeyUsageOID
+
+from gateway.app import Application
+from gateway.config import GatewayConfig
+from gateway.instruments.simulator import SimulatedLine
+from gateway.opcua.address_space import NAMESPACE
+from gateway.profile.states import RunState
+from gateway.store import EventType
+from gateway.store.records import StoredEvent
+from tests.support import free_port, running_gateway
+from tests.support.console_support import OPERATOR_PASSWORD, USERS, VIEWER_PASSWORD
+
+pytestmark = pytest.mark.line(addresses=(1, 2))
+
+OPERATOR = USERS[0]["name"]
+VIEWER = USERS[1]["name"]
+STOPS_WITHIN_S = 2.0
+
+
+def configuration(line: SimulatedLine, **opcua: Any) -> GatewayConfig:
+    return GatewayConfig.model_validate(
+        {
+            "gateway_id": "opcua-test",
+            "modbus_tcp": {"host": "127.0.0.1", "port": free_port()},
+            "buses": [
+                {
+                    "name": "line1",
+                    "port": line.path,
+                    "baudrate": 19200,
+                    "parity": "E",
+                    "probe_max_s": 0.5,
+                    "offline_after": 2,
+                }
+            ],
+            "drives": [
+                {"name": "pump1", "bus": "line1", "address": 1},
+                {"name": "fan2", "bus": "line1", "address": 2},
+            ],
+            "console": {"users": USERS},
+            "opcua": {"enabled": True, "host": "127.0.0.1", "port": free_port(), **opcua},
+        }
+    )
+
+
+@pytest.fixture(scope="module")
+def client_certificate(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """A client's application certificate and key, as UaExpert makes one on its first start."""
+    folder = tmp_path_factory.mktemp("client")
+    cert, key = folder / "client-cert.der", folder / "client-key.pem"
+    asyncio.run(
+        setup_self_signed_certificate(
+            key,
+            cert,
+            "urn:invt-gateway:tests:client",
+            "localhost",
+            [ExtendedKeyUsageOID.CLIENT_AUTH],
+            {"commonName": "invt-gateway tests"},
+        )
+    )
+    return cert, key
+
+
+def trust(app: Application, certificate: Path) -> None:
+    """What an admin does: the client's certificate into the trusted folder."""
+    assert app.settings.opcua is not None
+    folder = app.settings.opcua.trusted_clients_dir
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / certificate.name).write_bytes(certificate.read_bytes())
+
+
+@contextlib.asynccontextmanager
+async def connected(
+    app: Application,
+    certificate: tuple[Path, Path] | None,
+    user: str | None = None,
+    password: str | None = None,
+) -> AsyncIterator[Client]:
+    assert app.opcua is not None
+    assert app.settings.opcua is not None
+    client = Client(app.settings.opcua.endpoint, timeout=4)
+    client.application_uri = "urn:invt-gateway:tests:client"
+    if certificate is not None:
+        cert, key = certificate
+        server_cert = app.settings.opcua.certificate_file
+        await client.set_security(
+            SecurityPolicyBasic256Sha256,
+            str(cert),
+            str(key),
+            server_certificate=str(server_cert),
+            mode=ua.MessageSecurityMode.SignAndEncrypt,
+        )
+    if user is not None:
+        client.set_user(user)
+        client.set_password(password or "")
+    async with client:
+        yield client
+
+
+async def drive_node(client: Client, name: str) -> Any:
+    ns = await client.get_namespace_index(NAMESPACE)
+    return client.get_node(ua.NodeId(name, ns))
+
+
+async def value_of(client: Client, node_id: str) -> ua.DataValue:
+    ns = await client.get_namespace_index(NAMESPACE)
+    return await client.get_node(ua.NodeId(node_id, ns)).read_data_value(raise_on_bad_status=False)
+
+
+async def until(check: Any, timeout_s: float = 5.0) -> Any:
+    """`check()`'s first truthy answer, asked every 50 ms."""
+    deadline = asyncio.get_running_loop().time() + timeout_s
+    while True:
+        found = await check()
+        if found:
+            return found
+        if asyncio.get_running_loop().time() > deadline:
+            raise AssertionError(f"not within {timeout_s} s")
+        await asyncio.sleep(0.05)
+
+
+async def test_the_tree_mirrors_the_gateway_with_polled_values_and_units(
+    line: SimulatedLine, client_certificate: tuple[Path, Path], caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.INFO)
+    async with running_gateway(configuration(line)) as app:
+        assert app.settings.opcua is not None
+        made = app.settings.opcua.certificate_file.read_bytes()  # on this first start
+        trust(app, client_certificate[0])
+        async with connected(app, client_certificate, VIEWER, VIEWER_PASSWORD) as client:
+            ns = await ns_of(client)
+            gateway = await client.nodes.objects.get_child([f"{ns}:opcua-test"])
+            bus = await gateway.get_child([f"{ns}:line1"])
+            names = {(await d.read_browse_name()).Name for d in await bus.get_children()}
+            assert names == {"pump1", "fan2"}
+            frequency = await until(lambda: good(client, "pump1.output_frequency_hz"))
+            assert frequency.Value.VariantType == ua.VariantType.Double
+            read_at = frequency.SourceTimestamp
+            assert abs(datetime.datetime.now(datetime.UTC) - read_at).total_seconds() < 5
+            state = await until(lambda: good(client, "pump1.state"))
+            assert state.Value.Value == "stopped"
+            fault = await until(lambda: good(client, "pump1.fault_name"))
+            assert fault.Value.Value == "none"
+            units = await value_of(client, "pump1.output_frequency_hz.EngineeringUnits")
+            assert units.Value.Value.DisplayName.Text == "Hz"
+            assert units.Value.Value.UnitId == 4740186  # UNECE HTZ
+            word = await until(lambda: good(client, "pump1.state_word_1"))
+            assert word.Value.VariantType == ua.VariantType.UInt16
+        stopping = time.monotonic()
+    assert time.monotonic() - stopping < STOPS_WITHIN_S
+    said = [r.getMessage() for r in caplog.records if "thumbprint" in r.getMessage()]
+    assert said == [
+        f"OPC UA server certificate thumbprint (SHA-1): {hashlib.sha1(made).hexdigest()}"
+    ]
+    errors = [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR]
+    assert errors == []
+
+
+async def ns_of(client: Client) -> int:
+    return int(await client.get_namespace_index(NAMESPACE))
+
+
+async def good(client: Client, node_id: str) -> ua.DataValue | None:
+    value = await value_of(client, node_id)
+    return value if value.StatusCode.is_good() else None
+
+
+async def test_an_offline_drive_says_bad_communication_error_then_good_again(
+    line: SimulatedLine, client_certificate: tuple[Path, Path]
+) -> None:
+    async with running_gateway(configuration(line)) as app:
+        trust(app, client_certificate[0])
+        async with connected(app, client_certificate, VIEWER, VIEWER_PASSWORD) as client:
+            await until(lambda: good(client, "fan2.output_current_a"))
+            line.set_dead(2, True)
+
+            async def bad() -> ua.DataValue | None:
+                value = await value_of(client, "fan2.output_current_a")
+                code = ua.StatusCodes.BadCommunicationError
+                return value if value.StatusCode.value == code else None
+
+            await until(bad, 10)
+            assert await good(client, "pump1.output_current_a") is not None  # its neighbour
+            line.set_dead(2, False)
+            await until(lambda: good(client, "fan2.output_current_a"), 10)
+
+
+async def test_a_subscription_sees_a_method_call_run_the_drive(
+    line: SimulatedLine, client_certificate: tuple[Path, Path]
+) -> None:
+    async with running_gateway(configuration(line)) as app:
+        trust(app, client_certificate[0])
+        async with connected(app, client_certificate, OPERATOR, OPERATOR_PASSWORD) as client:
+            await until(lambda: good(client, "pump1.state"))
+            seen: asyncio.Queue[object] = asyncio.Queue()
+
+            class Handler:
+                def datachange_notification(
+                    self, node: object, value: object, data: object
+                ) -> None:
+                    seen.put_nowait(value)
+
+            subscription = await client.create_subscription(100, Handler())
+            state = await drive_node(client, "pump1.state")
+            await subscription.subscribe_data_change(state)
+            assert await asyncio.wait_for(seen.get(), 2) == "stopped"
+            frequency = await drive_node(client, "pump1.set_frequency_hz")
+            await frequency.write_value(ua.Variant(20.0, ua.VariantType.Double))
+            drive = await drive_node(client, "pump1")
+            answer = await drive.call_method(f"{await ns_of(client)}:RunForward")
+            assert answer == "ok"
+            while await asyncio.wait_for(seen.get(), 3) != "running_forward":
+                pass  # stopped, then the state the command brings, as the poller reads it
+            assert line.drives[1].state(time.monotonic()) is RunState.RUNNING_FORWARD
+            events = await until(lambda: commands(app, 2))
+            assert [e.data.get("command") for e in events] == ["run_forward", None]
+            assert events[1].data["frequency_hz"] == 20.0
+            assert {e.data["source"] for e in events} == {"opcua"}
+            assert {e.data["result"] for e in events} == {"ok"}
+
+
+async def commands(app: Application, count: int) -> list[StoredEvent] | None:
+    """The `command` events, newest first, once there are `count`."""
+    found = await app.events.recent_events(10, types=[EventType.COMMAND])
+    return found if len(found) >= count else None
+
+
+async def test_a_viewer_may_read_but_not_write_or_call(
+    line: SimulatedLine, client_certificate: tuple[Path, Path]
+) -> None:
+    async with running_gateway(configuration(line)) as app:
+        trust(app, client_certificate[0])
+        async with connected(app, client_certificate, VIEWER, VIEWER_PASSWORD) as client:
+            frequency = await drive_node(client, "pump1.set_frequency_hz")
+            with pytest.raises(ua.uaerrors.BadUserAccessDenied):
+                await frequency.write_value(ua.Variant(20.0, ua.VariantType.Double))
+            drive = await drive_node(client, "pump1")
+            with pytest.raises(ua.uaerrors.BadUserAccessDenied):
+                await drive.call_method(f"{await ns_of(client)}:RunForward")
+        assert line.drives[1].state(time.monotonic()) is RunState.STOPPED
+
+
+async def test_an_out_of_range_set_point_is_refused_by_the_model_s_table(
+    line: SimulatedLine, client_certificate: tuple[Path, Path]
+) -> None:
+    async with running_gateway(configuration(line)) as app:
+        trust(app, client_certificate[0])
+        async with connected(app, client_certificate, OPERATOR, OPERATOR_PASSWORD) as client:
+            frequency = await drive_node(client, "pump1.set_frequency_hz")
+            with pytest.raises(ua.UaStatusCodeError) as refused:
+                await frequency.write_value(ua.Variant(-5.0, ua.VariantType.Double))
+            assert refused.value.code in (
+                ua.StatusCodes.BadInvalidArgument,
+                ua.StatusCodes.BadOutOfRange,
+            )
+
+
+async def test_anonymous_is_refused_unless_turned_on_and_then_reads_only(
+    line: SimulatedLine, client_certificate: tuple[Path, Path]
+) -> None:
+    async with running_gateway(configuration(line)) as app:
+        trust(app, client_certificate[0])
+        with pytest.raises(ua.UaStatusCodeError):
+            async with connected(app, client_certificate):
+                pass
+    async with running_gateway(configuration(line, anonymous=True)) as app:
+        trust(app, client_certificate[0])
+        async with connected(app, client_certificate) as client:
+            await until(lambda: good(client, "pump1.state"))
+            frequency = await drive_node(client, "pump1.set_frequency_hz")
+            with pytest.raises(ua.uaerrors.BadUserAccessDenied):
+                await frequency.write_value(ua.Variant(20.0, ua.VariantType.Double))
+
+
+async def test_an_untrusted_client_is_refused_and_its_certificate_kept_for_trusting(
+    line: SimulatedLine, client_certificate: tuple[Path, Path], caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.WARNING)
+    async with running_gateway(configuration(line)) as app:
+        assert app.settings.opcua is not None
+        rejected = app.settings.opcua.rejected_clients_dir
+        with pytest.raises(ua.uaerrors.BadCertificateUntrusted):
+            async with connected(app, client_certificate, VIEWER, VIEWER_PASSWORD):
+                pass
+        kept = list(rejected.iterdir())
+        assert len(kept) == 1
+        assert kept[0].read_bytes() == client_certificate[0].read_bytes()
+        kept[0].rename(app.settings.opcua.trusted_clients_dir / kept[0].name)  # the admin trusts it
+        async with connected(app, client_certificate, VIEWER, VIEWER_PASSWORD) as client:
+            assert await until(lambda: good(client, "pump1.state"))
