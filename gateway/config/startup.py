@@ -15,6 +15,8 @@ console's Check and Apply and every reload call, each refusing the configuration
                start), the key of that certificate, a CA file with at least one certificate
     addresses  each listener's host is an address of this machine (or a name that resolves to
                one): bound to port 0 a moment, as `run` would bind it
+    extras     the OPC UA server's stack (asyncua, the `opcua` extra) is installed when
+               `opcua.enabled`
 
 Whether a port is free of other programs is not checked: the running gateway holds its own.
 """
@@ -22,6 +24,7 @@ Whether a port is free of other programs is not checked: the running gateway hol
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import socket
 import ssl
 from collections.abc import Iterator
@@ -54,7 +57,14 @@ class Listener:
 def startup_problems(config: GatewayConfig) -> list[Problem]:
     """Everything that would keep `run` from starting on this machine, in the file's order."""
     listeners = list(_listeners(config))
-    return _port_clashes(listeners) + _tls_files(config) + _addresses(listeners)
+    return _port_clashes(listeners) + _tls_files(config) + _addresses(listeners) + _extras(config)
+
+
+def _extras(config: GatewayConfig) -> list[Problem]:
+    if config.opcua.enabled and importlib.util.find_spec("asyncua") is None:
+        reason = "the OPC UA server needs asyncua: pip install 'invt-gateway[opcua]'"
+        return [("opcua.enabled", reason)]
+    return []
 
 
 def _listeners(config: GatewayConfig) -> Iterator[Listener]:

@@ -21,76 +21,23 @@ from typing import Any
 
 import pytest
 from asyncua import Client, ua
-from asyncua.crypto.cert_gen import setup_self_signed_certificate
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
-from cryptography.x509.oid import ExtendedKeyUsageOID
 
 from gateway.app import Application
-from gateway.config import GatewayConfig
 from gateway.instruments.simulator import SimulatedLine
 from gateway.opcua.address_space import NAMESPACE
 from gateway.profile.states import RunState
 from gateway.store import EventType
 from gateway.store.records import StoredEvent
-from tests.support import free_port, running_gateway
+from tests.support import running_gateway
 from tests.support.console_support import OPERATOR_PASSWORD, USERS, VIEWER_PASSWORD
+from tests.support.opcua import configuration, trust
 
 pytestmark = pytest.mark.line(addresses=(1, 2))
 
 OPERATOR = USERS[0]["name"]
 VIEWER = USERS[1]["name"]
 STOPS_WITHIN_S = 2.0
-
-
-def configuration(line: SimulatedLine, **opcua: Any) -> GatewayConfig:
-    return GatewayConfig.model_validate(
-        {
-            "gateway_id": "opcua-test",
-            "modbus_tcp": {"host": "127.0.0.1", "port": free_port()},
-            "buses": [
-                {
-                    "name": "line1",
-                    "port": line.path,
-                    "baudrate": 19200,
-                    "parity": "E",
-                    "probe_max_s": 0.5,
-                    "offline_after": 2,
-                }
-            ],
-            "drives": [
-                {"name": "pump1", "bus": "line1", "address": 1},
-                {"name": "fan2", "bus": "line1", "address": 2},
-            ],
-            "console": {"users": USERS},
-            "opcua": {"enabled": True, "host": "127.0.0.1", "port": free_port(), **opcua},
-        }
-    )
-
-
-@pytest.fixture(scope="module")
-def client_certificate(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    """A client's application certificate and key, as UaExpert makes one on its first start."""
-    folder = tmp_path_factory.mktemp("client")
-    cert, key = folder / "client-cert.der", folder / "client-key.pem"
-    asyncio.run(
-        setup_self_signed_certificate(
-            key,
-            cert,
-            "urn:invt-gateway:tests:client",
-            "localhost",
-            [ExtendedKeyUsageOID.CLIENT_AUTH],
-            {"commonName": "invt-gateway tests"},
-        )
-    )
-    return cert, key
-
-
-def trust(app: Application, certificate: Path) -> None:
-    """What an admin does: the client's certificate into the trusted folder."""
-    assert app.settings.opcua is not None
-    folder = app.settings.opcua.trusted_clients_dir
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / certificate.name).write_bytes(certificate.read_bytes())
 
 
 @contextlib.asynccontextmanager
