@@ -23,8 +23,9 @@ class OpcUaConfig(Section):
     """Bind address; loopback by default, as the console's: `0.0.0.0` for the plant network."""
     port: int = Field(4840, ge=1, le=65535)
     """OPC UA's registered port by default."""
-    security: tuple[SecurityChoice, ...] = Field(
-        ("Basic256Sha256_SignAndEncrypt", "Basic256Sha256_Sign"), min_length=1
+    security: tuple[SecurityChoice, ...] = (
+        "Basic256Sha256_SignAndEncrypt",
+        "Basic256Sha256_Sign",
     )
     """The endpoints offered, each a security policy and mode. `None` (no signing, no
     encryption: passwords then travel in clear) only when listed here, and a warning is logged
@@ -48,6 +49,13 @@ class OpcUaConfig(Section):
     """True: a client may connect without a login, as a viewer (browse, read, subscribe)."""
     commands_enabled: bool = True
     """False: writes and methods are refused to everyone (BadUserAccessDenied): monitoring only."""
+
+    @field_validator("security")
+    @classmethod
+    def _some(cls, value: tuple[SecurityChoice, ...]) -> tuple[SecurityChoice, ...]:
+        if not value:
+            raise ValueError("no endpoint: list at least one security policy and mode")
+        return value
 
     @field_validator("certificate_file", "private_key_file")
     @classmethod
