@@ -7,7 +7,6 @@ import asyncio
 from pathlib import Path
 from typing import Any
 
-import pytest
 from asyncua.crypto.cert_gen import setup_self_signed_certificate
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
@@ -43,10 +42,8 @@ def configuration(line: SimulatedLine, **opcua: Any) -> GatewayConfig:
     )
 
 
-@pytest.fixture(scope="module")
-def client_certificate(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+def make_client_certificate(folder: Path) -> tuple[Path, Path]:
     """A client's application certificate and key, as UaExpert makes one on its first start."""
-    folder = tmp_path_factory.mktemp("client")
     cert, key = folder / "client-cert.der", folder / "client-key.pem"
     asyncio.run(
         setup_self_signed_certificate(

@@ -31,7 +31,7 @@ from gateway.store import EventType
 from gateway.store.records import StoredEvent
 from tests.support import running_gateway
 from tests.support.console_support import OPERATOR_PASSWORD, USERS, VIEWER_PASSWORD
-from tests.support.opcua import configuration, trust
+from tests.support.opcua import configuration, make_client_certificate, trust
 
 pytestmark = pytest.mark.line(addresses=(1, 2))
 
@@ -66,6 +66,11 @@ async def connected(
         client.set_password(password or "")
     async with client:
         yield client
+
+
+@pytest.fixture(scope="module")
+def client_certificate(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    return make_client_certificate(tmp_path_factory.mktemp("client"))
 
 
 async def drive_node(client: Client, name: str) -> Any:
@@ -259,3 +264,26 @@ async def test_an_untrusted_client_is_refused_and_its_certificate_kept_for_trust
         kept[0].rename(app.settings.opcua.trusted_clients_dir / kept[0].name)  # the admin trusts it
         async with connected(app, client_certificate, VIEWER, VIEWER_PASSWORD) as client:
             assert await until(lambda: good(client, "pump1.state"))
+
+
+async def test_security_none_only_when_listed_and_then_with_a_warning(
+    line: SimulatedLine, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.WARNING)
+    async with running_gateway(configuration(line)) as app:
+        with pytest.raises(ua.UaError) as refused:  # no endpoint without security is offered
+            async with connected(app, None, VIEWER, VIEWER_PASSWORD):
+                pass
+        assert "No matching endpoints" in str(refused.value)
+    assert not [r for r in caplog.records if "policy None" in r.getMessage()]
+    listed = configuration(line, security=["None", "Basic256Sha256_SignAndEncrypt"])
+    async with (
+        running_gateway(listed) as app,
+        connected(app, None, VIEWER, VIEWER_PASSWORD) as client,
+    ):
+        assert await until(lambda: good(client, "pump1.state"))
+    warned = [r.getMessage() for r in caplog.records if "policy None" in r.getMessage()]
+    assert warned == [
+        "OPC UA: security policy None is offered (opcua.security): no signing, no encryption, "
+        "passwords in clear on the network"
+    ]

@@ -241,8 +241,15 @@ def test_what_a_reload_applies_and_what_waits_for_a_restart() -> None:
     changed_bus["storage"] = {"path": "/elsewhere/events.db", "max_mb": 10}
     changed_bus["console"] = {"enabled": False, "port": 8099}
     changed_bus["metrics"] = {"enabled": False, "port": 9999}  # off: nothing to move
+    changed_bus["opcua"] = {"port": 4841, "anonymous": True}
     result = plan(old, GatewayConfig.model_validate(changed_bus), mqtt_running=False)
-    assert result.restart_needed == ["gateway_id", "storage.path", "console.port"]
+    assert result.restart_needed == [
+        "gateway_id",
+        "storage.path",
+        "console.port",
+        "opcua.port",
+        "opcua.anonymous",
+    ]
     assert result.changed == [
         "storage",
         "buses reopened: line2",
@@ -255,6 +262,7 @@ def test_what_a_reload_applies_and_what_waits_for_a_restart() -> None:
     assert running.storage.path is None
     assert running.storage.max_mb == 10
     assert running.console.port == 8080
+    assert (running.opcua.port, running.opcua.anonymous) == (4840, False)
     assert [b.baudrate for b in running.buses] == [115200, 9600]
     assert [d.name for d in running.drives] == ["pump1", "conv3", "mixer4"]
     assert [d.name for d in result.added] == ["mixer4"]
