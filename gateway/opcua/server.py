@@ -98,6 +98,8 @@ class OpcUaServer:
         settings = self.settings
         server = Server(user_manager=ConsoleLogins(settings.users, settings.anonymous))
         await server.init()
+        server.iserver.max_connections = settings.max_connections
+        server.iserver.max_subscriptions = settings.max_subscriptions
         server.set_endpoint(settings.endpoint)
         server.set_server_name(f"invt-gateway {settings.gateway_id}")
         await server.set_application_uri(settings.application_uri)

@@ -31,6 +31,8 @@ class OpcUaSettings:
     users: tuple[ConsoleUser, ...]
     anonymous: bool
     commands_enabled: bool
+    max_connections: int = 16
+    max_subscriptions: int = 64
     command_max_age_s: float = 10.0
     """What `Commands` asks of every source: a method call is carried out at once, never late."""
 
@@ -64,6 +66,8 @@ def opcua_settings(config: GatewayConfig) -> OpcUaSettings | None:
         users=tuple(console_user(user) for user in config.console.users),
         anonymous=opcua.anonymous,
         commands_enabled=opcua.commands_enabled,
+        max_connections=opcua.max_connections,
+        max_subscriptions=opcua.max_subscriptions,
     )
 
 

@@ -287,3 +287,19 @@ async def test_security_none_only_when_listed_and_then_with_a_warning(
         "OPC UA: security policy None is offered (opcua.security): no signing, no encryption, "
         "passwords in clear on the network"
     ]
+
+
+async def test_connections_and_subscriptions_are_bounded(
+    line: SimulatedLine, client_certificate: tuple[Path, Path]
+) -> None:
+    bounded = configuration(line, max_connections=1, max_subscriptions=1)
+    async with running_gateway(bounded) as app:
+        trust(app, client_certificate[0])
+        async with connected(app, client_certificate, VIEWER, VIEWER_PASSWORD) as client:
+            await client.create_subscription(500, None)
+            with pytest.raises(ua.uaerrors.BadTooManySubscriptions):
+                await client.create_subscription(500, None)
+            with pytest.raises((ConnectionError, OSError, asyncio.TimeoutError)):
+                async with connected(app, client_certificate, VIEWER, VIEWER_PASSWORD):
+                    pass
+            assert await until(lambda: good(client, "pump1.state"))  # the first is still served

@@ -49,6 +49,10 @@ class OpcUaConfig(Section):
     """True: a client may connect without a login, as a viewer (browse, read, subscribe)."""
     commands_enabled: bool = True
     """False: writes and methods are refused to everyone (BadUserAccessDenied): monitoring only."""
+    max_connections: int = Field(16, ge=1, le=1000)
+    """Clients connected at once; one more is closed as it connects (and logged)."""
+    max_subscriptions: int = Field(64, ge=1, le=10000)
+    """Subscriptions across all sessions; one more is refused with BadTooManySubscriptions."""
 
     @field_validator("security")
     @classmethod
