@@ -18,28 +18,32 @@ from tests.support.console_support import USERS
 
 
 def configuration(line: SimulatedLine, **opcua: Any) -> GatewayConfig:
-    return GatewayConfig.model_validate(
-        {
-            "gateway_id": "opcua-test",
-            "modbus_tcp": {"host": "127.0.0.1", "port": free_port()},
-            "buses": [
-                {
-                    "name": "line1",
-                    "port": line.path,
-                    "baudrate": 19200,
-                    "parity": "E",
-                    "probe_max_s": 0.5,
-                    "offline_after": 2,
-                }
-            ],
-            "drives": [
-                {"name": "pump1", "bus": "line1", "address": 1},
-                {"name": "fan2", "bus": "line1", "address": 2},
-            ],
-            "console": {"users": USERS},
-            "opcua": {"enabled": True, "host": "127.0.0.1", "port": free_port(), **opcua},
-        }
-    )
+    return GatewayConfig.model_validate(configuration_file(line, **opcua))
+
+
+def configuration_file(line: SimulatedLine, **opcua: Any) -> dict[str, Any]:
+    """Two drives on the simulated line, the console's users, the OPC UA server on a free
+    port of loopback: the file a person would write, as a dict."""
+    return {
+        "gateway_id": "opcua-test",
+        "modbus_tcp": {"host": "127.0.0.1", "port": free_port()},
+        "buses": [
+            {
+                "name": "line1",
+                "port": line.path,
+                "baudrate": 19200,
+                "parity": "E",
+                "probe_max_s": 0.5,
+                "offline_after": 2,
+            }
+        ],
+        "drives": [
+            {"name": "pump1", "bus": "line1", "address": 1},
+            {"name": "fan2", "bus": "line1", "address": 2},
+        ],
+        "console": {"users": USERS},
+        "opcua": {"enabled": True, "host": "127.0.0.1", "port": free_port(), **opcua},
+    }
 
 
 def make_client_certificate(folder: Path) -> tuple[Path, Path]:

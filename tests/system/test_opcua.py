@@ -14,6 +14,9 @@ import contextlib
 import datetime
 import hashlib
 import logging
+import os
+import shutil
+import signal
 import time
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -24,14 +27,22 @@ from asyncua import Client, ua
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
 from gateway.app import Application
+from gateway.config import ENV_STATE_DIRECTORY
 from gateway.instruments.simulator import SimulatedLine
 from gateway.opcua.address_space import NAMESPACE
 from gateway.profile.states import RunState
+from gateway.settings.opcua import OWN_FOLDER
 from gateway.store import EventType
 from gateway.store.records import StoredEvent
 from tests.support import running_gateway
 from tests.support.console_support import OPERATOR_PASSWORD, USERS, VIEWER_PASSWORD
-from tests.support.opcua import configuration, make_client_certificate, trust
+from tests.support.opcua import (
+    configuration,
+    configuration_file,
+    make_client_certificate,
+    trust,
+)
+from tests.support.processes import gateway_process
 
 pytestmark = pytest.mark.line(addresses=(1, 2))
 
@@ -40,20 +51,32 @@ VIEWER = USERS[1]["name"]
 STOPS_WITHIN_S = 2.0
 
 
-@contextlib.asynccontextmanager
-async def connected(
+def connected(
     app: Application,
     certificate: tuple[Path, Path] | None,
     user: str | None = None,
     password: str | None = None,
-) -> AsyncIterator[Client]:
+) -> contextlib.AbstractAsyncContextManager[Client]:
     assert app.opcua is not None
-    assert app.settings.opcua is not None
-    client = Client(app.settings.opcua.endpoint, timeout=4)
+    settings = app.settings.opcua
+    assert settings is not None
+    return connected_to(settings.endpoint, settings.certificate_file, certificate, user, password)
+
+
+@contextlib.asynccontextmanager
+async def connected_to(
+    endpoint: str,
+    server_cert: Path,
+    certificate: tuple[Path, Path] | None,
+    user: str | None = None,
+    password: str | None = None,
+) -> AsyncIterator[Client]:
+    """A session of asyncua's client, Basic256Sha256 Sign & Encrypt with `certificate`, none
+    without it."""
+    client = Client(endpoint, timeout=4)
     client.application_uri = "urn:invt-gateway:tests:client"
     if certificate is not None:
         cert, key = certificate
-        server_cert = app.settings.opcua.certificate_file
         await client.set_security(
             SecurityPolicyBasic256Sha256,
             str(cert),
@@ -303,3 +326,32 @@ async def test_connections_and_subscriptions_are_bounded(
                 async with connected(app, client_certificate, VIEWER, VIEWER_PASSWORD):
                     pass
             assert await until(lambda: good(client, "pump1.state"))  # the first is still served
+
+
+async def test_the_service_serves_opcua_and_stops_within_2_s(
+    line: SimulatedLine, client_certificate: tuple[Path, Path], tmp_path: Path
+) -> None:
+    """`invt-gateway run` as systemd starts it: asyncua loaded because `opcua:` asks for it,
+    the certificate made in the state directory, a client served, SIGTERM obeyed cleanly."""
+    config = configuration_file(line)
+    own = Path(os.environ[ENV_STATE_DIRECTORY]) / OWN_FOLDER
+    (own / "trusted").mkdir(parents=True)
+    shutil.copy(client_certificate[0], own / "trusted")
+    endpoint = f"opc.tcp://127.0.0.1:{config['opcua']['port']}/invt-gateway"
+    with gateway_process(config, tmp_path) as gateway:
+        await asyncio.to_thread(gateway.wait_ready)
+        server_cert = own / "server-cert.der"
+        async with connected_to(
+            endpoint, server_cert, client_certificate, VIEWER, VIEWER_PASSWORD
+        ) as client:
+            assert await until(lambda: good(client, "pump1.state"))
+        stopping = time.monotonic()
+        gateway.signal(signal.SIGTERM)
+        code = await asyncio.to_thread(gateway.wait, STOPS_WITHIN_S + 1)
+        stopped_after = time.monotonic() - stopping
+    assert code == 0, gateway.log.text
+    assert stopped_after < STOPS_WITHIN_S, gateway.log.text
+    thumbprint = hashlib.sha1(server_cert.read_bytes()).hexdigest()
+    assert f"OPC UA server certificate thumbprint (SHA-1): {thumbprint}" in gateway.log.text
+    for bad in (" ERROR ", " CRITICAL ", "Traceback"):
+        assert bad not in gateway.log.text, gateway.log.text
