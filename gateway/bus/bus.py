@@ -40,6 +40,7 @@ from gateway.bus.observers import (
     Tap,
     fail,
 )
+from gateway.bus.probes import due_probes
 from gateway.bus.queue import Priority, RequestQueue, Transaction, Waiter
 from gateway.bus.stats import BusStats as BusStats
 from gateway.bus.stats import DriveStats as DriveStats
@@ -61,10 +62,6 @@ from gateway.tasks import cancel_and_wait
 
 log = logging.getLogger(__name__)
 
-# What a probe asks for, as the traffic monitor shows it: on the wire, a probe is a marker (08H
-# echo or a read the drive answered before: `gateway.bus.late_replies`), never assumed optional.
-PROBE_PDU = bytes.fromhex("0800000000")
-PROBE_CLIENT = "probe"
 IDLE_WAKE_S = 0.5
 """With nothing queued, the bus still wakes this often to see whether a probe is due."""
 FINISH_S = 5.0
@@ -547,30 +544,13 @@ class Bus:
                 self.observers.drive(address, False)
 
     def _queue_due_probes(self) -> None:
-        """Queue one probe for each offline drive whose backoff is over: a single attempt, or
-        the bus's retries for a drive that went offline only because the port did.
-
-        A probe has no waiter: the health tracker reads its outcome.
-        """
+        """Queue a probe for each offline drive whose backoff is over (`due_probes`)."""
         if not self.health.any_offline or self.state is not _OPEN:
             return
-        now = time.monotonic()
-        for address in self.health.due_probes(now):
-            self.health.postpone_probe(address, now)
-            probe = Transaction(
-                address=address,
-                pdu=PROBE_PDU,
-                priority=Priority.READ,
-                client=PROBE_CLIENT,
-                timeout_s=self.settings.timeout_s,
-                retries=self.settings.retries if self.health.lost_with_line(address) else 0,
-                probe=True,
-                # A probe that comes due again while the last one still waits joins it: a long
-                # queue after a reopen must not fill with copies, each costing its timeouts.
-                coalescable=True,
-                frame=build_frame(address, PROBE_PDU),
-                queued_at=time.monotonic(),
-            )
+        settings = self.settings
+        for probe in due_probes(
+            self.health, settings.timeout_s, settings.retries, time.monotonic()
+        ):
             try:
                 self._queue.put(probe)
             except GatewayError:
