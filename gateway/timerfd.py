@@ -17,6 +17,9 @@ from collections.abc import Callable
 
 from gateway.libc import process_libc
 
+_ceil = math.ceil
+"""A module global: `math.ceil` is an attribute read more, once per transaction."""
+
 CLOCK_MONOTONIC = 1
 """The clock behind `time.monotonic()` on Linux: deadlines are passed through unchanged."""
 TFD_NONBLOCK = os.O_NONBLOCK
@@ -70,8 +73,10 @@ class DeadlineTimer:
 
     def arm_at(self, deadline: float) -> bool:
         """Readable at `deadline`, rounded up to the nanosecond: never early."""
-        # At least 1 ns: an all-zero it_value would disarm the timer instead of firing it.
-        seconds, nanoseconds = divmod(max(math.ceil(deadline * 1e9), 1), 1_000_000_000)
+        at_ns = _ceil(deadline * 1e9)
+        if at_ns < 1:  # an all-zero it_value would disarm the timer instead of firing it
+            at_ns = 1
+        seconds, nanoseconds = divmod(at_ns, 1_000_000_000)
         return self._write(seconds, nanoseconds, TFD_TIMER_ABSTIME)
 
     def disarm(self) -> bool:

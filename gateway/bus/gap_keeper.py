@@ -225,16 +225,11 @@ class GapKeeper:
 
     def _send_at_gap_end(self, this: _Round, timed: bool = True) -> bool:
         """The gap timer's action: send as the gap ends, if the line is still quiet and usable.
-        True: the caller stays held (`LineTimer.sleep_until`) while the reply comes
-        (`_answer_held`).
+        True: the caller stays held (`LineTimer.sleep_until`) while the reply comes (`_hold`).
 
         `timed`: called by the timer's wake-up (or `fire_due`), a lead before the gap's end
         (`gateway.bus.gap_lead`): the next frame is chosen now and the rest of the gap is
         waited out on the clock, and how early or late that was teaches the lead.
-
-        This runs once per transaction on a busy line: the common case (no RTS to switch, the
-        frame out whole, a reply to wait for) is written out here, the caller's hold until
-        its reply included, rather than spread over a call per step.
         """
         port, receiver = self._port, self.receiver
         readable_now = self._readable_now

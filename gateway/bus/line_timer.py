@@ -29,14 +29,13 @@ from collections.abc import Callable
 
 from gateway import timerfd
 from gateway.bus.wakeup import NeverEarly, settle
-from gateway.timerfd import TFD_TIMER_ABSTIME, VALUE_NANOSECONDS, VALUE_SECONDS, DeadlineTimer
+from gateway.timerfd import DeadlineTimer
 
 log = logging.getLogger(__name__)
 
 _INF = math.inf
 """`math.inf` as a module global: read once per transaction or more, and `math.inf` is a
 global read and an attribute read."""
-_ceil = math.ceil
 
 
 _ARMED: weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, set[LineTimer]] = (
@@ -65,8 +64,6 @@ class LineTimer:
         self._timerfd = DeadlineTimer()
         self._fd = self._timerfd.fd
         """The timerfd's (-1: none), read once per transaction or more."""
-        self._spec, self._timerfd_settime = self._timerfd.spec, self._timerfd.settime
-        """For `rearm`'s written-out arming (`DeadlineTimer.arm_at`)."""
         if self._fd >= 0:
             loop.add_reader(self._fd, self._expired)
         elif timerfd.libc() is not None:
@@ -140,18 +137,7 @@ class LineTimer:
         waiter = self.waiting
         if waiter is None or waiter.done() or self._fd < 0:
             return False
-        # `DeadlineTimer.arm_at`, written out: once per transaction on a busy line (a test and
-        # a module global rather than max() and math.ceil: a third of the conversion's cost).
-        at_ns = _ceil(deadline * 1e9)
-        if at_ns < 1:
-            at_ns = 1
-        seconds, nanoseconds = divmod(at_ns, 1_000_000_000)
-        spec = self._spec
-        spec[VALUE_SECONDS] = seconds
-        spec[VALUE_NANOSECONDS] = nanoseconds
-        assert self._timerfd_settime is not None
-        done = self._timerfd_settime(self._fd, TFD_TIMER_ABSTIME, spec, None)
-        if done != 0:
+        if not self._timerfd.arm_at(deadline):
             return False
         self._at_deadline, self._deadline = at_deadline, deadline
         self.loop_armed.add(self)

@@ -6,7 +6,6 @@ long it took, can't be read off the buses' counters at scrape time (`bus.metrics
 from __future__ import annotations
 
 import time
-from bisect import bisect_left
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from functools import lru_cache
 from typing import TypeVar
@@ -121,9 +120,7 @@ class RequestMetrics(Collector):
                 labels = (bus, drive, source, exception_label(code))
                 errors = self._errors[error_key] = _series(self._exceptions, labels, _Count)
             errors.value += 1
-        # `Buckets.observe`, written out: once per request.
-        latency.counts[bisect_left(latency.bounds, duration_s)] += 1
-        latency.sum_s += duration_s
+        latency.observe(duration_s)
 
     def _new_series(self, done: RequestDone, source: str) -> tuple[_Count, _Latency | None]:
         """What one kind of request counts in: (requests, latency); latency None for a

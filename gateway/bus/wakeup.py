@@ -67,9 +67,9 @@ class MovingDeadline:
     def __init__(self, loop: asyncio.AbstractEventLoop, action: Callable[[], object]) -> None:
         self._loop, self._action = loop, action
         self.deadline = math.inf
-        """Of the current transaction; inf when none is set. Read-only outside, but for `set`
-        written out (the gap's end, once per transaction): store it, and call `set` when it is
-        earlier than `handle_at`."""
+        """Of the current transaction; inf when none is set. A user may store a new deadline
+        here directly while it is no earlier than `handle_at` (the timer pending comes no
+        later), and must call `set` otherwise; storing inf clears it, as `clear` does."""
         self._handle: asyncio.TimerHandle | None = None
         self.handle_at = math.inf
         """When the pending timer fires (a `time.monotonic()` value); inf when none is."""
