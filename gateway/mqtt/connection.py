@@ -15,11 +15,15 @@ so a certificate put right on disk is picked up without a restart.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import ssl
 
 import aiomqtt
-from paho.mqtt.client import MQTT_CLEAN_START_FIRST_ONLY
+from paho.mqtt.client import MQTT_CLEAN_START_FIRST_ONLY, MQTT_ERR_SUCCESS
+from paho.mqtt.client import Client as PahoClient
+from paho.mqtt.packettypes import PacketTypes
+from paho.mqtt.reasoncodes import ReasonCode
 
 from gateway.errors import TlsSettingsError
 from gateway.mqtt.topics import Topics
@@ -160,3 +164,31 @@ def read_loss(client: aiomqtt.Client) -> None:
     lost = getattr(client, "_disconnected", None)
     if isinstance(lost, asyncio.Future) and lost.done() and not lost.cancelled():
         lost.exception()
+
+
+DISCONNECT_WITH_WILL = 0x04
+"""MQTT 5's DISCONNECT reason code "Disconnect with Will Message": the server publishes the will."""
+
+
+async def disconnect_with_will(client: aiomqtt.Client, timeout_s: float) -> bool:
+    """End an MQTT 5 connection with a DISCONNECT whose reason code is 0x04, "Disconnect with
+    Will Message" (the Sparkplug edge node's clean stop: specification 3.0,
+    `payloads-ndeath-will-message-publisher-disconnect-mqtt50`); True once it is sent.
+
+    aiomqtt (2.5) sends its DISCONNECT without a reason code and takes none, so this asks paho,
+    the client under it (`_client`), and waits for the loss it reports (`_disconnected`): once
+    that is done, aiomqtt's `async with` sends nothing more. If either goes from aiomqtt, this
+    returns False and the connection ends with aiomqtt's own DISCONNECT;
+    `tests/system/test_sparkplug_death_and_host.py` says so (the broker's will no longer comes).
+    """
+    paho = getattr(client, "_client", None)
+    lost = getattr(client, "_disconnected", None)
+    if not isinstance(paho, PahoClient) or not isinstance(lost, asyncio.Future):
+        return False
+    reason = ReasonCode(PacketTypes.DISCONNECT, identifier=DISCONNECT_WITH_WILL)
+    if paho.disconnect(reasoncode=reason) != MQTT_ERR_SUCCESS:
+        return False
+    # Gone either way (a timeout, or the loss aiomqtt reports): `read_loss` reads what it was.
+    with contextlib.suppress(TimeoutError, aiomqtt.MqttError):
+        await asyncio.wait_for(asyncio.shield(lost), timeout_s)
+    return True

@@ -11,6 +11,9 @@
              to the next of `mqtt.servers` (a cluster's nodes, in turn)
     stop     say goodbye (`Presence.farewell`: the bridge's "offline", the Sparkplug edge
              node's NDEATH), end the loop
+    leave    a presence that asks for it (`disconnect_with_will`: the Sparkplug edge node) ends
+             every MQTT 5 connection it ends itself with reason code 0x04, "Disconnect with
+             Will Message": the broker publishes the will then too
 
 The last will is the `Presence`'s too, made anew for each attempt (Sparkplug's bdSeq counts
 CONNECTs).
@@ -36,11 +39,13 @@ from paho.mqtt.subscribeoptions import SubscribeOptions
 
 from gateway.backoff import Backoff
 from gateway.errors import TlsSettingsError
+from gateway.logs import repeated
 from gateway.mqtt.connection import (
     MQTT_3_1_1,
     MQTT_5,
     OFFLINE,
     SUBSCRIBE_QOS,
+    disconnect_with_will,
     make_client,
     online_payload,
     read_loss,
@@ -65,9 +70,13 @@ OnConnect = Callable[[aiomqtt.Client], Awaitable[None]]
 
 class Presence(Protocol):
     """How the connection tells the broker it is there, and gone: its last will (made anew for
-    each attempt) and what it publishes itself at a clean stop (which sends no will)."""
+    each attempt) and what it publishes itself at a clean stop (which sends no will).
+    `disconnect_with_will`: an MQTT 5 connection ended on purpose asks the broker to publish the
+    will all the same (reason code 0x04)."""
 
-    def will(self) -> aiomqtt.Will: ...
+    disconnect_with_will: bool
+
+    async def will(self) -> aiomqtt.Will: ...
 
     async def farewell(self, client: aiomqtt.Client, timeout_s: float) -> None: ...
 
@@ -77,8 +86,10 @@ class BridgeState:
     """The JSON bridge's presence: `<base>/bridge/state` "offline", retained."""
 
     topics: Topics
+    disconnect_with_will = False
+    """The farewell's retained "offline" is the will's: nothing more for the broker to say."""
 
-    def will(self) -> aiomqtt.Will:
+    async def will(self) -> aiomqtt.Will:
         return aiomqtt.Will(self.topics.bridge_state, OFFLINE, qos=QOS, retain=True)
 
     async def farewell(self, client: aiomqtt.Client, timeout_s: float) -> None:
@@ -213,7 +224,7 @@ class Session:
                 tls,
                 self.server,
                 self.protocol,
-                last_will=self.presence.will(),
+                last_will=await self.presence.will(),
             )
             async with client:
                 self._client = client
@@ -221,7 +232,10 @@ class Session:
                     log.info("MQTT: connected again after %d failed attempts", self._failures)
                 self._failures = 0
                 backoff.reset()
-                await self._connected(client)
+                try:
+                    await self._connected(client)
+                finally:
+                    await self._leave(client)
         except* aiomqtt.MqttError as group:
             # Refused MQTT 5: again at once, in 3.1.1; the broker is there, it answered.
             # That is the negotiation of the protocol, not an error: Diagnostics showed
@@ -245,6 +259,12 @@ class Session:
             self.connected.clear()
             self._on_lost()
         return retry_at_once
+
+    async def _leave(self, client: aiomqtt.Client) -> None:
+        """Before aiomqtt's own DISCONNECT (reason code 0): the presence's with its will, on
+        MQTT 5 (a connection already lost sends nothing)."""
+        if self.presence.disconnect_with_will and self.protocol == MQTT_5:
+            await disconnect_with_will(client, STOP_PUBLISH_TIMEOUT_S)
 
     def _failed(self, error: BaseException) -> int:
         """One more failed attempt, noted for Diagnostics and counted; how many in a row."""
@@ -333,13 +353,16 @@ class Session:
             return tls
 
     def _log_failure(self, failures: int, exc: BaseException) -> None:
-        where = self.server_name
-        # Loudly once, then quietly: a broker down for a night must not flood the journal.
-        level = logging.WARNING if failures == 1 else logging.DEBUG
-        log.log(
-            level,
-            "MQTT broker %s: %s; reconnecting with backoff (attempt %d)",
-            where,
+        # Loudly at once, then one line a minute with the number held back (`repeated`): a
+        # broker down for a night must not flood the journal, and one that keeps refusing this
+        # connection (NATS refuses the Sparkplug edge node's `spBv1.0` topics) must not go
+        # silent after the first line either. Each connection (the bridge's, the edge node's)
+        # is counted apart, by its client id.
+        log.warning(
+            "MQTT broker %s (client %s): %s; reconnecting with backoff (attempt %d)",
+            self.server_name,
+            self.mqtt.client_id,
             exc,
             failures,
+            extra=repeated(f"mqtt-connect:{self.mqtt.client_id}"),
         )

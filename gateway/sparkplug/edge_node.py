@@ -1,7 +1,9 @@
 """`SparkplugNode`: the gateway as a Sparkplug B edge node on its own MQTT connection.
 
-    connect   the will is an NDEATH whose `bdSeq` goes up by one (0-255) at every CONNECT; the
-              NBIRTH that follows carries the same `bdSeq`, so a host pairs them
+    connect   the will is an NDEATH whose `bdSeq` goes up by one (0-255) at every CONNECT,
+              across restarts too (kept in the store, committed before the CONNECT): the
+              NBIRTH that follows carries the same `bdSeq`, so a host pairs them, and a
+              restart's NBIRTH has a `bdSeq` the host has not seen last
     subscribe NCMD, every drive's DCMD, and the primary host's STATE when one is named
     birth     (once the primary host is online, if named) NBIRTH with `seq` 0, then a DBIRTH
               per drive that is online, `seq` counting up and wrapping 255 → 0
@@ -15,7 +17,10 @@
     host      the primary host's STATE going offline: NDEATH, disconnect, and the next of
               `mqtt.servers` (the specification's high availability); until it is online again
               nothing is published. NCMD "Node Control/Next Server" = true does the same.
-    stop      NDEATH ourselves (a clean disconnect sends no will), disconnect
+    stop      NDEATH ourselves, then (MQTT 5) a DISCONNECT with reason code 0x04 "Disconnect
+              with Will Message", which every DISCONNECT of this connection carries
+              (`payloads-ndeath-will-message-publisher-disconnect-mqtt50`): the broker publishes
+              the will as well, an NDEATH of the same bdSeq, which a host ignores
 
 The connection loop (backoff, TLS, the server list, MQTT 5 with retain-as-published) is the JSON
 bridge's `Session`, with this node's will and client id (`<client_id>-sparkplug`).
@@ -34,6 +39,7 @@ from typing import Final
 import aiomqtt
 
 from gateway import __version__
+from gateway.errors import StoreError
 from gateway.logs import repeated
 from gateway.mqtt.commands import CommandDrive, Commands
 from gateway.mqtt.dispatcher import Incoming
@@ -105,6 +111,10 @@ class SparkplugNode:
         self.host = PrimaryHost(sparkplug.primary_host_id) if sparkplug.primary_host_id else None
         self.bd_seq = payload.SequenceNumber()
         """The `bdSeq` of the last CONNECT's will; the NBIRTH repeats it."""
+        self._bd_seq_key = f"sparkplug bdSeq {sparkplug.group_id}/{sparkplug.edge_node_id}"
+        """Its counter in the store: an edge node's own (another group or node id starts at 0)."""
+        self._bd_seq_unkept = False
+        """The store could not keep the last bdSeq: counted on in memory (said once)."""
         self.seq = payload.SequenceNumber()
         self._wake = asyncio.Event()
         """Something to publish, a rebirth asked for, or the primary host changed."""
@@ -124,8 +134,8 @@ class SparkplugNode:
         return self.session.connected
 
     def continue_from(self, old: SparkplugNode) -> None:
-        """A reload's new node after `old`: the bdSeq counts on (it counts the CONNECTs of the
-        gateway's run, not of one node: a host pairs births and deaths by it)."""
+        """A reload's new node after `old`: the bdSeq counts on (from the store, or from `old`'s
+        where the store could not keep it)."""
         self.bd_seq.value = old.bd_seq.value
 
     # -- PollListener, through the bridge: return at once -----------------------------------
@@ -145,9 +155,38 @@ class SparkplugNode:
 
     # -- Presence, for the session ----------------------------------------------------------
 
-    def will(self) -> aiomqtt.Will:
-        """The NDEATH of the CONNECT about to be sent: the next `bdSeq`."""
-        death = payload.node_death(self.bd_seq.next(), _now_ms())
+    disconnect_with_will = True
+    """Sparkplug 3.0, `payloads-ndeath-will-message-publisher-disconnect-mqtt50`: "If the Edge
+    Node is using MQTT 5.0 and it sends an MQTT DISCONNECT packet, the MQTT v5.0 'Disconnect
+    with Will Message' reason code MUST be set in the DISCONNECT packet"."""
+
+    async def will(self) -> aiomqtt.Will:
+        """The NDEATH of the CONNECT about to be sent: the next `bdSeq`.
+
+        The specification has each new CONNECT's bdSeq one more than the previous CONNECT's
+        (`message-flow-edge-node-birth-publish-will-message-payload-bdSeq`,
+        `payloads-ndeath-bdseq`: "any new CONNECT packet must increment the bdSeq number ...
+        compared to what was in the previous CONNECT packet"), starting at zero
+        (`topics-nbirth-bdseq-increment`), and the TCK's monitor checks exactly that for every
+        CONNECT of an edge node id it sees, a restart's included. So the count is the edge
+        node's, not the process's: kept in the store, it starts at 0 with a new store and goes
+        on after a restart; a host that saw the last run's bdSeq sees a new one and knows the
+        node came back (and that a late NDEATH of the last run is not this one's)."""
+        try:
+            self.bd_seq.value = await self.events.count_on(
+                self._bd_seq_key, payload.SEQUENCE_MODULO
+            )
+            self._bd_seq_unkept = False
+        except StoreError as exc:
+            if not self._bd_seq_unkept:
+                log.warning(
+                    "Sparkplug: the store cannot keep the bdSeq (%s); counting on in memory, "
+                    "a restart starts again at 0",
+                    exc,
+                )
+            self._bd_seq_unkept = True
+            self.bd_seq.next()
+        death = payload.node_death(self.bd_seq.value, _now_ms())
         return aiomqtt.Will(self.topics.node("NDEATH"), death, qos=QOS_DEATH, retain=False)
 
     async def farewell(self, client: aiomqtt.Client, timeout_s: float) -> None:

@@ -5,7 +5,10 @@ committed `sparkplug_b_pb2`); this module is the only one that touches the gener
 
     birth    every metric by name and alias, with its datatype, value and properties
              (NBIRTH, DBIRTH); a metric not read yet goes with `is_null`
-    data     changed metrics by alias only (NDATA, DDATA)
+    data     changed metrics by alias only, without their datatype (NDATA, DDATA): the birth
+             declared it (specification 3.0, `payloads-metric-datatype-not-req`: "The datatype
+             SHOULD NOT be included with metric definitions in NDATA, NCMD, DDATA, and DCMD
+             messages"); a host decodes the value by the birth's datatype of its alias
     death    NDEATH: the `bdSeq` metric alone; DDEATH: the payload's `seq` alone
 
 A value's datatype follows the value: true/false a Boolean, a whole number an Int32 (Int64
@@ -121,7 +124,8 @@ def birth(seq: int, timestamp_ms: int, metrics: Iterable[BirthMetric]) -> bytes:
 def data(seq: int, timestamp_ms: int, metrics: Sequence[DataMetric]) -> bytes:
     payload = pb.Payload(timestamp=timestamp_ms, seq=seq)
     for metric in metrics:
-        out = payload.metrics.add(alias=metric.alias, datatype=metric.datatype)
+        # The datatype picks the value's field, and stays off the wire: the birth declared it.
+        out = payload.metrics.add(alias=metric.alias)
         out.timestamp = timestamp_ms
         _set_value(out, metric.datatype, metric.value)
     return payload.SerializeToString()

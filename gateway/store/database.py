@@ -19,6 +19,8 @@ file is refused rather than writing over the first's events. Tables (their migra
     config_versions  each configuration applied from the console: its text (secrets sealed by
              the editor, `gateway.console.sealing`), who, when; the newest
              `MAX_CONFIG_VERSIONS` kept
+    counters a number per key that counts on across restarts (`count_on`: the Sparkplug edge
+             node's bdSeq), committed before the caller uses it
 
 Bounds, checked after every write: the store's files (with the write-ahead log) stay within
 `max_bytes` and within what the disk has, leaving a reserve free (`gateway.store.space`). Past
@@ -457,6 +459,20 @@ class EventDatabase:
             number = int(cursor.lastrowid or 0)
             db.execute("DELETE FROM config_versions WHERE id <= ?", (number - MAX_CONFIG_VERSIONS,))
         return number
+
+    def count_on(self, key: str, modulo: int) -> int:
+        """The counter `key` one further (0 the first time, `modulo` wraps to 0), committed before
+        it is returned: a power cut after its use never hands it out again."""
+        db = self.db
+        with _transaction(db):
+            row = db.execute("SELECT value FROM counters WHERE key = ?", (key,)).fetchone()
+            value = 0 if row is None else (int(row[0]) + 1) % modulo
+            db.execute(
+                "INSERT INTO counters (key, value) VALUES (?, ?) "
+                "ON CONFLICT (key) DO UPDATE SET value = excluded.value",
+                (key, value),
+            )
+        return value
 
     def remove_config_version(self, number: int) -> None:
         """A version kept for an apply that did not happen (the reload refused it)."""

@@ -122,6 +122,17 @@ class StoreReads:
         except Exception as exc:  # sqlite3.Error, OSError: a full or failing disk
             raise StoreError(f"storage.path {self.path}: {exc}") from exc
 
+    async def count_on(self, key: str, modulo: int) -> int:
+        """The counter `key` one further, kept in the file at once (not through the writer:
+        the caller must know it is kept before using it). `StoreError` if it can't be; in a
+        store kept in memory only it starts from 0 at every start."""
+        try:
+            return await self._call(self._db.count_on, key, modulo)
+        except StoreError:
+            raise
+        except Exception as exc:  # sqlite3.Error, OSError: a full or failing disk
+            raise StoreError(f"storage.path {self.path}: {exc}") from exc
+
     async def remove_config_version(self, number: int) -> None:
         await self._call(self._db.remove_config_version, number)
 

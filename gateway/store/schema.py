@@ -12,6 +12,7 @@ the file with an older version would have the newer release skip its own migrati
        killed gateway loses none; each becomes an event once complete
     3  history: polled values, one row per drive and step (`gateway.store.history`);
        config_versions: each configuration applied from the console, with who and when
+    4  counters: numbers that count on across restarts (the Sparkplug edge node's bdSeq)
 """
 
 from __future__ import annotations
@@ -74,6 +75,13 @@ MIGRATIONS: Final[tuple[str, ...]] = (
         note TEXT NOT NULL
     );
     """,
+    # 4: counters that go on across restarts.
+    """
+    CREATE TABLE IF NOT EXISTS counters (
+        key TEXT PRIMARY KEY,
+        value INTEGER NOT NULL
+    );
+    """,
 )
 LATEST: Final = len(MIGRATIONS)
 
@@ -85,6 +93,7 @@ COLUMNS: Final[dict[str, frozenset[str]]] = {
     "tallies": frozenset({"key", "type", "time", "drive", "data"}),
     "history": frozenset({"id", "drive", "time", "data"}),
     "config_versions": frozenset({"id", "time", "user", "text", "note"}),
+    "counters": frozenset({"key", "value"}),
 }
 """What the code reads and writes, after the last migration: checked at every open."""
 

@@ -50,8 +50,15 @@ class TahuCodec:
         assert "error" not in answer, answer["error"]
         return answer
 
-    def decode(self, data: bytes) -> Payload:
-        decoded: Payload = self._ask("decode " + base64.b64encode(data).decode())
+    def decode(self, data: bytes, birth_types: dict[int, str] | None = None) -> Payload:
+        """`birth_types`: alias → datatype name, as the births declared them, for the metrics
+        that come without one (DDATA), as a host decodes them."""
+        request = "decode " + base64.b64encode(data).decode()
+        if birth_types:
+            request += " " + json.dumps(
+                {str(a): t for a, t in birth_types.items()}, separators=(",", ":")
+            )
+        decoded: Payload = self._ask(request)
         return decoded
 
     def encode(self, payload: Payload) -> bytes:
@@ -109,8 +116,22 @@ class SparkplugHost:
 
     def decoded(self, index: int) -> Payload:
         if index not in self._decoded:
-            self._decoded[index] = self.codec.decode(self.probe.messages[index].payload)
+            message = self.probe.messages[index]
+            types = None if "BIRTH" in message.topic else self.birth_types(index)
+            self._decoded[index] = self.codec.decode(message.payload, types)
         return self._decoded[index]
+
+    def birth_types(self, before: int) -> dict[int, str]:
+        """Alias → datatype name as the births before message `before` declared them (aliases
+        are unique across the edge node): what a host reads DDATA's values by."""
+        prefix = f"spBv1.0/{self.group}/"
+        types: dict[int, str] = {}
+        for index, message in enumerate(self.probe.messages[:before]):
+            if message.topic.startswith(prefix) and "BIRTH/" in message.topic and message.payload:
+                for metric in self.decoded(index).get("metrics", []):
+                    if "alias" in metric:
+                        types[metric["alias"]] = metric["type"]
+        return types
 
     def messages(self, after: int = 0) -> list[Message]:
         """Every Sparkplug message of this node (not STATE, not a cleared retained one)."""

@@ -7,10 +7,12 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+import re
 import time
 import uuid
 from collections.abc import AsyncIterator, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import pytest
 
@@ -145,6 +147,17 @@ async def test_births_carry_the_simulated_drives_values(plant: Plant, mosquitto:
     for message in host.messages(nbirth.index):
         assert message.qos == 0, message.topic
         assert "timestamp" in message.payload
+        # payloads-metric-datatype-req: every birth's metric has its datatype;
+        # payloads-metric-datatype-not-req: DDATA's have none (the birth said it), as Tahu's
+        # codec and our own decoder both read the bytes.
+        ours = pb.Payload.FromString(host.probe.messages[message.index].payload)
+        on_wire = [m["datatypeOnWire"] for m in message.payload["metrics"]]
+        assert on_wire == [m.HasField("datatype") for m in ours.metrics]
+        if "BIRTH" in message.topic:
+            assert all(on_wire), message.topic
+        else:
+            assert on_wire, message.topic
+            assert not any(on_wire), message.topic
     # Nothing of it is kept on the broker: a host that comes now finds nothing retained.
     async with mqtt_probe(mosquitto, f"spBv1.0/{host.group}/#") as late:
         await asyncio.sleep(0.3)  # asserting an absence
@@ -355,3 +368,37 @@ async def test_malformed_dcmds_are_refused_counted_and_logged_once_a_minute(
     # The drive still takes a good DCMD.
     await host.command("DCMD", RUN_FORWARD, device="pump1")
     await eventually(lambda: plant.state(1) is RunState.RUNNING_FORWARD)
+
+
+MQTT_PAGE = Path(__file__).resolve().parents[2] / "docs" / "pages" / "mqtt.md"
+
+
+async def test_the_documented_sizes_are_the_measured_ones(plant: Plant) -> None:
+    """docs/pages/mqtt.md's cost table: NBIRTH ~220 bytes, a GD350's DBIRTH ~2.1 kB, one changed
+    value's DDATA 29 bytes (within 10 %: a version or gateway id of another length)."""
+    page = MQTT_PAGE.read_text(encoding="utf-8")
+    documented = [
+        _figure(page, r"NBIRTH \(~(\d+) bytes\)"),
+        _figure(page, r"~([\d.]+) kB for a GD350") * 1000,
+        _figure(page, r"a DDATA of that metric, (\d+) bytes"),
+    ]
+    host = plant.host
+    nbirth = await host.wait_for(host.topic("NBIRTH"))
+    pump = await host.wait_for(host.topic("DBIRTH", "pump1"), after=nbirth.index)
+    amps = metrics(pump.payload)["output_current_a"]["alias"]
+    mark = host.mark
+    plant.line.set_output_current(1, 9.1)
+    data = await host.wait_for(
+        host.topic("DDATA", "pump1"),
+        lambda p: [m["alias"] for m in p["metrics"]] == [amps],
+        after=mark,
+    )
+    measured = [len(host.probe.messages[m.index].payload) for m in (nbirth, pump, data)]
+    for size, said in zip(measured, documented, strict=True):
+        assert abs(size - said) <= said * 0.1, (measured, documented)
+
+
+def _figure(page: str, pattern: str) -> float:
+    found = re.search(pattern, page)
+    assert found is not None, f"docs/pages/mqtt.md no longer says {pattern}"
+    return float(found[1])

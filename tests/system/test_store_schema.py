@@ -28,6 +28,7 @@ FIXTURES = Path(__file__).parents[1] / "fixtures"
 RELEASED = {
     1: FIXTURES / "store_schema_1.sql",
     2: FIXTURES / "store_schema_2.sql",
+    3: FIXTURES / "store_schema_3.sql",
 }
 """Every schema a release wrote, but the current one."""
 

@@ -61,6 +61,8 @@ def test_data_by_alias_only_and_death_certificates() -> None:
     data = pb.Payload.FromString(payload.data(9, 5, [payload.DataMetric(4, payload.DOUBLE, 1.5)]))
     (metric,) = data.metrics
     assert not metric.HasField("name")
+    # payloads-metric-datatype-not-req: the birth declared it; the value is in its field.
+    assert not metric.HasField("datatype")
     assert (metric.alias, metric.double_value, data.seq) == (4, 1.5, 9)
     death = pb.Payload.FromString(payload.node_death(12, 5))
     assert not death.HasField("seq")
