@@ -10,6 +10,8 @@
 - `session`: the connection loop: connect, back off, TLS retry, subscribe, online/offline.
 - `publisher`: info, discovery, states, availability and events out, de-duplicated.
 - `event_link`: the events on the session's connection, or on one of their own.
+- `outage`: running values polled while a connection is away, kept in the store, delivered
+  once it is back (history messages; the Sparkplug edge node's historical DDATA).
 - `dispatcher`: received messages to their command kind, in lanes; busy and internal errors.
 - `kinds`: the kinds of message (`/set`, `/get`, `bridge/request/<op>`, ...), a registry.
 - `lanes`: received messages handled off the receive loop, in order per drive, bounded.

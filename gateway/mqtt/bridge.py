@@ -37,6 +37,7 @@ from gateway.mqtt.dispatcher import ClearAfterRun, Dispatcher
 from gateway.mqtt.event_link import EventLink
 from gateway.mqtt.kinds import AnySet, Context, command_kinds
 from gateway.mqtt.lanes import Lanes
+from gateway.mqtt.outage import OutageRecorder
 from gateway.mqtt.outbox import Outbox
 from gateway.mqtt.publisher import Publisher
 from gateway.mqtt.session import Session
@@ -121,10 +122,10 @@ class MqttBridge:
             AnySet(context),
         )
         self.event_link = EventLink(self.session, self.publisher)
-        self.settings = mqtt
-        self.tasks = tasks
+        self.settings, self.tasks = mqtt, tasks
         self._discovery_cleaned = False
         self.beside = beside  # the Sparkplug B edge node (`mqtt.sparkplug`); None: not enabled
+        self.outage = OutageRecorder("json", events, self.session.connected.is_set)
 
     @property
     def connected(self) -> asyncio.Event:
@@ -153,6 +154,7 @@ class MqttBridge:
 
     def state_updated(self, drive: str, telemetry: Telemetry) -> None:
         self.outbox.put_state(drive, telemetry)
+        self.outage.state_updated(drive, telemetry)
         if self.beside is not None:
             self.beside.state_updated(drive, telemetry)
 
@@ -209,6 +211,10 @@ class MqttBridge:
                 "mqtt:publish": self.publisher.run(client),
                 "mqtt:events": self.event_link.run(client),
                 "mqtt:receive": self.dispatcher.run(client),
+                "mqtt:history": self.outage.deliver(
+                    lambda drive, samples: self.publisher.history(client, drive, samples),
+                    lambda gap: self.publisher.history_gap(client, gap),
+                ),
             },
             STOP_TASK_BUDGET_S,
         )

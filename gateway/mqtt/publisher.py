@@ -31,11 +31,13 @@ from gateway.mqtt.requests import Json, dump
 from gateway.mqtt.stats import BridgeStats
 from gateway.mqtt.topics import Topics
 from gateway.poller import Poller
+from gateway.poller.drive_state import iso_time
 from gateway.profile.report_by_exception import ExceptionReport
 from gateway.profile.telemetry import Telemetry
 from gateway.settings import DriveSettings, MqttSettings
 from gateway.settings.mqtt import DriveReporting
 from gateway.store import EventStore, EventType
+from gateway.store.outage_rows import Gap, KeptSample
 
 log = logging.getLogger(__name__)
 
@@ -161,6 +163,28 @@ class Publisher:
         self._published[drive] = now
         if report is not None:
             report.published(reading, now)
+
+    async def history(self, client: aiomqtt.Client, drive: str, samples: list[KeptSample]) -> bool:
+        """Values polled while the broker was away, in the order polled: one message of
+        `{"drive", "samples": [{"time", <key>: <value>...}]}` on `<base>/<drive>/history`, each
+        sample the values that were news at that poll (all of them at an outage's first)."""
+        kept: list[Json] = [{"time": iso_time(s.time), **s.values} for s in samples]
+        await self.publish(
+            client,
+            self.topics.history(drive),
+            dump({"drive": drive, "samples": kept}),
+            qos=self.mqtt.publish_qos,
+        )
+        return True
+
+    async def history_gap(self, client: aiomqtt.Client, gap: Gap) -> None:
+        """What the outage buffer could not hold: `{"drive", "gap": {"from", "to", "samples"}}`
+        on the drive's history topic, before the samples after it."""
+        data: Json = {"from": iso_time(gap.start), "to": iso_time(gap.end), "samples": gap.samples}
+        payload = dump({"drive": gap.drive, "gap": data})
+        await self.publish(
+            client, self.topics.history(gap.drive), payload, qos=self.mqtt.publish_qos
+        )
 
     async def answer(self, client: aiomqtt.Client, topic: str, response: Json) -> None:
         """A command's answer; when the connection is gone, there is nobody to tell."""

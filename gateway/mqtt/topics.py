@@ -16,6 +16,8 @@
 | <base>/<drive>/set                    | in  | refused  | a command or a parameter write    |
 | <base>/<drive>/set/response           | out | no       | the acknowledgement               |
 | <base>/<drive>/get                    | in  | ignored  | poll now, publish the state       |
+| <base>/<drive>/history                | out | no       | running values polled while the   |
+|                                       |     |          | broker was away, with their times |
 
 A command that comes retained is refused (`retained`) and cleared from the broker (an empty
 retained publish; a `retained_command_cleared` event says so); an empty payload on a command
@@ -54,6 +56,9 @@ class Topics:
 
     def availability(self, drive: str) -> str:
         return f"{self.base}/{drive}/availability"
+
+    def history(self, drive: str) -> str:
+        return f"{self.base}/{drive}/history"
 
     def set(self, drive: str) -> str:
         return f"{self.base}/{drive}/set"

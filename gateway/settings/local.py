@@ -24,6 +24,9 @@ class StoreSettings:
     """How long the history of polled values is kept; 0: none."""
     history_step_s: float = 60.0
     """One history point per drive this often."""
+    outage_buffer_mb: float = 16.0
+    """Running values polled while the broker is away, kept until delivered; 0: none."""
+    outage_buffer_hours: float = 24.0
     shared_path: str | None = None
     """Without storage.path: the default store before it was one per gateway_id, kept in use
     by an install that has it (`gateway.store.database.EventDatabase._choose_file`)."""
@@ -40,6 +43,8 @@ def store_settings(config: GatewayConfig) -> StoreSettings:
         max_waiting=mqtt.queue_size if mqtt is not None else EVENTS_WAITING,
         history_days=storage.history_days,
         history_step_s=storage.history_step_s,
+        outage_buffer_mb=storage.outage_buffer if mqtt is not None and mqtt.enabled else 0.0,
+        outage_buffer_hours=storage.outage_buffer_hours,
         shared_path=storage.shared_default() if storage.path is None else None,
     )
 

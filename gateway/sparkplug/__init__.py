@@ -7,5 +7,6 @@
 - `metrics`: each device's metrics: names, aliases, datatypes, properties, what changed.
 - `commands`: DCMD metrics to the `/set` path's commands (checks, writes, events).
 - `host`: the primary host application's `STATE`.
+- `history`: values polled while the node could not publish, as historical DDATA.
 - `edge_node`: `SparkplugNode`, the feature: births, deaths, data, commands, rebirth.
 """

@@ -3,12 +3,24 @@
     connect   the will is an NDEATH whose `bdSeq` goes up by one (0-255) at every CONNECT,
               across restarts too (kept in the store, committed before the CONNECT): the
               NBIRTH that follows carries the same `bdSeq`, so a host pairs them, and a
-              restart's NBIRTH has a `bdSeq` the host has not seen last
+              restart's NBIRTH has a `bdSeq` the host has not seen last. The specification
+              has each new CONNECT's bdSeq one more than the previous CONNECT's
+              (`message-flow-edge-node-birth-publish-will-message-payload-bdSeq`,
+              `payloads-ndeath-bdseq`: "any new CONNECT packet must increment the bdSeq number
+              ... compared to what was in the previous CONNECT packet"), starting at zero
+              (`topics-nbirth-bdseq-increment`); the TCK's monitor checks exactly that for
+              every CONNECT of an edge node id it sees, a restart's included. So the count is
+              the edge node's, not the process's: 0 with a new store, and on after a restart
     subscribe NCMD, every drive's DCMD, and the primary host's STATE when one is named
     birth     (once the primary host is online, if named) NBIRTH with `seq` 0, then a DBIRTH
               per drive that is online, `seq` counting up and wrapping 255 → 0
     report    what the poller hands over: DDATA with the metrics that have news (aliases only),
               a DBIRTH when a drive comes (back) online, a DDEATH when it goes offline
+    outage    while the node can't publish (no connection, not born, the primary host offline)
+              each poll's news is kept in the store's outage buffer (`gateway.mqtt.outage`);
+              once born again it goes out beside the live values as DDATA whose metrics are
+              `is_historical`, each with the time it was polled, in order; what the buffer
+              could not hold is a null historical metric of each at the gap's start
     rebirth   NCMD "Node Control/Rebirth" = true: NBIRTH and DBIRTHs again (same bdSeq: the
               will of this connection), `seq` from 0
     commands  DCMD in a lane per drive, through `gateway.mqtt.commands` as `/set` (retained and
@@ -44,6 +56,7 @@ from gateway.logs import repeated
 from gateway.mqtt.commands import CommandDrive, Commands
 from gateway.mqtt.dispatcher import Incoming
 from gateway.mqtt.lanes import Lanes
+from gateway.mqtt.outage import OutageRecorder
 from gateway.mqtt.outbox import Outbox, Pending
 from gateway.mqtt.publisher import exception_report
 from gateway.mqtt.requests import Json
@@ -57,6 +70,7 @@ from gateway.settings import DriveSettings, MqttSettings
 from gateway.settings.mqtt import SparkplugSettings
 from gateway.sparkplug import payload
 from gateway.sparkplug.commands import device_command
+from gateway.sparkplug.history import HistoricalData
 from gateway.sparkplug.host import PrimaryHost
 from gateway.sparkplug.metrics import Aliases, DeviceMetrics
 from gateway.sparkplug.payload import BirthMetric
@@ -111,10 +125,9 @@ class SparkplugNode:
         self.host = PrimaryHost(sparkplug.primary_host_id) if sparkplug.primary_host_id else None
         self.bd_seq = payload.SequenceNumber()
         """The `bdSeq` of the last CONNECT's will; the NBIRTH repeats it."""
+        # bdSeq's counter in the store: an edge node's own (another group or node id: from 0).
         self._bd_seq_key = f"sparkplug bdSeq {sparkplug.group_id}/{sparkplug.edge_node_id}"
-        """Its counter in the store: an edge node's own (another group or node id starts at 0)."""
-        self._bd_seq_unkept = False
-        """The store could not keep the last bdSeq: counted on in memory (said once)."""
+        self._bd_seq_unkept = False  # the store could not keep it: counted on in memory
         self.seq = payload.SequenceNumber()
         self._wake = asyncio.Event()
         """Something to publish, a rebirth asked for, or the primary host changed."""
@@ -124,6 +137,7 @@ class SparkplugNode:
         self._born = asyncio.Event()
         """Set once this connection's NBIRTH is out: the birth comes before anything else the
         node publishes (clearing a retained DCMD waits for it)."""
+        self.outage = OutageRecorder("sparkplug", events, self.reaches_a_host)
         own = dataclasses.replace(mqtt, client_id=f"{mqtt.client_id}-sparkplug")
         self.session = Session(
             own, Topics(mqtt.base_topic), self.stats, tasks, self._connected, self._lost, self
@@ -143,6 +157,7 @@ class SparkplugNode:
     def state_updated(self, drive: str, telemetry: Telemetry) -> None:
         if drive in self.devices:
             self.outbox.put_state(drive, telemetry)
+            self.outage.state_updated(drive, telemetry)
             self._wake.set()
 
     def availability_changed(self, drive: str, online: bool) -> None:
@@ -161,17 +176,8 @@ class SparkplugNode:
     with Will Message' reason code MUST be set in the DISCONNECT packet"."""
 
     async def will(self) -> aiomqtt.Will:
-        """The NDEATH of the CONNECT about to be sent: the next `bdSeq`.
-
-        The specification has each new CONNECT's bdSeq one more than the previous CONNECT's
-        (`message-flow-edge-node-birth-publish-will-message-payload-bdSeq`,
-        `payloads-ndeath-bdseq`: "any new CONNECT packet must increment the bdSeq number ...
-        compared to what was in the previous CONNECT packet"), starting at zero
-        (`topics-nbirth-bdseq-increment`), and the TCK's monitor checks exactly that for every
-        CONNECT of an edge node id it sees, a restart's included. So the count is the edge
-        node's, not the process's: kept in the store, it starts at 0 with a new store and goes
-        on after a restart; a host that saw the last run's bdSeq sees a new one and knows the
-        node came back (and that a late NDEATH of the last run is not this one's)."""
+        """The NDEATH of the CONNECT about to be sent: the next `bdSeq`, from the store (the
+        module's docstring says why)."""
         try:
             self.bd_seq.value = await self.events.count_on(
                 self._bd_seq_key, payload.SEQUENCE_MODULO
@@ -230,9 +236,24 @@ class SparkplugNode:
             {
                 "sparkplug:publish": self._publish(client),
                 "sparkplug:receive": self._receive(client),
+                "sparkplug:history": self._history(client),
             },
             STOP_TASK_BUDGET_S,
         )
+
+    def reaches_a_host(self) -> bool:
+        """Whether what is polled now reaches a host: born, and the primary host online."""
+        return self._born.is_set() and (self.host is None or self.host.online)
+
+    async def _history(self, client: aiomqtt.Client) -> None:
+        await self._born.wait()
+
+        async def publish(drive: str, metrics: list[payload.HistoricalMetric]) -> None:
+            data = payload.history(self.seq.next(), _now_ms(), metrics)
+            await self._send(client, self.topics.device("DDATA", drive), data)
+
+        history = HistoricalData(self.devices, self.poller, publish)
+        await self.outage.deliver(history.send, history.mark)
 
     def _lost(self) -> None:
         self._born.clear()

@@ -148,6 +148,28 @@ class DeviceMetrics:
             for key in changed
         ]
 
+    def historical(self, values: Mapping[str, Value]) -> list[tuple[int, int, Value]]:
+        """(alias, datatype, value) of each of `values` this birth declared with a datatype that
+        carries it: values polled earlier, sent as they were (no report-by-exception: each was
+        news when it was kept)."""
+        found = []
+        for key, value in values.items():
+            declared = self._declared.get(key)
+            if declared is None:
+                continue
+            kind = datatype_of(value)
+            if kind == declared or declared in WIDER.get(kind, frozenset()):
+                found.append((self.aliases.of(self.device, key), declared, value))
+        return found
+
+    def declared(self) -> list[tuple[int, int]]:
+        """(alias, datatype) of every metric the birth declared but the commands."""
+        return [
+            (self.aliases.of(self.device, name), datatype)
+            for name, datatype in self._declared.items()
+            if not name.startswith(COMMAND_PREFIX)
+        ]
+
     def forget(self) -> None:
         """The device died (DDEATH) or the node is born again: its next birth starts afresh."""
         self._declared = {}

@@ -9,6 +9,8 @@ committed `sparkplug_b_pb2`); this module is the only one that touches the gener
              declared it (specification 3.0, `payloads-metric-datatype-not-req`: "The datatype
              SHOULD NOT be included with metric definitions in NDATA, NCMD, DDATA, and DCMD
              messages"); a host decodes the value by the birth's datatype of its alias
+    history  metrics polled while the broker was away (DDATA): by alias, `is_historical`, each
+             with its own timestamp (when it was polled); a null one marks a gap
     death    NDEATH: the `bdSeq` metric alone; DDEATH: the payload's `seq` alone
 
 A value's datatype follows the value: true/false a Boolean, a whole number an Int32 (Int64
@@ -90,6 +92,15 @@ class DataMetric:
 
 
 @dataclass(frozen=True, slots=True)
+class HistoricalMetric:
+    alias: int
+    datatype: int
+    value: Value | None
+    """None: nothing known then (a gap the outage buffer could not hold)."""
+    timestamp_ms: int
+
+
+@dataclass(frozen=True, slots=True)
 class ReceivedMetric:
     """A metric of an NCMD or DCMD: named, or by the alias our birth gave it."""
 
@@ -128,6 +139,21 @@ def data(seq: int, timestamp_ms: int, metrics: Sequence[DataMetric]) -> bytes:
         out = payload.metrics.add(alias=metric.alias)
         out.timestamp = timestamp_ms
         _set_value(out, metric.datatype, metric.value)
+    return payload.SerializeToString()
+
+
+def history(seq: int, timestamp_ms: int, metrics: Sequence[HistoricalMetric]) -> bytes:
+    """A DDATA of values from before now, in the order given (specification 3.0, "is_historical":
+    "a historical value ... acquired from a device or Edge Node" earlier)."""
+    payload = pb.Payload(timestamp=timestamp_ms, seq=seq)
+    for metric in metrics:
+        out = payload.metrics.add(
+            alias=metric.alias, timestamp=metric.timestamp_ms, is_historical=True
+        )
+        if metric.value is None:
+            out.is_null = True
+        else:
+            _set_value(out, metric.datatype, metric.value)
     return payload.SerializeToString()
 
 

@@ -12,7 +12,10 @@
   `forwarding` (what the broker doesn't have yet, marked delivered once acknowledged);
 - `status`: whether events are kept on disk now, for /health, `healthcheck` and the console;
   the store's counters, for /metrics;
-- `modbus_writes`: SCADA writes counted per client, unit id and minute, one event each.
+- `modbus_writes`: SCADA writes counted per client, unit id and minute, one event each;
+- `outage_buffer` (with its rows, `outage_rows`): running values polled while a connection to
+  the broker was away, kept in the same file until that connection delivered them;
+- `counters`: numbers that count on across restarts (the Sparkplug edge node's bdSeq).
 """
 
 from gateway.store.events import EventStore

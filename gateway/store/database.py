@@ -19,8 +19,11 @@ file is refused rather than writing over the first's events. Tables (their migra
     config_versions  each configuration applied from the console: its text (secrets sealed by
              the editor, `gateway.console.sealing`), who, when; the newest
              `MAX_CONFIG_VERSIONS` kept
-    counters a number per key that counts on across restarts (`count_on`: the Sparkplug edge
-             node's bdSeq), committed before the caller uses it
+    outage   running values polled while a connection to the broker was away, until it delivered
+             them (`gateway.store.outage_rows`: bounded by its own size and age, and trimmed
+             after the history when the store's bound is reached)
+    counters a number per key that counts on across restarts (`gateway.store.counters`: the
+             Sparkplug edge node's bdSeq), committed before the caller uses it
 
 Bounds, checked after every write: the store's files (with the write-ahead log) stay within
 `max_bytes` and within what the disk has, leaving a reserve free (`gateway.store.space`). Past
@@ -41,6 +44,7 @@ from __future__ import annotations
 import json
 import os
 import sqlite3
+import time
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -48,6 +52,7 @@ from typing import Any, Final
 
 from gateway.errors import DiskFull, StoreError
 from gateway.store import schema
+from gateway.store.outage_rows import Gap, OutageRows, Sample
 from gateway.store.owner import StoreLock
 from gateway.store.records import (
     ConfigVersion,
@@ -84,6 +89,8 @@ class Batch:
     """Tallies to keep as they are now, by key."""
     history: Sequence[HistoryPoint] = ()
     """History points (a point of a drive and step written again replaces the first)."""
+    samples: Sequence[Sample] = ()
+    """Running values polled while the broker was away (the outage buffer)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -92,6 +99,8 @@ class Appended:
     """Events removed by the size bound before the broker had them."""
     bound: int
     """What the store's files may take: max_mb, or less when the disk has less."""
+    gaps: list[Gap] = field(default_factory=list)
+    """Outage samples removed by a bound before their connection delivered them."""
 
 
 class EventDatabase:
@@ -103,8 +112,11 @@ class EventDatabase:
         forwarding: bool,
         history_max_age_s: float = 7 * 86400.0,
         shared_path: str | None = None,
+        outage: OutageRows | None = None,
     ) -> None:
         self.path = path
+        self.outage = outage or OutageRows(0, 0.0)
+        """The outage buffer's rows and their bounds."""
         self.shared_path = shared_path
         """The default store before it was one per gateway_id (`_choose_file`); None when
         storage.path is given."""
@@ -191,6 +203,7 @@ class EventDatabase:
         db.execute("PRAGMA synchronous = FULL")
         self._page_size = _count(db, "PRAGMA page_size")
         migrated = schema.migrate(db, self.path)
+        self.outage.count(db)
         # A write that changes nothing: a file this user may read but not write (restored as
         # root, a read-only mount) is found now, not at the first event.
         db.execute(f"PRAGMA user_version = {schema.version(db)}")
@@ -265,10 +278,12 @@ class EventDatabase:
                 "ON CONFLICT (drive, time) DO UPDATE SET data = json_patch(data, excluded.data)",
                 ((p.drive, p.time, _dump(p.values)) for p in batch.history),
             )
+            self.outage.insert(db, batch.samples)
+            gaps = self.outage.hold(db, time.time())
         bound = space.budget - space.budget // HEADROOM_FRACTION
-        dropped = self._hold_size(bound)
+        dropped = self._hold_size(bound, gaps)
         self._checkpoint(space)
-        return Appended(dropped, space.budget)
+        return Appended(dropped, space.budget, gaps)
 
     def room(self) -> Room:
         if not self.persistent:
@@ -358,8 +373,9 @@ class EventDatabase:
         if wal > limit or (wal and space.budget < space.max_bytes):
             self.db.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchall()
 
-    def _hold_size(self, bound: int) -> int:
-        """Trim the oldest rows until the file is within `bound`; undelivered dropped."""
+    def _hold_size(self, bound: int, gaps: list[Gap]) -> int:
+        """Trim the oldest rows until the file is within `bound`; undelivered dropped (outage
+        samples' to `gaps`)."""
         db = self.db
         dropped = 0
         while self.file_bytes() > bound:
@@ -375,6 +391,8 @@ class EventDatabase:
                 if first is not None:
                     below = first + max(1, (last - first + 1) // TRIM_FRACTION)
                     db.execute("DELETE FROM history WHERE id < ?", (below,))
+                elif (trimmed := self.outage.trim_oldest(db)) is not None:
+                    gaps += trimmed
                 elif oldest is not None:
                     below = oldest + max(1, (newest - oldest + 1) // TRIM_FRACTION)
                     dropped += _count(
@@ -459,20 +477,6 @@ class EventDatabase:
             number = int(cursor.lastrowid or 0)
             db.execute("DELETE FROM config_versions WHERE id <= ?", (number - MAX_CONFIG_VERSIONS,))
         return number
-
-    def count_on(self, key: str, modulo: int) -> int:
-        """The counter `key` one further (0 the first time, `modulo` wraps to 0), committed before
-        it is returned: a power cut after its use never hands it out again."""
-        db = self.db
-        with _transaction(db):
-            row = db.execute("SELECT value FROM counters WHERE key = ?", (key,)).fetchone()
-            value = 0 if row is None else (int(row[0]) + 1) % modulo
-            db.execute(
-                "INSERT INTO counters (key, value) VALUES (?, ?) "
-                "ON CONFLICT (key) DO UPDATE SET value = excluded.value",
-                (key, value),
-            )
-        return value
 
     def remove_config_version(self, number: int) -> None:
         """A version kept for an apply that did not happen (the reload refused it)."""

@@ -45,6 +45,8 @@ from gateway.settings import StoreSettings
 from gateway.store.database import MEMORY, Batch, EventDatabase
 from gateway.store.forwarding import StoreForwarding
 from gateway.store.history import MAX_WAITING_POINTS, HistoryRecorder
+from gateway.store.outage_buffer import OutageBuffer
+from gateway.store.outage_rows import OutageRows
 from gateway.store.records import (
     EventType,
     HistoryPoint,
@@ -72,7 +74,7 @@ SNAPSHOT_LEAVES_OUT: Final = frozenset(
 )
 
 
-class EventStore(StoreForwarding):
+class EventStore(StoreForwarding, OutageBuffer):
     """The journal: events recorded on the event loop, written on the store's thread, forwarded
     to the broker; what it reads back is `StoreReads`'."""
 
@@ -90,7 +92,11 @@ class EventStore(StoreForwarding):
             settings.forwarding,
             settings.history_days * 86400,
             settings.shared_path,
+            OutageRows(
+                int(settings.outage_buffer_mb * 1024 * 1024), settings.outage_buffer_hours * 3600
+            ),
         )
+        self._init_outage_buffer()
         self.history = HistoryRecorder(self._keep_history, settings.history_step_s)
         """The poller's listener for the history of polled values (the application adds it)."""
         self.history.enabled = settings.history_days > 0
@@ -132,10 +138,14 @@ class EventStore(StoreForwarding):
             max_age_days=settings.max_age_days,
             history_days=settings.history_days,
             history_step_s=settings.history_step_s,
+            outage_buffer_mb=settings.outage_buffer_mb,
+            outage_buffer_hours=settings.outage_buffer_hours,
         )
         self._db.max_bytes = int(settings.max_mb * 1024 * 1024)
         self._db.max_age_s = settings.max_age_days * 86400
         self._db.history_max_age_s = settings.history_days * 86400
+        self._db.outage.max_bytes = int(settings.outage_buffer_mb * 1024 * 1024)
+        self._db.outage.max_age_s = settings.outage_buffer_hours * 3600
         self.history.enabled = settings.history_days > 0
         self.history.step_s = settings.history_step_s
 
@@ -288,11 +298,14 @@ class EventStore(StoreForwarding):
         """Until every event recorded so far is written (or a write failed: the disk)."""
         if self._tallies:
             self._tallies_since = -TALLY_WRITE_S  # due now
+        if self._samples:
+            self._samples_since = -TALLY_WRITE_S
+        if self._tallies or self._samples:
             self._queued.set()
         async with self._written:
             await self._written.wait_for(
                 lambda: (
-                    not (self._waiting or self._tallies or self._history)
+                    not (self._waiting or self._tallies or self._history or self._samples)
                     or self._cannot_write is not None
                 )
             )
@@ -329,7 +342,10 @@ class EventStore(StoreForwarding):
         """Write what waits in one transaction; False if the disk didn't take it."""
         events = tuple(itertools.islice(self._waiting, WRITE_BATCH))
         history = tuple(self._history)
-        batch = Batch(events, frozenset(self._sent_from_memory), dict(self._tallies), history)
+        samples = tuple(self._samples)
+        batch = Batch(
+            events, frozenset(self._sent_from_memory), dict(self._tallies), history, samples
+        )
         try:
             appended = await self._call(self._db.append, batch)
         except Exception as exc:  # DiskFull, sqlite3.Error, OSError: a full or failing disk
@@ -347,6 +363,8 @@ class EventStore(StoreForwarding):
             if self._tallies.get(key) is tally:
                 del self._tallies[key]  # not changed meanwhile
         self._tallies_since = time.monotonic() if self._tallies else None
+        self._samples_written(len(samples))
+        self._outage_gaps(appended.gaps)
         self._writes_done += 1
         self.stats.stored += len(batch.events)
         if self._cannot_write is not None:
@@ -384,11 +402,12 @@ class EventStore(StoreForwarding):
 
     def _due_in(self) -> float | None:
         """Seconds until something is to be written (0.0: now), None with nothing to write."""
-        if self._waiting or self._history or (self._tallies and self._closing):
+        if self._waiting or self._history or ((self._tallies or self._samples) and self._closing):
             return 0.0
-        if self._tallies_since is None or not self._tallies:
-            return None
-        return max(0.0, self._tallies_since + TALLY_WRITE_S - time.monotonic())
+        due = [self._samples_due_in()]
+        if self._tallies_since is not None and self._tallies:
+            due.append(max(0.0, self._tallies_since + TALLY_WRITE_S - time.monotonic()))
+        return min((d for d in due if d is not None), default=None)
 
     def _bound_reached(self, bound: int) -> str:
         if bound >= self._db.max_bytes:

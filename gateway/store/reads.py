@@ -17,7 +17,7 @@ from typing import TypeVar
 
 from gateway.errors import StoreError
 from gateway.settings import StoreSettings
-from gateway.store import history_queries
+from gateway.store import counters, history_queries
 from gateway.store.database import EventDatabase
 from gateway.store.history import HistoryRecorder, span_for
 from gateway.store.records import ConfigVersion, FaultRecord, HistoryPoint, StoredEvent
@@ -127,7 +127,7 @@ class StoreReads:
         the caller must know it is kept before using it). `StoreError` if it can't be; in a
         store kept in memory only it starts from 0 at every start."""
         try:
-            return await self._call(self._db.count_on, key, modulo)
+            return await self._query(counters.count_on, key, modulo)
         except StoreError:
             raise
         except Exception as exc:  # sqlite3.Error, OSError: a full or failing disk

@@ -12,7 +12,9 @@ the file with an older version would have the newer release skip its own migrati
        killed gateway loses none; each becomes an event once complete
     3  history: polled values, one row per drive and step (`gateway.store.history`);
        config_versions: each configuration applied from the console, with who and when
-    4  counters: numbers that count on across restarts (the Sparkplug edge node's bdSeq)
+    4  counters: numbers that count on across restarts (the Sparkplug edge node's bdSeq);
+       outage: running values polled while the broker was away, until delivered
+       (`gateway.store.outage_rows`)
 """
 
 from __future__ import annotations
@@ -75,12 +77,20 @@ MIGRATIONS: Final[tuple[str, ...]] = (
         note TEXT NOT NULL
     );
     """,
-    # 4: counters that go on across restarts.
+    # 4: counters that go on across restarts; the outage buffer.
     """
     CREATE TABLE IF NOT EXISTS counters (
         key TEXT PRIMARY KEY,
         value INTEGER NOT NULL
     );
+    CREATE TABLE IF NOT EXISTS outage (
+        id INTEGER PRIMARY KEY AUTOINCREMENT,
+        route TEXT NOT NULL,
+        drive TEXT NOT NULL,
+        time REAL NOT NULL,
+        data TEXT NOT NULL
+    );
+    CREATE INDEX IF NOT EXISTS outage_by_route ON outage (route, id);
     """,
 )
 LATEST: Final = len(MIGRATIONS)
@@ -94,6 +104,7 @@ COLUMNS: Final[dict[str, frozenset[str]]] = {
     "history": frozenset({"id", "drive", "time", "data"}),
     "config_versions": frozenset({"id", "time", "user", "text", "note"}),
     "counters": frozenset({"key", "value"}),
+    "outage": frozenset({"id", "route", "drive", "time", "data"}),
 }
 """What the code reads and writes, after the last migration: checked at every open."""
 

@@ -58,3 +58,7 @@ class StoreStats:
     them: gone from the history only."""
     undelivered: int = 0
     """Recorded (on disk or waiting in memory), and not yet acknowledged by the broker."""
+    outage_samples_kept: int = 0
+    """Drives' values of one poll kept while a connection to the broker was away."""
+    outage_samples_dropped: int = 0
+    """Of those, removed by the outage buffer's bounds before they were delivered."""

@@ -285,6 +285,7 @@ async def retained_messages(broker: BrokerAddress, topic_filter: str) -> dict[st
 class BrokerProxy:
     """A TCP relay in front of a broker, to break a client's connection at an exact point.
 
+    `down()` and `up()` take the broker away from the relay's clients and give it back.
     `freeze()` holds back everything clients send (kept in `held`, never forwarded: a publish
     then waits for its acknowledgement); `cut()` closes every connection through the relay and
     lets new ones pass normally again. The broker and everyone connected to it directly notice
@@ -315,6 +316,17 @@ class BrokerProxy:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
         await self._server.wait_closed()
+
+    def down(self) -> None:
+        """The broker gone, as its clients see it: every connection cut, new ones refused (the
+        port closed) until `up`."""
+        assert self._server is not None
+        self._server.close()
+        self.cut()
+
+    async def up(self) -> None:
+        """The broker back, on the same port."""
+        self._server = await asyncio.start_server(self._relay, self.host, self.port)
 
     def freeze(self) -> None:
         self._frozen = True

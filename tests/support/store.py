@@ -21,7 +21,13 @@ async def running_store(
     async with asyncio.TaskGroup() as group:
         tasks.bind(group)
         settings = StoreSettings(
-            config.resolved_path("test"), config.max_mb, config.max_age_days, forwarding, 100_000
+            config.resolved_path("test"),
+            config.max_mb,
+            config.max_age_days,
+            forwarding,
+            100_000,
+            outage_buffer_mb=config.outage_buffer if forwarding else 0.0,
+            outage_buffer_hours=config.outage_buffer_hours,
         )
         store = EventStore(settings, tasks)
         await store.start()

@@ -238,6 +238,7 @@ def test_every_mqtt_topic_is_in_the_topic_reference() -> None:
         topics.set("<drive>"),
         topics.set_response("<drive>"),
         topics.get("<drive>"),
+        topics.history("<drive>"),
         topics.bridge_response("<op>"),
         *(topics.bridge_request(request.operation) for request in BRIDGE_REQUESTS),
     ]
@@ -249,6 +250,7 @@ def test_every_mqtt_topic_is_in_the_topic_reference() -> None:
     } - {"drive_of", "base"}
     assert methods == {
         "bridge_state",
+        "history",
         "bridge_info",
         "bridge_event",
         "bridge_request",

@@ -265,30 +265,40 @@ class RefusingBroker:
         writer.close()
 
 
-async def test_a_refused_edge_node_is_retried_with_backoff_and_logged_each_time(
-    caplog: pytest.LogCaptureFixture,
-) -> None:
+class Kept(logging.Handler):
+    """Every record of a logger, unfiltered (pytest's caplog handler is one for the whole run,
+    and a test before may have put the service's `RepeatFilter` on it)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.records: list[logging.LogRecord] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append(record)
+
+
+async def test_a_refused_edge_node_is_retried_with_backoff_and_logged_each_time() -> None:
     """Every refusal is counted and logged (through the service's aggregation: at once, then
     one line a minute with the number held back), not one line and then silence."""
-    caplog.set_level(logging.INFO)
+    kept = Kept()
+    session_log = logging.getLogger("gateway.mqtt.session")
+    session_log.addHandler(kept)
     broker = RefusingBroker("127.0.0.1", free_port())
     server = await asyncio.start_server(broker.serve, broker.host, broker.port)
-    async with server:
-        with simulated_line() as line:
-            config = mqtt_config(
-                line.path, broker, unique_base_topic(), sparkplug={"group_id": "plant"}
-            )
-            async with running_gateway(config) as app:
-                node = app.sparkplug
-                assert node is not None
-                await eventually(lambda: broker.edge_node_attempts >= 4, within_s=10)
-                failures = node.stats.connect_failures
-    said = [
-        r
-        for r in caplog.records
-        if r.name == "gateway.mqtt.session"
-        and "(client invt-gateway-test-sparkplug)" in r.getMessage()
-    ]
+    try:
+        async with server:
+            with simulated_line() as line:
+                config = mqtt_config(
+                    line.path, broker, unique_base_topic(), sparkplug={"group_id": "plant"}
+                )
+                async with running_gateway(config) as app:
+                    node = app.sparkplug
+                    assert node is not None
+                    await eventually(lambda: broker.edge_node_attempts >= 4, within_s=10)
+                    failures = node.stats.connect_failures
+    finally:
+        session_log.removeHandler(kept)
+    said = [r for r in kept.records if "(client invt-gateway-test-sparkplug)" in r.getMessage()]
     assert failures >= 3
     assert len(said) >= failures, [r.getMessage() for r in said]
     assert {r.levelno for r in said} == {logging.WARNING}

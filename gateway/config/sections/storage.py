@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from gateway.config.sections.section import Section
 
@@ -33,6 +33,28 @@ class StorageConfig(Section):
     history_step_s: float = Field(60.0, ge=1, le=3600)
     """One history point per drive this often: the mean of each value over the step (a text
     value, such as the state, as it was last)."""
+
+    outage_buffer_mb: float | None = Field(None, ge=0, le=100000)
+    """Running values polled while the broker is away, kept in the store until the connection
+    that missed them is back (JSON history messages, Sparkplug historical DDATA): at most this
+    much of max_mb (default: a quarter of it, 16 of the default 64), the oldest going first past
+    it (counted, logged, the gap marked); 0: none kept."""
+    outage_buffer_hours: float = Field(24.0, gt=0, le=8760)
+    """Outage values older than this go (counted, logged, the gap marked)."""
+
+    @model_validator(mode="after")
+    def _outage_buffer_within_the_store(self) -> StorageConfig:
+        if self.outage_buffer_mb is not None and self.outage_buffer_mb > self.max_mb:
+            raise ValueError(
+                f"outage_buffer_mb ({self.outage_buffer_mb:g}) is part of max_mb "
+                f"({self.max_mb:g}): it can't be more"
+            )
+        return self
+
+    @property
+    def outage_buffer(self) -> float:
+        """`outage_buffer_mb`, or its default: a quarter of max_mb."""
+        return self.max_mb / 4 if self.outage_buffer_mb is None else self.outage_buffer_mb
 
     def resolved_path(self, gateway_id: str, environ: dict[str, str] | None = None) -> str:
         """`path`, else `events-<gateway_id>.db` in the state directory: two gateways on one

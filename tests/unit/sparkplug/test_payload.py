@@ -71,6 +71,24 @@ def test_data_by_alias_only_and_death_certificates() -> None:
     assert (device.seq, len(device.metrics)) == (10, 0)
 
 
+def test_historical_metrics_carry_their_own_time_and_a_gap_is_null() -> None:
+    metrics = [
+        payload.HistoricalMetric(4, payload.DOUBLE, 7.3, 1_700_000_000_100),
+        payload.HistoricalMetric(4, payload.DOUBLE, 7.4, 1_700_000_000_400),
+        payload.HistoricalMetric(5, payload.STRING, None, 1_700_000_000_400),
+    ]
+    data = pb.Payload.FromString(payload.history(12, 1_700_000_009_000, metrics))
+    assert data.seq == 12
+    assert [(m.alias, m.timestamp, m.is_historical) for m in data.metrics] == [
+        (4, 1_700_000_000_100, True),
+        (4, 1_700_000_000_400, True),
+        (5, 1_700_000_000_400, True),
+    ]
+    assert [m.double_value for m in data.metrics[:2]] == [7.3, 7.4]
+    assert data.metrics[2].is_null
+    assert not any(m.HasField("datatype") or m.HasField("name") for m in data.metrics)
+
+
 def test_what_is_not_a_payload_is_refused() -> None:
     with pytest.raises(ValueError, match="not a Sparkplug B payload"):
         payload.received(b"\xff\xff\xff")
