@@ -38,7 +38,7 @@ NOT_KEPT: Final = frozenset({"last_seen"})
 """The sample's time says when."""
 
 Send = Callable[[str, list[KeptSample]], Awaitable[bool]]
-"""Publish one drive's samples; False: not now (the drive is being born), try again."""
+"""Publish one drive's samples; False: not now (the drive is being born), try again soon."""
 Mark = Callable[[Gap], Awaitable[None]]
 
 
@@ -48,20 +48,21 @@ class OutageRecorder:
         self.store = store
         self.live = live
         """Whether the connection delivers values now."""
-        self._last: dict[str, Mapping[str, Value]] = {}
-        """Drive → its values at the last poll."""
+        self._last: dict[str, Telemetry] = {}
+        """Drive → its state at the last poll."""
         self._away: set[str] = set()
         """Drives with samples kept in this outage (the next is news only)."""
 
     # -- PollListener ---------------------------------------------------------------------------
 
     def state_updated(self, drive: str, telemetry: Telemetry) -> None:
-        reading = {k: v for k, v in telemetry.items() if k not in NOT_KEPT}
         last = self._last.get(drive, {})
-        self._last[drive] = reading
+        self._last[drive] = telemetry  # a new mapping at every poll: kept as it is
         if self.live():
-            self._away.clear()
+            if self._away:
+                self._away.clear()
             return
+        reading = {k: v for k, v in telemetry.items() if k not in NOT_KEPT}
         news = reading if drive not in self._away else _news(reading, last)
         self._away.add(drive)
         self.store.keep_sample(self.route, drive, news, time.time())
@@ -87,12 +88,15 @@ class OutageRecorder:
             by_drive: dict[str, list[KeptSample]] = {}
             for sample in samples:
                 by_drive.setdefault(sample.drive, []).append(sample)
-            sent = [await send(drive, kept) for drive, kept in by_drive.items()]
-            if all(sent):
-                after = samples[-1].id
-                self.store.outage_delivered(self.route, after)
-            await asyncio.sleep(PACE_S if all(sent) else IDLE_S)
+            for drive, kept in by_drive.items():
+                # A drive being born (its DBIRTH comes first) is a few milliseconds from ready;
+                # nothing signals a device's birth, and asking again costs nothing.
+                while not await send(drive, kept):  # noqa: ASYNC110
+                    await asyncio.sleep(PACE_S)
+            after = samples[-1].id
+            self.store.outage_delivered(self.route, after)
+            await asyncio.sleep(PACE_S)
 
 
-def _news(reading: Mapping[str, Value], last: Mapping[str, Value]) -> dict[str, Value]:
+def _news(reading: Mapping[str, Value], last: Mapping[str, object]) -> dict[str, Value]:
     return {key: value for key, value in reading.items() if key not in last or last[key] != value}
