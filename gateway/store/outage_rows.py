@@ -86,7 +86,11 @@ class OutageRows:
 
     def hold(self, db: sqlite3.Connection, now: float) -> list[Gap]:
         """The oldest rows out until within the size and age bounds: what went undelivered."""
-        gaps = self._remove(db, "time < ?", now - self.max_age_s)
+        cutoff = now - self.max_age_s
+        oldest = db.execute("SELECT time FROM outage ORDER BY id LIMIT 1").fetchone()
+        # The rows go in by id as they were polled: only when the first is too old is the
+        # table read for the others (not at every write).
+        gaps = self._remove(db, "time < ?", cutoff) if oldest and oldest[0] < cutoff else []
         while self.bytes > self.max_bytes:
             first, last = db.execute("SELECT min(id), max(id) FROM outage").fetchone()
             if first is None:
