@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import itertools
+import json as json_text
 import time
 import uuid
 from collections.abc import AsyncIterator, Iterator
@@ -205,3 +206,48 @@ def sparkplug_history_complete(host: SparkplugHost, polled: Polled) -> bool:
 
 def _epoch(iso: str) -> float:
     return datetime.fromisoformat(iso.replace("Z", "+00:00")).timestamp()
+
+
+async def test_values_polled_while_the_primary_host_is_offline_come_as_historical_ddata(
+    mosquitto: Mosquitto, codec: TahuCodec
+) -> None:
+    """The specification's primary host: the edge node publishes only while its host is
+    online, and "it would be better for the Edge Node to store data while the Host Application
+    is offline" (Sparkplug 3.0, "Edge Node Session Establishment"): kept, then sent as
+    historical DDATA after the next birth, in order, each with its time."""
+    base, group = unique_base_topic(), f"plant-{uuid.uuid4().hex[:8]}"
+    state_topic = "spBv1.0/STATE/scada"
+    with simulated_line() as line:
+        sparkplug = {"group_id": group, "edge_node_id": "cabinet-a", "primary_host_id": "scada"}
+        config = mqtt_config(line.path, mosquitto, base, sparkplug=sparkplug)
+        async with (
+            sparkplug_host(mosquitto, codec, group, "cabinet-a") as host,
+            mqtt_probe(mosquitto) as scada,
+            running_gateway(config) as app,
+            running(asyncio.create_task(ramp(line))),
+        ):
+            born_at = int(time.time() * 1000)
+            await scada.publish(state_topic, host_state(True, born_at), retain=True)
+            for drive in DRIVE_ADDRESSES:
+                await host.wait_for(host.topic("DBIRTH", drive))
+            polled = Polled(app)
+            app.poller.add_listener(polled)
+            await asyncio.sleep(0.5)
+            await scada.publish(state_topic, host_state(False, born_at + 1), retain=True)
+            death = await host.wait_for(host.topic("NDEATH"))
+            await asyncio.sleep(2.0)
+            await scada.publish(state_topic, host_state(True, born_at + 2), retain=True)
+            await host.wait_for(host.topic("NBIRTH"), after=death.index)
+            await eventually(lambda: sparkplug_history_complete(host, polled), 15)
+            await scada.publish(state_topic, b"", retain=True)
+
+    for drive in DRIVE_ADDRESSES:
+        expected = polled.away[("sparkplug", drive)]
+        received = [s for s in sparkplug_history(host, drive) if s[0] > polled.since]
+        assert len(expected) >= 2.0 / 0.3 - 1, expected
+        assert [v for _, v in received] == [v for _, v in expected]
+        assert all(abs(r[0] - e[0]) < 0.05 for r, e in zip(received, expected, strict=True))
+
+
+def host_state(online: bool, timestamp: int) -> str:
+    return json_text.dumps({"online": online, "timestamp": timestamp})
