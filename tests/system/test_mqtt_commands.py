@@ -366,7 +366,11 @@ async def test_floods_of_bad_commands_are_answered_and_logged_once_a_minute(
         await plant.probe.publish(topic, {"parameter": "P00.11", "value": 1e308})
     await eventually(lambda: len(on_since(plant, f"{topic}/response", mark)) >= 200, 20)
     answers = [m.json() for m in on_since(plant, f"{topic}/response", mark)]
-    assert {(a["status"], a["error"]) for a in answers} == {("error", "invalid_value")}
+    # Each is refused for what it is; on a loaded machine some find the drive's command lane
+    # full first and are answered `busy` (the documented back-pressure), never anything else.
+    errors = [(a["status"], a["error"]) for a in answers]
+    assert ("error", "invalid_value") in errors
+    assert set(errors) <= {("error", "invalid_value"), ("error", "busy")}, set(errors)
     said = lines(log, "gateway")
     assert len(said) <= 2, said
     assert not [line for line in said if "Overflow" in line or line.startswith("ERROR")]
@@ -394,11 +398,15 @@ async def test_offline_drive_answers_offline(plant: Plant) -> None:
 
 
 async def test_a_write_no_reply_confirmed_says_it_may_have_run(plant: Plant) -> None:
-    """The drive fell silent under the command: it may still have carried it out (the request
-    went out; only its reply is missing). The answer is 0BH, and the command's event says so."""
+    """The drive says nothing to the command: it may still have carried it out (the request
+    went out; only its reply is missing). The answer is 0BH, and the command's event says so.
+    The drive keeps answering its polls (it frames reads only), so the command itself goes out
+    with its retries: a drive silent to everything would owe its polls' replies by then, and
+    the command's one attempt would be the marker that asks whether it is back, the command
+    itself never sent (on a loaded machine the polls come first)."""
     events = f"{plant.base}/bridge/event"
     mark = len(plant.probe.messages)
-    plant.line.set_dead(2, True)
+    plant.line.know_only(2, {0x03, 0x04, 0x08})
     response = await plant.set("fan2", {"command": "run_forward"})
     assert (response["status"], response["error"]) == ("error", "timeout")
     event = await plant.probe.wait_for(
