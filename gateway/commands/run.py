@@ -29,6 +29,7 @@ from gateway.event_loop import run as run_on_loop
 from gateway.exit_codes import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, EXIT_STARTUP
 from gateway.health import Phase
 from gateway.logs import setup_logging
+from gateway.memory_trace import trace_from_environment
 from gateway.settings import runtime_settings
 from gateway.systemd import Notifier, keep_watchdog, watchdog_interval_s
 
@@ -64,6 +65,11 @@ def handle(args: argparse.Namespace) -> int:
         return EXIT_CONFIG
     setup_logging(config.logging.level, config.logging.format)
     log.info("event loop: %s", loop.describe())
+    snapshots = trace_from_environment()
+    if snapshots is not None:
+        log.warning(
+            "tracing memory allocations (slower): SIGUSR2 writes a snapshot to %s", snapshots
+        )
     return run_on_loop(serve(config, config_path=args.config), loop)
 
 

@@ -20,6 +20,23 @@ Four drives on one line at the bus's defaults: a share of each one's replies lat
 0-1000 ms, a share of its requests dropped, one of them stalled 0.4-3 s every few seconds, drives
 3 and 4 silent to 08H (libmodbus devices); clients write and read back values they know. Exit 0
 when no value was wrong and every drive answered right within 1 s of each stall's end.
+
+    invt-gateway stress --history [--days 90] [--queries 10] [--duration 30]
+
+The store filled with DAYS of history of two drives (a point a minute), then Modbus-TCP reads
+for DURATION s unloaded and DURATION s with QUERIES console clients charting the whole window
+at once. Exit 0 when RSS stayed within 50 MB of idle, the Modbus-TCP p99 within 20 % of the
+unloaded one, and every history query was answered (200, or 503 past the console's bound).
+
+    invt-gateway stress --soak HOURS [--tracemalloc DIR]
+
+HOURS of a plant's traffic, compressed, against one gateway: Modbus-TCP clients writing and
+reading back, MQTT commands, a console viewer (events, CSV, history, logins), scrapes; every
+ten minutes a drive trips and is reset, a drive stalls, the broker is stopped for 20 s, the
+store's disk is full for a minute (as root). A line per sample: RSS, open files, CPU per
+transaction. Exit 0 when no call failed that a fault doesn't explain and RSS grew at most
+1 MB an hour after the warm-up; 1 when not. --tracemalloc DIR: the gateway traces its
+allocations and writes snapshots to DIR; the lines that grew most are printed.
 """
 
 from __future__ import annotations
@@ -28,6 +45,7 @@ import argparse
 import asyncio
 import json
 import sys
+from pathlib import Path
 
 from gateway.exit_codes import EXIT_FAILURE, EXIT_OK
 from gateway.instruments.stop_on_terminate import stop_on_terminate
@@ -36,6 +54,7 @@ from gateway.progress import Progress
 BAUDRATES = (9600, 19200, 38400, 57600, 115200)
 DEFAULT_DURATION_S = 60.0
 DEFAULT_CLUSTER_DURATION_S = 120.0
+DEFAULT_HISTORY_PHASE_S = 30.0
 MAX_CLIENTS = 12
 
 
@@ -66,6 +85,34 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         action="store_true",
         help="late, dropping, stalling drives (two without 08H) on one line, every value checked "
         "(the line-fault and outage options don't apply)",
+    )
+    parser.add_argument(
+        "--history",
+        action="store_true",
+        help="months of history kept, concurrent charts of all of it while SCADA reads: RSS "
+        "and Modbus-TCP p99 against unloaded (--duration: each phase's seconds, default 30)",
+    )
+    parser.add_argument(
+        "--days", type=_positive, default=90.0, help="with --history (default %(default)g)"
+    )
+    parser.add_argument(
+        "--queries", type=int, default=10, help="with --history (default %(default)d)"
+    )
+    parser.add_argument(
+        "--soak",
+        type=_positive,
+        default=None,
+        metavar="HOURS",
+        help="hours of compressed plant traffic with trips, stalls, broker and disk outages; "
+        "memory, open files and CPU per transaction sampled (the other options don't apply)",
+    )
+    parser.add_argument(
+        "--tracemalloc",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="with --soak: the gateway traces its allocations (slower) and writes snapshots "
+        "to DIR after the warm-up and at the end; the lines that grew most are printed",
     )
     parser.add_argument(
         "--fault-rate",
@@ -121,6 +168,10 @@ def handle(args: argparse.Namespace) -> int:
         return handle_cluster(args)
     if args.line_truth:
         return handle_line_truth(args)
+    if args.soak is not None:
+        return handle_soak(args)
+    if args.history:
+        return handle_history(args)
     from gateway.instruments.stress.report import document, problems, table
     from gateway.instruments.stress.scenario import StressSettings, run_stress
 
@@ -164,6 +215,49 @@ def handle_line_truth(args: argparse.Namespace) -> int:
             return EXIT_FAILURE
     print(line_truth_table(result))
     if result.problems():
+        if result.gateway_log:
+            print(f"gateway's last log lines:\n{result.gateway_log}", file=sys.stderr)
+        return EXIT_FAILURE
+    return EXIT_OK
+
+
+def handle_soak(args: argparse.Namespace) -> int:
+    from gateway.instruments.stress.soak import SoakSettings, run_soak
+    from gateway.instruments.stress.soak_report import problems, table
+
+    settings = SoakSettings(args.soak, args.seed, args.tracemalloc)
+    with Progress("stress --soak", settings.duration_s, sys.stderr) as overall:
+        try:
+            result = asyncio.run(run_soak(settings, overall.note))
+        except (RuntimeError, ValueError, OSError) as exc:
+            overall.print(f"invt-gateway stress: {exc}", sys.stderr)
+            return EXIT_FAILURE
+    print(table(result), flush=True)
+    if problems(result):
+        if result.gateway_log:
+            print(f"gateway's last log lines:\n{result.gateway_log}", file=sys.stderr)
+        return EXIT_FAILURE
+    return EXIT_OK
+
+
+def handle_history(args: argparse.Namespace) -> int:
+    from gateway.instruments.stress.history_load import (
+        HistoryLoadSettings,
+        problems,
+        run_history_load,
+        table,
+    )
+
+    phase_s = DEFAULT_HISTORY_PHASE_S if args.duration is None else args.duration
+    settings = HistoryLoadSettings(args.days, args.queries, phase_s)
+    with Progress("stress --history", 2 * phase_s, sys.stderr) as overall:
+        try:
+            result = asyncio.run(run_history_load(settings))
+        except (RuntimeError, ValueError, OSError) as exc:
+            overall.print(f"invt-gateway stress: {exc}", sys.stderr)
+            return EXIT_FAILURE
+    print(table(result))
+    if problems(result):
         if result.gateway_log:
             print(f"gateway's last log lines:\n{result.gateway_log}", file=sys.stderr)
         return EXIT_FAILURE

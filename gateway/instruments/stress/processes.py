@@ -7,6 +7,7 @@ import os
 import shutil
 import signal
 import subprocess
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -51,8 +52,15 @@ def simulator_started(process: subprocess.Popen[str]) -> SimulatorProcess:
 class Gateway:
     """`invt-gateway run` on a configuration file; killed and started again at will."""
 
-    def __init__(self, config: dict[str, Any], directory: Path) -> None:
+    def __init__(
+        self,
+        config: dict[str, Any],
+        directory: Path,
+        environment: Mapping[str, str] | None = None,
+    ) -> None:
         self.port = int(config["modbus_tcp"]["port"])
+        self.environment = dict(environment or {})
+        """Variables set for it besides ours (`INVT_GATEWAY_TRACEMALLOC`)."""
         self.config_file = directory / "gateway.yaml"
         self.config_file.write_text(yaml.safe_dump(config), encoding="utf-8")
         self.log_file = directory / "gateway.log"
@@ -67,6 +75,7 @@ class Gateway:
                 stdin=subprocess.DEVNULL,
                 stdout=subprocess.DEVNULL,
                 stderr=log,
+                env={**os.environ, **self.environment},
                 preexec_fn=die_with_parent(),
             )
         self.starts += 1
