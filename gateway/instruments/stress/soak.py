@@ -2,11 +2,12 @@
 with its memory, open files and CPU per transaction sampled all along.
 
 The traffic, all the time: Modbus-TCP clients writing and reading back parameters they own
-(`CheckedLoad`, every value checked), an MQTT dashboard sending set-points, parameter reads,
-fault-history requests and polls now (`MqttCommands`), a console viewer going round its pages,
-events, CSV exports and history charts and logging in and out (`ConsoleViewer`), Prometheus
-scraping `/metrics` and `/health` (`Scraper`), the poller and the history store at a step of
-a second (60 times a plant's minute).
+(`CheckedLoad`, every value checked), an HMI connecting for each read (`BriefScada`), an MQTT
+dashboard sending set-points, parameter reads, fault-history requests and polls now
+(`MqttCommands`), a console viewer going round its pages, events, CSV exports and history
+charts and logging in and out (`ConsoleViewer`), Prometheus scraping `/metrics` and `/health`
+(`Scraper`), the poller and the history store at a step of a second (60 times a plant's
+minute).
 
 The faults, every round of `ROUND_S` (a shorter run does one round in its time, each fault's
 length scaled by as much):
@@ -56,6 +57,7 @@ from gateway.instruments.stress.processes import (
     simulator_started,
 )
 from gateway.instruments.stress.soak_clients import (
+    BriefScada,
     CallStats,
     ConsoleViewer,
     MqttCommands,
@@ -66,9 +68,11 @@ from gateway.memory_trace import ENVIRONMENT, SIGNAL, SUFFIX
 from gateway.passwords import hash_password, hash_token
 
 ROUND_S: Final = 600.0
-WARM_UP_S: Final = 600.0
-"""Caches filled, the history's steps and the store's pages in use, the allocator settled."""
+WARM_UP_S: Final = 1200.0
+"""The console's live charts full (15 minutes of a point a second per drive), caches filled,
+the store's pages in use, the allocator settled."""
 SAMPLE_S: Final = 60.0
+RSS_EVERY_S: Final = 1.0
 MIN_JUDGED_S: Final = 1200.0
 """A growth rate from less than this after the warm-up is the allocator's noise."""
 TRIP_S: Final = 5.0
@@ -84,6 +88,7 @@ CLIENTS: Final = 4
 MQTT_PAUSE_S: Final = 0.2
 CONSOLE_PAUSE_S: Final = 0.2
 SCRAPE_PAUSE_S: Final = 1.0
+BRIEF_PAUSE_S: Final = 0.2
 VIEWER: Final = ("victor", "viewer-soak-secret-1", "viewer-soak-token-0123456789abcdef")
 SNAPSHOT_WAIT_S: Final = 60.0
 
@@ -122,6 +127,7 @@ class Sample:
     at_s: float
     """Seconds since the traffic started."""
     rss_mb: float
+    """The lowest resident memory seen in the interval the sample ends (read every second)."""
     open_files: int
     cpu_s: float
     """The gateway's CPU time since it started."""
@@ -138,6 +144,8 @@ class SoakResult:
     mqtt: CallStats = field(default_factory=CallStats)
     console: CallStats = field(default_factory=CallStats)
     scrapes: CallStats = field(default_factory=CallStats)
+    brief: CallStats = field(default_factory=CallStats)
+    """Reads on a connection of their own each."""
     faults: Counter[str] = field(default_factory=Counter)
     """Faults carried out, by kind."""
     left_out: dict[str, str] = field(default_factory=dict)
@@ -186,6 +194,23 @@ async def run_soak(
     return result
 
 
+class _Line:
+    """The simulator's control: one command and its answer at a time (the sampler's `stats`
+    and a fault's command would otherwise read each other's answers)."""
+
+    def __init__(self, simulator: SimulatorProcess) -> None:
+        self._simulator = simulator
+        self._turn = asyncio.Lock()
+
+    async def command(self, text: str) -> str:
+        async with self._turn:
+            return await asyncio.to_thread(self._simulator.command, text)
+
+    async def frames(self) -> int:
+        async with self._turn:
+            return int((await asyncio.to_thread(self._simulator.stats))["requests"])
+
+
 async def _run(
     settings: SoakSettings,
     config: dict[str, Any],
@@ -203,18 +228,21 @@ async def _run(
     mqtt = MqttCommands(broker.host, broker.port, base_topic, drives, outages)
     console = ConsoleViewer(_url(config["console"]), VIEWER[2], VIEWER[0], VIEWER[1], drives)
     scraper = Scraper(_url(config["metrics"]))
+    brief = BriefScada(gateway.port, 1)
     stop = asyncio.Event()
     started = time.monotonic()
-    faults = _Faults(settings, simulator, broker, load, mqtt, outages, store, result)
+    line = _Line(simulator)
+    faults = _Faults(settings, line, broker, load, mqtt, outages, store, result)
     async with asyncio.TaskGroup() as tasks:
         users = [
             tasks.create_task(load.run(stop), name="soak:modbus"),
             tasks.create_task(mqtt.run(stop, MQTT_PAUSE_S), name="soak:mqtt"),
             tasks.create_task(console.run(stop, CONSOLE_PAUSE_S), name="soak:console"),
             tasks.create_task(scraper.run(stop, SCRAPE_PAUSE_S), name="soak:scrape"),
+            tasks.create_task(brief.run(stop, BRIEF_PAUSE_S), name="soak:brief-scada"),
         ]
         sampling = tasks.create_task(
-            _sample(settings, gateway, simulator, started, result, progress), name="soak:sample"
+            _sample(settings, gateway, line, started, result, progress), name="soak:sample"
         )
         try:
             await faults.rounds(started)
@@ -228,6 +256,7 @@ async def _run(
     result.mqtt = mqtt.stats
     result.console = console.stats
     result.scrapes = scraper.stats
+    result.brief = brief.stats
     if gateway.process is not None:
         result.gateway_exit = gateway.process.poll()
 
@@ -235,7 +264,7 @@ async def _run(
 async def _sample(
     settings: SoakSettings,
     gateway: Gateway,
-    simulator: SimulatorProcess,
+    line: _Line,
     started: float,
     result: SoakResult,
     progress: Callable[[str], None],
@@ -244,15 +273,21 @@ async def _sample(
     the end, compared."""
     assert gateway.process is not None
     pid = gateway.process.pid
-    first_frames = int((await asyncio.to_thread(simulator.stats))["requests"])
+    first_frames = await line.frames()
     first_snapshot: Path | None = None
     end = started + settings.duration_s
     moment = started
     while moment < end:
         moment = min(moment + settings.sample_s, end)
-        await _sleep_until(moment)
-        frames = int((await asyncio.to_thread(simulator.stats))["requests"]) - first_frames
-        sample = _measure(gateway, pid, time.monotonic() - started, frames)
+        try:
+            # The lowest RSS of the interval: what the gateway comes back to between
+            # transient allocations (a chart, a CSV file, a batch the disk took late), so that
+            # a sample caught in one doesn't pass for growth.
+            low_mb = await _lowest_rss(gateway, moment)
+            frames = await line.frames() - first_frames
+            sample = _measure(pid, time.monotonic() - started, frames, low_mb)
+        except OSError:  # the gateway is gone: the verdict says so (`gateway_exit`)
+            return
         result.samples.append(sample)
         progress(
             f"{sample.at_s / 60:.1f} min: RSS {sample.rss_mb:.1f} MB, "
@@ -268,9 +303,17 @@ async def _sample(
                 result.growth = await asyncio.to_thread(growth_between, first_snapshot, taken)
 
 
-def _measure(gateway: Gateway, pid: int, at_s: float, transactions: int) -> Sample:
+async def _lowest_rss(gateway: Gateway, until: float) -> float:
+    lowest = gateway.memory_mb()[0]
+    while time.monotonic() < until:
+        await asyncio.sleep(min(RSS_EVERY_S, max(0.0, until - time.monotonic())))
+        lowest = min(lowest, gateway.memory_mb()[0])
+    return lowest
+
+
+def _measure(pid: int, at_s: float, transactions: int, rss_mb: float) -> Sample:
     open_files = len(os.listdir(f"/proc/{pid}/fd"))
-    return Sample(at_s, gateway.memory_mb()[0], open_files, cpu_s(pid), transactions)
+    return Sample(at_s, rss_mb, open_files, cpu_s(pid), transactions)
 
 
 async def _snapshot(pid: int, folder: Path) -> Path | None:
@@ -296,7 +339,7 @@ class _Faults:
     def __init__(
         self,
         settings: SoakSettings,
-        simulator: SimulatorProcess,
+        line: _Line,
         broker: Broker,
         load: CheckedLoad,
         mqtt: MqttCommands,
@@ -305,7 +348,7 @@ class _Faults:
         result: SoakResult,
     ) -> None:
         self.settings = settings
-        self.simulator = simulator
+        self.line = line
         self.broker = broker
         self.load = load
         self.mqtt = mqtt
@@ -339,18 +382,18 @@ class _Faults:
         return max(0.5, full_s * self.settings.scale)
 
     async def trip(self, address: int) -> None:
-        await asyncio.to_thread(self.simulator.command, f"fault {address} {TRIP_CODE}")
+        await self.line.command(f"fault {address} {TRIP_CODE}")
         await asyncio.sleep(self._seconds(TRIP_S))
         answer = await self.mqtt.ask(f"drive{address}/set", {"command": "fault_reset"})
         if answer is None or answer.get("status") != "ok":
             # Counted by the dashboard already; the drive must not stay tripped for the rounds
             # after (its reset is what failed, not the plant).
-            await asyncio.to_thread(self.simulator.command, f"clear {address}")
+            await self.line.command(f"clear {address}")
 
     async def stall(self, address: int) -> None:
         self.load.phase = "stalled drive"
         seconds = self._seconds(STALL_S)
-        await asyncio.to_thread(self.simulator.command, f"stall {address} {seconds:.2f}")
+        await self.line.command(f"stall {address} {seconds:.2f}")
         await asyncio.sleep(seconds + SETTLE_S)
         self.load.phase = STEADY
 

@@ -1,6 +1,6 @@
-"""The soak's users besides SCADA: an MQTT dashboard sending commands, a console viewer (pages,
-events, CSV, history, a login now and then) and a Prometheus scraper, each counting what it
-asked and what went wrong.
+"""The soak's users besides the checked SCADA clients: an MQTT dashboard sending commands, a
+console viewer (pages, events, CSV, history, a login now and then), a Prometheus scraper and an
+HMI connecting for every read, each counting what it asked and what went wrong.
 
 A failure is excused only when an outage the scenario caused could explain it (`Outages`): an
 MQTT command lost while the broker was away. Everything else is an error the verdict counts.
@@ -13,6 +13,7 @@ import contextlib
 import itertools
 import json
 import logging
+import struct
 import time
 from collections.abc import Collection
 from dataclasses import dataclass, field
@@ -27,6 +28,7 @@ SETTLE_S: Final = 2.0
 """After an outage ends, what was sent during it may still fail."""
 RETRY_S: Final = 0.2
 MAX_EXAMPLES: Final = 5
+BRIEF_READ_REGISTER: Final = 0x000A  # P00.10: a parameter nobody writes in the soak
 
 
 @dataclass
@@ -290,3 +292,39 @@ class Scraper:
                 except (aiohttp.ClientError, TimeoutError) as exc:
                     self.stats.failed(f"GET {path}: {exc!r}", None)
                 await asyncio.sleep(pause_s)
+
+
+class BriefScada:
+    """An HMI that connects for every read and closes after it (Node-RED's and many a panel's
+    habit): a new client, port and connection for the gateway each time."""
+
+    def __init__(self, port: int, unit_id: int) -> None:
+        self.port = port
+        self.unit_id = unit_id
+        self.stats = CallStats()
+
+    async def run(self, stop: asyncio.Event, pause_s: float) -> None:
+        pdu = struct.pack(">BHH", 0x03, BRIEF_READ_REGISTER, 1)
+        for number in itertools.count():
+            if stop.is_set():
+                return
+            self.stats.calls += 1
+            frame = struct.pack(">HHHB", number & 0xFFFF, 0, len(pdu) + 1, self.unit_id) + pdu
+            try:
+                answer = await asyncio.wait_for(self._ask(frame), ANSWER_TIMEOUT_S)
+                if answer[:2] != frame[:2] or answer[7] != 0x03:
+                    self.stats.failed(f"read: answered {answer.hex()}", None)
+            except (OSError, asyncio.IncompleteReadError, TimeoutError) as exc:
+                self.stats.failed(f"read: {exc!r}", None)
+            await asyncio.sleep(pause_s)
+
+    async def _ask(self, frame: bytes) -> bytes:
+        reader, writer = await asyncio.open_connection("127.0.0.1", self.port)
+        try:
+            writer.write(frame)
+            header = await reader.readexactly(7)
+            return header + await reader.readexactly(struct.unpack(">H", header[4:6])[0] - 1)
+        finally:
+            writer.close()
+            with contextlib.suppress(OSError):
+                await writer.wait_closed()

@@ -35,7 +35,8 @@ def problems(result: SoakResult) -> list[str]:
         found.append(f"{load.errors[STEADY]} Modbus-TCP errors outside a stalled drive")
     if not load.requests[STEADY]:
         found.append("no Modbus-TCP request was answered")
-    for what, stats in (("MQTT", result.mqtt), ("console", result.console)):
+    users = (("MQTT", result.mqtt), ("console", result.console), ("brief SCADA", result.brief))
+    for what, stats in users:
         if stats.errors:
             found.append(f"{stats.errors} {what} errors: {stats.examples[:2]}")
     if result.scrapes.errors:
@@ -53,6 +54,8 @@ def table(result: SoakResult) -> str:
     lines = [
         f"invt-gateway stress --soak {settings.hours:g}: {duration_text(result.elapsed_s)}, "
         f"rounds of {duration_text(settings.round_s)}, warm-up {duration_text(settings.warm_up_s)}",
+        "RSS: the lowest of each interval, read every second; CPU: the gateway's, per bus "
+        "transaction",
         "",
         "  time       RSS MB  open files  CPU/transaction  transactions",
     ]
@@ -77,6 +80,7 @@ def _rows(result: SoakResult) -> list[tuple[str, str]]:
             f"{excused_modbus} while a drive stalled",
         ),
         ("wrong values", f"{load.wrong} (must be 0)"),
+        ("reads on a new connection", f"{result.brief.calls}, {result.brief.errors} errors"),
         (
             "MQTT commands",
             f"{result.mqtt.calls}, {result.mqtt.errors} errors, "
