@@ -39,6 +39,7 @@ from gateway.store.records import HistoryPoint
 
 DRIVES: Final = ("pump1", "pump2")
 STEP_S: Final = 60.0
+BAUDRATE: Final = 115200
 FILL_BATCH: Final = 20_000
 READ_REGISTER: Final = 0x000A  # P00.10..P00.11: parameters nobody writes here
 READ_COUNT: Final = 2
@@ -103,9 +104,8 @@ async def run_history_load(settings: HistoryLoadSettings) -> HistoryLoadResult:
         result.fill_s = time.monotonic() - started
         result.store_mb = store.stat().st_size / 1e6
         link = directory / "ttyRS485"
-        launched = launch_simulator(
-            ["--link", str(link), "--parity", "N", "--address", "1", "--address", "2"]
-        )
+        simulate = ["--link", str(link), "--baud", str(BAUDRATE), "--parity", "N"]
+        launched = launch_simulator([*simulate, "--address", "1", "--address", "2"])
         gateway: Gateway | None = None
         try:
             await asyncio.to_thread(simulator_started, launched)
@@ -279,7 +279,7 @@ def _gateway_config(link: Path, store: Path, settings: HistoryLoadSettings) -> d
     return {
         "gateway_id": "history-load",
         "modbus_tcp": {"host": "127.0.0.1", "port": free_port()},
-        "buses": [{"name": "line1", "port": str(link), "baudrate": 115200, "parity": "N"}],
+        "buses": [{"name": "line1", "port": str(link), "baudrate": BAUDRATE, "parity": "N"}],
         "drives": [
             {"name": name, "bus": "line1", "address": n + 1, "model": "gd350"}
             for n, name in enumerate(DRIVES)

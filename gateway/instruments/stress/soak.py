@@ -81,6 +81,7 @@ BROKER_S: Final = 20.0
 FULL_DISK_S: Final = 60.0
 SETTLE_S: Final = 1.0
 DISK_SIZE: Final = "32m"
+STORE_MB: Final = 2.0
 DRIVES: Final = 4
 TRIP_CODE: Final = 11  # OL1, motor overload
 CLIENTS: Final = 4
@@ -494,8 +495,15 @@ def _gateway_config(link: Path, store: Path | None, broker: Broker) -> dict[str,
             for unit_id in _unit_ids()
         ],
         "logging": {"level": "warning"},
-        # A history point a second: the store's writes and charts of an hour in a minute.
-        "storage": {"path": str(folder / "events.db"), "history_step_s": 1, "max_mb": 16},
+        # A history point a second: the store's writes and charts of an hour in a minute. Its
+        # bound is reached about when the warm-up ends (some 5 MB an hour of history), so that
+        # after it the store's oldest history goes as the new comes, as on a plant's box after
+        # its first week: a store still filling makes every chart's work (and its memory) grow.
+        "storage": {
+            "path": str(folder / "events.db"),
+            "history_step_s": 1,
+            "max_mb": STORE_MB,
+        },
         "mqtt": {
             "host": broker.host,
             "port": broker.port,
