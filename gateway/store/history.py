@@ -146,12 +146,26 @@ def series(
     when there are more, the points within each span of a few steps (spans aligned to the
     clock, so the same window gives the same points) are merged: numbers averaged, texts the
     last."""
+    if len(points) <= max(1, max_points):
+        # Nothing to merge (the store reduced a long window already): a pass per value, not a
+        # merge per point; the console runs this on the event loop for up to a chart's points.
+        columns = [_column(points, key) for key in keys]
+        return Series(tuple(keys), [at for at, _ in points], columns, step_s)
     factor = max(1, math.ceil(len(points) / max(1, max_points)))
     while True:
         shown = _merged(points, keys, step_s * factor if factor > 1 else 0.0)
         if len(shown.times) <= max(1, max_points):
             return Series(shown.keys, shown.times, shown.columns, step_s * factor)
         factor += max(1, factor // 4)  # a gap split a span: wider ones
+
+
+def _column(points: Sequence[tuple[float, Mapping[str, Value]]], key: str) -> list[Value | None]:
+    """`key`'s value at each point (None where it has none), numbers as a merge gives them."""
+    column: list[Value | None] = []
+    for _, found in points:
+        value = found.get(key)
+        column.append(value if value is None or isinstance(value, str) else round(value, 6))
+    return column
 
 
 def _merged(
