@@ -28,6 +28,7 @@ from gateway.event_loop import EventLoopChoice, choose_event_loop
 from gateway.event_loop import run as run_on_loop
 from gateway.exit_codes import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, EXIT_STARTUP
 from gateway.health import Phase
+from gateway.large_allocations import give_back_large_allocations
 from gateway.logs import setup_logging
 from gateway.memory_trace import trace_from_environment
 from gateway.settings import runtime_settings
@@ -65,6 +66,7 @@ def handle(args: argparse.Namespace) -> int:
         return EXIT_CONFIG
     setup_logging(config.logging.level, config.logging.format)
     log.info("event loop: %s", loop.describe())
+    give_back_large_allocations()  # a login's 16 MiB of scrypt kept by each thread otherwise
     snapshots = trace_from_environment()
     if snapshots is not None:
         log.warning(
