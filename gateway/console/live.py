@@ -62,6 +62,16 @@ class DriveHistory:
     )
     last_at: float = 0.0
 
+    def add(self, at: float, found: dict[str, Value]) -> None:
+        """The drive's values at `at`; those older than `HISTORY_S` go. The ring's length
+        bounds it at a point a second; a drive polled less often (a busy line) would keep
+        more than its 15 minutes, and the memory for them grew for as much longer (the soak:
+        still growing at 30 minutes)."""
+        self.last_at = at
+        self.points.append((at, found))
+        while self.points[0][0] < at - HISTORY_S:
+            self.points.popleft()
+
 
 class LiveState:
     """A poll listener (`gateway.poller.PollListener`) and the bus sampler, for the console."""
@@ -99,8 +109,7 @@ class LiveState:
         now = time.time()
         if now - history.last_at < CHART_STEP_S:
             return
-        history.last_at = now
-        history.points.append((now, values(telemetry)))
+        history.add(now, values(telemetry))
 
     def availability_changed(self, drive: str, online: bool) -> None:
         pass  # told again as a drive event

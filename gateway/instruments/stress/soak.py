@@ -393,9 +393,11 @@ class _Faults:
 
     async def stall(self, address: int) -> None:
         self.load.phase = "stalled drive"
+        self.outages.begin("stalled drive")
         seconds = self._seconds(STALL_S)
         await self.line.command(f"stall {address} {seconds:.2f}")
         await asyncio.sleep(seconds + SETTLE_S)
+        self.outages.end("stalled drive")
         self.load.phase = STEADY
 
     async def restart_broker(self) -> None:

@@ -77,6 +77,8 @@ class Outages:
 
 
 MQTT_OUTAGES: Final = frozenset({"MQTT broker"})
+DRIVE_OUTAGES: Final = frozenset({"stalled drive"})
+GATEWAY_TARGET_FAILED: Final = 0x0B
 QUIET: Final = logging.getLogger("invt-gateway.soak.mqtt")
 """The dashboard's client logger: a broker killed on purpose is counted, not printed."""
 QUIET.addHandler(logging.NullHandler())
@@ -153,7 +155,10 @@ class MqttCommands:
         finally:
             self._waiting.pop(transaction, None)
         if response.get("status") != "ok":
-            self.stats.failed(f"{topic} {payload}: {response}", None)
+            # 0BH (offline, no answer) is what a stalled drive's commands get, and only that.
+            stalled = response.get("exception_code") == GATEWAY_TARGET_FAILED
+            excuse = self.outages.excuse(DRIVE_OUTAGES, sent_at) if stalled else None
+            self.stats.failed(f"{topic} {payload}: {response}", excuse)
         return response
 
     async def _command_forever(self, stop: asyncio.Event, pause_s: float) -> None:

@@ -84,7 +84,7 @@ def _rows(result: SoakResult) -> list[tuple[str, str]]:
         (
             "MQTT commands",
             f"{result.mqtt.calls}, {result.mqtt.errors} errors, "
-            f"{result.mqtt.excused} while the broker was away",
+            f"{result.mqtt.excused} while the broker was away or a drive stalled",
         ),
         ("console calls", f"{result.console.calls}, {result.console.errors} errors"),
         ("scrapes", f"{result.scrapes.calls}, {result.scrapes.errors} errors"),
