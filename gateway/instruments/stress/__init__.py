@@ -6,4 +6,8 @@
 - `broker_watch`: an MQTT client that notes when the gateway says it is online.
 - `scenario`: the run: line faults throughout, and one recovery after another.
 - `report`: the table and the verdict.
+- `soak`, `soak_clients`, `soak_faults`, `soak_report`: `--soak HOURS`, a plant's traffic
+  compressed, its faults in rounds, the gateway sampled; `memory_growth` compares the
+  gateway's tracemalloc snapshots.
+- `history_load`: `--history`, months of history charted at once while SCADA reads.
 """

@@ -28,14 +28,11 @@ run whose measured part lasts `MIN_JUDGED_S` at least.
 from __future__ import annotations
 
 import asyncio
-import contextlib
-import errno
 import os
-import subprocess
 import tempfile
 import time
 from collections import Counter
-from collections.abc import Awaitable, Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
@@ -47,7 +44,7 @@ from gateway.instruments.bench.processes import (
     stop_process,
     wait_listening,
 )
-from gateway.instruments.stress.checked_load import STEADY, CheckedLoad, LoadStats
+from gateway.instruments.stress.checked_load import CheckedLoad, LoadStats
 from gateway.instruments.stress.memory_growth import Growth, growth_between
 from gateway.instruments.stress.processes import (
     Broker,
@@ -64,10 +61,10 @@ from gateway.instruments.stress.soak_clients import (
     Outages,
     Scraper,
 )
+from gateway.instruments.stress.soak_faults import ROUND_S, Faults, SimulatorControl, store_disk
 from gateway.memory_trace import ENVIRONMENT, SIGNAL, SUFFIX
 from gateway.passwords import hash_password, hash_token
 
-ROUND_S: Final = 600.0
 WARM_UP_S: Final = 1200.0
 """The console's live charts full (15 minutes of a point a second per drive), caches filled,
 the store's pages in use, the allocator settled."""
@@ -75,15 +72,8 @@ SAMPLE_S: Final = 60.0
 RSS_EVERY_S: Final = 1.0
 MIN_JUDGED_S: Final = 1200.0
 """A growth rate from less than this after the warm-up is the allocator's noise."""
-TRIP_S: Final = 5.0
-STALL_S: Final = 4.0
-BROKER_S: Final = 20.0
-FULL_DISK_S: Final = 60.0
-SETTLE_S: Final = 1.0
-DISK_SIZE: Final = "32m"
 STORE_MB: Final = 2.0
 DRIVES: Final = 4
-TRIP_CODE: Final = 11  # OL1, motor overload
 CLIENTS: Final = 4
 """Modbus-TCP clients: one per drive, each writing its block and reading it back."""
 MQTT_PAUSE_S: Final = 0.2
@@ -108,11 +98,6 @@ class SoakSettings:
     @property
     def round_s(self) -> float:
         return min(ROUND_S, self.duration_s)
-
-    @property
-    def scale(self) -> float:
-        """A fault's length in a round shorter than `ROUND_S`, as a share of its full length."""
-        return self.round_s / ROUND_S
 
     @property
     def warm_up_s(self) -> float:
@@ -172,7 +157,7 @@ async def run_soak(
         arguments = ["--link", str(link), "--baud", "115200", "--parity", "N"]
         launched = launch_simulator([*arguments, *_addresses()])
         gateway: Gateway | None = None
-        with _store_disk(directory / "store", result) as store:
+        with store_disk(directory / "store", result.left_out) as store:
             try:
                 simulator = await asyncio.to_thread(simulator_started, launched)
                 broker.start()
@@ -195,23 +180,6 @@ async def run_soak(
     return result
 
 
-class _Line:
-    """The simulator's control: one command and its answer at a time (the sampler's `stats`
-    and a fault's command would otherwise read each other's answers)."""
-
-    def __init__(self, simulator: SimulatorProcess) -> None:
-        self._simulator = simulator
-        self._turn = asyncio.Lock()
-
-    async def command(self, text: str) -> str:
-        async with self._turn:
-            return await asyncio.to_thread(self._simulator.command, text)
-
-    async def frames(self) -> int:
-        async with self._turn:
-            return int((await asyncio.to_thread(self._simulator.stats))["requests"])
-
-
 async def _run(
     settings: SoakSettings,
     config: dict[str, Any],
@@ -232,8 +200,8 @@ async def _run(
     brief = BriefScada(gateway.port, 1)
     stop = asyncio.Event()
     started = time.monotonic()
-    line = _Line(simulator)
-    faults = _Faults(settings, line, broker, load, mqtt, outages, store, result)
+    line = SimulatorControl(simulator)
+    faults = Faults(settings.round_s, line, broker, load, mqtt, outages, store, result.faults)
     async with asyncio.TaskGroup() as tasks:
         users = [
             tasks.create_task(load.run(stop), name="soak:modbus"),
@@ -246,7 +214,7 @@ async def _run(
             _sample(settings, gateway, line, started, result, progress), name="soak:sample"
         )
         try:
-            await faults.rounds(started)
+            await faults.rounds(started, started + settings.duration_s)
             await _sleep_until(started + settings.duration_s)
         finally:
             stop.set()
@@ -265,7 +233,7 @@ async def _run(
 async def _sample(
     settings: SoakSettings,
     gateway: Gateway,
-    line: _Line,
+    line: SimulatorControl,
     started: float,
     result: SoakResult,
     progress: Callable[[str], None],
@@ -332,124 +300,6 @@ async def _snapshot(pid: int, folder: Path) -> Path | None:
 
 def _snapshots(folder: Path, pid: int) -> set[Path]:
     return set(folder.glob(f"snapshot-{pid}-*{SUFFIX}"))
-
-
-class _Faults:
-    """One round of faults after another until the run's end."""
-
-    def __init__(
-        self,
-        settings: SoakSettings,
-        line: _Line,
-        broker: Broker,
-        load: CheckedLoad,
-        mqtt: MqttCommands,
-        outages: Outages,
-        store: Path | None,
-        result: SoakResult,
-    ) -> None:
-        self.settings = settings
-        self.line = line
-        self.broker = broker
-        self.load = load
-        self.mqtt = mqtt
-        self.outages = outages
-        self.store = store
-        self.result = result
-
-    async def rounds(self, started: float) -> None:
-        settings = self.settings
-        end = started + settings.duration_s
-        plan: list[tuple[float, str, Callable[[], Awaitable[None]]]] = [
-            (0.10, "drive trip and reset", lambda: self.trip(2)),
-            (0.30, "stalled drive", lambda: self.stall(3)),
-            (0.50, "MQTT broker", self.restart_broker),
-            (0.65, "drive trip and reset", lambda: self.trip(4)),
-        ]
-        if self.store is not None:
-            plan.append((0.80, "full disk", self.fill_disk))
-        round_start = started
-        while round_start < end:
-            for share, what, fault in plan:
-                at = round_start + share * settings.round_s
-                if at >= end:
-                    return
-                await _sleep_until(at)
-                await fault()
-                self.result.faults[what] += 1
-            round_start += settings.round_s
-
-    def _seconds(self, full_s: float) -> float:
-        return max(0.5, full_s * self.settings.scale)
-
-    async def trip(self, address: int) -> None:
-        await self.line.command(f"fault {address} {TRIP_CODE}")
-        await asyncio.sleep(self._seconds(TRIP_S))
-        answer = await self.mqtt.ask(f"drive{address}/set", {"command": "fault_reset"})
-        if answer is None or answer.get("status") != "ok":
-            # Counted by the dashboard already; the drive must not stay tripped for the rounds
-            # after (its reset is what failed, not the plant).
-            await self.line.command(f"clear {address}")
-
-    async def stall(self, address: int) -> None:
-        self.load.phase = "stalled drive"
-        self.outages.begin("stalled drive")
-        seconds = self._seconds(STALL_S)
-        await self.line.command(f"stall {address} {seconds:.2f}")
-        await asyncio.sleep(seconds + SETTLE_S)
-        self.outages.end("stalled drive")
-        self.load.phase = STEADY
-
-    async def restart_broker(self) -> None:
-        self.outages.begin("MQTT broker")
-        await asyncio.to_thread(self.broker.kill)
-        await asyncio.sleep(self._seconds(BROKER_S))
-        self.broker.start()
-        await asyncio.to_thread(self.broker.wait_listening)
-        self.outages.end("MQTT broker")
-
-    async def fill_disk(self) -> None:
-        assert self.store is not None
-        filler = self.store / "filler"
-        await asyncio.to_thread(_fill, filler)
-        try:
-            await asyncio.sleep(self._seconds(FULL_DISK_S))
-        finally:
-            filler.unlink(missing_ok=True)
-
-
-def _fill(path: Path) -> None:
-    """Write `path` until its disk is full, as a runaway log would."""
-    chunk = 64 * 1024
-    with path.open("wb", buffering=0) as out:
-        while chunk:
-            try:
-                out.write(b"\0" * chunk)
-            except OSError as exc:
-                if exc.errno != errno.ENOSPC:
-                    raise
-                chunk //= 2
-
-
-@contextlib.contextmanager
-def _store_disk(folder: Path, result: SoakResult) -> Iterator[Path | None]:
-    """`folder` a tmpfs of its own for the store (a disk the soak may fill), or a plain folder
-    (yielding None) when this process may not mount one."""
-    folder.mkdir()
-    if os.geteuid() != 0:
-        result.left_out["full disk"] = "mounting a small file system needs root"
-        yield None
-        return
-    mount = ["mount", "-t", "tmpfs", "-o", f"size={DISK_SIZE}", "tmpfs", str(folder)]
-    mounted = subprocess.run(mount, capture_output=True, text=True, check=False)
-    if mounted.returncode != 0:
-        result.left_out["full disk"] = f"mount failed: {mounted.stderr.strip()[:100]}"
-        yield None
-        return
-    try:
-        yield folder
-    finally:
-        subprocess.run(["umount", "--lazy", str(folder)], check=False)
 
 
 def _tracing(settings: SoakSettings) -> dict[str, str]:
