@@ -44,6 +44,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "gateway.control",
             "gateway.collector",
             "gateway.tasks",
+            "gateway.large_allocations",  # glibc's mmap threshold, pinned at start (`run`)
+            "gateway.memory_trace",  # tracemalloc snapshots on a signal, when asked (`run`)
         ),
     ),
     ("framing and makers' knowledge", ("gateway.modbus", "gateway.profile")),
