@@ -37,7 +37,7 @@ POLL_SHARE = 4
 
 class Waiter(Protocol):
     """Who waits for a transaction's reply: an asyncio future, or an answer that goes out the
-    moment the reply is there (`gateway.tcp.server`'s fast path) without a task to wake."""
+    moment the reply is there (`gateway.tcp.connection`'s `_Answer`) without a task to wake."""
 
     def done(self) -> bool: ...
 

@@ -64,11 +64,6 @@ def frame_header(buffer: bytes | bytearray) -> tuple[int, int, int]:
     return transaction_id, unit_id, length - 1
 
 
-pack_header = _HEADER.pack
-"""The header alone, from (transaction id, protocol id 0, length, unit id): `build_adu` without
-a Python call, for the server's answer on its fast path."""
-
-
 def build_adu(transaction_id: int, unit_id: int, pdu: bytes) -> bytes:
     """MBAP header + PDU."""
     return _HEADER.pack(transaction_id, 0, len(pdu) + 1, unit_id) + pdu
