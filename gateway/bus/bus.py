@@ -22,11 +22,12 @@ import contextlib
 import logging
 import time
 from dataclasses import dataclass, field
-from enum import StrEnum
 
 from gateway.backoff import Backoff
 from gateway.bus.carrier import Carrier, Outcome
-from gateway.bus.exchange import Sending, Stray
+from gateway.bus.dispatch import BusState as BusState
+from gateway.bus.dispatch import Dispatch
+from gateway.bus.exchange import Sending
 from gateway.bus.health import HealthTracker
 from gateway.bus.line import LineSettings, SerialLine
 from gateway.bus.line_share import LineShares
@@ -40,7 +41,6 @@ from gateway.bus.observers import (
     Tap,
     fail,
 )
-from gateway.bus.probes import due_probes
 from gateway.bus.queue import Priority, RequestQueue, Transaction, Waiter
 from gateway.bus.stats import BusStats as BusStats
 from gateway.bus.stats import DriveStats as DriveStats
@@ -50,29 +50,19 @@ from gateway.errors import (
     BusClosed,
     BusFailed,
     DriveOffline,
-    GatewayError,
     GatewayTargetFailed,
     ModbusError,
     PortError,
     QueueFull,
 )
 from gateway.modbus.functions import lookup
-from gateway.modbus.rtu import BROADCAST_ADDRESS, build_frame, request_frame
+from gateway.modbus.rtu import BROADCAST_ADDRESS, request_frame
 from gateway.tasks import cancel_and_wait
 
 log = logging.getLogger(__name__)
 
-IDLE_WAKE_S = 0.5
-"""With nothing queued, the bus still wakes this often to see whether a probe is due."""
 FINISH_S = 5.0
 """At shutdown, how long the transaction on the wire may take to finish before it is cut off."""
-
-
-class BusState(StrEnum):
-    OPENING = "opening"
-    OPEN = "open"
-    REOPENING = "reopening"
-    CLOSED = "closed"
 
 
 # Enum members read per transaction, as module globals (see `gateway.bus.queue`: a member read
@@ -104,7 +94,6 @@ class Bus:
         self.settings = settings
         self.name = settings.name
         self.line = line or SerialLine(settings.line)
-        self.state = BusState.OPENING
         self.stats = BusStats()
         self.drive_stats = self.stats.drives
         self.health = HealthTracker(
@@ -123,11 +112,20 @@ class Bus:
         )
         self.late_replies = carrier.late_replies
         self.gap_excess = carrier.gap_excess
+        self.dispatch = Dispatch(
+            self.name,
+            self._queue,
+            carrier,
+            self.health,
+            self.stats,
+            settings.timeout_s,
+            settings.retries,
+        )
         self._work: asyncio.Future[None] | None = None
         """Set while the bus waits for work; a new request (or a lost port) resolves it."""
         # Frames the line heard between transactions (late replies that came after every
         # drain) are accounted in the ledger as any set aside during an attempt.
-        self.line.receiver.on_set_aside = self._set_aside_between
+        self.line.receiver.on_set_aside = carrier.set_aside
         self.line.on_port_error = self._wake
         self._loop: asyncio.AbstractEventLoop | None = None
         self._opened = asyncio.Event()
@@ -176,8 +174,17 @@ class Bus:
         return self.carrier.carrying is not None
 
     @property
+    def state(self) -> BusState:
+        """What the line is (its `Dispatch` picks for an open one only)."""
+        return self.dispatch.state
+
+    @state.setter
+    def state(self, state: BusState) -> None:
+        self.dispatch.state = state
+
+    @property
     def closing(self) -> bool:
-        return self.state is _CLOSED
+        return self.dispatch.state is _CLOSED
 
     # -- what callers use (event loop) ---------------------------------------------------------
 
@@ -226,7 +233,7 @@ class Bus:
         observed_by = self.observers if self.observers.request_observers else None
         settings = self.settings
         try:
-            if self.state is not _OPEN or self.health.offline_count:
+            if self.dispatch.state is not _OPEN or self.health.offline_count:
                 self._admit(address)
             transaction = Transaction(
                 address,
@@ -365,19 +372,19 @@ class Bus:
     async def _start_next(self) -> tuple[Transaction, Sending] | None:
         """Keep the inter-frame gap, then send the best transaction there is at its end.
 
-        The choice is made in the wake-up that ends the gap (`SerialLine.send_after_gap` calls
-        `_pick` there, a learnt lead of up to a few hundred microseconds before the gap's end):
+        The choice is made in the wake-up that ends the gap (`SerialLine.send_after_gap` asks
+        the bus's `Dispatch` there, a learnt lead of up to a few hundred microseconds before the
+        gap's end):
         a write that arrives during the gap, before then, still goes first, identical reads that
         arrive during it join the one transaction, and the frame leaves without another pass of
         the event loop. With nothing queued, the bus waits for work.
         """
         # Every pass, not only when idle: a busy line must still find out a drive is back.
-        self._queue_due_probes()
+        dispatch = self.dispatch
+        dispatch.queue_due_probes()
         while not self.closing:
             try:
-                sending = await self.line.send_after_gap(
-                    self._pick, self._reply_within, self.carrier.first_answered, self._idle_for
-                )
+                sending = await self.line.send_after_gap(dispatch)
             except PortError as exc:
                 picked = self.carrier.carrying
                 if picked is not None:  # taken from the queue, but the port failed under it
@@ -395,7 +402,7 @@ class Bus:
                 continue
             if sending is not None:
                 transaction = self.carrier.carrying
-                assert transaction is not None  # a frame went out, so `_pick` chose one
+                assert transaction is not None  # a frame went out, so the dispatch chose one
                 return transaction, sending
             if self.closing:
                 return None
@@ -403,75 +410,12 @@ class Bus:
                 # Queued after the gap's end found nothing, before this coroutine resumed: its
                 # wake-up found nobody waiting, so look again rather than sleep on it.
                 continue
-            # The line has been idle for `_idle_for` (the caller held while it was: a request
-            # queued meanwhile went out at once, `_wake`).
+            # The line has been idle for `Dispatch.idle_for` (the caller held while it was: a
+            # request queued meanwhile went out at once, `_wake`).
             if not self.line.is_open or self.line.failed:
                 return None  # the port went while idle: reopen it first
-            self._queue_due_probes()
+            dispatch.queue_due_probes()
         return None
-
-    def _pick(self) -> bytes | None:
-        """Take the best transaction queued now and return its frame; None if there is none."""
-        # The first pick after a reply is the gap's end: what it finds waited for the line, and
-        # the silence before it, beyond the gap, is the gateway's own (`Carrier._sent`). That
-        # includes a request queued during the gap (clients answered together ask again
-        # together) and one queued after the gap had ended but before the gateway woke for it
-        # (it waited for the gateway: leaving it out would hide the late wake-ups). When that
-        # pick finds nothing, the line goes idle and the next request waited for nobody (a
-        # client's think time). After a broadcast or a timeout there is no reply to count from.
-        carrier = self.carrier
-        reply_heard_at = carrier.reply_heard_at
-        carrier.reply_heard_at = 0.0
-        if self.state is _CLOSED:  # `closing`, without the property's call
-            return None
-        if self.health.offline_count:  # a busy line must still find a drive is back
-            self._queue_due_probes()
-        get_nowait = self._queue.get_nowait
-        while (transaction := get_nowait()) is not None:
-            probe = transaction.probe
-            if not probe and not transaction.wanted:
-                continue  # every waiter gone (clients disconnected): no bus time for it
-            address = transaction.address
-            if (
-                address != BROADCAST_ADDRESS
-                and not probe
-                and self.health.offline_count  # none offline (the usual case): no call
-                and self.health.is_offline(address)
-            ):  # went offline while this waited: 0BH at once, without bus time
-                self.stats.offline_rejected += 1
-                fail(transaction, DriveOffline(f"drive {address} on {self.name} is offline"))
-                continue
-            carrier.carrying = transaction  # before anything can fail: it must be answered
-            carrier.back_to_back = reply_heard_at != 0.0
-            if probe or address in self.late_replies.owing:
-                # A marker first (a probe is one): `Carrier.carry` reads its answer, the frames
-                # before it set aside, then sends the request (`gateway.bus.late_replies`).
-                carrier.marker_sent = marker = self.late_replies.marker(address)
-                return marker
-            return transaction.frame or build_frame(address, transaction.pdu)
-        return None
-
-    def _set_aside_between(self, frames: tuple[Stray, ...]) -> None:
-        """The receiver's `on_set_aside`: frames heard between transactions."""
-        self.carrier.set_aside(frames)
-
-    def _idle_for(self) -> float | None:
-        """With nothing queued at a gap's end: how long the line may wait, idle, for a request
-        (`_wake` sends one queued meanwhile at once); None once the bus is closing."""
-        if self.closing:
-            return None
-        next_probe = self.health.next_probe_at()
-        wait = IDLE_WAKE_S if next_probe is None else next_probe - time.monotonic()
-        return min(max(wait, 0.001), IDLE_WAKE_S)
-
-    def _reply_within(self) -> float | None:
-        """For the transaction `_pick` just sent: how long its drive has to answer (None: a
-        broadcast, which has no reply)."""
-        carrier = self.carrier
-        carrying = carrier.carrying
-        if carrying is None or carrying.address == BROADCAST_ADDRESS or carrier.marker_sent:
-            return None  # a marker's answer is read by `Carrier.carry`, never by the hold
-        return carrying.timeout_s
 
     async def _wait_for_work(self, timeout_s: float) -> None:
         assert self._loop is not None
@@ -542,16 +486,3 @@ class Bus:
         for address in self.health.known_addresses():
             if self.health.force_offline(address, now):
                 self.observers.drive(address, False)
-
-    def _queue_due_probes(self) -> None:
-        """Queue a probe for each offline drive whose backoff is over (`due_probes`)."""
-        if not self.health.any_offline or self.state is not _OPEN:
-            return
-        settings = self.settings
-        for probe in due_probes(
-            self.health, settings.timeout_s, settings.retries, time.monotonic()
-        ):
-            try:
-                self._queue.put(probe)
-            except GatewayError:
-                return

@@ -3,9 +3,10 @@
 The bus (`gateway.bus.bus`) owns the queue and the line's life; the carrier takes the
 transaction the bus picked and has on the wire, and works out what its waiters get:
 - an attempt whose reply is whole and valid is answered (`attempt_answered`), wherever it ends:
-  in the port's reader callback (`first_answered`, for a first attempt the line finished there)
-  or in the bus's coroutine (`carry`, for everything else: retries, timeouts, bad replies,
-  markers, broadcasts). Both count, record and tell the same things through the same calls;
+  in the port's reader callback (`Dispatch.replied`, for a first attempt the line finished
+  there) or in the bus's coroutine (`carry`, for everything else: retries, timeouts, bad
+  replies, markers, broadcasts). Both count, record and tell the same things through the same
+  calls;
 - an attempt to a drive that owes replies starts with a marker (`gateway.bus.late_replies`),
   whose answer brings it back in step (`_catch_up`); a probe is a marker and nothing else;
 - every frame set aside on the way is accounted in the ledger (`set_aside`), and every frame
@@ -18,7 +19,6 @@ import asyncio
 import logging
 import time
 from collections.abc import Callable
-from functools import partial
 from typing import Any
 
 from gateway.bus.exchange import Exchange, Sending, Stray
@@ -27,6 +27,7 @@ from gateway.bus.health import HealthTracker
 from gateway.bus.late_replies import LateReplies
 from gateway.bus.line import SerialLine
 from gateway.bus.line_settings import LineSettings
+from gateway.bus.line_user import OneFrame
 from gateway.bus.observers import BusObservers, answer, fail
 from gateway.bus.queue import RequestQueue, Transaction
 from gateway.bus.stats import BusStats, DriveStats
@@ -74,7 +75,7 @@ class Carrier:
         self.gap_excess = GapExcess()
         """The silence beyond the inter-frame gap before each back-to-back request: our share."""
         self.carrying: Transaction | None = None
-        """The transaction taken from the queue (the bus's `_pick`, at the gap's end) until it
+        """The transaction taken from the queue (`Dispatch.pick`, at the gap's end) until it
         is answered: on the wire, or about to be. Whoever holds it must answer it."""
         self.marker_sent: bytes | None = None
         """The marker sent in place of `carrying`'s frame (a probe's, or its drive owes
@@ -98,30 +99,6 @@ class Carrier:
         if drive is None:
             drive = self.drive_stats[address] = DriveStats()
         return drive
-
-    # -- the first attempt, answered in the port's reader callback ------------------------------
-
-    def first_answered(self, sending: Sending, pdu: bytes, heard_at: float) -> None:
-        """The first attempt of the transaction carried has its whole and valid reply, heard as
-        the line's reader callback finished it (`GapKeeper.heard`, `Replied`): the transaction
-        ends here, through the calls `carry` and the bus's coroutine end it with, without the
-        coroutine (one pass of the event loop less per transaction). A timeout, a bad, partial
-        or late reply, retries: those go the coroutine's way. Never a broadcast."""
-        transaction = self.carrying
-        assert transaction is not None  # the line holds a reply to what the bus picked
-        started = sending.started
-        outcome: Outcome
-        try:
-            address = transaction.address
-            drive = self.drive_stats.get(address) or self.drive(address)
-            self._sent(drive, sending.frame, sending)
-            drive.line_s += time.monotonic() - started
-            outcome = self.attempt_answered(
-                transaction, 0, started, pdu, sending.gap_s, heard_at - started, heard_at, drive
-            )
-        except Exception as exc:  # a bug costs this one request, never the line
-            outcome = self.bug(transaction, exc)
-        self.finish(transaction, outcome, started)
 
     def finish(self, transaction: Transaction, outcome: Outcome, started: float | None) -> None:
         """A transaction taken from the queue is over, whichever way: charge the line's time
@@ -156,7 +133,7 @@ class Carrier:
         late = self.late_replies
         tap = self.observers.tap
         drive = self.drive(address)
-        self._sent(drive, first.frame, first)
+        self.sent(drive, first.frame, first)
         # A probe brings its own retries; a drive that just failed gets none.
         retries = transaction.retries
         cut = not transaction.probe and self.health.is_suspect(address)
@@ -164,7 +141,7 @@ class Carrier:
             retries = 0
         errors: list[LineError] = []
         # The first attempt is on its way: the request itself, or the marker that brings its
-        # drive back in step (the bus's `_pick`).
+        # drive back in step (`Dispatch.pick`).
         pending: Sending | None = first
         marker_pending: Sending | None = None
         if self.marker_sent is not None:
@@ -187,9 +164,9 @@ class Carrier:
                 ):
                     sent, marker_pending = marker_pending, None  # taken, whatever comes of it
                     if sent is None:
-                        sent = await self.line.send_after_gap(partial(late.marker, address))
+                        sent = await self.line.send_after_gap(OneFrame(late.marker(address)))
                         assert sent is not None  # the pick always has a frame
-                        self._sent(drive, sent.frame)
+                        self.sent(drive, sent.frame)
                     on_wire = sent.frame
                     if transaction.probe:  # what the traffic monitor shows of it
                         transaction.pdu = on_wire[1:-2]
@@ -205,7 +182,7 @@ class Carrier:
                         sending, expect_reply=not broadcast, timeout_s=transaction.timeout_s
                     )
                 else:
-                    self._sent(drive, frame)
+                    self.sent(drive, frame)
                     exchange = await self.line.transact(
                         frame, expect_reply=not broadcast, timeout_s=transaction.timeout_s
                     )
@@ -342,7 +319,7 @@ class Carrier:
 
     # -- an attempt's end, either way -------------------------------------------------------------
 
-    def _sent(self, drive: DriveStats, frame: bytes, first: Sending | None = None) -> None:
+    def sent(self, drive: DriveStats, frame: bytes, first: Sending | None = None) -> None:
         """An attempt's frame went out (whichever way it ends): counted. `first`: it is the
         transaction's first frame (its request, or a marker before it), sent as the gap ended;
         for a transaction the gap's end found waiting, the silence the gateway added before it

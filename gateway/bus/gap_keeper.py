@@ -23,6 +23,7 @@ from gateway.bus.exchange import Sending
 from gateway.bus.gap_lead import GapLead, loop_spin_budget
 from gateway.bus.line_settings import LineSettings
 from gateway.bus.line_timer import LineTimer
+from gateway.bus.line_user import LineUser
 from gateway.bus.port import Port
 from gateway.bus.receiver import Receiver
 from gateway.bus.rts import RtsSwitch
@@ -31,10 +32,6 @@ from gateway.errors import BadReply, PortError
 from gateway.modbus.reply_search import Found
 from gateway.modbus.rtu import PlainRead, check_reply, plain_read, plain_read_reply
 
-Replied = Callable[[Sending, bytes, float], None]
-"""Told, in the port's reader callback, of an attempt whose whole and valid reply is there:
-the attempt's `Sending`, the reply's PDU and when its last byte was heard (`time.monotonic()`).
-Not an `Exchange`: its fields follow from these, and most transactions have no use for one."""
 _new_tuple = tuple.__new__
 """Builds a NamedTuple from a tuple of all its fields, in C: `Sending(...)` goes through the
 NamedTuple's `__new__`, a Python function called from C, which costs twice as much (~2,900
@@ -49,21 +46,20 @@ _NO_DEADLINE = math.inf
 read more)."""
 
 _STILL_COMING = b""
-"""`GapKeeper._reply_held`: the held caller's reply is not all there yet (no PDU is empty)."""
+"""`_held_reply`: the held caller's reply is not all there yet (no PDU is empty)."""
 
 
 @dataclass(slots=True)
 class _Round:
-    """One `send_after_gap` call: how it picks and sends, and what came of it for its caller."""
+    """One `send_after_gap` call: whom it sends for, and what came of it for its caller."""
 
-    pick: Callable[[], bytes | None]
-    reply_within: Callable[[], float | None] | None
-    replied: Replied | None
+    user: LineUser
     outcome: list[Sending | Exception | None]
     """Empty until a frame went out (its Sending), nothing was picked (None) or that failed."""
-    idle_for: Callable[[], float | None] | None = None
-    """When `pick` has nothing at a gap's end: how long the caller may stay held, idle, for a
-    request to come (`GapKeeper.kick`); None: return None to it at once."""
+    may_idle: bool = True
+    """When the user's `pick` has nothing at a gap's end, the caller may stay held, idle, for
+    a request to come (`LineUser.idle_for`, `GapKeeper.kick`); False once an idle wait is over:
+    the caller gets None then."""
     picked: bytes | None = None
     """A frame chosen before the gap's end that could not go out then (bytes came in the last
     microseconds of the gap, which starts again): it goes at the next gap's end, as a frame
@@ -87,9 +83,9 @@ class _Round:
     (`gateway.modbus.rtu.plain_read`)."""
 
     def take_pick(self) -> bytes | None:
-        """The frame to send now: the one chosen earlier, if any, else `pick`'s."""
+        """The frame to send now: the one chosen earlier, if any, else the user's pick."""
         picked, self.picked = self.picked, None
-        return picked if picked is not None else self.pick()
+        return picked if picked is not None else self.user.pick()
 
 
 class GapKeeper:
@@ -151,41 +147,36 @@ class GapKeeper:
             self._response_deadline.close()
             self._response_deadline = None
 
-    async def send_after_gap(
-        self,
-        pick: Callable[[], bytes | None],
-        reply_within: Callable[[], float | None] | None = None,
-        replied: Replied | None = None,
-        idle_for: Callable[[], float | None] | None = None,
-    ) -> Sending | None:
-        """At the end of the inter-frame gap, ask `pick` for a frame and start writing it.
+    async def send_after_gap(self, user: LineUser) -> Sending | None:
+        """At the end of the inter-frame gap, ask `user` for a frame (`LineUser.pick`) and
+        start writing it.
 
-        `pick` runs in the wake-up that ends the gap (inside the gap timer's callback), so the
-        gap is not stretched by another pass of the event loop; that wake-up comes a learnt
-        lead before the gap's end (`gateway.bus.gap_lead`, up to a few hundred microseconds),
-        and the rest of the gap is waited out on the clock, so the frame goes out as the gap
-        ends. None from `pick`: nothing to send now (returned as None). Bytes arriving during the
-        gap restart it; a frame already chosen then goes at the new gap's end.
+        The pick is made in the wake-up that ends the gap (inside the gap timer's callback),
+        so the gap is not stretched by another pass of the event loop; that wake-up comes a
+        learnt lead before the gap's end (`gateway.bus.gap_lead`, up to a few hundred
+        microseconds), and the rest of the gap is waited out on the clock, so the frame goes
+        out as the gap ends. Nothing picked: nothing to send now (returned as None). Bytes
+        arriving during the gap restart it; a frame already chosen then goes at the new gap's
+        end.
 
-        `reply_within`, asked right after `pick`: how long the drive has to answer the frame
-        just picked (None: no reply, or none to wait for here). The caller then resumes when
-        the reply's first bytes come (or that time passes) instead of as the frame goes out:
-        nothing is left to do between the two, and it saves the loop a pass per transaction.
+        With the frame's `LineUser.reply_timeout_s` set, the caller resumes when the reply's
+        first bytes come (or that time passes) instead of as the frame goes out: nothing is
+        left to do between the two, and it saves the loop a pass per transaction. When the
+        reply is all there and valid as it comes in, the port's reader callback finishes the
+        attempt itself and tells `LineUser.replied`, keeps the gap and sends the next frame
+        picked, the caller held all along: a busy line costs the loop no pass for the caller's
+        coroutine. What the caller gets in the end is the attempt its own reading must finish
+        (`finish`: a reply that is late, partial, bad or ended by a silence), or None once
+        nothing is picked.
 
-        `replied`, with `reply_within`: when the reply is all there and valid as it comes in,
-        the port's reader callback finishes the attempt itself and tells `replied`, keeps the
-        gap and sends the next frame `pick` gives, the caller held all along: a busy line
-        costs the loop no pass for the caller's coroutine. What the caller gets in the end is
-        the attempt its own reading must finish (`finish`: a reply that is late, partial, bad
-        or ended by a silence), or None once `pick` has nothing.
-
-        `idle_for`: when `pick` has nothing, how long the caller may stay held with the line
-        idle (None: not at all): a request queued meanwhile is sent by `kick`, in the callback
-        that queued it, and its reply read by the reader callback as above, with no pass of the
-        loop for the caller's coroutine; None is returned once that time has passed idle.
+        With nothing picked, the caller stays held with the line idle for as long as
+        `LineUser.idle_for` says (None: not at all): a request queued meanwhile is sent by
+        `kick`, in the callback that queued it, and its reply read by the reader callback as
+        above, with no pass of the loop for the caller's coroutine; None is returned once that
+        time has passed idle.
         """
         gap = self.settings.gap_s
-        this = _Round(pick, reply_within, replied, [], idle_for)
+        this = _Round(user, [])
         this.at_gap_end = at_gap_end = partial(self._send_at_gap_end, this)
         while True:
             self._discard_pending()
@@ -196,7 +187,7 @@ class GapKeeper:
                 frame = this.take_pick()
                 if frame is not None:
                     return self._send_frame(frame, 0.0)
-                idle_s = None if idle_for is None else idle_for()
+                idle_s = user.idle_for()
                 if idle_s is None:
                     return None
                 self._idle = this
@@ -300,17 +291,14 @@ class GapKeeper:
         callback finishing the attempt (`heard`) or waking the caller, whose own reading then
         decides; False: the caller's own reading does it all (`finish` has more to do than wait
         for the reply: the frame's tail to write, RTS to switch back, an echo to read first)."""
-        reply_within = this.reply_within
+        within_s = this.user.reply_timeout_s
         frame = sending.frame
         if (
-            reply_within is None
+            within_s is None
             or self.settings.echo
             or self._rts is not None
             or sending.written != len(frame)
         ):
-            return False
-        within_s = reply_within()
-        if within_s is None:
             return False
         port, timer = self._port, self._timer
         waiting = timer.waiting if timer is not None else None
@@ -333,13 +321,12 @@ class GapKeeper:
         # What came, when: for echoes and bursts (nothing has come since `received` was seen
         # empty at the gap's end: no other callback ran in between).
         self.receiver.arrivals = [(0, sent)]
-        if this.replied is not None:
-            if frame is not this.sending.frame:
-                # Else the round's last request again (a poller's, its frame remembered by the
-                # bus): its reply's length is known, without the cache's lookup.
-                this.plain_read = plain_read(frame)
-            this.sending, this.sent = sending, sent
-            self._held = this
+        if frame is not this.sending.frame:
+            # Else the round's last request again (a poller's, its frame remembered by the
+            # bus): its reply's length is known, without the cache's lookup.
+            this.plain_read = plain_read(frame)
+        this.sending, this.sent = sending, sent
+        self._held = this
         return True
 
     def kick(self) -> None:
@@ -372,9 +359,9 @@ class GapKeeper:
     def _go_idle(self, this: _Round) -> bool:
         """`pick` had nothing at a gap's end: hold the caller, idle, for `kick` (True), if
         its round allows and the wait can be taken over."""
-        if this.idle_for is None or self._timer is None:
+        if not this.may_idle or self._timer is None:
             return False
-        idle_s = this.idle_for()
+        idle_s = this.user.idle_for()
         if idle_s is None:
             return False
         if not self._timer.rearm(time.monotonic() + idle_s, partial(self._idle_over, this)):
@@ -386,7 +373,7 @@ class GapKeeper:
         """The idle wait is over with nothing queued: the caller gets None (a last look first,
         for a request queued without a `kick`)."""
         self._idle = None
-        this.idle_for = None
+        this.may_idle = False
         if self._send_at_gap_end(this, timed=False):
             return True
         if not this.outcome:
@@ -436,7 +423,7 @@ class GapKeeper:
                 receiver.quiet_since = time.monotonic()  # as `Receiver.take` stamps it
             else:
                 receiver.take(data)
-                pdu = self._reply_held(held)
+                pdu = _held_reply(receiver, held)
         else:
             receiver.take(data)
         if pdu:
@@ -454,8 +441,7 @@ class GapKeeper:
             this = held
             this.outcome.clear()
             try:
-                assert this.replied is not None
-                this.replied(held.sending, pdu, receiver.quiet_since)
+                this.user.replied(held.sending, pdu, receiver.quiet_since)
                 # What came after the reply: nobody asked for it. Not `_discard_pending`: the
                 # port was read this very callback, and bytes that come during the gap are seen
                 # at its end (`_send_at_gap_end`), which starts it again.
@@ -489,42 +475,6 @@ class GapKeeper:
             if armed and (len(armed) > 1 or timer not in armed):
                 timer.fire_due()
 
-    def _reply_held(self, held: _Round) -> bytes | None:
-        """The reader callback, while a caller is held until its reply, for what the common
-        case in `heard` leaves: the reply's PDU, taken out of the buffer, if it is all there
-        and valid; `_STILL_COMING` while it is still coming (the caller stays held); None:
-        wake the caller, whose own reading decides (`ReplyReader`: a corrupt reply, one ended
-        by a silence), going on with the record of arrivals the hold began.
-        """
-        frame = held.sending.frame
-        receiver = self.receiver
-        received = receiver.received
-        arrivals = receiver.arrivals
-        pdu = None
-        expected = held.plain_read
-        if expected is not None and arrivals is not None and len(arrivals) == 2:
-            # A read's reply, alone and in one piece, that came after bytes of no use, or
-            # behind other bytes in the buffer (`heard` takes only a lone one directly).
-            pdu = plain_read_reply(received, expected)
-        if pdu is not None:
-            received.clear()
-            return pdu
-        search = receiver.search(frame, receiver.echo_deadline(frame, held.sent))
-        found = search.found
-        if found is Found.PARTIAL or found is Found.NOTHING:
-            # Still coming (adapters deliver in bursts), or so far only a glitch: the hold's
-            # deadline, the response timeout, wakes the caller if it never completes.
-            return _STILL_COMING
-        if found is not Found.COMPLETE:
-            return None
-        try:
-            reply = bytes(received[search.start : search.end])
-            pdu = check_reply(frame, reply, crc_checked=True)
-        except BadReply:
-            return None  # the caller finds it too, counts it and drains the line
-        receiver.take_reply(search, search.end)
-        return pdu
-
     def _clear_response_deadline(self) -> None:
         if self._response_deadline is not None:
             self._response_deadline.clear()
@@ -532,3 +482,39 @@ class GapKeeper:
     def _release_caller(self) -> None:
         if self._timer is not None and self._timer.waiting is not None:
             settle(self._timer.waiting)
+
+
+def _held_reply(receiver: Receiver, held: _Round) -> bytes | None:
+    """The reader callback, while a caller is held until its reply, for what the common
+    case in `GapKeeper.heard` leaves: the reply's PDU, taken out of the buffer, if it is all there
+    and valid; `_STILL_COMING` while it is still coming (the caller stays held); None:
+    wake the caller, whose own reading decides (`ReplyReader`: a corrupt reply, one ended
+    by a silence), going on with the record of arrivals the hold began.
+    """
+    frame = held.sending.frame
+    received = receiver.received
+    arrivals = receiver.arrivals
+    pdu = None
+    expected = held.plain_read
+    if expected is not None and arrivals is not None and len(arrivals) == 2:
+        # A read's reply, alone and in one piece, that came after bytes of no use, or
+        # behind other bytes in the buffer (`heard` takes only a lone one directly).
+        pdu = plain_read_reply(received, expected)
+    if pdu is not None:
+        received.clear()
+        return pdu
+    search = receiver.search(frame, receiver.echo_deadline(frame, held.sent))
+    found = search.found
+    if found is Found.PARTIAL or found is Found.NOTHING:
+        # Still coming (adapters deliver in bursts), or so far only a glitch: the hold's
+        # deadline, the response timeout, wakes the caller if it never completes.
+        return _STILL_COMING
+    if found is not Found.COMPLETE:
+        return None
+    try:
+        reply = bytes(received[search.start : search.end])
+        pdu = check_reply(frame, reply, crc_checked=True)
+    except BadReply:
+        return None  # the caller finds it too, counts it and drains the line
+    receiver.take_reply(search, search.end)
+    return pdu

@@ -40,9 +40,10 @@ from collections.abc import Callable
 from gateway.bus.direction import DirectionMode
 from gateway.bus.exchange import Exchange as Exchange
 from gateway.bus.exchange import Sending as Sending
-from gateway.bus.gap_keeper import GapKeeper, Replied
+from gateway.bus.gap_keeper import GapKeeper
 from gateway.bus.line_settings import LineSettings as LineSettings
 from gateway.bus.line_timer import LineTimer
+from gateway.bus.line_user import LineUser, OneFrame
 from gateway.bus.port import Port, open_port
 from gateway.bus.receiver import BURSTS_FROM_S as BURSTS_FROM_S
 from gateway.bus.receiver import Receiver
@@ -156,21 +157,15 @@ class SerialLine:
 
         Raises ReplyTimeout or BadReply (after draining the line), or PortError (port closed).
         """
-        sending = await self.send_after_gap(lambda: frame)
+        sending = await self.send_after_gap(OneFrame(frame))
         assert sending is not None  # the pick always has a frame
         return await self.finish(sending, expect_reply=expect_reply, timeout_s=timeout_s)
 
-    async def send_after_gap(
-        self,
-        pick: Callable[[], bytes | None],
-        reply_within: Callable[[], float | None] | None = None,
-        replied: Replied | None = None,
-        idle_for: Callable[[], float | None] | None = None,
-    ) -> Sending | None:
-        """At the end of the inter-frame gap, ask `pick` for a frame and start writing it
+    async def send_after_gap(self, user: LineUser) -> Sending | None:
+        """At the end of the inter-frame gap, ask `user` for a frame and start writing it
         (`GapKeeper.send_after_gap`: the gap, the lead, the caller held while replies come
         and while the line is idle)."""
-        return await self._gap.send_after_gap(pick, reply_within, replied, idle_for)
+        return await self._gap.send_after_gap(user)
 
     def kick(self) -> None:
         """A request was queued: an idle line sends it now (`GapKeeper.kick`)."""

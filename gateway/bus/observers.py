@@ -84,7 +84,7 @@ class BusObservers:
     ) -> None:
         """Show the traffic monitor a marker as what it is: its own request, client `resync`,
         before the request it brought its drive in step for. A probe is its marker (its
-        attempt is shown as the probe's, with the marker's request: the bus's `_pick`)."""
+        attempt is shown as the probe's, with the marker's request: `Dispatch.pick`)."""
         tap = self.tap
         if tap is not None and not transaction.probe:
             marker = Transaction(

@@ -58,7 +58,7 @@ class Receiver:
         self.virtual = False
         """The port is a pty: no wire, so no wire timing to judge an echo by."""
         self.discarded_bytes = 0
-        self.on_set_aside: Callable[[tuple[Stray, ...]], None] | None = None
+        self.on_set_aside: Callable[[tuple[Stray, ...]], object] | None = None
         """Told of the whole, sound frames among bytes thrown away (`discard`): the bus
         accounts them in its ledger."""
         self.garbage_bytes = 0

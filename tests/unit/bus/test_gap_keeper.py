@@ -21,6 +21,7 @@ from gateway.modbus.rtu import build_frame
 from gateway.modbus.timing import CharacterFormat
 from gateway.settings import bus_settings
 from tests.support import eventually, read_pdu
+from tests.unit.bus.line_users import send_after_gap
 
 STATE_WORD_1 = 0x2100
 REQUEST = build_frame(1, read_pdu(STATE_WORD_1))
@@ -95,7 +96,7 @@ class Drive:
 
 
 def picking(frames: deque[bytes], picked_at: list[float]) -> Callable[[], bytes | None]:
-    """The bus's `_pick` for these tests: the next frame, until there is none; when asked."""
+    """`Dispatch.pick` for these tests: the next frame, until there is none; when asked."""
 
     def pick() -> bytes | None:
         picked_at.append(time.monotonic())
@@ -117,7 +118,7 @@ async def test_a_frame_leaves_a_whole_gap_after_the_last_byte_heard_and_is_chose
             await eventually(lambda: line.busy_until >= noise_at, what="the noise heard")
             picked_at: list[float] = []
             sending = await asyncio.wait_for(
-                line.send_after_gap(picking(deque([REQUEST]), picked_at)), 2.0
+                send_after_gap(line, picking(deque([REQUEST]), picked_at)), 2.0
             )
             assert sending is not None
             await eventually(lambda: drive.requests, what="the request at the drive")
@@ -141,7 +142,7 @@ async def noise_in_the_gap() -> tuple[Sending, Drive]:
         drive = Drive(master)
         try:
             asyncio.get_running_loop().call_later(GAP_S / 3, drive.make_noise)
-            sending = await asyncio.wait_for(line.send_after_gap(picking(deque([REQUEST]), [])), 2)
+            sending = await asyncio.wait_for(send_after_gap(line, picking(deque([REQUEST]), [])), 2)
             assert sending is not None
             await eventually(lambda: drive.requests and drive.wrote, what="the request")
         finally:
@@ -188,7 +189,8 @@ async def test_every_frame_after_a_reply_waits_a_gap_from_the_last_byte_even_byt
         drive = Drive(master, answer)
         try:
             ended = await asyncio.wait_for(
-                line.send_after_gap(
+                send_after_gap(
+                    line,
                     picking(frames, []),
                     lambda: 0.5,
                     lambda sending, pdu, _heard_at: replied.append((sending, pdu)),
@@ -225,7 +227,7 @@ async def test_a_caller_held_idle_has_a_request_sent_in_the_call_that_queues_it(
         try:
             loop.call_later(3 * GAP_S, queue_a_request)  # the line idle by then
             sending = await asyncio.wait_for(
-                line.send_after_gap(picking(frames, picked_at), idle_for=lambda: 1.0), 2.0
+                send_after_gap(line, picking(frames, picked_at), idle_for=lambda: 1.0), 2.0
             )
         finally:
             line.close()
@@ -242,12 +244,12 @@ async def test_a_caller_held_idle_gets_nothing_once_its_idle_time_is_over() -> N
         try:
             began = time.monotonic()
             sending = await asyncio.wait_for(
-                line.send_after_gap(picking(deque(), []), idle_for=lambda: idle_s), 2.0
+                send_after_gap(line, picking(deque(), []), idle_for=lambda: idle_s), 2.0
             )
             held_s = time.monotonic() - began
             # Without an idle time: back as the gap ends, with nothing.
             again = time.monotonic()
-            nothing = await asyncio.wait_for(line.send_after_gap(picking(deque(), [])), 2.0)
+            nothing = await asyncio.wait_for(send_after_gap(line, picking(deque(), [])), 2.0)
             back_s = time.monotonic() - again
         finally:
             line.close()

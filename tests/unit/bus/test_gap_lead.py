@@ -31,6 +31,7 @@ from gateway.instruments.simulator import SimulatedLine
 from gateway.modbus.rtu import build_frame
 from gateway.settings import bus_settings
 from tests.support import read_pdu, running_bus
+from tests.unit.bus.line_users import send_after_gap
 
 STATE_WORD_1 = 0x2100
 
@@ -179,7 +180,7 @@ async def test_bytes_while_the_frame_is_chosen_start_the_gap_again_with_that_fra
             serial.gap_lead.lead_s = 0.005
             glitch = Glitch(master, slave, frame, serial.busy_until + gap_s)
             try:
-                sending = await asyncio.wait_for(serial.send_after_gap(glitch.pick), 5.0)
+                sending = await asyncio.wait_for(send_after_gap(serial, glitch.pick), 5.0)
             finally:
                 serial.close()
             assert await read_exactly(master, len(frame)) == frame  # once, whole
@@ -199,7 +200,7 @@ async def test_bytes_while_the_frame_is_chosen_start_the_gap_again_with_that_fra
 
 
 class Glitch:
-    """The bus's `_pick` for one frame, and a transceiver's glitch byte on the line as it is
+    """`Dispatch.pick` for one frame, and a transceiver's glitch byte on the line as it is
     called, if that is before the gap's end."""
 
     def __init__(self, master: int, slave: int, frame: bytes, gap_end: float) -> None:

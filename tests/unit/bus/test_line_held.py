@@ -24,6 +24,7 @@ from gateway.modbus.rtu import build_frame
 from gateway.modbus.timing import FAST_T35_S
 from gateway.settings import bus_settings
 from tests.support import read_pdu, write_pdu
+from tests.unit.bus.line_users import send_after_gap
 
 STATE_WORD_1 = 0x2100
 FREQUENCY_SETPOINT = 0x2001
@@ -48,7 +49,7 @@ def open_line(path: str, baudrate: int = 115200) -> SerialLine:
 
 
 def picking(frames: deque[bytes]) -> Callable[[], bytes | None]:
-    """The bus's `_pick` for these tests: the next frame, until there is none."""
+    """`Dispatch.pick` for these tests: the next frame, until there is none."""
     return lambda: frames.popleft() if frames else None
 
 
@@ -61,7 +62,8 @@ async def test_the_caller_stays_held_while_the_reader_callback_carries_each_tran
     try:
         # Every frame but the first is picked in a callback, after the reply before it.
         ended = await asyncio.wait_for(
-            serial.send_after_gap(
+            send_after_gap(
+                serial,
                 picking(frames),
                 lambda: 0.5,
                 lambda sending, pdu, heard_at: replied.append((sending, pdu, heard_at)),
@@ -96,7 +98,8 @@ async def test_a_reply_that_never_comes_goes_back_to_the_callers_own_reading(
     serial = open_line(line.path)
     try:
         waiting = await asyncio.wait_for(
-            serial.send_after_gap(
+            send_after_gap(
+                serial,
                 picking(frames),
                 lambda: 0.05,
                 lambda _sending, pdu, _heard_at: replied.append(pdu),
@@ -122,7 +125,8 @@ async def test_a_held_caller_whose_drive_is_silent_wakes_at_its_response_timeout
     serial = open_line(line.path)
     try:
         waiting = await asyncio.wait_for(
-            serial.send_after_gap(
+            send_after_gap(
+                serial,
                 picking(deque([build_frame(SILENT, read_pdu(STATE_WORD_1))])),
                 lambda: within_s,
                 lambda _sending, _pdu, _heard_at: None,
@@ -147,7 +151,8 @@ async def test_a_port_that_fails_while_the_caller_is_held_is_reported_at_once(
     serial = open_line(line.path)
     try:
         held = asyncio.ensure_future(
-            serial.send_after_gap(
+            send_after_gap(
+                serial,
                 picking(deque([build_frame(SILENT, read_pdu(STATE_WORD_1))])),
                 lambda: 10.0,
                 lambda _sending, _pdu, _heard_at: None,
@@ -190,7 +195,8 @@ async def test_a_frame_the_ports_buffer_refuses_at_the_gaps_end_goes_out_through
     try:
         while True:
             ended = await asyncio.wait_for(
-                serial.send_after_gap(
+                send_after_gap(
+                    serial,
                     picking(frames),
                     lambda: 0.5,
                     lambda sending, pdu, _heard_at: replied.append((sending, pdu)),
@@ -221,7 +227,7 @@ async def test_a_failure_in_the_callers_hook_reaches_the_caller(line: SimulatedL
     try:
         with pytest.raises(RuntimeError, match="a bug in the bus"):
             await asyncio.wait_for(
-                serial.send_after_gap(picking(frames), lambda: 0.5, replied),
+                send_after_gap(serial, picking(frames), lambda: 0.5, replied),
                 5.0,
             )
     finally:
@@ -257,7 +263,7 @@ async def test_an_echo_seen_while_held_is_still_known_for_one_when_the_reply_sto
     try:
         frames = deque([request])
         waiting = await asyncio.wait_for(
-            serial.send_after_gap(picking(frames), lambda: 0.1, lambda *_: None),
+            send_after_gap(serial, picking(frames), lambda: 0.1, lambda *_: None),
             5.0,
         )
         assert waiting is not None  # not carried by the callback: the reply never completed

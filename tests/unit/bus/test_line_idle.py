@@ -11,7 +11,8 @@ import tty
 from collections.abc import AsyncIterator, Iterator
 from contextlib import asynccontextmanager, contextmanager
 
-from gateway.bus.bus import IDLE_WAKE_S, Bus
+from gateway.bus.bus import Bus
+from gateway.bus.dispatch import IDLE_WAKE_S
 from gateway.bus.queue import Priority
 from gateway.config import BusConfig
 from gateway.modbus.rtu import build_frame

@@ -18,6 +18,7 @@ from gateway.config import BusConfig
 from gateway.errors import PortError
 from gateway.settings import bus_settings
 from tests.support import eventually
+from tests.unit.bus.line_users import send_after_gap
 
 
 def line_on(path: str) -> SerialLine:
@@ -77,7 +78,7 @@ async def test_an_adapter_pulled_between_transactions_is_told_at_once_and_named_
         await eventually(lambda: told, within_s=2.0, what="the port's failure told")
         assert told == [True]  # once, with nobody waiting on the port
         with pytest.raises(PortError, match=f"read from {path} failed"):
-            await asyncio.wait_for(line.send_after_gap(lambda: b"\x01\x03"), 2.0)
+            await asyncio.wait_for(send_after_gap(line, lambda: b"\x01\x03"), 2.0)
         assert not line.is_open  # closed by the use that found out: the bus reopens it
     finally:
         line.close()

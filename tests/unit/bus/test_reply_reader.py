@@ -22,6 +22,7 @@ from gateway.errors import BadReply, ReplyTimeout
 from gateway.modbus.rtu import build_frame
 from gateway.settings import bus_settings
 from tests.support import read_pdu, write_pdu
+from tests.unit.bus.line_users import send_after_gap
 
 REQUEST = build_frame(1, read_pdu(0x2100))
 STOPPED_REPLY = bytes.fromhex("03 02 00 03")
@@ -145,7 +146,7 @@ async def test_a_frame_that_answers_an_owed_request_is_never_the_answer() -> Non
     owed_reply = build_frame(1, bytes.fromhex("03 04 00 03 00 00"))
     ours = build_frame(1, read_pdu(0x2100))
     async with line_and_drive() as (line, drive):
-        sending = await line.send_after_gap(lambda: ours)
+        sending = await send_after_gap(line, lambda: ours)
         assert sending is not None
         attempt = asyncio.ensure_future(
             line.finish(sending, expect_reply=True, timeout_s=0.5, owed=(older,))
@@ -185,6 +186,6 @@ async def test_a_broadcast_holds_the_line_for_the_drives_turnaround() -> None:
         assert exchange.reply_pdu is None
         assert exchange.busy_s >= 0.05
         # The next frame waits for the turnaround's end and its gap after it.
-        following = await asyncio.wait_for(line.send_after_gap(lambda: REQUEST), 2.0)
+        following = await asyncio.wait_for(send_after_gap(line, lambda: REQUEST), 2.0)
     assert following is not None
     assert following.started >= sent + 0.05 + line.settings.gap_s
