@@ -193,7 +193,8 @@ class GapKeeper:
                 self._idle = this
                 wake_at, action = now + idle_s, partial(self._idle_over, this)
             else:
-                wake_at = self._wake_at(due)
+                # Early by the learnt lead (0 where the timer has no timerfd: nothing learnt).
+                wake_at = due - self.gap_lead.lead_s
                 if wake_at <= now:  # within the lead already: wait out the rest, then look again
                     self.gap_lead.wait_out(due)
                     continue
@@ -208,11 +209,6 @@ class GapKeeper:
                 if isinstance(outcome, Exception):
                     raise outcome  # in the caller's coroutine, not lost in a loop callback
                 return outcome
-
-    def _wake_at(self, gap_end: float) -> float:
-        """When the timer should wake the line for a gap ending at `gap_end`: early by the
-        learnt lead (which stays 0 where the timer has no timerfd: nothing is learnt there)."""
-        return gap_end - self.gap_lead.lead_s
 
     def _send_at_gap_end(self, this: _Round, timed: bool = True) -> bool:
         """The gap timer's action: send as the gap ends, if the line is still quiet and usable.
@@ -337,7 +333,7 @@ class GapKeeper:
             return
         self._idle = None
         due = self.receiver.quiet_since + self.settings.gap_s
-        wake_at = self._wake_at(due)
+        wake_at = due - self.gap_lead.lead_s
         if wake_at > time.monotonic():  # the line was heard while idle: its gap first
             assert this.at_gap_end is not None  # set as the round began
             if timer.rearm(wake_at, this.at_gap_end):
@@ -451,7 +447,8 @@ class GapKeeper:
                 kept = False  # else the caller's loop takes it from here (`outcome` says what)
                 # A port gone or failed: the caller's own loop finds out what became of it.
                 if port is not None and port.usable and timer is not None:
-                    wake_at = self._wake_at(receiver.quiet_since + self.settings.gap_s)
+                    gap_end = receiver.quiet_since + self.settings.gap_s
+                    wake_at = gap_end - self.gap_lead.lead_s
                     if wake_at > time.monotonic():
                         assert this.at_gap_end is not None  # set as the round began
                         kept = timer.rearm(wake_at, this.at_gap_end)

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Callable
 from typing import Protocol, cast
 
 from gateway.bus.queue import Waiter
@@ -98,7 +97,11 @@ class Connection(asyncio.Protocol):
         self._fast: set[_Answer] = set()
         """Reads on the fast path (no task): waiting for the bus, answered by it."""
         self._transport: asyncio.Transport | None = None
-        self.transport_closing: Callable[[], bool] = _no_transport
+        self.gone = True
+        """No answer can reach the client: not connected yet, closed or aborted here, or lost.
+        An attribute, not the transport's `is_closing()`: a fast-path read asks it twice
+        (`_Answer.done`), and asyncio's transport answers in Python. A transport the loop
+        closes itself (the client's EOF, an error) is `gone` a pass later, at `connection_lost`."""
         self._buffer = bytearray()
         self._paused = False
         self._deferred = False
@@ -125,9 +128,7 @@ class Connection(asyncio.Protocol):
         # A stream transport: asyncio's, or uvloop's (which doesn't derive from asyncio's
         # classes, so no isinstance check here).
         self._transport = cast(asyncio.Transport, transport)
-        self.transport_closing = self._transport.is_closing
-        """The transport's own `is_closing`, bound once: a fast-path read asks it twice
-        (`_Answer.done`). A transport once closing stays so, after `connection_lost` too."""
+        self.gone = False
         peer = transport.get_extra_info("peername") or ("?", 0)
         self.host = str(peer[0])
         self.client = f"tcp:{peer[0]}:{peer[1]}"
@@ -141,11 +142,12 @@ class Connection(asyncio.Protocol):
             )
             log.debug("%s: TLS client, role %s", self.client, self.role or "(none)")
         if not self.server.admit(self):
-            transport.close()
+            self.close()
             return
         self._arm_idle_timer()
 
     def connection_lost(self, exc: Exception | None) -> None:
+        self.gone = True
         self.server.forget(self)
         if self._idle_timer is not None:
             self._idle_timer.cancel()
@@ -159,10 +161,12 @@ class Connection(asyncio.Protocol):
         self.server._settled()
 
     def close(self) -> None:
+        self.gone = True
         if self._transport is not None:
             self._transport.close()
 
     def abort(self) -> None:
+        self.gone = True
         if self._transport is not None:
             self._transport.abort()
 
@@ -427,14 +431,9 @@ class Connection(asyncio.Protocol):
                 log.info("%s closed: %s", self.client, reason, extra=repeated("tcp-slow"))
                 # Abort, not close: close would wait for answers a stuck client never reads,
                 # and keep holding its slot.
-                self._transport.abort()
+                self.abort()
                 return
         self._arm_idle_timer()
-
-
-def _no_transport() -> bool:
-    """`Connection.transport_closing` before the connection is made: closed, as it were."""
-    return True
 
 
 class _Answer:
@@ -452,7 +451,7 @@ class _Answer:
 
     def done(self) -> bool:
         # A client that has gone wants nothing: its read takes no bus time (`Transaction.wanted`).
-        return self.settled or self._connection.transport_closing()
+        return self.settled or self._connection.gone
 
     def set_result(self, result: bytes | None, /) -> None:
         """The bus has the reply (or, from `set_exception`, the error's): it goes out now."""
