@@ -26,10 +26,12 @@ class DriveEventLog:
 
     def drive_event(self, event: DriveEvent) -> None:
         if event.kind is EventKind.FAULT_RAISED:
-            log.warning("drive %s: fault raised: %s", event.drive, _fault(event.data))
+            log.warning("drive %s: fault raised: %s", event.drive, fault_words(event.data))
         elif event.kind is EventKind.FAULT_CLEARED:
-            log.info("drive %s: fault cleared: %s", event.drive, _fault(event.data))
+            log.info("drive %s: fault cleared: %s", event.drive, fault_words(event.data))
 
 
-def _fault(data: Telemetry) -> str:
+def fault_words(data: Telemetry) -> str:
+    """A fault in words: its profile's description (which holds its name) and its code; the
+    OPC UA events' message says it so too."""
     return f"{data.get('fault_description')} (code {data.get('fault_code')})"

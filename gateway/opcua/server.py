@@ -28,6 +28,7 @@ from gateway.mqtt.commands import CommandDrive, Commands
 from gateway.opcua.address_space import NAMESPACE, AddressSpaceBuilder, DriveNodes, MethodCall
 from gateway.opcua.certificates import ClientTrust, ensure_server_certificate, thumbprint
 from gateway.opcua.command_path import CommandPath, CommandWrites
+from gateway.opcua.drive_events import DriveEvents
 from gateway.opcua.logins import CALLER, ConsoleLogins, Permissions
 from gateway.opcua.values import data_value, status_value
 from gateway.poller import DriveEvent, Poller
@@ -74,6 +75,8 @@ class OpcUaServer:
         self.server: Server | None = None
         self.nodes: dict[str, DriveNodes] = {}
         self._pending: dict[str, Telemetry | None] = {}
+        self._events: list[DriveEvent] = []
+        self.drive_events: DriveEvents | None = None
         self._news = asyncio.Event()
         self._shower: asyncio.Task[None] | None = None
 
@@ -90,7 +93,9 @@ class OpcUaServer:
             self._news.set()
 
     def drive_event(self, event: DriveEvent) -> None:
-        pass  # faults as OPC UA events: not in this version
+        if event.drive in self.nodes:
+            self._events.append(event)
+            self._news.set()
 
     # -- lifecycle ---------------------------------------------------------------------------
 
@@ -106,7 +111,9 @@ class OpcUaServer:
         await self._security(server)
         namespace = await server.register_namespace(NAMESPACE)
         builder = AddressSpaceBuilder(server, namespace, settings.commands_enabled)
-        await self._address_space(builder)
+        self.drive_events = DriveEvents(server, namespace)
+        await self.drive_events.install()
+        await self._address_space(builder, self.drive_events)
         iserver = server.iserver
         iserver.attribute_service = CommandWrites(iserver.aspace, builder.targets, self.path)
         try:
@@ -144,15 +151,20 @@ class OpcUaServer:
         trust = ClientTrust(settings.trusted_clients_dir, settings.rejected_clients_dir)
         server.set_certificate_validator(trust)
 
-    async def _address_space(self, builder: AddressSpaceBuilder) -> None:
+    async def _address_space(self, builder: AddressSpaceBuilder, events: DriveEvents) -> None:
         gateway = await builder.gateway(self.settings.gateway_id)
+        await events.notifier(builder.server.nodes.server, gateway)
         for bus in self.buses:
             bus_node = await builder.bus(gateway, bus.name)
+            await events.notifier(gateway, bus_node)
             for drive in self.drives:
                 if drive.bus == bus.name:
                     command_drive = self.command_drives[drive.name]
                     nodes = await builder.drive(bus_node, drive, command_drive, self._method)
                     self.nodes[drive.name] = nodes
+                    drive_node = builder.server.get_node(builder.node_id(drive.name))
+                    await events.notifier(bus_node, drive_node)
+                    events.drive(drive.name, (drive_node.nodeid, bus_node.nodeid, gateway.nodeid))
         for name in self.nodes:
             if self.poller.availability(name) is False:
                 self._pending[name] = OFFLINE
@@ -191,8 +203,12 @@ class OpcUaServer:
             await self._news.wait()
             self._news.clear()
             pending, self._pending = self._pending, {}
+            events, self._events = self._events, []
             for drive, telemetry in pending.items():
                 await self._show(self.nodes[drive], telemetry)
+            for event in events:
+                if self.drive_events is not None:
+                    await self.drive_events.trigger(event)
 
     async def _show(self, nodes: DriveNodes, telemetry: Telemetry | None) -> None:
         server = self.server

@@ -355,3 +355,36 @@ async def test_the_service_serves_opcua_and_stops_within_2_s(
     assert f"OPC UA server certificate thumbprint (SHA-1): {thumbprint}" in gateway.log.text
     for bad in (" ERROR ", " CRITICAL ", "Traceback"):
         assert bad not in gateway.log.text, gateway.log.text
+
+
+async def test_a_fault_is_an_event_on_the_drive_raised_then_cleared_in_words(
+    line: SimulatedLine, client_certificate: tuple[Path, Path]
+) -> None:
+    async with running_gateway(configuration(line)) as app:
+        trust(app, client_certificate[0])
+        async with connected(app, client_certificate, VIEWER, VIEWER_PASSWORD) as client:
+            await until(lambda: good(client, "pump1.state"))
+            seen: asyncio.Queue[Any] = asyncio.Queue()
+
+            class Handler:
+                def event_notification(self, event: Any) -> None:
+                    seen.put_nowait(event)
+
+            subscription = await client.create_subscription(100, Handler())
+            kind = await drive_node(client, "DriveEventType")
+            drive = await drive_node(client, "pump1")
+            await subscription.subscribe_events(drive, kind)
+            on_server = await client.create_subscription(100, Handler())
+            await on_server.subscribe_events(client.nodes.server, kind)
+            line.inject_fault(1, 11)
+            raised = await asyncio.wait_for(seen.get(), 5)
+            again = await asyncio.wait_for(seen.get(), 2)  # the same event, on the Server object
+            assert raised.EventId == again.EventId
+            assert (raised.Kind, raised.FaultCode, raised.FaultName) == ("fault_raised", 11, "OL1")
+            assert raised.Severity == 800
+            assert raised.SourceName == "pump1"
+            assert raised.Message.Text == "fault raised: OL1: motor overload (code 11)"
+            line.clear_fault(1)
+            cleared = await asyncio.wait_for(seen.get(), 5)
+            assert (cleared.Kind, cleared.Severity) == ("fault_cleared", 200)
+            assert cleared.Message.Text == "fault cleared: OL1: motor overload (code 11)"

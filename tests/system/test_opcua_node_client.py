@@ -12,7 +12,7 @@ from __future__ import annotations
 import asyncio
 import json
 import shutil
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
@@ -31,8 +31,14 @@ VIEWER = USERS[1]["name"]
 pytestmark = pytest.mark.line(addresses=(1, 2))
 
 
-async def node_client(app: Application, pki: Path, **job: Any) -> list[dict[str, Any]]:
-    """One run of node-opcua's client: its session's answer, then one per step."""
+Heard = Callable[[dict[str, Any]], Awaitable[None]]
+
+
+async def node_client(
+    app: Application, pki: Path, heard: Heard | None = None, **job: Any
+) -> list[dict[str, Any]]:
+    """One run of node-opcua's client: its session's answer, then one per step (and what an
+    "events" step says as it goes, each handed to `heard` as it comes)."""
     node = shutil.which("node")
     if node is None or not (PEER / "node_modules" / "node-opcua-client").is_dir():
         pytest.fail(
@@ -55,9 +61,20 @@ async def node_client(app: Application, pki: Path, **job: Any) -> list[dict[str,
         stdout=asyncio.subprocess.PIPE,
         stderr=asyncio.subprocess.PIPE,
     )
-    out, err = await asyncio.wait_for(process.communicate(json.dumps(job).encode()), 30)
-    answers = [json.loads(line) for line in out.decode().splitlines() if line.startswith("{")]
-    assert answers, err.decode()[-2000:]
+    assert process.stdin is not None
+    assert process.stdout is not None
+    process.stdin.write(json.dumps(job).encode())
+    process.stdin.close()
+    answers = []
+    async with asyncio.timeout(30):
+        async for line in process.stdout:
+            if line.startswith(b"{"):
+                answers.append(json.loads(line))
+                if heard is not None:
+                    await heard(answers[-1])
+        await process.wait()
+    assert process.stderr is not None
+    assert answers, (await process.stderr.read()).decode()[-2000:]
     assert "fatal" not in answers[-1], answers[-1]["fatal"]
     return answers
 
@@ -163,3 +180,33 @@ async def first_poll(app: Application) -> None:
             return
         await asyncio.sleep(0.05)
     raise AssertionError("pump1 not polled within 5 s")
+
+
+async def test_a_fault_is_an_event_on_the_drive_raised_then_cleared(
+    gateway: Application, line: SimulatedLine, pki: Path
+) -> None:
+    """A SCADA's alarm list: events of the drive object, the fault's words and its severity."""
+    await first_poll(gateway)
+
+    async def trip_then_reset(said: dict[str, Any]) -> None:
+        if said.get("listening"):
+            line.inject_fault(1, 11)
+        elif said.get("event", {}).get("Kind") == "fault_raised":
+            line.clear_fault(1)
+
+    answers = await node_client(
+        gateway,
+        pki,
+        trip_then_reset,
+        user=VIEWER,
+        password=VIEWER_PASSWORD,
+        steps=[{"events": "pump1", "count": 2, "timeout_ms": 10000}],
+    )
+    done = answers[-1]
+    assert done["status"] == "Good", answers
+    raised, cleared = done["events"]
+    assert raised["Message"] == "fault raised: OL1: motor overload (code 11)"
+    assert (raised["Severity"], raised["SourceName"]) == (800, "pump1")
+    assert (raised["Kind"], raised["FaultCode"], raised["FaultName"]) == ("fault_raised", 11, "OL1")
+    assert cleared["Message"] == "fault cleared: OL1: motor overload (code 11)"
+    assert (cleared["Severity"], cleared["Kind"]) == (200, "fault_cleared")

@@ -5,7 +5,10 @@
 //    "steps": [{"browse": "gateway"}, {"read": "pump1.state"},
 //              {"write": "pump1.set_frequency_hz", "value": 20.5},
 //              {"call": "pump1", "method": "pump1.RunForward"},
-//              {"subscribe": "pump1.state", "until": "running_forward", "timeout_ms": 5000}]}
+//              {"subscribe": "pump1.state", "until": "running_forward", "timeout_ms": 5000},
+//              {"events": "pump1", "count": 2, "timeout_ms": 10000}]}
+// An "events" step answers {"listening": true} once its monitored item is made (the test then
+// trips the drive), {"event": {...}} as each event comes, then its own answer.
 // Node ids are the string ids of `namespace`; each step answers {"status": "Good", ...}, or
 // the failed step's status name. "certificate" as a step answers the client's own certificate
 // file (made by node-opcua in `pki` on its first connection), for the test to trust it.
@@ -22,6 +25,7 @@ const {
   ClientMonitoredItem,
   UserTokenType,
   NodeId,
+  constructEventFilter,
 } = require("node-opcua-client");
 const { OPCUACertificateManager } = require("node-opcua-certificate-manager");
 
@@ -31,7 +35,7 @@ function answerOf(error) {
   return { status: match ? match[0] : "Error", message: text.split("\n")[0] };
 }
 
-async function step(session, ns, job) {
+async function step(session, ns, job, out) {
   const id = (text) => new NodeId(NodeId.NodeIdType.STRING, text, ns);
   if (job.browse !== undefined) {
     const result = await session.browse(id(job.browse));
@@ -69,6 +73,9 @@ async function step(session, ns, job) {
   if (job.subscribe !== undefined) {
     return subscribe(session, id(job.subscribe), job.until, job.timeout_ms || 5000);
   }
+  if (job.events !== undefined) {
+    return events(session, id(job.events), ns, job.count || 1, job.timeout_ms || 10000, out);
+  }
   return { status: "Error", message: `unknown step ${JSON.stringify(job)}` };
 }
 
@@ -101,6 +108,51 @@ async function subscribe(session, nodeId, until, timeoutMs) {
     await subscription.terminate();
   }
   return { status: seen.includes(until) ? "Good" : "BadTimeout", seen };
+}
+
+const EVENT_FIELDS = ["EventId", "SourceName", "Message", "Severity", "Time"];
+const OWN_FIELDS = ["Kind", "FaultCode", "FaultName"];
+
+async function events(session, nodeId, ns, count, timeoutMs, out) {
+  const subscription = await session.createSubscription2({
+    requestedPublishingInterval: 100,
+    requestedLifetimeCount: 100,
+    requestedMaxKeepAliveCount: 10,
+    publishingEnabled: true,
+  });
+  const names = [...EVENT_FIELDS, ...OWN_FIELDS];
+  const filter = constructEventFilter([...EVENT_FIELDS, ...OWN_FIELDS.map((f) => `${ns}:${f}`)]);
+  const seen = [];
+  try {
+    const item = await ClientMonitoredItem.create(
+      subscription,
+      { nodeId, attributeId: AttributeIds.EventNotifier },
+      { queueSize: 100, discardOldest: true, filter },
+      TimestampsToReturn.Neither,
+    );
+    out({ listening: true });
+    await new Promise((resolve) => {
+      const timer = setTimeout(resolve, timeoutMs);
+      item.on("changed", (fields) => {
+        const event = {};
+        names.forEach((name, i) => {
+          const value = fields[i].value;
+          event[name] = value && value.text !== undefined ? value.text : value;
+        });
+        event.EventId = Buffer.from(event.EventId || []).toString("hex");
+        event.Time = event.Time ? event.Time.toISOString() : null;
+        seen.push(event);
+        out({ event });
+        if (seen.length >= count) {
+          clearTimeout(timer);
+          resolve();
+        }
+      });
+    });
+  } finally {
+    await subscription.terminate();
+  }
+  return { status: seen.length >= count ? "Good" : "BadTimeout", events: seen };
 }
 
 async function main() {
@@ -138,7 +190,7 @@ async function main() {
   const ns = (await session.readNamespaceArray()).indexOf(job.namespace);
   for (const each of job.steps || []) {
     try {
-      out(await step(session, ns, each));
+      out(await step(session, ns, each, out));
     } catch (error) {
       out(answerOf(error));
     }
