@@ -160,6 +160,7 @@ class Application:
         parts = (self.router, self.poller, self.tasks, self.events)
         server = OpcUaServer(opcua, settings.buses, settings.drives, *parts)
         self.poller.add_listener(server)
+        self.poller.read_max_frequency = True  # the frequencies' EURange
         return server
 
     def _build_sparkplug(self, mqtt: MqttSettings) -> SparkplugNode | None:

@@ -10,6 +10,8 @@ across restarts and reloads:
     <drive>                          a drive or device (its name is unique in the gateway)
     <drive>.<key>                    a value, keyed as in MQTT's state (output_frequency_hz...)
     <drive>.<key>.EngineeringUnits   its unit (UNECE)
+    <drive>.<key>.EURange            its range, where the model knows it
+    <drive>.run_state                the state as a MultiStateDiscrete (EnumStrings: its words)
     <drive>.<Method>                 RunForward, Stop... (CamelCase of the profile's commands)
 
 A drive sits under its bus in the tree, but its NodeIds don't name the bus: moving a drive to
@@ -27,7 +29,13 @@ from asyncua import Node, Server, ua
 
 from gateway.mqtt.commands import CommandDrive
 from gateway.opcua.command_path import WriteTarget
-from gateway.opcua.values import ANY, engineering_units, status_value, variant_type
+from gateway.opcua.values import (
+    ANY,
+    RUN_STATES,
+    engineering_units,
+    status_value,
+    variant_type,
+)
 from gateway.settings import DriveSettings
 from gateway.sparkplug.metrics import unit_of
 
@@ -36,6 +44,10 @@ NOT_SERVED: Final = frozenset({"last_seen"})
 """The SourceTimestamp says when."""
 SETPOINT: Final = "set_frequency_hz"
 """The set frequency as read back; written, it is the `frequency_hz` of a `/set`."""
+RUN_STATE: Final = "run_state"
+"""The `state` word's number (`values.run_state`), beside the word itself."""
+FREQUENCIES: Final = frozenset({SETPOINT, "output_frequency_hz"})
+"""Their EURange: 0 to the drive's maximum frequency (P00.03) as read at start."""
 
 MethodCall = Callable[..., Awaitable[ua.CallMethodResult]]
 
@@ -83,6 +95,7 @@ class AddressSpaceBuilder:
         drive: DriveSettings,
         command_drive: CommandDrive,
         call: Callable[[CommandDrive, str], MethodCall],
+        max_frequency_hz: float | None = None,
     ) -> DriveNodes:
         node = await bus.add_object(self.node_id(drive.name), self.name(drive.name))
         nodes = DriveNodes(drive.name)
@@ -94,12 +107,19 @@ class AddressSpaceBuilder:
             kind = variant_type(profile, key)
             variable = await self._variable(node, f"{drive.name}.{key}", key, kind)
             await self._units(variable, f"{drive.name}.{key}", unit_of(profile, key))
+            if key in FREQUENCIES and max_frequency_hz is not None:
+                await self._range(variable, f"{drive.name}.{key}", 0.0, max_frequency_hz)
             nodes.variables[key] = (variable.nodeid, kind)
             await self.server.write_attribute_value(variable.nodeid, waiting)
             takes_setpoint = key == SETPOINT and bool(profile.commands)
             if self.commands_enabled and (key in writable or takes_setpoint):
                 await variable.set_writable()
-                self.targets[variable.nodeid] = WriteTarget(command_drive, key, key in writable)
+                shape = "point" if key in writable else "setpoint"
+                self.targets[variable.nodeid] = WriteTarget(command_drive, key, shape)
+        if "state" in profile.telemetry_keys:
+            state = await self._run_state(node, drive.name)
+            nodes.variables[RUN_STATE] = (state.nodeid, ua.VariantType.UInt32)
+            await self.server.write_attribute_value(state.nodeid, waiting)
         for command in profile.commands if self.commands_enabled else ():
             await self._method(node, drive.name, command, call(command_drive, command))
         return nodes
@@ -121,6 +141,31 @@ class AddressSpaceBuilder:
             ua.Variant(units, ua.VariantType.ExtensionObject),
             datatype=ua.NodeId(ua.ObjectIds.EUInformation),
         )
+
+    async def _range(self, variable: Node, text: str, low: float, high: float) -> None:
+        await variable.add_property(
+            self.node_id(f"{text}.EURange"),
+            ua.QualifiedName("EURange", 0),
+            ua.Variant(ua.Range(Low=low, High=high), ua.VariantType.ExtensionObject),
+            datatype=ua.NodeId(ua.ObjectIds.Range),
+        )
+
+    async def _run_state(self, parent: Node, drive: str) -> Node:
+        """A MultiStateDiscreteType variable: a SCADA shows its EnumStrings' word."""
+        text = f"{drive}.{RUN_STATE}"
+        variable = await self._variable(parent, text, RUN_STATE, ua.VariantType.UInt32)
+        base = ua.NodeId(ua.ObjectIds.BaseDataVariableType)
+        await variable.delete_reference(base, ua.ObjectIds.HasTypeDefinition)
+        discrete = ua.NodeId(ua.ObjectIds.MultiStateDiscreteType)
+        await variable.add_reference(discrete, ua.ObjectIds.HasTypeDefinition)
+        words = [ua.LocalizedText(word) for word in RUN_STATES]
+        await variable.add_property(
+            self.node_id(f"{text}.EnumStrings"),
+            ua.QualifiedName("EnumStrings", 0),
+            ua.Variant(words, ua.VariantType.LocalizedText),
+            datatype=ua.NodeId(ua.ObjectIds.LocalizedText),
+        )
+        return variable
 
     async def _method(self, parent: Node, drive: str, command: str, call: MethodCall) -> None:
         name = method_name(command)

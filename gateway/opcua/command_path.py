@@ -10,6 +10,7 @@ method, as its output argument `Answer` ("ok", or the word and the reason):
 
     a set-point variable written      {"frequency_hz": value}
     a device file's writable point    {"point": key, "value": value}
+    a parameter node written          {"parameter": "P00.11", "value": value}
     a method RunForward, Stop...      {"command": "run_forward"}
 
 asyncua carries a Write request through its attribute service; `CommandWrites` takes the
@@ -19,9 +20,10 @@ writes to the nodes above out of it and hands every other on unchanged.
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from contextvars import ContextVar
 from dataclasses import dataclass
-from typing import Any, Final
+from typing import Any, Final, cast
 
 from asyncua import ua
 from asyncua.server.address_space import AddressSpace, AttributeService
@@ -29,6 +31,7 @@ from asyncua.server.address_space import AddressSpace, AttributeService
 from gateway.mqtt.commands import CommandDrive, Commands
 from gateway.mqtt.requests import Json
 from gateway.opcua.logins import Login
+from gateway.store import EventStore, EventType
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +49,28 @@ STATUS_OF: Final[Mapping[str, int]] = {
 """The command path's answer words as StatusCodes; a drive's own exception (its profile's word)
 is BadDeviceFailure, its 03H (a value it refuses) BadOutOfRange."""
 ILLEGAL_DATA_VALUE: Final = 3
+WHO: ContextVar[str | None] = ContextVar("opcua_who", default=None)
+"""The OPC UA user whose write or call is being carried out (`CommandPath.carry`)."""
+
+
+class AuditedEvents:
+    """The store as the command path records into it: each `command` event of an OPC UA write
+    or call names its user (`"user"`, as the console's own audit events do), beside its
+    `"source": "opcua"`. The MQTT path's events are the same without it: a broker's client
+    has no user of the gateway's."""
+
+    def __init__(self, events: EventStore) -> None:
+        self.events = events
+
+    def record(self, type: str, data: Json, **where: Any) -> None:
+        who = WHO.get()
+        if who is not None and type == EventType.COMMAND:
+            data = {**data, "user": who}
+        self.events.record(type, data, **where)
+
+    def as_store(self) -> EventStore:
+        """For `Commands`, which records through `record` only."""
+        return cast(EventStore, self)
 
 
 @dataclass(frozen=True, slots=True)
@@ -61,13 +86,14 @@ class WriteTarget:
 
     drive: CommandDrive
     key: str
-    point: bool
-    """True: a device file's point (`{"point": key, "value": v}`); else the set-point."""
+    shape: str
+    """`point`: a device file's point (`{"point": key, "value": v}`); `parameter`: a parameter
+    (`{"parameter": key, "value": v}`); `setpoint`: the set frequency."""
 
     def payload(self, value: object) -> Json:
-        if self.point:
-            return {"point": self.key, "value": value}
-        return {"frequency_hz": value}
+        if self.shape == "setpoint":
+            return {"frequency_hz": value}
+        return {self.shape: self.key, "value": value}
 
 
 class CommandPath:
@@ -84,20 +110,25 @@ class CommandPath:
         if not self.enabled:
             reason = "this gateway's OPC UA server is monitoring only (commands_enabled: false)"
             return self._refused(drive, payload, name, "commands_disabled", reason)
-        with self.commands.acknowledgement() as acknowledgement:
-            acknowledgement.ok(await self.commands.set(drive, payload))
+        said = WHO.set(name)
+        try:
+            with self.commands.acknowledgement() as acknowledgement:
+                acknowledgement.ok(await self.commands.set(drive, payload))
+        finally:
+            WHO.reset(said)
         response = acknowledgement.response
         log.info("OPC UA: %s asked %s of %s: %s", name, payload, drive.name, response["status"])
         if response["status"] == "ok":
             return Answer(ua.StatusCodes.Good, "ok")
-        return Answer(_status(response), f"{response['error']}: {response['message']}")
+        return Answer(status_of(response), f"{response['error']}: {response['message']}")
 
     def _refused(self, drive: CommandDrive, payload: Json, who: str, word: str, why: str) -> Answer:
         log.warning("OPC UA: refused %s to %s on %s: %s", payload, who, drive.name, why)
         return Answer(STATUS_OF[word], f"{word}: {why}")
 
 
-def _status(response: Json) -> int:
+def status_of(response: Json) -> int:
+    """The StatusCode of a refusal's or an exception's answer (`error`, `exception_code`)."""
     word = response["error"]
     if word in STATUS_OF:
         return STATUS_OF[word]
@@ -110,11 +141,17 @@ class CommandWrites(AttributeService):  # type: ignore[misc]  # asyncua read as 
     """asyncua's attribute service, with the writes of `targets`' Values carried to the drives."""
 
     def __init__(
-        self, aspace: AddressSpace, targets: Mapping[ua.NodeId, WriteTarget], path: CommandPath
+        self,
+        aspace: AddressSpace,
+        targets: Mapping[ua.NodeId, WriteTarget],
+        path: CommandPath,
+        written: Callable[[ua.NodeId], None],
     ) -> None:
         super().__init__(aspace)
         self.targets = targets
         self.path = path
+        self.written = written
+        """Told of each target written Good (a parameter: read again at the next Read)."""
 
     async def write(self, params: ua.WriteParameters, user: Any = None) -> list[ua.StatusCode]:
         results: list[ua.StatusCode] = []
@@ -129,5 +166,7 @@ class CommandWrites(AttributeService):  # type: ignore[misc]  # asyncua read as 
             value = item.Value.Value.Value if item.Value and item.Value.Value else None
             who = user if isinstance(user, Login) else None
             answer = await self.path.carry(target.drive, target.payload(value), who)
+            if answer.status == ua.StatusCodes.Good:
+                self.written(item.NodeId)
             results.append(ua.StatusCode(answer.status))
         return results

@@ -21,16 +21,24 @@ from collections.abc import Sequence
 from typing import Final
 
 from asyncua import Server, ua
+from asyncua.common.callback import CallbackType
 
 from gateway.bus import BusSettings
 from gateway.errors import CannotListen
 from gateway.mqtt.commands import CommandDrive, Commands
-from gateway.opcua.address_space import NAMESPACE, AddressSpaceBuilder, DriveNodes, MethodCall
+from gateway.opcua.address_space import (
+    NAMESPACE,
+    RUN_STATE,
+    AddressSpaceBuilder,
+    DriveNodes,
+    MethodCall,
+)
 from gateway.opcua.certificates import ClientTrust, ensure_server_certificate, thumbprint
-from gateway.opcua.command_path import CommandPath, CommandWrites
+from gateway.opcua.command_path import AuditedEvents, CommandPath, CommandWrites
 from gateway.opcua.drive_events import DriveEvents
 from gateway.opcua.logins import CALLER, ConsoleLogins, Permissions
-from gateway.opcua.values import data_value, status_value
+from gateway.opcua.parameters import ParameterNodes
+from gateway.opcua.values import data_value, run_state, status_value
 from gateway.poller import DriveEvent, Poller
 from gateway.profile.telemetry import Telemetry
 from gateway.routing import Router
@@ -69,8 +77,10 @@ class OpcUaServer:
             d.name: CommandDrive(d.name, router.route_for_drive(d.name), d.profile) for d in drives
         }
         self.command_drives = command_drives
-        commands = Commands(settings, router, poller, command_drives, events, source="opcua")
+        audited = AuditedEvents(events).as_store()
+        commands = Commands(settings, router, poller, command_drives, audited, source="opcua")
         self.path = CommandPath(commands, settings.commands_enabled)
+        self.parameters = ParameterNodes(commands, settings.parameter_max_age_s)
         self.poller = poller
         self.server: Server | None = None
         self.nodes: dict[str, DriveNodes] = {}
@@ -115,7 +125,11 @@ class OpcUaServer:
         await self.drive_events.install()
         await self._address_space(builder, self.drive_events)
         iserver = server.iserver
-        iserver.attribute_service = CommandWrites(iserver.aspace, builder.targets, self.path)
+        iserver.attribute_service = CommandWrites(
+            iserver.aspace, builder.targets, self.path, self.parameters.written
+        )
+        self.parameters.server = server
+        server.subscribe_server_callback(CallbackType.PreRead, self.parameters.before_read)
         try:
             await server.start()
         except OSError as exc:
@@ -160,9 +174,17 @@ class OpcUaServer:
             for drive in self.drives:
                 if drive.bus == bus.name:
                     command_drive = self.command_drives[drive.name]
-                    nodes = await builder.drive(bus_node, drive, command_drive, self._method)
+                    maximum = self.poller.max_frequency_hz.get(drive.name)
+                    nodes = await builder.drive(
+                        bus_node, drive, command_drive, self._method, maximum
+                    )
                     self.nodes[drive.name] = nodes
                     drive_node = builder.server.get_node(builder.node_id(drive.name))
+                    writable = self.settings.commands_enabled
+                    targets = await self.parameters.add(
+                        builder.ns, drive_node, command_drive, writable
+                    )
+                    builder.targets.update(targets)
                     await events.notifier(bus_node, drive_node)
                     events.drive(drive.name, (drive_node.nodeid, bus_node.nodeid, gateway.nodeid))
         for name in self.nodes:
@@ -215,6 +237,8 @@ class OpcUaServer:
         if server is None:
             return
         now = datetime.datetime.now(datetime.UTC)
+        if telemetry is not OFFLINE and "state" in telemetry:
+            telemetry = {**telemetry, RUN_STATE: run_state(telemetry["state"])}
         for key, (node_id, kind) in nodes.variables.items():
             if telemetry is OFFLINE:
                 value = status_value(ua.StatusCodes.BadCommunicationError, now)

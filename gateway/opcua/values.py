@@ -21,11 +21,13 @@ from asyncua import ua
 from gateway.profile import DriveProfile
 from gateway.profile.point_types import Kind, TypedPoint
 from gateway.profile.registers import RUNNING_VALUES
+from gateway.profile.states import RunState
 from gateway.profile.telemetry import TelemetryValue
 
 UNECE_NAMESPACE: Final = "http://www.opcfoundation.org/UA/units/un/cefact"
 UNECE_CODES: Final[Mapping[str, tuple[str, str]]] = {
     "Hz": ("HTZ", "hertz"),
+    "kHz": ("KHZ", "kilohertz"),
     "V": ("VLT", "volt"),
     "A": ("AMP", "ampere"),
     "mA": ("4K", "milliampere"),
@@ -38,7 +40,9 @@ UNECE_CODES: Final[Mapping[str, tuple[str, str]]] = {
     "%": ("P1", "percent"),
     "s": ("SEC", "second"),
     "ms": ("C26", "millisecond"),
+    "min": ("MIN", "minute"),
     "h": ("HUR", "hour"),
+    "Ω": ("OHM", "ohm"),
     "Nm": ("NU", "newton metre"),
     "bar": ("BAR", "bar"),
     "kPa": ("KPA", "kilopascal"),
@@ -46,7 +50,8 @@ UNECE_CODES: Final[Mapping[str, tuple[str, str]]] = {
     "m³/h": ("MQH", "cubic metre per hour"),
     "l/min": ("L2", "litre per minute"),
 }
-"""The units the profiles and the shipped device files use, by their symbol there."""
+"""The units the profiles, the parameter tables and the shipped device files use, by their
+symbol there (a table's "s (or min)", "Hz/s" or "kWh x 1000" has no EngineeringUnits)."""
 
 WORDS: Final[Mapping[str, ua.VariantType]] = {
     "state": ua.VariantType.String,
@@ -82,6 +87,10 @@ KINDS: Final[Mapping[Kind, ua.VariantType]] = {
     Kind.BIT: ua.VariantType.Boolean,
     Kind.BOOL: ua.VariantType.Boolean,
 }
+RUN_STATES: Final = ("unknown", *(state.name.lower() for state in RunState))
+"""The `run_state` variable's EnumStrings: a drive's `state` word at the index of its number in
+INVT's state word 1 (1 running_forward ... 6 pre_exciting); 0 a word not among them. An ABB
+drive's states are the same words."""
 ANY: Final = ua.VariantType.Variant
 """BaseDataType: a key the tables don't know."""
 RUNNING_KEYS: Final = frozenset(running.key for running in RUNNING_VALUES)
@@ -99,6 +108,11 @@ def variant_type(profile: DriveProfile, key: str) -> ua.VariantType:
     if key in RUNNING_KEYS or key.startswith("actual_value_"):
         return ua.VariantType.Double
     return ANY
+
+
+def run_state(state: TelemetryValue) -> int:
+    """The `run_state` value of a drive's `state` word (its index in `RUN_STATES`)."""
+    return RUN_STATES.index(state) if state in RUN_STATES else 0
 
 
 def engineering_units(symbol: str) -> ua.EUInformation | None:

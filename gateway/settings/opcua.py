@@ -33,6 +33,7 @@ class OpcUaSettings:
     commands_enabled: bool
     max_connections: int = 16
     max_subscriptions: int = 64
+    parameter_max_age_s: float = 10.0
     command_max_age_s: float = 10.0
     """What `Commands` asks of every source: a method call is carried out at once, never late."""
 
@@ -68,6 +69,7 @@ def opcua_settings(config: GatewayConfig) -> OpcUaSettings | None:
         commands_enabled=opcua.commands_enabled,
         max_connections=opcua.max_connections,
         max_subscriptions=opcua.max_subscriptions,
+        parameter_max_age_s=opcua.parameter_max_age_s,
     )
 
 

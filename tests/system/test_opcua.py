@@ -155,6 +155,26 @@ async def test_the_tree_mirrors_the_gateway_with_polled_values_and_units(
     assert errors == []
 
 
+async def test_the_state_is_a_multistate_discrete_and_frequencies_have_their_range(
+    line: SimulatedLine, client_certificate: tuple[Path, Path]
+) -> None:
+    async with running_gateway(configuration(line)) as app:
+        trust(app, client_certificate[0])
+        async with connected(app, client_certificate, VIEWER, VIEWER_PASSWORD) as client:
+            state = await until(lambda: good(client, "pump1.run_state"))
+            assert state.Value.VariantType == ua.VariantType.UInt32
+            words = (await value_of(client, "pump1.run_state.EnumStrings")).Value.Value
+            assert words[state.Value.Value].Text == "stopped"
+            assert [w.Text for w in words][1:3] == ["running_forward", "running_reverse"]
+            node = await drive_node(client, "pump1.run_state")
+            kind = await node.read_type_definition()
+            assert kind == ua.NodeId(ua.ObjectIds.MultiStateDiscreteType)
+            maximum = line.drives[1].parameter("P00.03") / 100  # max frequency, as set
+            for key in ("set_frequency_hz", "output_frequency_hz"):
+                eu_range = (await value_of(client, f"pump1.{key}.EURange")).Value.Value
+                assert (eu_range.Low, eu_range.High) == (0.0, maximum)
+
+
 async def ns_of(client: Client) -> int:
     return int(await client.get_namespace_index(NAMESPACE))
 
@@ -216,6 +236,7 @@ async def test_a_subscription_sees_a_method_call_run_the_drive(
             assert events[1].data["frequency_hz"] == 20.0
             assert {e.data["source"] for e in events} == {"opcua"}
             assert {e.data["result"] for e in events} == {"ok"}
+            assert {e.data["user"] for e in events} == {OPERATOR}  # who, in the audit
 
 
 async def commands(app: Application, count: int) -> list[StoredEvent] | None:
@@ -388,3 +409,41 @@ async def test_a_fault_is_an_event_on_the_drive_raised_then_cleared_in_words(
             cleared = await asyncio.wait_for(seen.get(), 5)
             assert (cleared.Kind, cleared.Severity) == ("fault_cleared", 200)
             assert cleared.Message.Text == "fault cleared: OL1: motor overload (code 11)"
+
+
+async def test_parameters_are_nodes_read_from_the_drive_on_demand_and_written_through_the_checks(
+    line: SimulatedLine, client_certificate: tuple[Path, Path]
+) -> None:
+    async with running_gateway(configuration(line)) as app:
+        trust(app, client_certificate[0])
+        async with connected(app, client_certificate, OPERATOR, OPERATOR_PASSWORD) as client:
+            ns = await ns_of(client)
+            drive = await drive_node(client, "pump1")
+            folder = await drive.get_child([f"{ns}:Parameters"])
+            names = [(await n.read_browse_name()).Name for n in await folder.get_children()]
+            assert names[:3] == ["P00.00", "P00.01", "P00.02"]
+            maximum = await value_of(client, "pump1.Parameters.P00.03")  # not polled: read once
+            assert maximum.StatusCode.is_good()
+            assert maximum.Value.VariantType == ua.VariantType.Double
+            assert maximum.Value.Value == line.drives[1].parameter("P00.03") / 100
+            again = await value_of(client, "pump1.Parameters.P00.03")
+            assert again.SourceTimestamp == maximum.SourceTimestamp  # kept, not read again
+            units = await value_of(client, "pump1.Parameters.P00.03.EngineeringUnits")
+            assert units.Value.Value.DisplayName.Text == "Hz"
+            eu_range = (await value_of(client, "pump1.Parameters.P00.11.EURange")).Value.Value
+            assert (eu_range.Low, eu_range.High) == (0.0, 3600.0)
+            node = await drive_node(client, "pump1.Parameters.P00.11")
+            description = await node.read_description()
+            assert description.Text == "acceleration time 1"
+            await node.write_value(ua.Variant(12.5, ua.VariantType.Double))
+            assert line.drives[1].parameter("P00.11") == 125
+            written = await value_of(client, "pump1.Parameters.P00.11")
+            assert written.Value.Value == 12.5  # read again after the write
+            with pytest.raises(ua.uaerrors.BadOutOfRange):  # the table's range: 0.0 ... 3600.0
+                await node.write_value(ua.Variant(4000.0, ua.VariantType.Double))
+            events = await until(lambda: commands(app, 1))
+            assert (events[0].data["parameter"], events[0].data["user"]) == ("P00.11", OPERATOR)
+        async with connected(app, client_certificate, VIEWER, VIEWER_PASSWORD) as client:
+            node = await drive_node(client, "pump1.Parameters.P00.11")
+            with pytest.raises(ua.uaerrors.BadUserAccessDenied):
+                await node.write_value(ua.Variant(20.0, ua.VariantType.Double))

@@ -156,14 +156,22 @@ async def test_an_operator_writes_calls_and_a_subscription_sees_the_drive_run(
             {"subscribe": "pump1.state", "until": "running_forward", "timeout_ms": 5000},
             {"read": "pump1.set_frequency_hz"},
             {"call": "pump1", "method": "pump1.CoastStop"},
+            {"read": "pump1.Parameters.P00.03"},
+            {"write": "pump1.Parameters.P00.11", "value": 15.0},
+            {"write": "pump1.Parameters.P00.11", "value": 4000.0},
         ],
     )
-    _, write, run, seen, setpoint, stop = answers
+    _, write, run, seen, setpoint, stop, maximum, parameter, beyond = answers
     assert write["status"] == "Good"
     assert (run["status"], run["outputs"]) == ("Good", ["ok"])
     assert seen["status"] == "Good", seen
     assert setpoint["value"] == 25.0
     assert (stop["status"], stop["outputs"]) == ("Good", ["ok"])
+    assert (maximum["status"], maximum["dataType"]) == ("Good", "Double")
+    assert maximum["value"] == line.drives[1].parameter("P00.03") / 100
+    assert parameter["status"] == "Good"
+    assert line.drives[1].parameter("P00.11") == 150
+    assert beyond["status"] == "BadOutOfRange"
 
 
 async def test_anonymous_is_not_offered_by_default(gateway: Application, pki: Path) -> None:

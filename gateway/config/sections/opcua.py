@@ -53,6 +53,9 @@ class OpcUaConfig(Section):
     """Clients connected at once; one more is closed as it connects (and logged)."""
     max_subscriptions: int = Field(64, ge=1, le=10000)
     """Subscriptions across all sessions; one more is refused with BadTooManySubscriptions."""
+    parameter_max_age_s: float = Field(10.0, ge=0.5, le=3600.0)
+    """A parameter node (`Parameters/P00.03`, not polled) read from the drive is answered from
+    what was read for this long; a Read after it reads the drive again."""
 
     @field_validator("security")
     @classmethod
