@@ -316,6 +316,7 @@ class Application:
             events=ConsoleEventsRecorded(self.events),
             tcp=self.tcp,
             mqtt=self.mqtt,
+            opcua=self.opcua,
             configuration=lambda: self.settings.shown_configuration(),
             history_source=self.events,
         )

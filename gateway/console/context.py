@@ -23,7 +23,7 @@ from gateway.console.auth import (
     Users,
     Via,
 )
-from gateway.console.diagnostics import MqttSession, TcpClients
+from gateway.console.diagnostics import MqttSession, OpcUaSessions, TcpClients
 from gateway.console.events import Category, EventStore, GatewayEvent, audit_text
 from gateway.console.live import LiveState
 from gateway.console.log_tail import LogTail
@@ -53,6 +53,7 @@ class Console:
         events: EventStore,
         tcp: TcpClients | None = None,
         mqtt: MqttSession | None = None,
+        opcua: OpcUaSessions | None = None,
         log: LogTail | None = None,
         configuration: Callable[[], dict[str, Any]] | None = None,
     ) -> None:
@@ -66,6 +67,7 @@ class Console:
         self.events = events
         self.tcp = tcp
         self.mqtt = mqtt
+        self.opcua = opcua
         self.log = log if log is not None else LogTail()
         self.configuration = configuration
         self.sessions = Sessions()

@@ -203,6 +203,13 @@ class MqttSession(Protocol):
     def status(self) -> SessionStatus: ...
 
 
+class OpcUaSessions(Protocol):
+    """The OPC UA server as far as diagnostics read it (`OpcUaServer`): each logged-in
+    session's `{"user", "role", "since"}`."""
+
+    def sessions(self) -> list[dict[str, str]]: ...
+
+
 def tcp_clients_json(server: TcpClients) -> list[dict[str, Any]]:
     return [
         {

@@ -23,7 +23,7 @@ from gateway.console.bad_requests import BadRequests
 from gateway.console.config_editor import ConfigEditor
 from gateway.console.context import Console
 from gateway.console.deadlines import KEEP_ALIVE_S, DeadlinedSite, RequestDeadlines
-from gateway.console.diagnostics import MqttSession, TcpClients
+from gateway.console.diagnostics import MqttSession, OpcUaSessions, TcpClients
 from gateway.console.events import EventStore, MemoryEventStore
 from gateway.console.live import LiveState
 from gateway.console.log_tail import LogTail
@@ -60,6 +60,7 @@ class ConsoleFeature:
         events: EventStore | None = None,
         tcp: TcpClients | None = None,
         mqtt: MqttSession | None = None,
+        opcua: OpcUaSessions | None = None,
         configuration: Callable[[], dict[str, Any]] | None = None,
         history_source: history.HistorySource | None = None,
     ) -> None:
@@ -75,7 +76,9 @@ class ConsoleFeature:
         self.events: EventStore = events if events is not None else MemoryEventStore()
         self.tcp = tcp
         self.mqtt = mqtt
-        """What the diagnostics page reads of the Modbus-TCP server and the MQTT bridge."""
+        self.opcua = opcua
+        """What the diagnostics page reads of the Modbus-TCP server, the MQTT bridge and the
+        OPC UA server."""
         self.configuration = configuration
         """The running configuration, secrets masked, as of now (after the last reload)."""
         self.history_source = history_source
@@ -144,6 +147,7 @@ class ConsoleFeature:
             events=self.events,
             tcp=self.tcp,
             mqtt=self.mqtt,
+            opcua=self.opcua,
             log=self.log_tail,
             configuration=self.configuration,
         )

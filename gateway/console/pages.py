@@ -258,6 +258,13 @@ DIAGNOSTICS = """
 <table id="mqtt-session" class="kv"><tbody></tbody></table>
 </section>
 <section>
+<h2>OPC UA sessions <span id="opcua-count" class="muted"></span></h2>
+<div class="scroll"><table id="opcua-sessions" class="grid cards small">
+<thead><tr><th>User</th><th>Role</th><th>Since</th></tr></thead>
+<tbody></tbody>
+</table></div>
+</section>
+<section>
 <h2>Log</h2>
 <form id="log-filter" class="filters">
 <label>Level <select id="log-level" name="level">

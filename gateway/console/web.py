@@ -163,7 +163,8 @@ def _event_query(console: Console, request: web.Request) -> EventQuery:
 
 async def diagnostics(request: web.Request) -> web.StreamResponse:
     """The line's counters per bus and drive (since start, last minute), the Modbus-TCP
-    clients and the MQTT session: all read from what their owners keep, nothing waits."""
+    clients, the MQTT session and the OPC UA sessions: all read from what their owners keep,
+    nothing waits."""
     console = request.app[CONSOLE]
     return web.json_response(
         {
@@ -173,6 +174,7 @@ async def diagnostics(request: web.Request) -> web.StreamResponse:
             if console.tcp is None
             else {"clients": tcp_clients_json(console.tcp)},
             "mqtt": None if console.mqtt is None else console.mqtt.status().to_json(),
+            "opcua": None if console.opcua is None else {"sessions": console.opcua.sessions()},
         }
     )
 

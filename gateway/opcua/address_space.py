@@ -13,6 +13,8 @@ across restarts and reloads:
     <drive>.<key>.EURange            its range, where the model knows it
     <drive>.run_state                the state as a MultiStateDiscrete (EnumStrings: its words)
     <drive>.<Method>                 RunForward, Stop... (CamelCase of the profile's commands)
+    <drive>.Parameters.<Pxx.yy>      a parameter (`parameters`)
+    DriveEventType                   the type of its events (`drive_events`)
 
 A drive sits under its bus in the tree, but its NodeIds don't name the bus: moving a drive to
 another line keeps every client's configured items.
@@ -116,7 +118,7 @@ class AddressSpaceBuilder:
                 await variable.set_writable()
                 shape = "point" if key in writable else "setpoint"
                 self.targets[variable.nodeid] = WriteTarget(command_drive, key, shape)
-        if "state" in profile.telemetry_keys:
+        if "state" in profile.telemetry_keys and RUN_STATE not in profile.telemetry_keys:
             state = await self._run_state(node, drive.name)
             nodes.variables[RUN_STATE] = (state.nodeid, ua.VariantType.UInt32)
             await self.server.write_attribute_value(state.nodeid, waiting)

@@ -16,9 +16,10 @@ import hashlib
 import hmac
 import logging
 import secrets
+import time
 from collections.abc import Sequence
 from contextvars import ContextVar
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Final
 
 from asyncua import ua
@@ -44,6 +45,8 @@ class Login(User):  # type: ignore[misc]  # asyncua read as untyped (pyproject)
     add and delete nodes) with the console's role."""
 
     console_role: str = "viewer"
+    since: float = field(default_factory=time.time)
+    """When it logged in (the session's activation): the console's diagnostics show it."""
 
     @property
     def may_command(self) -> bool:

@@ -26,6 +26,7 @@ from asyncua.common.callback import CallbackType
 from gateway.bus import BusSettings
 from gateway.errors import CannotListen
 from gateway.mqtt.commands import CommandDrive, Commands
+from gateway.opcua import client_faults
 from gateway.opcua.address_space import (
     NAMESPACE,
     RUN_STATE,
@@ -33,13 +34,15 @@ from gateway.opcua.address_space import (
     DriveNodes,
     MethodCall,
 )
+from gateway.opcua.bounds import bound_monitored_items
 from gateway.opcua.certificates import ClientTrust, ensure_server_certificate, thumbprint
 from gateway.opcua.command_path import AuditedEvents, CommandPath, CommandWrites
 from gateway.opcua.drive_events import DriveEvents
-from gateway.opcua.logins import CALLER, ConsoleLogins, Permissions
+from gateway.opcua.logins import CALLER, ConsoleLogins, Login, Permissions
 from gateway.opcua.parameters import ParameterNodes
 from gateway.opcua.values import data_value, run_state, status_value
 from gateway.poller import DriveEvent, Poller
+from gateway.poller.drive_state import iso_time
 from gateway.profile.telemetry import Telemetry
 from gateway.routing import Router
 from gateway.settings import DriveSettings, OpcUaSettings
@@ -111,10 +114,12 @@ class OpcUaServer:
 
     async def start(self) -> None:
         settings = self.settings
+        client_faults.install()
         server = Server(user_manager=ConsoleLogins(settings.users, settings.anonymous))
         await server.init()
         server.iserver.max_connections = settings.max_connections
         server.iserver.max_subscriptions = settings.max_subscriptions
+        bound_monitored_items(server.iserver.subscription_service, settings.max_monitored_items)
         server.set_endpoint(settings.endpoint)
         server.set_server_name(f"invt-gateway {settings.gateway_id}")
         await server.set_application_uri(settings.application_uri)
@@ -218,6 +223,17 @@ class OpcUaServer:
             await cancel_and_wait(clock, STOP_BUDGET_S)
         await asyncio.wait_for(server.stop(), STOP_BUDGET_S)
 
+    def sessions(self) -> list[dict[str, str]]:
+        """The logged-in sessions, for the console's diagnostics: user, role, since."""
+        server = self.server
+        if server is None:
+            return []
+        users = [session.user for session in list(server.iserver._external_sessions.values())]
+        logins = sorted((u for u in users if isinstance(u, Login)), key=lambda u: u.since)
+        return [
+            {"user": u.shown, "role": u.console_role, "since": iso_time(u.since)} for u in logins
+        ]
+
     # -- values ------------------------------------------------------------------------------
 
     async def _show_forever(self) -> None:
@@ -237,7 +253,7 @@ class OpcUaServer:
         if server is None:
             return
         now = datetime.datetime.now(datetime.UTC)
-        if telemetry is not OFFLINE and "state" in telemetry:
+        if telemetry is not OFFLINE and "state" in telemetry and RUN_STATE not in telemetry:
             telemetry = {**telemetry, RUN_STATE: run_state(telemetry["state"])}
         for key, (node_id, kind) in nodes.variables.items():
             if telemetry is OFFLINE:

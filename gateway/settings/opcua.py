@@ -33,6 +33,7 @@ class OpcUaSettings:
     commands_enabled: bool
     max_connections: int = 16
     max_subscriptions: int = 64
+    max_monitored_items: int = 2000
     parameter_max_age_s: float = 10.0
     command_max_age_s: float = 10.0
     """What `Commands` asks of every source: a method call is carried out at once, never late."""
@@ -69,6 +70,7 @@ def opcua_settings(config: GatewayConfig) -> OpcUaSettings | None:
         commands_enabled=opcua.commands_enabled,
         max_connections=opcua.max_connections,
         max_subscriptions=opcua.max_subscriptions,
+        max_monitored_items=opcua.max_monitored_items,
         parameter_max_age_s=opcua.parameter_max_age_s,
     )
 

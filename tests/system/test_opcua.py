@@ -27,7 +27,7 @@ from asyncua import Client, ua
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
 from gateway.app import Application
-from gateway.config import ENV_STATE_DIRECTORY
+from gateway.config import ENV_STATE_DIRECTORY, GatewayConfig
 from gateway.instruments.simulator import SimulatedLine
 from gateway.opcua.address_space import NAMESPACE
 from gateway.profile.states import RunState
@@ -35,7 +35,12 @@ from gateway.settings.opcua import OWN_FOLDER
 from gateway.store import EventType
 from gateway.store.records import StoredEvent
 from tests.support import running_gateway
-from tests.support.console_support import OPERATOR_PASSWORD, USERS, VIEWER_PASSWORD
+from tests.support.console_support import (
+    OPERATOR_PASSWORD,
+    USERS,
+    VIEWER_PASSWORD,
+    console_client,
+)
 from tests.support.opcua import (
     configuration,
     configuration_file,
@@ -191,6 +196,15 @@ async def test_an_offline_drive_says_bad_communication_error_then_good_again(
         trust(app, client_certificate[0])
         async with connected(app, client_certificate, VIEWER, VIEWER_PASSWORD) as client:
             await until(lambda: good(client, "fan2.output_current_a"))
+            seen: asyncio.Queue[Any] = asyncio.Queue()
+
+            class Handler:
+                def event_notification(self, event: Any) -> None:
+                    seen.put_nowait(event)
+
+            subscription = await client.create_subscription(100, Handler())
+            kind = await drive_node(client, "DriveEventType")
+            await subscription.subscribe_events(await drive_node(client, "bus:line1"), kind)
             line.set_dead(2, True)
 
             async def bad() -> ua.DataValue | None:
@@ -202,6 +216,10 @@ async def test_an_offline_drive_says_bad_communication_error_then_good_again(
             assert await good(client, "pump1.output_current_a") is not None  # its neighbour
             line.set_dead(2, False)
             await until(lambda: good(client, "fan2.output_current_a"), 10)
+            lost = await asyncio.wait_for(seen.get(), 2)
+            back = await asyncio.wait_for(seen.get(), 5)
+            assert (lost.SourceName, lost.Kind, lost.Severity) == ("fan2", "drive_offline", 600)
+            assert (back.Message.Text, back.Severity) == ("online again", 200)  # heard on its bus
 
 
 async def test_a_subscription_sees_a_method_call_run_the_drive(
@@ -336,13 +354,20 @@ async def test_security_none_only_when_listed_and_then_with_a_warning(
 async def test_connections_and_subscriptions_are_bounded(
     line: SimulatedLine, client_certificate: tuple[Path, Path]
 ) -> None:
-    bounded = configuration(line, max_connections=1, max_subscriptions=1)
+    bounded = configuration(line, max_connections=1, max_subscriptions=1, max_monitored_items=3)
     async with running_gateway(bounded) as app:
         trust(app, client_certificate[0])
         async with connected(app, client_certificate, VIEWER, VIEWER_PASSWORD) as client:
-            await client.create_subscription(500, None)
+            subscription = await client.create_subscription(500, None)
             with pytest.raises(ua.uaerrors.BadTooManySubscriptions):
                 await client.create_subscription(500, None)
+            keys = ("state", "fault_code", "output_current_a", "bus_voltage_v")
+            nodes = [await drive_node(client, f"pump1.{key}") for key in keys]
+            made = await subscription.subscribe_data_change(nodes[:2])
+            assert all(isinstance(handle, int) for handle in made)
+            more = await subscription.subscribe_data_change(nodes[2:])
+            assert isinstance(more[0], int)  # the third: the session's last one
+            assert more[1] == ua.StatusCode(ua.StatusCodes.BadTooManyMonitoredItems)
             with pytest.raises((ConnectionError, OSError, asyncio.TimeoutError)):
                 async with connected(app, client_certificate, VIEWER, VIEWER_PASSWORD):
                     pass
@@ -447,3 +472,23 @@ async def test_parameters_are_nodes_read_from_the_drive_on_demand_and_written_th
             node = await drive_node(client, "pump1.Parameters.P00.11")
             with pytest.raises(ua.uaerrors.BadUserAccessDenied):
                 await node.write_value(ua.Variant(20.0, ua.VariantType.Double))
+
+
+async def test_the_console_s_diagnostics_show_the_opcua_sessions(
+    line: SimulatedLine, client_certificate: tuple[Path, Path]
+) -> None:
+    config = configuration_file(line)
+    config["console"] |= {"enabled": True, "host": "127.0.0.1", "port": 0}
+    async with running_gateway(GatewayConfig.model_validate(config)) as app:
+        trust(app, client_certificate[0])
+        async with console_client(app) as web:
+            assert (await web.login(VIEWER, VIEWER_PASSWORD)).status == 200
+            before = (await web.get_json("/api/diagnostics"))["opcua"]
+            assert before == {"sessions": []}
+            logged_in = datetime.datetime.now(datetime.UTC)
+            async with connected(app, client_certificate, OPERATOR, OPERATOR_PASSWORD):
+                (session,) = (await web.get_json("/api/diagnostics"))["opcua"]["sessions"]
+                assert (session["user"], session["role"]) == (OPERATOR, "operator")
+                since = datetime.datetime.fromisoformat(session["since"])
+                assert abs((since - logged_in).total_seconds()) < 5
+            assert (await web.get_json("/api/diagnostics"))["opcua"] == {"sessions": []}

@@ -53,6 +53,9 @@ class OpcUaConfig(Section):
     """Clients connected at once; one more is closed as it connects (and logged)."""
     max_subscriptions: int = Field(64, ge=1, le=10000)
     """Subscriptions across all sessions; one more is refused with BadTooManySubscriptions."""
+    max_monitored_items: int = Field(2000, ge=1, le=100000)
+    """Monitored items one session may have across its subscriptions (32 drives of 48 values
+    each is 1,536); beyond it, BadTooManyMonitoredItems for each item asked."""
     parameter_max_age_s: float = Field(10.0, ge=0.5, le=3600.0)
     """A parameter node (`Parameters/P00.03`, not polled) read from the drive is answered from
     what was read for this long; a Read after it reads the drive again."""

@@ -771,6 +771,11 @@ function diagnosticsPage() {
       ["Published", String(m.published)],
     ] : [["MQTT", "not configured"]];
     fill("mqtt-session", rows.map(([k, v]) => el("tr", { "data-key": k }, el("th", {}, k), el("td", {}, v))));
+    const sessions = data.opcua ? data.opcua.sessions : [];
+    document.getElementById("opcua-count").textContent = data.opcua ? `${sessions.length} now` : "not configured";
+    fill("opcua-sessions", sessions.map((s) => el("tr", { "data-user": s.user },
+      el("td", {}, s.user), el("td", {}, s.role), timeCell(s.since))),
+    data.opcua ? "no OPC UA session" : "OPC UA not configured");
   };
   const level = document.getElementById("log-level");
   const showLog = (data) => {

@@ -28,6 +28,14 @@ for DURATION s unloaded and DURATION s with QUERIES console clients charting the
 at once. Exit 0 when RSS stayed within 50 MB of idle, the Modbus-TCP p99 within 20 % of the
 unloaded one, and every history query was answered (200, or 503 past the console's bound).
 
+    invt-gateway stress --opcua-fuzz N [--duration 10] [--seed 1]
+
+N random and malformed OPC UA messages (random bytes, bad Hellos, oversized and cut-short
+messages, garbage on an open channel) to a gateway's OPC UA endpoint while Modbus-TCP clients
+read; DURATION s of reads without it first. Exit 0 when the Modbus-TCP p99 under the fuzz is
+within 20 % of the one without, no read failed, a well-formed Hello is answered after it and
+the gateway logged no traceback or error; 1 when not.
+
     invt-gateway stress --soak HOURS [--tracemalloc DIR]
 
 HOURS of a plant's traffic, compressed, against one gateway: Modbus-TCP clients writing and
@@ -55,6 +63,7 @@ BAUDRATES = (9600, 19200, 38400, 57600, 115200)
 DEFAULT_DURATION_S = 60.0
 DEFAULT_CLUSTER_DURATION_S = 120.0
 DEFAULT_HISTORY_PHASE_S = 30.0
+DEFAULT_OPCUA_FUZZ_PHASE_S = 10.0
 MAX_CLIENTS = 12
 
 
@@ -97,6 +106,14 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     parser.add_argument(
         "--queries", type=int, default=10, help="with --history (default %(default)d)"
+    )
+    parser.add_argument(
+        "--opcua-fuzz",
+        type=int,
+        default=None,
+        metavar="N",
+        help="N random and malformed messages to the OPC UA endpoint while Modbus-TCP is read "
+        "(--duration: the seconds read without it first, default 10)",
     )
     parser.add_argument(
         "--soak",
@@ -172,6 +189,8 @@ def handle(args: argparse.Namespace) -> int:
         return handle_soak(args)
     if args.history:
         return handle_history(args)
+    if args.opcua_fuzz is not None:
+        return handle_opcua_fuzz(args)
     from gateway.instruments.stress.report import document, problems, table
     from gateway.instruments.stress.scenario import StressSettings, run_stress
 
@@ -253,6 +272,30 @@ def handle_history(args: argparse.Namespace) -> int:
     with Progress("stress --history", 2 * phase_s, sys.stderr) as overall:
         try:
             result = asyncio.run(run_history_load(settings))
+        except (RuntimeError, ValueError, OSError) as exc:
+            overall.print(f"invt-gateway stress: {exc}", sys.stderr)
+            return EXIT_FAILURE
+    print(table(result))
+    if problems(result):
+        if result.gateway_log:
+            print(f"gateway's last log lines:\n{result.gateway_log}", file=sys.stderr)
+        return EXIT_FAILURE
+    return EXIT_OK
+
+
+def handle_opcua_fuzz(args: argparse.Namespace) -> int:
+    from gateway.instruments.stress.opcua_fuzz_load import (
+        OpcUaFuzzSettings,
+        problems,
+        run_opcua_fuzz,
+        table,
+    )
+
+    phase_s = DEFAULT_OPCUA_FUZZ_PHASE_S if args.duration is None else args.duration
+    settings = OpcUaFuzzSettings(args.opcua_fuzz, phase_s, args.seed)
+    with Progress("stress --opcua-fuzz", 2 * phase_s, sys.stderr) as overall:
+        try:
+            result = asyncio.run(run_opcua_fuzz(settings))
         except (RuntimeError, ValueError, OSError) as exc:
             overall.print(f"invt-gateway stress: {exc}", sys.stderr)
             return EXIT_FAILURE

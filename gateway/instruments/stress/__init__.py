@@ -10,4 +10,6 @@
   compressed, its faults in rounds, the gateway sampled; `memory_growth` compares the
   gateway's tracemalloc snapshots.
 - `history_load`: `--history`, months of history charted at once while SCADA reads.
+- `opcua_fuzz`, `opcua_fuzz_load`: `--opcua-fuzz N`, malformed OPC UA messages to the
+  endpoint while SCADA reads over Modbus-TCP.
 """

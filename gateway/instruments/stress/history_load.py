@@ -209,7 +209,7 @@ async def _phase(
     stop = asyncio.Event()
     async with asyncio.TaskGroup() as tasks:
         for unit_id in range(1, settings.readers + 1):
-            tasks.create_task(_reader(gateway.port, unit_id % 2 + 1, stop, phase))
+            tasks.create_task(timed_reader(gateway.port, unit_id % 2 + 1, stop, phase))
         tasks.create_task(_rss(gateway, stop, phase))
         if alongside is not None:
             tasks.create_task(alongside(stop))
@@ -217,7 +217,7 @@ async def _phase(
         stop.set()
 
 
-async def _reader(port: int, unit_id: int, stop: asyncio.Event, phase: Phase) -> None:
+async def timed_reader(port: int, unit_id: int, stop: asyncio.Event, phase: Phase) -> None:
     """A SCADA client with one read outstanding, timed from send to reply."""
     reader, writer = await asyncio.open_connection("127.0.0.1", port)
     pdu = struct.pack(">BHH", 0x03, READ_REGISTER, READ_COUNT)
