@@ -67,9 +67,13 @@ class ParameterNode:
 class ParameterNodes:
     """Every drive's parameter nodes, and their reads through the bus on a client's Read."""
 
-    def __init__(self, commands: Commands, max_age_s: float) -> None:
+    def __init__(
+        self, commands: Commands, max_age_s: float, shown: str | tuple[str, ...] = "all"
+    ) -> None:
         self.commands = commands
         self.max_age_s = max_age_s
+        self.shown = shown
+        """`opcua.parameters`: `all`, `none`, or groups (P00) and codes (P00.03)."""
         self.nodes: dict[ua.NodeId, ParameterNode] = {}
         self._locks: dict[ua.NodeId, asyncio.Lock] = {}
         self.server: Any = None
@@ -78,7 +82,7 @@ class ParameterNodes:
         self, ns: int, drive_node: Node, drive: CommandDrive, writable: bool
     ) -> dict[ua.NodeId, WriteTarget]:
         """The drive's folder and its parameters; the writable ones' targets."""
-        rows = drive.profile.parameters
+        rows = [row for row in drive.profile.parameters if self._shown(row)]
         targets: dict[ua.NodeId, WriteTarget] = {}
         if not rows:
             return targets
@@ -107,6 +111,11 @@ class ParameterNodes:
                 await variable.set_writable()
                 targets[variable.nodeid] = WriteTarget(drive, row.name, "parameter")
         return targets
+
+    def _shown(self, row: Parameter) -> bool:
+        if isinstance(self.shown, str):
+            return self.shown == "all"
+        return row.name in self.shown or row.group in self.shown
 
     def written(self, node_id: ua.NodeId) -> None:
         """A write went to the drive: the next Read asks the drive again."""

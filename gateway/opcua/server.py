@@ -83,7 +83,9 @@ class OpcUaServer:
         audited = AuditedEvents(events).as_store()
         commands = Commands(settings, router, poller, command_drives, audited, source="opcua")
         self.path = CommandPath(commands, settings.commands_enabled)
-        self.parameters = ParameterNodes(commands, settings.parameter_max_age_s)
+        self.parameters = ParameterNodes(
+            commands, settings.parameter_max_age_s, settings.parameters
+        )
         self.poller = poller
         self.server: Server | None = None
         self.nodes: dict[str, DriveNodes] = {}

@@ -34,6 +34,8 @@ class OpcUaSettings:
     max_connections: int = 16
     max_subscriptions: int = 64
     max_monitored_items: int = 2000
+    parameters: str | tuple[str, ...] = "all"
+    """`all`, `none`, or the groups (P00) and codes (P00.03) shown under `Parameters`."""
     parameter_max_age_s: float = 10.0
     command_max_age_s: float = 10.0
     """What `Commands` asks of every source: a method call is carried out at once, never late."""
@@ -71,6 +73,7 @@ def opcua_settings(config: GatewayConfig) -> OpcUaSettings | None:
         max_connections=opcua.max_connections,
         max_subscriptions=opcua.max_subscriptions,
         max_monitored_items=opcua.max_monitored_items,
+        parameters=opcua.parameters,
         parameter_max_age_s=opcua.parameter_max_age_s,
     )
 

@@ -492,3 +492,26 @@ async def test_the_console_s_diagnostics_show_the_opcua_sessions(
                 since = datetime.datetime.fromisoformat(session["since"])
                 assert abs((since - logged_in).total_seconds()) < 5
             assert (await web.get_json("/api/diagnostics"))["opcua"] == {"sessions": []}
+
+
+async def test_the_parameters_shown_are_those_listed(
+    line: SimulatedLine, client_certificate: tuple[Path, Path]
+) -> None:
+    with pytest.raises(ValueError, match="'X00' is not a group"):
+        configuration(line, parameters=["X00"])
+    async with running_gateway(configuration(line, parameters=["p00.03", "P01"])) as app:
+        trust(app, client_certificate[0])
+        async with connected(app, client_certificate, VIEWER, VIEWER_PASSWORD) as client:
+            folder = await (await drive_node(client, "pump1")).get_child(
+                [f"{await ns_of(client)}:Parameters"]
+            )
+            names = [(await n.read_browse_name()).Name for n in await folder.get_children()]
+            assert names[0] == "P00.03"
+            assert {name.split(".")[0] for name in names[1:]} == {"P01"}
+    async with running_gateway(configuration(line, parameters="none")) as app:
+        trust(app, client_certificate[0])
+        async with connected(app, client_certificate, VIEWER, VIEWER_PASSWORD) as client:
+            drive = await drive_node(client, "pump1")
+            children = [(await n.read_browse_name()).Name for n in await drive.get_children()]
+            assert "Parameters" not in children
+            assert "state" in children
