@@ -214,6 +214,8 @@ async def test_an_offline_drive_says_bad_communication_error_then_good_again(
 
             await until(bad, 10)
             assert await good(client, "pump1.output_current_a") is not None  # its neighbour
+            parameter = await value_of(client, "fan2.Parameters.P00.03")  # asked of the line
+            assert parameter.StatusCode.value == ua.StatusCodes.BadCommunicationError
             line.set_dead(2, False)
             await until(lambda: good(client, "fan2.output_current_a"), 10)
             lost = await asyncio.wait_for(seen.get(), 2)
