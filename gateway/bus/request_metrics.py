@@ -20,8 +20,9 @@ from gateway.bus.metrics import DriveLabels, DriveNames, exception_label
 from gateway.metric_families import OTHER, PREFIX, created_series
 from gateway.modbus.functions import FUNCTIONS
 
-SOURCES = ("tcp", "poll", "mqtt", "probe")
-"""Who asked: clients are named "tcp:<peer>", "poll", "mqtt" and "probe" (the bus's own)."""
+SOURCES = ("tcp", "poll", "mqtt", "opcua", "probe")
+"""Who asked: clients are named "tcp:<peer>", "poll", "mqtt", "opcua" (the OPC UA server's commands
+and parameter reads) and "probe" (the bus's own)."""
 MAX_SERIES_KEYS = 4096
 """`RequestMetrics._series` holds at most this many keys (one per client, drive and function
 asked): a gateway whose clients reconnect all day must not grow it without end."""

@@ -94,11 +94,15 @@ class Commands:
         drives: Mapping[str, CommandDrive],
         events: EventStore,
         source: str = "mqtt",
+        client: str = MQTT_CLIENT,
     ) -> None:
         """`source`: what a `command` event names as where the command came from (the JSON
-        topics' `mqtt`, Sparkplug's `sparkplug`, the OPC UA server's `opcua`)."""
+        topics' `mqtt`, Sparkplug's `sparkplug`, the OPC UA server's `opcua`). `client`: who
+        asked, as the bus's traffic monitor and request metrics name it (`mqtt` for both MQTT
+        sources, as ever; `opcua`)."""
         self.settings = settings
         self.source = source
+        self.client = client
         self.router = router
         self.poller = poller
         self.drives = drives
@@ -224,7 +228,7 @@ class Commands:
     async def _execute(self, drive: CommandDrive, pdu: bytes) -> bytes:
         # The router's route of the moment: a reload may have reopened the drive's bus.
         route = self.router.route_for_drive(drive.name)
-        reply = await self.router.request(route, pdu, client=MQTT_CLIENT)
+        reply = await self.router.request(route, pdu, client=self.client)
         if is_exception(reply):
             code = reply[1] if len(reply) > 1 else 0
             words = drive.profile.exceptions

@@ -81,7 +81,9 @@ class OpcUaServer:
         }
         self.command_drives = command_drives
         audited = AuditedEvents(events).as_store()
-        commands = Commands(settings, router, poller, command_drives, audited, source="opcua")
+        commands = Commands(
+            settings, router, poller, command_drives, audited, source="opcua", client="opcua"
+        )
         self.path = CommandPath(commands, settings.commands_enabled)
         self.parameters = ParameterNodes(
             commands, settings.parameter_max_age_s, settings.parameters

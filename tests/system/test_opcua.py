@@ -243,6 +243,9 @@ async def test_a_subscription_sees_a_method_call_run_the_drive(
             state = await drive_node(client, "pump1.state")
             await subscription.subscribe_data_change(state)
             assert await asyncio.wait_for(seen.get(), 2) == "stopped"
+            asked_by: list[str] = []  # who the bus's traffic monitor and metrics say asked
+            for bus in app.buses.values():
+                bus.add_request_observer(lambda *done: asked_by.append(done[3]))
             frequency = await drive_node(client, "pump1.set_frequency_hz")
             await frequency.write_value(ua.Variant(20.0, ua.VariantType.Double))
             drive = await drive_node(client, "pump1")
@@ -257,6 +260,8 @@ async def test_a_subscription_sees_a_method_call_run_the_drive(
             assert {e.data["source"] for e in events} == {"opcua"}
             assert {e.data["result"] for e in events} == {"ok"}
             assert {e.data["user"] for e in events} == {OPERATOR}  # who, in the audit
+            assert "opcua" in asked_by  # the commands' requests, named for where they came from
+            assert "mqtt" not in asked_by
 
 
 async def commands(app: Application, count: int) -> list[StoredEvent] | None:
