@@ -327,6 +327,23 @@ def test_bench_measures_the_gateways_cpu_per_transaction_with_no_wire_delay() ->
     assert "us per bus transaction (target <= 300 us)" in line
 
 
+def test_two_benches_at_once_each_run_their_own_gateway_and_store() -> None:
+    """Each bench's gateway keeps its events in its own folder: the box's default store of the
+    bench's `gateway_id` is held by whichever gateway opened it first, and another bench (or
+    the case before, still stopping) used to make the next one exit 4 at start."""
+    arguments = ["--baud", "115200", "--duration", "1", "--warmup", "0.3", "--json"]
+    command = [sys.executable, "-m", "gateway", "bench", *arguments, "--case", "no wire delay"]
+    both = [
+        subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        for _ in range(2)
+    ]
+    for bench in both:
+        out, err = bench.communicate(timeout=120)
+        assert bench.returncode == 0, err
+        (row,) = json.loads(out)["cases"]
+        assert row["errors"] == row["wrong"] == 0
+
+
 @pytest.mark.skipif(shutil.which("valgrind") is None, reason="valgrind is installed by .ci/test")
 @pytest.mark.timeout(300)  # two Python start-ups under callgrind: ~50 s here, more under load
 def test_bench_counts_the_gateways_instructions_per_transaction() -> None:

@@ -223,6 +223,11 @@ def gateway(
     """
     with tempfile.TemporaryDirectory(prefix="invt-bench-") as folder:
         path = Path(folder) / "config.yaml"
+        if "storage" not in config:
+            # A store of its own: the box's default (`events-<gateway_id>.db` in the state
+            # directory) is held by any other gateway of that id, a bench beside this one or a
+            # case's gateway still stopping, and a second opener is refused at start (exit 4).
+            config = {**config, "storage": {"path": str(Path(folder) / "events.db")}}
         path.write_text(yaml.safe_dump(config))
         command = gateway_command()
         if profile := os.environ.get(PROFILE_VARIABLE):
