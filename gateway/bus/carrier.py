@@ -131,7 +131,7 @@ class Carrier:
         frame = first.frame
         broadcast = address == BROADCAST_ADDRESS
         late = self.late_replies
-        tap = self.observers.tap
+        observers = self.observers
         drive = self.drive(address)
         self.sent(drive, first.frame, first)
         # A probe brings its own retries; a drive that just failed gets none.
@@ -195,8 +195,8 @@ class Carrier:
                 self._unanswered(address, on_wire, started, exc.strays, transaction.timeout_s)
                 dump_frame(self.name, "rx timeout", exc.received)
                 errors.append(exc)
-                if tap is not None:
-                    tap(self.name, transaction, attempt, started, exc)
+                if observers.tap is not None:
+                    observers.show(transaction, attempt, started, exc)
                 continue
             except BadReply as exc:
                 drive.bad_replies[exc.kind] += 1
@@ -206,12 +206,12 @@ class Carrier:
                 dump_frame(self.name, f"rx bad {exc.kind}", exc.frame)
                 log.debug("bus %s: %s", self.name, exc)
                 errors.append(exc)
-                if tap is not None:
-                    tap(self.name, transaction, attempt, started, exc)
+                if observers.tap is not None:
+                    observers.show(transaction, attempt, started, exc)
                 continue
             except PortError as exc:
-                if tap is not None:
-                    tap(self.name, transaction, attempt, started, exc)
+                if observers.tap is not None:
+                    observers.show(transaction, attempt, started, exc)
                 if not broadcast:  # its reply may come to the reopened port
                     late.unanswered(address, on_wire, started, transaction, transaction.timeout_s)
                 raise
@@ -372,9 +372,9 @@ class Carrier:
             # The frame as it came: a reply that passed its CRC check rebuilds byte-exact.
             dump_frame(self.name, "rx", build_frame(address, pdu))
         self._record(drive, pdu, gap_s, busy_s, heard_at)
-        tap = self.observers.tap
-        if tap is not None:
-            tap(self.name, transaction, attempt, started, Exchange(pdu, gap_s, busy_s, heard_at))
+        observers = self.observers
+        if observers.tap is not None:
+            observers.show(transaction, attempt, started, Exchange(pdu, gap_s, busy_s, heard_at))
         if address == BROADCAST_ADDRESS:
             self.stats.broadcasts += 1
             self.late_replies.broadcast()

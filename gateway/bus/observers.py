@@ -79,6 +79,24 @@ class BusObservers:
             except Exception:
                 log.exception("bus %s: request observer failed", self.name)
 
+    def show(
+        self,
+        transaction: Transaction,
+        attempt: int,
+        started: float,
+        outcome: Exchange | LineError,
+    ) -> None:
+        """Tell the tap (set: the caller looked) of an attempt. A tap that fails is logged and
+        costs nothing else: the traffic monitor's trouble must not cost the request its
+        answer."""
+        tap = self.tap
+        if tap is None:
+            return
+        try:
+            tap(self.name, transaction, attempt, started, outcome)
+        except Exception:
+            log.exception("bus %s: the traffic monitor's tap failed", self.name)
+
     def tap_marker(
         self, transaction: Transaction, sent: Sending, outcome: Exchange | LineError
     ) -> None:
@@ -95,7 +113,7 @@ class BusObservers:
                 transaction.timeout_s,
                 0,
             )
-            tap(self.name, marker, 0, sent.started, outcome)
+            self.show(marker, 0, sent.started, outcome)
 
     def drive(self, address: int, online: bool) -> None:
         for listener in self.drive_listeners:

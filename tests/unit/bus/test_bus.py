@@ -326,3 +326,23 @@ async def test_after_a_timeout_or_a_broadcast_the_next_gap_is_not_the_gateways_s
         # out the broadcast's turnaround (not counted).
         assert bus.gap_excess.count == counted + 1
         assert bus.gap_excess.counts[0] == 0
+
+
+async def test_a_traffic_monitor_that_fails_costs_no_request_its_answer(
+    line: SimulatedLine, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The console's tap is told of every attempt; a bug in it is logged, and every request
+    still gets its drive's answer, answered in the reader callback or by a timeout alike."""
+
+    def failing_tap(*_attempt: object) -> None:
+        raise RuntimeError("a bug in the traffic monitor")
+
+    async with running_bus(line.path, timeout_ms=50, retries=0, offline_after=5) as bus:
+        bus.tap = failing_tap
+        replies = await asyncio.gather(*(read(bus, 1 + n % 2, STATE_WORD_1) for n in range(6)))
+        assert replies == [STOPPED_REPLY] * 6
+        with pytest.raises(GatewayTargetFailed, match="timeout|no reply"):
+            await read(bus, SILENT, STATE_WORD_1)  # the silent drive's own failure, not 0BH's
+        attempts = bus.stats.transactions  # identical reads shared theirs
+    failures = [r for r in caplog.records if "traffic monitor's tap failed" in r.getMessage()]
+    assert len(failures) == attempts >= 3
