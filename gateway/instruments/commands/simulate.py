@@ -5,13 +5,15 @@
     invt-gateway simulate --pty --address 1 --burst-ms 40 --glitch FF --echo
     invt-gateway simulate --pty --drive 1=gd30 --drive 2=ipe300 --drive 3=acs580  (a mixed line)
     invt-gateway simulate --pty --lines 32 --address 1 --address 2  (32 lines, one process)
+    invt-gateway simulate --pty --masters 2 --address 1  (one line, two gateways' adapters on it)
 
 The first line on stdout is the device path to point the gateway at (with --lines N, the first
 N lines: one path per line, each line with the same drives, its own pty and its own timing, all
-served from one thread). It serves until SIGTERM or SIGINT (exit 0). When stdin is not a
-terminal, it takes control commands there, one per line (`fault 1 35`, `dead 2`, `stats`, ...:
-see `gateway.instruments.simulator.control`; `line K ...` for the K-th of several lines), each
-answered by one line on stdout.
+served from one thread; with --masters N, one path per master on the one line: see
+`gateway.instruments.simulator.shared_wire`). It serves until SIGTERM or SIGINT (exit 0). When
+stdin is not a terminal, it takes control commands there, one per line (`fault 1 35`, `dead 2`,
+`stats`, ...: see `gateway.instruments.simulator.control`; `line K ...` for the K-th of several
+lines), each answered by one line on stdout.
 """
 
 from __future__ import annotations
@@ -37,6 +39,8 @@ from gateway.profile.models import get_profile
 
 PARITIES = ("N", "E", "O")
 MAX_LINES = 64
+MAX_MASTERS = 8
+"""Masters one simulated line takes: a redundant pair, and a few more to misbehave."""
 """Lines one simulator process serves: beyond, one thread no longer keeps every reply on time."""
 INVT_MODELS = tuple(INVT_PROFILES)
 MODELS = (*INVT_MODELS, *sorted(ABB_MODELS))
@@ -67,6 +71,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="serve N lines alike from one thread, each on a pty of its own with its own wire "
         "timing; their paths are the first N lines on stdout, `line K COMMAND` controls the "
         "K-th (default 1; with --pty only, no --link)",
+    )
+    parser.add_argument(
+        "--masters",
+        type=_masters,
+        default=1,
+        metavar="N",
+        help="N masters on the one line, each on a pty of its own (their paths are the first N "
+        "lines on stdout): what one transmits reaches the drives and every other master, the "
+        "drives' replies reach all, and two transmissions that overlap collide (the drives "
+        "see a bad CRC); `stats` counts collisions and each master's frames (default 1; with "
+        "--pty only, one line, no --link)",
     )
     parser.add_argument(
         "--address",
@@ -203,6 +218,12 @@ def handle(args: argparse.Namespace) -> int:
     if args.lines > 1 and (args.device or args.link):
         print("invt-gateway simulate: --lines takes --pty and no --link", file=sys.stderr)
         return EXIT_USAGE
+    if args.masters > 1 and (args.device or args.link or args.lines > 1):
+        print(
+            "invt-gateway simulate: --masters takes --pty, one line and no --link",
+            file=sys.stderr,
+        )
+        return EXIT_USAGE
     # Signal handlers first: whoever reads the path may signal at once, and must get a clean
     # stop (the link removed, exit 0) rather than the default death.
     with _signal_pipe() as signalled:
@@ -218,14 +239,17 @@ def handle(args: argparse.Namespace) -> int:
             return EXIT_FAILURE
         try:
             for line in lines:
-                print(line.path, flush=True)
+                for path in line.paths:
+                    print(path, flush=True)
             line = lines[0]
             adapter = (
                 "" if line.adapter.describe() == "none" else f"; adapter: {line.adapter.describe()}"
             )
             if line.relay_s:
                 adapter += f"; relay {line.relay_s * 1000:g} ms each way"
-            where = ", ".join(each.path for each in lines)
+            where = ", ".join(path for each in lines for path in each.paths)
+            if args.masters > 1:
+                where = f"one line shared by {args.masters} masters ({where})"
             print(
                 f"simulating {describe_drives(line)} on "
                 f"{where} ({args.baud} baud 8{args.parity}{args.stopbits}){adapter}",
@@ -289,6 +313,7 @@ def build_line(args: argparse.Namespace) -> SimulatedLine:
         fault_history=dict(args.fault_history),
         wake_early_s=args.wake_early_us / 1e6,
         relay_s=args.relay_ms / 1000,
+        masters=args.masters,
     )
     for address, code in args.fault:
         line.inject_fault(address, code)
@@ -376,6 +401,13 @@ def _lines(text: str) -> int:
     value = int(text)
     if not 1 <= value <= MAX_LINES:
         raise argparse.ArgumentTypeError(f"{value} lines is outside 1..{MAX_LINES}")
+    return value
+
+
+def _masters(text: str) -> int:
+    value = int(text)
+    if not 1 <= value <= MAX_MASTERS:
+        raise argparse.ArgumentTypeError(f"{value} masters is outside 1..{MAX_MASTERS}")
     return value
 
 

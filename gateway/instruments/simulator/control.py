@@ -16,6 +16,8 @@
     unplug              the port goes away                   → ok unplug
     replug              a new port, the link re-pointed      → ok replug /dev/pts/7
     stats               the line's counters                  → ok {"requests": 3, ...}
+                        (with --masters N also "collisions" and "masters": each master's
+                        path, frames, bytes and collisions)
 
 With several lines in one process (`simulate --lines N`), `line K COMMAND` carries COMMAND
 out on the K-th line (from 1): `line 3 stats`, `line 2 dead 1`. A command without it goes to

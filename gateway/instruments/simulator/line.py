@@ -56,6 +56,7 @@ from gateway.instruments.simulator.framing import ReceivedFrame, RequestAssemble
 from gateway.instruments.simulator.line_faults import LineFaults
 from gateway.instruments.simulator.quirks import DeviceQuirks
 from gateway.instruments.simulator.server import LineServer
+from gateway.instruments.simulator.shared_wire import SharedWire
 from gateway.modbus.functions import exception_pdu
 from gateway.modbus.rtu import BROADCAST_ADDRESS, build_frame
 from gateway.modbus.timing import CharacterFormat
@@ -89,6 +90,7 @@ class SimulatedLine:
         fault_history: Mapping[int, Sequence[int]] | None = None,
         wake_early_s: float = WAKE_EARLY_S,
         relay_s: float = 0.0,
+        masters: int = 1,
     ) -> None:
         if relay_s < 0:
             raise ValueError(f"relay delay {relay_s * 1000:g} ms is negative")
@@ -135,6 +137,9 @@ class SimulatedLine:
         self._quirks = DeviceQuirks()
         self._faults = LineFaults()
         self._adapter = AdapterEffects()
+        self._wire = None if masters == 1 else SharedWire(masters, self.t35_s)
+        """With several masters (`gateway.instruments.simulator.shared_wire`): their ports,
+        what each transmitted, and the collisions."""
         self._stats: dict[str, Any] = {
             "requests": 0,
             "replies": 0,
@@ -246,6 +251,11 @@ class SimulatedLine:
         if self._path is None:
             raise RuntimeError("the simulated line has no port yet: call start()")
         return self._path
+
+    @property
+    def paths(self) -> list[str]:
+        """Every master's port: one, or each of `masters` on a shared wire."""
+        return [self.path] if self._wire is None else self._wire.paths
 
     # ----------------------------------------------------------------- controls
 
@@ -368,8 +378,10 @@ class SimulatedLine:
         reply_late_buckets and heard_gap_buckets and the sum reply_late_s (see the module's
         docstring)."""
         with self._lock:
+            shared = {} if self._wire is None else self._wire.stats()
             return {
                 **self._stats,
+                **shared,
                 "faults_by_kind": dict(self._stats["faults_by_kind"]),
                 "reply_late_buckets": self._reply_late.cumulative(),
                 "reply_late_s": self._reply_late.sum_s,
@@ -404,7 +416,9 @@ class SimulatedLine:
     def watched(self) -> list[int]:
         """The descriptors the serving thread waits on for this line."""
         endpoint = self._endpoint
-        return [self._wake_read] if endpoint is None else [self._wake_read, endpoint.fd]
+        if endpoint is None:
+            return [self._wake_read]
+        return [self._wake_read, *([endpoint.fd] if self._wire is None else self._wire.fds())]
 
     def serve_ready(self, readable: Container[int], woke_at: float) -> None:
         """One pass of the serving thread for this line: `readable` are the descriptors its
@@ -416,7 +430,14 @@ class SimulatedLine:
         endpoint = self._endpoint
         self._run_calls()
         self._send_due(time.monotonic())
-        if endpoint is not None and endpoint is self._endpoint and endpoint.fd in readable:
+        wire = self._wire
+        if wire is not None:
+            if endpoint is not None and endpoint is self._endpoint:
+                for fd in wire.fds():
+                    if fd in readable:
+                        self._receive_shared(wire, fd, woke_at)
+            self._release_shared(wire)
+        elif endpoint is not None and endpoint is self._endpoint and endpoint.fd in readable:
             # The bytes were there when the wait ended: their time, however many lines' work
             # came before this one's in the pass (a master's request is not later for that).
             self._receive(endpoint, woke_at)
@@ -431,6 +452,11 @@ class SimulatedLine:
         look slower than the line allows), or when the silence that ends a request is over."""
         deadline = self._pending[0][0] - self.wake_early_s if self._pending else None
         silence = self._assembler.silence_deadline()
+        wire = self._wire
+        if wire is not None:
+            for shared in (wire.silence_deadline(), wire.next_due()):
+                if shared is not None:
+                    silence = shared if silence is None else min(silence, shared)
         if silence is not None:
             silence -= self.relay_s  # the wire's time, the relay's delay ahead
             deadline = silence if deadline is None else min(deadline, silence)
@@ -455,6 +481,57 @@ class SimulatedLine:
                 self._on_frame(frame)
             if self._adapter.echo:
                 self._echo(data, now)
+
+    def _receive_shared(self, wire: SharedWire, fd: int, now: float) -> None:
+        """Bytes from one of several masters: every other master hears them at once, and they
+        go on the wire, where they may collide (`SharedWire.transmit`)."""
+        master = wire.master_of(fd)
+        if master is None:
+            return
+        try:
+            data = os.read(fd, READ_SIZE)
+        except BlockingIOError:
+            return
+        except OSError as error:
+            log.warning("simulated line: master %d's port vanished (%s)", master + 1, error)
+            return
+        if not data:
+            return
+        wire.relay(master, data)
+        with self._lock:
+            for frame in wire.feed(master, data, now + self.relay_s):
+                self._on_air(wire, master, frame)
+
+    def _release_shared(self, wire: SharedWire) -> None:
+        """Frames whose end has left the wire go to the drives (a garbled one fails its CRC);
+        frames that a silence ends go on the wire first."""
+        with self._lock:
+            for master, frame in wire.on_silence(time.monotonic() + self.relay_s):
+                self._on_air(wire, master, frame)
+            for frame in wire.released(time.monotonic() + self.relay_s):
+                self._on_frame(frame)
+
+    def _on_air(self, wire: SharedWire, master: int, frame: ReceivedFrame) -> None:
+        """`master`'s frame is on the wire: a reply going out meanwhile is garbled with it."""
+        character_s = self.character_s if self.wire_time else 0.0
+        replies = [
+            (at - self.relay_s - len(data) * character_s, at - self.relay_s)
+            for at, _, data, _ in self._pending
+        ]
+        sent = wire.transmit(master, frame, character_s, replies)
+        if sent.garbled:
+            self._garble_replies(sent.start, sent.end, character_s)
+
+    def _garble_replies(self, start: float, end: float, character_s: float) -> None:
+        """Replies on the wire between `start` and `end` reach the masters with a bad CRC."""
+        garbled = []
+        for at, sequence, data, ends in self._pending:
+            wire_end = at - self.relay_s
+            if wire_end - len(data) * character_s < end and start < wire_end and data:
+                data = data[:-1] + bytes([data[-1] ^ 0xFF])
+            garbled.append((at, sequence, data, ends))
+        heapq.heapify(garbled)
+        self._pending = garbled
 
     def _echo(self, data: bytes, now: float) -> None:
         """The adapter hands the master's bytes back as they leave on the wire: each byte a
@@ -595,6 +672,8 @@ class SimulatedLine:
         endpoint = self._endpoint
         if endpoint is None:
             return False
+        if self._wire is not None:
+            return self._wire.write_all(data)  # every master hears the drives
         try:
             os.write(endpoint.fd, data)
         except BlockingIOError:
@@ -610,7 +689,9 @@ class SimulatedLine:
     def _plug(self) -> None:
         if self._endpoint is not None:
             return
-        if self.device is None:
+        if self._wire is not None:
+            endpoint = self._wire.open()[0]
+        elif self.device is None:
             endpoint = Endpoint.open_pty()
         else:
             endpoint = Endpoint.open_device(self.device, self.baudrate, self.parity, self.stopbits)
@@ -620,7 +701,9 @@ class SimulatedLine:
 
     def _unplug(self) -> None:
         endpoint, self._endpoint = self._endpoint, None
-        if endpoint is not None:
+        if self._wire is not None:
+            self._wire.close()
+        elif endpoint is not None:
             endpoint.close()
         if self.link is not None:
             remove_link(self.link)

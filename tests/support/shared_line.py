@@ -1,0 +1,75 @@
+"""`invt-gateway simulate --masters N` as the redundancy tests start it: one simulated RS-485
+line whose drives N masters share (each on a pty of its own), its counters read through its
+control commands on stdin (`stats`: collisions, and each master's frames)."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import subprocess
+import threading
+from collections.abc import Iterator
+from typing import Any
+
+from gateway.instruments.die_with_parent import die_with_parent
+from tests.support.processes import START_TIMEOUT_S, LineCollector, entry_point
+
+
+class SharedLine:
+    """The simulator process, the masters' paths, and its control commands."""
+
+    def __init__(self, masters: int, *arguments: str) -> None:
+        self.process = subprocess.Popen(
+            [entry_point(), "simulate", "--pty", "--masters", str(masters), *arguments],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            preexec_fn=die_with_parent(),
+        )
+        assert self.process.stdout is not None
+        assert self.process.stderr is not None
+        self.errors = LineCollector(self.process.stderr)
+        self.output = LineCollector(self.process.stdout)
+        self._asking = threading.Lock()
+        self.output.wait_for_count("/dev/", masters, START_TIMEOUT_S)
+        self.paths = self.output.lines[:masters]
+
+    def command(self, text: str) -> str:
+        """One control command; its one line of answer."""
+        assert self.process.stdin is not None
+        with self._asking:
+            before = len(self.output.lines)
+            self.process.stdin.write(text + "\n")
+            self.process.stdin.flush()
+            self.output.wait_for_count("", before + 1, 5.0)
+            return self.output.lines[before]
+
+    def stats(self) -> dict[str, Any]:
+        answer = self.command("stats")
+        assert answer.startswith("ok "), answer
+        stats: dict[str, Any] = json.loads(answer[3:])
+        return stats
+
+    def frames_by(self, master: int) -> int:
+        """Frames the `master`-th master (from 0) has transmitted so far."""
+        return int(self.stats()["masters"][master]["frames"])
+
+    def stop(self) -> None:
+        if self.process.poll() is None:
+            self.process.terminate()
+            self.process.wait(5)
+        self.output.join()
+        self.errors.join()
+        for stream in (self.process.stdin, self.process.stdout, self.process.stderr):
+            if stream is not None:
+                stream.close()
+
+
+@contextlib.contextmanager
+def shared_line(masters: int, *arguments: str) -> Iterator[SharedLine]:
+    line = SharedLine(masters, *arguments)
+    try:
+        yield line
+    finally:
+        line.stop()
