@@ -5,7 +5,9 @@
               background task (buses, poller, MQTT, the console's sampler, the service's
               SIGHUP listener and watchdog) runs in one TaskGroup: one that dies of a bug
               stops the service (`BusFailed`, `FeatureFailed`: exit code 1)
-    serve     until the stop event is set (SIGTERM / SIGINT)
+    serve     until the stop event is set (SIGTERM / SIGINT); with `redundancy:` the buses, the
+              poller and the MQTT bridge run only while this gateway is the line's active
+              master (`gateway.redundancy`, through `LineHandover`): a standby listens
     shutdown  stop accepting; queued requests are answered 0x0B; the transaction on the wire
               finishes; features stop (MQTT publishes offline); within 2 s in all
 
@@ -20,7 +22,8 @@ from collections.abc import Callable, Coroutine, Mapping
 from typing import TYPE_CHECKING, Any, Protocol
 
 from gateway.bus import Bus, BusState
-from gateway.errors import CannotListen, GatewayError, GatewayPathUnavailable
+from gateway.bus.queue import Waiter
+from gateway.errors import CannotListen, GatewayError, GatewayPathUnavailable, StandbyRefusal
 from gateway.health import Phase
 from gateway.modbus.functions import is_exception
 from gateway.poller import Poller
@@ -44,6 +47,7 @@ if TYPE_CHECKING:
     from gateway.metrics import MetricsFeature
     from gateway.mqtt import MqttBridge
     from gateway.opcua.server import OpcUaServer
+    from gateway.redundancy import Redundancy
     from gateway.sparkplug.edge_node import SparkplugNode
 
 log = logging.getLogger(__name__)
@@ -85,7 +89,9 @@ class Application:
         for bus in self.buses.values():
             bus.add_port_listener(self.events.port_changed)
         self.writes = WriteTally(self.events, self._drive_of, self.tasks)
-        self.tcp = ModbusTcpServer(settings.tcp, TcpRequests(self.router, self.writes))
+        self.requests = TcpRequests(self.router, self.writes)
+        """What the Modbus-TCP server's requests go through."""
+        self.tcp = ModbusTcpServer(settings.tcp, self.requests)
         self.poller = self._build_poller()
         self.mqtt: MqttBridge | None = None
         self.sparkplug: SparkplugNode | None = None
@@ -104,6 +110,11 @@ class Application:
         self.console: ConsoleFeature | None = None
         if settings.console is not None:
             self.console = self._build_console(settings.console)
+        self.redundancy: Redundancy | None = None
+        """With `redundancy:`, this gateway's role on its lines; None: it is their master."""
+        self.handover = LineHandover(self)
+        if settings.redundancy is not None:
+            self.redundancy = self.handover.build_redundancy()
 
     @property
     def features(self) -> list[Feature]:
@@ -327,6 +338,11 @@ class Application:
         except GatewayPathUnavailable:
             return None
 
+    @property
+    def serving(self) -> bool:
+        """This gateway sends to its drives: always, unless it is a standby (`redundancy`)."""
+        return self.redundancy is None or self.redundancy.serving
+
     async def run(
         self,
         stop: asyncio.Event,
@@ -342,15 +358,20 @@ class Application:
             self._bus_tasks = {
                 name: tasks.create_task(bus.run(), name=f"bus:{name}")
                 for name, bus in self.buses.items()
+                if self.redundancy is None  # else the buses run once this gateway is active
             }
             beside = [self.tasks.start(name, work) for name, work in (alongside or {}).items()]
             try:
                 await self._startup()
+                if self.redundancy is not None:
+                    beside.append(self.tasks.start("redundancy", self.redundancy.run()))
                 self.phase = Phase.READY
                 if on_ready is not None:
                     on_ready()
                 await stop.wait()
             finally:
+                if self.redundancy is not None:  # no role change while the service stops
+                    await asyncio.gather(*(cancel_and_wait(t, FEATURE_STOP_S) for t in beside))
                 await self._shutdown()
                 for task in self._bus_tasks.values():
                     task.cancel()
@@ -363,13 +384,15 @@ class Application:
     async def _startup(self) -> None:
         # A port that isn't there yet must not keep SCADA from connecting: the bus keeps trying
         # and answers 0x0B meanwhile. Give ports a moment so the first requests find them open.
-        await asyncio.gather(*(bus.wait_open(2.0) for bus in self.buses.values()))
+        if self.redundancy is None:
+            await asyncio.gather(*(bus.wait_open(2.0) for bus in self.buses.values()))
         for name, bus in self.buses.items():
-            if not bus.line.is_open:
+            if not bus.line.is_open and self.redundancy is None:
                 log.warning("bus %s: port %s not open yet; retrying", name, bus.line.settings.port)
         await self.tcp.start()
         for feature in self.features:
-            await feature.start()
+            if feature not in self.handover.waiting:
+                await feature.start()
 
     async def _shutdown(self) -> None:
         self.phase = Phase.STOPPING
@@ -379,6 +402,8 @@ class Application:
             bus.close()
         await asyncio.gather(*(bus.wait_idle(SHUTDOWN_BUDGET_S) for bus in self.buses.values()))
         for feature in reversed(self.features):
+            if feature in self.handover.waiting:
+                continue  # never started: a standby's poller and bridge (`LineHandover`)
             # Its own task, so a stop that hangs (or swallows its cancellation, Python 3.11's
             # wait_for) can be cut off without holding up the rest of the shutdown.
             name = type(feature).__name__
@@ -396,14 +421,32 @@ class TcpRequests:
     """What Modbus-TCP clients ask goes to the router (`RequestRoute`): every SCADA write
     tallied for the audit (`WriteTally`), answered or refused. Reads that are one transaction
     go to the router's `submit` at once (no task); the router says False to anything else, so
-    there is no write to tally there."""
+    there is no write to tally there. A standby gateway (`redundancy:`) answers every request
+    0AH, saying why (`StandbyRefusal`): SCADA's requests go to the active one."""
 
     def __init__(self, router: Router, writes: WriteTally) -> None:
         self._router = router
         self._writes = writes
         self.submit = router.submit
+        self.serving: Callable[[], bool] | None = None
+        """Set with `redundancy:`: False while this gateway is not the line's master."""
+
+    def refuse_unless_serving(self, serving: Callable[[], bool]) -> None:
+        """`redundancy:`: requests pass only while `serving` says so (one call more each)."""
+        self.serving = serving
+        router_submit = self._router.submit
+
+        def submit(unit_id: int, pdu: bytes, client: str, waiter: Waiter) -> bool:
+            # False: `execute` takes it, and refuses it there with the reason.
+            return serving() and router_submit(unit_id, pdu, client, waiter)
+
+        self.submit = submit
 
     async def execute(self, unit_id: int, pdu: bytes, client: str) -> bytes | None:
+        serving = self.serving
+        if serving is not None and not serving():
+            self._writes.count(client, unit_id, pdu, refused=True)
+            raise StandbyRefusal("standby gateway: the active gateway serves the drives")
         try:
             reply = await self._router.execute(unit_id, pdu, client=client)
         except GatewayError:
@@ -412,3 +455,84 @@ class TcpRequests:
         refused = reply is not None and is_exception(reply)
         self._writes.count(client, unit_id, pdu, refused=refused)
         return reply
+
+
+class LineHandover:
+    """The application's side of a role change (`gateway.redundancy.LineOwner`): what taking
+    and leaving the lines means for its parts. Without `redundancy:` it does nothing.
+
+    Taking: fresh buses (a closed bus stays closed: a standby's refuse every request), each
+    watched before it opens its port (`Redundancy`'s hook), routed and run; then the poller
+    and the MQTT bridge start. Leaving: the buses close (queued requests answered, the
+    transaction on a wire finished unless the line was silenced), their tasks end, their ports
+    close (the listeners open them next); the poller stops, and the bridge, replaced by a new
+    one (unstarted) for the next takeover: its session takes over the old one's (the two boxes
+    have one gateway id and client id), so no check for another live gateway is made."""
+
+    def __init__(self, app: Application) -> None:
+        self.app = app
+        self.waiting: list[Feature] = []
+        """The parts that run only while this gateway is active, while it is not."""
+
+    def build_redundancy(self) -> Redundancy:
+        from gateway.redundancy import Redundancy
+
+        app = self.app
+        settings = app.settings
+        assert settings.redundancy is not None
+        for bus in app.buses.values():
+            bus.close("is not served by this gateway: it is the standby")
+        app.requests.refuse_unless_serving(lambda: app.serving)
+        self.waiting = [part for part in (app.poller, app.mqtt) if part is not None]
+        lines = [bus.line for bus in settings.buses]
+        return Redundancy(settings.redundancy, lines, self, app.events)
+
+    async def take_line(self, hook: Callable[[Bus], None]) -> None:
+        app = self.app
+        group = app._group
+        assert group is not None  # the redundancy task runs in the service's TaskGroup
+        running = app.settings
+        settings = {b.name: b for b in running.buses}
+        fresh: dict[str, Bus] = {}
+        for name, old in app.buses.items():
+            bus = Bus(settings[name])
+            bus.take_listeners(old)
+            bus.tap = old.tap
+            hook(bus)
+            fresh[name] = bus
+        app.buses.update(fresh)
+        app.router.replace_routes(
+            (drive_route(d, app.buses[d.bus]) for d in running.drives), app.buses.values()
+        )
+        app.poller.reroute()
+        for name, bus in fresh.items():
+            app._bus_tasks[name] = group.create_task(bus.run(), name=f"bus:{name}")
+        await asyncio.gather(*(bus.wait_open(2.0) for bus in fresh.values()))
+        waiting, self.waiting = self.waiting, []
+        for part in waiting:
+            if part is app.mqtt and app.mqtt is not None:
+                await app.mqtt.start(checked=True)
+            else:
+                await part.start()
+
+    async def leave_line(self, reason: str) -> None:
+        app = self.app
+        for bus in app.buses.values():
+            bus.close(f"stopped: {reason}")
+        tasks = list(app._bus_tasks.values())
+        app._bus_tasks = {}
+        if tasks:
+            await asyncio.wait(tasks, timeout=SHUTDOWN_BUDGET_S)
+        for task in tasks:
+            if not task.done():
+                await cancel_and_wait(task, SHUTDOWN_BUDGET_S)
+        await app.poller.stop()
+        waiting: list[Feature] = [app.poller]
+        old = app.mqtt
+        if old is not None and app.settings.mqtt is not None:
+            await old.stop()
+            app.poller.remove_listener(old)
+            app.sparkplug = app._build_sparkplug(app.settings.mqtt)
+            app.mqtt = app._build_mqtt(app.settings.mqtt, app.sparkplug)
+            waiting.append(app.mqtt)
+        self.waiting = waiting

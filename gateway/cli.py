@@ -23,6 +23,7 @@ COMMANDS = {
     "run": "gateway.commands.run",
     "check-config": "gateway.commands.check_config",
     "reload": "gateway.commands.reload",
+    "role": "gateway.commands.role",
     "demo": "gateway.instruments.commands.demo",
     "simulate": "gateway.instruments.commands.simulate",
     "bench": "gateway.instruments.commands.bench",

@@ -14,6 +14,8 @@ and root can ask; a folder that is not so is not used.
 
 The protocol, one exchange per connection: the client sends `reload\\n`; the gateway answers
 with lines, each starting with the outcome (`applied: ...`, `refused: ...`, `skipped: ...`).
+`role active\\n`, `role standby\\n` (`ok: ...` or `refused: ...`) and `role status\\n` (one
+line of JSON) ask a gateway with `redundancy:` (`invt-gateway role`).
 """
 
 from __future__ import annotations
@@ -34,6 +36,8 @@ from gateway.errors import ControlUnavailable
 log = logging.getLogger(__name__)
 
 RELOAD = "reload"
+ROLE = "role"
+"""`role active|standby|status`: asked of a gateway with `redundancy:` (`invt-gateway role`)."""
 MAX_COMMAND = 64
 COMMAND_TIMEOUT_S = 5.0
 

@@ -226,6 +226,11 @@ class GatewayPathUnavailable(ModbusError):
     code = ExceptionCode.GATEWAY_PATH_UNAVAILABLE
 
 
+class StandbyRefusal(GatewayPathUnavailable):
+    """0x0A from a standby gateway (`redundancy:`): the active one serves the drives; this one
+    never transmits on their line."""
+
+
 class QueueFull(GatewayPathUnavailable):
     """The bus's queue is full; the request was refused rather than queued without bound."""
 

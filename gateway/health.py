@@ -8,6 +8,9 @@
   report lists them, as "degraded", for a person or an alert to act on. So does a store that
   can't keep events on disk (a full disk, a file it can't open): SCADA is served, but the events
   are in memory only, where a restart loses them; `store.reason` names storage.path and why.
+- redundancy (`redundancy:`): the role (standby, listening, active), the peer, the last change
+  and why, another master's frames heard. A standby's buses are closed on purpose: that is no
+  degradation (its drives are the active gateway's to report).
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ def health_report(
     tcp_clients: int,
     started_at: float,
     store: StoreStatus | None = None,
+    redundancy: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The JSON body of /health; `drives` are (drive, bus, address)."""
     per_bus: dict[str, dict[str, Any]] = {
@@ -50,7 +54,8 @@ def health_report(
         bus = buses[bus_name]
         key = "drives_offline" if bus.health.is_offline(address) else "drives_online"
         per_bus[bus_name][key].append(drive)
-    degraded = any(
+    standby = redundancy is not None and redundancy.get("role") != "active"
+    degraded = not standby and any(
         bus.state is not BusState.OPEN or report["drives_offline"]
         for bus, report in zip(buses.values(), per_bus.values(), strict=True)
     )
@@ -67,4 +72,6 @@ def health_report(
     }
     if store is not None:
         report["store"] = store.as_json()
+    if redundancy is not None:
+        report["redundancy"] = dict(redundancy)
     return report

@@ -48,6 +48,7 @@ from gateway.tcp.server import ModbusTcpServer
 if TYPE_CHECKING:
     from gateway.console.feature import ConsoleFeature
     from gateway.mqtt import MqttBridge
+    from gateway.redundancy import Redundancy
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -81,6 +82,10 @@ class Service(Protocol):
     @property
     def console(self) -> ConsoleFeature | None:
         """None: the console is not configured."""
+
+    @property
+    def redundancy(self) -> Redundancy | None:
+        """None: no `redundancy:`, this gateway is its lines' only master."""
 
 
 def drive_labels(service: Service) -> list[DriveLabels]:
@@ -176,6 +181,9 @@ class MetricsFeature:
 
             yield ConsoleMetrics(service.console)
         yield StoreMetrics(service.events)
+        from gateway.redundancy.metrics import RedundancyMetrics
+
+        yield RedundancyMetrics(lambda: service.redundancy)
 
     def _endpoint(self, settings: MetricsSettings) -> HttpEndpoint:
         registry = self._registry
@@ -240,6 +248,7 @@ class MetricsFeature:
             len(service.tcp.stats.active),
             self._started_at,
             service.events.status(),
+            None if service.redundancy is None else service.redundancy.status(),
         )
         return {"gateway_id": service.settings.gateway_id, "version": __version__, **report}
 

@@ -60,6 +60,14 @@ class SerialLine:
         self.receiver = Receiver(settings)
         self.on_port_error: Callable[[], None] | None = None
         """Called when the port fails while nobody is reading it (an adapter unplugged)."""
+        # Two hooks for redundancy (issue 48, `gateway.redundancy`), both None unless a second
+        # gateway shares the line: nothing is called for them then.
+        self.on_heard: Callable[[bytes], None] | None = None
+        """Told of every read from the port before the line takes it in (set before `open`):
+        the active gateway's watch for another master's frames."""
+        self.silenced: str | None = None
+        """Why no frame may go out any more (another master heard): `send_after_gap` raises
+        PortError with it. The bus is closed with it, so its own pick sends nothing either."""
         self._port: Port | None = None
         self._timer: LineTimer | None = None
         self._rts: RtsSwitch | None = None
@@ -114,7 +122,16 @@ class SerialLine:
     def open(self) -> None:
         """Open the port and start listening to it; call with the event loop running."""
         self.close()  # what a port that failed left behind: its timers
-        port = open_port(self.settings, self.receiver, self._gap.heard, self._port_failed)
+        heard = self._gap.heard
+        told = self.on_heard
+        if told is not None:
+            take = heard
+
+            def heard(data: bytes) -> None:
+                told(data)
+                take(data)
+
+        port = open_port(self.settings, self.receiver, heard, self._port_failed)
         self._port = port
         self._timer = timer = LineTimer(port.loop)
         control = self.settings.direction
@@ -165,6 +182,8 @@ class SerialLine:
         """At the end of the inter-frame gap, ask `user` for a frame and start writing it
         (`GapKeeper.send_after_gap`: the gap, the lead, the caller held while replies come
         and while the line is idle)."""
+        if self.silenced is not None:
+            raise PortError(f"{self.settings.port}: {self.silenced}")
         return await self._gap.send_after_gap(user)
 
     def kick(self) -> None:

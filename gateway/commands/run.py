@@ -14,7 +14,7 @@ from gateway.app import Application
 from gateway.collector import settle_startup_objects
 from gateway.config import GatewayConfig, load_config
 from gateway.config.startup import startup_problems
-from gateway.control import RELOAD, ControlServer
+from gateway.control import RELOAD, ROLE, ControlServer
 from gateway.errors import (
     BrokerShared,
     BusFailed,
@@ -287,10 +287,23 @@ class Reloader:
             await self.reload()
 
     async def on_command(self, command: str) -> list[str]:
+        words = command.split()
+        if words and words[0] == ROLE:
+            return self.role(words[1:])
         if command != RELOAD:
-            return [f"refused: unknown command {command!r} (known: {RELOAD})"]
+            return [f"refused: unknown command {command!r} (known: {RELOAD}, {ROLE})"]
         log.info("reload asked on the control socket")
         return await self.reload()
+
+    def role(self, words: list[str]) -> list[str]:
+        """`role active|standby|status`, for a gateway with `redundancy:` (its `Redundancy`)."""
+        redundancy = self.app.redundancy
+        if redundancy is None:
+            return ["refused: redundancy is not enabled here (redundancy.enabled: true)"]
+        if len(words) != 1:
+            return ["refused: role takes one word: active, standby or status"]
+        log.info("role %s asked on the control socket", words[0])
+        return redundancy.ask(words[0])
 
     async def reload(self) -> list[str]:
         """Read the file again (off the event loop) and apply it if it is valid; the outcome,

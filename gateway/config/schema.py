@@ -13,6 +13,7 @@ from gateway.config.sections.modbus_tcp import ModbusTcpConfig
 from gateway.config.sections.monitoring import LoggingConfig, MetricsConfig
 from gateway.config.sections.mqtt import MqttConfig
 from gateway.config.sections.opcua import OpcUaConfig
+from gateway.config.sections.redundancy import RedundancyConfig
 from gateway.config.sections.section import Section
 from gateway.config.sections.storage import StorageConfig
 
@@ -44,6 +45,8 @@ class GatewayConfig(Section):
     storage: StorageConfig = StorageConfig()
     """The store: events until the broker has them, and the fault history (see Events & fault
     history)."""
+    redundancy: RedundancyConfig = RedundancyConfig()
+    """An active and a standby gateway on one line (see Redundancy); off unless enabled."""
 
     @model_validator(mode="after")
     def _cross_checks(self) -> GatewayConfig:
@@ -53,9 +56,22 @@ class GatewayConfig(Section):
             problems.append(
                 "opcua: enabled with no console.users and anonymous false: nobody could log in"
             )
+        if self.redundancy.enabled and not self._polls_a_drive():
+            problems.append(
+                "redundancy: enabled, but no drive is polled: a standby tells a live active by "
+                "its polls (give a drive `poll` groups, or enable mqtt, the console or opcua)"
+            )
         if problems:
             raise ValueError("\n".join(problems))
         return self
+
+    def _polls_a_drive(self) -> bool:
+        """Some drive is polled (`GatewaySettings.polled`: every drive once MQTT, the console
+        or OPC UA shows values, else those that ask for polls)."""
+        shown = (self.mqtt is not None and self.mqtt.enabled) or self.console.enabled
+        shown = shown or self.opcua.enabled
+        asked = any(d.poll is not None or d.cache_max_age_ms is not None for d in self.drives)
+        return bool(self.drives) and (shown or asked)
 
     def drive_by_unit_id(self) -> dict[int, DriveConfig]:
         return {d.effective_unit_id: d for d in self.drives}

@@ -10,7 +10,7 @@ itself, the commands that load a file, and reload's planning) imports `gateway.c
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from gateway.bus import BusSettings
@@ -27,6 +27,7 @@ from gateway.settings.local import (
 )
 from gateway.settings.mqtt import MqttSettings, mqtt_settings
 from gateway.settings.opcua import OpcUaSettings, opcua_settings
+from gateway.settings.redundancy import RedundancySettings, redundancy_settings
 from gateway.settings.shown import shown_configuration
 from gateway.settings.tcp import tcp_settings
 from gateway.tcp import TcpSettings
@@ -49,6 +50,8 @@ class GatewaySettings:
     """Python's name of the level ("INFO")."""
     opcua: OpcUaSettings | None = None
     """None: the OPC UA server not enabled."""
+    redundancy: RedundancySettings | None = None
+    """None: no redundancy, this gateway is the line's only master."""
 
     def shown_configuration(self) -> dict[str, Any]:
         """The running configuration, secrets masked (`gateway.settings.shown`)."""
@@ -65,11 +68,13 @@ class GatewaySettings:
 
 
 def runtime_settings(config: GatewayConfig) -> GatewaySettings:
-    return GatewaySettings(
+    buses = tuple(bus_settings(b) for b in config.buses)
+    drives = tuple(drive_settings(d) for d in config.drives)
+    settings = GatewaySettings(
         source=config,
         gateway_id=config.gateway_id,
-        buses=tuple(bus_settings(b) for b in config.buses),
-        drives=tuple(drive_settings(d) for d in config.drives),
+        buses=buses,
+        drives=drives,
         tcp=tcp_settings(config.modbus_tcp),
         store=store_settings(config),
         mqtt=mqtt_settings(config),
@@ -78,6 +83,11 @@ def runtime_settings(config: GatewayConfig) -> GatewaySettings:
         log_level=config.logging.level.upper(),
         opcua=opcua_settings(config),
     )
+    polled = [d for d in drives if settings.polled(d)]
+    redundancy = redundancy_settings(config.redundancy, buses, polled)
+    if redundancy is None:
+        return settings
+    return replace(settings, redundancy=redundancy)
 
 
 __all__ = [

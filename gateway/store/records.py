@@ -34,6 +34,10 @@ class EventType(StrEnum):
     LOGOUT = "logout"
     CONFIG_CHANGED = "config_changed"
     """The configuration edited from the console: applied, rolled back, or refused (the audit)."""
+    ROLE_CHANGED = "role_changed"
+    """Redundancy: this gateway became standby, listening or active (`gateway.redundancy`)."""
+    FOREIGN_MASTER = "foreign_master"
+    """Redundancy: an active gateway heard another master's request and left the line."""
 
 
 @dataclass(frozen=True, slots=True)

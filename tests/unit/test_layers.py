@@ -63,6 +63,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "gateway.health",
             "gateway.event_log",
             "gateway.setpoint_limit",
+            "gateway.redundancy",  # the role on the lines: the bus's ports, the store's events
         ),
     ),
     ("front doors for people", ("gateway.console", "gateway.mqtt")),

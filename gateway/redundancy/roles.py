@@ -1,0 +1,286 @@
+"""The role machine: which of the two boxes on a line is its master, and the never-two rule.
+
+    standby    the ports open only to listen (`LineListener`), nothing transmitted; the poller
+               and the MQTT bridge stopped; Modbus-TCP answered 0AH (`StandbyRefusal`)
+    listening  asked to be active (`invt-gateway role active`, or `role: active` at start), still
+               off the line: it takes the line once every line has been heard silent for
+               `silence_s + hold_off_s` (a live master polls all the time); another master's
+               frames heard keep it here
+    active     the buses run, the poller and the bridge with them; every read from a port is
+               watched (`ActiveWatch`): a request it did not send is another master's, and the
+               line is silenced at once, in that very reader callback (every bus closed, no
+               frame more, a retry on its way refused), said loudly (log, event, metric,
+               /health); then it leaves the line and listens again, as asked, with a random
+               back-off of up to `silence_s` beyond its silence, so that two boxes that took the
+               line at once (the one race listening can't close) don't take it at once again
+
+Who asks is the coordinator's business (Keepalived's notify script: `config/
+invt-gateway-notify.sh`); the machine makes sure that whatever it is asked, and whatever the
+other box does, this box transmits only on a line it has heard silent, and stops when it hears
+another master.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import random
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Any, Final, Protocol
+
+from gateway.bus import Bus
+from gateway.bus.line_settings import LineSettings
+from gateway.poller.drive_state import iso_time
+from gateway.redundancy.listener import LineListener
+from gateway.redundancy.watch import ActiveWatch
+from gateway.settings.redundancy import RedundancySettings
+from gateway.store import EventStore, EventType
+
+log = logging.getLogger(__name__)
+
+LOOK_AGAIN_S: Final = 0.25
+"""While listening, how often the silence is looked at again without news (a port opened)."""
+
+
+class Role(StrEnum):
+    STANDBY = "standby"
+    LISTENING = "listening"
+    ACTIVE = "active"
+
+
+ASKABLE: Final = (Role.ACTIVE.value, Role.STANDBY.value)
+
+
+class LineOwner(Protocol):
+    """The application's side of a role change."""
+
+    async def take_line(self, hook: Callable[[Bus], None]) -> None:
+        """Fresh buses open their ports and serve (each given to `hook` before it runs), the
+        poller and the MQTT bridge start."""
+
+    async def leave_line(self, reason: str) -> None:
+        """The buses close (the transaction on a wire finishes, unless silenced), the poller
+        and the MQTT bridge stop."""
+
+
+@dataclass(frozen=True, slots=True)
+class RoleChange:
+    role: Role
+    reason: str
+    at: float
+    """Wall-clock time (epoch seconds)."""
+
+    def as_json(self) -> dict[str, Any]:
+        return {"role": self.role.value, "reason": self.reason, "at": iso_time(self.at)}
+
+
+class Redundancy:
+    """One gateway's role on its lines, from start to stop (`run`, a service task)."""
+
+    def __init__(
+        self,
+        settings: RedundancySettings,
+        lines: Sequence[LineSettings],
+        owner: LineOwner,
+        events: EventStore | None = None,
+    ) -> None:
+        self.settings = settings
+        self.owner = owner
+        self.events = events
+        self.role = Role.STANDBY
+        self.asked = Role.STANDBY
+        self.last_change = RoleChange(Role.STANDBY, "started", time.time())
+        self.changes: dict[Role, int] = dict.fromkeys(Role, 0)
+        """Changes into each role, since start."""
+        self.foreign_frames = 0
+        """Another master's frames heard while this gateway was active."""
+        self.last_foreign: dict[str, Any] | None = None
+        self.last_takeover_s: float | None = None
+        """From `role active` (or the start) to the line taken, the last time."""
+        self._listeners = [LineListener(line) for line in lines]
+        self._watches: list[ActiveWatch] = []
+        self._asked_at = time.monotonic()
+        self._back_off_s = 0.0
+        """Silence waited beyond `listen_s` after a demotion (random, up to `silence_s`)."""
+        self._silenced: str | None = None
+        """Why the line was silenced (another master heard), until this gateway has left it."""
+        self._changed: asyncio.Event | None = None
+
+    # -- asked on the control socket ------------------------------------------------------------
+
+    def ask(self, wanted: str) -> list[str]:
+        """`role active`, `role standby` or `role status`: the answer's lines (`ok: ...`)."""
+        if wanted == "status":
+            import json
+
+            return [json.dumps(self.status(), sort_keys=True)]
+        if wanted not in ASKABLE:
+            return [f"refused: unknown role {wanted!r} (active, standby or status)"]
+        role = Role(wanted)
+        if role is not self.asked:
+            self.asked, self._asked_at, self._back_off_s = role, time.monotonic(), 0.0
+            log.warning("redundancy: asked to be %s (was %s)", role.value, self.role.value)
+            if role is Role.ACTIVE and self.role is Role.STANDBY:
+                self._set_role(Role.LISTENING, "asked to be active: listening to the line first")
+            self._wake()
+        return [f"ok: {wanted}: {self.describe()}"]
+
+    def describe(self) -> str:
+        """The role in a few words, for the answer and the log."""
+        if self.role is Role.ACTIVE:
+            return "active: this gateway is the line's master"
+        if self.role is Role.LISTENING:
+            return (
+                f"listening: takes the line once it has been silent "
+                f"{self.settings.listen_s + self._back_off_s:.1f} s"
+            )
+        return "standby: listening only, never transmitting"
+
+    def status(self) -> dict[str, Any]:
+        """For `role status`, /health and the console."""
+        now = time.monotonic()
+        heard = [listener.ear for listener in self._listeners]
+        status: dict[str, Any] = {
+            "role": self.role.value,
+            "asked": self.asked.value,
+            "peer": self.settings.peer,
+            "notify": self.settings.notify,
+            "last_change": self.last_change.as_json(),
+            "silence_s": round(self.settings.silence_s, 3),
+            "hold_off_s": round(self.settings.hold_off_s, 3),
+            "takeovers": self.changes[Role.ACTIVE],
+            "last_takeover_s": None
+            if self.last_takeover_s is None
+            else round(self.last_takeover_s, 3),
+            "foreign_frames": self.foreign_frames,
+            "last_foreign": self.last_foreign,
+        }
+        if self.role is not Role.ACTIVE:
+            silent = [lsn.silent_for(now) for lsn in self._listeners if lsn.open]
+            status["line_silent_s"] = round(min(silent), 3) if silent else None
+            status["heard_requests"] = sum(ear.requests for ear in heard)
+            status["heard_replies"] = sum(ear.replies for ear in heard)
+        return status
+
+    @property
+    def serving(self) -> bool:
+        """This gateway may send to its drives (and answer for them)."""
+        return self.role is Role.ACTIVE and self._silenced is None
+
+    # -- the task -------------------------------------------------------------------------------
+
+    async def run(self) -> None:
+        self._changed = asyncio.Event()
+        for listener in self._listeners:
+            listener.start()
+        if self.settings.start_role == Role.ACTIVE.value:
+            self.ask(Role.ACTIVE.value)
+        else:
+            log.warning("redundancy: standby: listening to the line, never transmitting")
+        try:
+            while True:
+                await self._step()
+        finally:
+            for listener in self._listeners:
+                await listener.stop()
+            for watch in self._watches:
+                watch.close()
+
+    async def _step(self) -> None:
+        if self.role is Role.ACTIVE:
+            if self._silenced is not None or self.asked is not Role.ACTIVE:
+                await self._leave()
+            else:
+                await self._news(None)
+            return
+        if self.asked is not Role.ACTIVE:
+            await self._news(None)
+            return
+        left = self._silence_left(time.monotonic())
+        if left is not None and left <= 0:
+            await self._take()
+            return
+        await self._news(LOOK_AGAIN_S if left is None else min(left, LOOK_AGAIN_S))
+
+    def _silence_left(self, now: float) -> float | None:
+        """How much longer the lines must stay silent before this gateway takes them; None
+        while no port is open to hear them (its silence would prove nothing)."""
+        heard = [listener.silent_for(now) for listener in self._listeners if listener.open]
+        if not heard:
+            return None
+        return self.settings.listen_s + self._back_off_s - min(heard)
+
+    async def _news(self, timeout_s: float | None) -> None:
+        changed = self._changed
+        assert changed is not None
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(changed.wait(), timeout_s)
+        changed.clear()
+
+    def _wake(self) -> None:
+        if self._changed is not None:
+            self._changed.set()
+
+    async def _take(self) -> None:
+        """The lines have been silent long enough: the buses take them."""
+        silent_s = self.settings.listen_s + self._back_off_s
+        for listener in self._listeners:
+            await listener.stop()
+        self._silenced = None
+        await self.owner.take_line(self._watch)
+        self.last_takeover_s = time.monotonic() - self._asked_at
+        self._set_role(Role.ACTIVE, f"the line was silent {silent_s:.1f} s: taken")
+
+    def _watch(self, bus: Bus) -> None:
+        watch = ActiveWatch(bus, self.foreign_master)
+        bus.line.on_heard = watch.heard
+        self._watches.append(watch)
+
+    def foreign_master(self, bus: str, frame: bytes) -> None:
+        """Another master's frame, heard by an active bus (in its port's reader callback):
+        every line silenced now, before anything else runs; the role follows (`_leave`)."""
+        self.foreign_frames += 1
+        if self._silenced is not None:
+            return  # already silenced: counted
+        reason = f"another master is on the line: its request {frame.hex(' ')} heard on bus {bus}"
+        self._silenced = reason
+        for watch in self._watches:
+            watch.bus.line.silenced = reason
+            watch.bus.close(f"stopped: {reason}")
+        self.last_foreign = {"bus": bus, "frame": frame.hex(" "), "at": iso_time(time.time())}
+        log.critical("redundancy: %s: transmitting stopped, leaving the line", reason)
+        if self.events is not None:
+            self.events.record(EventType.FOREIGN_MASTER, {"bus": bus, "frame": frame.hex(" ")})
+        self._wake()
+
+    async def _leave(self) -> None:
+        silenced = self._silenced
+        reason = silenced or "asked to be standby"
+        await self.owner.leave_line(reason)
+        for watch in self._watches:
+            watch.close()
+        self._watches = []
+        for listener in self._listeners:
+            listener.start()
+        self._silenced = None
+        if silenced is not None and self.asked is Role.ACTIVE:
+            # Still asked to be active: listen again, with a back-off the other box won't share.
+            self._back_off_s = random.uniform(0.0, self.settings.silence_s)
+            self._set_role(Role.LISTENING, f"{silenced}: off the line, listening")
+        else:
+            self._set_role(Role.STANDBY, reason)
+
+    def _set_role(self, role: Role, reason: str) -> None:
+        if role is self.role:
+            return
+        self.role = role
+        self.changes[role] += 1
+        self.last_change = RoleChange(role, reason, time.time())
+        log.warning("redundancy: %s (%s)", self.describe(), reason)
+        if self.events is not None:
+            data = {"role": role.value, "reason": reason, "peer": self.settings.peer}
+            self.events.record(EventType.ROLE_CHANGED, data)

@@ -1,0 +1,241 @@
+"""Two real gateway processes on one simulated RS-485 pair (`simulate --masters 3`, real ptys):
+an active and a standby, never two masters (issue 48).
+
+What a site checks: the standby transmits nothing while the active serves; the active killed,
+the standby asked to take over is on the line within the bound (the line's silence, derived
+from the poll cycle: 1.0 s here, then the port's opening) with no collision; both asked to be
+active (the link between the boxes cut), the second hears the first and stays off; a master
+that talks without listening (the third port, played by the test) makes the active leave the
+line at once, with no more than the frames already on the wire colliding.
+
+Each box has its own configuration file, store and control socket, as two boxes would; the
+coordinator (Keepalived) is played by the test through `invt-gateway role`.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import signal
+import struct
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import serial
+
+from gateway.modbus.rtu import build_frame
+from tests.support import read_state_word
+from tests.support.processes import GatewayProcess, run_cli
+from tests.support.shared_line import SharedLine, shared_line
+
+POLL_MS = 200
+"""The drive's state polled five times a second: the active is heard all the time."""
+SILENCE_S = 1.0
+"""Derived (`derived_silence_s`): 3 x 0.2 s + 0.1 s x 2 attempts = 0.8 s, at least 1 s."""
+TAKEOVER_BOUND_S = 3.0
+STATE_WORD_1 = 0x2100
+
+
+def box_config(line: str, folder: Path, role: str, hold_off_ms: float = 0.0) -> dict[str, Any]:
+    folder.mkdir(exist_ok=True)
+    return {
+        "gateway_id": "pair",  # both boxes alike: one gateway, on two boxes
+        "modbus_tcp": {"host": "127.0.0.1", "port": 0},
+        "buses": [{"name": "line1", "port": line, "timeout_ms": 100, "retries": 1}],
+        "drives": [
+            {
+                "name": "pump",
+                "bus": "line1",
+                "address": 1,
+                "model": "gd350",
+                "poll": [
+                    {"name": "state", "start": STATE_WORD_1, "count": 3, "interval_ms": POLL_MS}
+                ],
+            }
+        ],
+        "storage": {"path": str(folder / "events.db")},
+        "redundancy": {
+            "enabled": True,
+            "role": role,
+            "peer": "the other box",
+            "hold_off_ms": hold_off_ms,
+        },
+    }
+
+
+class Box:
+    """One gateway box: its process, its Modbus-TCP port, its role asked and read."""
+
+    def __init__(
+        self, name: str, line: str, folder: Path, role: str, hold_off_ms: float = 0.0
+    ) -> None:
+        self.name = name
+        config = box_config(line, folder / name, role, hold_off_ms)
+        self.gateway = GatewayProcess(config, folder / name)
+        self.gateway.wait_ready()
+        ready = self.gateway.log.wait_for("ready:")
+        found = re.search(r"Modbus-TCP on [^ ]+:(\d+)", ready)
+        assert found is not None, ready
+        self.tcp_port = int(found.group(1))
+
+    @property
+    def config(self) -> str:
+        return str(self.gateway.config_file)
+
+    def ask(self, role: str) -> str:
+        done = run_cli("role", role, "--config", self.config, timeout_s=15)
+        assert done.returncode == 0, done.stderr
+        return done.stdout.strip()
+
+    def status(self) -> dict[str, Any]:
+        status: dict[str, Any] = json.loads(self.ask("status"))
+        return status
+
+    def wait_role(self, role: str, within_s: float) -> dict[str, Any]:
+        deadline = time.monotonic() + within_s
+        while True:
+            status = self.status()
+            if status["role"] == role:
+                return status
+            assert time.monotonic() < deadline, f"{self.name} not {role}: {status}"
+            time.sleep(0.1)  # another process's state: polled with a deadline
+
+    def read_state(self) -> bytes:
+        return read_state_word(self.tcp_port, 1)
+
+    def stop(self) -> None:
+        self.gateway.stop()
+
+
+@pytest.fixture
+def line() -> Iterator[SharedLine]:
+    # The third master is the test's own: a misconfigured master that talks without listening.
+    with shared_line(3, "--address", "1") as shared:
+        yield shared
+
+
+@pytest.fixture
+def boxes() -> Iterator[list[Box]]:
+    started: list[Box] = []
+    yield started
+    for box in started:
+        box.stop()
+
+
+def frames(line: SharedLine) -> list[int]:
+    return [master["frames"] for master in line.stats()["masters"]]
+
+
+def test_the_standby_never_transmits_and_the_active_serves(
+    line: SharedLine, boxes: list[Box], tmp_path: Path
+) -> None:
+    boxes.append(active := Box("a", line.paths[0], tmp_path, "active"))
+    boxes.append(standby := Box("b", line.paths[1], tmp_path, "standby"))
+    active.wait_role("active", 5.0)
+    time.sleep(2 * SILENCE_S)  # the standby listens all along
+    # SCADA's values come from the active (the drive's state word), the standby says why not.
+    assert active.read_state()[:2] == bytes([0x03, 0x02])
+    assert standby.read_state() == bytes([0x83, 0x0A])
+    status = standby.status()
+    assert status["role"] == "standby"
+    assert status["heard_requests"] > 5  # it hears the active's polls
+    assert status["line_silent_s"] < SILENCE_S
+    stats = line.stats()
+    assert stats["masters"][0]["frames"] > 10
+    assert stats["masters"][1]["frames"] == 0
+    assert stats["collisions"] == 0
+
+
+def test_the_active_killed_the_standby_takes_over_within_the_bound(
+    line: SharedLine, boxes: list[Box], tmp_path: Path
+) -> None:
+    boxes.append(old := Box("a", line.paths[0], tmp_path, "active"))
+    boxes.append(new := Box("b", line.paths[1], tmp_path, "standby"))
+    old.wait_role("active", 5.0)
+    time.sleep(0.5)
+    old.gateway.process.send_signal(signal.SIGKILL)
+    old.gateway.process.wait(5)
+    asked = time.monotonic()
+    assert new.ask("active").startswith("ok: active: listening")
+    deadline = asked + TAKEOVER_BOUND_S
+    while frames(line)[1] == 0:
+        assert time.monotonic() < deadline, f"no request from the new active: {line.stats()}"
+        time.sleep(0.02)
+    first_request_s = time.monotonic() - asked
+    status = new.wait_role("active", 1.0)
+    assert SILENCE_S * 0.8 < first_request_s < TAKEOVER_BOUND_S, first_request_s
+    assert status["last_takeover_s"] < TAKEOVER_BOUND_S
+    assert new.read_state()[:2] == bytes([0x03, 0x02])
+    assert line.stats()["collisions"] == 0
+    print(f"first request {first_request_s:.2f} s after `role active`")
+
+
+class RogueMaster:
+    """A master that polls drive 1 every 100 ms without listening first (the third port)."""
+
+    def __init__(self, path: str) -> None:
+        self.port = serial.Serial(path, 19200, timeout=0)
+        self.sent = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._talk, daemon=True)
+        self._thread.start()
+
+    def _talk(self) -> None:
+        request = build_frame(1, struct.pack(">BHH", 3, 0x3000, 4))
+        while not self._stop.wait(0.1):
+            self.port.write(request)
+            self.port.reset_input_buffer()
+            self.sent += 1
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(2)
+        self.port.close()
+
+
+def test_both_asked_active_the_second_stays_off_and_a_talking_master_is_left_the_line(
+    line: SharedLine, boxes: list[Box], tmp_path: Path
+) -> None:
+    boxes.append(first := Box("a", line.paths[0], tmp_path, "active"))
+    first.wait_role("active", 5.0)
+    # The link between the boxes cut: the second is asked to be active too (Keepalived's
+    # MASTER on both sides). It hears the first's polls and stays off the line.
+    boxes.append(second := Box("b", line.paths[1], tmp_path, "active", hold_off_ms=500))
+    time.sleep(3 * SILENCE_S)
+    assert second.status()["role"] == "listening"
+    assert frames(line)[1] == 0
+    assert line.stats()["collisions"] == 0
+
+    # A master that talks without listening: the active hears a request it did not send.
+    before = line.stats()
+    rogue = RogueMaster(line.paths[2])
+    try:
+        status = first.wait_role("listening", 3.0)
+        assert status["foreign_frames"] >= 1
+        assert status["last_foreign"]["bus"] == "line1"
+        left_at = frames(line)[0]
+        time.sleep(1.0)
+        # Off the line while the other master talks: not one frame more, from either box.
+        assert frames(line)[0] == left_at
+        assert frames(line)[1] == 0
+        assert second.status()["role"] == "listening"
+    finally:
+        rogue.stop()
+    collided = line.stats()["collisions"] - before["collisions"]
+    # Only what was on the wire as the first foreign request was heard: the active's request
+    # then (and the drive's reply to it).
+    assert collided <= 2, line.stats()
+    assert "another master is on the line" in first.gateway.log.text
+
+    # The talking master gone, the line is silent: one box takes it, the other stays off.
+    deadline = time.monotonic() + 10
+    while True:
+        roles = sorted(box.status()["role"] for box in (first, second))
+        if roles == ["active", "listening"]:
+            break
+        assert time.monotonic() < deadline, roles
+        time.sleep(0.1)
