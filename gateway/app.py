@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 from gateway.bus import Bus, BusState
 from gateway.bus.queue import Waiter
 from gateway.errors import CannotListen, GatewayError, GatewayPathUnavailable, StandbyRefusal
-from gateway.health import Phase
+from gateway.health import Phase, health_report
 from gateway.modbus.functions import is_exception
 from gateway.poller import Poller
 from gateway.routing import RegisterCache, Router
@@ -46,6 +46,7 @@ if TYPE_CHECKING:
     from gateway.console.feature import ConsoleFeature
     from gateway.metrics import MetricsFeature
     from gateway.mqtt import MqttBridge
+    from gateway.mqtt.role import RoleAnnouncer
     from gateway.opcua.server import OpcUaServer
     from gateway.redundancy import Redundancy
     from gateway.sparkplug.edge_node import SparkplugNode
@@ -112,6 +113,8 @@ class Application:
             self.console = self._build_console(settings.console)
         self.redundancy: Redundancy | None = None
         """With `redundancy:`, this gateway's role on its lines; None: it is their master."""
+        self.announcer: RoleAnnouncer | None = None
+        """With `redundancy:` and MQTT: this box's role, retained on the broker."""
         self.handover = LineHandover(self)
         if settings.redundancy is not None:
             self.redundancy = self.handover.build_redundancy()
@@ -365,6 +368,8 @@ class Application:
                 await self._startup()
                 if self.redundancy is not None:
                     beside.append(self.tasks.start("redundancy", self.redundancy.run()))
+                if self.announcer is not None:
+                    beside.append(self.tasks.start("redundancy:mqtt", self.announcer.run()))
                 self.phase = Phase.READY
                 if on_ready is not None:
                     on_ready()
@@ -485,7 +490,27 @@ class LineHandover:
         app.requests.refuse_unless_serving(lambda: app.serving)
         self.waiting = [part for part in (app.poller, app.mqtt) if part is not None]
         lines = [bus.line for bus in settings.buses]
-        return Redundancy(settings.redundancy, lines, self, app.events)
+        redundancy = Redundancy(settings.redundancy, lines, self, app.events)
+        if settings.mqtt is not None:
+            from gateway.mqtt.role import RoleAnnouncer
+
+            box = settings.redundancy.box
+            app.announcer = RoleAnnouncer(settings.mqtt, box, self._announced(redundancy))
+            redundancy.listeners.append(app.announcer.changed)
+        return redundancy
+
+    def _announced(self, redundancy: Redundancy) -> Callable[[], dict[str, Any]]:
+        """What the box's role topic says: the role's status and the health's one word."""
+        app = self.app
+
+        def status() -> dict[str, Any]:
+            routes = [(r.drive, r.bus.name, r.address) for r in app.router.routes]
+            role = redundancy.status()
+            tcp = len(app.tcp.stats.active)
+            health = health_report(app.phase, app.buses, routes, tcp, 0.0, None, role)
+            return {**role, "health": health["status"]}
+
+        return status
 
     async def take_line(self, hook: Callable[[Bus], None]) -> None:
         app = self.app

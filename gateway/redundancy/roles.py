@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import logging
 import random
 import time
@@ -109,14 +110,14 @@ class Redundancy:
         self._silenced: str | None = None
         """Why the line was silenced (another master heard), until this gateway has left it."""
         self._changed: asyncio.Event | None = None
+        self.listeners: list[Callable[[], None]] = []
+        """Told after each role change (the MQTT role announcement)."""
 
     # -- asked on the control socket ------------------------------------------------------------
 
     def ask(self, wanted: str) -> list[str]:
         """`role active`, `role standby` or `role status`: the answer's lines (`ok: ...`)."""
         if wanted == "status":
-            import json
-
             return [json.dumps(self.status(), sort_keys=True)]
         if wanted not in ASKABLE:
             return [f"refused: unknown role {wanted!r} (active, standby or status)"]
@@ -145,6 +146,7 @@ class Redundancy:
         now = time.monotonic()
         heard = [listener.ear for listener in self._listeners]
         status: dict[str, Any] = {
+            "box": self.settings.box,
             "role": self.role.value,
             "asked": self.asked.value,
             "peer": self.settings.peer,
@@ -284,3 +286,8 @@ class Redundancy:
         if self.events is not None:
             data = {"role": role.value, "reason": reason, "peer": self.settings.peer}
             self.events.record(EventType.ROLE_CHANGED, data)
+        for listener in self.listeners:
+            try:
+                listener()
+            except Exception:  # a listener's bug must not keep the role from changing
+                log.exception("redundancy: role listener failed")

@@ -4,6 +4,8 @@ leaves it out."""
 
 from __future__ import annotations
 
+import re
+import socket
 from collections.abc import Iterable
 from dataclasses import dataclass
 
@@ -22,6 +24,8 @@ POLL_CYCLES = 3
 class RedundancySettings:
     start_role: str
     """`standby` or `active`: the role asked at start."""
+    box: str
+    """This box's name (`redundancy.box`, or the host name made topic-safe)."""
     peer: str
     silence_s: float
     """Silence on the line before this gateway transmits."""
@@ -48,6 +52,7 @@ def redundancy_settings(
     silence_s = derived_silence_s(buses, polled) if config.silence_ms is None else None
     return RedundancySettings(
         start_role=config.role,
+        box=config.box or re.sub(r"[^A-Za-z0-9_-]", "-", socket.gethostname()) or "box",
         peer=config.peer,
         silence_s=silence_s if silence_s is not None else (config.silence_ms or 0) / 1000,
         hold_off_s=config.hold_off_ms / 1000,

@@ -14,6 +14,7 @@ coordinator (Keepalived) is played by the test through `invt-gateway role`.
 
 from __future__ import annotations
 
+import asyncio
 import json
 import os
 import re
@@ -30,7 +31,9 @@ import pytest
 import serial
 
 from gateway.modbus.rtu import build_frame
-from tests.support import read_state_word
+from tests.support import free_port, read_state_word
+from tests.support.http import http_get
+from tests.support.mosquitto import Mosquitto, retained_messages, unique_base_topic
 from tests.support.processes import ROOT, GatewayProcess, entry_point, run_cli
 from tests.support.shared_line import SharedLine, shared_line
 
@@ -43,7 +46,9 @@ NOTIFY = ROOT / "config" / "invt-gateway-notify.sh"
 STATE_WORD_1 = 0x2100
 
 
-def box_config(line: str, folder: Path, role: str, hold_off_ms: float = 0.0) -> dict[str, Any]:
+def box_config(
+    line: str, folder: Path, role: str, hold_off_ms: float, box: str, **more: Any
+) -> dict[str, Any]:
     folder.mkdir(exist_ok=True)
     return {
         "gateway_id": "pair",  # both boxes alike: one gateway, on two boxes
@@ -64,9 +69,12 @@ def box_config(line: str, folder: Path, role: str, hold_off_ms: float = 0.0) -> 
         "redundancy": {
             "enabled": True,
             "role": role,
+            "box": box,
             "peer": "the other box",
             "hold_off_ms": hold_off_ms,
         },
+        "metrics": {"enabled": True, "host": "127.0.0.1", "port": free_port()},
+        **more,
     }
 
 
@@ -74,10 +82,17 @@ class Box:
     """One gateway box: its process, its Modbus-TCP port, its role asked and read."""
 
     def __init__(
-        self, name: str, line: str, folder: Path, role: str, hold_off_ms: float = 0.0
+        self,
+        name: str,
+        line: str,
+        folder: Path,
+        role: str,
+        hold_off_ms: float = 0.0,
+        **more: Any,
     ) -> None:
         self.name = name
-        config = box_config(line, folder / name, role, hold_off_ms)
+        config = box_config(line, folder / name, role, hold_off_ms, name, **more)
+        self.metrics_port = int(config["metrics"]["port"])
         self.gateway = GatewayProcess(config, folder / name)
         self.gateway.wait_ready()
         ready = self.gateway.log.wait_for("ready:")
@@ -120,6 +135,15 @@ class Box:
                 return status
             assert time.monotonic() < deadline, f"{self.name} not {role}: {status}"
             time.sleep(0.1)  # another process's state: polled with a deadline
+
+    def health(self) -> dict[str, Any]:
+        _, _, body = asyncio.run(http_get(self.metrics_port, "/health"))
+        health: dict[str, Any] = json.loads(body)
+        return health
+
+    def metrics(self) -> str:
+        _, _, body = asyncio.run(http_get(self.metrics_port, "/metrics"))
+        return body
 
     def read_state(self) -> bytes:
         return read_state_word(self.tcp_port, 1)
@@ -236,6 +260,8 @@ def test_both_asked_active_the_second_stays_off_and_a_talking_master_is_left_the
         status = first.wait_role("listening", 3.0)
         assert status["foreign_frames"] >= 1
         assert status["last_foreign"]["bus"] == "line1"
+        assert first.health()["redundancy"]["last_foreign"]["bus"] == "line1"
+        assert "invt_gateway_redundancy_foreign_frames_total 1.0" in first.metrics()
         left_at = frames(line)[0]
         time.sleep(1.0)
         # Off the line while the other master talks: not one frame more, from either box.
@@ -258,3 +284,32 @@ def test_both_asked_active_the_second_stays_off_and_a_talking_master_is_left_the
             break
         assert time.monotonic() < deadline, roles
         time.sleep(0.1)
+
+
+def test_on_mqtt_a_standby_publishes_only_its_role(
+    line: SharedLine, boxes: list[Box], tmp_path: Path, mosquitto: Mosquitto
+) -> None:
+    base = unique_base_topic("pair")
+    broker = {"host": mosquitto.host, "port": mosquitto.port, "base_topic": base}
+    boxes.append(standby := Box("b", line.paths[1], tmp_path, "standby", mqtt=broker))
+    time.sleep(1.0)
+    # Alone on the line, a standby: its role and health, and nothing of the drives.
+    retained = asyncio.run(retained_messages(mosquitto, f"{base}/#"))
+    assert list(retained) == [f"{base}/bridge/redundancy/b"]
+    role = json.loads(retained[f"{base}/bridge/redundancy/b"])
+    assert (role["box"], role["role"], role["health"]) == ("b", "standby", "ok")
+    assert standby.health()["status"] == "ok"  # closed buses on purpose: not degraded
+
+    boxes.append(active := Box("a", line.paths[0], tmp_path, "active", mqtt=broker))
+    active.wait_role("active", 5.0)
+    deadline = time.monotonic() + 10
+    while True:
+        retained = asyncio.run(retained_messages(mosquitto, f"{base}/#"))
+        if f"{base}/pump" in retained and f"{base}/bridge/redundancy/a" in retained:
+            break
+        assert time.monotonic() < deadline, sorted(retained)
+        time.sleep(0.2)
+    assert json.loads(retained[f"{base}/bridge/redundancy/a"])["role"] == "active"
+    assert json.loads(retained[f"{base}/bridge/redundancy/b"])["role"] == "standby"
+    assert json.loads(retained[f"{base}/bridge/state"])["state"] == "online"
+    assert line.stats()["masters"][1]["frames"] == 0

@@ -25,6 +25,10 @@ class RedundancyConfig(Section):
     """The role asked at start: `standby` (listens to the line, never transmits) until the
     coordinator asks `invt-gateway role active`; `active` takes the line at start, once it has
     heard the line silent (another master's frames keep it off)."""
+    box: str = Field("", pattern=r"^[A-Za-z0-9_-]*$")
+    """This box's name, where the two boxes differ: its retained role topic
+    (`<base_topic>/bridge/redundancy/<box>`) and its MQTT client id's ending; default the host
+    name (characters other than letters, digits, - and _ made -)."""
     peer: str = ""
     """How the other box is known, for the log, /health and the console (e.g. `gw-b
     10.0.0.12`); nothing is sent to it."""
