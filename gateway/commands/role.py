@@ -19,7 +19,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from gateway.commands.run import DEFAULT_CONFIG
+from gateway.commands.config_path import DEFAULT_CONFIG
 from gateway.control import ROLE, ask
 from gateway.errors import ControlUnavailable
 from gateway.exit_codes import EXIT_FAILURE, EXIT_OK

@@ -12,6 +12,7 @@ from typing import Any
 
 from gateway.app import Application
 from gateway.collector import settle_startup_objects
+from gateway.commands.config_path import DEFAULT_CONFIG as DEFAULT_CONFIG
 from gateway.config import GatewayConfig, load_config
 from gateway.config.startup import startup_problems
 from gateway.control import RELOAD, ROLE, ControlServer
@@ -35,8 +36,6 @@ from gateway.settings import runtime_settings
 from gateway.systemd import Notifier, keep_watchdog, watchdog_interval_s
 
 log = logging.getLogger(__name__)
-
-DEFAULT_CONFIG = "/etc/invt-gateway/config.yaml"
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

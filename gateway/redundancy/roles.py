@@ -200,6 +200,8 @@ class Redundancy:
                 await self._news(None)
             return
         if self.asked is not Role.ACTIVE:
+            # Listening, and asked to be standby after all: off the line it stays.
+            self._set_role(Role.STANDBY, "asked to be standby")
             await self._news(None)
             return
         left = self._silence_left(time.monotonic())

@@ -16,140 +16,20 @@ from __future__ import annotations
 
 import asyncio
 import json
-import os
-import re
 import signal
 import struct
-import subprocess
 import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import pytest
 import serial
 
 from gateway.modbus.rtu import build_frame
-from tests.support import free_port, read_state_word
-from tests.support.http import http_get
 from tests.support.mosquitto import Mosquitto, retained_messages, unique_base_topic
-from tests.support.processes import ROOT, GatewayProcess, entry_point, run_cli
+from tests.support.redundancy import POLL_MS, SILENCE_S, TAKEOVER_BOUND_S, Box, frames
 from tests.support.shared_line import SharedLine, shared_line
-
-POLL_MS = 200
-"""The drive's state polled five times a second: the active is heard all the time."""
-SILENCE_S = 1.0
-"""Derived (`derived_silence_s`): 3 x 0.2 s + 0.1 s x 2 attempts = 0.8 s, at least 1 s."""
-TAKEOVER_BOUND_S = 3.0
-NOTIFY = ROOT / "config" / "invt-gateway-notify.sh"
-STATE_WORD_1 = 0x2100
-
-
-def box_config(
-    line: str, folder: Path, role: str, hold_off_ms: float, box: str, **more: Any
-) -> dict[str, Any]:
-    folder.mkdir(exist_ok=True)
-    return {
-        "gateway_id": "pair",  # both boxes alike: one gateway, on two boxes
-        "modbus_tcp": {"host": "127.0.0.1", "port": 0},
-        "buses": [{"name": "line1", "port": line, "timeout_ms": 100, "retries": 1}],
-        "drives": [
-            {
-                "name": "pump",
-                "bus": "line1",
-                "address": 1,
-                "model": "gd350",
-                "poll": [
-                    {"name": "state", "start": STATE_WORD_1, "count": 3, "interval_ms": POLL_MS}
-                ],
-            }
-        ],
-        "storage": {"path": str(folder / "events.db")},
-        "redundancy": {
-            "enabled": True,
-            "role": role,
-            "box": box,
-            "peer": "the other box",
-            "hold_off_ms": hold_off_ms,
-        },
-        "metrics": {"enabled": True, "host": "127.0.0.1", "port": free_port()},
-        **more,
-    }
-
-
-class Box:
-    """One gateway box: its process, its Modbus-TCP port, its role asked and read."""
-
-    def __init__(
-        self,
-        name: str,
-        line: str,
-        folder: Path,
-        role: str,
-        hold_off_ms: float = 0.0,
-        **more: Any,
-    ) -> None:
-        self.name = name
-        config = box_config(line, folder / name, role, hold_off_ms, name, **more)
-        self.metrics_port = int(config["metrics"]["port"])
-        self.gateway = GatewayProcess(config, folder / name)
-        self.gateway.wait_ready()
-        ready = self.gateway.log.wait_for("ready:")
-        found = re.search(r"Modbus-TCP on [^ ]+:(\d+)", ready)
-        assert found is not None, ready
-        self.tcp_port = int(found.group(1))
-
-    @property
-    def config(self) -> str:
-        return str(self.gateway.config_file)
-
-    def ask(self, role: str) -> str:
-        done = run_cli("role", role, "--config", self.config, timeout_s=15)
-        assert done.returncode == 0, done.stderr
-        return done.stdout.strip()
-
-    def notified(self, state: str) -> str:
-        """Keepalived's notify script run on this box for VRRP `state` (MASTER, BACKUP, ...),
-        as keepalived runs it; what it logged."""
-        done = subprocess.run(
-            [str(NOTIFY), "INSTANCE", "invt_gateway", state, "150"],
-            env={**os.environ, "CONFIG": self.config, "GATEWAY": entry_point(), "UNIT": "none"},
-            capture_output=True,
-            text=True,
-            timeout=15,
-            check=False,
-        )
-        assert done.returncode == 0, done.stderr
-        return done.stderr
-
-    def status(self) -> dict[str, Any]:
-        status: dict[str, Any] = json.loads(self.ask("status"))
-        return status
-
-    def wait_role(self, role: str, within_s: float) -> dict[str, Any]:
-        deadline = time.monotonic() + within_s
-        while True:
-            status = self.status()
-            if status["role"] == role:
-                return status
-            assert time.monotonic() < deadline, f"{self.name} not {role}: {status}"
-            time.sleep(0.1)  # another process's state: polled with a deadline
-
-    def health(self) -> dict[str, Any]:
-        _, _, body = asyncio.run(http_get(self.metrics_port, "/health"))
-        health: dict[str, Any] = json.loads(body)
-        return health
-
-    def metrics(self) -> str:
-        _, _, body = asyncio.run(http_get(self.metrics_port, "/metrics"))
-        return body
-
-    def read_state(self) -> bytes:
-        return read_state_word(self.tcp_port, 1)
-
-    def stop(self) -> None:
-        self.gateway.stop()
 
 
 @pytest.fixture
@@ -165,10 +45,6 @@ def boxes() -> Iterator[list[Box]]:
     yield started
     for box in started:
         box.stop()
-
-
-def frames(line: SharedLine) -> list[int]:
-    return [master["frames"] for master in line.stats()["masters"]]
 
 
 def test_the_standby_never_transmits_and_the_active_serves(
@@ -284,6 +160,10 @@ def test_both_asked_active_the_second_stays_off_and_a_talking_master_is_left_the
             break
         assert time.monotonic() < deadline, roles
         time.sleep(0.1)
+    # The coordinator settles it: the listening one told standby is standby.
+    listening = next(box for box in (first, second) if box.status()["role"] == "listening")
+    assert listening.ask("standby").startswith("ok: standby")
+    listening.wait_role("standby", 2.0)
 
 
 def test_on_mqtt_a_standby_publishes_only_its_role(

@@ -1,0 +1,264 @@
+"""Two gateway boxes for real on this machine: each a network namespace with its own address and
+a real Keepalived (VRRP, unicast between the boxes, the shipped notify script), both wired to one
+simulated RS-485 pair (`simulate --masters 2`); SCADA on the switch reads through the virtual
+address (issue 48). Needs root (skipped otherwise).
+
+- the MASTER's gateway serves the line and the virtual address; the BACKUP's transmits nothing;
+- the active box dies (its Keepalived and its gateway SIGKILLed, its network gone): the virtual
+  address moves, the other box takes the line, SCADA's next connection is served, 0 collisions;
+- the link between the boxes cut while both run: both are VRRP MASTER, both asked `active`;
+  the second hears the first's polls and stays off the line: 0 frames from it, 0 collisions.
+
+VRRP's timing here is VRRPv3 with adverts every 0.5 s: the BACKUP declares the MASTER gone after
+3 adverts missed and its skew, about 1.8 s.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import struct
+import subprocess
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pytest
+
+from gateway.instruments.die_with_parent import die_with_parent
+from tests.support.netns import VIRTUAL, BoxNet, PlantNetwork, can_make_namespaces, plant_network
+from tests.support.processes import ROOT, LineCollector, entry_point
+from tests.support.redundancy import NOTIFY, Box, frames
+from tests.support.shared_line import SharedLine, shared_line
+
+pytestmark = pytest.mark.skipif(
+    can_make_namespaces() is not None, reason=str(can_make_namespaces())
+)
+
+MODBUS_PORT = 5020
+ADVERT_S = 0.5
+TAKEOVER_BOUND_S = 4.0
+"""From the kill to the new active's first request: VRRP's ~1.8 s, the notify script's start,
+the port's opening."""
+
+
+class Keepalived:
+    """Keepalived in one box's namespace, as a box runs it (VRRP only, in the foreground)."""
+
+    def __init__(self, net: BoxNet, peer: BoxNet, priority: int, box: Box, folder: Path) -> None:
+        folder.mkdir(exist_ok=True)
+        self.folder = folder
+        notify = folder / "notify.sh"
+        # Keepalived hands its scripts no environment of ours: the shipped script, told where
+        # this box's gateway and file are.
+        notify.write_text(
+            "#!/bin/sh\n"
+            "PATH=/usr/sbin:/usr/bin:/sbin:/bin\n"
+            f'CONFIG={box.config} GATEWAY={entry_point()} UNIT=none exec {NOTIFY} "$@"\n'
+        )
+        notify.chmod(0o755)
+        conf = folder / "keepalived.conf"
+        conf.write_text(vrrp_config(net, peer, priority, notify, f"{notify} check"))
+        command = [
+            "keepalived", "--dont-fork", "--log-console", "--log-detail", "--vrrp",
+            "--use-file", str(conf), "--pid", str(folder / "k.pid"),
+            "--vrrp_pid", str(folder / "v.pid"),
+        ]  # fmt: skip
+        self.process = subprocess.Popen(
+            net.exec(*command),
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            preexec_fn=die_with_parent(),
+        )
+        self.log = LineCollector(self.process.stdout)
+
+    def kill(self) -> None:
+        """SIGKILL, its VRRP process first (it would go on advertising a while on its own)."""
+        with contextlib.suppress(OSError, ValueError):
+            os.kill(int((self.folder / "v.pid").read_text()), signal.SIGKILL)
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(self.process.pid, signal.SIGKILL)
+        self.process.wait(5)
+
+    def stop(self) -> None:
+        if self.process.poll() is None:
+            self.process.terminate()
+            try:
+                self.process.wait(5)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait(5)
+        self.log.join()
+        if self.process.stdout is not None:
+            self.process.stdout.close()
+
+
+def vrrp_config(net: BoxNet, peer: BoxNet, priority: int, notify: Path, check: str) -> str:
+    """config/keepalived.conf's instance, for this box: VRRPv3, unicast to the peer."""
+    shipped = (ROOT / "config" / "keepalived.conf").read_text()
+    assert "notify " in shipped
+    assert "vrrp_script invt_gateway_alive" in shipped
+    return f"""global_defs {{
+    router_id {net.namespace}
+    vrrp_version 3
+    script_user root
+}}
+vrrp_script invt_gateway_alive {{
+    script "{check}"
+    interval 1
+    timeout 3
+    fall 2
+    rise 2
+}}
+vrrp_instance invt_gateway {{
+    state BACKUP
+    nopreempt
+    interface eth0
+    virtual_router_id 48
+    priority {priority}
+    advert_int {ADVERT_S}
+    unicast_src_ip {net.address}
+    unicast_peer {{
+        {peer.address}
+    }}
+    virtual_ipaddress {{
+        {VIRTUAL}/24 dev eth0
+    }}
+    track_script {{
+        invt_gateway_alive
+    }}
+    notify "{notify}"
+}}
+"""
+
+
+def scada_read(net: PlantNetwork) -> bytes:
+    """State word 1 of unit 1 read through the virtual address, from SCADA's place on the
+    switch: the reply's PDU (b"" when nobody answered)."""
+    request = struct.pack(">HHHBBHH", 7, 0, 6, 1, 3, 0x2100, 1)
+    script = (
+        "import socket,sys\n"
+        f"s=socket.create_connection(({VIRTUAL!r},{MODBUS_PORT}),timeout=2)\n"
+        f"s.sendall(bytes.fromhex({request.hex()!r}))\n"
+        "sys.stdout.write(s.recv(256)[7:].hex())\n"
+    )
+    done = subprocess.run(
+        net.on_lan("python3", "-c", script), capture_output=True, text=True, timeout=10, check=False
+    )
+    return bytes.fromhex(done.stdout.strip()) if done.returncode == 0 else b""
+
+
+def holds_virtual(net: BoxNet) -> bool:
+    return f"{VIRTUAL}/24" in net.addresses()
+
+
+@dataclass
+class Site:
+    """The line, the network, the two boxes (a: priority 150, b: 100, hold-off 500 ms) and
+    their Keepalived."""
+
+    line: SharedLine
+    net: PlantNetwork
+    boxes: list[Box] = field(default_factory=list)
+    keepaliveds: list[Keepalived] = field(default_factory=list)
+
+    def start(self, folder: Path) -> tuple[int, int]:
+        """Both boxes and their Keepalived started; once one is active: (its index, the
+        other's). Which one VRRP elects depends on whose check answers first (both start as
+        BACKUP, and with `nopreempt` the first MASTER stays)."""
+        a_net, b_net = self.net.boxes
+        tcp = {"host": "0.0.0.0", "port": MODBUS_PORT}
+        paths = self.line.paths
+        wiring = (("a", a_net, paths[0], 0), ("b", b_net, paths[1], 500))
+        for name, box_net, path, hold_off in wiring:
+            command = box_net.exec(entry_point())
+            self.boxes.append(Box(name, path, folder, "standby", hold_off, command, modbus_tcp=tcp))
+        a, b = self.boxes
+        self.keepaliveds.append(Keepalived(a_net, b_net, 150, a, folder / "ka"))
+        self.keepaliveds.append(Keepalived(b_net, a_net, 100, b, folder / "kb"))
+        deadline = time.monotonic() + 15  # VRRP's election (BACKUP first: ~1.8 s), the line
+        while True:
+            roles = [box.status()["role"] for box in self.boxes]
+            if "active" in roles:
+                active = roles.index("active")
+                return active, 1 - active
+            if time.monotonic() > deadline:
+                logs = "\n".join(k.log.text[-3000:] for k in self.keepaliveds)
+                raise AssertionError(f"no box active: {roles}\n{logs}")
+            time.sleep(0.1)
+
+
+@pytest.fixture
+def site() -> Iterator[Site]:
+    with shared_line(2, "--address", "1") as line, plant_network() as net:
+        made = Site(line, net)
+        try:
+            yield made
+        finally:
+            for keepalived in made.keepaliveds:
+                keepalived.stop()
+            for box in made.boxes:
+                box.stop()
+
+
+def test_the_masters_box_serves_and_the_other_takes_over_when_it_dies(
+    site: Site, tmp_path: Path
+) -> None:
+    line, net = site.line, site.net
+    first, second = site.start(tmp_path)
+    a, b = site.boxes[first], site.boxes[second]
+    a_net, b_net = net.boxes[first], net.boxes[second]
+    time.sleep(0.5)  # the elected box's address settled
+    assert holds_virtual(a_net)
+    assert not holds_virtual(b_net)
+    assert scada_read(net)[:2] == bytes([0x03, 0x02])
+    assert b.status()["role"] == "standby"
+    assert frames(line)[second] == 0
+
+    # The active box dies: its Keepalived and its gateway killed, its network gone.
+    site.keepaliveds[first].kill()
+    a.gateway.process.send_signal(signal.SIGKILL)
+    a.gateway.process.wait(5)
+    subprocess.run(net.on_lan("ip", "link", "set", a_net.port, "down"), check=True)
+    killed = time.monotonic()
+    while frames(line)[second] == 0:
+        assert time.monotonic() - killed < TAKEOVER_BOUND_S + 2, b.gateway.log.text[-2000:]
+        time.sleep(0.05)
+    first_request_s = time.monotonic() - killed
+    print(f"first request from the new active {first_request_s:.2f} s after the kill")
+    assert first_request_s < TAKEOVER_BOUND_S
+    assert holds_virtual(b_net)
+    assert scada_read(net)[:2] == bytes([0x03, 0x02])  # SCADA's next connection is served
+    assert b.status()["role"] == "active"
+    assert line.stats()["collisions"] == 0
+
+
+def test_a_cut_link_makes_two_vrrp_masters_and_one_master_on_the_line(
+    site: Site, tmp_path: Path
+) -> None:
+    line, net = site.line, site.net
+    first, second = site.start(tmp_path)
+    a, b = site.boxes[first], site.boxes[second]
+    a_net, b_net = net.boxes[first], net.boxes[second]
+    net.cut()
+    deadline = time.monotonic() + 10
+    while not holds_virtual(b_net):  # it hears no adverts: MASTER too, and asked `active`
+        assert time.monotonic() < deadline, site.keepaliveds[second].log.text[-2000:]
+        time.sleep(0.1)
+    assert holds_virtual(a_net)
+    time.sleep(3.0)
+    assert b.status()["role"] == "listening"  # asked active, hears the polls: off the line
+    assert a.status()["role"] == "active"
+    assert frames(line)[second] == 0
+    assert line.stats()["collisions"] == 0
+    # The link back: one box is BACKUP again, the other stays MASTER; one master on the line.
+    net.cut(False)
+    deadline = time.monotonic() + 10
+    while sorted(box.status()["role"] for box in site.boxes) != ["active", "standby"]:
+        assert time.monotonic() < deadline, [box.status() for box in site.boxes]
+        time.sleep(0.1)
+    assert line.stats()["collisions"] == 0
