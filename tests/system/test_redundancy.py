@@ -193,3 +193,43 @@ def test_on_mqtt_a_standby_publishes_only_its_role(
     assert json.loads(retained[f"{base}/bridge/redundancy/b"])["role"] == "standby"
     assert json.loads(retained[f"{base}/bridge/state"])["state"] == "online"
     assert line.stats()["masters"][1]["frames"] == 0
+
+
+def test_the_standby_s_death_changes_nothing(
+    line: SharedLine, boxes: list[Box], tmp_path: Path
+) -> None:
+    boxes.append(active := Box("a", line.paths[0], tmp_path, "active"))
+    boxes.append(standby := Box("b", line.paths[1], tmp_path, "standby"))
+    active.wait_role("active", 5.0)
+    standby.gateway.process.send_signal(signal.SIGKILL)
+    standby.gateway.process.wait(5)
+    before = frames(line)[0]
+    time.sleep(1.0)
+    assert frames(line)[0] >= before + 3  # polled on, five times a second
+    status = active.status()
+    assert (status["role"], status["takeovers"], status["foreign_frames"]) == ("active", 1, 0)
+    assert line.stats()["collisions"] == 0
+
+
+def test_a_flapping_active_never_makes_two_masters(
+    line: SharedLine, boxes: list[Box], tmp_path: Path
+) -> None:
+    """Whichever box is active is killed and started again at once, six times: each comes back
+    asked to be active (`role: active` in its file, as a box whose Keepalived says MASTER at
+    once would), listens, hears the other that took over meanwhile, and stays off."""
+    boxes.append(Box("a", line.paths[0], tmp_path, "active"))
+    boxes[0].wait_role("active", 5.0)
+    boxes.append(Box("b", line.paths[1], tmp_path, "active", hold_off_ms=300))
+    for _ in range(6):
+        roles = [box.status()["role"] for box in boxes]
+        assert sorted(roles) == ["active", "listening"], roles
+        dying = roles.index("active")
+        name, path = boxes[dying].name, line.paths[dying]
+        boxes[dying].gateway.process.send_signal(signal.SIGKILL)
+        boxes[dying].gateway.process.wait(5)
+        boxes[dying].stop()
+        boxes[dying] = Box(name, path, tmp_path, "active", hold_off_ms=300 * dying)
+        boxes[1 - dying].wait_role("active", 5.0)
+        boxes[dying].wait_role("listening", 2.0)
+    assert line.stats()["collisions"] == 0
+    assert all(master["frames"] > 0 for master in line.stats()["masters"][:2])
