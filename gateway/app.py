@@ -280,6 +280,8 @@ class Application:
             new = Bus(settings[name])
             new.take_listeners(old)
             new.tap = old.tap  # a traffic monitor watching the line goes on watching it
+            if self.redundancy is not None:  # active (a standby skips reloads): watched too
+                self.redundancy.watch(new)
             self.buses[name] = new
             closed[name] = old
         return closed

@@ -337,6 +337,13 @@ class Reloader:
         if self.app.phase is not Phase.READY:
             log.warning("reload skipped: the gateway is %s", self.app.phase.value)
             return [f"skipped: the gateway is {self.app.phase.value}"]
+        redundancy = self.app.redundancy
+        if redundancy is not None and not redundancy.serving:
+            # Its buses, poller and bridge are built anew at its next start: a standby's
+            # restart costs nothing (the active one keeps the line), a half-applied reload might.
+            why = f"this gateway is {redundancy.role.value}: restart it to apply the file"
+            log.warning("reload skipped: %s", why)
+            return [f"skipped: {why}"]
         try:
             plan = await self.app.reload(runtime_settings(config))
         except BrokerShared as exc:

@@ -235,11 +235,16 @@ class Redundancy:
         for listener in self._listeners:
             await listener.stop()
         self._silenced = None
-        await self.owner.take_line(self._watch)
+        await self.owner.take_line(self.watch)
         self.last_takeover_s = time.monotonic() - self._asked_at
         self._set_role(Role.ACTIVE, f"the line was silent {silent_s:.1f} s: taken")
 
-    def _watch(self, bus: Bus) -> None:
+    def watch(self, bus: Bus) -> None:
+        """Watch `bus`'s line for another master's frames from its port's opening (before it
+        runs): the buses taken, and one a reload reopens in place of another of its name."""
+        for old in [w for w in self._watches if w.bus.name == bus.name]:
+            old.close()
+            self._watches.remove(old)
         watch = ActiveWatch(bus, self.foreign_master)
         bus.line.on_heard = watch.heard
         self._watches.append(watch)

@@ -19,6 +19,7 @@ What keeps its running value until a restart, named in the log and the `config_r
 ("restart needed for: ..."): the listeners (`modbus_tcp.host`, `port`, `plain`, `tls`),
 `gateway_id`, `storage.path`, the console (its listener and, in this version, its other keys),
 the OPC UA server (every `opcua` key, and its address space keeps the drives it started with),
+every `redundancy` key (the role machine's silence and its listeners are set at start),
 and in this version buses added or removed (with the drives that would move onto or off them),
 `metrics.enabled` and `mqtt.enabled`. A site's device file (`model: file:PATH`) is read again:
 edited, its drive is changed as if its keys had been (its points polled and published anew).
@@ -119,6 +120,7 @@ def plan(
     metrics = _metrics(old.metrics, new.metrics, changed, restart)
     restart += _console(old.console, new.console)
     restart += _waits(old.opcua, new.opcua, "opcua")
+    restart += _waits(old.redundancy, new.redundancy, "redundancy")
     reopened = _buses(old, new, changed, restart)
     # Buses added or removed wait for a restart, and so do the drives that would move onto or
     # off them; on every other bus (reopened or not) drives change now.
@@ -151,7 +153,12 @@ def _running(
 ) -> GatewayConfig:
     """The configuration that runs after the reload: `new`, with what waits for a restart as it
     was (the gateway id, the console, buses added or removed) and `parts` as planned."""
-    kept = {"gateway_id": old.gateway_id, "console": old.console, "opcua": old.opcua}
+    kept = {
+        "gateway_id": old.gateway_id,
+        "console": old.console,
+        "opcua": old.opcua,
+        "redundancy": old.redundancy,
+    }
     buses = _running_buses(old, new)
     return new.model_copy(update={**kept, **parts, "buses": buses, "drives": drives})
 

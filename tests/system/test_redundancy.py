@@ -28,6 +28,7 @@ import serial
 
 from gateway.modbus.rtu import build_frame
 from tests.support.mosquitto import Mosquitto, retained_messages, unique_base_topic
+from tests.support.processes import run_cli
 from tests.support.redundancy import POLL_MS, SILENCE_S, TAKEOVER_BOUND_S, Box, frames
 from tests.support.shared_line import SharedLine, shared_line
 
@@ -233,3 +234,28 @@ def test_a_flapping_active_never_makes_two_masters(
         boxes[dying].wait_role("listening", 2.0)
     assert line.stats()["collisions"] == 0
     assert all(master["frames"] > 0 for master in line.stats()["masters"][:2])
+
+
+def test_a_reload_reopens_the_active_s_line_watched_and_waits_on_a_standby(
+    line: SharedLine, boxes: list[Box], tmp_path: Path
+) -> None:
+    boxes.append(active := Box("a", line.paths[0], tmp_path, "active"))
+    boxes.append(standby := Box("b", line.paths[1], tmp_path, "standby"))
+    active.wait_role("active", 5.0)
+    for box in (active, standby):  # a longer response timeout: the bus is reopened with it
+        path = Path(box.config)
+        path.write_text(path.read_text().replace("timeout_ms: 100", "timeout_ms: 120"))
+    skipped = run_cli("reload", "--config", standby.config)
+    assert skipped.returncode == 1
+    assert "skipped: this gateway is standby: restart it to apply the file" in skipped.stderr
+    applied = run_cli("reload", "--config", active.config)
+    assert applied.returncode == 0, applied.stderr
+    assert "buses reopened: line1" in applied.stdout
+    time.sleep(0.5)
+    assert frames(line)[1] == 0
+    # The reopened bus is watched as the one before: another master heard, it leaves the line.
+    rogue = RogueMaster(line.paths[2])
+    try:
+        active.wait_role("listening", 3.0)
+    finally:
+        rogue.stop()
