@@ -10,7 +10,8 @@
   are in memory only, where a restart loses them; `store.reason` names storage.path and why.
 - redundancy (`redundancy:`): the role (standby, listening, active), the peer, the last change
   and why, another master's frames heard. A standby's buses are closed on purpose: that is no
-  degradation (its drives are the active gateway's to report).
+  degradation (its drives are the active gateway's to report); a port it can't open to listen
+  is (`redundancy.deaf` names its bus: it can't hear that line, so can't take it over safely).
 """
 
 from __future__ import annotations
@@ -55,9 +56,13 @@ def health_report(
         key = "drives_offline" if bus.health.is_offline(address) else "drives_online"
         per_bus[bus_name][key].append(drive)
     standby = redundancy is not None and redundancy.get("role") != "active"
-    degraded = not standby and any(
-        bus.state is not BusState.OPEN or report["drives_offline"]
-        for bus, report in zip(buses.values(), per_bus.values(), strict=True)
+    deaf = standby and bool(redundancy and redundancy.get("deaf"))
+    degraded = deaf or (
+        not standby
+        and any(
+            bus.state is not BusState.OPEN or report["drives_offline"]
+            for bus, report in zip(buses.values(), per_bus.values(), strict=True)
+        )
     )
     degraded = degraded or (store is not None and not store.ok)
     ready = phase is Phase.READY

@@ -164,6 +164,9 @@ class Redundancy:
         if self.role is not Role.ACTIVE:
             silent = [lsn.silent_for(now) for lsn in self._listeners if lsn.open]
             status["line_silent_s"] = round(min(silent), 3) if silent else None
+            # A port it can't open is a line it can't hear: it could not take that one over
+            # knowing it silent (/health says degraded).
+            status["deaf"] = [lsn.settings.name for lsn in self._listeners if not lsn.open]
             status["heard_requests"] = sum(ear.requests for ear in heard)
             status["heard_replies"] = sum(ear.replies for ear in heard)
         return status

@@ -259,3 +259,13 @@ def test_a_reload_reopens_the_active_s_line_watched_and_waits_on_a_standby(
         active.wait_role("listening", 3.0)
     finally:
         rogue.stop()
+
+
+def test_a_standby_that_can_t_hear_its_line_says_so(boxes: list[Box], tmp_path: Path) -> None:
+    boxes.append(standby := Box("b", str(tmp_path / "no-adapter"), tmp_path, "standby"))
+    time.sleep(0.5)
+    assert standby.status()["deaf"] == ["line1"]
+    health = standby.health()
+    assert health["status"] == "degraded"
+    assert health["redundancy"]["deaf"] == ["line1"]
+    assert "can't listen to the line" in standby.gateway.log.text
