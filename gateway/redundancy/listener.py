@@ -5,7 +5,9 @@ write). The bus opens the port again itself once this gateway takes the line.
 
 A port that can't be opened (the adapter unplugged) is tried again every `REOPEN_S`, said once
 in the log; such a line is heard by nobody, so its silence proves nothing: `silent_for` is 0
-until it is open (a takeover waits for it, unless `Redundancy` gives up waiting).
+until it is open. A takeover goes by the lines that are heard (with none heard it waits): a line
+whose adapter is missing can't be served by this box either, and its bus, once the adapter is
+back, is watched for another master from its first byte.
 """
 
 from __future__ import annotations
