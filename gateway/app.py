@@ -499,6 +499,8 @@ class LineHandover:
             box = settings.redundancy.box
             app.announcer = RoleAnnouncer(settings.mqtt, box, self._announced(redundancy))
             redundancy.listeners.append(app.announcer.changed)
+        if app.console is not None:
+            app.console.redundancy = redundancy.status
         return redundancy
 
     def _announced(self, redundancy: Redundancy) -> Callable[[], dict[str, Any]]:

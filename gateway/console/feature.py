@@ -85,6 +85,9 @@ class ConsoleFeature:
         """The store's history of polled values (None: the live 15 minutes only)."""
         self.config_editor: ConfigEditor | None = None
         """Editing the configuration file (`invt-gateway run` sets it: it knows the file)."""
+        self.redundancy: Callable[[], dict[str, Any]] | None = None
+        """With `redundancy:`, this box's role as `invt-gateway role status` says it (the
+        application sets it): the overview's banner."""
         self.console: Console | None = None
         self._runner: web.AppRunner | None = None
         self._site: DeadlinedSite | None = None
@@ -108,6 +111,7 @@ class ConsoleFeature:
 
     async def start(self) -> None:
         live = LiveState(self.buses, self.lines, self.drives, self.poller, self.events)
+        live.redundancy = self.redundancy
         if self.poller is not None:
             self.poller.add_listener(live)
         for bus in self.buses.values():

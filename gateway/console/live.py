@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
 
@@ -99,6 +99,8 @@ class LiveState:
         self._exceptions: dict[tuple[str, int], ExceptionNames] = {
             (d.bus, d.address): d.profile.exceptions for d in drives
         }
+        self.redundancy: Callable[[], dict[str, Any]] | None = None
+        """With `redundancy:`, this box's role (the overview's banner); None: no such thing."""
 
     # -- poll listener ----------------------------------------------------------------------
 
@@ -206,6 +208,7 @@ class LiveState:
             "buses": [self.bus_view(name, plans) for name in self.buses],
             "drives": [self.drive_view(name, plans) for name in self.drives],
             "store_problem": self.events.store_problem(),
+            "redundancy": None if self.redundancy is None else self.redundancy(),
         }
 
     def line_plans(self) -> dict[str, LinePlan]:

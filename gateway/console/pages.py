@@ -82,6 +82,7 @@ def _user(who: Identity | None) -> str:
 OVERVIEW = """
 <h1>Overview <span id="live" class="live">connecting…</span></h1>
 <p id="store-banner" class="banner" role="alert" hidden></p>
+<p id="role-banner" class="banner" hidden></p>
 <section>
 <h2>Buses</h2>
 <div class="scroll"><table id="buses" class="grid cards">

@@ -27,6 +27,8 @@ import pytest
 import serial
 
 from gateway.modbus.rtu import build_frame
+from tests.support import free_port
+from tests.support.http import http_get
 from tests.support.mosquitto import Mosquitto, retained_messages, unique_base_topic
 from tests.support.processes import run_cli
 from tests.support.redundancy import POLL_MS, SILENCE_S, TAKEOVER_BOUND_S, Box, frames
@@ -52,7 +54,9 @@ def test_the_standby_never_transmits_and_the_active_serves(
     line: SharedLine, boxes: list[Box], tmp_path: Path
 ) -> None:
     boxes.append(active := Box("a", line.paths[0], tmp_path, "active"))
-    boxes.append(standby := Box("b", line.paths[1], tmp_path, "standby"))
+    console_port = free_port()
+    console = {"enabled": True, "port": console_port, "anonymous_view": True}
+    boxes.append(standby := Box("b", line.paths[1], tmp_path, "standby", console=console))
     active.wait_role("active", 5.0)
     time.sleep(2 * SILENCE_S)  # the standby listens all along
     # SCADA's values come from the active (the drive's state word), the standby says why not.
@@ -62,6 +66,10 @@ def test_the_standby_never_transmits_and_the_active_serves(
     assert status["role"] == "standby"
     assert status["heard_requests"] > 5  # it hears the active's polls
     assert status["line_silent_s"] < SILENCE_S
+    # The operator's console says which box this is, and its role.
+    _, _, body = asyncio.run(http_get(console_port, "/api/overview"))
+    shown = json.loads(body)["redundancy"]
+    assert (shown["box"], shown["role"], shown["peer"]) == ("b", "standby", "the other box")
     stats = line.stats()
     assert stats["masters"][0]["frames"] > 10
     assert stats["masters"][1]["frames"] == 0

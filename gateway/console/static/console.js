@@ -194,6 +194,15 @@ function fill(tableId, rows, empty) {
   tbody.replaceChildren(...rows);
 }
 
+function roleText(r) {
+  // "Standby box gw-b (peer gw-a 10.0.0.11): listening only, never transmitting · since ..."
+  const peer = r.peer ? ` (peer ${r.peer})` : "";
+  const role = { active: "Active", listening: "Listening (asked to be active)", standby: "Standby" }[r.role] || r.role;
+  const change = r.last_change ? ` · ${r.last_change.reason}, ${r.last_change.at}` : "";
+  const foreign = r.foreign_frames ? ` · another master heard ${r.foreign_frames}×` : "";
+  return `${role} box ${r.box}${peer}${change} · takeovers ${r.takeovers}${foreign}`;
+}
+
 function overviewPage() {
   const refreshEvents = async () => {
     const data = await api("/api/events?limit=50");
@@ -204,6 +213,9 @@ function overviewPage() {
       const banner = document.getElementById("store-banner");
       banner.hidden = !data.store_problem;
       banner.textContent = data.store_problem ? `Events are not kept on disk: ${data.store_problem}` : "";
+      const role = document.getElementById("role-banner");
+      role.hidden = !data.redundancy;
+      role.textContent = data.redundancy ? roleText(data.redundancy) : "";
       fill("buses", data.buses.map(busRow));
       fill("drives", data.drives.map(driveRow));
     },
