@@ -471,7 +471,7 @@ class LineHandover:
     Taking: fresh buses (a closed bus stays closed: a standby's refuse every request), each
     watched before it opens its port (`Redundancy`'s hook), routed and run; then the poller
     and the MQTT bridge start. Leaving: the buses close (queued requests answered, the
-    transaction on a wire finished unless the line was silenced), their tasks end, their ports
+    transaction on a wire finished unless its write gate closed), their tasks end, their ports
     close (the listeners open them next); the poller stops, and the bridge, replaced by a new
     one (unstarted) for the next takeover: its session takes over the old one's (the two boxes
     have one gateway id and client id), so no check for another live gateway is made."""

@@ -65,9 +65,9 @@ class SerialLine:
         self.on_heard: Callable[[bytes], None] | None = None
         """Told of every read from the port before the line takes it in (set before `open`):
         the active gateway's watch for another master's frames."""
-        self.silenced: str | None = None
-        """Why no frame may go out any more (another master heard): `send_after_gap` raises
-        PortError with it. The bus is closed with it, so its own pick sends nothing either."""
+        self.on_open: Callable[[Port], None] | None = None
+        """Given each port the line opens, before anything is written to it: the active
+        gateway's gate in front of its writes, closed when another master is heard."""
         self._port: Port | None = None
         self._timer: LineTimer | None = None
         self._rts: RtsSwitch | None = None
@@ -132,6 +132,8 @@ class SerialLine:
                 take(data)
 
         port = open_port(self.settings, self.receiver, heard, self._port_failed)
+        if self.on_open is not None:
+            self.on_open(port)
         self._port = port
         self._timer = timer = LineTimer(port.loop)
         control = self.settings.direction
@@ -182,8 +184,6 @@ class SerialLine:
         """At the end of the inter-frame gap, ask `user` for a frame and start writing it
         (`GapKeeper.send_after_gap`: the gap, the lead, the caller held while replies come
         and while the line is idle)."""
-        if self.silenced is not None:
-            raise PortError(f"{self.settings.port}: {self.silenced}")
         return await self._gap.send_after_gap(user)
 
     def kick(self) -> None:

@@ -8,11 +8,12 @@
                frames heard keep it here
     active     the buses run, the poller and the bridge with them; every read from a port is
                watched (`ActiveWatch`): a request it did not send is another master's, and the
-               line is silenced at once, in that very reader callback (every bus closed, no
-               frame more, a retry on its way refused), said loudly (log, event, metric,
-               /health); then it leaves the line and listens again, as asked, with a random
-               back-off of up to `silence_s` beyond its silence, so that two boxes that took the
-               line at once (the one race listening can't close) don't take it at once again
+               line is silenced at once, in that very reader callback (every bus closed, every
+               port's write gate closed: no frame more, whoever would write it), said loudly
+               (log, event, metric, /health); then it leaves the line and listens again, as
+               asked, with a random back-off of up to `silence_s` beyond its silence, so that
+               two boxes that took the line at once (the one race listening can't close) don't
+               take it at once again
 
 Who asks is the coordinator's business (Keepalived's notify script: `config/
 invt-gateway-notify.sh`); the machine makes sure that whatever it is asked, and whatever the
@@ -248,9 +249,7 @@ class Redundancy:
         for old in [w for w in self._watches if w.bus.name == bus.name]:
             old.close()
             self._watches.remove(old)
-        watch = ActiveWatch(bus, self.foreign_master)
-        bus.line.on_heard = watch.heard
-        self._watches.append(watch)
+        self._watches.append(ActiveWatch(bus, self.foreign_master))
 
     def foreign_master(self, bus: str, frame: bytes) -> None:
         """Another master's frame, heard by an active bus (in its port's reader callback):
@@ -261,7 +260,7 @@ class Redundancy:
         reason = f"another master is on the line: its request {frame.hex(' ')} heard on bus {bus}"
         self._silenced = reason
         for watch in self._watches:
-            watch.bus.line.silenced = reason
+            watch.gate.close(reason)  # no byte more through its port, whoever writes
             watch.bus.close(f"stopped: {reason}")
         self.last_foreign = {"bus": bus, "frame": frame.hex(" "), "at": iso_time(time.time())}
         log.critical("redundancy: %s: transmitting stopped, leaving the line", reason)

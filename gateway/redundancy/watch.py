@@ -5,7 +5,8 @@ Every read from the bus's port passes here first (`SerialLine.on_heard`), cut in
 request, or the marker before it: `Carrier.carrying`, `Carrier.marker_sent`), remembered for a
 while, so an adapter's echo of our own request, or the drive's copy of our 06H write coming
 late, is ours. A request that is none of these came from another master: the watch tells
-`foreign` at once, which silences the line (`Redundancy.foreign_master`).
+`foreign` at once, which closes the line's write gate (`gateway.redundancy.gate`) and the bus
+(`Redundancy.foreign_master`).
 
 A drive's reply proves nothing by itself (ours may come late, after every drain): only
 requests, which drives never send, are another master's mark. 05H, 06H and 08H read the same
@@ -22,6 +23,7 @@ from typing import Final
 from gateway.bus import Bus
 from gateway.modbus.rtu import build_frame
 from gateway.redundancy.frames import Frame, Kind
+from gateway.redundancy.gate import WriteGate
 from gateway.redundancy.listener import LineEar
 
 OWN_FRAMES: Final = 64
@@ -32,11 +34,15 @@ Foreign = Callable[[str, bytes], None]
 
 
 class ActiveWatch:
-    """Hooked on one active bus's line (`SerialLine.on_heard`) for as long as that bus runs."""
+    """Hooked on one active bus's line for as long as that bus runs: every read
+    (`SerialLine.on_heard`), and a gate in front of every write (`SerialLine.on_open`)."""
 
     def __init__(self, bus: Bus, foreign: Foreign) -> None:
         self.bus = bus
         self._foreign = foreign
+        self.gate = WriteGate()
+        bus.line.on_heard = self.heard
+        bus.line.on_open = self.gate.install
         self._own: deque[bytes] = deque(maxlen=OWN_FRAMES)
         self.ear = LineEar(bus.settings.line, self._frame)
         self.foreign_frames = 0
