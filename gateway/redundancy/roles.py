@@ -281,6 +281,7 @@ class Redundancy:
         if silenced is not None and self.asked is Role.ACTIVE:
             # Still asked to be active: listen again, with a back-off the other box won't share.
             self._back_off_s = random.uniform(0.0, self.settings.silence_s)
+            self._asked_at = time.monotonic()  # the next takeover's time counts from here
             self._set_role(Role.LISTENING, f"{silenced}: off the line, listening")
         else:
             self._set_role(Role.STANDBY, reason)
