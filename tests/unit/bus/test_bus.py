@@ -341,7 +341,7 @@ async def test_a_traffic_monitor_that_fails_costs_no_request_its_answer(
         bus.tap = failing_tap
         replies = await asyncio.gather(*(read(bus, 1 + n % 2, STATE_WORD_1) for n in range(6)))
         assert replies == [STOPPED_REPLY] * 6
-        with pytest.raises(GatewayTargetFailed, match="timeout|no reply"):
+        with pytest.raises(GatewayTargetFailed, match=r"timeout|no reply"):
             await read(bus, SILENT, STATE_WORD_1)  # the silent drive's own failure, not 0BH's
         attempts = bus.stats.transactions  # identical reads shared theirs
     failures = [r for r in caplog.records if "traffic monitor's tap failed" in r.getMessage()]
