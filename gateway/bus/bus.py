@@ -130,6 +130,7 @@ class Bus:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._opened = asyncio.Event()
         self._last_port_error = ""
+        self._closed_for = "is shutting down"  # why `close` refuses requests from then on
 
     def add_listener(self, listener: DriveListener) -> None:
         self.observers.drive_listeners.append(listener)
@@ -163,8 +164,7 @@ class Bus:
 
     @property
     def reads_waiting(self) -> bool:
-        """Client reads wait for the line (`RequestQueue.reads_waiting`): the poller cuts a
-        long poll short then."""
+        """Client reads wait for the line: the poller cuts a long poll short then."""
         return self._queue.reads_waiting
 
     @property
@@ -276,7 +276,7 @@ class Bus:
     def _admit(self, address: int) -> None:
         """Raise the refusal a request to `address` gets before it is queued, if any."""
         if self.state is BusState.CLOSED:
-            raise BusClosed(f"bus {self.name} is shutting down")
+            raise BusClosed(f"bus {self.name} {self._closed_for}")
         if self.state is BusState.REOPENING:
             raise GatewayTargetFailed(f"bus {self.name}: {self._last_port_error}")
         if address != BROADCAST_ADDRESS and self.health.is_offline(address):
@@ -317,7 +317,7 @@ class Bus:
 
     def close(self, reason: str = "is shutting down") -> None:
         """Refuse new requests and answer queued ones with 0x0B; the one on the wire finishes."""
-        self.state = BusState.CLOSED
+        self.state, self._closed_for = BusState.CLOSED, reason
         queued = self._queue.take_all()
         self._wake()
         error = BusClosed(f"bus {self.name} {reason}")
@@ -374,10 +374,9 @@ class Bus:
 
         The choice is made in the wake-up that ends the gap (`SerialLine.send_after_gap` asks
         the bus's `Dispatch` there, a learnt lead of up to a few hundred microseconds before the
-        gap's end):
-        a write that arrives during the gap, before then, still goes first, identical reads that
-        arrive during it join the one transaction, and the frame leaves without another pass of
-        the event loop. With nothing queued, the bus waits for work.
+        gap's end): a write that arrives during the gap, before then, still goes first,
+        identical reads that arrive during it join the one transaction, and the frame leaves
+        without another pass of the event loop. With nothing queued, the bus waits for work.
         """
         # Every pass, not only when idle: a busy line must still find out a drive is back.
         dispatch = self.dispatch
@@ -469,11 +468,12 @@ class Bus:
             return
 
     def _port_lost(self, exc: PortError) -> None:
+        if self.closing:  # closed under it (shutdown, another master heard): no port lost
+            return  # `close` answered the queue; nothing to tell listeners or drives
         self.stats.port_errors += 1
         self._last_port_error = str(exc)
         self.carrier.reply_heard_at = 0.0  # the reopened line's first gap follows no reply
-        if not self.closing:
-            self.state = BusState.REOPENING
+        self.state = BusState.REOPENING
         log.error("bus %s: port lost (%s); reopening with backoff", self.name, exc)
         self.observers.port(self.settings.line.port, True, str(exc))
         queued = self._queue.take_all()

@@ -160,6 +160,8 @@ def test_both_asked_active_the_second_stays_off_and_a_talking_master_is_left_the
     # then (and the drive's reply to it).
     assert collided <= 2, line.stats()
     assert "another master is on the line" in first.gateway.log.text
+    # Leaving the line is no lost port: no drive said offline, no port event for it.
+    assert "port lost" not in first.gateway.log.text
 
     # The talking master gone, the line is silent: one box takes it, the other stays off.
     deadline = time.monotonic() + 10

@@ -346,3 +346,12 @@ async def test_a_traffic_monitor_that_fails_costs_no_request_its_answer(
         attempts = bus.stats.transactions  # identical reads shared theirs
     failures = [r for r in caplog.records if "traffic monitor's tap failed" in r.getMessage()]
     assert len(failures) == attempts >= 3
+
+
+async def test_a_closed_bus_refuses_with_the_reason_it_was_closed_for(line: SimulatedLine) -> None:
+    """A bus closed for a reason (the standby's, another master heard) says so to whoever asks
+    next, not "shutting down"."""
+    async with running_bus(line.path) as bus:
+        bus.close("is not served by this gateway: it is the standby")
+        with pytest.raises(BusClosed, match="it is the standby"):
+            await read(bus, 1, STATE_WORD_1)
