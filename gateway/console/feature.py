@@ -76,9 +76,7 @@ class ConsoleFeature:
         self.events: EventStore = events if events is not None else MemoryEventStore()
         self.tcp = tcp
         self.mqtt = mqtt
-        self.opcua = opcua
-        """What the diagnostics page reads of the Modbus-TCP server, the MQTT bridge and the
-        OPC UA server."""
+        self.opcua = opcua  # what the diagnostics page reads of the Modbus-TCP, MQTT, OPC UA
         self.configuration = configuration
         """The running configuration, secrets masked, as of now (after the last reload)."""
         self.history_source = history_source
@@ -86,8 +84,7 @@ class ConsoleFeature:
         self.config_editor: ConfigEditor | None = None
         """Editing the configuration file (`invt-gateway run` sets it: it knows the file)."""
         self.redundancy: Callable[[], dict[str, Any]] | None = None
-        """With `redundancy:`, this box's role as `invt-gateway role status` says it (the
-        application sets it): the overview's banner."""
+        """With `redundancy:`, this box's role as `role status` says it: the overview's banner."""
         self.console: Console | None = None
         self._runner: web.AppRunner | None = None
         self._site: DeadlinedSite | None = None
@@ -96,8 +93,7 @@ class ConsoleFeature:
         self.deadlines = RequestDeadlines(settings.request_timeout_s, self.bad_requests)
         self._sampler: asyncio.Task[None] | None = None
         self._live: LiveState | None = None
-        self.log_tail = LogTail()
-        """The log's recent lines for the diagnostics page: kept from start to stop."""
+        self.log_tail = LogTail()  # the log's recent lines for the diagnostics page
 
     @property
     def port(self) -> int:
