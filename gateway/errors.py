@@ -39,6 +39,7 @@
         ├── DriveException      the drive itself answered an exception (its code, byte-exact)
         ├── RequestRefused      this side refuses a request with `code` (the simulated drive)
         ├── GatewayPathUnavailable   0x0A: unknown unit id, queue full, broadcast not allowed
+        │   ├── StandbyRefusal   a standby gateway (`redundancy:`): the active one serves
         │   └── QueueFull
         └── GatewayTargetFailed      0x0B: no valid reply after retries, drive offline, port lost
             ├── DriveOffline

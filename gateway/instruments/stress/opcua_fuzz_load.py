@@ -21,7 +21,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
-from gateway.config import ENV_STATE_DIRECTORY
 from gateway.instruments.bench.processes import free_port, stop_process
 from gateway.instruments.stress.history_load import MAX_P99_GROWTH, Phase, timed_reader
 from gateway.instruments.stress.opcua_fuzz import FuzzStats, OpcUaFuzzer, summary
@@ -61,7 +60,9 @@ async def run_opcua_fuzz(settings: OpcUaFuzzSettings) -> OpcUaFuzzResult:
         try:
             await asyncio.to_thread(simulator_started, launched)
             config = _gateway_config(link, directory)
-            gateway = Gateway(config, directory, {ENV_STATE_DIRECTORY: str(directory)})
+            # systemd's name for the state directory, as the unit sets it: the OPC UA server's
+            # certificate is made there (the instruments take no configuration model).
+            gateway = Gateway(config, directory, {"STATE_DIRECTORY": str(directory)})
             gateway.start()
             await asyncio.to_thread(gateway.wait_listening)
             await asyncio.sleep(2.0)  # the first polls are in
