@@ -248,6 +248,8 @@ class Application:
         if node is not None and old_node is not None:
             node.continue_from(old_node)
         self.sparkplug, self.mqtt = node, self._build_mqtt(running.mqtt, node)
+        if self.console is not None:
+            self.console.bridge_replaced(self.mqtt)
         await self.mqtt.start(checked=True)  # by `_check_bridge_alone`, before the reload began
 
     async def _reload_metrics(self, plan: ReloadPlan) -> None:
@@ -563,5 +565,7 @@ class LineHandover:
             app.poller.remove_listener(old)
             app.sparkplug = app._build_sparkplug(app.settings.mqtt)
             app.mqtt = app._build_mqtt(app.settings.mqtt, app.sparkplug)
+            if app.console is not None:
+                app.console.bridge_replaced(app.mqtt)
             waiting.append(app.mqtt)
         self.waiting = waiting

@@ -126,6 +126,13 @@ class ConsoleFeature:
         self._sampler = self.tasks.start("console:sampler", self._sample(live))
         log.info("console on %s", self.url)
 
+    def bridge_replaced(self, mqtt: MqttSession | None) -> None:
+        """The application built its MQTT bridge again (a reload, a takeover): the diagnostics
+        page reads the new one's session, not the stopped one's."""
+        self.mqtt = mqtt
+        if self.console is not None:
+            self.console.mqtt = mqtt
+
     def _console(self, live: LiveState) -> Console:
         """The parts the handlers use: who may log in, the drives' operations under the access
         rules, the line monitor, the events and the diagnostics' sources."""

@@ -14,6 +14,7 @@ from gateway.app import Application
 from gateway.config import GatewayConfig, MqttConfig
 from gateway.instruments.embedded_broker import EmbeddedBroker
 from gateway.instruments.simulator import SimulatedLine
+from gateway.settings import runtime_settings
 from tests.support import TcpClient, eventually, free_port, present, running_gateway
 from tests.support.console_support import (
     OPERATOR_PASSWORD,
@@ -121,6 +122,25 @@ async def test_the_mqtt_session_with_its_broker_and_without(
         assert session["connected_since"] is None
         assert session["last_error"]
         assert session["last_error_at"].endswith("Z")
+
+
+async def test_after_a_reload_rebuilds_the_bridge_the_page_shows_the_new_session(
+    line: SimulatedLine, mosquitto: Mosquitto
+) -> None:
+    """A reload that starts the MQTT bridge again: the page follows the new bridge, not the
+    stopped one (which would say disconnected for good)."""
+    config = with_mqtt(console_config(line.path), mosquitto.host, mosquitto.port)
+    async with running_gateway(config) as app, console_client(app) as web:
+        assert (await web.login("victor", VIEWER_PASSWORD)).status == 200
+        await connected(app)
+        assert config.mqtt is not None
+        changed = config.mqtt.model_copy(update={"publish_interval_s": 30.0})
+        plan = await app.reload(runtime_settings(config.model_copy(update={"mqtt": changed})))
+        assert plan.restart_bridge
+        await connected(app)
+        session = (await diagnostics(web))["mqtt"]
+        assert session["connected"] is True
+        assert session["connects"] == 1  # the new bridge's first, not the stopped one's
 
 
 async def test_a_healthy_3_1_1_link_shows_no_last_error(line: SimulatedLine) -> None:
