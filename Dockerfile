@@ -32,6 +32,9 @@ COPY gateway ./gateway
 # broker) stay out of the image; the CLI lists no command it doesn't have.
 # uvloop (the event loop in C) comes as a wheel for amd64 and arm64; on arm/v7 pip would need a
 # compiler for it, so there the gateway runs on asyncio's own loop (its log's first line says so).
+# The OPC UA server (`opcua:`, off unless configured) is pure Python, but asyncua needs
+# cryptography, whose wheels may be missing on arm/v7: there the image has no OPC UA server, and
+# a configuration that turns it on is refused at start naming the missing package.
 RUN --mount=type=secret,id=pip_ca,required=false \
     if [ -s /run/secrets/pip_ca ]; then export PIP_CERT=/run/secrets/pip_ca; fi \
     && if [ -n "$PIP_INDEX" ]; then export PIP_INDEX_URL="$PIP_INDEX"; fi \
@@ -39,7 +42,9 @@ RUN --mount=type=secret,id=pip_ca,required=false \
     && python -m venv /opt/invt-gateway \
     && /opt/invt-gateway/bin/pip install --no-cache-dir /src \
     && { /opt/invt-gateway/bin/pip install --no-cache-dir --only-binary uvloop '/src[uvloop]' \
-         || echo "no uvloop wheel for $(uname -m): asyncio's own event loop"; }
+         || echo "no uvloop wheel for $(uname -m): asyncio's own event loop"; } \
+    && { /opt/invt-gateway/bin/pip install --no-cache-dir --only-binary cryptography,cffi '/src[opcua]' \
+         || echo "no wheels of the OPC UA server's packages for $(uname -m): opcua: off"; }
 
 FROM python:3.11-slim-bookworm
 # The release (gateway.__version__: a test keeps the two equal), when and from what it was built.
@@ -68,11 +73,13 @@ ENV PATH=/opt/invt-gateway/bin:$PATH \
 # By number, so an orchestrator can tell it isn't root; no group given, so the user's
 # supplementary groups (dialout) still apply.
 USER 10001
-# Modbus-TCP (modbus_tcp.port), metrics/health (metrics.port) and the console (console.port:
-# off by default, and on loopback unless console.host says 0.0.0.0).
-EXPOSE 5020 9102 8080
+# Modbus-TCP (modbus_tcp.port), metrics/health (metrics.port), the console (console.port: off by
+# default, and on loopback unless console.host says 0.0.0.0) and OPC UA (opcua.port: off by
+# default).
+EXPOSE 5020 9102 8080 4840
 # The configuration, and the store (events waiting for the broker, fault history: storage.path
-# defaults to /var/lib/invt-gateway/events.db): a named volume keeps it across new images.
+# defaults to /var/lib/invt-gateway/events-<gateway_id>.db): a named volume keeps it across new
+# images. The OPC UA server's certificate is kept there too.
 VOLUME ["/etc/invt-gateway", "/var/lib/invt-gateway"]
 HEALTHCHECK --interval=30s --timeout=5s --start-period=15s --retries=3 \
     CMD ["invt-gateway", "healthcheck", "--config", "/etc/invt-gateway/config.yaml"]

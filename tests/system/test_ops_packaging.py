@@ -105,6 +105,7 @@ def test_image_runs_as_non_root_and_signals_reach_the_gateway() -> None:
         example["modbus_tcp"]["port"],
         example["metrics"]["port"],
         example["console"]["port"],
+        example["opcua"]["port"],
     }
 
 
