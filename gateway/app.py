@@ -166,8 +166,8 @@ class Application:
 
     def _build_opcua(self, opcua: OpcUaSettings) -> OpcUaServer:
         """The OPC UA server takes what the poller hands it and sends writes and methods
-        through the command path; the drives of the configuration it started with (a reload's
-        drives added or removed wait for a restart, in this version)."""
+        through the command path; a reload's drives added or removed are nodes added or
+        deleted (`OpcUaServer.drives_changed`)."""
         from gateway.opcua.server import OpcUaServer  # asyncua only when asked for
 
         settings = self.settings
@@ -216,6 +216,8 @@ class Application:
         await self._reopen(closed)
         await self._reload_metrics(plan)
         await self._reload_mqtt(plan)
+        if self.opcua is not None and (plan.added or plan.removed):
+            await self.opcua.drives_changed(plan.removed, plan.added)
         self.settings = plan.settings  # with what could not be applied kept at its running value
         data = {"changed": plan.changed, "restart_needed": plan.restart_needed}
         self.events.record(EventType.CONFIG_RELOADED, data)

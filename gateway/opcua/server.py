@@ -20,7 +20,7 @@ import logging
 from collections.abc import Sequence
 from typing import Final
 
-from asyncua import Server, ua
+from asyncua import Node, Server, ua
 from asyncua.common.callback import CallbackType
 
 from gateway.bus import BusSettings
@@ -40,6 +40,7 @@ from gateway.opcua.command_path import AuditedEvents, CommandPath, CommandWrites
 from gateway.opcua.drive_events import DriveEvents
 from gateway.opcua.logins import CALLER, ConsoleLogins, Login, Permissions
 from gateway.opcua.parameters import ParameterNodes
+from gateway.opcua.removal import delete_subtree
 from gateway.opcua.values import data_value, run_state, status_value
 from gateway.poller import DriveEvent, Poller
 from gateway.poller.drive_state import iso_time
@@ -76,6 +77,7 @@ class OpcUaServer:
         self.buses = buses
         self.drives = drives
         self.tasks = tasks
+        self.router = router
         command_drives = {
             d.name: CommandDrive(d.name, router.route_for_drive(d.name), d.profile) for d in drives
         }
@@ -96,6 +98,9 @@ class OpcUaServer:
         self.drive_events: DriveEvents | None = None
         self._news = asyncio.Event()
         self._shower: asyncio.Task[None] | None = None
+        self._builder: AddressSpaceBuilder | None = None
+        self._gateway_node: Node | None = None
+        self._bus_nodes: dict[str, Node] = {}
 
     # -- PollListener: called by the poller, return at once ----------------------------------
 
@@ -177,31 +182,62 @@ class OpcUaServer:
     async def _address_space(self, builder: AddressSpaceBuilder, events: DriveEvents) -> None:
         gateway = await builder.gateway(self.settings.gateway_id)
         await events.notifier(builder.server.nodes.server, gateway)
+        self._builder, self._gateway_node = builder, gateway
         for bus in self.buses:
             bus_node = await builder.bus(gateway, bus.name)
             await events.notifier(gateway, bus_node)
-            for drive in self.drives:
-                if drive.bus == bus.name:
-                    command_drive = self.command_drives[drive.name]
-                    maximum = self.poller.max_frequency_hz.get(drive.name)
-                    nodes = await builder.drive(
-                        bus_node, drive, command_drive, self._method, maximum
-                    )
-                    self.nodes[drive.name] = nodes
-                    drive_node = builder.server.get_node(builder.node_id(drive.name))
-                    writable = self.settings.commands_enabled
-                    targets = await self.parameters.add(
-                        builder.ns, drive_node, command_drive, writable
-                    )
-                    builder.targets.update(targets)
-                    await events.notifier(bus_node, drive_node)
-                    events.drive(drive.name, (drive_node.nodeid, bus_node.nodeid, gateway.nodeid))
-        for name in self.nodes:
-            if self.poller.availability(name) is False:
-                self._pending[name] = OFFLINE
-            elif telemetry := self.poller.telemetry(name):
-                self._pending[name] = telemetry
+            self._bus_nodes[bus.name] = bus_node
+        for drive in self.drives:
+            await self._add_drive(drive)
         self._news.set()
+
+    async def _add_drive(self, drive: DriveSettings) -> None:
+        """The drive's object under its bus, its values, methods and parameters; shown as the
+        poller has it now."""
+        builder, events = self._builder, self.drive_events
+        bus_node = self._bus_nodes.get(drive.bus)
+        if builder is None or events is None or self._gateway_node is None or bus_node is None:
+            return
+        command_drive = self.command_drives[drive.name]
+        maximum = self.poller.max_frequency_hz.get(drive.name)
+        nodes = await builder.drive(bus_node, drive, command_drive, self._method, maximum)
+        drive_node = builder.server.get_node(builder.node_id(drive.name))
+        writable = self.settings.commands_enabled
+        targets = await self.parameters.add(builder.ns, drive_node, command_drive, writable)
+        builder.targets.update(targets)
+        await events.notifier(bus_node, drive_node)
+        events.drive(drive.name, (drive_node.nodeid, bus_node.nodeid, self._gateway_node.nodeid))
+        self.nodes[drive.name] = nodes
+        if self.poller.availability(drive.name) is False:
+            self._pending[drive.name] = OFFLINE
+        elif telemetry := self.poller.telemetry(drive.name):
+            self._pending[drive.name] = telemetry
+
+    async def drives_changed(self, removed: Sequence[str], added: Sequence[DriveSettings]) -> None:
+        """A reload: the removed drives' nodes deleted (a changed drive's too: it is removed and
+        added again), the added ones' made; every other node stays as it is, NodeIds, values
+        and the clients' monitored items with them."""
+        for name in removed:
+            await self._remove_drive(name)
+        for drive in added:
+            self.command_drives[drive.name] = CommandDrive(
+                drive.name, self.router.route_for_drive(drive.name), drive.profile
+            )
+            await self._add_drive(drive)
+        self._news.set()
+
+    async def _remove_drive(self, name: str) -> None:
+        self.nodes.pop(name, None)
+        self._pending.pop(name, None)
+        self.command_drives.pop(name, None)
+        if self.drive_events is not None:
+            self.drive_events.chains.pop(name, None)
+        if self._builder is not None:
+            for targets in (self._builder.targets, self.parameters.nodes):
+                for node_id in [n for n, t in targets.items() if t.drive.name == name]:
+                    del targets[node_id]
+        if self.server is not None and self._builder is not None:
+            await delete_subtree(self.server, self._builder.node_id(name))
 
     def _method(self, drive: CommandDrive, command: str) -> MethodCall:
         async def call(parent: ua.NodeId, *arguments: ua.Variant) -> ua.CallMethodResult:
@@ -247,7 +283,9 @@ class OpcUaServer:
             pending, self._pending = self._pending, {}
             events, self._events = self._events, []
             for drive, telemetry in pending.items():
-                await self._show(self.nodes[drive], telemetry)
+                nodes = self.nodes.get(drive)  # None: removed by a reload meanwhile
+                if nodes is not None:
+                    await self._show(nodes, telemetry)
             for event in events:
                 if self.drive_events is not None:
                     await self.drive_events.trigger(event)

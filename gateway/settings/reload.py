@@ -18,7 +18,8 @@ What changes in place, SCADA's connections staying open and requests in flight f
 What keeps its running value until a restart, named in the log and the `config_reloaded` event
 ("restart needed for: ..."): the listeners (`modbus_tcp.host`, `port`, `plain`, `tls`),
 `gateway_id`, `storage.path`, the console (its listener and, in this version, its other keys),
-the OPC UA server (every `opcua` key, and its address space keeps the drives it started with),
+the OPC UA server's keys (every `opcua` key; its address space follows the drives: an added
+drive's nodes are made, a removed one's deleted, a changed one's made again, the rest kept),
 every `redundancy` key (the role machine's silence and its listeners are set at start),
 and in this version buses added or removed (with the drives that would move onto or off them),
 `metrics.enabled` and `mqtt.enabled`. A site's device file (`model: file:PATH`) is read again:
@@ -129,6 +130,8 @@ def plan(
     restart_bridge = mqtt_running and ("mqtt" in changed or bool(added or removed))
     if (added or removed) and mqtt_running:
         changed.append("MQTT topics of drives added or removed")
+    if (added or removed) and old.opcua.enabled:
+        changed.append("OPC UA nodes of drives added or removed")
     planned = {"modbus_tcp": tcp, "storage": storage, "mqtt": mqtt, "metrics": metrics}
     running = _running(old, new, drives, planned)
     settings = runtime_settings(running)
