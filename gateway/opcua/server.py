@@ -52,11 +52,17 @@ from gateway.tasks import ServiceTasks, cancel_and_wait
 
 log = logging.getLogger(__name__)
 
+_POLICY = ua.SecurityPolicyType
 POLICIES: Final = {
-    "None": ua.SecurityPolicyType.NoSecurity,
-    "Basic256Sha256_Sign": ua.SecurityPolicyType.Basic256Sha256_Sign,
-    "Basic256Sha256_SignAndEncrypt": ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
+    "None": _POLICY.NoSecurity,
+    "Basic256Sha256_Sign": _POLICY.Basic256Sha256_Sign,
+    "Basic256Sha256_SignAndEncrypt": _POLICY.Basic256Sha256_SignAndEncrypt,
+    "Aes128_Sha256_RsaOaep_Sign": _POLICY.Aes128Sha256RsaOaep_Sign,
+    "Aes128_Sha256_RsaOaep_SignAndEncrypt": _POLICY.Aes128Sha256RsaOaep_SignAndEncrypt,
+    "Aes256_Sha256_RsaPss_Sign": _POLICY.Aes256Sha256RsaPss_Sign,
+    "Aes256_Sha256_RsaPss_SignAndEncrypt": _POLICY.Aes256Sha256RsaPss_SignAndEncrypt,
 }
+"""`opcua.security`'s words (OPC UA's policy names, then the mode) as asyncua has them."""
 STOP_BUDGET_S: Final = 0.4
 OFFLINE: Final = None
 """What `_pending` holds for a drive gone offline."""

@@ -21,7 +21,8 @@ class OpcUaSettings:
     host: str
     port: int
     security: tuple[str, ...]
-    """`None`, `Basic256Sha256_Sign`, `Basic256Sha256_SignAndEncrypt`: the endpoints offered."""
+    """`None`, `Basic256Sha256_Sign`, `Aes128_Sha256_RsaOaep_SignAndEncrypt`...: the endpoints
+    offered (`config.sections.opcua.SecurityChoice`)."""
     certificate_file: Path
     private_key_file: Path
     make_certificate: bool

@@ -518,3 +518,32 @@ def test_bench_page_is_refused_with_instructions(tmp_path: Path) -> None:
     assert result.returncode == 2, result.stderr
     assert "--page" in result.stderr
     assert not (tmp_path / "p").exists()
+
+
+def test_bench_measures_what_opcua_s_subscriptions_cost() -> None:
+    """`--case opcua`: 32 polled drives with Modbus-TCP readers, without and with five OPC UA
+    sessions (asyncua's client, another process, Sign & Encrypt) subscribed to every drive's
+    values; the summary gives the added CPU, memory and the readers' p99."""
+    arguments = ["--baud", "115200", "--duration", "1", "--warmup", "0.5", "--json"]
+    result = subprocess.run(
+        [sys.executable, "-m", "gateway", "bench", *arguments, "--case", "opcua"],
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout)
+    without, with_it = report["cases"]
+    assert without["case"] == "opcua: 32 drives, 8 readers"
+    assert with_it["case"] == "opcua: 32 drives, 8 readers + 5 OPC UA"
+    for row in (without, with_it):
+        assert row["errors"] == row["wrong"] == row["t3.5 viol"] == 0
+        assert row["client tx/s"] > 0
+    assert without["opcua items"] == 0
+    # An INVT drive's 22 values (all polled), 32 drives, per session; every session had each
+    # item's first value and then the running drives' changes.
+    assert with_it["opcua items"] == with_it["opcua polled items"] == 22 * 32
+    assert with_it["opcua notifications"] > 5 * 22 * 32
+    assert with_it["RSS MiB"] > without["RSS MiB"]  # asyncua and the nodes
+    (said,) = report["summary"]
+    assert re.search(r"OPC UA adds [-+]\d+\.\d% of a core .* MiB, p99 [-+]\d+%", said), said

@@ -10,6 +10,7 @@ which each test's gateway trusts, as an admin would, before the test begins.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import shutil
 from collections.abc import AsyncIterator, Awaitable, Callable
@@ -19,6 +20,7 @@ from typing import Any
 import pytest
 
 from gateway.app import Application
+from gateway.config import GatewayConfig
 from gateway.instruments.simulator import SimulatedLine
 from gateway.opcua.address_space import NAMESPACE
 from tests.support import running_gateway
@@ -86,12 +88,20 @@ def pki(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture
 async def gateway(line: SimulatedLine, pki: Path) -> AsyncIterator[Application]:
+    async with gateway_trusting_node_opcua(configuration(line), pki) as app:
+        yield app
+
+
+@contextlib.asynccontextmanager
+async def gateway_trusting_node_opcua(
+    config: GatewayConfig, pki: Path, **job: Any
+) -> AsyncIterator[Application]:
     """The gateway, with node-opcua's certificate trusted the way an admin trusts one."""
-    async with running_gateway(configuration(line)) as app:
+    async with running_gateway(config) as app:
         assert app.settings.opcua is not None
         own = pki / "own" / "certs" / "client_certificate.pem"
         if not own.exists():  # node-opcua makes it on its first connection (refused)
-            await node_client(app, pki)
+            await node_client(app, pki, **job)
         for refused in app.settings.opcua.rejected_clients_dir.glob("*"):
             refused.unlink()
         trusted = app.settings.opcua.trusted_clients_dir
@@ -218,3 +228,22 @@ async def test_a_fault_is_an_event_on_the_drive_raised_then_cleared(
     assert (raised["Kind"], raised["FaultCode"], raised["FaultName"]) == ("fault_raised", 11, "OL1")
     assert cleared["Message"] == "fault cleared: OL1: motor overload (code 11)"
     assert (cleared["Severity"], cleared["Kind"]) == (200, "fault_cleared")
+
+
+@pytest.mark.parametrize("policy", ["Aes128_Sha256_RsaOaep", "Aes256_Sha256_RsaPss"])
+@pytest.mark.parametrize("mode", ["Sign", "SignAndEncrypt"])
+async def test_the_aes_policies_connect_node_opcua(
+    line: SimulatedLine, pki: Path, policy: str, mode: str
+) -> None:
+    """OPC UA 1.04's policies, listed in `opcua.security`, as node-opcua asks for them."""
+    config = configuration(line, security=[f"{policy}_{mode}"])
+    job: dict[str, Any] = {"policy": policy, "mode": mode}
+    async with gateway_trusting_node_opcua(config, pki, **job) as app:
+        await first_poll(app)
+        steps = [{"read": "pump1.state"}]
+        answers = await node_client(
+            app, pki, user=VIEWER, password=VIEWER_PASSWORD, steps=steps, **job
+        )
+        session, state = answers
+        assert session["session"]["status"] == "Good", session
+        assert (state["status"], state["value"]) == ("Good", "stopped"), state

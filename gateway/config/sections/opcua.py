@@ -15,7 +15,17 @@ from pydantic import Field, field_validator, model_validator
 from gateway.config.sections.section import Section, readable_file
 
 PARAMETER_OR_GROUP = re.compile(r"[Pp]\d\d(\.\d\d)?")
-SecurityChoice = Literal["None", "Basic256Sha256_Sign", "Basic256Sha256_SignAndEncrypt"]
+SecurityChoice = Literal[
+    "None",
+    "Basic256Sha256_Sign",
+    "Basic256Sha256_SignAndEncrypt",
+    "Aes128_Sha256_RsaOaep_Sign",
+    "Aes128_Sha256_RsaOaep_SignAndEncrypt",
+    "Aes256_Sha256_RsaPss_Sign",
+    "Aes256_Sha256_RsaPss_SignAndEncrypt",
+]
+"""Each a policy (OPC UA's name for it) and a mode; the Aes policies are OPC UA 1.04's, which
+newer clients prefer (Basic256Sha256 is what every client has)."""
 
 
 class OpcUaConfig(Section):

@@ -4,16 +4,19 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import struct
+import tempfile
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from gateway.bus.gap_excess import quantile
 from gateway.collector import collector_paused
 from gateway.event_loop import choose_event_loop
 from gateway.event_loop import run as run_on_loop
-from gateway.instruments.bench.load import LoadResult, Target, flood, run_clients
+from gateway.instruments.bench.load import LoadResult, flood, run_clients
+from gateway.instruments.bench.opcua import opcua_clients, run_slowly, server_section
+from gateway.instruments.bench.prepare import SET_POINT, prepare_reads
 from gateway.instruments.bench.processes import (
     GatewayProcess,
     SimulatorLine,
@@ -42,26 +45,11 @@ SCRAPE_SETTLE_S = 0.5
 """Between the gateway's first /metrics scrape of a case and the start of its measured time."""
 FLOOD_WINDOW = 8
 """Requests the flooding client keeps in flight (below max_queued_writes_per_client's 16)."""
-SET_POINT = 0x2001  # 2001H..2008H: set-points and limits, written per drive (set_point_values)
-RUNNING_VALUES = 0x3000  # 3000H..: running values; static while the drives stand still
-READS_PER_DRIVE = 8
-"""Different reads the clients of one drive make (a start address each: 2001H-2008H for 2
-words, 3000H-3007H for 16): no two clients ask the same, so none joins another's transaction."""
-
-
-def set_point_values(address: int) -> tuple[int, ...]:
-    """What the bench writes to 2001H-2008H of the drive at `address`: a value of its own in
-    each register every read covers (3008H, 3009H and 3015H mirror 2002H-2004H), within each
-    register's limits, so a reply from another drive or of another read is caught as wrong.
-    Frequency set-point, PID reference and feedback, torque set-point, the two frequency
-    limits (below P00.03's 50 Hz), the two torque limits."""
-    a = address
-    return (1000 + 100 * a, 10 * a, 20 * a, 30 * a, 4000 + a, 4000 + 2 * a, 1500 + a, 1500 + 2 * a)
-
-
 ADAPTER_BAUD = 19200  # where the real-adapter cases run: the factory setting of P14.01
 
 
+OPCUA = "opcua:"
+OPCUA_SESSIONS = 5
 SCADA_BAUDS = (19200, 115200)
 """Where the SCADA-with-poller cases run: P14.01's factory setting and the fastest."""
 SCADA_ALONE = "scada: 8 readers alone"
@@ -128,6 +116,11 @@ def extra_cases(baudrates: tuple[int, ...]) -> list[Case]:
     cases.append(Case("flood: 8 readers alone", fastest, 2, 8))
     cases.append(Case("flood: 8 readers + pipelined writes", fastest, 2, 8, flood="writes"))
     cases.append(Case("flood: 8 readers + pipelined broadcasts", fastest, 2, 8, flood="broadcasts"))
+    # OPC UA's cost: 32 polled drives on 4 lines, 8 Modbus-TCP readers; then the same with 5
+    # SCADA sessions subscribed to every value of every drive.
+    for sessions in (0, OPCUA_SESSIONS):
+        name = f"{OPCUA} 32 drives, 8 readers" + (f" + {sessions} OPC UA" * bool(sessions))
+        cases.append(Case(name, fastest, 2, 2, 8, polled=True, fast=True, lines=4, opcua=sessions))
     return cases
 
 
@@ -187,6 +180,8 @@ class Case:
     no_wire: bool = False
     """Bytes take no time on the virtual line and the drives answer at once: what is left per
     transaction is the gap the gateway keeps, and its own work."""
+    opcua: int = 0
+    """OPC UA client sessions (another process) subscribed to every value of every drive."""
 
     @property
     def response_delay_s(self) -> float:
@@ -276,6 +271,8 @@ class CaseResult:
     drive_late_s: float = 0.0
     """The simulated drives' replies' lateness summed over the measured time, all lines."""
     heard_gap: list[tuple[float, int]] = field(default_factory=list)
+    opcua: dict[str, int] = field(default_factory=dict)
+    """The OPC UA clients' monitored items per session and notifications seen (all)."""
     """The silence beyond t3.5 the drives heard between each reply and the next request: the
     gateway's share (`excess_gap`) plus its reading of the reply and the virtual line's relay."""
 
@@ -402,6 +399,7 @@ def gateway_config(
     port: int,
     console_port: int = 0,
     metrics_port: int = 0,
+    folder: Path | None = None,
 ) -> dict[str, Any]:
     drives: list[dict[str, Any]] = [
         {
@@ -443,6 +441,11 @@ def gateway_config(
     }
     if metrics_port:
         config["metrics"] = {"enabled": True, "host": "127.0.0.1", "port": metrics_port}
+    if folder is not None:
+        # Its own store: another bench (or a gateway) at once would hold the default's lock.
+        config["storage"] = {"path": str(folder / "events.db")}
+    if case.opcua and folder is not None:
+        config["opcua"] = server_section(folder, free_port(), config["gateway_id"])
     if case.console:
         config["console"] = {
             "enabled": True,
@@ -473,26 +476,34 @@ def run_case(case: Case, duration_s: float, warmup_s: float) -> CaseResult:
             ).lines
         ]
         port, console_port, metrics_port = free_port(), free_port(), free_port()
-        config = gateway_config(
-            case, [line.path for line in lines], port, console_port, metrics_port
-        )
-        with gateway(config, port) as process:
-            # The Modbus-TCP port listens first; the console and metrics start after it (a
-            # loaded machine showed the gap): the case begins once all it uses listen.
-            for feature in ("metrics", "console"):
+        folder = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="invt-bench-")))
+        paths = [line.path for line in lines]
+        config = gateway_config(case, paths, port, console_port, metrics_port, folder)
+        with gateway(config, port, start_timeout_s=60.0 if case.opcua else 15.0) as process:
+            # The Modbus-TCP port listens first; the console, metrics and OPC UA start after
+            # it (a loaded machine showed the gap): the case begins once all it uses listen.
+            for feature in ("metrics", "console", "opcua"):
                 if feature in config:
-                    wait_listening(config[feature]["port"], process.process)
+                    wait_listening(config[feature]["port"], process.process, 60.0)
+            clients = None
+            if case.opcua:
+                clients = stack.enter_context(
+                    opcua_clients(config["opcua"]["port"], folder, case.opcua)
+                )
             # The clients run in this process: a full collection here held every line's next
             # request back (47 ms at 32 lines), which the case would count against the gateway.
             # On the gateway's own loop (uvloop where installed): 256 clients on asyncio's took
             # a good share of the core the gateway and the drives share with them.
             with collector_paused():
-                return run_on_loop(
+                result = run_on_loop(
                     _measure(
                         case, lines, process, dead, duration_s, warmup_s, console_port, metrics_port
                     ),
                     choose_event_loop(),
                 )
+            if clients is not None:
+                result.opcua = clients.finish()
+            return result
 
 
 async def _measure(
@@ -505,7 +516,9 @@ async def _measure(
     console_port: int = 0,
     metrics_port: int = 0,
 ) -> CaseResult:
-    reads = [await _prepare(case, process.port, dead, line) for line in range(case.lines)]
+    reads = [await prepare_reads(case, process.port, dead, line) for line in range(case.lines)]
+    if case.name.startswith(OPCUA):
+        await run_slowly(process.port, [u for line in range(case.lines) for u in case.units(line)])
     measuring, stop = asyncio.Event(), asyncio.Event()
     watching = None
     if case.monitor:
@@ -592,56 +605,3 @@ def _histogram_change(
             bound = float(le)  # "+Inf" too
             counts[bound] = counts.get(bound, 0) + sign * int(count)
     return sorted(counts.items())
-
-
-async def _prepare(case: Case, port: int, dead: list[int], line: int = 0) -> list[Target]:
-    """Give each drive its own set-points, then learn the right answer to every read: the one
-    each of the line's clients asks, client by client.
-
-    Each client asks one drive one read of its own, so every request is a transaction of its
-    own and the clients contend for the line. Clients whose reads were alike would share a
-    transaction, be answered together, ask again together and, a few transactions on, all be
-    in step: one transaction per round for all of them and nothing waiting between rounds (the
-    line would measure the coalescing, not the contention). `same_registers`: every client
-    asks drive 1 the same read, which is the coalescing case.
-    """
-    reader, writer = await asyncio.open_connection("127.0.0.1", port)
-    tid = 0
-
-    async def request(unit: int, pdu: bytes) -> bytes:
-        nonlocal tid
-        tid += 1
-        writer.write(struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + pdu)
-        _, _, length, _ = struct.unpack(">HHHB", await reader.readexactly(7))
-        return await reader.readexactly(length - 1)
-
-    start = SET_POINT if case.words <= 2 else RUNNING_VALUES
-    on_line = case.units(line)
-    units = on_line[:1] if case.same_registers else on_line
-    slots = 1 if case.same_registers else -(-case.clients // len(units))
-    if slots > READS_PER_DRIVE:
-        raise ValueError(f"{case.name}: more than {READS_PER_DRIVE} clients per drive")
-    targets: dict[tuple[int, int], Target] = {}
-    for unit in units:
-        address = unit - line * case.drives
-        if address not in dead:
-            set_points = struct.pack(">BHHB", 0x10, SET_POINT, 8, 16) + struct.pack(
-                ">8H", *set_point_values(address)
-            )
-            reply = await request(unit, set_points)
-            if reply[0] != 0x10:
-                raise RuntimeError(f"drive {unit} refused its set-points: {reply.hex(' ')}")
-        for slot in range(slots):
-            pdu = struct.pack(">BHH", 3, start + slot, case.words)
-            if address in dead:
-                targets[unit, slot] = Target(unit, pdu, b"")
-                continue
-            expected = await request(unit, pdu)
-            if expected[0] != 3:
-                raise RuntimeError(f"drive {unit} refused the benchmark read: {expected.hex(' ')}")
-            targets[unit, slot] = Target(unit, pdu, expected)
-    writer.close()
-    await writer.wait_closed()
-    # Client n: the n-th drive (in turn), the read numbered by how many went round before it
-    # (`same_registers`: one drive, one read, for every client).
-    return [targets[units[n % len(units)], n // len(units) % slots] for n in range(case.clients)]

@@ -24,7 +24,8 @@ from pathlib import Path
 from typing import Any
 
 from gateway.errors import InstructionCountError, LineError
-from gateway.instruments.bench.cases import SET_POINT, Case, gateway_config
+from gateway.instruments.bench.cases import Case, gateway_config
+from gateway.instruments.bench.prepare import SET_POINT
 from gateway.instruments.bench.processes import free_port, gateway, simulator
 from gateway.tools.masters import TcpMaster
 

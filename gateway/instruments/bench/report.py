@@ -6,7 +6,7 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
-from gateway.instruments.bench.cases import SCADA_ALONE, SCADA_POLLED, CaseResult
+from gateway.instruments.bench.cases import OPCUA, SCADA_ALONE, SCADA_POLLED, CaseResult
 from gateway.instruments.simulator.line import WAKE_EARLY_S
 
 COLUMNS = (
@@ -95,6 +95,10 @@ def row(result: CaseResult) -> dict[str, Any]:
         # What the hypervisor took from this machine's processors (steal): on a shared host
         # above a percent or so, every wake-up here comes late and the line loses for it.
         "host steal": result.host_steal_share,
+        # The opcua case's clients (JSON only): monitored items per session, notifications.
+        "opcua items": result.opcua.get("items", 0),
+        "opcua notifications": result.opcua.get("notifications", 0),
+        "opcua polled items": result.opcua.get("polled", 0),
     }
 
 
@@ -116,6 +120,9 @@ def summary(results: list[CaseResult]) -> list[str]:
     by_case = {r.case: r for r in results}
     alone = {r.case.baudrate: r for r in results if r.case.name == "flood: 8 readers alone"}
     unpolled = {r.case.baudrate: r for r in results if r.case.name == SCADA_ALONE}
+    without_opcua = {
+        r.case.baudrate: r for r in results if r.case.name.startswith(OPCUA) and not r.case.opcua
+    }
     for result in results:
         case = result.case
         share = result.bus_per_s / result.wire_max_per_s
@@ -128,7 +135,10 @@ def summary(results: list[CaseResult]) -> list[str]:
                 else ""
             )
         )
-        if case.name == SCADA_POLLED:
+        if case.name.startswith(OPCUA):
+            if case.opcua:
+                lines.append(opcua_sentence(result, without_opcua.get(case.baudrate)))
+        elif case.name == SCADA_POLLED:
             lines.append(scada_sentence(result, unpolled.get(case.baudrate)))
         elif case.name == SCADA_ALONE:
             continue  # said with the polled case
@@ -270,4 +280,33 @@ def scada_sentence(polled: CaseResult, alone: CaseResult | None) -> str:
         f"{p50:.2f}x at p50 (target <= 1.1x), {p99:.2f}x at p99 (target <= 1.2x); "
         f"the bus carried {polled.bus_per_s:.1f} transactions/s with the poller, "
         f"{polled.client_per_s:.1f} of them the readers'"
+    )
+
+
+OPCUA_P99_WITHIN = 0.10
+"""The issue's target: the Modbus-TCP readers' p99 within 10 % of the case without OPC UA."""
+
+
+def opcua_sentence(with_it: CaseResult, without: CaseResult | None) -> str:
+    """What OPC UA's sessions cost: the gateway's CPU and memory, and the readers' p99."""
+    case = with_it.case
+    items, drives = with_it.opcua.get("items", 0), max(case.drives * case.lines, 1)
+    head = (
+        f"{case.baudrate} baud, {case.name}: {case.opcua} sessions each subscribed to {items} "
+        f"values ({items // drives} per drive, {with_it.opcua.get('polled', 0) // drives} of "
+        "them polled; 1 s publishing), "
+        f"{with_it.opcua.get('notifications', 0)} notifications; the gateway's CPU "
+        f"{with_it.cpu_share:.1%} of a core, RSS {with_it.rss_mb:.1f} MiB, the readers' p99 "
+        f"{with_it.latency_ms(0.99):.1f} ms"
+    )
+    if without is None:
+        return f"{head} (without OPC UA: not measured)"
+    p99 = with_it.latency_ms(0.99) / without.latency_ms(0.99) - 1
+    return (
+        f"{head}; without OPC UA {without.cpu_share:.1%}, {without.rss_mb:.1f} MiB, "
+        f"{without.latency_ms(0.99):.1f} ms: OPC UA adds "
+        f"{with_it.cpu_share - without.cpu_share:+.1%} of a core "
+        f"({1000 * (with_it.cpu_share - without.cpu_share):+.0f} ms of CPU per second) and "
+        f"{with_it.rss_mb - without.rss_mb:+.1f} MiB, p99 {p99:+.0%} "
+        f"(target within {OPCUA_P99_WITHIN:.0%})"
     )

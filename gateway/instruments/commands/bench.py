@@ -69,8 +69,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "minutes at the default duration). Also selects the cases left out by default: "
         "'lines' (4, 8, 16 and 32 buses in one process, 5 ms and fast drives, each against "
         "its 1-line reference, which a chosen lines case brings along; one simulator process "
-        "serves all the lines) and 'flood' (readers while one client pipelines writes or "
-        "broadcasts)",
+        "serves all the lines), 'flood' (readers while one client pipelines writes or "
+        "broadcasts) and 'opcua' (32 polled drives on 4 lines with 8 Modbus-TCP readers, "
+        "without and with 5 OPC UA sessions subscribed to every value; needs the opcua extra)",
     )
     parser.add_argument(
         "--relay-ms",
