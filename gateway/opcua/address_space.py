@@ -51,6 +51,18 @@ RUN_STATE: Final = "run_state"
 FREQUENCIES: Final = frozenset({SETPOINT, "output_frequency_hz"})
 """Their EURange: 0 to the drive's maximum frequency (P00.03) as read at start."""
 
+TAKES_FREQUENCY: Final = frozenset({"run_forward", "run_reverse"})
+"""The methods with a set-point argument: MQTT's `{"command": ..., "frequency_hz": ...}`."""
+FREQUENCY_ARGUMENT: Final = ua.Argument(
+    Name="FrequencyHz",
+    DataType=ua.NodeId(ua.ObjectIds.Double),
+    ValueRank=-1,
+    Description=ua.LocalizedText(
+        "set frequency (Hz) written before the run, within the drive's limits; a client that "
+        "may leave it out runs at the present set point"
+    ),
+)
+
 MethodCall = Callable[..., Awaitable[ua.CallMethodResult]]
 
 
@@ -177,8 +189,9 @@ class AddressSpaceBuilder:
             ValueRank=-1,
             Description=ua.LocalizedText('"ok", or why not'),
         )
+        inputs = [FREQUENCY_ARGUMENT] if command in TAKES_FREQUENCY else []
         await parent.add_method(
-            self.node_id(f"{drive}.{name}"), self.name(name), call, [], [answer]
+            self.node_id(f"{drive}.{name}"), self.name(name), call, inputs, [answer]
         )
 
 

@@ -30,6 +30,7 @@ from gateway.opcua import client_faults
 from gateway.opcua.address_space import (
     NAMESPACE,
     RUN_STATE,
+    TAKES_FREQUENCY,
     AddressSpaceBuilder,
     DriveNodes,
     MethodCall,
@@ -247,7 +248,11 @@ class OpcUaServer:
 
     def _method(self, drive: CommandDrive, command: str) -> MethodCall:
         async def call(parent: ua.NodeId, *arguments: ua.Variant) -> ua.CallMethodResult:
-            answer = await self.path.carry(drive, {"command": command}, CALLER.get())
+            payload: dict[str, object] = {"command": command}
+            given = arguments[0].Value if arguments else None  # a Null argument: left out
+            if given is not None and command in TAKES_FREQUENCY:  # checked as MQTT's
+                payload["frequency_hz"] = given
+            answer = await self.path.carry(drive, payload, CALLER.get())
             return ua.CallMethodResult(
                 StatusCode=ua.StatusCode(answer.status),
                 OutputArguments=[ua.Variant(answer.words, ua.VariantType.String)],

@@ -184,6 +184,27 @@ async def test_an_operator_writes_calls_and_a_subscription_sees_the_drive_run(
     assert beyond["status"] == "BadOutOfRange"
 
 
+async def test_run_reverse_with_a_frequency_argument(
+    gateway: Application, line: SimulatedLine, pki: Path
+) -> None:
+    await first_poll(gateway)
+    answers = await node_client(
+        gateway,
+        pki,
+        user=OPERATOR,
+        password=OPERATOR_PASSWORD,
+        steps=[
+            {"call": "pump1", "method": "pump1.RunReverse", "arguments": [30.0]},
+            {"subscribe": "pump1.state", "until": "running_reverse", "timeout_ms": 5000},
+            {"subscribe": "pump1.set_frequency_hz", "until": 30.0, "timeout_ms": 5000},
+        ],
+    )
+    _, run, reverse, setpoint = answers
+    assert (run["status"], run["outputs"]) == ("Good", ["ok"])
+    assert reverse["status"] == "Good", reverse
+    assert setpoint["status"] == "Good", setpoint
+
+
 async def test_anonymous_is_not_offered_by_default(gateway: Application, pki: Path) -> None:
     """node-opcua reads the endpoint's user token policies and does not even try (asyncua's
     client does, and is refused: `test_opcua.py`)."""

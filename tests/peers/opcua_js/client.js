@@ -5,6 +5,7 @@
 //    "steps": [{"browse": "gateway"}, {"read": "pump1.state"},
 //              {"write": "pump1.set_frequency_hz", "value": 20.5},
 //              {"call": "pump1", "method": "pump1.RunForward"},
+//              {"call": "pump1", "method": "pump1.RunForward", "arguments": [30.0]},
 //              {"subscribe": "pump1.state", "until": "running_forward", "timeout_ms": 5000},
 //              {"events": "pump1", "count": 2, "timeout_ms": 10000}]}
 // An "events" step answers {"listening": true} once its monitored item is made (the test then
@@ -65,7 +66,8 @@ async function step(session, ns, job, out) {
     const result = await session.call({
       objectId: id(job.call),
       methodId: id(job.method),
-      inputArguments: [],
+      // Doubles (a set frequency), as a SCADA fills a method's input arguments.
+      inputArguments: (job.arguments || []).map((value) => ({ dataType: DataType.Double, value })),
     });
     const outputs = (result.outputArguments || []).map((v) => v.value);
     return { status: result.statusCode.name, outputs };
