@@ -41,7 +41,7 @@ from gateway.opcua.command_path import AuditedEvents, CommandPath, CommandWrites
 from gateway.opcua.drive_events import DriveEvents
 from gateway.opcua.logins import CALLER, ConsoleLogins, Login, Permissions
 from gateway.opcua.parameters import ParameterNodes
-from gateway.opcua.removal import delete_subtree
+from gateway.opcua.removal import Detached, detach_and_delete, reattach, tell_gone
 from gateway.opcua.values import data_value, run_state, status_value
 from gateway.poller import DriveEvent, Poller
 from gateway.poller.drive_state import iso_time
@@ -221,19 +221,24 @@ class OpcUaServer:
             self._pending[drive.name] = telemetry
 
     async def drives_changed(self, removed: Sequence[str], added: Sequence[DriveSettings]) -> None:
-        """A reload: the removed drives' nodes deleted (a changed drive's too: it is removed and
-        added again), the added ones' made; every other node stays as it is, NodeIds, values
-        and the clients' monitored items with them."""
-        for name in removed:
-            await self._remove_drive(name)
+        """A reload: the removed drives' nodes deleted (their clients' items told
+        BadNodeIdUnknown), the added ones' made; a changed drive (removed and added again) made
+        anew with the same NodeIds, its clients' items moved onto them; every other node stays
+        as it is, NodeIds, values and the clients' monitored items with them."""
+        detached = {name: await self._remove_drive(name) for name in removed}
         for drive in added:
             self.command_drives[drive.name] = CommandDrive(
                 drive.name, self.router.route_for_drive(drive.name), drive.profile
             )
             await self._add_drive(drive)
+            # A changed drive (removed and added again): its clients' items go on with it.
+            if self.server is not None and drive.name in detached:
+                detached[drive.name] = reattach(self.server, detached[drive.name])
+        for items in detached.values():
+            await tell_gone(items)
         self._news.set()
 
-    async def _remove_drive(self, name: str) -> None:
+    async def _remove_drive(self, name: str) -> Detached:
         self.nodes.pop(name, None)
         self._pending.pop(name, None)
         self.command_drives.pop(name, None)
@@ -243,8 +248,9 @@ class OpcUaServer:
             for targets in (self._builder.targets, self.parameters.nodes):
                 for node_id in [n for n, t in targets.items() if t.drive.name == name]:
                     del targets[node_id]
-        if self.server is not None and self._builder is not None:
-            await delete_subtree(self.server, self._builder.node_id(name))
+        if self.server is None or self._builder is None:
+            return {}
+        return await detach_and_delete(self.server, self._builder.node_id(name))
 
     def _method(self, drive: CommandDrive, command: str) -> MethodCall:
         async def call(parent: ua.NodeId, *arguments: ua.Variant) -> ua.CallMethodResult:
