@@ -441,9 +441,6 @@ def gateway_config(
     }
     if metrics_port:
         config["metrics"] = {"enabled": True, "host": "127.0.0.1", "port": metrics_port}
-    if folder is not None:
-        # Its own store: another bench (or a gateway) at once would hold the default's lock.
-        config["storage"] = {"path": str(folder / "events.db")}
     if case.opcua and folder is not None:
         config["opcua"] = server_section(folder, free_port(), config["gateway_id"])
     if case.console:
