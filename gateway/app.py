@@ -217,7 +217,11 @@ class Application:
         await self._reload_metrics(plan)
         await self._reload_mqtt(plan)
         if self.opcua is not None and (plan.added or plan.removed):
-            await self.opcua.drives_changed(plan.removed, plan.added)
+            try:
+                await self.opcua.drives_changed(plan.removed, plan.added)
+            except Exception as exc:  # the rest is applied: say what isn't, never half-fail
+                log.exception("reload: the OPC UA server's nodes could not follow the drives")
+                plan.restart_needed.append(f"opcua's nodes of the drives changed ({exc})")
         self.settings = plan.settings  # with what could not be applied kept at its running value
         data = {"changed": plan.changed, "restart_needed": plan.restart_needed}
         self.events.record(EventType.CONFIG_RELOADED, data)

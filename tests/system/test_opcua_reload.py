@@ -96,3 +96,25 @@ async def test_a_reload_adds_removes_and_changes_drives_and_keeps_the_rest(
                 drive = await drive_node(client, name)
                 assert await drive.call_method(f"{ns}:RunForward") == "ok"
                 await until(lambda name=name: notifications.last(f"{name}.state", running))
+
+
+async def test_a_reload_whose_nodes_fail_to_follow_is_applied_and_says_what_needs_a_restart(
+    line: SimulatedLine, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The drives change on the line, the metrics and MQTT; if the address space can't follow
+    (a bug, asyncua's trouble), the reload still answers, naming OPC UA as waiting for a
+    restart, and the added drive is served on Modbus-TCP all the same."""
+    file = configuration_file(line)
+    async with running_gateway(GatewayConfig.model_validate(file)) as app:
+        assert app.opcua is not None
+
+        async def fails(*_changes: object) -> None:
+            raise RuntimeError("the address space refused it")
+
+        monkeypatch.setattr(app.opcua, "drives_changed", fails)
+        file["drives"].append({"name": "conveyor4", "bus": "line1", "address": 4})
+        plan = await app.reload(runtime_settings(GatewayConfig.model_validate(file)))
+        assert [drive.name for drive in plan.added] == ["conveyor4"]
+        assert any("opcua" in item for item in plan.restart_needed)
+        assert "restart needed for" in plan.summary
+        assert "conveyor4" in {drive.name for drive in app.settings.drives}
