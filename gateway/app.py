@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Callable, Coroutine, Mapping
+from collections.abc import Awaitable, Callable, Coroutine, Mapping
 from typing import TYPE_CHECKING, Any, Protocol
 
 from gateway.bus import Bus, BusState
@@ -47,6 +47,7 @@ if TYPE_CHECKING:
     from gateway.metrics import MetricsFeature
     from gateway.mqtt import MqttBridge
     from gateway.mqtt.role import RoleAnnouncer
+    from gateway.mqtt.told import ToldFaults
     from gateway.opcua.server import OpcUaServer
     from gateway.redundancy import Redundancy
     from gateway.sparkplug.edge_node import SparkplugNode
@@ -503,13 +504,28 @@ class LineHandover:
         redundancy = Redundancy(settings.redundancy, lines, self, app.events)
         if settings.mqtt is not None:
             from gateway.mqtt.role import RoleAnnouncer
+            from gateway.mqtt.told import ToldFaults
 
             box = settings.redundancy.box
-            app.announcer = RoleAnnouncer(settings.mqtt, box, self._announced(redundancy))
+            told = ToldFaults(settings.mqtt.base_topic, (d.name for d in settings.drives))
+            announced = self._announced(redundancy)
+            app.announcer = RoleAnnouncer(settings.mqtt, box, announced, told)
             redundancy.listeners.append(app.announcer.changed)
+            app.poller.open_faults = self._told_first(told)
         if app.console is not None:
             app.console.redundancy = redundancy.status
         return redundancy
+
+    def _told_first(self, told: ToldFaults) -> Callable[[], Awaitable[Mapping[str, int]]]:
+        """The fault memory a takeover's first polls compare with: what the consumers were told
+        on MQTT (the old active's words, heard while standby), over this box's own store (its
+        own last run, stale once the other box has been active)."""
+        store = self.app.events
+
+        async def open_faults() -> Mapping[str, int]:
+            return {**(await store.open_faults()), **told.faults}
+
+        return open_faults
 
     def _announced(self, redundancy: Redundancy) -> Callable[[], dict[str, Any]]:
         """What the box's role topic says: the role's status and the health's one word."""
@@ -542,6 +558,7 @@ class LineHandover:
             (drive_route(d, app.buses[d.bus]) for d in running.drives), app.buses.values()
         )
         app.poller.reroute()
+        app.poller.forget_readings()  # polled before this box last left the line: stale
         for name, bus in fresh.items():
             app._bus_tasks[name] = group.create_task(bus.run(), name=f"bus:{name}")
         await asyncio.gather(*(bus.wait_open(2.0) for bus in fresh.values()))

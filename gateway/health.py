@@ -57,6 +57,7 @@ def health_report(
         per_bus[bus_name][key].append(drive)
     standby = redundancy is not None and redundancy.get("role") != "active"
     deaf = standby and bool(redundancy and redundancy.get("deaf"))
+    deaf = deaf or (redundancy is not None and redundancy.get("fit") is False)
     degraded = deaf or (
         not standby
         and any(

@@ -11,7 +11,9 @@ stopped.
     {"asked": "standby", "role": "standby", "line_silent_s": 0.012, ...}     (role status)
 
 Exit codes: 0 asked (or the status printed), 1 refused (no `redundancy:` in the gateway's
-configuration, an unknown role) or no gateway reached.
+configuration, an unknown role) or no gateway reached, or (`status`, printed too, with a line
+`unfit: ...`) no port of the box's lines has opened for `PORTLESS_S` (3 s): its adapter
+unplugged, so it can't be the line's master.
 """
 
 from __future__ import annotations
@@ -50,6 +52,9 @@ def handle(args: argparse.Namespace) -> int:
         return EXIT_FAILURE
     if answer and not any(line.startswith("refused:") for line in answer):
         print("\n".join(answer))
-        return EXIT_OK
+        # `status` of a box that can't be the line's master (no port open): Keepalived's
+        # track script fails on it, and the virtual address moves.
+        unfit = any(line.startswith("unfit:") for line in answer)
+        return EXIT_FAILURE if unfit else EXIT_OK
     print("\n".join(answer) or "no answer: the gateway hung up", file=sys.stderr)
     return EXIT_FAILURE

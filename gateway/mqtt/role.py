@@ -8,6 +8,9 @@ active box's bridge's (`gateway.app.LineHandover` runs it only there).
      "last_change": {...}, "line_silent_s": 0.04, "heard_requests": 3118, ...}
 
 Published on every role change and every `REFRESH_S` (the line's silence, heard counts).
+
+On the same connection, the box follows what the active tells the consumers of its drives'
+faults (`gateway.mqtt.told`): the memory its poller starts from when this box takes over.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ import aiomqtt
 from gateway.backoff import Backoff
 from gateway.errors import TlsSettingsError
 from gateway.mqtt.connection import make_client, tls_context
+from gateway.mqtt.told import ToldFaults
 from gateway.mqtt.topics import Topics
 from gateway.settings import MqttSettings
 
@@ -41,8 +45,15 @@ def role_topic(base_topic: str, box: str) -> str:
 class RoleAnnouncer:
     """Publishes `status()` (with `"box"`), retained, from `run` until cancelled."""
 
-    def __init__(self, mqtt: MqttSettings, box: str, status: Callable[[], dict[str, Any]]) -> None:
+    def __init__(
+        self,
+        mqtt: MqttSettings,
+        box: str,
+        status: Callable[[], dict[str, Any]],
+        told: ToldFaults | None = None,
+    ) -> None:
         self.mqtt = mqtt
+        self.told = told
         self.box = box
         self.topic = role_topic(mqtt.base_topic, box)
         self._status = status
@@ -84,15 +95,41 @@ class RoleAnnouncer:
             )
             try:
                 async with client:
-                    await self._publish_until_cancelled(client)
+                    await self._connected(client)
             except aiomqtt.MqttError as exc:
                 last = exc
         if last is not None:
             raise last
 
-    async def _publish_until_cancelled(self, client: aiomqtt.Client) -> None:
+    async def _connected(self, client: aiomqtt.Client) -> None:
+        if self.told is None:
+            await self._publish_until_cancelled(client, None)
+            return
+        await client.subscribe([(topic, 1) for topic in self.told.topics])
+        following = asyncio.create_task(self._follow(client, self.told), name="redundancy:told")
+        try:
+            await self._publish_until_cancelled(client, following)
+        finally:
+            following.cancel()
+            with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
+                await following
+
+    async def _follow(self, client: aiomqtt.Client, told: ToldFaults) -> None:
+        try:
+            async for message in client.messages:
+                payload = message.payload
+                if isinstance(payload, bytes | bytearray):
+                    told.take(str(message.topic), bytes(payload))
+        finally:
+            self._changed.set()  # the connection is gone: the publishing loop sees it at once
+
+    async def _publish_until_cancelled(
+        self, client: aiomqtt.Client, following: asyncio.Task[None] | None
+    ) -> None:
         try:
             while True:
+                if following is not None and following.done():
+                    raise aiomqtt.MqttError("the role connection was lost")
                 self._changed.clear()
                 await client.publish(self.topic, self._payload(), qos=1, retain=True)
                 self.published += 1

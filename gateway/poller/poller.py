@@ -118,7 +118,8 @@ class Poller:
         self.max_frequency_hz: dict[str, float] = {}
         """Drive name → its P00.03, for the drives that answered at start."""
         self.open_faults: Callable[[], Awaitable[Mapping[str, int]]] | None = None
-        """Asked once at start: each drive's fault the last run left open (the store's)."""
+        """Asked at each start: each drive's fault the last run left open (the store's; with
+        `redundancy:` and MQTT, what the active box told the consumers, over it)."""
 
     def _polled(self, settings: DriveSettings) -> PolledDrive:
         timers = [_group_timer(s) for s in poll_schedules(settings)]
@@ -180,6 +181,14 @@ class Poller:
         task = self._added.pop(name, None)
         if task is not None:
             task.cancel()
+
+    def forget_readings(self) -> None:
+        """A redundant box takes the line over: what it polled before it last left the line is
+        stale. Each drive's first poll then compares its fault with `open_faults` (what the
+        old active told), not with a fault this box saw long ago."""
+        for drive in self.drives.values():
+            drive.state.registers.clear()
+            drive.state.online = None
 
     def reroute(self) -> None:
         """A reload reopened buses: each drive's route again from the router (its new bus)."""

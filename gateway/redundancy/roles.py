@@ -45,7 +45,14 @@ from gateway.store import EventStore, EventType
 log = logging.getLogger(__name__)
 
 LOOK_AGAIN_S: Final = 0.25
-"""While listening, how often the silence is looked at again without news (a port opened)."""
+"""While listening, how often the silence is looked at again without news (a port opened);
+while active, how often the ports are."""
+PORTLESS_S: Final = 3.0
+"""How long every one of this box's lines may have no port open (its USB adapter unplugged, a
+device server gone) before the box says it can't be their master: an active one leaves the
+lines, and `role status` fails (Keepalived's track script: the box goes FAULT and the virtual
+address moves to the other box). Longer than a port's reopening after a glitch (the bus's
+first retries come within a second), short beside VRRP's own detection."""
 
 
 class Role(StrEnum):
@@ -108,6 +115,8 @@ class Redundancy:
         self._asked_at = time.monotonic()
         self._back_off_s = 0.0
         """Silence waited beyond `listen_s` after a demotion (random, up to `silence_s`)."""
+        self._portless_since: float | None = None
+        """Since when no port of this box's lines has been open (`PORTLESS_S`)."""
         self._silenced: str | None = None
         """Why the line was silenced (another master heard), until this gateway has left it."""
         self._changed: asyncio.Event | None = None
@@ -119,7 +128,11 @@ class Redundancy:
     def ask(self, wanted: str) -> list[str]:
         """`role active`, `role standby` or `role status`: the answer's lines (`ok: ...`)."""
         if wanted == "status":
-            return [json.dumps(self.status(), sort_keys=True)]
+            status = self.status()
+            answer = [json.dumps(status, sort_keys=True)]
+            if not status["fit"]:
+                answer.append(f"unfit: {self._portless_reason(status['portless_s'])}")
+            return answer
         if wanted not in ASKABLE:
             return [f"refused: unknown role {wanted!r} (active, standby or status)"]
         role = Role(wanted)
@@ -162,6 +175,9 @@ class Redundancy:
             "foreign_frames": self.foreign_frames,
             "last_foreign": self.last_foreign,
         }
+        portless_s = self._portless_for(now)
+        status["portless_s"] = None if portless_s is None else round(portless_s, 1)
+        status["fit"] = portless_s is None or portless_s <= PORTLESS_S
         if self.role is not Role.ACTIVE:
             silent = [lsn.silent_for(now) for lsn in self._listeners if lsn.open]
             status["line_silent_s"] = round(min(silent), 3) if silent else None
@@ -198,10 +214,14 @@ class Redundancy:
 
     async def _step(self) -> None:
         if self.role is Role.ACTIVE:
+            portless_s = self._portless_for(time.monotonic())
+            if self._silenced is None and portless_s is not None and portless_s > PORTLESS_S:
+                self._silenced = self._portless_reason(portless_s)
+                log.error("redundancy: %s: leaving the line", self._silenced)
             if self._silenced is not None or self.asked is not Role.ACTIVE:
                 await self._leave()
             else:
-                await self._news(None)
+                await self._news(LOOK_AGAIN_S)
             return
         if self.asked is not Role.ACTIVE:
             # Listening, and asked to be standby after all: off the line it stays.
@@ -213,6 +233,27 @@ class Redundancy:
             await self._take()
             return
         await self._news(LOOK_AGAIN_S if left is None else min(left, LOOK_AGAIN_S))
+
+    def _portless_for(self, now: float) -> float | None:
+        """How long no port of this box's lines has been open (the active's buses', the
+        listeners' otherwise); None while one is."""
+        if self.role is Role.ACTIVE:
+            open_now = any(watch.bus.line.is_open for watch in self._watches)
+        else:
+            open_now = any(listener.open for listener in self._listeners)
+        if open_now:
+            self._portless_since = None
+            return None
+        if self._portless_since is None:
+            self._portless_since = now
+        return now - self._portless_since
+
+    @staticmethod
+    def _portless_reason(portless_s: float) -> str:
+        return (
+            f"no port open on any line for {portless_s:.1f} s (its adapter unplugged?): "
+            "this box can't be the line's master"
+        )
 
     def _silence_left(self, now: float) -> float | None:
         """How much longer the lines must stay silent before this gateway takes them; None

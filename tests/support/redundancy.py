@@ -109,8 +109,24 @@ class Box:
         return done.stderr
 
     def status(self) -> dict[str, Any]:
-        status: dict[str, Any] = json.loads(self.ask("status"))
+        """`role status`'s JSON (its exit code 1 when the box is unfit: `check_fails`)."""
+        done = run_cli("role", "status", "--config", self.config, timeout_s=15)
+        assert done.returncode in (0, 1), done.stderr
+        assert done.stdout, done.stderr
+        status: dict[str, Any] = json.loads(done.stdout.splitlines()[0])
         return status
+
+    def check_fails(self) -> bool:
+        """Keepalived's track script (`invt-gateway-notify.sh check`) fails on this box."""
+        done = subprocess.run(
+            [str(NOTIFY), "check"],
+            env={**os.environ, "CONFIG": self.config, "GATEWAY": entry_point(), "UNIT": "none"},
+            capture_output=True,
+            text=True,
+            timeout=15,
+            check=False,
+        )
+        return done.returncode != 0
 
     def wait_role(self, role: str, within_s: float) -> dict[str, Any]:
         deadline = time.monotonic() + within_s

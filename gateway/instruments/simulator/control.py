@@ -14,6 +14,7 @@
     glitch HEX|off      a spurious byte before each reply    → ok glitch ff
     echo on|off         the adapter echoes every request     → ok echo on
     unplug              the port goes away                   → ok unplug
+    unplug-master M     master M's port goes away (--masters) → ok unplug-master 1
     replug              a new port, the link re-pointed      → ok replug /dev/pts/7
     stats               the line's counters                  → ok {"requests": 3, ...}
                         (with --masters N also "collisions" and "masters": each master's
@@ -37,7 +38,7 @@ from gateway.instruments.simulator.line import SimulatedLine
 USAGE: Final = (
     "commands: fault ADDR CODE, clear ADDR, dead ADDR, alive ADDR, delay ADDR MS, "
     "slow ADDR MS-MS SHARE, stall ADDR S, knows ADDR FC,..|all, drop ADDR RATE, noise HEX, "
-    "bursts MS, glitch HEX|off, echo on|off, unplug, replug, stats"
+    "bursts MS, glitch HEX|off, echo on|off, unplug, unplug-master M, replug, stats"
 )
 
 
@@ -162,6 +163,11 @@ def _unplug(line: SimulatedLine, arguments: list[str]) -> str:
     return "unplug"
 
 
+def _unplug_master(line: SimulatedLine, arguments: list[str]) -> str:
+    line.unplug_master(int(arguments[0]))
+    return f"unplug-master {arguments[0]}"
+
+
 def _replug(line: SimulatedLine, arguments: list[str]) -> str:
     line.replug()
     return f"replug {line.path}"
@@ -186,6 +192,7 @@ _COMMANDS: Final[dict[str, tuple[Callable[[SimulatedLine, list[str]], str], int]
     "glitch": (_glitch, 1),
     "echo": (_echo, 1),
     "unplug": (_unplug, 0),
+    "unplug-master": (_unplug_master, 1),
     "replug": (_replug, 0),
     "stats": (_stats, 0),
 }

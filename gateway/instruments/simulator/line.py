@@ -367,6 +367,14 @@ class SimulatedLine:
         """Close the port: the gateway's open port fails as if the USB adapter were pulled."""
         self._in_loop(self._unplug)
 
+    def unplug_master(self, master: int) -> None:
+        """With `masters`: that master's port (from 1) goes away as if its USB adapter were
+        pulled; the others stay on the line."""
+        wire = self._wire
+        if wire is None:
+            raise ValueError("unplug-master needs a line shared by several masters")
+        self._in_loop(lambda: wire.unplug(master - 1))
+
     def replug(self) -> None:
         """A new pty (a new name, like a re-enumerated adapter); `link` points at it again."""
         self._in_loop(self._plug)

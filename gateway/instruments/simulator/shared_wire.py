@@ -65,6 +65,8 @@ class SharedWire:
         self.sent_bytes = [0] * masters
         self.collided = [0] * masters
         self.collisions = 0
+        self.unplugged: set[int] = set()
+        """Masters whose adapter was pulled out (`unplug`), from 0."""
 
     # ----------------------------------------------------------------- ports
 
@@ -79,6 +81,7 @@ class SharedWire:
                 endpoint.close()
             raise
         self.endpoints = opened
+        self.unplugged.clear()
         return opened
 
     def close(self) -> None:
@@ -88,12 +91,21 @@ class SharedWire:
         self._assemblers = [RequestAssembler(self._silence_s) for _ in range(self.count)]
         self._on_air.clear()
 
+    def unplug(self, master: int) -> None:
+        """`master`'s adapter pulled out (from 0): its pty goes away (the gateway's open port
+        fails, and its path is gone), the other masters stay on the line."""
+        if not 0 <= master < len(self.endpoints):
+            raise ValueError(f"no master {master + 1}: there are {len(self.endpoints)}")
+        if master not in self.unplugged:
+            self.unplugged.add(master)
+            self.endpoints[master].close()
+
     @property
     def paths(self) -> list[str]:
         return [endpoint.path for endpoint in self.endpoints]
 
     def fds(self) -> list[int]:
-        return [endpoint.fd for endpoint in self.endpoints]
+        return [e.fd for i, e in enumerate(self.endpoints) if i not in self.unplugged]
 
     def master_of(self, fd: int) -> int | None:
         for index, endpoint in enumerate(self.endpoints):
@@ -104,14 +116,16 @@ class SharedWire:
     def relay(self, master: int, data: bytes) -> None:
         """Every other master hears what `master` transmits."""
         for index, endpoint in enumerate(self.endpoints):
-            if index != master:
+            if index != master and index not in self.unplugged:
                 with contextlib.suppress(OSError):  # a full or closed port: it hears nothing
                     os.write(endpoint.fd, data)
 
     def write_all(self, data: bytes) -> bool:
         """What a drive transmits reaches every master; True if one master at least got it."""
         written = False
-        for endpoint in self.endpoints:
+        for index, endpoint in enumerate(self.endpoints):
+            if index in self.unplugged:
+                continue
             with contextlib.suppress(OSError):
                 os.write(endpoint.fd, data)
                 written = True

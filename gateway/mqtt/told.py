@@ -1,0 +1,70 @@
+"""What the active box has told MQTT consumers of its drives' faults, as a standby hears it
+(`redundancy:` with `mqtt:`): so that the box taking over raises no fault the old active
+already reported, and reports every one it didn't (issue 48).
+
+The two boxes have no store in common, so a takeover's memory must come from what the
+consumers actually got: the broker. While it follows the line's master, the standby's role
+connection (`gateway.mqtt.role`) subscribes to
+
+    <base>/<drive>          retained: each drive's state as last published (`fault_code`)
+    <base>/bridge/event     `fault_raised` / `fault_cleared` as they go out
+
+and keeps, per drive, the fault code the consumers were last told: an event heard wins over
+a state (events are what fault consumers act on; the retained state only stands in for a
+drive with no fault event heard since this box started following). At takeover the poller's
+first poll of each drive compares with it (`Poller.open_faults`): a fault still there is "no
+change"; one that started, or cleared, while nobody was told is raised, or cleared, once.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable
+
+EVENT_KINDS = {"fault_raised": True, "fault_cleared": False}
+
+
+class ToldFaults:
+    """Each drive's fault code as the MQTT consumers were last told it (0: none)."""
+
+    def __init__(self, base_topic: str, drives: Iterable[str]) -> None:
+        self._states = {f"{base_topic}/{drive}": drive for drive in drives}
+        self._events = f"{base_topic}/bridge/event"
+        self._by_event: dict[str, int] = {}
+        self._by_state: dict[str, int] = {}
+        self.heard = 0
+        """Messages taken in (states and fault events)."""
+
+    @property
+    def topics(self) -> list[str]:
+        return [*self._states, self._events]
+
+    @property
+    def faults(self) -> dict[str, int]:
+        """Drive → the fault code told last: a fault event's, else the retained state's."""
+        return {**self._by_state, **self._by_event}
+
+    def take(self, topic: str, payload: bytes) -> None:
+        """One message from the broker (anything unreadable is no news)."""
+        try:
+            message = json.loads(payload)
+        except ValueError:
+            return
+        if not isinstance(message, dict):
+            return
+        drive = self._states.get(topic)
+        if drive is not None:
+            code = message.get("fault_code")
+            if isinstance(code, int) and not isinstance(code, bool):
+                self._by_state[drive] = code
+                self.heard += 1
+            return
+        if topic == self._events and message.get("type") in EVENT_KINDS:
+            data = message.get("data")
+            if not isinstance(data, dict) or data.get("drive") not in self._states.values():
+                return
+            code = data.get("fault_code")
+            if not isinstance(code, int) or isinstance(code, bool):
+                return
+            self._by_event[data["drive"]] = code if EVENT_KINDS[message["type"]] else 0
+            self.heard += 1

@@ -1,0 +1,122 @@
+"""What a takeover carries from one box to the other (issue 48's second step), with two real
+gateway processes on one simulated line (`simulate --masters 2`) and a real Mosquitto.
+
+What a site checks: a drive's fault reported by the old active is not reported again by the
+new one (its MQTT consumers see one `fault_raised` for one trip), and a fault that starts after
+the takeover is reported once, by the new active; the active's USB adapter unplugged, it
+fails Keepalived's check within the bound and leaves the line, and the other box takes it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import signal
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from gateway.redundancy.roles import PORTLESS_S
+from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
+from tests.support.redundancy import TAKEOVER_BOUND_S, Box
+from tests.support.shared_line import SharedLine, shared_line
+
+
+@pytest.fixture
+def line() -> Iterator[SharedLine]:
+    with shared_line(2, "--address", "1") as shared:
+        yield shared
+
+
+@pytest.fixture
+def boxes() -> Iterator[list[Box]]:
+    started: list[Box] = []
+    yield started
+    for box in started:
+        box.stop()
+
+
+def raised(probe: MqttProbe, events: str, code: int, after: int = 0) -> int:
+    """`fault_raised` events of drive pump with `code` seen on MQTT (from message `after`)."""
+    return sum(
+        1
+        for message in probe.messages[after:]
+        if message.topic == events
+        and message.json()["type"] == "fault_raised"
+        and message.json()["data"]["fault_code"] == code
+    )
+
+
+async def test_a_fault_reported_by_the_old_active_is_not_reported_again_by_the_new_one(
+    line: SharedLine, boxes: list[Box], tmp_path: Path, mosquitto: Mosquitto
+) -> None:
+    base = unique_base_topic("pair")
+    events = f"{base}/bridge/event"
+    broker = {"host": mosquitto.host, "port": mosquitto.port, "base_topic": base}
+    async with mqtt_probe(mosquitto, events, f"{base}/pump") as probe:
+        old = await asyncio.to_thread(Box, "a", line.paths[0], tmp_path, "active", mqtt=broker)
+        boxes.append(old)
+        new = await asyncio.to_thread(Box, "b", line.paths[1], tmp_path, "standby", mqtt=broker)
+        boxes.append(new)
+        await asyncio.to_thread(old.wait_role, "active", 5.0)
+        await probe.wait_for(f"{base}/pump", lambda s: s["fault_code"] == 0)
+
+        line.command("fault 1 35")  # the drive trips while box a is active
+        await probe.wait_for(events, lambda e: e["type"] == "fault_raised")
+        await asyncio.sleep(0.5)  # box b hears it too, through the broker
+        old.gateway.process.send_signal(signal.SIGKILL)
+        await asyncio.to_thread(old.gateway.process.wait, 5)
+        mark = len(probe.messages)
+        await asyncio.to_thread(new.notified, "MASTER")
+        await asyncio.to_thread(new.wait_role, "active", 5.0)
+        # The new active polls the tripped drive and publishes its state: still fault 35...
+        await probe.wait_for(f"{base}/pump", lambda s: s["fault_code"] == 35, after=mark)
+        await asyncio.sleep(1.0)  # five polls more
+        # ...and raises nothing: the consumers were told of this trip once, by box a.
+        assert raised(probe, events, 35) == 1
+        told = [m.json()["type"] for m in probe.messages[mark:] if m.topic == events]
+        assert [kind for kind in told if kind.startswith("fault")] == []
+
+        # A fault that starts after the takeover: reported once, by box b.
+        start = time.monotonic()
+        line.command("clear 1")
+        await probe.wait_for(events, lambda e: e["type"] == "fault_cleared", after=mark)
+        line.command("fault 1 36")
+        await probe.wait_for(events, lambda e: e["data"].get("fault_code") == 36, after=mark)
+        await asyncio.sleep(1.0)
+        assert raised(probe, events, 36, after=mark) == 1
+        assert raised(probe, events, 35, after=mark) == 0
+        assert time.monotonic() - start < 10
+    assert line.stats()["collisions"] == 0
+
+
+def test_the_active_s_adapter_unplugged_it_fails_keepalived_s_check_and_leaves_the_line(
+    line: SharedLine, boxes: list[Box], tmp_path: Path
+) -> None:
+    boxes.append(old := Box("a", line.paths[0], tmp_path, "active"))
+    boxes.append(new := Box("b", line.paths[1], tmp_path, "standby"))
+    old.wait_role("active", 5.0)
+    assert not old.check_fails()
+    assert not new.check_fails()
+    line.command("unplug-master 1")  # box a's USB adapter pulled out: its port gone
+    unplugged = time.monotonic()
+    while not old.check_fails():
+        assert time.monotonic() - unplugged < PORTLESS_S + 3.0, old.status()
+        time.sleep(0.1)
+    failed_s = time.monotonic() - unplugged
+    assert PORTLESS_S - 0.5 < failed_s < PORTLESS_S + 3.0, failed_s
+    status = old.status()
+    assert status["role"] != "active", status
+    assert status["fit"] is False
+    assert "no port open on any line" in status["last_change"]["reason"]
+    assert old.health()["status"] == "degraded"
+    assert not new.check_fails()
+    # Keepalived: box a in FAULT (standby), box b MASTER: b takes the silent line.
+    old.notified("FAULT")
+    new.notified("MASTER")
+    new.wait_role("active", TAKEOVER_BOUND_S)
+    assert new.read_state()[:2] == bytes([0x03, 0x02])
+    assert old.status()["role"] == "standby"
+    assert line.stats()["collisions"] == 0
+    print(f"check failed {failed_s:.2f} s after the unplug")
