@@ -9,6 +9,13 @@ fill is a warning, and so is one they take more than 70 % of: too little left fo
 0 when valid, 3 when not (each key and its reason are printed). A serial port that isn't there on
 this machine is a warning, not an error: the file may be checked on another machine than the
 gateway box, but on the box `run` would keep trying to open it.
+
+With `--peer FILE` (the other box's file of a redundant pair, copied here: `scp gw-b:/etc/
+invt-gateway/config.yaml peer.yaml`), it says what differs between the two files after the
+rest: what the two boxes must share (the buses, the drives and their poll groups, the MQTT
+broker and base topic, the gateway id...) and, apart, what each box may set its own way (its
+`redundancy.box`, `peer`, `hold_off_ms` and `role`, its addresses, its adapters' device paths,
+its store's path, its logging). Exit 1 when they differ in what they must share.
 """
 
 from __future__ import annotations
@@ -18,9 +25,10 @@ import sys
 
 from gateway.commands.run import DEFAULT_CONFIG, load_or_report
 from gateway.config import GatewayConfig
+from gateway.config.peer import differences
 from gateway.config.startup import startup_problems
 from gateway.errors import ConfigError
-from gateway.exit_codes import EXIT_CONFIG, EXIT_OK
+from gateway.exit_codes import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
 from gateway.poller.budget import line_budget
 from gateway.settings import runtime_settings
 from gateway.settings.checks import missing_ports
@@ -34,6 +42,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--config", "-c", default=DEFAULT_CONFIG, help="YAML file")
+    parser.add_argument(
+        "--peer", metavar="FILE", help="the other redundant box's file: say what differs"
+    )
     parser.set_defaults(handler=handle)
 
 
@@ -58,7 +69,29 @@ def handle(args: argparse.Namespace) -> int:
     if config.modbus_tcp.access:
         print()
         print(access_table(config))
-    return EXIT_OK
+    return EXIT_OK if args.peer is None else compare_peer(config, args.peer)
+
+
+def compare_peer(config: GatewayConfig, path: str) -> int:
+    """What differs from the other box's file; EXIT_FAILURE when it is what both must share."""
+    peer = load_or_report(path)
+    if peer is None:
+        return EXIT_CONFIG
+    found = differences(config, peer)
+    shared = [d for d in found if not d.own]
+    print()
+    if shared:
+        print(f"peer {path}: differs in what both boxes must share:")
+        for difference in shared:
+            print(f"  {difference.describe()}")
+    else:
+        print(f"peer {path}: alike in everything both boxes must share")
+    own = [d for d in found if d.own]
+    if own:
+        print("each box's own (may differ):")
+        for difference in own:
+            print(f"  {difference.describe()}")
+    return EXIT_FAILURE if shared else EXIT_OK
 
 
 def access_table(config: GatewayConfig) -> str:
