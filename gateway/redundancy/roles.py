@@ -117,6 +117,8 @@ class Redundancy:
         """Silence waited beyond `listen_s` after a demotion (random, up to `silence_s`)."""
         self._portless_since: float | None = None
         """Since when no port of this box's lines has been open (`PORTLESS_S`)."""
+        self._taking = False
+        """The lines being taken (`_take`): the listeners stopped, the buses opening."""
         self._silenced: str | None = None
         """Why the line was silenced (another master heard), until this gateway has left it."""
         self._changed: asyncio.Event | None = None
@@ -237,7 +239,9 @@ class Redundancy:
     def _portless_for(self, now: float) -> float | None:
         """How long no port of this box's lines has been open (the active's buses', the
         listeners' otherwise); None while one is."""
-        if self.role is Role.ACTIVE:
+        if self._taking:
+            open_now = True  # between the listeners and the buses: the parts start
+        elif self.role is Role.ACTIVE:
             open_now = any(watch.bus.line.is_open for watch in self._watches)
         else:
             open_now = any(listener.open for listener in self._listeners)
@@ -277,10 +281,14 @@ class Redundancy:
     async def _take(self) -> None:
         """The lines have been silent long enough: the buses take them."""
         silent_s = self.settings.listen_s + self._back_off_s
-        for listener in self._listeners:
-            await listener.stop()
-        self._silenced = None
-        await self.owner.take_line(self.watch)
+        self._taking = True
+        try:
+            for listener in self._listeners:
+                await listener.stop()
+            self._silenced = None
+            await self.owner.take_line(self.watch)
+        finally:
+            self._taking = False
         self.last_takeover_s = time.monotonic() - self._asked_at
         self._set_role(Role.ACTIVE, f"the line was silent {silent_s:.1f} s: taken")
 

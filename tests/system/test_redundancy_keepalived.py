@@ -7,7 +7,9 @@ address (issue 48). Needs root (skipped otherwise).
 - the active box dies (its Keepalived and its gateway SIGKILLed, its network gone): the virtual
   address moves, the other box takes the line, SCADA's next connection is served, 0 collisions;
 - the link between the boxes cut while both run: both are VRRP MASTER, both asked `active`;
-  the second hears the first's polls and stays off the line: 0 frames from it, 0 collisions.
+  the second hears the first's polls and stays off the line: 0 frames from it, 0 collisions;
+- the active box's USB adapter unplugged: its track script fails (no port open for 3 s), its
+  Keepalived goes FAULT, the virtual address moves, the other box takes the line.
 
 VRRP's timing here is VRRPv3 with adverts every 0.5 s: the BACKUP declares the MASTER gone after
 3 adverts missed and its skew, about 1.8 s.
@@ -172,7 +174,13 @@ class Site:
         BACKUP, and with `nopreempt` the first MASTER stays)."""
         a_net, b_net = self.net.boxes
         tcp = {"host": "0.0.0.0", "port": MODBUS_PORT}
-        paths = self.line.paths
+        paths = []
+        for index, path in enumerate(self.line.paths):
+            # Each box's adapter by a link of its own, as udev's /dev/serial/by-id/...: the link
+            # goes when the adapter is pulled out (`unplug`).
+            link = folder / f"usb-adapter-{index}"
+            link.symlink_to(path)
+            paths.append(str(link))
         wiring = (("a", a_net, paths[0], 0), ("b", b_net, paths[1], 500))
         for name, box_net, path, hold_off in wiring:
             command = box_net.exec(entry_point())
@@ -190,6 +198,11 @@ class Site:
                 logs = "\n".join(k.log.text[-3000:] for k in self.keepaliveds)
                 raise AssertionError(f"no box active: {roles}\n{logs}")
             time.sleep(0.1)
+
+    def unplug(self, index: int, folder: Path) -> None:
+        """The `index`-th box's USB adapter pulled out: its link and its port gone."""
+        (folder / f"usb-adapter-{index}").unlink()
+        assert self.line.command(f"unplug-master {index + 1}").startswith("ok")
 
 
 @pytest.fixture
@@ -261,4 +274,30 @@ def test_a_cut_link_makes_two_vrrp_masters_and_one_master_on_the_line(
     while sorted(box.status()["role"] for box in site.boxes) != ["active", "standby"]:
         assert time.monotonic() < deadline, [box.status() for box in site.boxes]
         time.sleep(0.1)
+    assert line.stats()["collisions"] == 0
+
+
+def test_the_active_s_adapter_unplugged_the_address_and_the_line_move(
+    site: Site, tmp_path: Path
+) -> None:
+    line, net = site.line, site.net
+    first, second = site.start(tmp_path)
+    a, b = site.boxes[first], site.boxes[second]
+    b_net = net.boxes[second]
+    time.sleep(0.5)
+    site.unplug(first, tmp_path)
+    unplugged = time.monotonic()
+    # The 3 s without a port, the track script's 2 failures a second apart, VRRP's move, the
+    # notify script, the silence (long past: box a stopped transmitting at the unplug).
+    while frames(line)[second] == 0:
+        assert time.monotonic() - unplugged < 12, site.keepaliveds[first].log.text[-3000:]
+        time.sleep(0.05)
+    moved_s = time.monotonic() - unplugged
+    print(f"first request from the other box {moved_s:.2f} s after the unplug")
+    assert holds_virtual(b_net)
+    assert scada_read(net)[:2] == bytes([0x03, 0x02])
+    assert b.status()["role"] == "active"
+    status = a.status()
+    assert status["role"] == "standby"
+    assert status["fit"] is False
     assert line.stats()["collisions"] == 0
