@@ -47,7 +47,7 @@ if TYPE_CHECKING:
     from gateway.metrics import MetricsFeature
     from gateway.mqtt import MqttBridge
     from gateway.mqtt.role import RoleAnnouncer
-    from gateway.mqtt.told import ToldFaults
+    from gateway.mqtt.told import ToldBirth, ToldFaults
     from gateway.opcua.server import OpcUaServer
     from gateway.redundancy import Redundancy
     from gateway.sparkplug.edge_node import SparkplugNode
@@ -479,16 +479,22 @@ class LineHandover:
 
     Taking: fresh buses (a closed bus stays closed: a standby's refuse every request), each
     watched before it opens its port (`Redundancy`'s hook), routed and run; then the poller
-    and the MQTT bridge start. Leaving: the buses close (queued requests answered, the
-    transaction on a wire finished unless its write gate closed), their tasks end, their ports
-    close (the listeners open them next); the poller stops, and the bridge, replaced by a new
-    one (unstarted) for the next takeover: its session takes over the old one's (the two boxes
-    have one gateway id and client id), so no check for another live gateway is made."""
+    and the MQTT bridge start, and the OPC UA server beside (its start is slow). Leaving: the
+    buses close (queued requests answered, the transaction on a wire finished unless its write
+    gate closed), their tasks end, their ports close (the listeners open them next); the
+    poller stops, the OPC UA server too, and the bridge, replaced by a new one (unstarted)
+    for the next takeover: its session takes over the old one's (the two boxes have one
+    gateway id and client id), so no check for another live gateway is made."""
 
     def __init__(self, app: Application) -> None:
         self.app = app
         self.waiting: list[Feature] = []
         """The parts that run only while this gateway is active, while it is not."""
+        self.told_birth: ToldBirth | None = None
+        """With MQTT: the bdSeq the other box's Sparkplug node was last born with."""
+        self._opcua_start: asyncio.Task[None] | None = None
+        """OPC UA's start at a takeover, beside the role: its address space (and, the first
+        time, its certificate) takes seconds, which SCADA's Modbus-TCP must not wait for."""
 
     def build_redundancy(self) -> Redundancy:
         from gateway.redundancy import Redundancy
@@ -499,17 +505,21 @@ class LineHandover:
         for bus in app.buses.values():
             bus.close("is not served by this gateway: it is the standby")
         app.requests.refuse_unless_serving(lambda: app.serving)
-        self.waiting = [part for part in (app.poller, app.mqtt) if part is not None]
+        # OPC UA stays off on a standby (clients get "connection refused": not here) and
+        # builds its address space at takeover: a standby's would show values nobody polls.
+        self.waiting = [part for part in (app.poller, app.mqtt, app.opcua) if part is not None]
         lines = [bus.line for bus in settings.buses]
         redundancy = Redundancy(settings.redundancy, lines, self, app.events)
         if settings.mqtt is not None:
             from gateway.mqtt.role import RoleAnnouncer
-            from gateway.mqtt.told import ToldFaults
+            from gateway.mqtt.told import ToldBirth, ToldFaults
 
-            box = settings.redundancy.box
-            told = ToldFaults(settings.mqtt.base_topic, (d.name for d in settings.drives))
+            box, base = settings.redundancy.box, settings.mqtt.base_topic
+            told = ToldFaults(base, (d.name for d in settings.drives))
+            self.told_birth = ToldBirth(base, box)
             announced = self._announced(redundancy)
-            app.announcer = RoleAnnouncer(settings.mqtt, box, announced, told)
+            followed = (told, self.told_birth)
+            app.announcer = RoleAnnouncer(settings.mqtt, box, announced, followed)
             redundancy.listeners.append(app.announcer.changed)
             app.poller.open_faults = self._told_first(told)
         if app.console is not None:
@@ -528,7 +538,10 @@ class LineHandover:
         return open_faults
 
     def _announced(self, redundancy: Redundancy) -> Callable[[], dict[str, Any]]:
-        """What the box's role topic says: the role's status and the health's one word."""
+        """What the box's role topic says: the role's status and the health's one word; an
+        active box's, the bdSeq its Sparkplug node was last born with."""
+        from gateway.mqtt.told import BD_SEQ_KEY
+
         app = self.app
 
         def status() -> dict[str, Any]:
@@ -536,6 +549,9 @@ class LineHandover:
             role = redundancy.status()
             tcp = len(app.tcp.stats.active)
             health = health_report(app.phase, app.buses, routes, tcp, 0.0, None, role)
+            node = app.sparkplug
+            if node is not None and role["role"] == "active" and node.bd_seq.value >= 0:
+                role[BD_SEQ_KEY] = node.bd_seq.value  # the other box's node counts on from it
             return {**role, "health": health["status"]}
 
         return status
@@ -562,10 +578,18 @@ class LineHandover:
         for name, bus in fresh.items():
             app._bus_tasks[name] = group.create_task(bus.run(), name=f"bus:{name}")
         await asyncio.gather(*(bus.wait_open(2.0) for bus in fresh.values()))
+        node, told = app.sparkplug, self.told_birth
+        if node is not None and told is not None:
+            if told.bd_seq is not None:
+                node.bd_seq.follow_on(told.bd_seq)
+            if app.announcer is not None:
+                node.born.append(app.announcer.changed)  # the bdSeq in the role announcement
         waiting, self.waiting = self.waiting, []
         for part in waiting:
             if part is app.mqtt and app.mqtt is not None:
                 await app.mqtt.start(checked=True)
+            elif part is app.opcua and app.opcua is not None:
+                self._opcua_start = app.tasks.start("redundancy:opcua", app.opcua.start())
             else:
                 await part.start()
 
@@ -591,4 +615,10 @@ class LineHandover:
             if app.console is not None:
                 app.console.bridge_replaced(app.mqtt)
             waiting.append(app.mqtt)
+        if app.opcua is not None:  # a new asyncua server at each start: started again later
+            starting, self._opcua_start = self._opcua_start, None
+            if starting is not None:
+                await cancel_and_wait(starting, SHUTDOWN_BUDGET_S)
+            await app.opcua.stop()
+            waiting.append(app.opcua)
         self.waiting = waiting

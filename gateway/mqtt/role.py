@@ -9,8 +9,9 @@ active box's bridge's (`gateway.app.LineHandover` runs it only there).
 
 Published on every role change and every `REFRESH_S` (the line's silence, heard counts).
 
-On the same connection, the box follows what the active tells the consumers of its drives'
-faults (`gateway.mqtt.told`): the memory its poller starts from when this box takes over.
+On the same connection, the box follows what the active tells (`gateway.mqtt.told`): its
+drives' faults, the memory its poller starts from when this box takes over, and its Sparkplug
+node's bdSeq (in the active's own announcement), which this box's node counts on from.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import asyncio
 import contextlib
 import json
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, Final
 
 import aiomqtt
@@ -27,7 +28,7 @@ import aiomqtt
 from gateway.backoff import Backoff
 from gateway.errors import TlsSettingsError
 from gateway.mqtt.connection import make_client, tls_context
-from gateway.mqtt.told import ToldFaults
+from gateway.mqtt.told import Follower
 from gateway.mqtt.topics import Topics
 from gateway.settings import MqttSettings
 
@@ -50,10 +51,10 @@ class RoleAnnouncer:
         mqtt: MqttSettings,
         box: str,
         status: Callable[[], dict[str, Any]],
-        told: ToldFaults | None = None,
+        followed: Sequence[Follower] = (),
     ) -> None:
         self.mqtt = mqtt
-        self.told = told
+        self.followed = tuple(followed)
         self.box = box
         self.topic = role_topic(mqtt.base_topic, box)
         self._status = status
@@ -102,11 +103,12 @@ class RoleAnnouncer:
             raise last
 
     async def _connected(self, client: aiomqtt.Client) -> None:
-        if self.told is None:
+        if not self.followed:
             await self._publish_until_cancelled(client, None)
             return
-        await client.subscribe([(topic, 1) for topic in self.told.topics])
-        following = asyncio.create_task(self._follow(client, self.told), name="redundancy:told")
+        topics = [topic for follower in self.followed for topic in follower.topics]
+        await client.subscribe([(topic, 1) for topic in topics])
+        following = asyncio.create_task(self._follow(client), name="redundancy:told")
         try:
             await self._publish_until_cancelled(client, following)
         finally:
@@ -114,12 +116,13 @@ class RoleAnnouncer:
             with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
                 await following
 
-    async def _follow(self, client: aiomqtt.Client, told: ToldFaults) -> None:
+    async def _follow(self, client: aiomqtt.Client) -> None:
         try:
             async for message in client.messages:
                 payload = message.payload
                 if isinstance(payload, bytes | bytearray):
-                    told.take(str(message.topic), bytes(payload))
+                    for follower in self.followed:
+                        follower.take(str(message.topic), bytes(payload))
         finally:
             self._changed.set()  # the connection is gone: the publishing loop sees it at once
 

@@ -1,6 +1,7 @@
-"""What the active box has told MQTT consumers of its drives' faults, as a standby hears it
-(`redundancy:` with `mqtt:`): so that the box taking over raises no fault the old active
-already reported, and reports every one it didn't (issue 48).
+"""What the active box has told MQTT consumers, as a standby hears it (`redundancy:` with
+`mqtt:`): its drives' faults (`ToldFaults`), so that the box taking over raises no fault the
+old active already reported, and reports every one it didn't (issue 48); and its Sparkplug
+node's bdSeq (`ToldBirth`), so that the node's bdSeq counts on across the takeover.
 
 The two boxes have no store in common, so a takeover's memory must come from what the
 consumers actually got: the broker. While it follows the line's master, the standby's role
@@ -20,6 +21,20 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterable
+from typing import Protocol
+
+BD_SEQ_KEY = "sparkplug_bd_seq"
+"""In an active box's role announcement: the bdSeq its Sparkplug node was last born with."""
+
+
+class Follower(Protocol):
+    """Something a standby follows on its role connection."""
+
+    @property
+    def topics(self) -> list[str]: ...
+
+    def take(self, topic: str, payload: bytes) -> None: ...
+
 
 EVENT_KINDS = {"fault_raised": True, "fault_cleared": False}
 
@@ -68,3 +83,31 @@ class ToldFaults:
                 return
             self._by_event[data["drive"]] = code if EVENT_KINDS[message["type"]] else 0
             self.heard += 1
+
+
+class ToldBirth:
+    """The bdSeq the active box's Sparkplug node was last born with, from its retained role
+    announcement (`<base>/bridge/redundancy/<box>`, `sparkplug_bd_seq`): retained, so a standby
+    started after the birth knows it too. None: no other box's node heard born."""
+
+    def __init__(self, base_topic: str, box: str) -> None:
+        self._prefix = f"{base_topic}/bridge/redundancy/"
+        self._own = f"{self._prefix}{box}"
+        self.bd_seq: int | None = None
+
+    @property
+    def topics(self) -> list[str]:
+        return [f"{self._prefix}+"]
+
+    def take(self, topic: str, payload: bytes) -> None:
+        if not topic.startswith(self._prefix) or topic == self._own:
+            return
+        try:
+            message = json.loads(payload)
+        except ValueError:
+            return
+        if not isinstance(message, dict) or message.get("role") != "active":
+            return
+        bd_seq = message.get(BD_SEQ_KEY)
+        if isinstance(bd_seq, int) and not isinstance(bd_seq, bool):
+            self.bd_seq = bd_seq

@@ -45,13 +45,12 @@ import dataclasses
 import json
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Final
 
 import aiomqtt
 
 from gateway import __version__
-from gateway.errors import StoreError
 from gateway.logs import repeated
 from gateway.mqtt.commands import CommandDrive, Commands
 from gateway.mqtt.dispatcher import Incoming
@@ -69,6 +68,7 @@ from gateway.routing import Router
 from gateway.settings import DriveSettings, MqttSettings
 from gateway.settings.mqtt import SparkplugSettings
 from gateway.sparkplug import payload
+from gateway.sparkplug.bd_seq import BirthDeathSequence
 from gateway.sparkplug.commands import device_command
 from gateway.sparkplug.history import HistoricalData
 from gateway.sparkplug.host import PrimaryHost
@@ -123,11 +123,10 @@ class SparkplugNode:
         self.events = events
         self.gateway_id = mqtt.gateway_id
         self.host = PrimaryHost(sparkplug.primary_host_id) if sparkplug.primary_host_id else None
-        self.bd_seq = payload.SequenceNumber()
+        self.bd_seq = BirthDeathSequence(events, sparkplug.group_id, sparkplug.edge_node_id)
         """The `bdSeq` of the last CONNECT's will; the NBIRTH repeats it."""
-        # bdSeq's counter in the store: an edge node's own (another group or node id: from 0).
-        self._bd_seq_key = f"sparkplug bdSeq {sparkplug.group_id}/{sparkplug.edge_node_id}"
-        self._bd_seq_unkept = False  # the store could not keep it: counted on in memory
+        self.born: list[Callable[[], None]] = []
+        """Told after each NBIRTH (a redundant box's role announcement carries the bdSeq)."""
         self.seq = payload.SequenceNumber()
         self._wake = asyncio.Event()
         """Something to publish, a rebirth asked for, or the primary host changed."""
@@ -178,21 +177,7 @@ class SparkplugNode:
     async def will(self) -> aiomqtt.Will:
         """The NDEATH of the CONNECT about to be sent: the next `bdSeq`, from the store (the
         module's docstring says why)."""
-        try:
-            self.bd_seq.value = await self.events.count_on(
-                self._bd_seq_key, payload.SEQUENCE_MODULO
-            )
-            self._bd_seq_unkept = False
-        except StoreError as exc:
-            if not self._bd_seq_unkept:
-                log.warning(
-                    "Sparkplug: the store cannot keep the bdSeq (%s); counting on in memory, "
-                    "a restart starts again at 0",
-                    exc,
-                )
-            self._bd_seq_unkept = True
-            self.bd_seq.next()
-        death = payload.node_death(self.bd_seq.value, _now_ms())
+        death = payload.node_death(await self.bd_seq.next(), _now_ms())
         return aiomqtt.Will(self.topics.node("NDEATH"), death, qos=QOS_DEATH, retain=False)
 
     async def farewell(self, client: aiomqtt.Client, timeout_s: float) -> None:
@@ -308,6 +293,8 @@ class SparkplugNode:
             self.bd_seq.value,
             sum(device.born for device in self.devices.values()),
         )
+        for listener in self.born:
+            listener()
 
     def _node(self) -> list[BirthMetric]:
         return [

@@ -7,13 +7,15 @@ from __future__ import annotations
 import sqlite3
 
 
-def count_on(db: sqlite3.Connection, key: str, modulo: int) -> int:
+def count_on(db: sqlite3.Connection, key: str, modulo: int, after: int | None = None) -> int:
     """The counter `key` one further (0 the first time, `modulo` wraps to 0), committed before
-    it is returned: a power cut after its use never hands it out again."""
+    it is returned: a power cut after its use never hands it out again. `after`: one further
+    than that instead of the kept value (a redundant box going on from the other box's count)."""
     db.execute("BEGIN IMMEDIATE")
     try:
         row = db.execute("SELECT value FROM counters WHERE key = ?", (key,)).fetchone()
-        value = 0 if row is None else (int(row[0]) + 1) % modulo
+        last = after if after is not None else None if row is None else int(row[0])
+        value = 0 if last is None else (last + 1) % modulo
         db.execute(
             "INSERT INTO counters (key, value) VALUES (?, ?) "
             "ON CONFLICT (key) DO UPDATE SET value = excluded.value",

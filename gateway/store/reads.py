@@ -122,12 +122,12 @@ class StoreReads:
         except Exception as exc:  # sqlite3.Error, OSError: a full or failing disk
             raise StoreError(f"storage.path {self.path}: {exc}") from exc
 
-    async def count_on(self, key: str, modulo: int) -> int:
-        """The counter `key` one further, kept in the file at once (not through the writer:
-        the caller must know it is kept before using it). `StoreError` if it can't be; in a
-        store kept in memory only it starts from 0 at every start."""
+    async def count_on(self, key: str, modulo: int, after: int | None = None) -> int:
+        """The counter `key` one further (than `after`, if given), kept in the file at once (not
+        through the writer: the caller must know it is kept before using it). `StoreError` if
+        it can't be; in a store kept in memory only it starts from 0 at every start."""
         try:
-            return await self._query(counters.count_on, key, modulo)
+            return await self._query(counters.count_on, key, modulo, after)
         except StoreError:
             raise
         except Exception as exc:  # sqlite3.Error, OSError: a full or failing disk

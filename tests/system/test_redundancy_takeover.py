@@ -12,15 +12,20 @@ from __future__ import annotations
 import asyncio
 import signal
 import time
+import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from asyncua import Client, ua
 
+from gateway.opcua.address_space import NAMESPACE
 from gateway.redundancy.roles import PORTLESS_S
+from tests.support import free_port
 from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
 from tests.support.redundancy import TAKEOVER_BOUND_S, Box
 from tests.support.shared_line import SharedLine, shared_line
+from tests.support.sparkplug import sparkplug_host, tahu_codec, values
 
 
 @pytest.fixture
@@ -94,12 +99,17 @@ async def test_a_fault_reported_by_the_old_active_is_not_reported_again_by_the_n
 def test_the_active_s_adapter_unplugged_it_fails_keepalived_s_check_and_leaves_the_line(
     line: SharedLine, boxes: list[Box], tmp_path: Path
 ) -> None:
-    boxes.append(old := Box("a", line.paths[0], tmp_path, "active"))
+    # Box a's adapter by its udev link, as a site names it (/dev/serial/by-id/...): the link goes
+    # when the adapter is pulled out (and a pty's number may be another's a moment later).
+    adapter = tmp_path / "usb-adapter-a"
+    adapter.symlink_to(line.paths[0])
+    boxes.append(old := Box("a", str(adapter), tmp_path, "active"))
     boxes.append(new := Box("b", line.paths[1], tmp_path, "standby"))
     old.wait_role("active", 5.0)
     assert not old.check_fails()
     assert not new.check_fails()
-    line.command("unplug-master 1")  # box a's USB adapter pulled out: its port gone
+    adapter.unlink()  # box a's USB adapter pulled out: its link and its port gone
+    line.command("unplug-master 1")
     unplugged = time.monotonic()
     while not old.check_fails():
         assert time.monotonic() - unplugged < PORTLESS_S + 3.0, old.status()
@@ -120,3 +130,74 @@ def test_the_active_s_adapter_unplugged_it_fails_keepalived_s_check_and_leaves_t
     assert old.status()["role"] == "standby"
     assert line.stats()["collisions"] == 0
     print(f"check failed {failed_s:.2f} s after the unplug")
+
+
+async def test_opc_ua_is_off_on_a_standby_and_served_by_the_active(
+    line: SharedLine, boxes: list[Box], tmp_path: Path
+) -> None:
+    port = free_port()
+    opcua = {"enabled": True, "port": port, "anonymous": True, "security": ["None"]}
+    standby = await asyncio.to_thread(Box, "b", line.paths[1], tmp_path, "standby", opcua=opcua)
+    boxes.append(standby)
+    # A standby's OPC UA port is closed: a client is told "not here" at once, and moves on.
+    with pytest.raises(ConnectionRefusedError):
+        await asyncio.open_connection("127.0.0.1", port)
+    await asyncio.to_thread(standby.ask, "active")  # the line is silent: it takes it
+    await asyncio.to_thread(standby.wait_role, "active", 5.0)
+    # OPC UA starts beside: its address space built, and (its first start) its certificate
+    # made, seconds on a busy machine that Modbus-TCP doesn't wait for.
+    deadline = time.monotonic() + 20
+    while True:
+        try:
+            async with Client(f"opc.tcp://127.0.0.1:{port}", timeout=4) as client:
+                ns = await client.get_namespace_index(NAMESPACE)
+                state = await client.get_node(ua.NodeId("pump.state", ns)).read_data_value()
+                if state.StatusCode.is_good():  # polled by this box, now the active one
+                    break
+        except (OSError, TimeoutError, ua.UaError):
+            assert time.monotonic() < deadline
+            await asyncio.sleep(0.2)
+    # Back to standby: the port closes again.
+    await asyncio.to_thread(standby.ask, "standby")
+    await asyncio.to_thread(standby.wait_role, "standby", 5.0)
+    with pytest.raises(ConnectionRefusedError):
+        await asyncio.open_connection("127.0.0.1", port)
+
+
+async def test_sparkplug_s_node_moves_to_the_new_active_with_a_new_nbirth_its_bdseq_counting_on(
+    line: SharedLine, boxes: list[Box], tmp_path: Path, mosquitto: Mosquitto
+) -> None:
+    group = f"plant-{uuid.uuid4().hex[:8]}"
+    broker = {
+        "host": mosquitto.host,
+        "port": mosquitto.port,
+        "base_topic": unique_base_topic("pair"),
+        "sparkplug": {"group_id": group, "edge_node_id": "cabinet-a"},
+    }
+    with tahu_codec() as codec:
+        async with sparkplug_host(mosquitto, codec, group, "cabinet-a") as host:
+            old = await asyncio.to_thread(Box, "a", line.paths[0], tmp_path, "active", mqtt=broker)
+            boxes.append(old)
+            # The standby's node is silent: one node, born by the active box only.
+            new = await asyncio.to_thread(Box, "b", line.paths[1], tmp_path, "standby", mqtt=broker)
+            boxes.append(new)
+            born = await host.wait_for(host.topic("NBIRTH"))
+            await host.wait_for(host.topic("DBIRTH", "pump"), after=born.index)
+            first = values(born.payload)["bdSeq"]
+            await asyncio.sleep(1.0)  # box b hears box a's role announcement, with its bdSeq
+            assert [m.topic for m in host.messages() if "NBIRTH" in m.topic] == [born.topic]
+
+            old.gateway.process.send_signal(signal.SIGKILL)
+            await asyncio.to_thread(old.gateway.process.wait, 5)
+            # Box a's will: the NDEATH of its birth's bdSeq, the node dead for the host.
+            death = await host.wait_for(host.topic("NDEATH"), after=born.index)
+            assert values(death.payload)["bdSeq"] == first
+            await asyncio.to_thread(new.notified, "MASTER")
+            reborn = await host.wait_for(host.topic("NBIRTH"), after=death.index)
+            # Box b's node: a new NBIRTH whose bdSeq is the next one, as the node's next CONNECT
+            # (a late NDEATH of box a's, its network gone, never matches it), then its drives.
+            assert values(reborn.payload)["bdSeq"] == (first + 1) % 256
+            assert values(reborn.payload)["Node Info/gateway_id"] == "pair"
+            await host.wait_for(host.topic("DBIRTH", "pump"), after=reborn.index)
+            births = [m for m in host.messages() if m.topic == host.topic("NBIRTH")]
+            assert len(births) == 2
