@@ -584,6 +584,8 @@ class LineHandover:
                 node.bd_seq.follow_on(told.bd_seq)
             if app.announcer is not None:
                 node.born.append(app.announcer.changed)  # the bdSeq in the role announcement
+        if app.mqtt is not None and running.redundancy is not None:
+            app.mqtt.publisher.box = running.redundancy.box  # the events say which box's
         waiting, self.waiting = self.waiting, []
         for part in waiting:
             if part is app.mqtt and app.mqtt is not None:

@@ -76,6 +76,9 @@ class Publisher:
         self.poller = poller
         self.stats = stats
         self.events = events
+        self.box: str | None = None
+        """With `redundancy:`, this box's name, in every event it publishes: the two boxes'
+        stores number their events each on its own, so a consumer tells them by box and id."""
         self._published: dict[str, float] = {}
         """Drive → the monotonic time its state was last published."""
         self._availability: dict[str, bool] = {}
@@ -142,8 +145,10 @@ class Publisher:
                 continue
             acknowledged: list[int] = []
             try:
+                box = self.box
                 for event in batch:
-                    await self.publish(client, self.topics.bridge_event, dump(event.payload()))
+                    data = event.payload() if box is None else {**event.payload(), "box": box}
+                    await self.publish(client, self.topics.bridge_event, dump(data))
                     acknowledged.append(event.id)  # QoS 1: publish returned on the PUBACK
             finally:
                 self.events.delivered(acknowledged)

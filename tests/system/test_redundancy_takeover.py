@@ -92,6 +92,11 @@ async def test_a_fault_reported_by_the_old_active_is_not_reported_again_by_the_n
         await asyncio.sleep(1.0)
         assert raised(probe, events, 36, after=mark) == 1
         assert raised(probe, events, 35, after=mark) == 0
+        # Each box numbers its events on its own: they say whose they are.
+        boxes_told = {
+            (m.json()["data"].get("fault_code"), m.json()["box"]) for m in probe.on(events)
+        }
+        assert {(35, "a"), (36, "b")} <= boxes_told
         assert time.monotonic() - start < 10
     assert line.stats()["collisions"] == 0
 
