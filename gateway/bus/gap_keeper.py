@@ -148,32 +148,20 @@ class GapKeeper:
             self._response_deadline = None
 
     async def send_after_gap(self, user: LineUser) -> Sending | None:
-        """At the end of the inter-frame gap, ask `user` for a frame (`LineUser.pick`) and
-        start writing it.
+        """At the gap's end, ask `user` for a frame and start writing it; None: nothing picked.
 
-        The pick is made in the wake-up that ends the gap (inside the gap timer's callback),
-        so the gap is not stretched by another pass of the event loop; that wake-up comes a
-        learnt lead before the gap's end (`gateway.bus.gap_lead`, up to a few hundred
-        microseconds), and the rest of the gap is waited out on the clock, so the frame goes
-        out as the gap ends. Nothing picked: nothing to send now (returned as None). Bytes
-        arriving during the gap restart it; a frame already chosen then goes at the new gap's
-        end.
+        The pick is made in the gap timer's wake-up, a learnt lead before the gap's end
+        (`gateway.bus.gap_lead`), and the rest of the gap is waited out on the clock: the frame
+        goes as the gap ends, with no pass of the loop between. Bytes heard during the gap
+        start it again; a frame already chosen then goes at the new gap's end.
 
-        With the frame's `LineUser.reply_timeout_s` set, the caller resumes when the reply's
-        first bytes come (or that time passes) instead of as the frame goes out: nothing is
-        left to do between the two, and it saves the loop a pass per transaction. When the
-        reply is all there and valid as it comes in, the port's reader callback finishes the
-        attempt itself and tells `LineUser.replied`, keeps the gap and sends the next frame
-        picked, the caller held all along: a busy line costs the loop no pass for the caller's
-        coroutine. What the caller gets in the end is the attempt its own reading must finish
-        (`finish`: a reply that is late, partial, bad or ended by a silence), or None once
-        nothing is picked.
-
-        With nothing picked, the caller stays held with the line idle for as long as
-        `LineUser.idle_for` says (None: not at all): a request queued meanwhile is sent by
-        `kick`, in the callback that queued it, and its reply read by the reader callback as
-        above, with no pass of the loop for the caller's coroutine; None is returned once that
-        time has passed idle.
+        With the frame's `LineUser.reply_timeout_s` set, the caller is held until the reply's
+        first bytes (or that time). A reply whole and valid as it comes in is finished by the
+        port's reader callback (`heard`), told to `LineUser.replied`, and the next frame picked
+        and sent after the gap, the caller held all along: a busy line costs no pass of its
+        coroutine. The caller gets the attempt its own reading must finish (a reply late,
+        partial or bad: `finish`). With nothing picked, it stays held with the line idle for
+        `LineUser.idle_for` (None: not at all), and `kick` sends a request queued meanwhile.
         """
         gap = self.settings.gap_s
         this = _Round(user, [])

@@ -106,9 +106,8 @@ def plan(
     is a drive changed, though its key in the configuration is the same."""
     restart: list[str] = []
     changed: list[str] = []
-    for key in ("gateway_id",):
-        if getattr(old, key) != getattr(new, key):
-            restart.append(key)
+    if old.gateway_id != new.gateway_id:
+        restart.append("gateway_id")
     if old.storage.path != new.storage.path:
         restart.append("storage.path")
     tcp = _tcp(old.modbus_tcp, new.modbus_tcp, changed, restart)

@@ -4,6 +4,7 @@ open, bytes go out; closed (another master heard), no byte does, whichever write
 from __future__ import annotations
 
 import os
+import time
 import tty
 
 import pytest
@@ -19,11 +20,18 @@ from gateway.settings.lines import bus_settings
 READ = build_frame(1, bytes.fromhex("0330000002"))
 
 
-def pending(fd: int) -> bytes:
-    try:
-        return os.read(fd, 1024)
-    except BlockingIOError:
-        return b""
+def pending(fd: int, expected: int = 0, within_s: float = 2.0) -> bytes:
+    """What the pty's other end has got: at least `expected` bytes if they come within
+    `within_s` (a pty hands two writes over in one read or in two, later on a busy machine)."""
+    got = bytearray()
+    deadline = time.monotonic() + within_s
+    while True:
+        try:
+            got += os.read(fd, 1024)
+        except BlockingIOError:
+            if len(got) >= expected or time.monotonic() > deadline:
+                return bytes(got)
+            time.sleep(0.005)
 
 
 async def test_a_closed_gate_lets_no_byte_through() -> None:
@@ -38,7 +46,7 @@ async def test_a_closed_gate_lets_no_byte_through() -> None:
         try:
             assert port.write_now(READ) == len(READ)
             await port.write(READ)
-            assert pending(master) == READ + READ
+            assert pending(master, 2 * len(READ)) == READ + READ
             gate.close("another master is on the line")
             with pytest.raises(PortError, match="nothing sent: another master is on the line"):
                 port.write_now(READ)
