@@ -333,10 +333,15 @@ def test_two_benches_at_once_each_run_their_own_gateway_and_store() -> None:
     the case before, still stopping) used to make the next one exit 4 at start."""
     arguments = ["--baud", "115200", "--duration", "1", "--warmup", "0.3", "--json"]
     command = [sys.executable, "-m", "gateway", "bench", *arguments, "--case", "no wire delay"]
-    both = [
-        subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        for _ in range(2)
-    ]
+    both = []
+    for _ in range(2):
+        both.append(
+            subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        )
+        # The second a second later: the first's gateway is up, holding its store, and has
+        # bound the ports it picked (two benches picking free ports at the same instant could
+        # pick the same: a race of the tool's, not what this is about).
+        time.sleep(1.0)
     for bench in both:
         out, err = bench.communicate(timeout=120)
         assert bench.returncode == 0, err
