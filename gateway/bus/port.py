@@ -140,6 +140,9 @@ class Port(ABC):
         """Why the port failed, until the next use raises it (and closes the port)."""
         self.waiter: asyncio.Future[None] | None = None
         """Whoever waits for news from the port: bytes, or its failure."""
+        self.silenced: str | None = None
+        """Why no byte may go out any more (another master heard on the line: the redundant
+        active's `WriteGate`): every write refuses, whoever asks; reading goes on."""
 
     def check(self) -> serial.SerialBase:
         """The port, if it is usable; else raise why not (closing it, if it failed)."""
@@ -186,9 +189,15 @@ class Port(ABC):
     async def write(self, frame: bytes) -> None:
         """Write all of `frame`."""
 
+    def writable(self) -> serial.SerialBase:
+        """`check`, for a write: also refused (PortError) once the port is silenced."""
+        if self.silenced is not None:
+            raise PortError(f"{self.settings.port}: nothing sent: {self.silenced}")
+        return self.check()
+
     def write_whole(self, frame: bytes) -> None:
         """The whole frame through pyserial (RTS mode: the port's own write, then its drain)."""
-        raw = self.check()
+        raw = self.writable()
         try:
             raw.write(frame)
         except _PORT_ERRORS as exc:
@@ -307,8 +316,8 @@ class TtyPort(Port):
         return True
 
     def write_now(self, frame: bytes) -> int:
-        if self.error is not None or not self.open:  # `check`'s call only when it raises
-            self.check()
+        if self.error is not None or not self.open or self.silenced is not None:
+            self.writable()  # its call only when it raises
         try:
             return os.write(self.fd, frame)
         except BlockingIOError:  # the port's buffer is full: `write` waits for room
@@ -317,7 +326,7 @@ class TtyPort(Port):
             raise self._failure("write to", exc) from exc
 
     async def write(self, frame: bytes) -> None:
-        self.check()
+        self.writable()
         view = memoryview(frame)
         # A frame takes its wire time to leave; an adapter that takes a second more is wedged,
         # and a bus stuck here would hold the line forever.
