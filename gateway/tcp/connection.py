@@ -95,7 +95,7 @@ class Connection(asyncio.Protocol):
         self._reads: set[asyncio.Task[None]] = set()
         """Answers to pure reads: nobody will receive them once the client has gone."""
         self._fast: set[_Answer] = set()
-        """Reads on the fast path (no task): waiting for the bus, answered by it."""
+        """Reads answered by their waiter (`_Answer`, no task), waiting for the bus."""
         self._transport: asyncio.Transport | None = None
         self.gone = True
         """No answer can reach the client: not connected yet, closed or aborted here, or lost.
@@ -437,7 +437,7 @@ class Connection(asyncio.Protocol):
 
 
 class _Answer:
-    """A read's answer on the fast path: the bus's waiter that writes the answer frame the
+    """A read's answer without a task: the bus's waiter that writes the answer frame the
     moment the reply is there, in the bus's own pass of the event loop (no task to wake)."""
 
     __slots__ = ("_connection", "function", "settled", "transaction_id", "unit_id")
@@ -456,7 +456,7 @@ class _Answer:
     def set_result(self, result: bytes | None, /) -> None:
         """The bus has the reply (or, from `set_exception`, the error's): it goes out now."""
         self.settled = True
-        assert result is not None  # the fast path carries no broadcast
+        assert result is not None  # a taskless read is never a broadcast
         connection = self._connection
         connection._send(self.transaction_id, self.unit_id, result)
         fast = connection._fast

@@ -3,7 +3,7 @@
 Each connection parses MBAP frames out of what arrives and answers every request as soon as it is
 ready, with its own transaction id, in any order, so a client may pipeline several (up to
 `max_requests_per_connection`; beyond that the gateway stops reading that socket). A read that is
-one bus transaction takes the fast path: checked at the front door and handed to its bus in the
+one bus transaction needs no task: checked at the front door and handed to its bus in the
 same pass of the event loop, its answer written by the bus the moment the reply is there
 (`_Answer`, a waiter, no task). Writes, broadcasts and reads the router splits each take a task.
 Several frames in one TCP segment are all answered. A malformed header closes that connection
@@ -82,7 +82,7 @@ class ModbusTcpServer:
         self.route = route
         """Where each request goes: `execute` in a task, or a read at once (`submit`)."""
         self._drained: asyncio.Future[None] | None = None
-        """Set while `stop` waits for the answers of the fast path to go out."""
+        """Set while `stop` waits for the taskless reads' answers to go out."""
         self._server: asyncio.Server | None = None
         self._tls_server: asyncio.Server | None = None
         self._connections: set[Connection] = set()
