@@ -6,11 +6,22 @@ from __future__ import annotations
 import asyncio
 import sys
 import time
+from collections.abc import Callable
 
 import pytest
 
 from gateway import timerfd
 from gateway.bus.line_timer import LineTimer
+
+
+async def _sleep_from_now(
+    timer: LineTimer, delay_s: float, action: Callable[[], bool], deadlines: list[float]
+) -> None:
+    """Sleep `delay_s` from when this coroutine first runs, not from when its task was made: on
+    a busy machine the task may start after a deadline set earlier, and a deadline already
+    passed is acted on by nobody (`sleep_until` returns at once), which is not what is tested."""
+    deadlines.append(time.monotonic() + delay_s)
+    await timer.sleep_until(deadlines[-1], action)
 
 
 async def test_sleep_until_never_returns_before_the_deadline() -> None:
@@ -79,7 +90,8 @@ async def test_a_gap_that_ends_during_a_long_callback_is_acted_on_from_inside_it
     def busy_callback() -> None:
         other_line.fire_due()
         acted.append("before the deadline: nothing")
-        time.sleep(0.004)  # a busy pass; the gap ends meanwhile
+        while time.monotonic() < deadlines[0] + 0.002:  # a busy pass; the gap ends meanwhile
+            time.sleep(0.001)
         other_line.fire_due()
         acted.append("busy callback ends")
 
@@ -87,15 +99,15 @@ async def test_a_gap_that_ends_during_a_long_callback_is_acted_on_from_inside_it
         acted.append("gap action")
         return False
 
-    deadline = time.monotonic() + 0.002
-    sleeping = loop.create_task(timer.sleep_until(deadline, at_deadline))
+    deadlines: list[float] = []
+    sleeping = loop.create_task(_sleep_from_now(timer, 0.05, at_deadline, deadlines))
     await asyncio.sleep(0)  # the sleep is armed
     loop.call_soon(busy_callback)
     try:
         await asyncio.wait_for(sleeping, 1.0)
         await asyncio.sleep(0.01)  # the timer's own wake-up, disarmed, must not act again
         assert acted == ["before the deadline: nothing", "gap action", "busy callback ends"]
-        assert time.monotonic() >= deadline
+        assert time.monotonic() >= deadlines[0]
     finally:
         timer.close()
         other_line.close()
@@ -106,10 +118,20 @@ async def test_an_action_that_took_the_wait_over_is_not_released_by_a_later_fire
     nor another `fire_due` may release it before then."""
     loop = asyncio.get_running_loop()
     timer = LineTimer(loop)
-    sleeping = loop.create_task(timer.sleep_until(time.monotonic() + 0.001, lambda: True))
-    await asyncio.sleep(0.01)
+    taken: list[bool] = []
+
+    def take_the_wait_over() -> bool:
+        taken.append(True)
+        return True
+
+    deadlines: list[float] = []
+    sleeping = loop.create_task(_sleep_from_now(timer, 0.005, take_the_wait_over, deadlines))
+    await asyncio.sleep(0)  # the sleep is armed
+    while time.monotonic() < deadlines[0] + 0.005:
+        await asyncio.sleep(0.005)
     timer.fire_due()
     await asyncio.sleep(0.01)
+    assert taken == [True]
     assert not sleeping.done()  # still held: its taker has not settled it
     waiting = timer.waiting
     assert waiting is not None
@@ -158,13 +180,17 @@ async def test_an_action_that_closes_the_timer_leaves_nothing_behind() -> None:
     loop.set_exception_handler(lambda _loop, context: errors.append(context))
     timer = LineTimer(loop)
 
+    failed: list[bool] = []
+
     def port_fails() -> bool:
+        failed.append(True)
         timer.close()
         return False
 
     try:
-        await asyncio.wait_for(timer.sleep_until(time.monotonic() + 0.002, port_fails), 1.0)
+        await asyncio.wait_for(_sleep_from_now(timer, 0.002, port_fails, []), 1.0)
         await asyncio.sleep(0.01)
+        assert failed == [True]
         assert errors == []
     finally:
         loop.set_exception_handler(None)
