@@ -24,7 +24,7 @@ import time
 from dataclasses import dataclass, field
 
 from gateway.backoff import Backoff
-from gateway.bus.carrier import Carrier, Outcome
+from gateway.bus.carrier import Carrier
 from gateway.bus.dispatch import BusState as BusState
 from gateway.bus.dispatch import Dispatch
 from gateway.bus.exchange import Sending
@@ -36,10 +36,11 @@ from gateway.bus.observers import (
     BusObservers,
     DriveListener,
     Observed,
+    Outcome,
     PortListener,
     RequestObserver,
     Tap,
-    fail,
+    give,
 )
 from gateway.bus.queue import Priority, RequestQueue, Transaction, Waiter
 from gateway.bus.stats import BusStats as BusStats
@@ -322,7 +323,7 @@ class Bus:
         self._wake()
         error = BusClosed(f"bus {self.name} {reason}")
         for transaction in queued:
-            fail(transaction, error)
+            give(transaction, error)
 
     async def wait_idle(self, timeout_s: float) -> None:
         """Wait (at most `timeout_s`) for the transaction on the wire to finish."""
@@ -354,7 +355,7 @@ class Bus:
                     outcome = await self.carrier.carry(transaction, sending)
                 except PortError as exc:
                     self._port_lost(exc)
-                    outcome = fail, (transaction, GatewayTargetFailed(f"bus {self.name}: {exc}"))
+                    outcome = GatewayTargetFailed(f"bus {self.name}: {exc}")
                 except Exception as exc:  # a bug costs this one request, never the line
                     outcome = self.carrier.bug(transaction, exc)
                 self.carrier.finish(transaction, outcome, sending.started)
@@ -364,7 +365,7 @@ class Bus:
             carrying = self.carrier.carrying
             if carrying is not None:
                 stopped = BusClosed(f"bus {self.name} stopped")
-                self.carrier.finish(carrying, (fail, (carrying, stopped)), None)
+                self.carrier.finish(carrying, stopped, None)
             raise
         finally:
             self.line.close()
@@ -388,7 +389,7 @@ class Bus:
                 picked = self.carrier.carrying
                 if picked is not None:  # taken from the queue, but the port failed under it
                     error = GatewayTargetFailed(f"bus {self.name}: {exc}")
-                    self.carrier.finish(picked, (fail, (picked, error)), None)
+                    self.carrier.finish(picked, error, None)
                 self._port_lost(exc)
                 return None
             except Exception as exc:  # a bug in choosing or framing costs that one request
@@ -397,7 +398,7 @@ class Bus:
                     raise  # nothing was taken: trying again would spin; let the bus fail
                 log.exception("bus %s: unexpected error starting a transaction", self.name)
                 error = GatewayTargetFailed(f"bus {self.name}: {exc}")
-                self.carrier.finish(picked, (fail, (picked, error)), None)
+                self.carrier.finish(picked, error, None)
                 continue
             if sending is not None:
                 transaction = self.carrier.carrying
@@ -479,7 +480,7 @@ class Bus:
         queued = self._queue.take_all()
         error = GatewayTargetFailed(f"bus {self.name}: {exc}")
         for transaction in queued:
-            fail(transaction, error)
+            give(transaction, error)
         # No drive on this line can be reached now: say so (MQTT availability, metrics); once
         # the port is back, the probes find each one again.
         now = time.monotonic()

@@ -18,8 +18,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Callable
-from typing import Any
 
 from gateway.bus.exchange import Exchange, Sending, Stray
 from gateway.bus.gap_excess import GapExcess
@@ -28,7 +26,7 @@ from gateway.bus.late_replies import LateReplies
 from gateway.bus.line import SerialLine
 from gateway.bus.line_settings import LineSettings
 from gateway.bus.line_user import OneFrame
-from gateway.bus.observers import BusObservers, answer, fail
+from gateway.bus.observers import BusObservers, Outcome, give
 from gateway.bus.queue import RequestQueue, Transaction
 from gateway.bus.stats import BusStats, DriveStats
 from gateway.errors import BadReply, GatewayTargetFailed, LineError, PortError, ReplyTimeout
@@ -39,10 +37,6 @@ from gateway.modbus.rtu import BROADCAST_ADDRESS, build_frame
 log = logging.getLogger("gateway.bus.bus")
 
 _DEBUG = logging.DEBUG
-
-Outcome = tuple[Callable[..., None], tuple[Any, ...]]
-"""What the bus does with a carried transaction: a callback for its waiters and its arguments
-(`answer` or `fail`, from `gateway.bus.observers`)."""
 
 
 class Carrier:
@@ -111,15 +105,14 @@ class Carrier:
             quiet_since = self._receiver.quiet_since  # `SerialLine.busy_until`
             held = (quiet_since if quiet_since > now else now) - started
             self._charge_share(transaction.use, held, now)
-        callback, args = outcome
-        callback(*args)
+        give(transaction, outcome)
         if self.idle_awaited:
             self.idle.set()
 
     def bug(self, transaction: Transaction, exc: Exception) -> Outcome:
         """A bug in carrying `transaction` costs it, never the line: logged, answered 0BH."""
         log.exception("bus %s: unexpected error in a transaction", self.name)
-        return fail, (transaction, GatewayTargetFailed(f"bus {self.name}: {exc}"))
+        return GatewayTargetFailed(f"bus {self.name}: {exc}")
 
     # -- every attempt, in the bus's coroutine ---------------------------------------------------
 
@@ -243,7 +236,7 @@ class Carrier:
             log.warning("bus %s: %s", self.name, message)
         error = GatewayTargetFailed(message)
         error.sent_unconfirmed = unconfirmed
-        return fail, (transaction, error)
+        return error
 
     async def _catch_up(
         self, transaction: Transaction, sent: Sending, drive: DriveStats
@@ -386,7 +379,7 @@ class Carrier:
                 self._answered_frames[address] = transaction.frame or build_frame(
                     address, transaction.pdu
                 )
-        return answer, (transaction, pdu)
+        return pdu
 
     def _record(
         self, drive: DriveStats, pdu: bytes | None, gap_s: float, busy_s: float, heard_at: float

@@ -12,10 +12,10 @@ from __future__ import annotations
 import time
 from enum import StrEnum
 
-from gateway.bus.carrier import Carrier, Outcome
+from gateway.bus.carrier import Carrier
 from gateway.bus.exchange import Sending
 from gateway.bus.health import HealthTracker
-from gateway.bus.observers import fail
+from gateway.bus.observers import Outcome, give
 from gateway.bus.probes import due_probes
 from gateway.bus.queue import RequestQueue
 from gateway.bus.stats import BusStats
@@ -107,7 +107,7 @@ class Dispatch:
                 and health.is_offline(address)
             ):  # went offline while this waited: 0BH at once, without bus time
                 self._stats.offline_rejected += 1
-                fail(transaction, DriveOffline(f"drive {address} on {self.name} is offline"))
+                give(transaction, DriveOffline(f"drive {address} on {self.name} is offline"))
                 continue
             carrier.carrying = transaction  # before anything can fail: it must be answered
             carrier.back_to_back = reply_heard_at != 0.0

@@ -1,7 +1,7 @@
 """Who is told what a bus does: drive listeners (offline, back), port listeners (lost, open
 again), request observers (a caller's request answered: metrics, the console) and the traffic
 monitor's tap (every attempt on the wire); and the one way a transaction's waiters are answered,
-each observed waiter reported to the request observers as it is (`answer`, `fail`)."""
+each observed waiter reported to the request observers as it is (`give`)."""
 
 from __future__ import annotations
 
@@ -167,10 +167,22 @@ class Observed:
         self._observers.report(self._address, self._pdu, self._client, self._started, None, code)
 
 
-def answer(transaction: Transaction, reply: bytes | None) -> None:
-    """Give every waiter still waiting the reply (None for a broadcast); the transaction's own
-    waiter is reported to the request observers first (`Transaction.observed_by`)."""
+Outcome = bytes | GatewayError | None
+"""What a carried transaction's waiters get: its reply's PDU (None: a broadcast's, which has
+none), or the error that ended it."""
+
+
+def give(transaction: Transaction, outcome: Outcome) -> None:
+    """Give every waiter still waiting the transaction's `outcome`: the reply, or the error
+    raised in it. The transaction's own waiter is reported to the request observers first
+    (`Transaction.observed_by`), with the exception code of a drive's exception reply or of a
+    Modbus error."""
     observers = transaction.observed_by  # for its own waiter, the first
+    if isinstance(outcome, GatewayError):
+        error: GatewayError | None = outcome
+        reply, code = None, outcome.code if isinstance(outcome, ModbusError) else None
+    else:
+        error, reply, code = None, outcome, None
     for waiter in transaction.waiters:
         if not waiter.done():
             if observers is not None:
@@ -180,24 +192,10 @@ def answer(transaction: Transaction, reply: bytes | None) -> None:
                     transaction.client,
                     transaction.queued_at,
                     reply,
+                    code,
                 )
-            waiter.set_result(reply)
-        observers = None
-
-
-def fail(transaction: Transaction, error: GatewayError) -> None:
-    """Give every waiter still waiting `error`, reported as `answer` reports a reply."""
-    observers = transaction.observed_by  # for its own waiter, the first
-    for waiter in transaction.waiters:
-        if not waiter.done():
-            if observers is not None:
-                observers.report(
-                    transaction.address,
-                    transaction.pdu,
-                    transaction.client,
-                    transaction.queued_at,
-                    None,
-                    error.code if isinstance(error, ModbusError) else None,
-                )
-            waiter.set_exception(error)
+            if error is None:
+                waiter.set_result(reply)
+            else:
+                waiter.set_exception(error)
         observers = None

@@ -1,5 +1,5 @@
 """Who is told what a bus does (`BusObservers`), and how a transaction's waiters are answered
-(`answer`, `fail`, `Observed`): each waiter still waiting gets the outcome and is reported once,
+(`give`, `Observed`): each waiter still waiting gets the outcome and is reported once,
 timed from its own request; a waiter gone gets nothing; an observer or listener that raises
 costs nothing else."""
 
@@ -12,7 +12,7 @@ import time
 import pytest
 
 from gateway.bus.exchange import Exchange, Sending
-from gateway.bus.observers import RESYNC_CLIENT, BusObservers, Observed, answer, fail
+from gateway.bus.observers import RESYNC_CLIENT, BusObservers, Observed, give
 from gateway.bus.queue import Priority, Transaction, Waiter
 from gateway.bus.stats import RequestDone
 from gateway.errors import BusClosed, GatewayTargetFailed, LineError
@@ -52,7 +52,7 @@ async def test_every_waiter_still_waiting_gets_the_reply_each_reported_from_its_
     # Ones that joined the queued transaction later (identical reads), reported by a wrapper.
     observed = Observed(observers, joined, 1, READ, "joined", now - 1.0)
     observed_gone = Observed(observers, joined_gone, 1, READ, "joined-gone", now - 1.0)
-    answer(transaction([own, gone, observed, observed_gone], observers, now - 5.0), STOPPED_REPLY)
+    give(transaction([own, gone, observed, observed_gone], observers, now - 5.0), STOPPED_REPLY)
     assert own.result() == STOPPED_REPLY
     assert joined.result() == STOPPED_REPLY
     assert gone.cancelled()
@@ -69,9 +69,9 @@ async def test_a_waiter_gone_is_not_reported_nor_is_one_that_nobody_observes() -
     observers, done = observers_with_records()
     own = waiter()
     own.cancel()
-    answer(transaction([own], observers, time.monotonic()), STOPPED_REPLY)
+    give(transaction([own], observers, time.monotonic()), STOPPED_REPLY)
     unobserved = waiter()
-    answer(transaction([unobserved], None, time.monotonic()), STOPPED_REPLY)
+    give(transaction([unobserved], None, time.monotonic()), STOPPED_REPLY)
     assert unobserved.result() == STOPPED_REPLY
     assert done == []
 
@@ -81,13 +81,13 @@ async def test_a_failure_reaches_every_waiter_with_its_exception_code() -> None:
     own, joined = waiter(), waiter()
     observed = Observed(observers, joined, 1, READ, "joined", time.monotonic())
     error = GatewayTargetFailed("drive 1 on line1: no reply")
-    fail(transaction([own, observed], observers, time.monotonic()), error)
+    give(transaction([own, observed], observers, time.monotonic()), error)
     assert own.exception() is error
     assert joined.exception() is error
     assert [(d.client, d.code) for d in done] == [("own", 0x0B), ("joined", 0x0B)]
     # A closing bus's answer is a gateway failure too, as the caller sees it.
     closed = waiter()
-    fail(transaction([closed], observers, time.monotonic()), BusClosed("bus line1 closed"))
+    give(transaction([closed], observers, time.monotonic()), BusClosed("bus line1 closed"))
     assert isinstance(closed.exception(), BusClosed)
     assert done[-1].code == 0x0B
 
@@ -96,7 +96,7 @@ async def test_a_drives_exception_reply_is_reported_with_its_code() -> None:
     observers, done = observers_with_records()
     own = waiter()
     refusal = bytes.fromhex("83 02")  # illegal data address
-    answer(transaction([own], observers, time.monotonic()), refusal)
+    give(transaction([own], observers, time.monotonic()), refusal)
     assert own.result() == refusal
     assert [(d.function, d.code) for d in done] == [(0x03, 0x02)]
     # A broadcast's answer (None) and an empty PDU: reported, no code, function 0.
@@ -116,7 +116,7 @@ async def test_an_observer_that_raises_stops_neither_the_others_nor_the_answer(
     observers.request_observers[:] = [broken, lambda *fields: told.append(str(fields[3]))]
     own = waiter()
     with caplog.at_level(logging.ERROR, logger="gateway.bus.bus"):
-        answer(transaction([own], observers, time.monotonic()), STOPPED_REPLY)
+        give(transaction([own], observers, time.monotonic()), STOPPED_REPLY)
     assert own.result() == STOPPED_REPLY
     assert told == ["own"]
     assert "request observer failed" in caplog.text
