@@ -224,6 +224,8 @@ class Application:
                 log.exception("reload: the OPC UA server's nodes could not follow the drives")
                 plan.restart_needed.append(f"opcua's nodes of the drives changed ({exc})")
         self.settings = plan.settings  # with what could not be applied kept at its running value
+        if self.announcer is not None:  # `redundancy:` with MQTT: told to the other box
+            self.announcer.reloaded()
         data = {"changed": plan.changed, "restart_needed": plan.restart_needed}
         self.events.record(EventType.CONFIG_RELOADED, data)
         log.warning("config reloaded: %s", plan.summary)
@@ -513,13 +515,15 @@ class LineHandover:
         if settings.mqtt is not None:
             from gateway.mqtt.role import RoleAnnouncer
             from gateway.mqtt.told import ToldBirth, ToldFaults
+            from gateway.redundancy.peer_config import PeerConfig
 
             box, base = settings.redundancy.box, settings.mqtt.base_topic
             told = ToldFaults(base, (d.name for d in settings.drives))
             self.told_birth = ToldBirth(base, box)
-            announced = self._announced(redundancy)
-            followed = (told, self.told_birth)
-            app.announcer = RoleAnnouncer(settings.mqtt, box, announced, followed)
+            peer = redundancy.peer_config = PeerConfig(lambda: app.settings.source, app.events)
+            announced, followed = self._announced(redundancy), (told, self.told_birth)
+            app.announcer = RoleAnnouncer(settings.mqtt, box, announced, followed, peer)
+            app.announcer.hand_events(app.events, lambda: not redundancy.serving)
             redundancy.listeners.append(app.announcer.changed)
             app.poller.open_faults = self._told_first(told)
         if app.console is not None:

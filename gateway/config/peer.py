@@ -8,11 +8,18 @@ role, the addresses it binds, its adapters' device paths, its store's path and i
 Compared as loaded (defaults filled in): a key left out on one box and set to its default on
 the other is no difference. A list of named items (buses, drives, poll groups, users) is
 compared by name, so `drives[pump].poll[state].interval_ms` says which one differs.
+
+The running boxes compare the same split between them on MQTT (`shared_digests`: each shared
+key with a digest of its value, never the value; `differing` names the keys whose digests
+differ): a reload on one box tells the other's operator (`gateway.redundancy.peer_config`).
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Final
 
@@ -56,6 +63,43 @@ def differences(here: GatewayConfig, there: GatewayConfig) -> list[Difference]:
         for key in keys
         if mine.get(key, missing) != theirs.get(key, missing)
     ]
+
+
+def shared_digests(config: GatewayConfig) -> dict[str, str]:
+    """Each key both boxes must share (not `OWN`), with a digest of its value as loaded: the
+    first 12 hex digits of the SHA-256 of its JSON. A secret's digest says only whether it is
+    set: a digest of a password on the broker could be guessed offline (`check-config --peer`
+    compares the values)."""
+    digests: dict[str, str] = {}
+    for key, value in _flat(config.model_dump(mode="json")):
+        if _own(key):
+            continue
+        if SECRET.search(key):
+            value = "(secret: set)" if value not in (None, "") else value
+        text = json.dumps(value, sort_keys=True, separators=(",", ":"))
+        digests[key] = hashlib.sha256(text.encode()).hexdigest()[:12]
+    return digests
+
+
+def differing(here: Mapping[str, str], there: Mapping[str, str]) -> list[str]:
+    """The shared keys whose digests differ (or that one side has and the other doesn't), in
+    key order; a named item that only one side has at all is one key (`drives[fan]`), not
+    each of its keys."""
+    keys: set[str] = set()
+    for key in here.keys() | there.keys():
+        if here.get(key) == there.get(key):
+            continue
+        keys.add(_item_missing(key, there if key in here else here) or key)
+    return sorted(keys)
+
+
+def _item_missing(key: str, other: Mapping[str, str]) -> str | None:
+    """The first named item on `key`'s path (`drives[fan]`) of which `other` has no key."""
+    for match in re.finditer(r"\[[^]]+\]", key):
+        item = key[: match.end()]
+        if not any(k == item or k.startswith((f"{item}.", f"{item}[")) for k in other):
+            return item
+    return None
 
 
 def _own(key: str) -> bool:

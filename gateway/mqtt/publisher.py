@@ -19,7 +19,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Awaitable, Callable, Sequence
 
 import aiomqtt
 
@@ -56,6 +56,33 @@ def exception_report(mqtt: MqttSettings, drive: DriveSettings) -> ExceptionRepor
         return ExceptionReport(drive.profile.typed_points, mqtt.device_reporting)
     rules = mqtt.reporting.get(drive.name, DriveReporting())
     return ExceptionReport.of_keys(rules.default, rules.keys)
+
+
+async def forward_stored(
+    events: EventStore, publish: Callable[[str], Awaitable[None]], box: str | None
+) -> None:
+    """Publish what `events` holds for the broker, oldest first, until cancelled or `publish`
+    fails; each one marked delivered once acknowledged (`publish` returns on the PUBACK: QoS
+    1), so it goes out once. `box`: with `redundancy:`, this box's name, in each event.
+
+    One forwarder at a time per store (`EventStore.forwarding`): the bridge's on a gateway that
+    serves its lines, the role connection's on a redundant box that doesn't (`gateway.mqtt.
+    role`: a standby hands over its own backlog), never both at once."""
+    async with events.forwarding:
+        events.redeliver()  # what the last connection sent unacknowledged goes again
+        while True:
+            batch = await events.undelivered(EVENT_BATCH)
+            if not batch:
+                await events.wait_stored(PUBLISH_TICK_S)
+                continue
+            acknowledged: list[int] = []
+            try:
+                for event in batch:
+                    data = event.payload() if box is None else {**event.payload(), "box": box}
+                    await publish(dump(data))
+                    acknowledged.append(event.id)  # QoS 1: publish returned on the PUBACK
+            finally:
+                events.delivered(acknowledged)
 
 
 class Publisher:
@@ -135,23 +162,13 @@ class Publisher:
                     self.outbox.restore(pending)
 
     async def forward_events(self, client: aiomqtt.Client) -> None:
-        """Publish what the store holds for the broker, oldest first, for as long as the
-        connection lasts; each one marked delivered once acknowledged."""
-        self.events.redeliver()  # what the last connection sent unacknowledged goes again
-        while True:
-            batch = await self.events.undelivered(EVENT_BATCH)
-            if not batch:
-                await self.events.wait_stored(PUBLISH_TICK_S)
-                continue
-            acknowledged: list[int] = []
-            try:
-                box = self.box
-                for event in batch:
-                    data = event.payload() if box is None else {**event.payload(), "box": box}
-                    await self.publish(client, self.topics.bridge_event, dump(data))
-                    acknowledged.append(event.id)  # QoS 1: publish returned on the PUBACK
-            finally:
-                self.events.delivered(acknowledged)
+        """Publish what the store holds for the broker (`forward_stored`), for as long as the
+        connection lasts."""
+
+        async def publish(payload: str) -> None:
+            await self.publish(client, self.topics.bridge_event, payload)
+
+        await forward_stored(self.events, publish, self.box)
 
     async def state(
         self, client: aiomqtt.Client, drive: str, telemetry: Telemetry, force: bool = False

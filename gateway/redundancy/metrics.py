@@ -1,6 +1,7 @@
 """Redundancy's metric families, read at scrape time: the role this gateway is in, its changes,
-and another master's frames heard. Published without `redundancy:` too (a gateway alone is its
-lines' active master, and has no changes): a dashboard's query needs no second form."""
+another master's frames heard, and the keys the other box's configuration differs in. Published
+without `redundancy:` too (a gateway alone is its lines' active master, and has no changes): a
+dashboard's query needs no second form."""
 
 from __future__ import annotations
 
@@ -37,6 +38,13 @@ class RedundancyMetrics(Collector):
             changes.add_metric([each.value], float(count))
         yield gauge
         yield changes
+        peer = None if redundancy is None else redundancy.peer_config
+        yield GaugeMetricFamily(
+            f"{PREFIX}_redundancy_peer_config_differences",
+            "Keys both boxes must share whose values differ between this box's configuration "
+            "and the other box's, as it announced it on MQTT (0: alike, or not heard)",
+            value=0.0 if peer is None else float(len(peer.differs)),
+        )
         yield CounterMetricFamily(
             f"{PREFIX}_redundancy_foreign_frames",
             "Another master's requests heard on a line while this gateway was active: each "

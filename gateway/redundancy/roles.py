@@ -38,6 +38,7 @@ from gateway.bus import Bus
 from gateway.bus.line_settings import LineSettings
 from gateway.poller.drive_state import iso_time
 from gateway.redundancy.listener import LineListener
+from gateway.redundancy.peer_config import PeerConfig
 from gateway.redundancy.watch import ActiveWatch
 from gateway.settings.redundancy import RedundancySettings
 from gateway.store import EventStore, EventType
@@ -124,6 +125,8 @@ class Redundancy:
         self._changed: asyncio.Event | None = None
         self.listeners: list[Callable[[], None]] = []
         """Told after each role change (the MQTT role announcement)."""
+        self.peer_config: PeerConfig | None = None
+        """With MQTT, the other box's configuration compared with this one's (its status)."""
 
     # -- asked on the control socket ------------------------------------------------------------
 
@@ -188,6 +191,8 @@ class Redundancy:
             status["deaf"] = [lsn.settings.name for lsn in self._listeners if not lsn.open]
             status["heard_requests"] = sum(ear.requests for ear in heard)
             status["heard_replies"] = sum(ear.replies for ear in heard)
+        if self.peer_config is not None:
+            status["peer_config"] = self.peer_config.status()
         return status
 
     @property

@@ -126,6 +126,8 @@ class EventStore(StoreForwarding, OutageBuffer):
         self._writer: asyncio.Task[None] | None = None
         self._delivered_up_to = 0
         """Events up to this id were acknowledged by the broker (this run: no re-query)."""
+        self.forwarding = asyncio.Lock()
+        """Held by the one forwarding the events (`forward_stored`): two would send each twice."""
         self._drops_logged_at = 0.0
         self._drops_unlogged = 0
 

@@ -38,6 +38,10 @@ class EventType(StrEnum):
     """Redundancy: this gateway became standby, listening or active (`gateway.redundancy`)."""
     FOREIGN_MASTER = "foreign_master"
     """Redundancy: an active gateway heard another master's request and left the line."""
+    PEER_CONFIG_DIFFERS = "peer_config_differs"
+    """Redundancy: the other box runs another configuration in what both must share (its keys)."""
+    PEER_CONFIG_ALIKE = "peer_config_alike"
+    """Redundancy: the other box runs this box's configuration again."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -10,11 +10,11 @@ import urllib.request
 from prometheus_client.parser import text_string_to_metric_families
 
 
-async def http_get(port: int, path: str) -> tuple[int, str, str]:
+async def http_get(port: int, path: str, host: str = "127.0.0.1") -> tuple[int, str, str]:
     """(status, content type, body) of a real HTTP GET."""
 
     def get() -> tuple[int, str, str]:
-        url = f"http://127.0.0.1:{port}{path}"
+        url = f"http://{host}:{port}{path}"
         try:
             with urllib.request.urlopen(url, timeout=5) as response:
                 return response.status, response.headers["Content-Type"], response.read().decode()

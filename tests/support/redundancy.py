@@ -78,6 +78,7 @@ class Box:
         self.name = name
         config = box_config(line, folder / name, role, hold_off_ms, name, **more)
         self.metrics_port = int(config["metrics"]["port"])
+        self.metrics_host = str(config["metrics"]["host"])
         self.gateway = GatewayProcess(config, folder / name, command=command)
         self.gateway.wait_ready()
         ready = self.gateway.log.wait_for("ready:")
@@ -138,12 +139,12 @@ class Box:
             time.sleep(0.1)  # another process's state: polled with a deadline
 
     def health(self) -> dict[str, Any]:
-        _, _, body = asyncio.run(http_get(self.metrics_port, "/health"))
+        _, _, body = asyncio.run(http_get(self.metrics_port, "/health", self.metrics_host))
         health: dict[str, Any] = json.loads(body)
         return health
 
     def metrics(self) -> str:
-        _, _, body = asyncio.run(http_get(self.metrics_port, "/metrics"))
+        _, _, body = asyncio.run(http_get(self.metrics_port, "/metrics", self.metrics_host))
         return body
 
     def read_state(self) -> bytes:

@@ -184,9 +184,14 @@ def test_on_mqtt_a_standby_publishes_only_its_role(
     broker = {"host": mosquitto.host, "port": mosquitto.port, "base_topic": base}
     boxes.append(standby := Box("b", line.paths[1], tmp_path, "standby", mqtt=broker))
     time.sleep(1.0)
-    # Alone on the line, a standby: its role and health, and nothing of the drives.
+    # Alone on the line, a standby: its role and health, and what it runs of the configuration
+    # both boxes share (digests), and nothing of the drives.
     retained = asyncio.run(retained_messages(mosquitto, f"{base}/#"))
-    assert list(retained) == [f"{base}/bridge/redundancy/b"]
+    own = f"{base}/bridge/redundancy/b"
+    assert sorted(retained) == [own, f"{own}/config"]
+    digests = json.loads(retained[f"{own}/config"])["keys"]
+    assert "drives[pump].poll[state].interval_ms" in digests
+    assert "redundancy.box" not in digests  # each box's own: not compared
     role = json.loads(retained[f"{base}/bridge/redundancy/b"])
     assert (role["box"], role["role"], role["health"]) == ("b", "standby", "ok")
     assert standby.health()["status"] == "ok"  # closed buses on purpose: not degraded

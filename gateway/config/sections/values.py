@@ -7,7 +7,7 @@ import re
 from dataclasses import dataclass
 from typing import Annotated
 
-from pydantic import BeforeValidator, Field, PlainValidator
+from pydantic import BeforeValidator, Field, PlainSerializer, PlainValidator
 
 
 @dataclass(frozen=True, slots=True)
@@ -27,6 +27,16 @@ class RegisterRange:
         from gateway.profile.addressing import RAM_BIT
 
         return (self.first, self.last), (self.first | RAM_BIT, self.last | RAM_BIT)
+
+    @property
+    def text(self) -> str:
+        """As the file writes it ("2000H-2001H", "P00.00-P00.15", "2100H"): what a dump of the
+        configuration says (the console's, `check-config --peer`'s), read back the same."""
+        from gateway.profile.addressing import format_parameter, format_register
+
+        spell = format_parameter if self.parameters else format_register
+        ends = [self.first] if self.first == self.last else [self.first, self.last]
+        return "-".join(map(spell, ends))
 
 
 def _register_range(value: object) -> RegisterRange:
@@ -88,4 +98,6 @@ def _word(value: object) -> object:
 UnitId = Annotated[int, Field(ge=0, le=255)]
 Word = Annotated[int, BeforeValidator(_word), Field(ge=0, le=0xFFFF)]
 FunctionCode = Annotated[int, BeforeValidator(_function_code), Field(ge=1, le=127)]
-Registers = Annotated[RegisterRange, PlainValidator(_register_range)]
+Registers = Annotated[
+    RegisterRange, PlainValidator(_register_range), PlainSerializer(lambda r: r.text)
+]
