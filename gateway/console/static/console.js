@@ -200,7 +200,14 @@ function roleText(r) {
   const role = { active: "Active", listening: "Listening (asked to be active)", standby: "Standby" }[r.role] || r.role;
   const change = r.last_change ? ` · ${r.last_change.reason}, ${r.last_change.at}` : "";
   const foreign = r.foreign_frames ? ` · another master heard ${r.foreign_frames}×` : "";
-  return `${role} box ${r.box}${peer}${change} · takeovers ${r.takeovers}${foreign}`;
+  const config = r.peer_config && r.peer_config.count ? ` · ${peerConfigText(r.peer_config)}` : "";
+  return `${role} box ${r.box}${peer}${change} · takeovers ${r.takeovers}${foreign}${config}`;
+}
+
+function peerConfigText(p) {
+  // "box gw-a runs another configuration: buses[line1].timeout_ms (since ...)"
+  const more = p.count > p.differs.length ? ` and ${p.count - p.differs.length} more` : "";
+  return `box ${p.peer} runs another configuration: ${p.differs.join(", ")}${more} (since ${p.since})`;
 }
 
 function overviewPage() {
