@@ -53,7 +53,9 @@ import argparse
 import asyncio
 import json
 import sys
+from collections.abc import Callable, Coroutine
 from pathlib import Path
+from typing import Any, TypeVar
 
 from gateway.exit_codes import EXIT_FAILURE, EXIT_OK
 from gateway.instruments.stop_on_terminate import stop_on_terminate
@@ -65,6 +67,8 @@ DEFAULT_CLUSTER_DURATION_S = 120.0
 DEFAULT_HISTORY_PHASE_S = 30.0
 DEFAULT_OPCUA_FUZZ_PHASE_S = 10.0
 MAX_CLIENTS = 12
+
+Result = TypeVar("Result")
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -205,39 +209,29 @@ def handle(args: argparse.Namespace) -> int:
     )
 
     # The run is its duration; starting and stopping the processes add a few seconds.
-    with Progress("stress", settings.duration_s, sys.stderr) as overall:
-        try:
-            result = asyncio.run(run_stress(settings, overall.note))
-        except (RuntimeError, ValueError, OSError) as exc:
-            overall.print(f"invt-gateway stress: {exc}", sys.stderr)
-            return EXIT_FAILURE
-    if args.json:
-        print(json.dumps(document(result), indent=2))
-    else:
-        print(table(result))
-    if problems(result):
-        if result.gateway_log:
-            print(f"gateway's last log lines:\n{result.gateway_log}", file=sys.stderr)
-        return EXIT_FAILURE
-    return EXIT_OK
+    return _run_load(
+        "stress",
+        settings.duration_s,
+        lambda note: run_stress(settings, note),
+        table,
+        problems,
+        lambda result: {"gateway": result.gateway_log},
+        document if args.json else None,
+    )
 
 
 def handle_line_truth(args: argparse.Namespace) -> int:
     from gateway.instruments.stress.line_truth import line_truth_table, run_line_truth
 
     duration_s = DEFAULT_DURATION_S if args.duration is None else args.duration
-    with Progress("stress --line-truth", duration_s, sys.stderr) as overall:
-        try:
-            result = asyncio.run(run_line_truth(duration_s, args.seed, overall.note))
-        except (RuntimeError, ValueError, OSError) as exc:
-            overall.print(f"invt-gateway stress: {exc}", sys.stderr)
-            return EXIT_FAILURE
-    print(line_truth_table(result))
-    if result.problems():
-        if result.gateway_log:
-            print(f"gateway's last log lines:\n{result.gateway_log}", file=sys.stderr)
-        return EXIT_FAILURE
-    return EXIT_OK
+    return _run_load(
+        "stress --line-truth",
+        duration_s,
+        lambda note: run_line_truth(duration_s, args.seed, note),
+        line_truth_table,
+        lambda result: result.problems(),
+        lambda result: {"gateway": result.gateway_log},
+    )
 
 
 def handle_soak(args: argparse.Namespace) -> int:
@@ -245,18 +239,14 @@ def handle_soak(args: argparse.Namespace) -> int:
     from gateway.instruments.stress.soak_report import problems, table
 
     settings = SoakSettings(args.soak, args.seed, args.tracemalloc)
-    with Progress("stress --soak", settings.duration_s, sys.stderr) as overall:
-        try:
-            result = asyncio.run(run_soak(settings, overall.note))
-        except (RuntimeError, ValueError, OSError) as exc:
-            overall.print(f"invt-gateway stress: {exc}", sys.stderr)
-            return EXIT_FAILURE
-    print(table(result), flush=True)
-    if problems(result):
-        if result.gateway_log:
-            print(f"gateway's last log lines:\n{result.gateway_log}", file=sys.stderr)
-        return EXIT_FAILURE
-    return EXIT_OK
+    return _run_load(
+        "stress --soak",
+        settings.duration_s,
+        lambda note: run_soak(settings, note),
+        table,
+        problems,
+        lambda result: {"gateway": result.gateway_log},
+    )
 
 
 def handle_history(args: argparse.Namespace) -> int:
@@ -269,18 +259,14 @@ def handle_history(args: argparse.Namespace) -> int:
 
     phase_s = DEFAULT_HISTORY_PHASE_S if args.duration is None else args.duration
     settings = HistoryLoadSettings(args.days, args.queries, phase_s)
-    with Progress("stress --history", 2 * phase_s, sys.stderr) as overall:
-        try:
-            result = asyncio.run(run_history_load(settings))
-        except (RuntimeError, ValueError, OSError) as exc:
-            overall.print(f"invt-gateway stress: {exc}", sys.stderr)
-            return EXIT_FAILURE
-    print(table(result))
-    if problems(result):
-        if result.gateway_log:
-            print(f"gateway's last log lines:\n{result.gateway_log}", file=sys.stderr)
-        return EXIT_FAILURE
-    return EXIT_OK
+    return _run_load(
+        "stress --history",
+        2 * phase_s,
+        lambda _note: run_history_load(settings),
+        table,
+        problems,
+        lambda result: {"gateway": result.gateway_log},
+    )
 
 
 def handle_opcua_fuzz(args: argparse.Namespace) -> int:
@@ -293,18 +279,14 @@ def handle_opcua_fuzz(args: argparse.Namespace) -> int:
 
     phase_s = DEFAULT_OPCUA_FUZZ_PHASE_S if args.duration is None else args.duration
     settings = OpcUaFuzzSettings(args.opcua_fuzz, phase_s, args.seed)
-    with Progress("stress --opcua-fuzz", 2 * phase_s, sys.stderr) as overall:
-        try:
-            result = asyncio.run(run_opcua_fuzz(settings))
-        except (RuntimeError, ValueError, OSError) as exc:
-            overall.print(f"invt-gateway stress: {exc}", sys.stderr)
-            return EXIT_FAILURE
-    print(table(result))
-    if problems(result):
-        if result.gateway_log:
-            print(f"gateway's last log lines:\n{result.gateway_log}", file=sys.stderr)
-        return EXIT_FAILURE
-    return EXIT_OK
+    return _run_load(
+        "stress --opcua-fuzz",
+        2 * phase_s,
+        lambda _note: run_opcua_fuzz(settings),
+        table,
+        problems,
+        lambda result: {"gateway": result.gateway_log},
+    )
 
 
 def handle_cluster(args: argparse.Namespace) -> int:
@@ -313,20 +295,43 @@ def handle_cluster(args: argparse.Namespace) -> int:
 
     duration = DEFAULT_CLUSTER_DURATION_S if args.duration is None else args.duration
     settings = ClusterSettings(duration_s=duration)
-    with Progress("stress --cluster", settings.duration_s, sys.stderr) as overall:
+    return _run_load(
+        "stress --cluster",
+        settings.duration_s,
+        lambda note: run_cluster_stress(settings, note),
+        table,
+        problems,
+        lambda result: {f"gateway {name}": lines for name, lines in result.logs.items()},
+        document if args.json else None,
+    )
+
+
+def _run_load(
+    title: str,
+    planned_s: float,
+    run: Callable[[Callable[[str], None]], Coroutine[Any, Any, Result]],
+    table: Callable[[Result], str],
+    problems: Callable[[Result], object],
+    logs: Callable[[Result], dict[str, str]],
+    document: Callable[[Result], object] | None = None,
+) -> int:
+    """Every kind of stress run the same way: `run` (given the progress line's `note`) under
+    a progress line planned for `planned_s`, then its table (or JSON `document`), and exit 1
+    with each gateway's last log lines when it found `problems`."""
+    with Progress(title, planned_s, sys.stderr) as overall:
         try:
-            result = asyncio.run(run_cluster_stress(settings, overall.note))
+            result = asyncio.run(run(overall.note))
         except (RuntimeError, ValueError, OSError) as exc:
-            overall.print(f"invt-gateway stress --cluster: {exc}", sys.stderr)
+            overall.print(f"invt-gateway {title}: {exc}", sys.stderr)
             return EXIT_FAILURE
-    if args.json:
-        print(json.dumps(document(result), indent=2))
+    if document is not None:
+        print(json.dumps(document(result), indent=2), flush=True)
     else:
-        print(table(result))
+        print(table(result), flush=True)
     if problems(result):
-        for name, lines in result.logs.items():
+        for name, lines in logs(result).items():
             if lines:
-                print(f"gateway {name}'s last log lines:\n{lines}", file=sys.stderr)
+                print(f"{name}'s last log lines:\n{lines}", file=sys.stderr)
         return EXIT_FAILURE
     return EXIT_OK
 
