@@ -11,9 +11,11 @@
 #
 # `invt-gateway-notify.sh check` is Keepalived's track script: exit 0 while the gateway answers
 # on its control socket (`invt-gateway role status`) and can reach its line (a port open within
-# the last 3 s: `role status` exits 1 once its adapter has been gone that long), so a dead or
+# the last second: `role status` exits 1 once its adapter has been gone that long), so a dead or
 # stuck gateway, or one whose adapter was unplugged, puts its box in FAULT and the virtual
-# address moves. It starts in a tenth of a second.
+# address moves. It starts in a tenth of a second. (An unplugged adapter is told sooner through
+# the gateway's fault file, Keepalived's track_file: this check is the way a dead gateway,
+# which writes nothing more, is found.)
 #
 # Install: /usr/local/sbin/invt-gateway-notify.sh, root's, mode 0755 (keepalived runs notify
 # scripts as root with `enable_script_security` only when no other user can write them).

@@ -14,8 +14,8 @@ With `--peer FILE` (the other box's file of a redundant pair, copied here: `scp 
 invt-gateway/config.yaml peer.yaml`), it says what differs between the two files after the
 rest: what the two boxes must share (the buses, the drives and their poll groups, the MQTT
 broker and base topic, the gateway id...) and, apart, what each box may set its own way (its
-`redundancy.box`, `peer`, `hold_off_ms` and `role`, its addresses, its adapters' device paths,
-its store's path, its logging). Exit 1 when they differ in what they must share.
+`redundancy.box`, `peer`, `hold_off_ms`, `role` and `fault_file`, its addresses, its adapters'
+device paths, its store's path, its logging). Exit 1 when they differ in what they must share.
 """
 
 from __future__ import annotations

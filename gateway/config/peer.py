@@ -2,8 +2,9 @@
 `check-config --peer FILE`): both boxes are one gateway, so they must agree on everything the
 drives, SCADA and the broker see (the buses' settings, the drives and their poll groups, the
 Modbus-TCP port and access rules, the MQTT broker and base topic, the gateway id...), and may
-differ only in what is each box's own (`OWN`): its name, its peer, its hold-off and starting
-role, the addresses it binds, its adapters' device paths, its store's path and its logging.
+differ only in what is each box's own (`OWN`): its name, its peer, its hold-off, starting
+role and fault file, the addresses it binds, its adapters' device paths, its store's path and
+its logging.
 
 Compared as loaded (defaults filled in): a key left out on one box and set to its default on
 the other is no difference. A list of named items (buses, drives, poll groups, users) is
@@ -26,7 +27,7 @@ from typing import Any, Final
 from gateway.config.schema import GatewayConfig
 
 OWN: Final = (
-    re.compile(r"^redundancy\.(box|peer|hold_off_ms|role)$"),
+    re.compile(r"^redundancy\.(box|peer|hold_off_ms|role|fault_file)$"),
     re.compile(r"^(?!mqtt\.)(.+\.)?(host|bind)$"),  # this box's addresses (not the broker's)
     re.compile(r"^buses\[[^]]+\]\.port$"),  # each box's adapter: its own device path
     re.compile(r"^storage\.path$"),

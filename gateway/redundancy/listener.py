@@ -27,7 +27,9 @@ from gateway.redundancy.frames import Frame, FrameCutter, Kind
 
 log = logging.getLogger(__name__)
 
-REOPEN_S: Final = 1.0
+REOPEN_S: Final = 0.5
+"""A port that can't be opened (or failed) is tried again this often: well within
+`PORTLESS_S`, so one glitch doesn't make the box unfit."""
 
 
 class LineEar:
@@ -79,8 +81,10 @@ class LineEar:
 class LineListener:
     """One line's port, open to listen while this gateway is not the active one."""
 
-    def __init__(self, settings: LineSettings) -> None:
+    def __init__(self, settings: LineSettings, lost: Callable[[], None] | None = None) -> None:
         self.settings = settings
+        self._lost = lost
+        """Told when the open port fails (the role machine counts the time without a port)."""
         self.ear = LineEar(settings)
         self.opened_at = 0.0
         """When the port was opened (0.0: not open): the line is heard from then."""
@@ -126,7 +130,9 @@ class LineListener:
 
     def _try_open(self) -> None:
         try:
-            self._port = open_port(self.settings, Receiver(self.settings), self.ear.heard, _pass)
+            self._port = open_port(
+                self.settings, Receiver(self.settings), self.ear.heard, self._failed
+            )
         except PortError as exc:
             self._failures += 1
             level = logging.WARNING if self._failures == 1 else logging.DEBUG
@@ -147,6 +153,7 @@ class LineListener:
     def where(self) -> str:
         return self.settings.where
 
-
-def _pass() -> None:
-    """A listener's port failing between reads: found by `_keep_open` (`open` turns False)."""
+    def _failed(self) -> None:
+        """The port failed between reads (`open` turns False): opened again by `_keep_open`."""
+        if self._lost is not None:
+            self._lost()

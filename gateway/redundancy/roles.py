@@ -37,6 +37,7 @@ from typing import Any, Final, Protocol
 from gateway.bus import Bus
 from gateway.bus.line_settings import LineSettings
 from gateway.poller.drive_state import iso_time
+from gateway.redundancy.fault_file import FaultFile
 from gateway.redundancy.listener import LineListener
 from gateway.redundancy.peer_config import PeerConfig
 from gateway.redundancy.watch import ActiveWatch
@@ -48,12 +49,15 @@ log = logging.getLogger(__name__)
 LOOK_AGAIN_S: Final = 0.25
 """While listening, how often the silence is looked at again without news (a port opened);
 while active, how often the ports are."""
-PORTLESS_S: Final = 3.0
+PORTLESS_S: Final = 1.0
 """How long every one of this box's lines may have no port open (its USB adapter unplugged, a
 device server gone) before the box says it can't be their master: an active one leaves the
-lines, and `role status` fails (Keepalived's track script: the box goes FAULT and the virtual
-address moves to the other box). Longer than a port's reopening after a glitch (the bus's
-first retries come within a second), short beside VRRP's own detection."""
+lines, the fault file says 1 (`FaultFile`: Keepalived's instance FAULT at once, the virtual
+address moved to the other box a fraction of `advert_int` later) and `role status` fails (the
+track script, the slower way). Longer than a glitch the port gets over by itself: the bus opens
+it again at once and again half a second later (a listener every `REOPEN_S`); short enough
+that the other box is told, and MASTER, before the line's silence it must hear anyway
+(`silence_ms`, 2.4 s with the INVT profiles' defaults) is over."""
 
 
 class Role(StrEnum):
@@ -111,7 +115,8 @@ class Redundancy:
         self.last_foreign: dict[str, Any] | None = None
         self.last_takeover_s: float | None = None
         """From `role active` (or the start) to the line taken, the last time."""
-        self._listeners = [LineListener(line) for line in lines]
+        self._listeners = [LineListener(line, self._wake) for line in lines]
+        self._fault_file = FaultFile(settings.fault_file) if settings.fault_file else None
         self._watches: list[ActiveWatch] = []
         self._asked_at = time.monotonic()
         self._back_off_s = 0.0
@@ -214,32 +219,41 @@ class Redundancy:
             while True:
                 await self._step()
         finally:
+            if self._fault_file is not None:  # Keepalived moves the address now, not later
+                self._fault_file.tell(False, "the gateway is stopping")
             for listener in self._listeners:
                 await listener.stop()
             for watch in self._watches:
                 watch.close()
 
     async def _step(self) -> None:
+        portless_s = self._portless_for(time.monotonic())
+        fit = portless_s is None or portless_s <= PORTLESS_S
+        if self._fault_file is not None:
+            self._fault_file.tell(fit, "" if fit else self._portless_reason(portless_s or 0.0))
+        # Looked at again when the ports have been gone PORTLESS_S (a lost port wakes it).
+        look_again_s = LOOK_AGAIN_S
+        if portless_s is not None and fit:
+            look_again_s = min(look_again_s, PORTLESS_S - portless_s + 0.001)
         if self.role is Role.ACTIVE:
-            portless_s = self._portless_for(time.monotonic())
-            if self._silenced is None and portless_s is not None and portless_s > PORTLESS_S:
-                self._silenced = self._portless_reason(portless_s)
+            if self._silenced is None and not fit:
+                self._silenced = self._portless_reason(portless_s or 0.0)
                 log.error("redundancy: %s: leaving the line", self._silenced)
             if self._silenced is not None or self.asked is not Role.ACTIVE:
                 await self._leave()
             else:
-                await self._news(LOOK_AGAIN_S)
+                await self._news(look_again_s)
             return
         if self.asked is not Role.ACTIVE:
             # Listening, and asked to be standby after all: off the line it stays.
             self._set_role(Role.STANDBY, "asked to be standby")
-            await self._news(None)
+            await self._news(look_again_s)
             return
         left = self._silence_left(time.monotonic())
         if left is not None and left <= 0:
             await self._take()
             return
-        await self._news(LOOK_AGAIN_S if left is None else min(left, LOOK_AGAIN_S))
+        await self._news(look_again_s if left is None else min(left, look_again_s))
 
     def _portless_for(self, now: float) -> float | None:
         """How long no port of this box's lines has been open (the active's buses', the
@@ -303,7 +317,7 @@ class Redundancy:
         for old in [w for w in self._watches if w.bus.name == bus.name]:
             old.close()
             self._watches.remove(old)
-        self._watches.append(ActiveWatch(bus, self.foreign_master))
+        self._watches.append(ActiveWatch(bus, self.foreign_master, self._wake))
 
     def foreign_master(self, bus: str, frame: bytes) -> None:
         """Another master's frame, heard by an active bus (in its port's reader callback):

@@ -31,18 +31,22 @@ OWN_FRAMES: Final = 64
 
 Foreign = Callable[[str, bytes], None]
 """Told (bus name, the frame) when another master's frame is heard."""
+Lost = Callable[[], None]
+"""Told when the bus's port is lost (the role machine counts the time without a port)."""
 
 
 class ActiveWatch:
     """Hooked on one active bus's line for as long as that bus runs: every read
     (`SerialLine.on_heard`), and a gate in front of every write (`SerialLine.on_open`)."""
 
-    def __init__(self, bus: Bus, foreign: Foreign) -> None:
+    def __init__(self, bus: Bus, foreign: Foreign, lost: Lost | None = None) -> None:
         self.bus = bus
         self._foreign = foreign
+        self._lost = lost
         self.gate = WriteGate()
         bus.line.on_heard = self.heard
         bus.line.on_open = self.gate.install
+        bus.add_port_listener(self._port)
         self._own: deque[bytes] = deque(maxlen=OWN_FRAMES)
         self.ear = LineEar(bus.settings.line, self._frame)
         self.foreign_frames = 0
@@ -73,5 +77,12 @@ class ActiveWatch:
         self.foreign_frames += 1
         self._foreign(self.bus.name, frame.data)
 
+    def _port(self, bus: str, port: str, lost: bool, reason: str) -> None:
+        if lost and self._lost is not None:
+            self._lost()
+
     def close(self) -> None:
         self.ear.close()
+        listeners = self.bus.observers.port_listeners
+        if self._port in listeners:
+            listeners.remove(self._port)

@@ -32,6 +32,8 @@ class RedundancySettings:
     hold_off_s: float
     """Silence waited beyond `silence_s` by this box only."""
     notify: str
+    fault_file: str
+    """Keepalived's track file this gateway keeps (`FaultFile`); "": none."""
     silence_derived: bool
     """`silence_s` was worked out from the poll cycle, not configured."""
 
@@ -57,6 +59,7 @@ def redundancy_settings(
         silence_s=silence_s if silence_s is not None else (config.silence_ms or 0) / 1000,
         hold_off_s=config.hold_off_ms / 1000,
         notify=config.notify,
+        fault_file=config.fault_file,
         silence_derived=config.silence_ms is None,
     )
 

@@ -54,6 +54,7 @@ def box_config(
             "box": box,
             "peer": "the other box",
             "hold_off_ms": hold_off_ms,
+            "fault_file": str(folder / "fault"),  # Keepalived's track_file (its test reads it)
         },
         "metrics": {"enabled": True, "host": "127.0.0.1", "port": free_port()},
         **more,
@@ -89,6 +90,18 @@ class Box:
     @property
     def config(self) -> str:
         return str(self.gateway.config_file)
+
+    @property
+    def fault_file(self) -> Path:
+        """`redundancy.fault_file`: 0 while this box can be the line's master, 1 once not."""
+        return self.gateway.config_file.parent / "fault"
+
+    def says_unfit(self) -> bool:
+        """The fault file says 1 (what Keepalived's track_file reads at once)."""
+        try:
+            return self.fault_file.read_text().strip() == "1"
+        except FileNotFoundError:
+            return False
 
     def ask(self, role: str) -> str:
         done = run_cli("role", role, "--config", self.config, timeout_s=15)

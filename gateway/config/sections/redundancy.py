@@ -41,6 +41,13 @@ class RedundancyConfig(Section):
     """Silence waited beyond `silence_ms` by this box only: give the two boxes different
     values (0 and 500) so that, asked to take over at the same moment on a silent line (a cut
     link between them), one is heard first and the other stays off."""
+    fault_file: str = ""
+    """A file this gateway keeps at `0` while the box can be the line's master and sets to `1`
+    the moment it can't (no port open on any line for a second: its adapter unplugged; the
+    gateway stopping), for Keepalived's `track_file` (`weight 0`: FAULT at once, and the other
+    box MASTER within a fraction of `advert_int`, not after the track script's failures).
+    `/var/lib/invt-gateway/fault` under systemd (its store's directory, which outlives a
+    restart); "": none written."""
     notify: Literal["keepalived", "manual"] = "keepalived"
     """Who asks for role changes on the control socket: `keepalived` (its notify script,
     `config/invt-gateway-notify.sh`) or `manual` (an operator's `invt-gateway role ...`)."""
