@@ -68,3 +68,24 @@ def test_a_master_that_waits_for_the_reply_does_not_collide() -> None:
         assert stats["collisions"] == 0
         assert [m["frames"] for m in stats["masters"]] == [3, 3]
         assert stats["replies"] == 6
+
+
+def test_the_line_records_each_write_the_drives_got_and_who_sent_it() -> None:
+    with shared_line(2, "--address", "1") as line:
+        first, second = (master(path) for path in line.paths)
+        with first, second:
+            for talking, value in ((first, 5), (second, 6)):
+                write = build_frame(1, bytes([0x06, 0x20, 0x02, 0x00, value]))
+                talking.reset_input_buffer()  # what it heard of the other master
+                talking.write(write)
+                assert talking.read(len(write)) == write  # the drive's reply: an echo
+                time.sleep(0.05)
+            # Two writes at once collide: the drive got neither, and neither is recorded.
+            first.write(build_frame(1, bytes.fromhex("0620020007")))
+            second.write(build_frame(1, bytes.fromhex("0620020008")))
+            time.sleep(0.2)
+        answer = line.command("writes")
+        assert answer == "ok [[1, 1, 8194, 5], [2, 1, 8194, 6]]", answer
+        stats = line.stats()
+        assert [m["writes"] for m in stats["masters"]] == [1, 1]
+        assert stats["collisions"] == 1

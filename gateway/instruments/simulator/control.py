@@ -18,7 +18,9 @@
     replug              a new port, the link re-pointed      → ok replug /dev/pts/7
     stats               the line's counters                  → ok {"requests": 3, ...}
                         (with --masters N also "collisions" and "masters": each master's
-                        path, frames, bytes and collisions)
+                        path, frames, bytes, collisions and writes)
+    writes              (--masters) every 06H write the drives got, with who sent it
+                        → ok [[1, 1, 8194, 7], ...] (master, unit, register, value)
 
 With several lines in one process (`simulate --lines N`), `line K COMMAND` carries COMMAND
 out on the K-th line (from 1): `line 3 stats`, `line 2 dead 1`. A command without it goes to
@@ -38,7 +40,7 @@ from gateway.instruments.simulator.line import SimulatedLine
 USAGE: Final = (
     "commands: fault ADDR CODE, clear ADDR, dead ADDR, alive ADDR, delay ADDR MS, "
     "slow ADDR MS-MS SHARE, stall ADDR S, knows ADDR FC,..|all, drop ADDR RATE, noise HEX, "
-    "bursts MS, glitch HEX|off, echo on|off, unplug, unplug-master M, replug, stats"
+    "bursts MS, glitch HEX|off, echo on|off, unplug, unplug-master M, replug, stats, writes"
 )
 
 
@@ -177,6 +179,10 @@ def _stats(line: SimulatedLine, arguments: list[str]) -> str:
     return json.dumps(line.stats, sort_keys=True)
 
 
+def _writes(line: SimulatedLine, arguments: list[str]) -> str:
+    return json.dumps(line.writes)
+
+
 _COMMANDS: Final[dict[str, tuple[Callable[[SimulatedLine, list[str]], str], int]]] = {
     "fault": (_fault, 2),
     "clear": (_clear, 1),
@@ -195,4 +201,5 @@ _COMMANDS: Final[dict[str, tuple[Callable[[SimulatedLine, list[str]], str], int]
     "unplug-master": (_unplug_master, 1),
     "replug": (_replug, 0),
     "stats": (_stats, 0),
+    "writes": (_writes, 0),
 }

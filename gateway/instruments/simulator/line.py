@@ -397,6 +397,13 @@ class SimulatedLine:
             }
 
     @property
+    def writes(self) -> list[tuple[int, int, int, int]]:
+        """With `masters`: every 06H write the drives got whole, in order, as (master from 1,
+        unit, register, value); none on a line of one master."""
+        with self._lock:
+            return [] if self._wire is None else list(self._wire.writes)
+
+    @property
     def lock(self) -> threading.Lock:
         """Hold it to look at `drives` while the line is serving."""
         return self._lock

@@ -15,12 +15,17 @@ RS-485 is one shared pair: every node hears every other. So here:
 A frame is handed to the drives only when its last character has left the wire: until then a
 later transmission may still garble it (a drive acts on a frame only once its CRC is in).
 Without wire time (`--no-wire-time`) a frame takes no time on the wire, and nothing collides.
+
+Every 06H write the drives got whole (its CRC good, nothing garbled it) is recorded with the
+master that sent it (`writes`, the `writes` control command; each master's count in `stats`):
+what a takeover test checks a write against (carried out at most once, and by one master).
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import struct
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
 from typing import Any
@@ -30,6 +35,9 @@ from gateway.instruments.simulator.framing import ReceivedFrame, RequestAssemble
 
 KEEP_ON_AIR_S = 1.0
 """How long a transmission is remembered after it ended, to compare later ones with."""
+WRITE_SINGLE = 0x06
+WRITE_SINGLE_LENGTH = 8
+"""Address, 06H, register, value, CRC."""
 
 
 @dataclass(slots=True)
@@ -65,6 +73,9 @@ class SharedWire:
         self.sent_bytes = [0] * masters
         self.collided = [0] * masters
         self.collisions = 0
+        self.writes: list[tuple[int, int, int, int]] = []
+        """Each 06H write the drives got whole: (master from 1, unit, register, value)."""
+        self.written = [0] * masters
         self.unplugged: set[int] = set()
         """Masters whose adapter was pulled out (`unplug`), from 0."""
 
@@ -199,9 +210,17 @@ class SharedWire:
             frame = transmission.frame
             out.append(replace(frame, valid=False) if transmission.garbled else frame)
             transmission.handed = True
+            if frame.valid and not transmission.garbled:
+                self._note_write(transmission.master, frame.data)
         forget = now - KEEP_ON_AIR_S
         self._on_air = [t for t in self._on_air if not t.handed or t.end > forget]
         return out
+
+    def _note_write(self, master: int, data: bytes) -> None:
+        if len(data) == WRITE_SINGLE_LENGTH and data[1] == WRITE_SINGLE:
+            register, value = struct.unpack(">HH", data[2:6])
+            self.writes.append((master + 1, data[0], register, value))
+            self.written[master] += 1
 
     def stats(self) -> dict[str, Any]:
         return {
@@ -212,6 +231,7 @@ class SharedWire:
                     "frames": self.frames[index],
                     "bytes": self.sent_bytes[index],
                     "collisions": self.collided[index],
+                    "writes": self.written[index],
                 }
                 for index, path in enumerate(self.paths or [""] * self.count)
             ],
