@@ -46,6 +46,13 @@ class ActiveWatch:
         self.gate = WriteGate()
         bus.line.on_heard = self.heard
         bus.line.on_open = self.gate.install
+        # One watch per bus: a reload's bus takes its predecessor's listeners, a watch's too.
+        listeners = bus.observers.port_listeners
+        listeners[:] = [
+            known
+            for known in listeners
+            if not isinstance(getattr(known, "__self__", None), ActiveWatch)
+        ]
         bus.add_port_listener(self._port)
         self._own: deque[bytes] = deque(maxlen=OWN_FRAMES)
         self.ear = LineEar(bus.settings.line, self._frame)

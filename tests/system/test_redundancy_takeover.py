@@ -148,6 +148,27 @@ def test_the_active_s_adapter_unplugged_it_fails_keepalived_s_check_and_leaves_t
     print(f"unfit {unfit_s:.2f} s, first request {first_request_s:.2f} s after the unplug")
 
 
+def test_a_stopping_gateway_tells_keepalived_at_once_and_a_started_one_that_it_is_fit(
+    line: SharedLine, boxes: list[Box], tmp_path: Path
+) -> None:
+    boxes.append(box := Box("b", line.paths[1], tmp_path, "standby"))
+    said(box, "0\n")  # fit: written as its role machine starts
+    box.gateway.process.terminate()  # systemctl stop: the box can't be the master from now
+    box.gateway.process.wait(5)
+    assert box.fault_file.read_text() == "1\n"  # Keepalived: FAULT, without the track script
+    box.stop()
+    boxes[0] = Box("b", line.paths[1], tmp_path, "standby")  # started again: fit
+    said(boxes[0], "0\n")
+
+
+def said(box: Box, value: str) -> None:
+    """Wait (up to 2 s) for `box`'s fault file to say `value`."""
+    deadline = time.monotonic() + 2.0
+    while not (box.fault_file.exists() and box.fault_file.read_text() == value):
+        assert time.monotonic() < deadline, box.gateway.log.text[-2000:]
+        time.sleep(0.01)
+
+
 async def test_opc_ua_is_off_on_a_standby_and_served_by_the_active(
     line: SharedLine, boxes: list[Box], tmp_path: Path
 ) -> None:
