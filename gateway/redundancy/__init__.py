@@ -8,6 +8,7 @@ for another master's frames (`watch`), what is told of them (`frames`), and thei
     roles     standby, listening, active: the changes asked on the control socket, the
               listening before a takeover, the demotion when another master is heard
     metrics   the role and its changes, the frames of another master heard, for /metrics
+    fault_file  the box's fitness told to Keepalived at once (its `track_file`)
 """
 
 from gateway.redundancy.roles import LineOwner, Redundancy, Role
