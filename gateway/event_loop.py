@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import asyncio
 import importlib
-import logging
 import os
 import platform
 from collections.abc import Callable, Coroutine
@@ -32,13 +31,6 @@ from gateway.errors import ConfigError
 ENV_EVENT_LOOP = "INVT_GATEWAY_EVENT_LOOP"
 CHOICES = ("auto", "uvloop", "asyncio")
 T = TypeVar("T")
-EXECUTOR_SHUTDOWN_S = 30.0
-"""How long a closing uvloop loop waits for its default executor's threads to end: uvloop
-0.23's wait has no timer of its own, and under heavy load its helper thread's wake-up was seen
-never to come (no thread left running, the loop in epoll_wait), so a stop would hang until
-systemd's stop timeout killed it. Longer than any thread of ours takes to notice a stop."""
-
-log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True, slots=True)
@@ -74,37 +66,14 @@ def choose_event_loop(wanted: str | None = None) -> EventLoopChoice:
             reason = f"uvloop asked for, but it doesn't import ({exc})"
             raise ConfigError([(ENV_EVENT_LOOP, reason)]) from exc
         return EventLoopChoice("asyncio", python, None, "uvloop not installed")
-    factory = bounded_executor_shutdown(uvloop.Loop)
+    factory: Callable[[], asyncio.AbstractEventLoop] = uvloop.new_event_loop
     return EventLoopChoice("uvloop", str(getattr(uvloop, "__version__", "?")), factory)
 
 
-def bounded_executor_shutdown(base: type[Any]) -> Callable[[], asyncio.AbstractEventLoop]:
-    """uvloop's loops (`base`), whose `shutdown_default_executor` (run as the loop closes)
-    gives up after `EXECUTOR_SHUTDOWN_S` with a warning in the log, and joins its helper thread
-    as long again at most: a stop ends rather than hangs."""
-
-    class BoundedShutdownLoop(base):  # type: ignore[misc]
-        # uvloop's signature: the timeout bounds its join of the helper thread, which it makes
-        # even when its wait is cancelled (a worker that never ends would hold it there).
-        async def shutdown_default_executor(self, timeout: float | None = None) -> None:  # noqa: ASYNC109
-            bound = EXECUTOR_SHUTDOWN_S if timeout is None else min(timeout, EXECUTOR_SHUTDOWN_S)
-            try:
-                await asyncio.wait_for(super().shutdown_default_executor(bound), bound)
-            except TimeoutError:
-                log.warning(
-                    "the event loop's default executor did not shut down in %g s: "
-                    "stopping without it",
-                    bound,
-                )
-
-    return BoundedShutdownLoop
-
-
 def running_loop_name() -> str:
-    """ "uvloop" or "asyncio": the loop this code runs on (for the build info metric), a
-    subclass of uvloop's (`bounded_executor_shutdown`) too."""
-    kinds = type(asyncio.get_running_loop()).__mro__
-    return "uvloop" if any(kind.__module__.startswith("uvloop") for kind in kinds) else "asyncio"
+    """ "uvloop" or "asyncio": the loop this code runs on (for the build info metric)."""
+    module = type(asyncio.get_running_loop()).__module__
+    return "uvloop" if module.startswith("uvloop") else "asyncio"
 
 
 def run(main: Coroutine[Any, Any, T], choice: EventLoopChoice) -> T:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import warnings
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
@@ -17,7 +18,7 @@ from typing import Any
 import pytest
 
 from gateway.config import ENV_STATE_DIRECTORY
-from gateway.event_loop import ENV_EVENT_LOOP, bounded_executor_shutdown
+from gateway.event_loop import ENV_EVENT_LOOP
 from gateway.instruments.simulator import SimulatedLine
 from tests.support.mosquitto import mosquitto as mosquitto  # a broker of its own, per test
 
@@ -50,6 +51,33 @@ both event loops: uvloop, which the service runs on where it is installed, and a
 which it falls back to (a 32-bit ARM box, `INVT_GATEWAY_EVENT_LOOP=asyncio`)."""
 
 
+EXECUTOR_SHUTDOWN_S = 30.0
+"""How long a test's loop waits, as it closes, for its default executor to shut down."""
+
+
+def _bounded_uvloop_factory(base: type[Any]) -> Callable[[], asyncio.AbstractEventLoop]:
+    """uvloop's loops for the tests, whose `shutdown_default_executor` (run as each test's loop
+    closes) gives up after `EXECUTOR_SHUTDOWN_S`: uvloop 0.23's waits for its helper thread's
+    wake-up with no timer of its own, and twice in rehearsals on a machine under heavy load
+    that wake-up never came after a test had failed, so the whole run hung at the teardown
+    (no thread left running, the loop in epoll_wait). A timer wakes it; the suite goes on."""
+
+    class BoundedShutdownLoop(base):  # type: ignore[misc]
+        # asyncio's own signature, `timeout` included (the join's, passed on).
+        async def shutdown_default_executor(self, timeout: float | None = None) -> None:  # noqa: ASYNC109
+            shutdown = super().shutdown_default_executor(timeout)
+            try:
+                await asyncio.wait_for(shutdown, EXECUTOR_SHUTDOWN_S)
+            except TimeoutError:
+                warnings.warn(
+                    f"the loop's default executor did not shut down in {EXECUTOR_SHUTDOWN_S} s",
+                    RuntimeWarning,
+                    stacklevel=2,
+                )
+
+    return BoundedShutdownLoop
+
+
 def pytest_asyncio_loop_factories(
     config: pytest.Config, item: pytest.Item
 ) -> Mapping[str, Callable[[], asyncio.AbstractEventLoop]]:
@@ -63,7 +91,7 @@ def pytest_asyncio_loop_factories(
     except ImportError:
         uvloop_factory = None
     else:
-        uvloop_factory = bounded_executor_shutdown(uvloop.Loop)
+        uvloop_factory = _bounded_uvloop_factory(uvloop.Loop)
     factories: dict[str, Callable[[], asyncio.AbstractEventLoop]] = {}
     if uvloop_factory is None or only_asyncio or item.nodeid.startswith(BOTH_LOOPS):
         factories["asyncio"] = asyncio.new_event_loop

@@ -8,11 +8,6 @@ import json
 import platform
 from typing import Any
 
-try:
-    import uvloop
-except ImportError:  # a box without its wheel: asyncio's loop
-    uvloop = None  # type: ignore[assignment]
-
 from gateway import __version__
 from gateway.app import Application
 from gateway.config import GatewayConfig
@@ -116,10 +111,11 @@ async def test_metrics_count_real_traffic_per_drive_source_and_code(line: Simula
         assert m("tcp_requests_total") == 8
         assert m("ready") == 1
         # The loop is the one this test runs on (in-process): uvloop where it is installed.
-        # Known by what it is, not by its class's module: the tests' uvloop loops are a
-        # subclass of uvloop's (`gateway.event_loop.bounded_executor_shutdown`).
-        running = asyncio.get_running_loop()
-        loop = "uvloop" if uvloop is not None and isinstance(running, uvloop.Loop) else "asyncio"
+        loop = (
+            "uvloop"
+            if type(asyncio.get_running_loop()).__module__.startswith("uvloop")
+            else "asyncio"
+        )
         build = {
             "gateway_id": "cabinet-test",
             "version": __version__,
