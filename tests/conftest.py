@@ -51,31 +51,42 @@ both event loops: uvloop, which the service runs on where it is installed, and a
 which it falls back to (a 32-bit ARM box, `INVT_GATEWAY_EVENT_LOOP=asyncio`)."""
 
 
-EXECUTOR_SHUTDOWN_S = 30.0
-"""How long a test's loop waits, as it closes, for its default executor to shut down."""
+def _closing_left_servers(base: type[Any]) -> Callable[[], asyncio.AbstractEventLoop]:
+    """uvloop's loops for the tests, which close the servers a test left listening as they
+    close, and say so (a warning: an error in this suite). uvloop's own close runs its loop
+    until every handle is closed, and a listening server's never is: a test that failed before
+    its cleanup stopped a server (its embedded broker, say) held the whole run there for good,
+    in `Runner.close`, the loop in epoll_wait."""
 
+    class ClosingLeftServers(base):  # type: ignore[misc]
+        def __init__(self) -> None:
+            super().__init__()
+            self.servers: list[asyncio.AbstractServer] = []
 
-def _bounded_uvloop_factory(base: type[Any]) -> Callable[[], asyncio.AbstractEventLoop]:
-    """uvloop's loops for the tests, whose `shutdown_default_executor` (run as each test's loop
-    closes) gives up after `EXECUTOR_SHUTDOWN_S`: uvloop 0.23's waits for its helper thread's
-    wake-up with no timer of its own, and twice in rehearsals on a machine under heavy load
-    that wake-up never came after a test had failed, so the whole run hung at the teardown
-    (no thread left running, the loop in epoll_wait). A timer wakes it; the suite goes on."""
+        async def create_server(self, *args: Any, **kwargs: Any) -> asyncio.AbstractServer:
+            server: asyncio.AbstractServer = await super().create_server(*args, **kwargs)
+            self.servers.append(server)
+            return server
 
-    class BoundedShutdownLoop(base):  # type: ignore[misc]
-        # asyncio's own signature, `timeout` included (the join's, passed on).
-        async def shutdown_default_executor(self, timeout: float | None = None) -> None:  # noqa: ASYNC109
-            shutdown = super().shutdown_default_executor(timeout)
-            try:
-                await asyncio.wait_for(shutdown, EXECUTOR_SHUTDOWN_S)
-            except TimeoutError:
+        async def create_unix_server(self, *args: Any, **kwargs: Any) -> asyncio.AbstractServer:
+            server: asyncio.AbstractServer = await super().create_unix_server(*args, **kwargs)
+            self.servers.append(server)
+            return server
+
+        def close(self) -> None:
+            left = [server for server in self.servers if server.is_serving()]
+            for server in left:
+                server.close()
+            self.servers.clear()
+            super().close()
+            if left:
                 warnings.warn(
-                    f"the loop's default executor did not shut down in {EXECUTOR_SHUTDOWN_S} s",
-                    RuntimeWarning,
+                    f"the test left {len(left)} server(s) listening; closed with its loop",
+                    ResourceWarning,
                     stacklevel=2,
                 )
 
-    return BoundedShutdownLoop
+    return ClosingLeftServers
 
 
 def pytest_asyncio_loop_factories(
@@ -91,7 +102,7 @@ def pytest_asyncio_loop_factories(
     except ImportError:
         uvloop_factory = None
     else:
-        uvloop_factory = _bounded_uvloop_factory(uvloop.Loop)
+        uvloop_factory = _closing_left_servers(uvloop.Loop)
     factories: dict[str, Callable[[], asyncio.AbstractEventLoop]] = {}
     if uvloop_factory is None or only_asyncio or item.nodeid.startswith(BOTH_LOOPS):
         factories["asyncio"] = asyncio.new_event_loop

@@ -8,6 +8,11 @@ import json
 import platform
 from typing import Any
 
+try:
+    import uvloop
+except ImportError:  # a box without its wheel: asyncio's loop
+    uvloop = None  # type: ignore[assignment]
+
 from gateway import __version__
 from gateway.app import Application
 from gateway.config import GatewayConfig
@@ -111,11 +116,10 @@ async def test_metrics_count_real_traffic_per_drive_source_and_code(line: Simula
         assert m("tcp_requests_total") == 8
         assert m("ready") == 1
         # The loop is the one this test runs on (in-process): uvloop where it is installed.
-        loop = (
-            "uvloop"
-            if type(asyncio.get_running_loop()).__module__.startswith("uvloop")
-            else "asyncio"
-        )
+        # Known by what it is, not by its class's module: the tests' uvloop loops are a
+        # subclass of uvloop's (tests/conftest.py).
+        running = asyncio.get_running_loop()
+        loop = "uvloop" if uvloop is not None and isinstance(running, uvloop.Loop) else "asyncio"
         build = {
             "gateway_id": "cabinet-test",
             "version": __version__,
