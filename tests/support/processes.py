@@ -180,16 +180,24 @@ class GatewayProcess:
         return code
 
     def stop(self) -> None:
-        if self.process.poll() is None:
-            self.process.terminate()
-            try:
-                self.process.wait(5)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait(5)
-        self.log.join()
-        if self.process.stderr is not None:
-            self.process.stderr.close()
+        end(self.process, self.log)
+
+
+def end(process: subprocess.Popen[str], *collectors: LineCollector) -> None:
+    """A child ended as a service manager ends it (SIGTERM, SIGKILL 5 s later), what it wrote
+    read to the end (`collectors`), its pipes closed."""
+    if process.poll() is None:
+        process.terminate()
+        try:
+            process.wait(5)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait(5)
+    for collector in collectors:
+        collector.join()
+    for stream in (process.stdin, process.stdout, process.stderr):
+        if stream is not None:
+            stream.close()
 
 
 @contextlib.contextmanager
@@ -207,12 +215,14 @@ def gateway_process(
 
 
 class SimulatorProcess:
-    """`invt-gateway simulate --pty ...`: the device path is its first line on stdout."""
+    """`invt-gateway simulate --pty ...`: the device paths are its first lines on stdout (one,
+    or one per master with `--masters N`); with `control`, its control commands go to its
+    stdin (`SharedLine`)."""
 
-    def __init__(self, args: Sequence[str]) -> None:
+    def __init__(self, args: Sequence[str], paths: int = 1, control: bool = False) -> None:
         self.process = subprocess.Popen(
             [entry_point(), "simulate", "--pty", *args],
-            stdin=subprocess.DEVNULL,
+            stdin=subprocess.PIPE if control else subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
@@ -223,21 +233,15 @@ class SimulatorProcess:
         self.output = LineCollector(self.process.stdout)
         self.errors = LineCollector(self.process.stderr)
         deadline = time.monotonic() + START_TIMEOUT_S
-        while not self.output.lines:
+        while len(self.output.lines) < paths:
             if self.process.poll() is not None or time.monotonic() > deadline:
                 raise AssertionError(f"simulator did not start: {self.errors.text}")
-            time.sleep(0.01)  # polled with a deadline: another process's first line
-        self.path = self.output.lines[0]
+            time.sleep(0.01)  # polled with a deadline: another process's first lines
+        self.paths = self.output.lines[:paths]
+        self.path = self.paths[0]
 
     def stop(self) -> None:
-        if self.process.poll() is None:
-            self.process.terminate()
-            self.process.wait(5)
-        self.output.join()
-        self.errors.join()
-        for stream in (self.process.stdout, self.process.stderr):
-            if stream is not None:
-                stream.close()
+        end(self.process, self.output, self.errors)
 
 
 @contextlib.contextmanager

@@ -1,6 +1,10 @@
 """Two redundant gateway boxes as the redundancy tests run them (`invt-gateway run` each, with
 its own file, store and control socket), and the coordinator's part played through `invt-gateway
-role` and Keepalived's notify script (`config/invt-gateway-notify.sh`)."""
+role` and Keepalived's notify script (`config/invt-gateway-notify.sh`).
+
+The fixtures the tests share, imported by name into a test module (`from
+tests.support.redundancy import boxes as boxes, line as line`): `line`, the simulated line two
+boxes share (drive 1 on it), and `boxes`, the boxes a test starts, stopped at its end."""
 
 from __future__ import annotations
 
@@ -10,14 +14,17 @@ import os
 import re
 import subprocess
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from tests.support import free_port, read_state_word
 from tests.support.http import http_get
+from tests.support.mosquitto import Mosquitto, unique_base_topic
 from tests.support.processes import ROOT, GatewayProcess, entry_point, run_cli
-from tests.support.shared_line import SharedLine
+from tests.support.shared_line import SharedLine, shared_line
 
 POLL_MS = 200
 """The drive's state polled five times a second: the active is heard all the time."""
@@ -167,5 +174,46 @@ class Box:
         self.gateway.stop()
 
 
+def start_pair(
+    boxes: list[Box],
+    paths: Sequence[str],
+    folder: Path,
+    a: dict[str, Any] | None = None,
+    b: dict[str, Any] | None = None,
+    **more: Any,
+) -> tuple[Box, Box]:
+    """Box a started active on `paths[0]`, box b standby on `paths[1]` (each with its own
+    sections `a` and `b` of its file, both with `more`), appended to `boxes`; (a, b) once box a
+    has taken the line."""
+    boxes.append(active := Box("a", paths[0], folder, "active", **(a or {}), **more))
+    boxes.append(standby := Box("b", paths[1], folder, "standby", **(b or {}), **more))
+    active.wait_role("active", 5.0)
+    return active, standby
+
+
+def pair_broker(mosquitto: Mosquitto, **more: Any) -> tuple[str, str, dict[str, Any]]:
+    """Both boxes' `mqtt:` section, `mosquitto` under a base topic of the test's own (`more`
+    besides): (the base topic, the events' topic, the section)."""
+    base = unique_base_topic("pair")
+    broker = {"host": mosquitto.host, "port": mosquitto.port, "base_topic": base, **more}
+    return base, f"{base}/bridge/event", broker
+
+
 def frames(line: SharedLine) -> list[int]:
     return [master["frames"] for master in line.stats()["masters"]]
+
+
+@pytest.fixture
+def line() -> Iterator[SharedLine]:
+    """One line two boxes share (`simulate --masters 2`), drive 1 on it."""
+    with shared_line(2, "--address", "1") as shared:
+        yield shared
+
+
+@pytest.fixture
+def boxes() -> Iterator[list[Box]]:
+    """The boxes a test starts (it appends them), stopped at its end."""
+    started: list[Box] = []
+    yield started
+    for box in started:
+        box.stop()

@@ -6,34 +6,19 @@ from __future__ import annotations
 
 import contextlib
 import json
-import subprocess
 import threading
 from collections.abc import Iterator
 from typing import Any
 
-from gateway.instruments.die_with_parent import die_with_parent
-from tests.support.processes import START_TIMEOUT_S, LineCollector, entry_point
+from tests.support.processes import SimulatorProcess
 
 
-class SharedLine:
+class SharedLine(SimulatorProcess):
     """The simulator process, the masters' paths, and its control commands."""
 
     def __init__(self, masters: int, *arguments: str) -> None:
-        self.process = subprocess.Popen(
-            [entry_point(), "simulate", "--pty", "--masters", str(masters), *arguments],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            preexec_fn=die_with_parent(),
-        )
-        assert self.process.stdout is not None
-        assert self.process.stderr is not None
-        self.errors = LineCollector(self.process.stderr)
-        self.output = LineCollector(self.process.stdout)
+        super().__init__(["--masters", str(masters), *arguments], paths=masters, control=True)
         self._asking = threading.Lock()
-        self.output.wait_for_count("/dev/", masters, START_TIMEOUT_S)
-        self.paths = self.output.lines[:masters]
 
     def command(self, text: str) -> str:
         """One control command; its one line of answer."""
@@ -54,16 +39,6 @@ class SharedLine:
     def frames_by(self, master: int) -> int:
         """Frames the `master`-th master (from 0) has transmitted so far."""
         return int(self.stats()["masters"][master]["frames"])
-
-    def stop(self) -> None:
-        if self.process.poll() is None:
-            self.process.terminate()
-            self.process.wait(5)
-        self.output.join()
-        self.errors.join()
-        for stream in (self.process.stdin, self.process.stdout, self.process.stderr):
-            if stream is not None:
-                stream.close()
 
 
 @contextlib.contextmanager

@@ -29,9 +29,18 @@ import serial
 from gateway.modbus.rtu import build_frame
 from tests.support import free_port
 from tests.support.http import http_get
-from tests.support.mosquitto import Mosquitto, retained_messages, unique_base_topic
+from tests.support.mosquitto import Mosquitto, retained_messages
 from tests.support.processes import run_cli
-from tests.support.redundancy import POLL_MS, SILENCE_S, TAKEOVER_BOUND_S, Box, frames
+from tests.support.redundancy import (
+    POLL_MS,
+    SILENCE_S,
+    TAKEOVER_BOUND_S,
+    Box,
+    frames,
+    pair_broker,
+    start_pair,
+)
+from tests.support.redundancy import boxes as boxes  # the fixture
 from tests.support.shared_line import SharedLine, shared_line
 
 
@@ -42,22 +51,12 @@ def line() -> Iterator[SharedLine]:
         yield shared
 
 
-@pytest.fixture
-def boxes() -> Iterator[list[Box]]:
-    started: list[Box] = []
-    yield started
-    for box in started:
-        box.stop()
-
-
 def test_the_standby_never_transmits_and_the_active_serves(
     line: SharedLine, boxes: list[Box], tmp_path: Path
 ) -> None:
-    boxes.append(active := Box("a", line.paths[0], tmp_path, "active"))
     console_port = free_port()
     console = {"enabled": True, "port": console_port, "anonymous_view": True}
-    boxes.append(standby := Box("b", line.paths[1], tmp_path, "standby", console=console))
-    active.wait_role("active", 5.0)
+    active, standby = start_pair(boxes, line.paths, tmp_path, b={"console": console})
     time.sleep(2 * SILENCE_S)  # the standby listens all along
     # SCADA's values come from the active (the drive's state word), the standby says why not.
     assert active.read_state()[:2] == bytes([0x03, 0x02])
@@ -79,9 +78,7 @@ def test_the_standby_never_transmits_and_the_active_serves(
 def test_the_active_killed_the_standby_takes_over_within_the_bound(
     line: SharedLine, boxes: list[Box], tmp_path: Path
 ) -> None:
-    boxes.append(old := Box("a", line.paths[0], tmp_path, "active"))
-    boxes.append(new := Box("b", line.paths[1], tmp_path, "standby"))
-    old.wait_role("active", 5.0)
+    old, new = start_pair(boxes, line.paths, tmp_path)
     time.sleep(0.5)
     old.gateway.process.send_signal(signal.SIGKILL)
     old.gateway.process.wait(5)
@@ -180,8 +177,7 @@ def test_both_asked_active_the_second_stays_off_and_a_talking_master_is_left_the
 def test_on_mqtt_a_standby_publishes_only_its_role(
     line: SharedLine, boxes: list[Box], tmp_path: Path, mosquitto: Mosquitto
 ) -> None:
-    base = unique_base_topic("pair")
-    broker = {"host": mosquitto.host, "port": mosquitto.port, "base_topic": base}
+    base, _, broker = pair_broker(mosquitto)
     boxes.append(standby := Box("b", line.paths[1], tmp_path, "standby", mqtt=broker))
     time.sleep(1.0)
     # Alone on the line, a standby: its role and health, and what it runs of the configuration
@@ -214,9 +210,7 @@ def test_on_mqtt_a_standby_publishes_only_its_role(
 def test_the_standby_s_death_changes_nothing(
     line: SharedLine, boxes: list[Box], tmp_path: Path
 ) -> None:
-    boxes.append(active := Box("a", line.paths[0], tmp_path, "active"))
-    boxes.append(standby := Box("b", line.paths[1], tmp_path, "standby"))
-    active.wait_role("active", 5.0)
+    active, standby = start_pair(boxes, line.paths, tmp_path)
     standby.gateway.process.send_signal(signal.SIGKILL)
     standby.gateway.process.wait(5)
     before = frames(line)[0]
@@ -267,9 +261,7 @@ def test_a_flapping_active_never_makes_two_masters(
 def test_a_reload_reopens_the_active_s_line_watched_and_waits_on_a_standby(
     line: SharedLine, boxes: list[Box], tmp_path: Path
 ) -> None:
-    boxes.append(active := Box("a", line.paths[0], tmp_path, "active"))
-    boxes.append(standby := Box("b", line.paths[1], tmp_path, "standby"))
-    active.wait_role("active", 5.0)
+    active, standby = start_pair(boxes, line.paths, tmp_path)
     for box in (active, standby):  # a longer response timeout: the bus is reopened with it
         path = Path(box.config)
         path.write_text(path.read_text().replace("timeout_ms: 100", "timeout_ms: 120"))

@@ -14,36 +14,22 @@ import asyncio
 import json
 import signal
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
-
-import pytest
 
 from gateway.poller.drive_state import iso_time
 from tests.support import free_port
 from tests.support.http import http_get
-from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
+from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe
 from tests.support.processes import run_cli
-from tests.support.redundancy import Box
-from tests.support.shared_line import SharedLine, shared_line
+from tests.support.redundancy import Box, pair_broker, start_pair
+from tests.support.redundancy import boxes as boxes  # the fixtures
+from tests.support.redundancy import line as line
+from tests.support.shared_line import SharedLine
 
 TOLD_WITHIN_S = 5.0
 """A reload on one box named on the other within this (the announcement is sent at once)."""
-
-
-@pytest.fixture
-def line() -> Iterator[SharedLine]:
-    with shared_line(2, "--address", "1") as shared:
-        yield shared
-
-
-@pytest.fixture
-def boxes() -> Iterator[list[Box]]:
-    started: list[Box] = []
-    yield started
-    for box in started:
-        box.stop()
 
 
 def peer_config(box: Box, done: Callable[[dict[str, Any]], bool], within_s: float) -> Any:
@@ -69,6 +55,14 @@ def alike(host: str, broker: dict[str, Any], ports: tuple[int, int], **more: Any
     }
 
 
+def alike_pair(broker: dict[str, Any]) -> tuple[tuple[int, int], Any, Any]:
+    """One file on both boxes but for each box's own keys: the same ports, each box's address
+    (two loopback addresses here, as two boxes' on a plant network). (The ports, box a's
+    sections, box b's.)"""
+    ports = (free_port(), free_port())
+    return ports, alike("127.0.0.1", broker, ports), alike("127.0.0.2", broker, ports)
+
+
 def edit(box: Box, old: str, new: str) -> None:
     path = Path(box.config)
     text = path.read_text()
@@ -79,19 +73,9 @@ def edit(box: Box, old: str, new: str) -> None:
 def test_a_reload_on_one_box_is_told_on_the_other_and_cleared_once_alike(
     line: SharedLine, boxes: list[Box], tmp_path: Path, mosquitto: Mosquitto
 ) -> None:
-    base = unique_base_topic("pair")
-    events = f"{base}/bridge/event"
-    broker = {"host": mosquitto.host, "port": mosquitto.port, "base_topic": base}
-    # One file on both boxes but for each box's own keys: the same ports, each box's address
-    # (two loopback addresses here, as two boxes' on a plant network).
-    ports = (free_port(), free_port())
-    boxes.append(
-        active := Box("a", line.paths[0], tmp_path, "active", **alike("127.0.0.1", broker, ports))
-    )
-    boxes.append(
-        standby := Box("b", line.paths[1], tmp_path, "standby", **alike("127.0.0.2", broker, ports))
-    )
-    active.wait_role("active", 5.0)
+    _, events, broker = pair_broker(mosquitto)
+    ports, a, b = alike_pair(broker)
+    active, standby = start_pair(boxes, line.paths, tmp_path, a=a, b=b)
     # Alike at start: each box has heard the other's configuration and says so.
     for box in (active, standby):
         assert peer_config(box, lambda p: p["differs"] == [], TOLD_WITHIN_S)["peer"] != box.name
@@ -163,16 +147,9 @@ def fault_events(probe: MqttProbe, topic: str, box: str, code: int) -> list[dict
 async def test_events_recorded_while_the_broker_was_away_are_handed_over_once_by_the_old_active(
     line: SharedLine, boxes: list[Box], tmp_path: Path, mosquitto: Mosquitto
 ) -> None:
-    base = unique_base_topic("pair")
-    events = f"{base}/bridge/event"
-    broker = {"host": mosquitto.host, "port": mosquitto.port, "base_topic": base}
-    ports = (free_port(), free_port())
-    a, b = alike("127.0.0.1", broker, ports), alike("127.0.0.2", broker, ports)
-    old = await asyncio.to_thread(Box, "a", line.paths[0], tmp_path, "active", **a)
-    boxes.append(old)
-    new = await asyncio.to_thread(Box, "b", line.paths[1], tmp_path, "standby", **b)
-    boxes.append(new)
-    await asyncio.to_thread(old.wait_role, "active", 5.0)
+    base, events, broker = pair_broker(mosquitto)
+    _, a, b = alike_pair(broker)
+    old, new = await asyncio.to_thread(start_pair, boxes, line.paths, tmp_path, a=a, b=b)
     async with mqtt_probe(mosquitto, f"{base}/pump") as probe:
         await probe.wait_for(f"{base}/pump", lambda s: s["fault_code"] == 0)
 

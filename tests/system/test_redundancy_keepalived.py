@@ -6,6 +6,11 @@ address (issue 48). Needs root (skipped otherwise).
 - the MASTER's gateway serves the line and the virtual address; the BACKUP's transmits nothing;
 - the active box dies (its Keepalived and its gateway SIGKILLed, its network gone): the virtual
   address moves, the other box takes the line, SCADA's next connection is served, 0 collisions;
+- the active box's network gone while both run (its interface down on the box, or its carrier
+  lost at the switch: a pulled cable): its Keepalived sees its interface down and goes FAULT
+  (its gateway asked standby, off the line at once), the other box is MASTER after 3 adverts
+  missed and takes the line; the cable back, the old box is BACKUP (`nopreempt`) and never
+  transmits;
 - the link between the boxes cut while both run: both are VRRP MASTER, both asked `active`;
   the second hears the first's polls and stays off the line: 0 frames from it, 0 collisions;
 - the active box's USB adapter unplugged: its gateway's fault file says 1 a second later
@@ -28,13 +33,14 @@ import subprocess
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from pathlib import Path
 
 import pytest
 
 from gateway.instruments.die_with_parent import die_with_parent
 from tests.support.netns import VIRTUAL, BoxNet, PlantNetwork, can_make_namespaces, plant_network
-from tests.support.processes import ROOT, LineCollector, entry_point
+from tests.support.processes import ROOT, LineCollector, end, entry_point
 from tests.support.redundancy import NOTIFY, Box, frames
 from tests.support.shared_line import SharedLine, shared_line
 
@@ -45,8 +51,9 @@ pytestmark = pytest.mark.skipif(
 MODBUS_PORT = 5020
 SHIPPED = (ROOT / "config" / "keepalived.conf").read_text()
 TAKEOVER_BOUND_S = 3.0
-"""From the kill, or the unplug, to the new active's first request on the line: issue 48's
-bound. The kill: VRRP's ~1.8 s, the notify script's start, the port's opening. The unplug: the
+"""From the kill, the cut, or the unplug, to the new active's first request on the line: issue
+48's bound. The kill, and the cut (the cut box's gateway leaves the line at once, on its FAULT):
+VRRP's ~1.8 s, the notify script's start, the port's opening. The unplug: the
 second without a port (`PORTLESS_S`), the priority-0 advert and the other box's skew (~0.3 s),
 the notify script; the line's silence (1.5 s here) is over by then."""
 
@@ -99,16 +106,7 @@ class Keepalived:
         self.process.wait(5)
 
     def stop(self) -> None:
-        if self.process.poll() is None:
-            self.process.terminate()
-            try:
-                self.process.wait(5)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait(5)
-        self.log.join()
-        if self.process.stdout is not None:
-            self.process.stdout.close()
+        end(self.process, self.log)
 
 
 def vrrp_config(
@@ -181,6 +179,17 @@ def holds_virtual(net: BoxNet) -> bool:
     return f"{VIRTUAL}/24" in net.addresses()
 
 
+@dataclass(frozen=True)
+class Side:
+    """One box as the test sees it: its gateway, its network, its Keepalived, and its number
+    among the line's masters (from 0)."""
+
+    index: int
+    box: Box
+    net: BoxNet
+    keepalived: Keepalived
+
+
 @dataclass
 class Site:
     """The line, the network, the two boxes (a: priority 150, b: 100, hold-off 500 ms) and
@@ -191,8 +200,8 @@ class Site:
     boxes: list[Box] = field(default_factory=list)
     keepaliveds: list[Keepalived] = field(default_factory=list)
 
-    def start(self, folder: Path) -> tuple[int, int]:
-        """Both boxes and their Keepalived started; once one is active: (its index, the
+    def start(self, folder: Path) -> tuple[Side, Side]:
+        """Both boxes and their Keepalived started; once one is active: (its side, the
         other's). Which one VRRP elects depends on whose check answers first (both start as
         BACKUP, and with `nopreempt` the first MASTER stays)."""
         a_net, b_net = self.net.boxes
@@ -215,17 +224,41 @@ class Site:
         while True:
             roles = [box.status()["role"] for box in self.boxes]
             if "active" in roles:
+                sides = [self.side(index) for index in range(2)]
                 active = roles.index("active")
-                return active, 1 - active
+                return sides[active], sides[1 - active]
             if time.monotonic() > deadline:
                 logs = "\n".join(k.log.text[-3000:] for k in self.keepaliveds)
                 raise AssertionError(f"no box active: {roles}\n{logs}")
             time.sleep(0.1)
 
-    def unplug(self, index: int, folder: Path) -> None:
-        """The `index`-th box's USB adapter pulled out: its link and its port gone."""
-        (folder / f"usb-adapter-{index}").unlink()
-        assert self.line.command(f"unplug-master {index + 1}").startswith("ok")
+    def side(self, index: int) -> Side:
+        return Side(index, self.boxes[index], self.net.boxes[index], self.keepaliveds[index])
+
+    def frames(self, side: Side) -> int:
+        """Frames `side`'s box has transmitted on the line so far."""
+        return frames(self.line)[side.index]
+
+    def first_request(self, side: Side, since: float, within_s: float, log: Keepalived) -> float:
+        """Seconds from `since` (a monotonic time) to `side`'s box's first frame on the line,
+        waited for up to `within_s` (then `log`'s end says why not)."""
+        while self.frames(side) == 0:
+            assert time.monotonic() - since < within_s, log.log.text[-3000:]
+            time.sleep(0.02)
+        return time.monotonic() - since
+
+    def assert_moved_to(self, side: Side) -> None:
+        """The virtual address on `side`'s box, SCADA's next connection to it served by its
+        gateway, now active; 0 collisions on the line."""
+        assert holds_virtual(side.net)
+        assert scada_read(self.net)[:2] == bytes([0x03, 0x02])  # SCADA's next connection
+        assert side.box.status()["role"] == "active"
+        assert self.line.stats()["collisions"] == 0
+
+    def unplug(self, side: Side, folder: Path) -> None:
+        """`side`'s box's USB adapter pulled out: its link and its port gone."""
+        (folder / f"usb-adapter-{side.index}").unlink()
+        assert self.line.command(f"unplug-master {side.index + 1}").startswith("ok")
 
 
 @pytest.fixture
@@ -244,93 +277,121 @@ def site() -> Iterator[Site]:
 def test_the_masters_box_serves_and_the_other_takes_over_when_it_dies(
     site: Site, tmp_path: Path
 ) -> None:
-    line, net = site.line, site.net
-    first, second = site.start(tmp_path)
-    a, b = site.boxes[first], site.boxes[second]
-    a_net, b_net = net.boxes[first], net.boxes[second]
+    active, other = site.start(tmp_path)
     time.sleep(0.5)  # the elected box's address settled
-    assert holds_virtual(a_net)
-    assert not holds_virtual(b_net)
-    assert scada_read(net)[:2] == bytes([0x03, 0x02])
-    assert b.status()["role"] == "standby"
-    assert frames(line)[second] == 0
+    assert holds_virtual(active.net)
+    assert not holds_virtual(other.net)
+    assert scada_read(site.net)[:2] == bytes([0x03, 0x02])
+    assert other.box.status()["role"] == "standby"
+    assert site.frames(other) == 0
 
     # The active box dies: its Keepalived and its gateway killed, its network gone.
-    site.keepaliveds[first].kill()
-    a.gateway.process.send_signal(signal.SIGKILL)
-    a.gateway.process.wait(5)
-    subprocess.run(net.on_lan("ip", "link", "set", a_net.port, "down"), check=True)
+    active.keepalived.kill()
+    active.box.gateway.process.send_signal(signal.SIGKILL)
+    active.box.gateway.process.wait(5)
+    subprocess.run(site.net.on_lan("ip", "link", "set", active.net.port, "down"), check=True)
     killed = time.monotonic()
-    while frames(line)[second] == 0:
-        assert time.monotonic() - killed < TAKEOVER_BOUND_S + 2, b.gateway.log.text[-2000:]
-        time.sleep(0.02)
-    first_request_s = time.monotonic() - killed
+    first_request_s = site.first_request(other, killed, TAKEOVER_BOUND_S + 2, other.keepalived)
     print(f"first request from the new active {first_request_s:.2f} s after the kill")
     assert first_request_s < TAKEOVER_BOUND_S
-    assert holds_virtual(b_net)
-    assert scada_read(net)[:2] == bytes([0x03, 0x02])  # SCADA's next connection is served
-    assert b.status()["role"] == "active"
-    assert line.stats()["collisions"] == 0
+    site.assert_moved_to(other)
+
+
+def cable(site: Site, side: Side, where: str, state: str) -> None:
+    """`side`'s box's network link set `state` (up, down): its own interface (`box`: the box's
+    side, as `ip link set eth0 down` on it), or its switch port (`switch`: the box's interface
+    loses its carrier, as when its cable is pulled)."""
+    if where == "box":
+        command = side.net.exec("ip", "link", "set", "eth0", state)
+    else:
+        command = site.net.on_lan("ip", "link", "set", side.net.port, state)
+    subprocess.run(command, check=True)
+
+
+@pytest.mark.parametrize("where", ["box", "switch"])
+def test_the_active_box_s_network_gone_the_other_takes_the_line_and_keeps_it(
+    site: Site, tmp_path: Path, where: str
+) -> None:
+    """Its cable pulled while both run: its Keepalived sees its interface down (FAULT: its
+    notify asks `role standby`, and the gateway leaves the line), the other's hears no more
+    adverts and is MASTER; the cable back, the old box is BACKUP (`nopreempt`) and its gateway
+    never transmits again."""
+    active, other = site.start(tmp_path)
+    time.sleep(0.5)
+    assert holds_virtual(active.net)
+    cable(site, active, where, "down")
+    cut, cut_at = time.monotonic(), datetime.now(UTC)
+    moved_s = site.first_request(other, cut, TAKEOVER_BOUND_S + 2, other.keepalived)
+    left_at = site.frames(active)  # it left the line before the other could take it
+    # Its role asked by its notify script on FAULT, the other's on MASTER.
+    left = active.box.wait_role("standby", 2.0)["last_change"]["at"]
+    left_s = (datetime.fromisoformat(left) - cut_at).total_seconds()
+    listened_s = other.box.status()["last_takeover_s"]
+    print(
+        f"first request from the other box {moved_s:.2f} s after the cut ({where}): the cut "
+        f"box standby {left_s:.2f} s after it, the other asked to be active "
+        f"{moved_s - listened_s:.2f} s after it, then listened {listened_s:.2f} s"
+    )
+    assert moved_s < TAKEOVER_BOUND_S
+    assert "Entering FAULT STATE" in active.keepalived.log.text, active.keepalived.log.text
+    site.assert_moved_to(other)
+
+    # The cable back: BACKUP, its gateway standby, not one frame from it.
+    cable(site, active, where, "up")
+    active.keepalived.log.wait_for_count("Entering BACKUP STATE", 2, 10.0)
+    time.sleep(2.0)  # four adverts: the other stays MASTER
+    assert active.box.status()["role"] == "standby"
+    assert not holds_virtual(active.net)
+    assert site.frames(active) == left_at
+    site.assert_moved_to(other)
 
 
 def test_a_cut_link_makes_two_vrrp_masters_and_one_master_on_the_line(
     site: Site, tmp_path: Path
 ) -> None:
-    line, net = site.line, site.net
-    first, second = site.start(tmp_path)
-    a, b = site.boxes[first], site.boxes[second]
-    a_net, b_net = net.boxes[first], net.boxes[second]
-    net.cut()
+    active, other = site.start(tmp_path)
+    site.net.cut()
     deadline = time.monotonic() + 10
-    while not holds_virtual(b_net):  # it hears no adverts: MASTER too, and asked `active`
-        assert time.monotonic() < deadline, site.keepaliveds[second].log.text[-2000:]
+    while not holds_virtual(other.net):  # it hears no adverts: MASTER too, and asked `active`
+        assert time.monotonic() < deadline, other.keepalived.log.text[-2000:]
         time.sleep(0.1)
-    assert holds_virtual(a_net)
+    assert holds_virtual(active.net)
     time.sleep(3.0)
-    assert b.status()["role"] == "listening"  # asked active, hears the polls: off the line
-    assert a.status()["role"] == "active"
-    assert frames(line)[second] == 0
-    assert line.stats()["collisions"] == 0
+    assert other.box.status()["role"] == "listening"  # asked active, hears the polls: off the line
+    assert active.box.status()["role"] == "active"
+    assert site.frames(other) == 0
+    assert site.line.stats()["collisions"] == 0
     # The link back: one box is BACKUP again, the other stays MASTER; one master on the line.
-    net.cut(False)
+    site.net.cut(False)
     deadline = time.monotonic() + 10
     while sorted(box.status()["role"] for box in site.boxes) != ["active", "standby"]:
         assert time.monotonic() < deadline, [box.status() for box in site.boxes]
         time.sleep(0.1)
-    assert line.stats()["collisions"] == 0
+    assert site.line.stats()["collisions"] == 0
 
 
 def test_the_active_s_adapter_unplugged_the_address_and_the_line_move(
     site: Site, tmp_path: Path
 ) -> None:
-    line, net = site.line, site.net
-    first, second = site.start(tmp_path)
-    a, b = site.boxes[first], site.boxes[second]
-    b_net = net.boxes[second]
+    active, other = site.start(tmp_path)
     time.sleep(0.5)
-    assert not a.says_unfit()
-    site.unplug(first, tmp_path)
+    assert not active.box.says_unfit()
+    site.unplug(active, tmp_path)
     unplugged = time.monotonic()
     # A second without a port, the fault file (Keepalived FAULT at once, its priority-0 advert),
-    # the other box's skew, its notify script, the silence (over by then: box a stopped
+    # the other box's skew, its notify script, the silence (over by then: the active box stopped
     # transmitting at the unplug).
-    while frames(line)[second] == 0:
-        assert time.monotonic() - unplugged < 12, site.keepaliveds[first].log.text[-3000:]
-        time.sleep(0.02)
-    moved_s = time.monotonic() - unplugged
-    assert moved_s < TAKEOVER_BOUND_S, site.keepaliveds[second].log.text[-3000:]
-    assert a.says_unfit()
+    moved_s = site.first_request(other, unplugged, 12, active.keepalived)
+    assert moved_s < TAKEOVER_BOUND_S, other.keepalived.log.text[-3000:]
+    assert active.box.says_unfit()
     # How long it listened once asked (the rest was VRRP's, and the notify script's, part).
-    listened_s = b.status()["last_takeover_s"]
+    listened_s = other.box.status()["last_takeover_s"]
     print(
         f"first request from the other box {moved_s:.2f} s after the unplug: asked to be "
         f"active {moved_s - listened_s:.2f} s after it, then listened {listened_s:.2f} s"
     )
-    assert "tracked file invt_gateway_fault now FAULT state" in site.keepaliveds[first].log.text
-    assert holds_virtual(b_net)
-    assert scada_read(net)[:2] == bytes([0x03, 0x02])
-    assert b.status()["role"] == "active"
-    status = a.status()
+    assert "tracked file invt_gateway_fault now FAULT state" in active.keepalived.log.text
+    status = active.box.status()
     assert status["role"] == "standby"
     assert status["fit"] is False
-    assert line.stats()["collisions"] == 0
+    site.assert_moved_to(other)

@@ -14,7 +14,6 @@ import asyncio
 import signal
 import time
 import uuid
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -23,24 +22,12 @@ from asyncua import Client, ua
 from gateway.opcua.address_space import NAMESPACE
 from gateway.redundancy.roles import PORTLESS_S
 from tests.support import free_port
-from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe, unique_base_topic
-from tests.support.redundancy import TAKEOVER_BOUND_S, Box, frames
-from tests.support.shared_line import SharedLine, shared_line
+from tests.support.mosquitto import Mosquitto, MqttProbe, mqtt_probe
+from tests.support.redundancy import TAKEOVER_BOUND_S, Box, frames, pair_broker, start_pair
+from tests.support.redundancy import boxes as boxes  # the fixtures
+from tests.support.redundancy import line as line
+from tests.support.shared_line import SharedLine
 from tests.support.sparkplug import sparkplug_host, tahu_codec, values
-
-
-@pytest.fixture
-def line() -> Iterator[SharedLine]:
-    with shared_line(2, "--address", "1") as shared:
-        yield shared
-
-
-@pytest.fixture
-def boxes() -> Iterator[list[Box]]:
-    started: list[Box] = []
-    yield started
-    for box in started:
-        box.stop()
 
 
 def raised(probe: MqttProbe, events: str, code: int, after: int = 0) -> int:
@@ -57,15 +44,9 @@ def raised(probe: MqttProbe, events: str, code: int, after: int = 0) -> int:
 async def test_a_fault_reported_by_the_old_active_is_not_reported_again_by_the_new_one(
     line: SharedLine, boxes: list[Box], tmp_path: Path, mosquitto: Mosquitto
 ) -> None:
-    base = unique_base_topic("pair")
-    events = f"{base}/bridge/event"
-    broker = {"host": mosquitto.host, "port": mosquitto.port, "base_topic": base}
+    base, events, broker = pair_broker(mosquitto)
     async with mqtt_probe(mosquitto, events, f"{base}/pump") as probe:
-        old = await asyncio.to_thread(Box, "a", line.paths[0], tmp_path, "active", mqtt=broker)
-        boxes.append(old)
-        new = await asyncio.to_thread(Box, "b", line.paths[1], tmp_path, "standby", mqtt=broker)
-        boxes.append(new)
-        await asyncio.to_thread(old.wait_role, "active", 5.0)
+        old, new = await asyncio.to_thread(start_pair, boxes, line.paths, tmp_path, mqtt=broker)
         await probe.wait_for(f"{base}/pump", lambda s: s["fault_code"] == 0)
 
         line.command("fault 1 35")  # the drive trips while box a is active
@@ -109,9 +90,7 @@ def test_the_active_s_adapter_unplugged_it_fails_keepalived_s_check_and_leaves_t
     # when the adapter is pulled out (and a pty's number may be another's a moment later).
     adapter = tmp_path / "usb-adapter-a"
     adapter.symlink_to(line.paths[0])
-    boxes.append(old := Box("a", str(adapter), tmp_path, "active"))
-    boxes.append(new := Box("b", line.paths[1], tmp_path, "standby"))
-    old.wait_role("active", 5.0)
+    old, new = start_pair(boxes, (str(adapter), line.paths[1]), tmp_path)
     assert not old.check_fails()
     assert not new.check_fails()
     assert not old.says_unfit()
@@ -205,12 +184,9 @@ async def test_sparkplug_s_node_moves_to_the_new_active_with_a_new_nbirth_its_bd
     line: SharedLine, boxes: list[Box], tmp_path: Path, mosquitto: Mosquitto
 ) -> None:
     group = f"plant-{uuid.uuid4().hex[:8]}"
-    broker = {
-        "host": mosquitto.host,
-        "port": mosquitto.port,
-        "base_topic": unique_base_topic("pair"),
-        "sparkplug": {"group_id": group, "edge_node_id": "cabinet-a"},
-    }
+    _, _, broker = pair_broker(
+        mosquitto, sparkplug={"group_id": group, "edge_node_id": "cabinet-a"}
+    )
     with tahu_codec() as codec:
         async with sparkplug_host(mosquitto, codec, group, "cabinet-a") as host:
             old = await asyncio.to_thread(Box, "a", line.paths[0], tmp_path, "active", mqtt=broker)

@@ -17,14 +17,14 @@ import socket
 import struct
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-import pytest
-
-from tests.support.redundancy import Box
-from tests.support.shared_line import SharedLine, shared_line
+from tests.support.redundancy import Box, start_pair
+from tests.support.redundancy import boxes as boxes  # the fixtures
+from tests.support.redundancy import line as line
+from tests.support.shared_line import SharedLine
 
 UNIT = 1
 REGISTER = 0x2002
@@ -138,20 +138,6 @@ def _read_exactly(connection: socket.socket, size: int) -> bytes:
     return data
 
 
-@pytest.fixture
-def line() -> Iterator[SharedLine]:
-    with shared_line(2, "--address", "1") as shared:
-        yield shared
-
-
-@pytest.fixture
-def boxes() -> Iterator[list[Box]]:
-    started: list[Box] = []
-    yield started
-    for box in started:
-        box.stop()
-
-
 def wait_for(condition: Callable[[], bool], within_s: float, what: str) -> None:
     deadline = time.monotonic() + within_s
     while not condition():
@@ -162,9 +148,7 @@ def wait_for(condition: Callable[[], bool], within_s: float, what: str) -> None:
 def test_writes_through_a_takeover_are_carried_out_once_each_by_one_master(
     line: SharedLine, boxes: list[Box], tmp_path: Path
 ) -> None:
-    boxes.append(old := Box("a", line.paths[0], tmp_path, "active"))
-    boxes.append(new := Box("b", line.paths[1], tmp_path, "standby"))
-    old.wait_role("active", 5.0)
+    old, new = start_pair(boxes, line.paths, tmp_path)
     virtual = [old.tcp_port]  # the virtual address: on box a's until Keepalived moves it
     scada = Scada(lambda: virtual[0])
     scada.start()
