@@ -265,6 +265,17 @@ def read_state_word(port: int, unit_id: int) -> bytes:
         return connection.recv(256)[7:]
 
 
+def receive_exactly(sock: socket.socket, count: int) -> bytes:
+    """`count` bytes from a blocking socket (ConnectionResetError if the peer closes first)."""
+    data = b""
+    while len(data) < count:
+        chunk = sock.recv(count - len(data))
+        if not chunk:
+            raise ConnectionResetError("the peer closed the connection")
+        data += chunk
+    return data
+
+
 def protected_config(line_path: str, **tcp: Any) -> GatewayConfig:
     """Two drives (pump1 at 1, fan2 at 2) and Modbus-TCP on a free loopback port with the
     server's options `tcp` (its limits and protections)."""

@@ -21,6 +21,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from tests.support import receive_exactly
 from tests.support.redundancy import Box, start_pair
 from tests.support.redundancy import boxes as boxes  # the fixtures
 from tests.support.redundancy import line as line
@@ -120,22 +121,12 @@ class Scada:
     def _ask(self, connection: socket.socket, pdu: bytes) -> bytes:
         self._tid = (self._tid + 1) % 65536
         connection.sendall(struct.pack(">HHHB", self._tid, 0, len(pdu) + 1, UNIT) + pdu)
-        header = _read_exactly(connection, 7)
+        header = receive_exactly(connection, 7)
         tid, _, length, _ = struct.unpack(">HHHB", header)
-        body = _read_exactly(connection, length - 1)
+        body = receive_exactly(connection, length - 1)
         if tid != self._tid:
             raise OSError(f"transaction {tid} answered, {self._tid} asked")
         return body
-
-
-def _read_exactly(connection: socket.socket, size: int) -> bytes:
-    data = b""
-    while len(data) < size:
-        chunk = connection.recv(size - len(data))
-        if not chunk:
-            raise ConnectionResetError("the gateway closed the connection")
-        data += chunk
-    return data
 
 
 def wait_for(condition: Callable[[], bool], within_s: float, what: str) -> None:

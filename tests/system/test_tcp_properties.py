@@ -26,7 +26,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from gateway.instruments.simulator import SimulatedLine
-from tests.support import RecordProperty, free_port, read_pdu
+from tests.support import RecordProperty, free_port, read_pdu, receive_exactly
 from tests.support.processes import GatewayProcess, gateway_process
 
 STATE_WORD_1 = 0x2100
@@ -123,16 +123,6 @@ class Checker:
 
     def stop(self) -> None:
         self._stop.set()
-
-
-def receive_exactly(sock: socket.socket, count: int) -> bytes:
-    data = b""
-    while len(data) < count:
-        chunk = sock.recv(count - len(data))
-        if not chunk:
-            raise ConnectionError("closed")
-        data += chunk
-    return data
 
 
 @pytest.fixture(scope="module")
