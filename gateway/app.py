@@ -520,7 +520,10 @@ class LineHandover:
             box, base = settings.redundancy.box, settings.mqtt.base_topic
             told = ToldFaults(base, (d.name for d in settings.drives))
             self.told_birth = ToldBirth(base, box)
-            peer = redundancy.peer_config = PeerConfig(lambda: app.settings.source, app.events)
+            peer = redundancy.peer_config = PeerConfig(
+                lambda: app.settings.redundancy.shared_digests if app.settings.redundancy else {},
+                app.events,
+            )
             announced, followed = self._announced(redundancy), (told, self.told_birth)
             app.announcer = RoleAnnouncer(settings.mqtt, box, announced, followed, peer)
             app.announcer.hand_events(app.events, lambda: not redundancy.serving)

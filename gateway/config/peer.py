@@ -20,7 +20,6 @@ from __future__ import annotations
 import hashlib
 import json
 import re
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Final
 
@@ -80,27 +79,6 @@ def shared_digests(config: GatewayConfig) -> dict[str, str]:
         text = json.dumps(value, sort_keys=True, separators=(",", ":"))
         digests[key] = hashlib.sha256(text.encode()).hexdigest()[:12]
     return digests
-
-
-def differing(here: Mapping[str, str], there: Mapping[str, str]) -> list[str]:
-    """The shared keys whose digests differ (or that one side has and the other doesn't), in
-    key order; a named item that only one side has at all is one key (`drives[fan]`), not
-    each of its keys."""
-    keys: set[str] = set()
-    for key in here.keys() | there.keys():
-        if here.get(key) == there.get(key):
-            continue
-        keys.add(_item_missing(key, there if key in here else here) or key)
-    return sorted(keys)
-
-
-def _item_missing(key: str, other: Mapping[str, str]) -> str | None:
-    """The first named item on `key`'s path (`drives[fan]`) of which `other` has no key."""
-    for match in re.finditer(r"\[[^]]+\]", key):
-        item = key[: match.end()]
-        if not any(k == item or k.startswith((f"{item}.", f"{item}[")) for k in other):
-            return item
-    return None
 
 
 def _own(key: str) -> bool:

@@ -244,6 +244,6 @@ async def _ended(task: asyncio.Task[None]) -> None:
         task.exception()  # retrieved: the loop has raised it, or another's end came first
 
 
-def _digest(keys: dict[str, str]) -> str:
+def _digest(keys: Mapping[str, str]) -> str:
     """One digest of the shared configuration's: the same on two boxes that run it alike."""
-    return hashlib.sha256(dump(keys)).hexdigest()[:12]
+    return hashlib.sha256(dump(dict(keys))).hexdigest()[:12]

@@ -17,12 +17,11 @@ the standby restarts: the box that takes over would run the old one.
 from __future__ import annotations
 
 import logging
+import re
 import time
 from collections.abc import Callable, Mapping
 from typing import Any, Final
 
-from gateway.config.peer import differing, shared_digests
-from gateway.config.schema import GatewayConfig
 from gateway.poller.drive_state import iso_time
 from gateway.store import EventStore, EventType
 
@@ -37,13 +36,11 @@ class PeerConfig:
 
     def __init__(
         self,
-        running: Callable[[], GatewayConfig],
+        running: Callable[[], Mapping[str, str]],
         events: EventStore | None = None,
     ) -> None:
         self._running = running
         self._events = events
-        self._source: GatewayConfig | None = None
-        self._digests: dict[str, str] = {}
         self._peer: str | None = None
         self._theirs: dict[str, str] | None = None
         self.differs: list[str] = []
@@ -51,12 +48,9 @@ class PeerConfig:
         self.since: float | None = None
         """Since when they differ (or agree), wall-clock; None: the peer not heard yet."""
 
-    def digests(self) -> dict[str, str]:
+    def digests(self) -> Mapping[str, str]:
         """This box's: each shared key's digest, of the configuration it runs now."""
-        source = self._running()
-        if source is not self._source:
-            self._source, self._digests = source, shared_digests(source)
-        return self._digests
+        return self._running()
 
     def heard(self, peer: str, digests: Mapping[str, str]) -> None:
         """The other box (`peer`, its box name) announced what it runs."""
@@ -110,3 +104,24 @@ class PeerConfig:
         if self._events is not None:
             data = {"peer": self._peer, "count": len(self.differs), **more}
             self._events.record(kind, data)
+
+
+def differing(here: Mapping[str, str], there: Mapping[str, str]) -> list[str]:
+    """The shared keys whose digests differ (or that one side has and the other doesn't), in
+    key order; a named item that only one side has at all is one key (`drives[fan]`), not
+    each of its keys."""
+    keys: set[str] = set()
+    for key in here.keys() | there.keys():
+        if here.get(key) == there.get(key):
+            continue
+        keys.add(_item_missing(key, there if key in here else here) or key)
+    return sorted(keys)
+
+
+def _item_missing(key: str, other: Mapping[str, str]) -> str | None:
+    """The first named item on `key`'s path (`drives[fan]`) of which `other` has no key."""
+    for match in re.finditer(r"\[[^]]+\]", key):
+        item = key[: match.end()]
+        if not any(k == item or k.startswith((f"{item}.", f"{item}[")) for k in other):
+            return item
+    return None

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import re
 import socket
-from collections.abc import Iterable
-from dataclasses import dataclass
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
 
 from gateway.bus import BusSettings
 from gateway.config.sections.redundancy import RedundancyConfig
@@ -36,6 +36,9 @@ class RedundancySettings:
     """Keepalived's track file this gateway keeps (`FaultFile`); "": none."""
     silence_derived: bool
     """`silence_s` was worked out from the poll cycle, not configured."""
+    shared_digests: Mapping[str, str] = field(default_factory=dict)
+    """What this box runs of the configuration both boxes must share: a digest per key
+    (`gateway.config.peer.shared_digests`), for the other box to compare (`PeerConfig`)."""
 
     @property
     def listen_s(self) -> float:
@@ -47,8 +50,9 @@ def redundancy_settings(
     config: RedundancyConfig,
     buses: Iterable[BusSettings],
     polled: Iterable[DriveSettings],
+    shared_digests: Mapping[str, str],
 ) -> RedundancySettings | None:
-    """None when redundancy is off."""
+    """None when redundancy is off; `shared_digests` of the whole configuration."""
     if not config.enabled:
         return None
     silence_s = derived_silence_s(buses, polled) if config.silence_ms is None else None
@@ -61,6 +65,7 @@ def redundancy_settings(
         notify=config.notify,
         fault_file=config.fault_file,
         silence_derived=config.silence_ms is None,
+        shared_digests=shared_digests,
     )
 
 

@@ -12,8 +12,8 @@ from typing import Any
 import pytest
 
 from gateway.config import GatewayConfig, load_config
-from gateway.config.peer import differing, shared_digests
-from gateway.redundancy.peer_config import PeerConfig
+from gateway.config.peer import shared_digests
+from gateway.redundancy.peer_config import PeerConfig, differing
 
 EXAMPLE = Path(__file__).resolve().parents[3] / "config" / "config.example.yaml"
 
@@ -81,7 +81,7 @@ def test_the_comparison_says_when_they_differ_and_when_alike_again(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
     running = [config()]
-    peer = PeerConfig(lambda: running[0])
+    peer = PeerConfig(lambda: shared_digests(running[0]))
     assert peer.status() is None  # not heard yet
     peer.heard("gw-b", shared_digests(config()))
     status = peer.status()
