@@ -81,11 +81,17 @@ class LineEar:
 class LineListener:
     """One line's port, open to listen while this gateway is not the active one."""
 
-    def __init__(self, settings: LineSettings, lost: Callable[[], None] | None = None) -> None:
+    def __init__(
+        self,
+        settings: LineSettings,
+        lost: Callable[[], None] | None = None,
+        told: Callable[[Frame], None] | None = None,
+    ) -> None:
+        """`told`: each frame heard (another master's requests, for the role machine)."""
         self.settings = settings
         self._lost = lost
         """Told when the open port fails (the role machine counts the time without a port)."""
-        self.ear = LineEar(settings)
+        self.ear = LineEar(settings, told)
         self.opened_at = 0.0
         """When the port was opened (0.0: not open): the line is heard from then."""
         self._port: Port | None = None

@@ -15,6 +15,11 @@
                two boxes that took the line at once (the one race listening can't close) don't
                take it at once again
 
+A box asked active that has heard another master for `LATCH_S` while it listened (a cut between
+the boxes: both VRRP MASTER) gives the virtual address up: the latch (`SplitLatch`) says it
+unfit, in the fault file and `role status`, until no other master has been heard for
+`silence_s`.
+
 Who asks is the coordinator's business (Keepalived's notify script: `config/
 invt-gateway-notify.sh`); the machine makes sure that whatever it is asked, and whatever the
 other box does, this box transmits only on a line it has heard silent, and stops when it hears
@@ -38,6 +43,8 @@ from gateway.bus import Bus
 from gateway.bus.line_settings import LineSettings
 from gateway.poller.drive_state import iso_time
 from gateway.redundancy.fault_file import FaultFile
+from gateway.redundancy.frames import Frame, Kind
+from gateway.redundancy.latch import LATCH_S, SplitLatch
 from gateway.redundancy.listener import LineListener
 from gateway.redundancy.peer_config import PeerConfig
 from gateway.redundancy.watch import ActiveWatch
@@ -115,7 +122,11 @@ class Redundancy:
         self.last_foreign: dict[str, Any] | None = None
         self.last_takeover_s: float | None = None
         """From `role active` (or the start) to the line taken, the last time."""
-        self._listeners = [LineListener(line, self._wake) for line in lines]
+        self._listeners = [LineListener(line, self._wake, self._heard) for line in lines]
+        self._latch = SplitLatch(settings.silence_s)
+        """Another master heard while asked active: unfit to hold the virtual address."""
+        self._listening_since: float | None = None
+        """Since when this box has been `listening` (asked active, off the line)."""
         self._fault_file = FaultFile(settings.fault_file) if settings.fault_file else None
         self._watches: list[ActiveWatch] = []
         self._asked_at = time.monotonic()
@@ -140,8 +151,13 @@ class Redundancy:
         if wanted == "status":
             status = self.status()
             answer = [json.dumps(status, sort_keys=True)]
-            if not status["fit"]:
-                answer.append(f"unfit: {self._portless_reason(status['portless_s'])}")
+            portless_s = self._portless_for(time.monotonic())
+            # `unfit:` makes the command exit 1, and the track script fail. Not for the latch
+            # when the fault file tells Keepalived (at once, both ways): a failing script would
+            # hold the box in FAULT for its `rise` once the other master is gone.
+            latch_told = self._latch.latched and self._fault_file is not None
+            if status["unfit"] is not None and (not latch_told or self._portless(portless_s)):
+                answer.append(f"unfit: {status['unfit']}")
             return answer
         if wanted not in ASKABLE:
             return [f"refused: unknown role {wanted!r} (active, standby or status)"]
@@ -187,7 +203,8 @@ class Redundancy:
         }
         portless_s = self._portless_for(now)
         status["portless_s"] = None if portless_s is None else round(portless_s, 1)
-        status["fit"] = portless_s is None or portless_s <= PORTLESS_S
+        status["unfit"] = self._unfit(now, portless_s)
+        status["fit"] = status["unfit"] is None
         if self.role is not Role.ACTIVE:
             silent = [lsn.silent_for(now) for lsn in self._listeners if lsn.open]
             status["line_silent_s"] = round(min(silent), 3) if silent else None
@@ -196,6 +213,8 @@ class Redundancy:
             status["deaf"] = [lsn.settings.name for lsn in self._listeners if not lsn.open]
             status["heard_requests"] = sum(ear.requests for ear in heard)
             status["heard_replies"] = sum(ear.replies for ear in heard)
+            hearing_s = self._latch.hearing_for(now)
+            status["another_master_heard_s"] = None if hearing_s is None else round(hearing_s, 1)
         if self.peer_config is not None:
             status["peer_config"] = self.peer_config.status()
         return status
@@ -227,10 +246,13 @@ class Redundancy:
                 watch.close()
 
     async def _step(self) -> None:
-        portless_s = self._portless_for(time.monotonic())
+        now = time.monotonic()
+        self._look_latch(now)
+        portless_s = self._portless_for(now)
         fit = portless_s is None or portless_s <= PORTLESS_S
         if self._fault_file is not None:
-            self._fault_file.tell(fit, "" if fit else self._portless_reason(portless_s or 0.0))
+            unfit = self._unfit(now, portless_s)
+            self._fault_file.tell(unfit is None, unfit or "")
         # Looked at again when the ports have been gone PORTLESS_S (a lost port wakes it).
         look_again_s = LOOK_AGAIN_S
         if portless_s is not None and fit:
@@ -270,6 +292,54 @@ class Redundancy:
         if self._portless_since is None:
             self._portless_since = now
         return now - self._portless_since
+
+    def _unfit(self, now: float, portless_s: float | None) -> str | None:
+        """Why this box can't be the line's master, or hold the virtual address; None: it
+        can."""
+        if portless_s is not None and self._portless(portless_s):
+            return self._portless_reason(portless_s)
+        if self._latch.latched:
+            hearing_s = self._latch.hearing_for(now) or 0.0
+            return (
+                "another master heard while this box was asked to be active (a cut between "
+                f"the boxes?), and for {hearing_s:.1f} s now: this box gives the virtual "
+                f"address up until no master is heard for {self.settings.silence_s:.1f} s"
+            )
+        return None
+
+    @staticmethod
+    def _portless(portless_s: float | None) -> bool:
+        """No port open for longer than `PORTLESS_S`: this box can't be the line's master."""
+        return portless_s is not None and portless_s > PORTLESS_S
+
+    def _heard(self, frame: Frame) -> None:
+        """A frame a listener heard: a request (drives send none) is another master's."""
+        if frame.kind is not Kind.REPLY:
+            # Its end: the last byte any line heard (as the silence before a takeover counts).
+            self._latch.heard(max(listener.ear.heard_at for listener in self._listeners))
+
+    def _look_latch(self, now: float) -> None:
+        """The latch set (another master heard `LATCH_S` while listening) or cleared (none
+        heard for `silence_s`): said in the log and an event; the fault file follows."""
+        changed = self._latch.look(now, self._listening_since)
+        if changed is None:
+            return
+        if changed:
+            reason = self._unfit(now, None)
+            log.warning("redundancy: %s", reason)
+            heard_s = round(self._latch.hearing_for(now) or LATCH_S, 1)
+            data = {"role": self.role.value, "heard_s": heard_s, "reason": reason}
+            event = EventType.ANOTHER_MASTER_HEARD
+        else:
+            reason = (
+                f"no other master heard for {self.settings.silence_s:.1f} s: this box can hold "
+                "the virtual address again"
+            )
+            log.info("redundancy: %s", reason)
+            data = {"role": self.role.value, "reason": reason}
+            event = EventType.ANOTHER_MASTER_GONE
+        if self.events is not None:
+            self.events.record(event, {**data, "peer": self.settings.peer})
 
     @staticmethod
     def _portless_reason(portless_s: float) -> str:
@@ -359,6 +429,7 @@ class Redundancy:
             return
         self.role = role
         self.changes[role] += 1
+        self._listening_since = time.monotonic() if role is Role.LISTENING else None
         self.last_change = RoleChange(role, reason, time.time())
         log.warning("redundancy: %s (%s)", self.describe(), reason)
         if self.events is not None:

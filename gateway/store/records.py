@@ -38,6 +38,11 @@ class EventType(StrEnum):
     """Redundancy: this gateway became standby, listening or active (`gateway.redundancy`)."""
     FOREIGN_MASTER = "foreign_master"
     """Redundancy: an active gateway heard another master's request and left the line."""
+    ANOTHER_MASTER_HEARD = "another_master_heard"
+    """Redundancy: a box asked active heard another master for a while (a cut between the
+    boxes): it gives the virtual address up (its fault file says 1)."""
+    ANOTHER_MASTER_GONE = "another_master_gone"
+    """Redundancy: that box heard no other master for `silence_ms`: fit again."""
     PEER_CONFIG_DIFFERS = "peer_config_differs"
     """Redundancy: the other box runs another configuration in what both must share (its keys)."""
     PEER_CONFIG_ALIKE = "peer_config_alike"

@@ -13,6 +13,8 @@ address (issue 48). Needs root (skipped otherwise).
   transmits;
 - the link between the boxes cut while both run: both are VRRP MASTER, both asked `active`;
   the second hears the first's polls and stays off the line: 0 frames from it, 0 collisions;
+  it gives the virtual address up (its fault file: FAULT) and the first's gratuitous ARPs
+  (`garp_master_refresh`) draw SCADA back to it, served through the cut;
 - the active box's USB adapter unplugged: its gateway's fault file says 1 a second later
   (Keepalived's track_file), its Keepalived goes FAULT at once and sends an advert of priority 0,
   the virtual address moves, and the other box's first request is on the line within 3 s of the
@@ -39,6 +41,7 @@ from pathlib import Path
 import pytest
 
 from gateway.instruments.die_with_parent import die_with_parent
+from gateway.redundancy.latch import LATCH_S
 from tests.support.netns import VIRTUAL, BoxNet, PlantNetwork, can_make_namespaces, plant_network
 from tests.support.processes import ROOT, LineCollector, end, entry_point
 from tests.support.redundancy import NOTIFY, Box, frames
@@ -56,6 +59,21 @@ TAKEOVER_BOUND_S = 3.0
 VRRP's ~1.8 s, the notify script's start, the port's opening. The unplug: the
 second without a port (`PORTLESS_S`), the priority-0 advert and the other box's skew (~0.3 s),
 the notify script; the line's silence (1.5 s here) is over by then."""
+
+
+SERVED = bytes([0x03, 0x02])
+"""SCADA's read answered with the drive's value (function 03H, 2 bytes)."""
+REFUSED = bytes([0x83, 0x0A])
+"""Exception 0AH: a box that isn't the line's master (standby, listening)."""
+SERVED_IN_CUT_S = 8.0
+"""From the second box MASTER in a cut between the boxes to SCADA served for good: the latch's
+`LATCH_S` (3 s, counted from its notify's `role active`, ~0.2 s), the role machine's look (0.25
+s), its Keepalived FAULT on the fault file (at once), the active box's next gratuitous ARP
+(`garp_master_refresh`: 2 s), and a read sent to the old address meanwhile (no answer within
+its 2 s)."""
+TAKEOVER_AFTER_CUT_S = 5.0
+"""The active killed after the cut, while the other box is latched: the line's silence that
+clears the latch (1 s here), then VRRP's BACKUP to MASTER (~1.8 s), the notify script."""
 
 
 def shipped(key: str) -> str:
@@ -141,6 +159,7 @@ vrrp_instance invt_gateway {{
     virtual_router_id 48
     priority {priority}
     advert_int {shipped("advert_int")}
+    garp_master_refresh {shipped("garp_master_refresh")}
     unicast_src_ip {net.address}
     unicast_peer {{
         {peer.address}
@@ -346,40 +365,95 @@ def test_the_active_box_s_network_gone_the_other_takes_the_line_and_keeps_it(
     site.assert_moved_to(other)
 
 
-def test_a_cut_link_makes_two_vrrp_masters_and_one_master_on_the_line(
+def scada_reads_until_served(net: PlantNetwork, since: float, within_s: float) -> list[str]:
+    """SCADA's reads through the virtual address, one after another, until one is served (the
+    drive's value), for up to `within_s` from `since`: each `seconds: reply` (nothing: no
+    answer within the read's 2 s, the address on its way). Never a wrong value."""
+    answers = []
+    while True:
+        answer = scada_read(net)[:2]
+        answers.append(f"{time.monotonic() - since:.2f}: {answer.hex() or 'nothing'}")
+        assert answer in (SERVED, REFUSED, b""), answers
+        if answer == SERVED:
+            return answers
+        assert time.monotonic() - since < within_s, answers
+        time.sleep(0.1)
+
+
+def test_a_cut_link_makes_two_vrrp_masters_one_master_on_the_line_and_scada_served(
     site: Site, tmp_path: Path
 ) -> None:
+    """The link between the boxes cut, both reaching SCADA: both VRRP MASTER, the second asked
+    active hears the first's polls and stays off the line (0 frames, 0 collisions); it gives
+    the address up (the latch: fault file 1, FAULT) and the first's periodic gratuitous ARPs
+    draw SCADA back to it: served through the cut. The link back: one box active, the other
+    standby, served; the active box then dies and the other takes the line (the latch clears
+    on the silence)."""
     active, other = site.start(tmp_path)
+    time.sleep(0.5)
     site.net.cut()
-    deadline = time.monotonic() + 10
+    cut = time.monotonic()
     while not holds_virtual(other.net):  # it hears no adverts: MASTER too, and asked `active`
-        assert time.monotonic() < deadline, other.keepalived.log.text[-2000:]
-        time.sleep(0.1)
+        assert time.monotonic() - cut < 10, other.keepalived.log.text[-2000:]
+        time.sleep(0.05)
+    master = time.monotonic()
     assert holds_virtual(active.net)
-    # Both hold the address: SCADA reaches the one whose gratuitous ARPs came last (the one
-    # MASTER since the cut), which answers 0AH, or the active one: never a wrong value.
+    # Both MASTER, both announcing the address: SCADA answered 0AH by the one, served by the
+    # other, until the one that can't have the line gives the address up.
     answers = []
-    for _ in range(6):
-        answers.append(scada_read(site.net)[:2])
+    while not other.box.says_unfit():
+        answer = scada_read(site.net)[:2]
+        answers.append(f"{time.monotonic() - master:.2f}: {answer.hex() or 'nothing'}")
+        assert answer in (SERVED, REFUSED, b""), answers
+        assert time.monotonic() - master < LATCH_S + 3, answers
+    latched_s = time.monotonic() - master
+    answers += scada_reads_until_served(site.net, master, SERVED_IN_CUT_S)
+    served_s = time.monotonic() - master
+    unfit = other.box.wait_role("standby", 2.0)
+    print(
+        f"the other box MASTER {master - cut:.2f} s after the cut; its fault file 1 "
+        f"{latched_s:.2f} s after it, SCADA served {served_s:.2f} s after it: {answers}"
+    )
+    assert unfit["role"] == "standby", unfit  # its Keepalived FAULT: its notify asked standby
+    assert unfit["fit"] is False
+    assert "another master heard while this box was asked to be active" in unfit["unfit"]
+    assert unfit["another_master_heard_s"] > LATCH_S
+    assert other.box.says_unfit()
+    assert "tracked file invt_gateway_fault now FAULT state" in other.keepalived.log.text
+    assert not holds_virtual(other.net)
+    assert not other.box.check_fails()  # the fault file says it: the track script stays up
+    assert "gives the virtual address up" in other.box.gateway.log.text
+    # The rest of the cut: SCADA served on every read, the line one master's.
+    for _ in range(8):
+        assert scada_read(site.net)[:2] == SERVED, time.monotonic() - master
         time.sleep(0.5)
-    assert set(answers) <= {bytes([0x03, 0x02]), bytes([0x83, 0x0A])}, answers
-    print(f"SCADA during the cut: {[answer.hex() for answer in answers]}")
-    assert other.box.status()["role"] == "listening"  # asked active, hears the polls: off the line
     assert active.box.status()["role"] == "active"
     assert site.frames(other) == 0
     assert site.line.stats()["collisions"] == 0
-    # The link back: one box is BACKUP again, the other stays MASTER; one master on the line.
+
+    # The link back: one box active, the other standby (still FAULT: it hears the active);
+    # one master on the line, SCADA served.
     site.net.cut(False)
-    back = time.monotonic()
-    deadline = back + 10
-    while sorted(box.status()["role"] for box in site.boxes) != ["active", "standby"]:
-        assert time.monotonic() < deadline, [box.status() for box in site.boxes]
-        time.sleep(0.1)
-    while scada_read(site.net)[:2] != bytes([0x03, 0x02]):  # the MASTER's address served
-        assert time.monotonic() < deadline, [box.status() for box in site.boxes]
-        time.sleep(0.1)
-    print(f"SCADA served again {time.monotonic() - back:.2f} s after the link back")
+    time.sleep(2.0)  # four adverts
+    assert [box.status()["role"] for box in (active.box, other.box)] == ["active", "standby"]
+    assert scada_read(site.net)[:2] == SERVED
+    assert site.frames(other) == 0
     assert site.line.stats()["collisions"] == 0
+
+    # Then the active box dies: the line silent, the latch clears, the other box is fit again,
+    # BACKUP, MASTER once no advert comes, and takes the line.
+    active.keepalived.kill()
+    active.box.gateway.process.send_signal(signal.SIGKILL)
+    active.box.gateway.process.wait(5)
+    killed = time.monotonic()
+    first_request_s = site.first_request(other, killed, 10, other.keepalived)
+    print(
+        f"the link back, the active killed: the other box's first request "
+        f"{first_request_s:.2f} s later"
+    )
+    assert first_request_s < TAKEOVER_AFTER_CUT_S
+    assert "no other master heard" in other.box.gateway.log.text
+    site.assert_moved_to(other)
 
 
 def test_the_active_s_adapter_unplugged_the_address_and_the_line_move(
