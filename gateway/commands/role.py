@@ -12,8 +12,10 @@ stopped.
 
 Exit codes: 0 asked (or the status printed), 1 refused (no `redundancy:` in the gateway's
 configuration, an unknown role) or no gateway reached, or (`status`, printed too, with a line
-`unfit: ...`) no port of the box's lines has opened for `PORTLESS_S` (3 s): its adapter
-unplugged, so it can't be the line's master.
+`unfit: ...`) no port of the box's lines has opened for `PORTLESS_S` (1 s): its adapter
+unplugged, so it can't be the line's master; or, on a box with no `fault_file`, it has heard
+another master for `LATCH_S` while asked active (a cut between the boxes: it must not hold the
+virtual address; with a fault file that file tells Keepalived, and `status` exits 0).
 """
 
 from __future__ import annotations

@@ -4,7 +4,8 @@ an active and a standby, never two masters (issue 48).
 What a site checks: the standby transmits nothing while the active serves; the active killed,
 the standby asked to take over is on the line within the bound (the line's silence, derived
 from the poll cycle: 1.0 s here, then the port's opening) with no collision; both asked to be
-active (the link between the boxes cut), the second hears the first and stays off; a master
+active (the link between the boxes cut), the second hears the first and stays off, and after
+a few seconds says it must not hold the virtual address until the line is silent; a master
 that talks without listening (the third port, played by the test) makes the active leave the
 line at once, with no more than the frames already on the wire colliding.
 
@@ -15,8 +16,10 @@ coordinator (Keepalived) is played by the test through `invt-gateway role`.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import signal
+import sqlite3
 import struct
 import threading
 import time
@@ -27,6 +30,7 @@ import pytest
 import serial
 
 from gateway.modbus.rtu import build_frame
+from gateway.redundancy.latch import LATCH_S
 from tests.support import free_port
 from tests.support.http import http_get
 from tests.support.mosquitto import Mosquitto, retained_messages
@@ -172,6 +176,69 @@ def test_both_asked_active_the_second_stays_off_and_a_talking_master_is_left_the
     listening = next(box for box in (first, second) if box.status()["role"] == "listening")
     assert listening.ask("standby").startswith("ok: standby")
     listening.wait_role("standby", 2.0)
+
+
+def test_asked_active_while_another_master_polls_it_gives_the_address_up_until_silence(
+    line: SharedLine, boxes: list[Box], tmp_path: Path
+) -> None:
+    """A cut between the boxes as a gateway sees it: asked to be active (its Keepalived MASTER)
+    while the other polls. After `LATCH_S` hearing it, its fault file says 1 (Keepalived drops
+    the address), `role status` and /health say why, the log and an event; asked standby (its
+    notify on FAULT) it stays so while the other polls; the other gone, the line silent
+    `silence_ms`, the file says 0 again, and asked active it takes the line."""
+    boxes.append(first := Box("a", line.paths[0], tmp_path, "active"))
+    first.wait_role("active", 5.0)
+    boxes.append(second := Box("b", line.paths[1], tmp_path, "active", hold_off_ms=500))
+    asked = time.monotonic()
+    assert second.status()["role"] == "listening"
+    assert not second.says_unfit()
+    while not second.says_unfit():
+        assert time.monotonic() - asked < LATCH_S + 1.0
+        time.sleep(0.05)
+    status = second.status()
+    assert status["fit"] is False
+    assert "another master heard while this box was asked to be active" in status["unfit"]
+    assert status["another_master_heard_s"] >= LATCH_S
+    assert not second.check_fails()  # the fault file tells Keepalived: the track script passes
+    assert second.health()["status"] == "degraded"
+    assert "gives the virtual address up" in second.gateway.log.text
+
+    # Its Keepalived FAULT: standby. Still hearing the other master, it stays unfit.
+    second.notified("FAULT")
+    time.sleep(2 * SILENCE_S)
+    assert second.says_unfit()
+    assert second.status()["role"] == "standby"
+
+    # The other gone: the line silent `silence_ms`, fit again; asked active, it takes the line.
+    first.gateway.process.send_signal(signal.SIGKILL)
+    first.gateway.process.wait(5)
+    killed = time.monotonic()
+    while second.says_unfit():
+        assert time.monotonic() - killed < SILENCE_S + 1.0
+        time.sleep(0.05)
+    cleared_s = time.monotonic() - killed
+    assert cleared_s > SILENCE_S - 0.3  # the other's last poll came up to one poll before
+    assert "no other master heard for 1.0 s" in second.gateway.log.text
+    assert second.status()["fit"] is True
+    assert frames(line)[1] == 0
+    second.notified("MASTER")
+    second.wait_role("active", TAKEOVER_BOUND_S)
+    assert line.stats()["collisions"] == 0
+    store = tmp_path / "b" / "events.db"
+    deadline = time.monotonic() + 5
+    while (said := events_in(store, "another_master_%")) != [
+        "another_master_heard",
+        "another_master_gone",
+    ]:
+        assert time.monotonic() < deadline, said
+        time.sleep(0.1)
+
+
+def events_in(store: Path, kinds: str) -> list[str]:
+    """The types of the store's events like `kinds` (SQL's LIKE), oldest first."""
+    with contextlib.closing(sqlite3.connect(f"file:{store}?mode=ro", uri=True)) as db:
+        query = "SELECT type FROM events WHERE type LIKE ? ORDER BY id"
+        return [kind for (kind,) in db.execute(query, (kinds,)).fetchall()]
 
 
 def test_on_mqtt_a_standby_publishes_only_its_role(
