@@ -296,7 +296,7 @@ class Redundancy:
     def _unfit(self, now: float, portless_s: float | None) -> str | None:
         """Why this box can't be the line's master, or hold the virtual address; None: it
         can."""
-        if portless_s is not None and self._portless(portless_s):
+        if portless_s is not None and portless_s > PORTLESS_S:
             return self._portless_reason(portless_s)
         if self._latch.latched:
             hearing_s = self._latch.hearing_for(now) or 0.0
