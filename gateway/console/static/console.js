@@ -201,7 +201,9 @@ function roleText(r) {
   const change = r.last_change ? ` · ${r.last_change.reason}, ${r.last_change.at}` : "";
   const foreign = r.foreign_frames ? ` · another master heard ${r.foreign_frames}×` : "";
   const config = r.peer_config && r.peer_config.count ? ` · ${peerConfigText(r.peer_config)}` : "";
-  return `${role} box ${r.box}${peer}${change} · takeovers ${r.takeovers}${foreign}${config}`;
+  // Why this box can't be the line's master or hold the virtual address (its adapter, a cut).
+  const unfit = r.unfit ? ` · unfit: ${r.unfit}` : "";
+  return `${role} box ${r.box}${peer}${change} · takeovers ${r.takeovers}${foreign}${config}${unfit}`;
 }
 
 function peerConfigText(p) {
