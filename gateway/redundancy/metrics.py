@@ -45,6 +45,13 @@ class RedundancyMetrics(Collector):
             "and the other box's, as it announced it on MQTT (0: alike, or not heard)",
             value=0.0 if peer is None else float(len(peer.differs)),
         )
+        yield GaugeMetricFamily(
+            f"{PREFIX}_redundancy_fit",
+            "1 while this box can be the line's master and hold the virtual address, 0 while "
+            "it can't (no port open on any line: its adapter; or, asked active, it has heard "
+            "another master for seconds: a cut between the boxes)",
+            value=1.0 if redundancy is None or redundancy.fit else 0.0,
+        )
         yield CounterMetricFamily(
             f"{PREFIX}_redundancy_foreign_frames",
             "Another master's requests heard on a line while this gateway was active: each "

@@ -220,6 +220,12 @@ class Redundancy:
         return status
 
     @property
+    def fit(self) -> bool:
+        """This box can be the line's master and hold the virtual address (`status`'s)."""
+        now = time.monotonic()
+        return self._unfit(now, self._portless_for(now)) is None
+
+    @property
     def serving(self) -> bool:
         """This gateway may send to its drives (and answer for them)."""
         return self.role is Role.ACTIVE and self._silenced is None

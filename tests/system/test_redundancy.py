@@ -201,6 +201,7 @@ def test_asked_active_while_another_master_polls_it_gives_the_address_up_until_s
     assert status["another_master_heard_s"] >= LATCH_S
     assert not second.check_fails()  # the fault file tells Keepalived: the track script passes
     assert second.health()["status"] == "degraded"
+    assert "invt_gateway_redundancy_fit 0.0" in second.metrics()
     assert "gives the virtual address up" in second.gateway.log.text
 
     # Its Keepalived FAULT: standby. Still hearing the other master, it stays unfit.
@@ -220,6 +221,7 @@ def test_asked_active_while_another_master_polls_it_gives_the_address_up_until_s
     assert cleared_s > SILENCE_S - 0.3  # the other's last poll came up to one poll before
     assert "no other master heard for 1.0 s" in second.gateway.log.text
     assert second.status()["fit"] is True
+    assert "invt_gateway_redundancy_fit 1.0" in second.metrics()
     assert frames(line)[1] == 0
     second.notified("MASTER")
     second.wait_role("active", TAKEOVER_BOUND_S)
