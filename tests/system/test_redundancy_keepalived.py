@@ -14,7 +14,9 @@ address (issue 48). Needs root (skipped otherwise).
 - the link between the boxes cut while both run: both are VRRP MASTER, both asked `active`;
   the second hears the first's polls and stays off the line: 0 frames from it, 0 collisions;
   it gives the virtual address up (its fault file: FAULT) and the first's gratuitous ARPs
-  (`garp_master_refresh`) draw SCADA back to it, served through the cut;
+  (`garp_master_refresh`) draw SCADA back to it, served through the cut; the active box then
+  dying, once the link is back or in the cut, the line's silence clears the latch and the other
+  box takes the line;
 - the active box's USB adapter unplugged: its gateway's fault file says 1 a second later
   (Keepalived's track_file), its Keepalived goes FAULT at once and sends an advert of priority 0,
   the virtual address moves, and the other box's first request is on the line within 3 s of the
