@@ -17,6 +17,14 @@ the box is standby, its Keepalived would go BACKUP, hear no adverts (the cut goe
 again, and this box would latch again `LATCH_S` later: a loop that hands SCADA to the wrong box
 every few seconds. It clears once no request has been heard for `silence_s` (the other master
 gone): the box is fit again and may be the line's master.
+
+Held while the other master is heard, the latch would also outlast the cut: once the link is
+back this box stays FAULT (a standby still, but one that must hear the line silent and then
+wait out VRRP before it takes over: ~4.4 s instead of ~2.5 s with the INVT defaults). So every
+`RETRY_S` it is let go on trial: Keepalived goes BACKUP; with the link back it hears the
+MASTER's adverts and stays BACKUP (a plain standby again); with the cut still there it is MASTER
+again in a second and a half, asked active, and latched again `LATCH_S` later: a few seconds
+of 0AH for SCADA once every `RETRY_S` while the cut lasts.
 """
 
 from __future__ import annotations
@@ -33,20 +41,31 @@ follows the poll interval, the overlap doesn't; and SCADA's outage in a cut is t
 plus the other box's next gratuitous ARP, so it is kept short."""
 
 
+RETRY_S: Final = 60.0
+"""How long the latch holds another master heard before it is let go on trial (above): a
+minute at most of the slower takeover after a cut has healed, against some 5 s of 0AH a minute
+while it lasts."""
+
+
 class SplitLatch:
     """Another master heard while asked to be active (`look`), told by request (`heard`).
 
     Times are `time.monotonic()` seconds."""
 
-    def __init__(self, silence_s: float, bound_s: float = LATCH_S) -> None:
+    def __init__(
+        self, silence_s: float, bound_s: float = LATCH_S, retry_s: float = RETRY_S
+    ) -> None:
         self.silence_s = silence_s
         self.bound_s = bound_s
+        self.retry_s = retry_s
         self.heard_at: float | None = None
         """When another master's request was last heard (a listener's)."""
         self.heard_since: float | None = None
         """Since when requests have been heard with no silence of `silence_s` between them."""
         self.latched_at: float | None = None
         """When the latch was set (None: not set)."""
+        self.on_trial = False
+        """Its last clearing was a trial (`RETRY_S`), another master still heard."""
 
     def heard(self, now: float) -> None:
         """A request heard on a line this box listens to: another master's."""
@@ -70,13 +89,16 @@ class SplitLatch:
     def look(self, now: float, listening_since: float | None) -> bool | None:
         """The latch's rule, looked at `now`; `listening_since`: since when this box has been
         asked active and listening (None: it isn't). True when it is set now, False when it is
-        cleared now, None when nothing changed."""
+        cleared now (`on_trial` says whether another master is still heard), None when nothing
+        changed."""
         hearing_s = self.hearing_for(now)
         if self.latched_at is not None:
-            if hearing_s is None:  # the line silent `silence_s`: the other master gone
-                self.latched_at = None
-                return False
-            return None
+            # The line silent `silence_s` (the other master gone), or let go on trial.
+            self.on_trial = hearing_s is not None
+            if self.on_trial and now - self.latched_at < self.retry_s:
+                return None
+            self.latched_at = None
+            return False
         if hearing_s is None or listening_since is None or self.heard_since is None:
             return None
         if now - max(self.heard_since, listening_since) >= self.bound_s:

@@ -336,6 +336,15 @@ class Redundancy:
             heard_s = round(self._latch.hearing_for(now) or LATCH_S, 1)
             data = {"role": self.role.value, "heard_s": heard_s, "reason": reason}
             event = EventType.ANOTHER_MASTER_HEARD
+        elif self._latch.on_trial:
+            # Another master still heard: no event (nothing is gone); a healed link keeps the
+            # box BACKUP now, a cut that goes on latches it again (`gateway.redundancy.latch`).
+            log.info(
+                "redundancy: another master still heard after %.0f s unfit: this box may hold "
+                "the virtual address again, on trial (the link between the boxes healed?)",
+                self._latch.retry_s,
+            )
+            return
         else:
             reason = (
                 f"no other master heard for {self.settings.silence_s:.1f} s: this box can hold "

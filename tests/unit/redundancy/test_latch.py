@@ -5,7 +5,7 @@ that master is heard (whatever its role by then), and is fit again once none has
 
 from __future__ import annotations
 
-from gateway.redundancy.latch import LATCH_S, SplitLatch
+from gateway.redundancy.latch import LATCH_S, RETRY_S, SplitLatch
 
 SILENCE_S = 1.0
 POLL_S = 0.2
@@ -77,3 +77,27 @@ def test_a_silence_between_two_masters_starts_the_count_again() -> None:
     # Listening since 0 s, but the master heard now started after a silence: not yet.
     assert latch.look(2.0 + SILENCE_S + LATCH_S - 0.2, 0.0) is None
     assert not latch.latched
+
+
+def test_held_for_a_minute_the_latch_is_let_go_on_trial_and_a_standby_stays_fit() -> None:
+    """Once the link is back the latched box would stay FAULT while the other master polls:
+    it is let go every `RETRY_S`. A healed link keeps it BACKUP (asked standby: it stays fit);
+    a cut that goes on makes it MASTER again, asked active, and it latches again."""
+    latch = SplitLatch(SILENCE_S)
+    polls(latch, 0.0, LATCH_S)
+    assert latch.look(LATCH_S, 0.0) is True
+    polls(latch, LATCH_S + POLL_S, LATCH_S + RETRY_S + 30.0)
+    assert latch.look(LATCH_S + RETRY_S - 0.01, None) is None
+    assert latch.latched
+    assert latch.look(LATCH_S + RETRY_S, None) is False
+    assert not latch.latched
+    assert latch.on_trial  # another master still heard: a trial, not the other's end
+    # The link healed: Keepalived BACKUP, the box asked standby, hearing the active as always.
+    for at in (LATCH_S + RETRY_S + 1.0, LATCH_S + RETRY_S + 29.0):
+        assert latch.look(at, None) is None
+        assert not latch.latched
+    # The cut goes on instead: MASTER again 1.5 s after the trial, asked active, latched again.
+    asked = LATCH_S + RETRY_S + 1.5
+    assert latch.look(asked + LATCH_S - 0.1, asked) is None
+    assert latch.look(asked + LATCH_S, asked) is True
+    assert latch.latched
