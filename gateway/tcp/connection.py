@@ -94,12 +94,12 @@ class Connection(asyncio.Protocol):
         self.answers: set[asyncio.Task[None]] = set()
         self._reads: set[asyncio.Task[None]] = set()
         """Answers to pure reads: nobody will receive them once the client has gone."""
-        self._fast: set[_Answer] = set()
+        self._taskless: set[_Answer] = set()
         """Reads answered by their waiter (`_Answer`, no task), waiting for the bus."""
         self._transport: asyncio.Transport | None = None
         self.gone = True
         """No answer can reach the client: not connected yet, closed or aborted here, or lost.
-        An attribute, not the transport's `is_closing()`: a fast-path read asks it twice
+        An attribute, not the transport's `is_closing()`: a taskless read asks it twice
         (`_Answer.done`), and asyncio's transport answers in Python. A transport the loop
         closes itself (the client's EOF, an error) is `gone` a pass later, at `connection_lost`."""
         self._buffer = bytearray()
@@ -156,8 +156,8 @@ class Connection(asyncio.Protocol):
         # the client sent them, and a half-done split write is worse than a finished one.
         for read in self._reads:
             read.cancel()
-        # A fast-path read is no longer wanted once its connection is gone (`_Answer.done`).
-        self._fast.clear()
+        # A taskless read is no longer wanted once its connection is gone (`_Answer.done`).
+        self._taskless.clear()
         self.server._settled()
 
     def close(self) -> None:
@@ -177,12 +177,12 @@ class Connection(asyncio.Protocol):
     @property
     def in_flight(self) -> int:
         """Requests taken and not yet answered."""
-        return len(self.answers) + len(self._fast)
+        return len(self.answers) + len(self._taskless)
 
     @property
     def settling(self) -> bool:
-        """Fast-path answers are still on their way."""
-        return bool(self._fast)
+        """Taskless reads' answers are still on their way."""
+        return bool(self._taskless)
 
     def data_received(self, data: bytes) -> None:
         now = self._last_data = self._loop.time()
@@ -273,9 +273,9 @@ class Connection(asyncio.Protocol):
             )
             return
         if not answer.settled:  # not answered from the cache at once: the bus has it
-            fast = self._fast
-            fast.add(answer)
-            if len(self.answers) + len(fast) >= server.settings.max_requests_per_connection:
+            taskless = self._taskless
+            taskless.add(answer)
+            if len(self.answers) + len(taskless) >= server.settings.max_requests_per_connection:
                 # Back-pressure: stop reading this client until an answer has gone out.
                 self._pause()
 
@@ -459,12 +459,12 @@ class _Answer:
         assert result is not None  # a taskless read is never a broadcast
         connection = self._connection
         connection._send(self.transaction_id, self.unit_id, result)
-        fast = connection._fast
-        if self in fast:
-            fast.discard(self)
+        taskless = connection._taskless
+        if self in taskless:
+            taskless.discard(self)
             if connection._paused:  # else `_maybe_resume` has nothing to do
                 connection._maybe_resume()
-            if not fast and connection.server._drained is not None:  # else nobody waits to stop
+            if not taskless and connection.server._drained is not None:  # else nobody waits to stop
                 connection.server._settled()
 
     def set_exception(self, exception: BaseException, /) -> None:

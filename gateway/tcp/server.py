@@ -330,7 +330,7 @@ class ModbusTcpServer:
         return exception_pdu(function, ExceptionCode.SERVER_DEVICE_FAILURE)
 
     def _settled(self) -> None:
-        """A fast-path answer went out (or its connection went): `stop` may be waiting."""
+        """A taskless read's answer went out (or its connection went): `stop` may be waiting."""
         drained = self._drained
         if drained is None or drained.done():
             return
