@@ -15,7 +15,6 @@ from typing import Any
 
 from gateway.bus import BusSettings
 from gateway.config import GatewayConfig
-from gateway.config.peer import shared_digests
 from gateway.settings.lines import DriveSettings, bus_settings, drive_route, drive_settings
 from gateway.settings.local import (
     ConsoleSettings,
@@ -85,9 +84,7 @@ def runtime_settings(config: GatewayConfig) -> GatewaySettings:
         opcua=opcua_settings(config),
     )
     polled = [d for d in drives if settings.polled(d)]
-    if not config.redundancy.enabled:
-        return settings
-    redundancy = redundancy_settings(config.redundancy, buses, polled, shared_digests(config))
+    redundancy = redundancy_settings(config, buses, polled)
     if redundancy is None:
         return settings
     return replace(settings, redundancy=redundancy)

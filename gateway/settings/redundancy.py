@@ -7,10 +7,11 @@ from __future__ import annotations
 import re
 import socket
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from gateway.bus import BusSettings
-from gateway.config.sections.redundancy import RedundancyConfig
+from gateway.config import GatewayConfig
+from gateway.config.peer import shared_digests
 from gateway.settings.lines import DriveSettings
 
 LEAST_SILENCE_S = 1.0
@@ -36,7 +37,7 @@ class RedundancySettings:
     """Keepalived's track file this gateway keeps (`FaultFile`); "": none."""
     silence_derived: bool
     """`silence_s` was worked out from the poll cycle, not configured."""
-    shared_digests: Mapping[str, str] = field(default_factory=dict)
+    shared_digests: Mapping[str, str]
     """What this box runs of the configuration both boxes must share: a digest per key
     (`gateway.config.peer.shared_digests`), for the other box to compare (`PeerConfig`)."""
 
@@ -47,12 +48,12 @@ class RedundancySettings:
 
 
 def redundancy_settings(
-    config: RedundancyConfig,
+    whole: GatewayConfig,
     buses: Iterable[BusSettings],
     polled: Iterable[DriveSettings],
-    shared_digests: Mapping[str, str],
 ) -> RedundancySettings | None:
-    """None when redundancy is off; `shared_digests` of the whole configuration."""
+    """`whole.redundancy` as it runs; None when redundancy is off."""
+    config = whole.redundancy
     if not config.enabled:
         return None
     silence_s = derived_silence_s(buses, polled) if config.silence_ms is None else None
@@ -65,7 +66,7 @@ def redundancy_settings(
         notify=config.notify,
         fault_file=config.fault_file,
         silence_derived=config.silence_ms is None,
-        shared_digests=shared_digests,
+        shared_digests=shared_digests(whole),
     )
 
 
