@@ -255,16 +255,16 @@ class Redundancy:
         now = time.monotonic()
         self._look_latch(now)
         portless_s = self._portless_for(now)
-        fit = portless_s is None or portless_s <= PORTLESS_S
+        portless = self._portless(portless_s)  # unfit for the line (the latch: for the address)
         if self._fault_file is not None:
             unfit = self._unfit(now, portless_s)
             self._fault_file.tell(unfit is None, unfit or "")
         # Looked at again when the ports have been gone PORTLESS_S (a lost port wakes it).
         look_again_s = LOOK_AGAIN_S
-        if portless_s is not None and fit:
+        if portless_s is not None and not portless:
             look_again_s = min(look_again_s, PORTLESS_S - portless_s + 0.001)
         if self.role is Role.ACTIVE:
-            if self._silenced is None and not fit:
+            if self._silenced is None and portless:
                 self._silenced = self._portless_reason(portless_s or 0.0)
                 log.error("redundancy: %s: leaving the line", self._silenced)
             if self._silenced is not None or self.asked is not Role.ACTIVE:
@@ -302,7 +302,7 @@ class Redundancy:
     def _unfit(self, now: float, portless_s: float | None) -> str | None:
         """Why this box can't be the line's master, or hold the virtual address; None: it
         can."""
-        if portless_s is not None and portless_s > PORTLESS_S:
+        if portless_s is not None and self._portless(portless_s):
             return self._portless_reason(portless_s)
         if self._latch.latched:
             hearing_s = self._latch.hearing_for(now) or 0.0
