@@ -272,7 +272,10 @@ class Bus:
             self._wake()
         # An idle line sends it now, and a gap that ended while this loop pass ran is acted
         # on now (`GapKeeper.queued`).
-        self.line.queued()
+        # A callable attribute: read, then called (a method call's lookup of it is
+        # generic on Python 3.11, a plain read is specialised).
+        queued = self.line.queued
+        queued()
 
     def _admit(self, address: int) -> None:
         """Raise the refusal a request to `address` gets before it is queued, if any."""

@@ -104,7 +104,10 @@ class Carrier:
             now = time.monotonic()
             quiet_since = self._receiver.quiet_since  # `SerialLine.busy_until`
             held = (quiet_since if quiet_since > now else now) - started
-            self._charge_share(transaction.use, held, now)
+            # A callable attribute: read, then called (a method call's lookup of it is
+            # generic on Python 3.11, a plain read is specialised).
+            charge = self._charge_share
+            charge(transaction.use, held, now)
         give(transaction, outcome)
         if self.idle_awaited:
             self.idle.set()
@@ -324,8 +327,9 @@ class Carrier:
         if first is not None and self.back_to_back:
             transaction = self.carrying
             assert transaction is not None  # `first` is its frame
-            beyond_gap = first.gap_s - self.line_settings.gap_s
-            since_queued = first.started - transaction.queued_at
+            _, started, gap_s, _, _ = first  # `gateway.bus.exchange`: unpacked, not read
+            beyond_gap = gap_s - self.line_settings.gap_s
+            since_queued = started - transaction.queued_at
             self.gap_excess.observe(beyond_gap if beyond_gap < since_queued else since_queued)
 
     def _exchange_answered(

@@ -94,10 +94,10 @@ class Dispatch:
         health = self._health
         if health.offline_count:  # a busy line must still find a drive is back
             self.queue_due_probes()
-        get_nowait = self._queue.get_nowait
-        while (transaction := get_nowait()) is not None:
+        queue = self._queue
+        while (transaction := queue.get_nowait()) is not None:
             probe = transaction.probe
-            if not probe and not transaction.wanted:
+            if not probe and not transaction.wanted():
                 continue  # every waiter gone (clients disconnected): no bus time for it
             address = transaction.address
             if (
@@ -130,15 +130,15 @@ class Dispatch:
         carrier = self._carrier
         transaction = carrier.carrying
         assert transaction is not None  # the line holds a reply to what was picked
-        started = sending.started
+        frame, started, gap_s, _, _ = sending  # `gateway.bus.exchange`: unpacked, not read
         outcome: Outcome
         try:
             address = transaction.address
             drive = carrier.drive_stats.get(address) or carrier.drive(address)
-            carrier.sent(drive, sending.frame, sending)
+            carrier.sent(drive, frame, sending)
             drive.line_s += time.monotonic() - started
             outcome = carrier.attempt_answered(
-                transaction, 0, started, pdu, sending.gap_s, heard_at - started, heard_at, drive
+                transaction, 0, started, pdu, gap_s, heard_at - started, heard_at, drive
             )
         except Exception as exc:  # a bug costs this one request, never the line
             outcome = carrier.bug(transaction, exc)

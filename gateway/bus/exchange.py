@@ -12,7 +12,12 @@ heard it (`gateway.bus.late_replies`)."""
 # Immutable, and built per transaction: a NamedTuple costs a fraction of a frozen dataclass,
 # whose __init__ goes through object.__setattr__ for every field.
 class Sending(NamedTuple):
-    """An attempt whose frame has started to go out."""
+    """An attempt whose frame has started to go out.
+
+    A NamedTuple: made once per transaction, in C (`tuple.__new__`, `gateway.bus.gap_keeper`).
+    Where a transaction's own path reads several of its fields, it unpacks them in one
+    instruction: Python 3.11 specialises a tuple's unpacking, not a NamedTuple field's read
+    (a descriptor call each, some 200 instructions, callgrind)."""
 
     frame: bytes
     started: float

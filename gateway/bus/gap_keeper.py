@@ -276,13 +276,8 @@ class GapKeeper:
         decides; False: the caller's own reading does it all (`finish` has more to do than wait
         for the reply: the frame's tail to write, RTS to switch back, an echo to read first)."""
         within_s = this.user.reply_timeout_s
-        frame = sending.frame
-        if (
-            within_s is None
-            or self.settings.echo
-            or self._rts is not None
-            or sending.written != len(frame)
-        ):
+        frame, started, _, written, _ = sending  # `gateway.bus.exchange`: unpacked, not read
+        if within_s is None or self.settings.echo or self._rts is not None or written != len(frame):
             return False
         port, timer = self._port, self._timer
         waiting = timer.waiting if timer is not None else None
@@ -292,7 +287,7 @@ class GapKeeper:
         # needs the caller's own reading; the response timeout does too, so a silent drive
         # still times out on time.
         port.waiter = waiting
-        sent = sending.started + self._char_time_s * len(frame)  # the frame's last bit on the wire
+        sent = started + self._char_time_s * len(frame)  # the frame's last bit on the wire
         self._holding = True
         # Not on the gap timer: a timerfd write per transaction for a deadline that is almost
         # never reached costs more than the float stores of a moving deadline: its `deadline`
@@ -305,9 +300,11 @@ class GapKeeper:
         # What came, when: for echoes and bursts (nothing has come since `received` was seen
         # empty at the gap's end: no other callback ran in between).
         self.receiver.arrivals = [(0, sent)]
-        if frame is not this.sending.frame:
-            # Else the round's last request again (a poller's, its frame remembered by the
-            # bus): its reply's length is known, without the cache's lookup.
+        expected = this.plain_read
+        if expected is None or expected.request is not frame:
+            # Else the round's last read again (a poller's, or a client's: the bus remembers
+            # its frames, `request_frame`): its reply's length is known, without the cache's
+            # lookup.
             this.plain_read = plain_read(frame)
         this.sending, this.sent = sending, sent
         self._held = this

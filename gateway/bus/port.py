@@ -272,7 +272,10 @@ class TtyPort(Port):
         except OSError as exc:
             self._fail(PortError(f"read from {self.settings.port} failed: {exc}"))
             return
-        self._heard(data)
+        # A callable attribute: read, then called (a method call's lookup of it is
+        # generic on Python 3.11, a plain read is specialised).
+        heard = self._heard
+        heard(data)
 
     def _fail(self, error: PortError) -> None:
         """The port is gone: stop watching it (a dead descriptor is readable forever)."""

@@ -121,7 +121,7 @@ class Transaction:
         self.queued_at = queued_at
         """When it was queued (`time.monotonic()`): did it wait for the gap, or the gap for
         it?"""
-        self.use = LineUse.OTHER
+        self.use = _OTHER_USE
         """The share of the line its time is charged to (`RequestQueue.put` sets it)."""
         self.key: tuple[int, bytes, Priority] = (address, pdu, priority)
         """What identical reads share (`RequestQueue`): address, request PDU, priority."""
@@ -139,9 +139,10 @@ class Transaction:
             f"waiters={len(self.waiters)}, probe={self.probe})"
         )
 
-    @property
     def wanted(self) -> bool:
-        """False once every waiter has gone (client disconnected): no bus time for it then."""
+        """False once every waiter has gone (client disconnected): no bus time for it then.
+        A method, not a property: asked once per transaction, and Python 3.11 specialises a
+        method's call, not a property's read (a generic lookup and a descriptor call)."""
         if self.probe:
             return True
         # A loop, not any(): no generator frame per transaction.
@@ -155,9 +156,14 @@ class Transaction:
 # class's metaclass defines `__getattr__`, which sends every `Priority.WRITE` through a slow
 # attribute lookup: about 950 instructions a read against 45 for a global (callgrind).
 _WRITE, _POLL = Priority.WRITE, Priority.POLL
-USE_OF_PRIORITY = (LineUse.WRITE, LineUse.OTHER, LineUse.POLL)
-"""The share a transaction of each priority (by its value) is charged to; broadcasts apart."""
-_BROADCAST_USE = LineUse.BROADCAST
+_OTHER_USE, _BROADCAST_USE = LineUse.OTHER, LineUse.BROADCAST
+USE_OF_PRIORITY = {
+    Priority.WRITE: LineUse.WRITE,
+    Priority.READ: _OTHER_USE,
+    Priority.POLL: LineUse.POLL,
+}
+"""The share a transaction of each priority is charged to; broadcasts apart. A dict: Python
+3.11 specialises a dict's subscript, not a tuple's by an IntEnum (a generic lookup each time)."""
 
 
 class RequestQueue:

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import struct
+from dataclasses import dataclass
 from functools import lru_cache
-from typing import NamedTuple
 
 from gateway.errors import BadReply
 from gateway.modbus.crc import crc16, crc16_from, crc16_words, crc_bytes, words_of
@@ -28,9 +28,12 @@ def request_frame(address: int, pdu: bytes) -> bytes:
     return build_frame(address, pdu)
 
 
-class PlainRead(NamedTuple):
+@dataclass(frozen=True, slots=True)
+class PlainRead:
     """What the normal reply to one plain read request (03H or 04H, 8 bytes) is known by
-    before it comes (`plain_read`)."""
+    before it comes (`plain_read`). Slots, not a NamedTuple: its fields are read once per
+    transaction, and Python 3.11 specialises a slot's read, not a NamedTuple field's (a
+    descriptor call each); it is made once per request frame (`plain_read` remembers it)."""
 
     request: bytes
     length: int

@@ -44,6 +44,10 @@ from gateway.modbus.functions import (
 from gateway.modbus.rtu import BROADCAST_ADDRESS
 from gateway.routing.cache import RegisterCache
 
+_READ = Priority.READ
+"""Read per taskless read: a module global, not the enum's attribute (`gateway.bus.queue`
+says why)."""
+
 MAX_READ_WORDS = MAX_READ_REGISTERS  # the Modbus limit; beyond it the request is the drive's
 POLL_CLIENT = "poll"
 """The bus's name for the poller's requests (its own round-robin share, like one SCADA client)."""
@@ -157,9 +161,7 @@ class Router:
                 return True
         # A read is never rewritten to a RAM address (`_to_ram` takes 06H/10H only).
         bus, address, timeout_s, retries = route.bus, route.address, route.timeout_s, route.retries
-        bus.submit(
-            address, pdu, waiter, Priority.READ, client, timeout_s, retries, function.coalescable
-        )
+        bus.submit(address, pdu, waiter, _READ, client, timeout_s, retries, function.coalescable)
         return True
 
     async def poll(

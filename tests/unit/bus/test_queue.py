@@ -88,12 +88,12 @@ async def test_a_request_whose_callers_left_is_not_wanted() -> None:
     waiter = gone.waiters[0]
     assert isinstance(waiter, asyncio.Future)  # txn() waits with a future
     waiter.cancel()  # the client disconnected while it waited
-    assert not gone.wanted
-    assert txn("b").wanted
+    assert not gone.wanted()
+    assert txn("b").wanted()
     probe = Transaction(
         1, bytes.fromhex("08 00 00 00 00"), Priority.READ, "probe", 0.3, 0, probe=True
     )
-    assert probe.wanted  # nobody waits for a probe, yet it must go out
+    assert probe.wanted()  # nobody waits for a probe, yet it must go out
 
 
 async def test_polls_get_a_share_while_reads_keep_coming() -> None:
