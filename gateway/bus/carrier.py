@@ -327,9 +327,8 @@ class Carrier:
         if first is not None and self.back_to_back:
             transaction = self.carrying
             assert transaction is not None  # `first` is its frame
-            _, started, gap_s, _, _ = first  # `gateway.bus.exchange`: unpacked, not read
-            beyond_gap = gap_s - self.line_settings.gap_s
-            since_queued = started - transaction.queued_at
+            beyond_gap = first.gap_s - self.line_settings.gap_s
+            since_queued = first.started - transaction.queued_at
             self.gap_excess.observe(beyond_gap if beyond_gap < since_queued else since_queued)
 
     def _exchange_answered(

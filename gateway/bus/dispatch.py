@@ -130,15 +130,15 @@ class Dispatch:
         carrier = self._carrier
         transaction = carrier.carrying
         assert transaction is not None  # the line holds a reply to what was picked
-        frame, started, gap_s, _, _ = sending  # `gateway.bus.exchange`: unpacked, not read
+        started = sending.started
         outcome: Outcome
         try:
             address = transaction.address
             drive = carrier.drive_stats.get(address) or carrier.drive(address)
-            carrier.sent(drive, frame, sending)
+            carrier.sent(drive, sending.frame, sending)
             drive.line_s += time.monotonic() - started
             outcome = carrier.attempt_answered(
-                transaction, 0, started, pdu, gap_s, heard_at - started, heard_at, drive
+                transaction, 0, started, pdu, sending.gap_s, heard_at - started, heard_at, drive
             )
         except Exception as exc:  # a bug costs this one request, never the line
             outcome = carrier.bug(transaction, exc)

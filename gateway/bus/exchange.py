@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import NamedTuple
 
 Stray = tuple[bytes, float]
@@ -9,15 +10,16 @@ Stray = tuple[bytes, float]
 heard it (`gateway.bus.late_replies`)."""
 
 
-# Immutable, and built per transaction: a NamedTuple costs a fraction of a frozen dataclass,
-# whose __init__ goes through object.__setattr__ for every field.
-class Sending(NamedTuple):
+@dataclass(slots=True, eq=False)
+class Sending:
     """An attempt whose frame has started to go out.
 
-    A NamedTuple: made once per transaction, in C (`tuple.__new__`, `gateway.bus.gap_keeper`).
-    Where a transaction's own path reads several of its fields, it unpacks them in one
-    instruction: Python 3.11 specialises a tuple's unpacking, not a NamedTuple field's read
-    (a descriptor call each, some 200 instructions, callgrind)."""
+    Slots, not a NamedTuple: its fields are read several times on a transaction's path, and
+    Python 3.11 specialises a slot's read, not a NamedTuple field's (a descriptor call each)
+    nor a NamedTuple's unpacking (a tuple subclass is iterated). Made once per transaction;
+    with its reads it costs what the NamedTuple built in C did (`bench --instructions`, within
+    its spread), read as plainly as any record. Not changed once made; compared by identity
+    (`eq=False`: hashable, so a round's default, `gateway.bus.gap_keeper`)."""
 
     frame: bytes
     started: float
@@ -31,7 +33,7 @@ class Sending(NamedTuple):
     driver was switched on at `started`)."""
 
 
-# A NamedTuple for the reason given at `Sending`.
+# Immutable, made off a plain read's common path (the bus coroutine's attempts, the tap).
 class Exchange(NamedTuple):
     """What one attempt did on the wire."""
 

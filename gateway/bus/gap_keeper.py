@@ -32,11 +32,6 @@ from gateway.errors import BadReply, PortError
 from gateway.modbus.reply_search import Found
 from gateway.modbus.rtu import PlainRead, check_reply, plain_read, plain_read_reply
 
-_new_tuple = tuple.__new__
-"""Builds a NamedTuple from a tuple of all its fields, in C: `Sending(...)` goes through the
-NamedTuple's `__new__`, a Python function called from C, which costs twice as much (~2,900
-instructions against ~1,400, counted with callgrind). For the records made once per transaction."""
-
 _NOT_SENT = Sending(b"", 0.0, 0.0, 0)
 """`_Round.sending` before the round's first hold (typed so, the reader callback reads it
 without a check)."""
@@ -268,7 +263,7 @@ class GapKeeper:
         port = self._port
         if port is None:
             raise PortError(f"{self.settings.port} is not open")
-        return _new_tuple(Sending, (frame, started, gap_s, port.write_now(frame), 0.0))
+        return Sending(frame, started, gap_s, port.write_now(frame))
 
     def _hold(self, this: _Round, sending: Sending) -> bool:
         """`sending` is on its way: hold the round's caller until its reply (True), the reader
@@ -276,8 +271,13 @@ class GapKeeper:
         decides; False: the caller's own reading does it all (`finish` has more to do than wait
         for the reply: the frame's tail to write, RTS to switch back, an echo to read first)."""
         within_s = this.user.reply_timeout_s
-        frame, started, _, written, _ = sending  # `gateway.bus.exchange`: unpacked, not read
-        if within_s is None or self.settings.echo or self._rts is not None or written != len(frame):
+        frame = sending.frame
+        if (
+            within_s is None
+            or self.settings.echo
+            or self._rts is not None
+            or sending.written != len(frame)
+        ):
             return False
         port, timer = self._port, self._timer
         waiting = timer.waiting if timer is not None else None
@@ -287,7 +287,7 @@ class GapKeeper:
         # needs the caller's own reading; the response timeout does too, so a silent drive
         # still times out on time.
         port.waiter = waiting
-        sent = started + self._char_time_s * len(frame)  # the frame's last bit on the wire
+        sent = sending.started + self._char_time_s * len(frame)  # the frame's last bit on the wire
         self._holding = True
         # Not on the gap timer: a timerfd write per transaction for a deadline that is almost
         # never reached costs more than the float stores of a moving deadline: its `deadline`
