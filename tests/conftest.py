@@ -111,6 +111,30 @@ def pytest_asyncio_loop_factories(
     return factories
 
 
+BOTH_LOOPS_RAN = "INVT_CI_BOTH_LOOPS_RAN"
+"""Set by `.ci/run`'s second pass, every test on asyncio's loop, for what its first pass ran
+already in this very run and the second would only repeat: the async tests of BOTH_LOOPS (run
+on asyncio's loop then too), and the unit tests that run no event loop of the service's choosing
+(sync ones: pure rooms, budgets, layers, the generated code; none starts a gateway process)."""
+
+
+def _ran_in_the_first_pass(item: pytest.Item) -> bool:
+    is_async = item.get_closest_marker("asyncio") is not None
+    if is_async:
+        return item.nodeid.startswith(BOTH_LOOPS)
+    return item.nodeid.startswith("tests/unit/")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    if not os.environ.get(BOTH_LOOPS_RAN):
+        return
+    ran = [item for item in items if _ran_in_the_first_pass(item)]
+    if ran:
+        config.hook.pytest_deselected(items=ran)
+        left = set(map(id, ran))
+        items[:] = [item for item in items if id(item) not in left]
+
+
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line(
         "markers", "line(**options): the simulated line's SimulatedLine arguments for this test"
