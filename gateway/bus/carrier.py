@@ -154,6 +154,7 @@ class Carrier:
             on_its_way = marker_pending or pending
             started = on_its_way.started if on_its_way is not None else time.monotonic()
             on_wire = frame
+            exchange: Exchange | None = None  # None once the attempt has failed
             try:
                 if transaction.probe or (
                     not broadcast and late.needs_marker(address, frame, transaction)
@@ -193,7 +194,7 @@ class Carrier:
                 errors.append(exc)
                 if observers.tap is not None:
                     observers.show(transaction, attempt, started, exc)
-                continue
+                exchange = None  # failed: the next attempt, if any
             except BadReply as exc:
                 drive.bad_replies[exc.kind] += 1
                 self._unanswered(address, on_wire, started, exc.strays, transaction.timeout_s)
@@ -204,7 +205,7 @@ class Carrier:
                 errors.append(exc)
                 if observers.tap is not None:
                     observers.show(transaction, attempt, started, exc)
-                continue
+                exchange = None  # an out-of-step reply too: failed, the next attempt, if any
             except PortError as exc:
                 if observers.tap is not None:
                     observers.show(transaction, attempt, started, exc)
@@ -213,6 +214,11 @@ class Carrier:
                 raise
             finally:
                 drive.line_s += time.monotonic() - started
+            # Not `continue` in the handlers above: a `continue` inside `try ... finally` is
+            # the one construct here that mypyc, which compiles these rooms in a trial
+            # (Benchmark page), refuses.
+            if exchange is None:
+                continue
             return self._exchange_answered(transaction, attempt, started, exchange, drive)
         return self._every_attempt_failed(transaction, drive, errors, sends)
 
