@@ -270,11 +270,8 @@ class Bus:
                 carrier.waiters[-1] = Observed(self.observers, waiter, address, pdu, client, now)
         if self._work is not None:  # the bus's coroutine waits for work (reopening the port)
             self._wake()
-        # An idle line sends it now, and a gap that ended while this loop pass ran is acted
-        # on now (`GapKeeper.queued`).
-        # A callable attribute: read, then called (a method call's lookup of it is
-        # generic on Python 3.11, a plain read is specialised).
-        queued = self.line.queued
+        # An idle line sends it now; a gap ended in this pass is acted on (`GapKeeper.queued`).
+        queued = self.line.queued  # a callable attribute: read, then called (port.py says why)
         queued()
 
     def _admit(self, address: int) -> None:
