@@ -91,12 +91,9 @@ class DeadlineTimer:
     def _write(self, seconds: int, nanoseconds: int, flags: int) -> bool:
         if self.fd < 0 or self.settime is None:
             return False
-        spec, settime = (
-            self.spec,
-            self.settime,
-            # A callable attribute: read, then called (a method call's lookup of it is
-            # generic on Python 3.11, a plain read is specialised).
-        )
+        # A callable attribute: read, then called (a method call's lookup of it is generic on
+        # Python 3.11, a plain read is specialised).
+        spec, settime = self.spec, self.settime
         spec[VALUE_SECONDS] = seconds
         spec[VALUE_NANOSECONDS] = nanoseconds
         return int(settime(self.fd, flags, spec, None)) == 0  # an array: its address
