@@ -300,11 +300,9 @@ class GapKeeper:
         # What came, when: for echoes and bursts (nothing has come since `received` was seen
         # empty at the gap's end: no other callback ran in between).
         self.receiver.arrivals = [(0, sent)]
-        expected = this.plain_read
-        if expected is None or expected.request is not frame:
-            # Else the round's last read again (a poller's, or a client's: the bus remembers
-            # its frames, `request_frame`): its reply's length is known, without the cache's
-            # lookup.
+        if frame is not this.sending.frame:
+            # Else the round's last request again (a poller's, its frame remembered by the
+            # bus): its reply's length is known, without the cache's lookup.
             this.plain_read = plain_read(frame)
         this.sending, this.sent = sending, sent
         self._held = this
