@@ -10,6 +10,7 @@ import sys
 from collections.abc import Callable, Coroutine, Mapping
 from typing import Any
 
+from gateway import ENGINE_ROOM
 from gateway.app import Application
 from gateway.collector import settle_startup_objects
 from gateway.commands.config_path import DEFAULT_CONFIG as DEFAULT_CONFIG
@@ -65,6 +66,7 @@ def handle(args: argparse.Namespace) -> int:
         return EXIT_CONFIG
     setup_logging(config.logging.level, config.logging.format)
     log.info("event loop: %s", loop.describe())
+    log.info("engine room: %s", ENGINE_ROOM)
     give_back_large_allocations()  # a login's 16 MiB of scrypt kept by each thread otherwise
     snapshots = trace_from_environment()
     if snapshots is not None:

@@ -22,7 +22,9 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     (
         "foundations",
         (
-            "gateway",  # the package's own __init__: its version
+            "gateway",  # the package's own __init__: its version, how its engine room runs
+            "gateway.compiled",  # which modules mypyc compiles, and whether they are today's
+            "gateway.build_backend",  # the package's build (pyproject.toml): never run by it
             "gateway.errors",
             "gateway.logs",
             "gateway.exit_codes",

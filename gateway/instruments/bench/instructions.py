@@ -13,10 +13,12 @@ instructions: Python's imports) and cancel out of (Ir(high) - Ir(low)) / (high -
 
 from __future__ import annotations
 
+import os
 import platform
 import shutil
 import struct
 import subprocess
+import sys
 import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -130,6 +132,21 @@ def run(
         ) as process:
             read_sequentially(port, transactions)
         return instructions(out, process.process.returncode)
+
+
+def engine_room(source: str | None = None) -> str:
+    """How the gateway's engine room runs where the counted gateway is imported from (this
+    package's, or `source`'s): compiled by mypyc, or Python and why (`gateway.ENGINE_ROOM`)."""
+    folder = None if source is None else str(Path(source).resolve())
+    asked = subprocess.run(
+        [sys.executable, "-c", "import gateway; print(gateway.ENGINE_ROOM)"],
+        capture_output=True,
+        text=True,
+        cwd=folder,
+        env=None if folder is None else {**os.environ, "PYTHONPATH": folder},
+        check=False,
+    )
+    return asked.stdout.strip() or f"unknown ({asked.stderr.strip()})"
 
 
 def read_sequentially(port: int, transactions: int) -> None:

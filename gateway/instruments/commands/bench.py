@@ -9,6 +9,7 @@ import sys
 from datetime import UTC, datetime
 from pathlib import Path
 
+from gateway import ENGINE_ROOM
 from gateway.errors import ConfigError
 from gateway.event_loop import choose_event_loop
 from gateway.exit_codes import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
@@ -185,6 +186,7 @@ def handle(args: argparse.Namespace) -> int:
         json.dump(
             {
                 "event_loop": loop,
+                "engine_room": ENGINE_ROOM,
                 "priority": gateway_niceness(),
                 "host": host_sentence(results),
                 "cases": [row(r) for r in results],
@@ -197,6 +199,7 @@ def handle(args: argparse.Namespace) -> int:
     else:
         print()
         print(f"the gateway ran on {loop}, {gateway_niceness()}")
+        print(f"its engine room: {ENGINE_ROOM}")
         print(host_sentence(results))
         for line in summary(results):
             print(line)
@@ -275,12 +278,16 @@ def count_instructions(args: argparse.Namespace) -> int:
                 progress.print(f"invt-gateway bench --instructions: {error}", sys.stderr)
                 return EXIT_FAILURE
             progress.advance(plan)
+    engine_room = instructions.engine_room(source)
     if args.json:
-        json.dump(instructions.as_json(counts), sys.stdout, indent=2)
+        json.dump(
+            {**instructions.as_json(counts), "engine_room": engine_room}, sys.stdout, indent=2
+        )
         print()
     else:
         if source is None:
             print(f"the gateway ran on {loop}")
+        print(f"its engine room: {engine_room}")
         for line in instructions.report(counts):
             print(line)
     return EXIT_OK

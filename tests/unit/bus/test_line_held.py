@@ -15,7 +15,6 @@ from collections.abc import Callable
 
 import pytest
 
-from gateway.bus import port as port_module
 from gateway.bus.line import Sending, SerialLine
 from gateway.config import BusConfig
 from gateway.errors import BadReply, PortError, ReplyTimeout
@@ -235,16 +234,12 @@ async def test_a_failure_in_the_callers_hook_reaches_the_caller(line: SimulatedL
     assert len(frames) == 2  # nothing more was sent after the failure
 
 
-async def test_an_echo_seen_while_held_is_still_known_for_one_when_the_reply_stops_short(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
+async def test_an_echo_seen_while_held_is_still_known_for_one_when_the_reply_stops_short() -> None:
     """An adapter that echoes though `echo: false` says it doesn't, and a 06H reply cut short:
     the echo (a copy of the request, which a 06H reply is too) came back sooner than the request
     could cross the wire, so it is the echo, and the attempt fails as truncated. It must never
     pass for the drive's acknowledgement, whichever reading (the callback's or the caller's)
     ends the attempt."""
-    # Judged as a wire, not a pty: the echo is told from the reply by its timing.
-    monkeypatch.setattr(port_module, "is_pseudo_terminal", lambda _port: False)
     master, slave = os.openpty()
     tty.setraw(slave)
     loop = asyncio.get_running_loop()
@@ -260,6 +255,8 @@ async def test_an_echo_seen_while_held_is_still_known_for_one_when_the_reply_sto
 
     loop.add_reader(master, adapter_and_drive)
     serial = open_line(os.ttyname(slave), baudrate=9600)
+    # Judged as a wire, not a pty: the echo is told from the reply by its timing.
+    serial.receiver.virtual = False
     try:
         frames = deque([request])
         waiting = await asyncio.wait_for(
