@@ -38,6 +38,15 @@ as_root() {
   fi
 }
 
+# True when the Python that makes (or made) .venv has no C headers, which compiling the engine
+# room needs: Debian's python3 without python3-dev. The build is Python then, and slower.
+python_headers_missing() {
+  local python
+  if [ -x .venv/bin/python ]; then python=.venv/bin/python; else python=$(pick_python) || return 1; fi
+  ! "$python" -c 'import os, sys, sysconfig
+sys.exit(not os.path.isfile(os.path.join(sysconfig.get_path("include"), "Python.h")))'
+}
+
 # Install Debian packages (names as arguments); nothing when none are given.
 install_debian_packages() {
   [ $# -gt 0 ] || return 0
@@ -70,7 +79,11 @@ setup_venv() {
     rm -rf .venv
     "$python" -m venv .venv
   fi
-  hash=$(sha256sum pyproject.toml | cut -d' ' -f1)
+  # pyproject.toml, and the sources of the modules mypyc compiles: an edit to them builds the
+  # engine room again, so that the tests run it compiled as CI does (gateway/compiled.py runs
+  # an edited source, never the stale compiled module, meanwhile).
+  hash=$(sha256sum pyproject.toml | cut -d' ' -f1)-$(.venv/bin/python -c \
+    'from gateway.compiled import source_digest; print(source_digest())')
   stamp=.venv/.invt-gateway-installed
   if [ -f "$stamp" ]; then
     read -r have_hash have_extras < "$stamp" || true
@@ -79,6 +92,8 @@ setup_venv() {
     fi
   fi
   echo "invt-gateway: installing the package${extras:+ with its $extras extras} into .venv (pip)" >&2
+  python_headers_missing ||
+    echo "invt-gateway: compiling its engine room too (mypyc: a C compiler and Python's headers are here; a minute or two)" >&2
   # uvloop (the event loop in C) where it comes as a wheel; elsewhere (32-bit ARM) pip would
   # need a compiler for it: the gateway runs on asyncio's own loop there, just as well.
   if ! .venv/bin/python -m pip install -q --disable-pip-version-check --only-binary uvloop \

@@ -3,7 +3,8 @@ engine room (gateway/compiled.py's modules) with mypyc where this machine can, a
 same package as Python where it can't.
 
 It can when a C compiler and this Python's headers are here (Debian: gcc and python3-dev; the
-official Python images have the headers) and `INVT_GATEWAY_PURE_PYTHON` is not set. Then the
+official Python images have the headers), on a 64-bit x86 or ARM Python (where mypy comes as
+a wheel), and `INVT_GATEWAY_PURE_PYTHON` is not set. Then the
 build asks for mypy (mypyc comes with it) and the package's own dependencies (mypy type-checks
 the modules against them, with pyproject.toml's configuration, before compiling), and names the
 shared library for the sources' digest, which the package checks when imported. A compiler that
@@ -14,8 +15,10 @@ gateway is the same either way, only slower.
 from __future__ import annotations
 
 import os
+import platform
 import shlex
 import shutil
+import struct
 import sys
 import sysconfig
 import tomllib
@@ -35,10 +38,18 @@ COMPILING_COMMANDS = {"bdist_wheel", "editable_wheel", "build_ext"}
 """What setuptools is asked to do when it builds code (not when it asks for metadata)."""
 
 
+COMPILING_MACHINES = {"x86_64", "amd64", "aarch64", "arm64"}
+"""Where mypy and its own C parts (librt, ast-serialize) come as wheels, with a 64-bit Python:
+elsewhere (32-bit ARM) pip would have to build them, Rust included, and the install fail."""
+
+
 def why_not_compiled() -> str | None:
     """None when this machine can compile the engine room, else why not."""
     if os.environ.get(PURE_PYTHON_ENV):
         return f"{PURE_PYTHON_ENV} is set"
+    machine = platform.machine()
+    if machine.lower() not in COMPILING_MACHINES or struct.calcsize("P") != 8:
+        return f"mypyc comes as a wheel for 64-bit x86 and ARM, not {machine} with this Python"
     headers = Path(sysconfig.get_path("include")) / "Python.h"
     if not headers.is_file():
         return f"no {headers} (Debian: apt install python3-dev)"

@@ -59,6 +59,9 @@ PURE_PYTHON_ENV = "INVT_GATEWAY_PURE_PYTHON"
 """Set (to anything but empty): build without compiling, and run the sources even where
 compiled modules are present (to compare, or to rule the compiled build out)."""
 
+COMPILED = "compiled by mypyc"
+"""What `choose_engine_room` says of a compiled engine room (else "Python (why)")."""
+
 PACKAGE = Path(__file__).resolve().parent
 LIBRARY_STEM = "_engine_"
 """The shared library is gateway/_engine_<digest>__mypyc<suffix> (mypyc adds "__mypyc")."""
@@ -114,7 +117,7 @@ def choose_engine_room(package: Path = PACKAGE) -> str:
     else:
         fresh = f"{LIBRARY_STEM}{source_digest(package)}__mypyc"
         if any(path.name.startswith(fresh) for path in libraries):
-            return "compiled by mypyc"
+            return COMPILED
         reason = "its compiled modules are of other sources: `pip install -e .` compiles them again"
     sys.meta_path.insert(0, _SourcesFirst(package))
     return f"Python ({reason})"

@@ -28,10 +28,11 @@ from prometheus_client.core import GaugeMetricFamily, InfoMetricFamily
 from prometheus_client.metrics_core import Metric
 from prometheus_client.registry import Collector
 
-from gateway import __version__
+from gateway import ENGINE_ROOM, __version__
 from gateway.bus import Bus
 from gateway.bus.metrics import BusMetrics, DriveLabels
 from gateway.bus.request_metrics import RequestMetrics
+from gateway.compiled import COMPILED
 from gateway.errors import CannotListen
 from gateway.event_loop import running_loop_name
 from gateway.exposition import exposition
@@ -108,6 +109,7 @@ class GatewayMetrics(Collector):
             "version": __version__,
             "gateway_id": self.service.settings.gateway_id,
             "event_loop": running_loop_name(),
+            "engine_room": "compiled" if ENGINE_ROOM == COMPILED else "python",
             "python": platform.python_version(),
         }
         info.add_metric([], labels)

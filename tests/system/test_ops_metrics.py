@@ -13,8 +13,9 @@ try:
 except ImportError:  # a box without its wheel: asyncio's loop
     uvloop = None  # type: ignore[assignment]
 
-from gateway import __version__
+from gateway import ENGINE_ROOM, __version__
 from gateway.app import Application
+from gateway.compiled import COMPILED
 from gateway.config import GatewayConfig
 from gateway.instruments.simulator import SimulatedLine
 from gateway.metrics import MetricsFeature
@@ -124,6 +125,7 @@ async def test_metrics_count_real_traffic_per_drive_source_and_code(line: Simula
             "gateway_id": "cabinet-test",
             "version": __version__,
             "python": platform.python_version(),
+            "engine_room": "compiled" if ENGINE_ROOM == COMPILED else "python",
         }
         assert m("build_info", **build, event_loop=loop) == 1
         assert m("process_resident_memory_bytes") > 0

@@ -26,6 +26,7 @@ from typing import Any
 import pytest
 import yaml
 
+from gateway.build_backend import why_not_compiled
 from gateway.instruments.simulator import SimulatedLine
 from tests.support import free_port, read_state_word
 from tests.support.processes import LineCollector
@@ -164,12 +165,13 @@ def build_context(directory: Path) -> Path:
             origin = ROOT / item
             if origin.is_dir():
                 shutil.copytree(
-                    origin, target, ignore=shutil.ignore_patterns("__pycache__", "*.pyc")
+                    origin, target, ignore=shutil.ignore_patterns("__pycache__", "*.pyc", "*.so")
                 )
             else:
                 target.mkdir(parents=True, exist_ok=True)
                 shutil.copy2(origin, target / origin.name if destination.endswith("/") else target)
-    # What the build stage removes before installing (the instruments), removed here too.
+    # What the build stage removes of the source before installing (the instruments), removed
+    # here too (not what it removes elsewhere: apt's lists).
     for keyword, arguments in build:
         if keyword != "RUN":
             continue
@@ -177,17 +179,30 @@ def build_context(directory: Path) -> Path:
             words = part.split()
             if words[:2] == ["rm", "-rf"]:
                 for path in words[2:]:
-                    shutil.rmtree(source / Path(path).relative_to(workdir), ignore_errors=True)
+                    if Path(path).is_relative_to(workdir):
+                        shutil.rmtree(source / Path(path).relative_to(workdir), ignore_errors=True)
     return source
 
 
-def install_command(source: Path) -> list[str]:
-    """The build stage's `pip install ... /src`, pointed at `source`, without dependencies."""
-    run = next(arguments for keyword, arguments in stages()[0] if keyword == "RUN")
-    pip = next(part for part in run.split("&&") if "pip install" in part).split()
-    assert pip[-1] == "/src", run
-    options = [word for word in pip[pip.index("install") + 1 : -1] if word != "--no-cache-dir"]
-    return [*options, "--no-deps", str(source)]
+def build_commands(source: Path, wheels: Path) -> tuple[list[str], list[str]]:
+    """The build stage's `pip wheel ... /src` (the one build, which compiles), pointed at
+    `source` and `wheels`, and the pip options of its `pip install "$wheel"`."""
+    run = next(
+        arguments for keyword, arguments in stages()[0] if keyword == "RUN" and "pip" in arguments
+    )
+    parts = run.split("&&")
+    build = next(part for part in parts if "pip wheel" in part).split()
+    assert build[-1] == "/src", run
+    build = [str(wheels) if word == "/tmp/wheels" else word for word in build]
+    build_options = [
+        word for word in build[build.index("wheel") + 1 : -1] if word != "--no-cache-dir"
+    ]
+    install = next(part for part in parts if "pip install" in part).split()
+    assert install[-1] == '"$wheel"', run
+    install_options = [
+        word for word in install[install.index("install") + 1 : -1] if word != "--no-cache-dir"
+    ]
+    return [*build_options, str(source)], [*install_options, "--no-deps"]
 
 
 def fresh_venv(directory: Path) -> Path:
@@ -229,28 +244,46 @@ def image_config(
     return yaml.safe_dump(config)
 
 
+@pytest.mark.timeout(900)
 def test_image_install_and_start_commands_work_in_a_fresh_virtualenv(tmp_path: Path) -> None:
     source = build_context(tmp_path)
     venv = fresh_venv(tmp_path)
     python = venv / "bin" / "python"
-    install = subprocess.run(
+    wheels = tmp_path / "wheels"
+    build, install = build_commands(source, wheels)
+    built = subprocess.run(
+        [sys.executable, "-m", "pip", "--python", str(python), "wheel", "--quiet",
+         "--disable-pip-version-check", *build],
+        capture_output=True,
+        text=True,
+        timeout=600,  # the engine room compiled (mypyc), where this machine can: 2-4 minutes
+        check=False,
+    )  # fmt: skip
+    assert built.returncode == 0, built.stdout + built.stderr
+    (wheel,) = wheels.glob("invt_gateway-*.whl")
+    installed = subprocess.run(
         [sys.executable, "-m", "pip", "--python", str(python), "install", "--quiet",
-         "--disable-pip-version-check", *install_command(source)],
+         "--disable-pip-version-check", *install, str(wheel)],
         capture_output=True,
         text=True,
         timeout=300,
         check=False,
     )  # fmt: skip
-    assert install.returncode == 0, install.stdout + install.stderr
+    assert installed.returncode == 0, installed.stdout + installed.stderr
     shutil.rmtree(source)  # nothing may still come from the build context
-    where = subprocess.run(
-        [str(python), "-c", "import gateway; print(gateway.__file__)"],
+    where, engine_room = subprocess.run(
+        [str(python), "-c", "import gateway; print(gateway.__file__); print(gateway.ENGINE_ROOM)"],
         capture_output=True,
         text=True,
         cwd=tmp_path,
         check=True,
-    ).stdout
+    ).stdout.splitlines()
     assert where.startswith(str(venv)), where
+    # As the image's build stage, with its gcc and Python's headers, compiles it.
+    if why_not_compiled() is None:
+        assert engine_room == "compiled by mypyc"
+    else:
+        assert engine_room.startswith("Python ("), engine_room
     env = {"PATH": f"{venv / 'bin'}:/usr/bin:/bin", "HOME": str(tmp_path)}
 
     # The image carries the service and the field tools, not the instruments.

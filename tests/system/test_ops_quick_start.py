@@ -63,6 +63,9 @@ def test_the_readme_run_command_on_debians_python_in_a_fresh_clone(tmp_path: Pat
     environment = {**os.environ, "PATH": DEBIAN_PATH}
     for variable in ("VIRTUAL_ENV", "PYTHONPATH", "PYTHON", "PYENV_VERSION"):
         environment.pop(variable, None)
+    # A fresh Debian has no python3-dev, so the build can't compile the engine room there; this
+    # machine has Python's headers (for the tests' other builds): they are left out as if not.
+    environment["INVT_GATEWAY_PURE_PYTHON"] = "1"
     assert shutil.which("python3", path=DEBIAN_PATH) == str(DEBIAN_PYTHON)
     tcp_port, mqtt_port = free_port(), free_port()
     command = f"{readme_run_command()} --port {tcp_port} --mqtt-port {mqtt_port}"
