@@ -4,12 +4,12 @@ same package as Python where it can't.
 
 It can when a C compiler and this Python's headers are here (Debian: gcc and python3-dev; the
 official Python images have the headers), on a 64-bit x86 or ARM Python (where mypy comes as
-a wheel), and `INVT_GATEWAY_PURE_PYTHON` is not set. Then the
-build asks for mypy (mypyc comes with it) and the package's own dependencies (mypy type-checks
-the modules against them, with pyproject.toml's configuration, before compiling), and names the
-shared library for the sources' digest, which the package checks when imported. A compiler that
-fails leaves a build in Python, said on the build's output, never a failed install: the
-gateway is the same either way, only slower.
+a wheel), and `INVT_GATEWAY_PURE_PYTHON` is not set. Then the build asks for mypy (mypyc comes
+with it) and the package's own dependencies (mypy type-checks the modules against them, with
+pyproject.toml's configuration, before compiling), and names the shared library for the
+sources' digest, which the package checks when imported. A compiler that fails leaves a build
+in Python, said on the build's output, never a failed install: the gateway is the same either
+way, only slower.
 """
 
 from __future__ import annotations
@@ -36,8 +36,6 @@ TYPE_STUBS = ("types-pyserial", "types-PyYAML", "types-protobuf")
 """The stubs the strict type check of the compiled modules' imports needs (the test extras')."""
 COMPILING_COMMANDS = {"bdist_wheel", "editable_wheel", "build_ext"}
 """What setuptools is asked to do when it builds code (not when it asks for metadata)."""
-
-
 COMPILING_MACHINES = {"x86_64", "amd64", "aarch64", "arm64"}
 """Where mypy and its own C parts (librt, ast-serialize) come as wheels, with a 64-bit Python:
 elsewhere (32-bit ARM) pip would have to build them, Rust included, and the install fail."""
