@@ -109,11 +109,16 @@ class GatewayMetrics(Collector):
             "version": __version__,
             "gateway_id": self.service.settings.gateway_id,
             "event_loop": running_loop_name(),
-            "engine_room": "compiled" if ENGINE_ROOM == COMPILED else "python",
             "python": platform.python_version(),
         }
         info.add_metric([], labels)
         yield info
+        compiled = GaugeMetricFamily(
+            f"{PREFIX}_engine_room_compiled",
+            "1 when the modules every transaction crosses run compiled by mypyc, 0 as Python",
+        )
+        compiled.add_metric([], 1.0 if ENGINE_ROOM == COMPILED else 0.0)
+        yield compiled
         ready = GaugeMetricFamily(f"{PREFIX}_ready", "1 once started, 0 while starting/stopping")
         ready.add_metric([], 1.0 if self.service.phase is Phase.READY else 0.0)
         yield ready

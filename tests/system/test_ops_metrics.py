@@ -125,9 +125,9 @@ async def test_metrics_count_real_traffic_per_drive_source_and_code(line: Simula
             "gateway_id": "cabinet-test",
             "version": __version__,
             "python": platform.python_version(),
-            "engine_room": "compiled" if ENGINE_ROOM == COMPILED else "python",
         }
         assert m("build_info", **build, event_loop=loop) == 1
+        assert m("engine_room_compiled") == (1 if ENGINE_ROOM == COMPILED else 0)
         assert m("process_resident_memory_bytes") > 0
         await client.close()
 
