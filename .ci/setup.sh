@@ -92,8 +92,11 @@ setup_venv() {
     fi
   fi
   echo "invt-gateway: installing the package${extras:+ with its $extras extras} into .venv (pip)" >&2
-  python_headers_missing ||
-    echo "invt-gateway: compiling its engine room too (mypyc: a C compiler and Python's headers are here; a minute or two)" >&2
+  # The build's own decision (gateway/build_backend.py), said before pip's quiet minutes.
+  if .venv/bin/python -c 'import sys; from gateway.build_backend import why_not_compiled as w
+sys.exit(w() is not None)' 2>/dev/null; then
+    echo "invt-gateway: compiling its engine room too (mypyc, with gcc: a minute or two)" >&2
+  fi
   # uvloop (the event loop in C) where it comes as a wheel; elsewhere (32-bit ARM) pip would
   # need a compiler for it: the gateway runs on asyncio's own loop there, just as well.
   if ! .venv/bin/python -m pip install -q --disable-pip-version-check --only-binary uvloop \
