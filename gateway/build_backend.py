@@ -28,7 +28,14 @@ from typing import Any
 
 from setuptools import build_meta, setup
 
-from gateway.compiled import COMPILED_MODULES, PURE_PYTHON_ENV, library_group, source_digest
+from gateway.compiled import (
+    COMPILED_MODULES,
+    PACKAGE,
+    PURE_PYTHON_ENV,
+    library_group,
+    source_digest,
+    source_path,
+)
 
 MYPY = "mypy==2.4.1"
 """The mypy (and mypyc) that compiles: pinned, so a build compiles as the tested one did."""
@@ -78,7 +85,8 @@ def _engine_room_extensions() -> list[Any]:
     except ImportError:  # a build without isolation, in an environment without mypy
         _say(f"the engine room stays Python: mypyc is not installed ({MYPY})")
         return []
-    sources = [str(Path(*module.split(".")).with_suffix(".py")) for module in COMPILED_MODULES]
+    root = PACKAGE.parent  # the project's folder, where the build runs
+    sources = [str(source_path(module).relative_to(root)) for module in COMPILED_MODULES]
     _say(f"compiling the engine room with mypyc ({len(sources)} modules, a minute or two)")
     try:
         return list(mypycify(sources, group_name=library_group(source_digest())))

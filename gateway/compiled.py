@@ -92,6 +92,12 @@ def compiled_libraries(package: Path = PACKAGE) -> list[Path]:
     )
 
 
+def built_from_these_sources(libraries: list[Path], package: Path = PACKAGE) -> bool:
+    """One of `libraries` (`compiled_libraries`) is the one built from today's sources."""
+    fresh = f"{LIBRARY_STEM}{source_digest(package)}__mypyc"
+    return any(path.name.startswith(fresh) for path in libraries)
+
+
 class _SourcesFirst:
     """Imports the compiled modules from their sources, past the compiled files beside them (a
     meta path finder: importlib.abc's base class would cost the start 14 ms of imports)."""
@@ -114,10 +120,9 @@ def choose_engine_room(package: Path = PACKAGE) -> str:
         reason = "not compiled: built without a C compiler or Python's headers"
     elif os.environ.get(PURE_PYTHON_ENV):
         reason = f"{PURE_PYTHON_ENV} is set"
+    elif built_from_these_sources(libraries, package):
+        return COMPILED
     else:
-        fresh = f"{LIBRARY_STEM}{source_digest(package)}__mypyc"
-        if any(path.name.startswith(fresh) for path in libraries):
-            return COMPILED
         reason = "its compiled modules are of other sources: `pip install -e .` compiles them again"
     sys.meta_path.insert(0, _SourcesFirst(package))
     return f"Python ({reason})"

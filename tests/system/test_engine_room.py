@@ -22,8 +22,8 @@ from gateway.build_backend import why_not_compiled
 from gateway.compiled import (
     COMPILED_MODULES,
     PURE_PYTHON_ENV,
+    built_from_these_sources,
     compiled_libraries,
-    source_digest,
     source_path,
 )
 
@@ -59,8 +59,7 @@ def imported(folder: Path, *modules: str, pure: bool = False) -> tuple[str, list
 
 def compiled_here() -> bool:
     """This checkout holds the engine room compiled from today's sources."""
-    fresh = f"_engine_{source_digest()}__mypyc"
-    return any(path.name.startswith(fresh) for path in compiled_libraries())
+    return built_from_these_sources(compiled_libraries())
 
 
 def test_the_engine_room_is_compiled_where_this_machine_can_compile() -> None:

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from gateway import ENGINE_ROOM
 from gateway.errors import InstructionCountError, LineError
 from gateway.instruments.bench.cases import Case, gateway_config
 from gateway.instruments.bench.prepare import SET_POINT
@@ -137,13 +138,15 @@ def run(
 def engine_room(source: str | None = None) -> str:
     """How the gateway's engine room runs where the counted gateway is imported from (this
     package's, or `source`'s): compiled by mypyc, or Python and why (`gateway.ENGINE_ROOM`)."""
-    folder = None if source is None else str(Path(source).resolve())
+    if source is None:  # the gateway process imports this very package, with this environment
+        return ENGINE_ROOM
+    folder = str(Path(source).resolve())
     asked = subprocess.run(
         [sys.executable, "-c", "import gateway; print(gateway.ENGINE_ROOM)"],
         capture_output=True,
         text=True,
         cwd=folder,
-        env=None if folder is None else {**os.environ, "PYTHONPATH": folder},
+        env={**os.environ, "PYTHONPATH": folder},
         check=False,
     )
     return asked.stdout.strip() or f"unknown ({asked.stderr.strip()})"
